@@ -1,0 +1,74 @@
+"""Adapters and scorers are found through entry points, so a third-party package adds one without touching ours."""
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any, ClassVar
+
+ADAPTER_GROUP = "lead_s2r.adapters"
+SCORER_GROUP = "lead_s2r.scorers"
+
+
+@dataclass(frozen=True)
+class LogRef:
+    """A cheap, picklable handle on one log; ``iter_samples`` does the heavy I/O in a worker."""
+
+    log_id: str
+    split: str
+    path: str
+    extra: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+
+
+class Adapter(ABC):
+    """Turns one raw dataset into schema v1 samples. Subclasses set ``name``, ``version`` and ``extras``."""
+
+    name: ClassVar[str]
+    version: ClassVar[str]
+    #: pip extra that brings this adapter's optional dependencies (shown by ``lead-s2r adapters``).
+    extras: ClassVar[str | None] = None
+
+    @abstractmethod
+    def list_logs(self, src: Path) -> list[LogRef]:
+        """All logs under ``src`` in a stable order."""
+
+    @abstractmethod
+    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
+        """Samples of one log, in frame order, as schema v1 dicts."""
+
+    def describe(self) -> dict[str, Any]:
+        """Dataset facts written to ``info.json`` (rates, horizons, cameras...)."""
+        return {}
+
+
+class RegistryError(LookupError):
+    """An unknown name or an entry point that cannot be loaded."""
+
+
+def _group(group: str) -> dict[str, Any]:
+    return {ep.name: ep for ep in entry_points(group=group)}
+
+
+def names(group: str = ADAPTER_GROUP) -> list[str]:
+    """Registered names in an entry-point group, sorted."""
+    return sorted(_group(group))
+
+
+def load(name: str, group: str = ADAPTER_GROUP) -> Any:
+    """The object registered as ``name``; a clear error lists what is registered."""
+    eps = _group(group)
+    if name not in eps:
+        raise RegistryError(f"no {group} entry named {name!r}; registered: {', '.join(sorted(eps)) or 'none'}")
+    try:
+        return eps[name].load()
+    except ImportError as err:
+        raise RegistryError(
+            f"{group} entry {name!r} cannot be imported ({err}); "
+            f"install its extra, e.g. pip install 'lead-s2r[{name}]'"
+        ) from err
+
+
+def get_adapter(name: str, **options: Any) -> Adapter:
+    """Instantiate the adapter registered as ``name`` with its options."""
+    return load(name, ADAPTER_GROUP)(**options)
