@@ -42,6 +42,10 @@ class Adapter(ABC):
         return {}
 
 
+class SkipLog(Exception):
+    """Raised by an adapter for a log it deliberately leaves out (e.g. a failed CARLA route); not an error."""
+
+
 class RegistryError(LookupError):
     """An unknown name or an entry point that cannot be loaded."""
 
