@@ -68,7 +68,7 @@ def decode_field(name: str, data: bytes) -> Any:
 def encode_sample(sample: dict[str, Any]) -> list[tuple[str, bytes]]:
     """Tar members of one sample, ``meta`` first."""
     key = sample["__key__"]
-    names = ["meta"] + sorted(n for n in sample if n not in ("__key__", "meta"))
+    names = ["meta", *sorted(n for n in sample if n not in ("__key__", "meta"))]
     return [(f"{key}.{name}.{field_spec(name).ext}", encode_field(name, sample[name])) for name in names]
 
 

@@ -1,0 +1,353 @@
+"""Conversion driver: raw logs -> validated schema v1 samples in webdataset shards, resumable and fault-isolated.
+
+Worker processes take logs from a queue; each owns one open shard and only closes it at a log boundary, so a
+log never straddles two shards. A closed shard is fsynced and renamed from ``.partial`` before the main process
+records it (with its logs and manifest rows) in ``progress.jsonl``. After a kill, a rerun deletes partial and
+unrecorded shards and converts exactly the logs no recorded shard holds: nothing is lost or duplicated.
+A log that raises is rolled back out of its shard and reported in ``errors.jsonl``; the others go on.
+"""
+
+import itertools
+import json
+import multiprocessing as mp
+import os
+import queue
+import shutil
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from lead_s2r import __version__
+from lead_s2r.registry import Adapter, LogRef, SkipLog
+from lead_s2r.schema import SCHEMA_VERSION, validate
+from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile
+
+PROGRESS = "progress.jsonl"
+
+
+@dataclass
+class ConvertResult:
+    """What a conversion did; ``ok`` is False when any log failed."""
+
+    out: Path
+    samples: int = 0
+    logs_converted: int = 0
+    logs_resumed: int = 0
+    errors: list[dict[str, Any]] = field(default_factory=list)
+    skipped: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def manifest_row(sample: dict[str, Any], shard: str) -> dict[str, Any]:
+    """The manifest row of one sample: identity, a few scalars for filtering and statistics, has_* flags."""
+    meta = sample["meta"]
+    tp = sample.get("target_points")
+    current_tp = tp[1] if tp is not None else (np.nan, np.nan)
+    row = {
+        "key": sample["__key__"],
+        "shard": shard,
+        "dataset": meta["dataset"],
+        "split": meta["split"],
+        "log": meta["log_id"],
+        "frame": int(meta["frame_idx"]),
+        "timestamp_us": int(meta["timestamp_us"]),
+        "speed": float(meta["ego"]["speed"]),
+        "command": int(meta["ego"]["command"]),
+        "tp_x": float(current_tp[0]),
+        "tp_y": float(current_tp[1]),
+        "tags": list(meta.get("tags", [])),
+    }
+    row.update({f"has_{name}": bool(flag) for name, flag in meta["has"].items()})
+    return row
+
+
+# --------------------------------------------------------------------------- worker side
+
+
+def _convert_log(adapter: Adapter, log: LogRef, shard: ShardFile, shard_name: str) -> list[dict[str, Any]]:
+    """Write every sample of ``log`` to ``shard``; on any exception the log is rolled back out of the shard."""
+    mark = shard.mark()
+    rows = []
+    try:
+        for sample in adapter.iter_samples(log):
+            validate(sample)
+            shard.write(sample)
+            rows.append(manifest_row(sample, shard_name))
+    except BaseException:
+        shard.rollback(mark)
+        raise
+    return rows
+
+
+class _Worker:
+    """Converts logs into shards numbered by ``next_index``; reports through ``emit``.
+
+    Messages: ``("log", log_id, n_samples)``, ``("shard", name, [(log_id, rows), ...])`` once a shard is durable,
+    ``("error", log_id, message)`` and ``("skipped", log_id, reason)``.
+    """
+
+    def __init__(
+        self, adapter: Adapter, out: Path, shard_size: int, next_index: Callable[[], int], emit: Callable[[tuple], None]
+    ) -> None:
+        self.adapter, self.out, self.shard_size = adapter, out, shard_size
+        self.next_index, self.emit = next_index, emit
+        self.shard: ShardFile | None = None
+        self.pending: list[tuple[str, list[dict[str, Any]]]] = []
+
+    def run(self, log: LogRef) -> None:
+        if self.shard is None:
+            self.shard = ShardFile(self.out / SHARD_DIR / f"{self.adapter.name}-{self.next_index():06d}.tar")
+        try:
+            rows = _convert_log(self.adapter, log, self.shard, self.shard.path.name)
+        except SkipLog as reason:
+            self.emit(("skipped", log.log_id, str(reason)))
+            return
+        except Exception as err:  # every failure of one log is isolated and reported
+            where = traceback.extract_tb(err.__traceback__)[-1]
+            message = f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"
+            self.emit(("error", log.log_id, message))
+            return
+        self.pending.append((log.log_id, rows))
+        self.emit(("log", log.log_id, len(rows)))
+        if self.shard.count >= self.shard_size:
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the open shard (dropping it if empty) and report it with its logs."""
+        if self.shard is None:
+            return
+        if self.shard.count == 0:
+            self.shard.abort()
+        else:
+            path = self.shard.close()
+            self.emit(("shard", path.name, self.pending))
+        self.shard, self.pending = None, []
+
+    def abort(self) -> None:
+        if self.shard is not None:
+            self.shard.abort()
+
+
+def _worker_main(adapter: Adapter, out: Path, shard_size: int, counter: Any, tasks: Any, results: Any) -> None:
+    def next_index() -> int:
+        with counter.get_lock():
+            counter.value += 1
+            return counter.value - 1
+
+    parent = os.getppid()
+    worker = _Worker(adapter, out, shard_size, next_index, results.put)
+    try:
+        for log in iter(tasks.get, None):
+            if os.getppid() != parent:  # the driver was killed: stop, a rerun resumes
+                break
+            worker.run(log)
+        else:
+            worker.flush()
+    finally:
+        worker.abort()
+        results.put(("exit", os.getpid(), None))
+
+
+# --------------------------------------------------------------------------- main side
+
+
+def _read_progress(out: Path) -> list[dict[str, Any]]:
+    """Recorded shards; a torn last line (killed while appending) is ignored."""
+    path = out / PROGRESS
+    if not path.exists():
+        return []
+    records = []
+    for line in path.read_text().splitlines():
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            break
+    return records
+
+
+def _prepare(out: Path, force: bool) -> list[dict[str, Any]]:
+    """Make ``out`` ready: wipe it with ``force``, else drop partial and unrecorded shards and keep the records."""
+    if force and out.exists():
+        for name in (SHARD_DIR, PROGRESS, MANIFEST, INFO, ERRORS):
+            target = out / name
+            if target.is_dir():
+                shutil.rmtree(target)
+            else:
+                target.unlink(missing_ok=True)
+    (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
+    records = _read_progress(out)
+    recorded = {record["shard"] for record in records}
+    for path in (out / SHARD_DIR).iterdir():
+        if path.name not in recorded:
+            path.unlink()
+    with open(out / PROGRESS, "w") as file:  # rewrite without a torn tail
+        file.writelines(json.dumps(record) + "\n" for record in records)
+    return records
+
+
+def _next_shard_index(records: list[dict[str, Any]]) -> int:
+    indices = [int(record["shard"].rsplit("-", 1)[1].split(".")[0]) for record in records]
+    return max(indices, default=-1) + 1
+
+
+def _messages(adapter: Adapter, logs: list[LogRef], out: Path, workers: int, shard_size: int, start: int) -> Iterator:
+    """Run the workers (or convert inline for ``workers <= 1``) and yield their messages."""
+    if workers <= 1:
+        inbox: list[tuple] = []
+        worker = _Worker(adapter, out, shard_size, itertools.count(start).__next__, inbox.append)
+        try:
+            for log in logs:
+                worker.run(log)
+                yield from inbox
+                inbox.clear()
+            worker.flush()
+            yield from inbox
+        finally:
+            worker.abort()
+        return
+    context = mp.get_context("spawn")
+    counter = context.Value("q", start)
+    tasks, results = context.Queue(), context.Queue()
+    for log in logs:
+        tasks.put(log)
+    procs = [
+        context.Process(target=_worker_main, args=(adapter, out, shard_size, counter, tasks, results), daemon=True)
+        for _ in range(min(workers, len(logs)))
+    ]
+    for proc in procs:
+        proc.start()
+        tasks.put(None)
+    running = len(procs)
+    while running:
+        try:
+            message = results.get(timeout=1.0)
+        except queue.Empty:
+            if any(proc.exitcode not in (None, 0) for proc in procs):
+                raise RuntimeError("a conversion worker died; rerun the same command to resume") from None
+            continue
+        if message[0] == "exit":
+            running -= 1
+        else:
+            yield message
+    for proc in procs:
+        proc.join()
+
+
+def convert(
+    adapter: Adapter,
+    src: str | Path,
+    out: str | Path,
+    workers: int = 1,
+    shard_size: int = 1000,
+    limit_logs: int | None = None,
+    force: bool = False,
+    progress: bool = False,
+) -> ConvertResult:
+    """Convert every log of ``src`` with ``adapter`` into ``out`` (see the module docstring for the guarantees).
+
+    ``shard_size`` is the number of samples after which a worker closes its shard (at the next log boundary).
+    """
+    src, out = Path(src), Path(out)
+    records = _prepare(out, force)
+    done = {log_id for record in records for log_id, _ in record["logs"]}
+    logs = adapter.list_logs(src)
+    if limit_logs is not None:
+        logs = logs[:limit_logs]
+    todo = [log for log in logs if log.log_id not in done]
+    result = ConvertResult(out=out, logs_resumed=len(logs) - len(todo))
+    started = time.perf_counter()
+    with (
+        open(out / PROGRESS, "a") as journal,
+        open(out / ERRORS, "w") as errors,
+        Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[samples]} samples, {task.fields[rate]:.1f}/s"),
+            TimeElapsedColumn(),
+            disable=not progress,
+        ) as bar,
+    ):
+        task = bar.add_task(f"{adapter.name} logs", total=len(todo), samples=0, rate=0.0)
+        for kind, name, payload in _messages(adapter, todo, out, workers, shard_size, _next_shard_index(records)):
+            if kind == "shard":
+                record = {"shard": name, "logs": payload}
+                journal.write(json.dumps(record) + "\n")
+                journal.flush()
+                os.fsync(journal.fileno())
+                records.append(record)
+                continue
+            if kind == "log":
+                result.logs_converted += 1
+                result.samples += payload
+            elif kind == "skipped":
+                result.skipped.append({"log": name, "reason": payload})
+            elif kind == "error":
+                entry = {"log": name, "error": payload, "adapter": adapter.name}
+                result.errors.append(entry)
+                errors.write(json.dumps(entry) + "\n")
+                errors.flush()
+            rate = result.samples / max(time.perf_counter() - started, 1e-9)
+            bar.update(task, advance=1, samples=result.samples, rate=rate)
+    _finish(adapter, src, out, records, result)
+    return result
+
+
+def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]], result: ConvertResult) -> None:
+    """Write ``manifest.parquet`` and ``info.json`` from every recorded shard (this run's and earlier ones)."""
+    rows = [row for record in records for _, log_rows in record["logs"] for row in log_rows]
+    flags = sorted({name for row in rows for name in row if name.startswith("has_")})
+    for row in rows:
+        for name in flags:
+            row.setdefault(name, False)
+    table = pa.Table.from_pylist(rows) if rows else pa.table({"key": pa.array([], pa.string())})
+    pq.write_table(table, out / MANIFEST)
+    info = {
+        "schema_version": SCHEMA_VERSION,
+        "lead_s2r_version": __version__,
+        "adapter": adapter.name,
+        "adapter_version": adapter.version,
+        "source": str(src),
+        "counts": _counts(rows),
+        "shards": {record["shard"]: sum(len(r) for _, r in record["logs"]) for record in records},
+        "statistics": _statistics(table) if rows else {},
+        "skipped_logs": result.skipped,
+        "failed_logs": len(result.errors),
+        **adapter.describe(),
+    }
+    (out / INFO).write_text(json.dumps(info, indent=2, allow_nan=False))
+
+
+def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    by_split: dict[str, int] = {}
+    for row in rows:
+        by_split[row["split"]] = by_split.get(row["split"], 0) + 1
+    return {"samples": len(rows), "logs": len({row["log"] for row in rows}), "by_split": by_split}
+
+
+def _statistics(table: pa.Table) -> dict[str, Any]:
+    """Ranges a model needs for normalisation (e.g. target points) and a few sanity figures."""
+    stats = {}
+    for column in ("speed", "tp_x", "tp_y"):
+        values = table[column].to_numpy(zero_copy_only=False).astype(np.float64)
+        values = values[np.isfinite(values)]
+        if len(values):
+            stats[column] = {
+                "min": float(values.min()),
+                "max": float(values.max()),
+                "mean": float(values.mean()),
+                "p01": float(np.percentile(values, 1)),
+                "p99": float(np.percentile(values, 99)),
+            }
+    return stats
