@@ -187,9 +187,12 @@ def field_spec(name: str) -> FieldSpec:
     raise KeyError(name)
 
 
+REQUIRED_FIELDS = tuple(name for name, spec in FIELDS.items() if spec.required)
+
+
 def optional_fields(sample: dict[str, Any]) -> list[str]:
-    """Names of all fields present in ``sample`` apart from ``meta`` and the key."""
-    return sorted(name for name in sample if name not in ("__key__", "meta"))
+    """Names of the optional fields present in ``sample`` (each must be flagged in ``meta.has``)."""
+    return sorted(name for name in sample if name != "__key__" and name not in REQUIRED_FIELDS)
 
 
 def make_key(*parts: object) -> str:
@@ -202,7 +205,7 @@ def validate(sample: dict[str, Any]) -> None:
     key = sample.get("__key__")
     if not isinstance(key, str) or not KEY_PATTERN.match(key):
         raise SchemaError(str(key), "__key__", "must be a non-empty string of [A-Za-z0-9_-] (no dots)")
-    for name in ("meta", "past"):
+    for name in REQUIRED_FIELDS:
         if name not in sample:
             raise SchemaError(key, name, "required field is missing")
     for name, value in sample.items():

@@ -1,0 +1,96 @@
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import pytest
+from toy_adapter import ToyAdapter, write_toy_logs
+
+from lead_s2r.convert import convert
+from lead_s2r.shards import load_info, load_manifest, read_samples
+
+
+def keys_in_shards(out: Path) -> list[str]:
+    return [s["__key__"] for s in read_samples(out, fields=[])]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_every_sample_once_and_manifest_matches(tmp_path, workers):
+    write_toy_logs(tmp_path / "src", n_logs=5, frames=7)
+    result = convert(ToyAdapter(), tmp_path / "src", tmp_path / "out", workers=workers, shard_size=10)
+    assert result.ok and result.samples == 35 and result.logs_converted == 5
+    keys = keys_in_shards(tmp_path / "out")
+    assert len(keys) == 35 and len(set(keys)) == 35
+    manifest = load_manifest(tmp_path / "out")
+    assert sorted(manifest["key"].to_pylist()) == sorted(keys)
+    # a log never straddles two shards
+    shards_per_log = {log: set() for log in manifest["log"].to_pylist()}
+    for log, shard in zip(manifest["log"].to_pylist(), manifest["shard"].to_pylist(), strict=True):
+        shards_per_log[log].add(shard)
+    assert all(len(s) == 1 for s in shards_per_log.values())
+    info = load_info(tmp_path / "out")
+    assert info["counts"]["samples"] == 35 and info["counts"]["logs"] == 5
+    assert info["statistics"]["tp_x"]["max"] == 10.0
+    assert manifest["has_lidar"].to_pylist() == [True] * 35
+
+
+def test_broken_log_is_isolated(tmp_path):
+    write_toy_logs(tmp_path / "src", n_logs=6, frames=6, broken=(2,), skipped=(4,))
+    result = convert(ToyAdapter(), tmp_path / "src", tmp_path / "out", shard_size=100)
+    assert not result.ok
+    assert result.samples == 4 * 6
+    lines = (tmp_path / "out" / "errors.jsonl").read_text().splitlines()
+    assert len(lines) == 1
+    error = json.loads(lines[0])
+    assert error["log"] == "log002" and "field 'pose'" in error["error"] and "log002.json" in error["error"]
+    keys = keys_in_shards(tmp_path / "out")
+    assert not any("log002" in k or "log004" in k for k in keys)  # the half-written log was rolled back
+    assert len(keys) == 24
+    assert load_info(tmp_path / "out")["skipped_logs"] == [{"log": "log004", "reason": "route failed"}]
+
+
+def test_rerun_skips_finished_logs_and_force_redoes(tmp_path):
+    write_toy_logs(tmp_path / "src", n_logs=3, frames=4)
+    convert(ToyAdapter(), tmp_path / "src", tmp_path / "out", shard_size=1)
+    again = convert(ToyAdapter(), tmp_path / "src", tmp_path / "out", shard_size=1)
+    assert again.logs_converted == 0 and again.logs_resumed == 3
+    assert len(load_manifest(tmp_path / "out")) == 12
+    forced = convert(ToyAdapter(), tmp_path / "src", tmp_path / "out", shard_size=1, force=True)
+    assert forced.logs_converted == 3 and len(keys_in_shards(tmp_path / "out")) == 12
+
+
+KILLABLE = """
+import sys
+sys.path.insert(0, {tests!r})
+from toy_adapter import ToyAdapter
+from lead_s2r.convert import convert
+convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers={workers}, shard_size=8)
+"""
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_resume_after_kill_loses_and_duplicates_nothing(tmp_path, workers):
+    src, out = tmp_path / "src", tmp_path / "out"
+    write_toy_logs(src, n_logs=12, frames=5)
+    code = KILLABLE.format(tests=str(Path(__file__).parent), src=str(src), out=str(out), workers=workers)
+    proc = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+    deadline = time.time() + 60
+    while time.time() < deadline:  # kill once some shards are recorded, mid-run
+        progress = out / "progress.jsonl"
+        if progress.exists() and len(progress.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / "manifest.parquet").exists(), "the run should have been killed before finishing"
+    result = convert(ToyAdapter(), src, out, workers=workers, shard_size=8)
+    assert result.ok and result.logs_resumed >= 2
+    keys = keys_in_shards(out)
+    counts = Counter(keys)
+    assert len(counts) == 60 and max(counts.values()) == 1
+    assert sorted(load_manifest(out)["key"].to_pylist()) == sorted(keys)
+    assert not list((out / "shards").glob("*.partial"))

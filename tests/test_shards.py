@@ -1,0 +1,110 @@
+import tarfile
+
+import numpy as np
+import webdataset as wds
+from toy_adapter import toy_sample
+
+from lead_s2r.shards import ShardFile, decode_field, encode_field, read_samples
+
+
+def assert_same_sample(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for name, value in a.items():
+        if isinstance(value, np.ndarray):
+            assert value.dtype == b[name].dtype and value.shape == b[name].shape, name
+            assert value.tobytes() == b[name].tobytes(), name  # bit for bit, NaN payloads included
+        elif isinstance(value, dict) and value and isinstance(next(iter(value.values())), np.ndarray):
+            assert_same_sample(value, b[name])
+        else:
+            assert value == b[name], name
+
+
+def write_shard(path, samples):
+    shard = ShardFile(path)
+    for sample in samples:
+        shard.write(sample)
+    return shard.close()
+
+
+def special_sample(frame: int) -> dict:
+    sample = toy_sample("log000", frame)
+    sample["future"][:, 3] = np.nan  # yaw unknown
+    sample["lidar"][0, 0] = np.float32(1e-45)  # subnormal survives
+    sample["bev_semantic"] = np.arange(64 * 32, dtype=np.uint8).reshape(32, 64) % 7
+    sample["raters"] = {
+        "trajectories": np.random.default_rng(0).normal(size=(3, 20, 2)).astype(np.float32),
+        "scores": np.array([10, 6, 4], np.float32),
+    }
+    sample["meta"]["has"].update(bev_semantic=True, raters=True)
+    return sample
+
+
+def test_round_trip_is_bit_exact(tmp_path):
+    samples = [special_sample(i) for i in range(3)]
+    write_shard(tmp_path / "a-000000.tar", samples)
+    back = list(read_samples(tmp_path))
+    assert len(back) == 3
+    for original, decoded in zip(samples, back, strict=True):
+        assert_same_sample(original, decoded)
+
+
+def test_jpeg_bytes_are_stored_untouched(tmp_path):
+    sample = toy_sample("log000", 0)
+    path = write_shard(tmp_path / "a-000000.tar", [sample])
+    with tarfile.open(path) as tar:
+        member = tar.extractfile(f"{sample['__key__']}.cam_front.jpg").read()
+    assert member == sample["cam_front"]
+
+
+def test_only_requested_fields_are_decoded(tmp_path):
+    write_shard(tmp_path / "a-000000.tar", [toy_sample("log000", 0)])
+    (sample,) = read_samples(tmp_path, fields=["future"])
+    assert set(sample) == {"__key__", "meta", "future"}
+
+
+def test_shards_are_plain_webdataset_tars(tmp_path):
+    samples = [toy_sample("log000", i) for i in range(4)]
+    write_shard(tmp_path / "a-000000.tar", samples)
+    raw = list(wds.WebDataset(str(tmp_path / "a-000000.tar"), shardshuffle=False))
+    assert [r["__key__"] for r in raw] == [s["__key__"] for s in samples]
+    assert {"meta.json", "future.npy", "cam_front.jpg", "lidar.npy"} <= set(raw[0])
+    assert not any(name.endswith(("pyd", "pkl", "pickle")) for r in raw for name in r)
+
+
+def test_same_samples_give_same_bytes(tmp_path):
+    a = write_shard(tmp_path / "a-000000.tar", [toy_sample("log000", 1)])
+    b = write_shard(tmp_path / "b-000000.tar", [toy_sample("log000", 1)])
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_rollback_drops_a_half_written_log(tmp_path):
+    shard = ShardFile(tmp_path / "a-000000.tar")
+    shard.write(toy_sample("good", 0))
+    mark = shard.mark()
+    shard.write(toy_sample("bad", 0))
+    shard.write(toy_sample("bad", 1))
+    shard.rollback(mark)
+    shard.write(toy_sample("good", 1))
+    shard.close()
+    keys = [s["__key__"] for s in read_samples(tmp_path)]
+    assert keys == ["toy_good_000000", "toy_good_000001"]
+
+
+def test_partial_shard_is_invisible_until_closed(tmp_path):
+    shard = ShardFile(tmp_path / "a-000000.tar")
+    shard.write(toy_sample("log000", 0))
+    assert not (tmp_path / "a-000000.tar").exists()
+    shard.close()
+    assert (tmp_path / "a-000000.tar").exists() and not shard.partial.exists()
+
+
+def test_json_refuses_nan():
+    meta = toy_sample("log000", 0)["meta"]
+    meta["ego"]["speed"] = float("nan")
+    try:
+        encode_field("meta", meta)
+    except ValueError as err:
+        assert "JSON" in str(err) or "nan" in str(err).lower()
+    else:
+        raise AssertionError("NaN in meta must not be written")
+    assert decode_field("meta", encode_field("meta", {"a": 1})) == {"a": 1}
