@@ -1,0 +1,82 @@
+"""The scorer interface: predictions + converted samples -> a per-sample table and aggregates.
+
+A scorer is registered by its versioned metric name in the ``lead_s2r.scorers`` entry-point group and names the
+sample fields it reads (``meta`` always comes), so the data is decoded once with only what it needs.
+"""
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import pyarrow as pa
+
+from lead_s2r.predictions import Prediction, PredictionError, group_by_key
+
+
+@dataclass
+class ScoreResult:
+    """``table``: one row per scored sample (key, dataset, sub-scores); ``aggregates``: JSON-ready summary."""
+
+    table: pa.Table
+    aggregates: dict[str, Any]
+
+
+class Scorer(ABC):
+    """A versioned open-loop metric. Subclasses set ``name``, ``version`` and ``fields``."""
+
+    name: ClassVar[str]
+    version: ClassVar[str]
+    #: sample fields read from the converted data besides ``meta``.
+    fields: ClassVar[tuple[str, ...]]
+
+    def __init__(self, allow_missing: bool = False) -> None:
+        """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones."""
+        self.allow_missing = allow_missing
+
+    def config(self) -> dict[str, Any]:
+        """JSON-ready configuration, written next to the scores."""
+        return {"allow_missing": self.allow_missing}
+
+    @abstractmethod
+    def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
+        """Score predictions against samples (dicts with ``__key__``, ``meta`` and :attr:`fields`)."""
+
+
+def join(
+    predictions: Iterable[Prediction], data: Iterable[dict[str, Any]], allow_missing: bool = False
+) -> list[tuple[dict[str, Any], list[Prediction]]]:
+    """Pair each sample with its predictions, in data order.
+
+    A prediction for a key the data does not hold, or whose dataset differs from the sample's, is an error
+    naming the key; so is a sample without predictions unless ``allow_missing``.
+    """
+    groups = group_by_key(predictions)
+    pairs, unpredicted = [], []
+    for sample in data:
+        key = sample["__key__"]
+        frame = groups.pop(key, None)
+        if frame is None:
+            unpredicted.append(key)
+            continue
+        dataset = sample["meta"]["dataset"]
+        if frame[0].dataset != dataset:
+            raise PredictionError(f"prediction {key!r}: dataset {frame[0].dataset!r} but the sample is {dataset!r}")
+        pairs.append((sample, frame))
+    if groups:
+        unknown = list(groups)
+        raise PredictionError(f"prediction {unknown[0]!r} has no sample in the data ({len(unknown)} such key(s))")
+    if unpredicted and not allow_missing:
+        raise PredictionError(
+            f"sample {unpredicted[0]!r} has no prediction ({len(unpredicted)} such sample(s)); "
+            "pass allow_missing=True to score only the predicted ones"
+        )
+    return pairs
+
+
+def mean_or_none(values: np.ndarray) -> float | None:
+    """Mean of the finite values, None when there are none (JSON has no NaN)."""
+    values = np.asarray(values, np.float64)
+    values = values[np.isfinite(values)]
+    return float(values.mean()) if len(values) else None
