@@ -68,8 +68,8 @@ def load(name: str, group: str = ADAPTER_GROUP) -> Any:
         return eps[name].load()
     except ImportError as err:
         raise RegistryError(
-            f"{group} entry {name!r} cannot be imported ({err}); "
-            f"install its extra, e.g. pip install 'lead-s2r[{name}]'"
+            f"{group} entry {name!r} cannot be imported ({err}); its optional dependencies may be missing: "
+            "pip install 'lead-s2r[all]'"
         ) from err
 
 

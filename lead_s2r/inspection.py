@@ -1,0 +1,72 @@
+"""Summarise a converted folder: counts, a schema check of some samples, field statistics, an optional picture."""
+
+import itertools
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pyarrow.compute as pc
+
+from lead_s2r.render import render_sample
+from lead_s2r.schema import SchemaError, validate
+from lead_s2r.shards import load_info, load_manifest, read_samples
+
+
+def _range(values: np.ndarray) -> dict[str, float] | None:
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return None
+    return {"min": float(values.min()), "max": float(values.max()), "mean": float(values.mean())}
+
+
+def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None, key: str | None = None) -> dict:
+    """Counts per dataset/split, validation of the first ``n`` samples, statistics; draws one sample to ``png``."""
+    path = Path(path)
+    manifest = load_manifest(path)
+    info = load_info(path)
+    counts: dict[str, int] = {}
+    for dataset, split in zip(manifest["dataset"].to_pylist(), manifest["split"].to_pylist(), strict=True):
+        counts[f"{dataset}/{split}"] = counts.get(f"{dataset}/{split}", 0) + 1
+    has = {name[4:]: int(pc.sum(manifest[name]).as_py() or 0) for name in manifest.column_names if name[:4] == "has_"}
+    stats: dict[str, Any] = {}
+    for column in ("speed", "tp_x", "tp_y"):
+        stats[column] = _range(manifest[column].to_numpy(zero_copy_only=False).astype(np.float64))
+    commands = manifest["command"].to_pylist()
+    stats["command"] = {str(c): commands.count(c) for c in sorted(set(commands))}
+    invalid: list[str] = []
+    checked = 0
+    lengths: dict[str, list[float]] = {"past_s": [], "future_s": []}
+    drawn = None
+    for sample in itertools.islice(read_samples(path), max(n, 1) if key is None else None):
+        checked += 1
+        try:
+            validate(sample)
+        except SchemaError as err:
+            invalid.append(str(err))
+        lengths["past_s"].append(-float(sample["past"][0, 0]))
+        if "future" in sample:
+            lengths["future_s"].append(float(sample["future"][-1, 0]))
+        if drawn is None and (key is None or sample["__key__"] == key):
+            drawn = sample
+            if key is not None:
+                break
+    stats.update({name: _range(np.array(v)) for name, v in lengths.items()})
+    report = {
+        "path": str(path),
+        "adapter": f"{info.get('adapter')} {info.get('adapter_version')}",
+        "samples": len(manifest),
+        "logs": len(set(manifest["log"].to_pylist())),
+        "by_dataset_split": counts,
+        "fields_present": has,
+        "statistics": stats,
+        "checked": checked,
+        "invalid": invalid,
+        "failed_logs": info.get("failed_logs", 0),
+    }
+    if png is not None:
+        if drawn is None:
+            raise KeyError(f"no sample with key {key!r} in {path}")
+        cv2.imwrite(str(png), render_sample(drawn))
+        report["png"] = str(png)
+    return report

@@ -1,0 +1,106 @@
+"""Draw one sample as a picture a person can check at a glance: cameras on top, a BEV of the ego frame below.
+
+BEV: x forward points up, y left points left (ISO 8855 seen from above), ego rear axle marked; past grey,
+future green, boxes orange, target points red, route blue, LiDAR points faint.
+"""
+
+from typing import Any
+
+import cv2
+import numpy as np
+
+CANVAS_WIDTH = 960
+BEV_RANGE_M = (-16.0, 48.0, -32.0, 32.0)  # x min, x max, y min, y max
+BEV_PX_PER_M = 10
+
+
+def _bev_pixels(xy: np.ndarray) -> np.ndarray:
+    """Ego-frame metres (N, 2) -> BEV pixel (col, row): forward is up, left is left."""
+    x_max, y_max = BEV_RANGE_M[1], BEV_RANGE_M[3]
+    cols = (y_max - xy[:, 1]) * BEV_PX_PER_M
+    rows = (x_max - xy[:, 0]) * BEV_PX_PER_M
+    return np.stack([cols, rows], axis=1)
+
+
+def _polyline(image: np.ndarray, xy: np.ndarray, color: tuple[int, int, int], radius: int) -> None:
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    if len(xy) == 0:
+        return
+    pixels = np.round(_bev_pixels(xy)).astype(np.int32)
+    cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, color, 2, cv2.LINE_AA)
+    for col, row in pixels:
+        cv2.circle(image, (int(col), int(row)), radius, color, -1, cv2.LINE_AA)
+
+
+def _box_corners(box: np.ndarray) -> np.ndarray:
+    x, y, _, length, width, _, yaw = box[:7]
+    corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
+    rotation = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    return corners @ rotation.T + [x, y]
+
+
+def render_bev(sample: dict[str, Any]) -> np.ndarray:
+    """The BEV panel of one sample as a BGR image."""
+    x_min, x_max, y_min, y_max = BEV_RANGE_M
+    height, width = int((x_max - x_min) * BEV_PX_PER_M), int((y_max - y_min) * BEV_PX_PER_M)
+    image = np.full((height, width, 3), 30, np.uint8)
+    for metres in range(int(x_min), int(x_max) + 1, 8):  # grid every 8 m
+        row = int((x_max - metres) * BEV_PX_PER_M)
+        cv2.line(image, (0, row), (width, row), (55, 55, 55), 1)
+    if "lidar" in sample:
+        pixels = np.round(_bev_pixels(sample["lidar"][:, :2])).astype(np.int64)
+        inside = (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
+        image[pixels[inside, 1], pixels[inside, 0]] = (110, 110, 110)
+    if "route" in sample:
+        _polyline(image, sample["route"], (230, 150, 40), 1)
+    for box in sample.get("boxes", np.zeros((0, 10))):
+        corners = np.round(_bev_pixels(_box_corners(box))).astype(np.int32)
+        cv2.polylines(image, [corners.reshape(-1, 1, 2)], True, (0, 150, 255), 2, cv2.LINE_AA)
+    _polyline(image, sample["past"][:, 1:3], (160, 160, 160), 2)
+    if "future" in sample:
+        _polyline(image, sample["future"][:, 1:3], (60, 220, 60), 2)
+    if "target_points" in sample:
+        for point in sample["target_points"]:
+            if np.isfinite(point).all():
+                col, row = np.round(_bev_pixels(point[None]))[0].astype(int)
+                cv2.circle(image, (col, row), 6, (40, 40, 240), -1, cv2.LINE_AA)
+    vehicle = sample["meta"]["vehicle"]
+    ego = np.array([vehicle["rear_axle_to_center"], 0, 0, vehicle["length"], vehicle["width"], 0, 0], np.float64)
+    corners = np.round(_bev_pixels(_box_corners(ego))).astype(np.int32)
+    cv2.fillPoly(image, [corners.reshape(-1, 1, 2)], (255, 255, 255))
+    return image
+
+
+def _camera_strip(sample: dict[str, Any], width: int) -> np.ndarray | None:
+    names = sorted(name for name in sample if name.startswith("cam_"))
+    images = [cv2.imdecode(np.frombuffer(sample[name], np.uint8), cv2.IMREAD_COLOR) for name in names]
+    images = [image for image in images if image is not None]
+    if not images:
+        return None
+    tile_width = width // len(images)
+    tiles = [cv2.resize(image, (tile_width, max(1, image.shape[0] * tile_width // image.shape[1]))) for image in images]
+    tile_height = max(tile.shape[0] for tile in tiles)
+    tiles = [cv2.copyMakeBorder(t, 0, tile_height - t.shape[0], 0, 0, cv2.BORDER_CONSTANT) for t in tiles]
+    strip = np.hstack(tiles)
+    return cv2.copyMakeBorder(strip, 0, 0, 0, width - strip.shape[1], cv2.BORDER_CONSTANT)
+
+
+def render_sample(sample: dict[str, Any]) -> np.ndarray:
+    """Cameras above the BEV, with the sample key and ego state written in the corner (BGR image)."""
+    bev = render_bev(sample)
+    bev = cv2.copyMakeBorder(bev, 0, 0, 0, CANVAS_WIDTH - bev.shape[1], cv2.BORDER_CONSTANT, value=(20, 20, 20))
+    ego = sample["meta"]["ego"]
+    lines = [
+        sample["__key__"][-40:],
+        f"speed {ego['speed']:.2f} m/s",
+        f"command {ego['command']} (raw {ego['command_raw']})",
+        "",
+        "x forward = up, y left = left",
+        "past grey, future green",
+        "boxes orange, target points red",
+        "route blue, lidar dots, grid 8 m",
+    ]
+    for i, line in enumerate(lines):
+        cv2.putText(bev, line, (650, 30 + 22 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (230, 230, 230), 1, cv2.LINE_AA)
+    cameras = _camera_strip(sample, CANVAS_WIDTH)
+    return bev if cameras is None else np.vstack([cameras, bev])

@@ -1,0 +1,56 @@
+import json
+
+import cv2
+import pytest
+from toy_adapter import ToyAdapter, write_toy_logs
+
+from lead_s2r import cli
+from lead_s2r.convert import convert
+
+
+@pytest.fixture
+def toy_registered(monkeypatch):
+    monkeypatch.setattr(cli, "load", lambda name: ToyAdapter)
+
+
+def test_adapter_options_are_typed_by_the_constructor():
+    assert cli.adapter_options(ToyAdapter, ["--sleep", "0.5"]) == {"sleep": 0.5}
+    with pytest.raises(SystemExit, match=r"unknown option '--rig'.*--sleep"):
+        cli.adapter_options(ToyAdapter, ["--rig", "both"])
+    with pytest.raises(SystemExit, match="needs a value"):
+        cli.adapter_options(ToyAdapter, ["--sleep"])
+
+
+def test_convert_verb_exit_status_reports_failed_logs(tmp_path, toy_registered, capsys):
+    write_toy_logs(tmp_path / "src", n_logs=3, frames=4, broken=(1,))
+    argv = ["convert", "toy", "--src", str(tmp_path / "src"), "--out", str(tmp_path / "out"), "--quiet"]
+    assert cli.main(argv) == 1
+    captured = capsys.readouterr()
+    assert "8 samples from 2 logs" in captured.out and "failed log001" in captured.err
+    write_toy_logs(tmp_path / "src2", n_logs=2, frames=4)
+    argv = ["convert", "toy", "--src", str(tmp_path / "src2"), "--out", str(tmp_path / "out2"), "--quiet"]
+    assert cli.main(argv) == 0
+
+
+def test_unknown_adapter_is_a_clear_error(capsys):
+    with pytest.raises(SystemExit, match=r"no lead_s2r.adapters entry named 'nope'; registered: .*navsim"):
+        cli.main(["convert", "nope", "--src", "x", "--out", "y"])
+
+
+def test_inspect_reports_and_draws(tmp_path, capsys):
+    write_toy_logs(tmp_path / "src", n_logs=2, frames=5)
+    convert(ToyAdapter(), tmp_path / "src", tmp_path / "out")
+    png = tmp_path / "sample.png"
+    assert cli.main(["inspect", str(tmp_path / "out"), "--png", str(png), "--key", "toy_log001_000002"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["samples"] == 10 and report["logs"] == 2 and report["invalid"] == []
+    assert report["by_dataset_split"] == {"toy/train": 10}
+    assert report["fields_present"]["lidar"] == 10
+    assert report["statistics"]["future_s"] == {"min": 4.0, "max": 4.0, "mean": 4.0}
+    image = cv2.imread(str(png))
+    assert image.shape[1] == 960 and image.shape[0] > 640
+    # the future (green) is drawn ahead of the ego, i.e. above the ego marker in the BEV panel
+    green = (image[:, :, 1] > 200) & (image[:, :, 0] < 100) & (image[:, :, 2] < 100)
+    rows = green.nonzero()[0]
+    ego_row = image.shape[0] - 16 * 10  # x = 0 lies 16 m above the bottom edge at 10 px/m
+    assert len(rows) and rows.max() < ego_row
