@@ -1,0 +1,339 @@
+"""A small NAVSIM / OpenScene dataset in the true on-disk layout, for round-trip tests and benchmarks.
+
+Writes, under ``out``::
+
+    navsim_logs/mini/<log>.pkl                       plain pickle: list of 28-key frame dicts at 2 Hz
+    sensor_blobs/mini/<log>/CAM_*/<16hex>.jpg        8 cameras, 192x108 JPEGs (nuPlan's 1920x1080 / 10,
+                                                     intrinsics scaled to match)
+    sensor_blobs/mini/<log>/MergedPointCloud/<16hex>.pcd   binary PCD, fields x y z intensity ring lidar_info
+    maps/us-nv-las-vegas-strip/9.15.1915/map.gpkg    the road network of :mod:`navsim_map`
+    scene_filters/navmini.yaml                       NAVSIM SceneFilter yaml (log_names + tokens)
+
+Logs (2 Hz, 20 frames): a straight drive in the right lane, a left turn through the traffic-lit connector
+2021 (whose light is red for frames 0-9, green after; connector 2012 has the opposite phase), and a slow drive
+with an unknown command whose ``map_location`` is the legacy alias ``las_vegas``. Every log carries a lead
+vehicle, a pedestrian on the walkway to the right, a car parked in the car park, a traffic cone and a bicycle
+seen only in frames 8-15. Boxes are written the way OpenScene does: centres and yaw in the ego frame of their
+frame, velocities rotated into the lidar frame.
+"""
+
+import math
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import shapely
+import yaml
+
+from lead_s2r.synthetic import navsim_map
+
+DATA_SPLIT = "mini"
+FRAMES = 20
+DT_US = 500_000
+HISTORY = 4
+FUTURE = 10
+IMAGE_SIZE = (192, 108)
+FOCAL = 154.5
+#: Camera name -> yaw of its optical axis in the lidar frame, degrees (counter-clockwise from forward).
+CAMERAS = {"CAM_F0": 0, "CAM_L0": 55, "CAM_L1": 110, "CAM_L2": 150, "CAM_R0": -55, "CAM_R1": -110, "CAM_R2": -150}
+CAMERAS["CAM_B0"] = 180
+LIDAR2EGO_TRANSLATION = np.array([0.5, 0.0, 1.8])
+LIDAR_POINTS = 2000
+PCD_FIELDS = ("x", "y", "z", "intensity", "ring", "lidar_info")
+
+
+@dataclass(frozen=True)
+class LogSpec:
+    """One synthetic log: the lanes it follows, its start along them, speed profile and command."""
+
+    name: str
+    lanes: tuple[int, ...]
+    start: float
+    speed: float
+    accel: float
+    command: tuple[int, int, int, int]
+    map_location: str
+    roadblocks: tuple[str, ...]
+
+
+LOGS = (
+    LogSpec(
+        "2021.05.12.22.00.38_veh-35_01008_01518", (1011, 2011, 1021), 10.0, 8.0, 0.2, (0, 1, 0, 0),
+        navsim_map.LOCATION, ("101", "201", "102"),
+    ),
+    LogSpec(
+        "2021.06.07.18.53.26_veh-26_00005_00427", (1012, 2021, 1032), 65.0, 6.0, 0.0, (1, 0, 0, 0),
+        navsim_map.LOCATION, ("101", "202", "103"),
+    ),
+    LogSpec(
+        "2021.09.16.15.12.03_veh-42_01037_01434", (1011, 2011, 1021), 30.0, 3.0, 0.3, (0, 0, 0, 1),
+        "las_vegas", ("101", "201", "102"),
+    ),
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Agent:
+    """A constant-velocity object in local map coordinates, seen in frames ``first..last``."""
+
+    name: str
+    xy: tuple[float, float]
+    velocity: tuple[float, float]
+    yaw: float
+    size: tuple[float, float, float]
+    first: int = 0
+    last: int = FRAMES - 1
+
+
+def agents_for(start: np.ndarray, speed: float) -> list[Agent]:
+    """The objects around a log whose ego starts at ``start`` heading east."""
+    x0, y0 = float(start[0]), float(start[1])
+    return [
+        Agent("vehicle", (x0 + 15.0, y0), (0.9 * speed, 0.0), 0.0, (4.6, 1.9, 1.6)),
+        Agent("pedestrian", (x0 + 20.0, -4.5), (1.0, 0.0), 0.0, (0.6, 0.6, 1.8)),
+        Agent("vehicle", (40.0, -10.0), (0.0, 0.0), math.pi / 2, (4.8, 2.0, 1.5)),
+        Agent("traffic_cone", (x0 + 40.0, -3.2), (0.0, 0.0), 0.0, (0.4, 0.4, 0.7)),
+        Agent("bicycle", (x0 - 10.0, -y0), (speed + 2.0, 0.0), 0.0, (1.8, 0.6, 1.5), first=8, last=15),
+    ]
+
+
+def route_line(lanes: tuple[int, ...]) -> shapely.LineString:
+    """The ego's path: the centerlines of ``lanes`` joined end to end."""
+    by_id = {lane.fid: lane for lane in navsim_map.LANES + navsim_map.LANE_CONNECTORS}
+    points: list[tuple[float, float]] = []
+    for fid in lanes:
+        centerline = list(by_id[fid].centerline)
+        points.extend(centerline[1:] if points and np.allclose(points[-1], centerline[0]) else centerline)
+    return shapely.LineString(points)
+
+
+def ego_states(spec: LogSpec) -> dict[str, np.ndarray]:
+    """Poses (F,3) [x, y, yaw] in local map coordinates and ego-frame dynamics (F,4) [vx, vy, ax, ay]."""
+    line = route_line(spec.lanes)
+    t = np.arange(FRAMES) * DT_US / 1e6
+    s = spec.start + spec.speed * t + 0.5 * spec.accel * t**2
+    speed = spec.speed + spec.accel * t
+
+    def xy(at: np.ndarray) -> np.ndarray:
+        return shapely.get_coordinates(shapely.line_interpolate_point(line, at))
+
+    step = 0.05
+    ahead, behind = xy(s + step), xy(s - step)
+    yaw = np.arctan2(ahead[:, 1] - behind[:, 1], ahead[:, 0] - behind[:, 0])
+    after = xy(s + 2 * step) - xy(s)
+    before = xy(s) - xy(s - 2 * step)
+    curvature = np.unwrap(np.arctan2(after[:, 1], after[:, 0]) - np.arctan2(before[:, 1], before[:, 0])) / (2 * step)
+    dynamics = np.stack([speed, np.zeros_like(t), np.full_like(t, spec.accel), speed**2 * curvature], axis=1)
+    return {"poses": np.column_stack([xy(s), yaw]), "dynamics": dynamics}
+
+
+def yaw_quaternion(yaw: float) -> np.ndarray:
+    """[w, x, y, z] of a rotation about z."""
+    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+
+
+def homogeneous(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[:3, :3], matrix[:3, 3] = rotation, translation
+    return matrix
+
+
+def rot_z(yaw: float) -> np.ndarray:
+    cos, sin = math.cos(yaw), math.sin(yaw)
+    return np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
+
+
+#: Optical frame (x right, y down, z forward) -> lidar frame (x forward, y left, z up) of a front camera.
+OPTICAL_TO_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def camera_calibration(name: str) -> dict[str, np.ndarray]:
+    """sensor2lidar rotation/translation, intrinsics and distortion of one camera."""
+    yaw = math.radians(CAMERAS[name])
+    rotation = rot_z(yaw) @ OPTICAL_TO_FORWARD
+    translation = rot_z(yaw) @ np.array([1.0, 0.0, -0.3])
+    width, height = IMAGE_SIZE
+    intrinsic = np.array([[FOCAL, 0.0, width / 2], [0.0, FOCAL, height / 2], [0.0, 0.0, 1.0]])
+    distortion = np.array([-0.35, 0.15, 0.0005, -0.0002, -0.03])
+    return {
+        "sensor2lidar_rotation": rotation,
+        "sensor2lidar_translation": translation,
+        "cam_intrinsic": intrinsic,
+        "distortion": distortion,
+    }
+
+
+def write_jpeg(path: Path, rng: np.random.Generator) -> None:
+    width, height = IMAGE_SIZE
+    image = cv2.GaussianBlur(rng.integers(0, 256, (height, width, 3), dtype=np.uint8), (5, 5), 0)
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok, path
+    path.write_bytes(data.tobytes())
+
+
+def write_pcd(path: Path, points: np.ndarray) -> None:
+    """nuPlan's binary PCD v0.7: a text header, then float32 records of the 6 fields."""
+    n = len(points)
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        f"FIELDS {' '.join(PCD_FIELDS)}\nSIZE 4 4 4 4 4 4\nTYPE F F F F F F\nCOUNT 1 1 1 1 1 1\n"
+        f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
+    )
+    path.write_bytes(header.encode("ascii") + points.astype("<f4").tobytes())
+
+
+def lidar_points(rng: np.random.Generator) -> np.ndarray:
+    """(N, 6) points in the lidar frame: x, y, z, intensity, ring, lidar id."""
+    n = LIDAR_POINTS
+    return np.column_stack(
+        [
+            rng.uniform(-50, 50, n),
+            rng.uniform(-50, 50, n),
+            rng.uniform(-2.0, 1.0, n),
+            rng.integers(0, 256, n),
+            rng.integers(0, 64, n),
+            rng.integers(0, 5, n),
+        ]
+    )
+
+
+def annotations(agents: list[Agent], frame: int, pose: np.ndarray, tokens: list[str]) -> dict[str, np.ndarray]:
+    """OpenScene ``anns`` of the agents seen in ``frame``, in the ego frame at ``pose``."""
+    t = frame * DT_US / 1e6
+    boxes, names, velocities, tracks = [], [], [], []
+    to_ego = rot_z(-pose[2])[:2, :2]
+    for agent, token in zip(agents, tokens, strict=True):
+        if not agent.first <= frame <= agent.last:
+            continue
+        centre = np.array(agent.xy) + t * np.array(agent.velocity)
+        local = to_ego @ (centre - pose[:2])
+        yaw = (agent.yaw - pose[2] + math.pi) % (2 * math.pi) - math.pi
+        length, width, height = agent.size
+        boxes.append([local[0], local[1], height / 2, length, width, height, yaw])
+        velocity = to_ego @ np.array(agent.velocity)  # the lidar frame is not rotated against the ego frame here
+        velocities.append([velocity[0], velocity[1], 0.0])
+        names.append(agent.name)
+        tracks.append(token)
+    return {
+        "gt_boxes": np.array(boxes, dtype=np.float64).reshape(-1, 7),
+        "gt_names": np.array(names),
+        "gt_velocity_3d": np.array(velocities, dtype=np.float64).reshape(-1, 3),
+        "instance_tokens": np.array([token[::-1] for token in tracks]),
+        "track_tokens": np.array(tracks),
+    }
+
+
+def traffic_lights(frame: int) -> list[tuple[int, bool]]:
+    """Connector 2021 (left turn) is red before frame 10, connector 2012 from frame 10 on."""
+    left, straight = navsim_map.TRAFFIC_LIGHT_CONNECTORS[1], navsim_map.TRAFFIC_LIGHT_CONNECTORS[0]
+    return [(straight, frame >= 10), (left, frame < 10)]
+
+
+def _hex(rng: np.random.Generator) -> str:
+    return rng.bytes(8).hex()
+
+
+def write_log(out: Path, spec: LogSpec, rng: np.random.Generator) -> list[dict]:
+    """Write one log's sensor blobs and pickle; return its frames."""
+    sensors = out / "sensor_blobs" / DATA_SPLIT / spec.name
+    for folder in [*CAMERAS, "MergedPointCloud"]:
+        (sensors / folder).mkdir(parents=True, exist_ok=True)
+    states = ego_states(spec)
+    poses, dynamics = states["poses"], states["dynamics"]
+    agents = agents_for(poses[0], spec.speed)
+    track_tokens = [_hex(rng) for _ in agents]
+    tokens = [_hex(rng) for _ in range(FRAMES)]
+    lidar2ego = homogeneous(np.eye(3), LIDAR2EGO_TRANSLATION)
+    start_us = 1_620_856_838_000_000 + int(rng.integers(0, 10**9))
+    frames = []
+    for i in range(FRAMES):
+        x, y, yaw = poses[i, 0] + navsim_map.ORIGIN[0], poses[i, 1] + navsim_map.ORIGIN[1], poses[i, 2]
+        translation, quaternion = np.array([x, y, 0.0]), yaw_quaternion(yaw)
+        ego2global = homogeneous(rot_z(yaw), translation)
+        vx, vy, ax, ay = dynamics[i]
+        can_bus = np.zeros(18)
+        can_bus[0:3], can_bus[3:7], can_bus[7:9], can_bus[13:15] = translation, quaternion, (ax, ay), (vx, vy)
+        cams = {}
+        for name in CAMERAS:
+            blob = f"{spec.name}/{name}/{_hex(rng)}.jpg"
+            write_jpeg(out / "sensor_blobs" / DATA_SPLIT / blob, rng)
+            cams[name] = {"data_path": blob, **camera_calibration(name)}
+        lidar_path = f"{spec.name}/MergedPointCloud/{_hex(rng)}.pcd"
+        write_pcd(out / "sensor_blobs" / DATA_SPLIT / lidar_path, lidar_points(rng))
+        command = np.array(spec.command, dtype=np.int64)
+        frames.append(
+            {
+                "token": tokens[i],
+                "frame_idx": i,
+                "timestamp": start_us + i * DT_US,
+                "log_name": spec.name,
+                "log_token": spec.name.encode().hex()[:16],
+                "scene_name": f"scene-{spec.name[-11:]}",
+                "scene_token": tokens[0][::-1],
+                "map_location": spec.map_location,
+                "roadblock_ids": list(spec.roadblocks),
+                "vehicle_name": spec.name.split("_")[1],
+                "can_bus": can_bus,
+                "lidar_path": lidar_path,
+                "lidar2ego_translation": LIDAR2EGO_TRANSLATION.copy(),
+                "lidar2ego_rotation": np.array([1.0, 0.0, 0.0, 0.0]),
+                "ego2global_translation": translation,
+                "ego2global_rotation": quaternion,
+                "ego2global": ego2global,
+                "lidar2ego": lidar2ego,
+                "lidar2global": ego2global @ lidar2ego,
+                "ego_dynamic_state": [float(vx), float(vy), float(ax), float(ay)],
+                "traffic_lights": traffic_lights(i),
+                "driving_command": command,
+                "cams": cams,
+                "sample_prev": tokens[i - 1] if i > 0 else None,
+                "sample_next": tokens[i + 1] if i + 1 < FRAMES else None,
+                "anns": annotations(agents, i, poses[i], track_tokens),
+                "occ_gt_final_path": None,
+                "flow_gt_final_path": None,
+            }
+        )
+    path = out / "navsim_logs" / DATA_SPLIT / f"{spec.name}.pkl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(pickle.dumps(frames, protocol=pickle.HIGHEST_PROTOCOL))
+    return frames
+
+
+def write_scene_filter(path: Path, logs: dict[str, list[dict]]) -> None:
+    """A NAVSIM SceneFilter yaml listing every scene with a full history and future."""
+    tokens = [frames[i]["token"] for frames in logs.values() for i in range(HISTORY - 1, FRAMES - FUTURE)]
+    config = {
+        "_target_": "navsim.common.dataclasses.SceneFilter",
+        "_convert_": "all",
+        "num_history_frames": HISTORY,
+        "num_future_frames": FUTURE,
+        "frame_interval": 1,
+        "has_route": True,
+        "max_scenes": None,
+        "log_names": list(logs),
+        "tokens": tokens,
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+
+
+def log_specs(count: int | None) -> list[LogSpec]:
+    """``count`` logs (default 3), cycling through :data:`LOGS` with fresh names past the third."""
+    count = len(LOGS) if count is None else count
+    specs = []
+    for i in range(count):
+        base = LOGS[i % len(LOGS)]
+        name = base.name if i < len(LOGS) else f"{base.name[:-11]}{i:05d}_{i + 1:05d}"
+        specs.append(LogSpec(name, *[getattr(base, f) for f in LogSpec.__dataclass_fields__ if f != "name"]))
+    return specs
+
+
+def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
+    """Write the dataset described in the module docstring with ``count`` logs (default 3)."""
+    out = Path(out)
+    rng = np.random.default_rng(seed)
+    navsim_map.write_map(out / "maps")
+    logs = {spec.name: write_log(out, spec, rng) for spec in log_specs(count)}
+    write_scene_filter(out / "scene_filters" / "navmini.yaml", logs)
