@@ -1,0 +1,184 @@
+"""TFRecord framing without TensorFlow: sequential scan, random access, and a one-pass record index.
+
+A record is ``uint64 length | uint32 masked_crc(length) | payload | uint32 masked_crc(payload)``, all
+little-endian; CRCs are CRC-32C (Castagnoli), masked as TensorFlow does. Both CRCs are verified on every read,
+because a corrupt record that still parses as a protobuf would silently become a wrong training sample.
+Offsets always point at the start of a record (its length field), lengths are payload lengths.
+"""
+
+import json
+import os
+import struct
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import crc32c
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+HEADER = 12  # uint64 length + uint32 crc of the length
+FOOTER = 4  # uint32 crc of the payload
+_MASK_DELTA = 0xA282EAD8
+_INDEX_COLUMNS = {"shard": pa.string(), "offset": pa.int64(), "length": pa.int64()}
+_STAMP_KEY = b"lead_s2r.shards"
+
+
+class TFRecordError(ValueError):
+    """A record that cannot be trusted; names the shard and the byte offset of the record."""
+
+    def __init__(self, path: str | Path, offset: int, problem: str, framing_intact: bool = False) -> None:
+        super().__init__(f"{path}: record at offset {offset}: {problem}")
+        self.path = str(path)
+        self.offset = offset
+        self.problem = problem
+        #: True when the next record can still be found (only the payload is bad).
+        self.framing_intact = framing_intact
+
+
+def masked_crc32c(data: bytes | memoryview) -> int:
+    """TensorFlow's masked CRC-32C: rotate right by 15 bits, then add a constant (mod 2^32)."""
+    crc = crc32c.crc32c(data)
+    return (((crc >> 15) | (crc << 17)) + _MASK_DELTA) & 0xFFFFFFFF
+
+
+def _parse_header(path: str | Path, offset: int, header: bytes) -> int:
+    if len(header) < HEADER:
+        raise TFRecordError(path, offset, f"truncated header ({len(header)} of {HEADER} bytes)")
+    length, length_crc = struct.unpack("<QI", header[:HEADER])
+    if masked_crc32c(header[:8]) != length_crc:
+        raise TFRecordError(path, offset, "length CRC mismatch (corrupt header)")
+    return length
+
+
+def _check_payload(path: str | Path, offset: int, length: int, body: bytes) -> bytes:
+    if len(body) < length + FOOTER:
+        raise TFRecordError(path, offset, f"truncated record ({len(body)} of {length + FOOTER} payload+CRC bytes)")
+    payload = body[:length]
+    (payload_crc,) = struct.unpack("<I", body[length : length + FOOTER])
+    if masked_crc32c(payload) != payload_crc:
+        raise TFRecordError(path, offset, "payload CRC mismatch", framing_intact=True)
+    return payload
+
+
+@dataclass(frozen=True)
+class Record:
+    """One verified record of a shard."""
+
+    offset: int
+    payload: bytes
+
+    @property
+    def length(self) -> int:
+        return len(self.payload)
+
+
+def iter_records(path: str | Path) -> Iterator[Record | TFRecordError]:
+    """Every record of a shard in file order; a bad record is yielded as its :class:`TFRecordError`.
+
+    A payload with a bad CRC is skipped and the scan goes on (its framing is intact); a bad length CRC or a
+    truncated record ends the scan, since nothing after it can be located reliably.
+    """
+    with open(path, "rb") as file:
+        offset = 0
+        while header := file.read(HEADER):
+            try:
+                length = _parse_header(path, offset, header)
+                body = file.read(length + FOOTER)
+                yield Record(offset, _check_payload(path, offset, length, body))
+            except TFRecordError as err:
+                yield err
+                if not err.framing_intact:
+                    return
+            offset += HEADER + length + FOOTER
+
+
+class RecordReader:
+    """Random access to records by (shard, offset, length); keeps shards open until :meth:`close`."""
+
+    def __init__(self) -> None:
+        self._fds: dict[str, int] = {}
+
+    def read(self, path: str | Path, offset: int, length: int) -> bytes:
+        """The verified payload of the record at ``offset``; its length must equal ``length`` (from the index)."""
+        path = str(path)
+        fd = self._fds.get(path)
+        if fd is None:
+            fd = self._fds[path] = os.open(path, os.O_RDONLY)
+        data = os.pread(fd, HEADER + length + FOOTER, offset)
+        stored = _parse_header(path, offset, data[:HEADER])
+        if stored != length:
+            raise TFRecordError(path, offset, f"length {stored} differs from the index ({length}); re-index")
+        return _check_payload(path, offset, length, data[HEADER:])
+
+    def close(self) -> None:
+        for fd in self._fds.values():
+            os.close(fd)
+        self._fds.clear()
+
+    def __enter__(self) -> "RecordReader":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+#: Extracts index columns from one payload; raises ValueError for a payload of the wrong kind.
+Describe = Callable[[bytes], dict[str, Any]]
+
+
+@dataclass
+class RecordIndex:
+    """Where every good record lives (``table``: shard, offset, length + described columns) and what was skipped."""
+
+    table: pa.Table
+    skipped: list[dict[str, Any]]
+
+
+def _stamp(shards: Iterable[Path]) -> str:
+    """Identity of a shard set (names, sizes, mtimes): a cached index is reused only while it matches."""
+    return json.dumps({str(p): [p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(shards)}, sort_keys=True)
+
+
+def build_index(shards: list[Path], describe: Describe, schema: dict[str, pa.DataType]) -> RecordIndex:
+    """One pass over ``shards``: a row per good record, and one ``skipped`` entry per bad one.
+
+    ``describe`` adds the columns named in ``schema``; a ValueError from it marks the record as skipped.
+    """
+    rows: dict[str, list[Any]] = {name: [] for name in {**_INDEX_COLUMNS, **schema}}
+    skipped: list[dict[str, Any]] = []
+    for shard in shards:
+        for item in iter_records(shard):
+            if isinstance(item, TFRecordError):
+                skipped.append({"shard": item.path, "offset": item.offset, "error": str(item)})
+                continue
+            try:
+                columns = describe(item.payload)
+            except ValueError as err:
+                skipped.append({"shard": str(shard), "offset": item.offset, "error": f"{shard}: {err}"})
+                continue
+            for name, value in {"shard": str(shard), "offset": item.offset, "length": item.length, **columns}.items():
+                rows[name].append(value)
+    table = pa.table({name: pa.array(values, {**_INDEX_COLUMNS, **schema}[name]) for name, values in rows.items()})
+    return RecordIndex(table, skipped)
+
+
+def cached_index(
+    shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], cache: Path | None
+) -> RecordIndex:
+    """:func:`build_index`, stored at ``cache`` (parquet, skipped records in its metadata) and reused while valid."""
+    stamp = _stamp(shards)
+    if cache is not None and cache.exists():
+        table = pq.read_table(cache)
+        metadata = table.schema.metadata or {}
+        if metadata.get(_STAMP_KEY, b"").decode() == stamp:
+            return RecordIndex(table.replace_schema_metadata(None), json.loads(metadata[b"lead_s2r.skipped"]))
+    index = build_index(shards, describe, schema)
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        metadata = {_STAMP_KEY: stamp.encode(), b"lead_s2r.skipped": json.dumps(index.skipped).encode()}
+        partial = cache.with_name(cache.name + ".partial")
+        pq.write_table(index.table.replace_schema_metadata(metadata), partial)
+        os.replace(partial, cache)
+    return index

@@ -1,0 +1,224 @@
+"""Synthetic WOD-E2E in its on-disk format: TFRecord shards of ``E2EDFrame`` records with real framing and CRCs.
+
+What it mimics (facts in ``shared/research/wod_e2e.md`` §1): one record per 10 Hz frame, records of a split
+shuffled across 3 shards, frame ids ``<uuid>-<NNN>`` that do not start at 0 and have gaps, 8 cameras with
+JPEGs and calibration, past 16 @ 4 Hz ending at (0, 0) with velocity and acceleration but no z, future 20 @ 4 Hz
+(absent in test), intents, validation frames with up to 3 rated trajectories (scores 0-10, some -1 or unset,
+some shorter than 20 points), ``timestamp_micros`` = 0 as in the real data, and the scenario-cluster JSON.
+:func:`make_dataset` returns the ground truth that :func:`write_dataset` encodes, so tests can compare.
+"""
+
+import json
+import math
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import crc32c
+import cv2
+import numpy as np
+
+from lead_s2r.synthetic.wod_e2e_proto import States, camera_calibration, camera_image, e2ed_frame
+
+SHARDS = 3
+SHARD_STEMS = {
+    "train": "training_202504031202_202504151040",
+    "val": "val_202504211836_202504220845",
+    "test": "test_202504211836-202504220845",
+}
+CLUSTER_FILE = "val_sequence_name_to_scenario_cluster.json"
+CLUSTERS = ("Construction", "Interections", "Pedestrian", "Cyclist", "Cut_ins", "Special Vehicles")
+INTENT = {"straight": 1, "left": 2, "right": 3}
+FRAMES_PER_SEGMENT = 12
+#: Camera name -> (height, width) of the real decoded images, yaw (deg) and mounting position on the vehicle.
+CAMERAS = {
+    1: (1079, 972, 0.0, (1.52, 0.03, 1.81)),
+    2: (1079, 972, 45.0, (1.45, 0.15, 1.81)),
+    3: (1079, 972, -45.0, (1.48, -0.12, 1.81)),
+    4: (1079, 972, 90.0, (1.10, 0.90, 1.70)),
+    5: (1079, 972, -90.0, (1.10, -0.90, 1.70)),
+    6: (587, 972, 135.0, (-0.60, 0.70, 1.75)),
+    7: (551, 972, 180.0, (-0.90, 0.00, 1.80)),
+    8: (587, 972, -135.0, (-0.60, -0.70, 1.75)),
+}
+IMAGE_SCALE = 1 / 18  # tiny JPEGs; intrinsics are scaled with them so they stay consistent
+_PAST_T = 0.25 * (np.arange(16) - 15)
+_FUTURE_T = 0.25 * (np.arange(20) + 1)
+_SIM_DT = 0.05  # multiple of both the 0.1 s frame step and the 0.25 s state step
+
+
+@dataclass
+class SynthCamera:
+    name: int
+    jpeg: bytes
+    intrinsic: list[float]
+    extrinsic: list[float]  # camera -> vehicle, row-major 4x4, Waymo camera axes (x optical axis, y left, z up)
+    width: int
+    height: int
+
+
+@dataclass
+class SynthFrame:
+    """Ground truth of one record."""
+
+    split: str
+    sequence: str
+    frame_idx: int
+    cameras: list[SynthCamera]
+    past: np.ndarray  # (16, 6) x, y, vx, vy, ax, ay in the t0 rear-axle frame
+    future: np.ndarray | None  # (20, 3) x, y, z
+    intent: int
+    preferences: list[tuple[np.ndarray, float | None]] = field(default_factory=list)  # (T, 2) xy, score
+
+    @property
+    def name(self) -> str:
+        return f"{self.sequence}-{self.frame_idx:03d}"
+
+
+@dataclass
+class SynthDataset:
+    frames: list[SynthFrame]
+    clusters: dict[str, str]
+
+
+def _drive(duration: float, speed: float, accel: float, yaw_rate: float) -> np.ndarray:
+    """Global (t, x, y, heading, vx, vy, ax, ay) from t = 0 at ``_SIM_DT``: speed ramps, yaw rate constant."""
+    t = np.arange(round(duration / _SIM_DT) + 1) * _SIM_DT
+    v = np.maximum(speed + accel * t, 0.5)
+    dv = np.where(speed + accel * t > 0.5, accel, 0.0)
+    heading = yaw_rate * t
+    vx, vy = v * np.cos(heading), v * np.sin(heading)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * _SIM_DT * (vx[1:] + vx[:-1]))])
+    y = np.concatenate([[0.0], np.cumsum(0.5 * _SIM_DT * (vy[1:] + vy[:-1]))])
+    ax = dv * np.cos(heading) - vy * yaw_rate
+    ay = dv * np.sin(heading) + vx * yaw_rate
+    return np.stack([t, x, y, heading, vx, vy, ax, ay], axis=1)
+
+
+def _local(track: np.ndarray, i0: int, rows: np.ndarray) -> np.ndarray:
+    """Rows of ``track`` in the frame of row ``i0``: (N, 6) x, y, vx, vy, ax, ay."""
+    cos, sin = math.cos(track[i0, 3]), math.sin(track[i0, 3])
+    rot = np.array([[cos, sin], [-sin, cos]])
+    sel = track[rows]
+    pos = (sel[:, 1:3] - track[i0, 1:3]) @ rot.T
+    return np.concatenate([pos, sel[:, 4:6] @ rot.T, sel[:, 6:8] @ rot.T], axis=1)
+
+
+def _camera(name: int, rng: np.random.Generator) -> SynthCamera:
+    height, width, yaw_deg, (px, py, pz) = CAMERAS[name]
+    height, width = round(height * IMAGE_SCALE), round(width * IMAGE_SCALE)
+    image = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+    jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 70])[1].tobytes()
+    f = 1112.18 * IMAGE_SCALE
+    intrinsic = [f, f * 0.9999, width / 2 + 0.3, height * 0.66, -0.0736, -0.0366, 0.0, 0.0, 0.0]
+    yaw, pitch = math.radians(yaw_deg), 0.02  # a slight downward pitch about the camera's y axis
+    rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+    ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]])
+    matrix = np.eye(4)
+    matrix[:3, :3] = rz @ ry
+    matrix[:3, 3] = (px, py, pz)
+    return SynthCamera(name, jpeg, intrinsic, matrix.ravel().tolist(), width, height)
+
+
+def _preferences(future: np.ndarray, rng: np.random.Generator, variant: int) -> list[tuple[np.ndarray, float | None]]:
+    """Three rated candidates around the logged future; variant picks the awkward cases the real data has."""
+    shifts = (0.0, 1.5, -2.5)
+    trajs = [(future[:, :2] + [0.0, s]).astype(np.float32) for s in shifts]
+    scores: list[float | None] = [float(s) for s in np.round(rng.uniform(0, 10, 3), 1)]
+    if variant == 0:
+        scores[2] = -1.0
+        trajs[1] = trajs[1][:11]  # short rated trajectory, as in issue #985
+    elif variant == 1:
+        scores[1] = None  # preference_score never set: must not read as the default 0
+    return list(zip(trajs, scores, strict=True))
+
+
+def _segment(split: str, index: int, rng: np.random.Generator) -> list[SynthFrame]:
+    sequence = rng.bytes(16).hex()
+    kind = ("left", "straight", "right")[index % 3]
+    yaw_rate = {"left": 0.25, "straight": 0.0, "right": -0.2}[kind]
+    start = int(rng.integers(5, 40))
+    frames = [f for f in range(start, start + FRAMES_PER_SEGMENT) if not (index == 0 and f == start + 5)]
+    track = _drive(0.1 * (frames[-1] - start) + 9.5, float(rng.uniform(3, 12)), float(rng.uniform(-0.5, 0.8)), yaw_rate)
+    rated = {0: frames[4:5], 1: frames[3:4] + frames[-2:-1]}.get(index % 3, []) if split == "val" else []
+    out = []
+    for frame_idx in frames:
+        i0 = round((0.1 * (frame_idx - start) + 4.0) / _SIM_DT)
+        past = _local(track, i0, i0 + np.round(_PAST_T / _SIM_DT).astype(int))
+        future_rows = _local(track, i0, i0 + np.round(_FUTURE_T / _SIM_DT).astype(int))
+        future = None if split == "test" else np.column_stack([future_rows[:, :2], 0.02 * np.arange(20)])
+        preferences: list[tuple[np.ndarray, float | None]] = []
+        if frame_idx in rated:
+            preferences = _preferences(future, rng, variant=rated.index(frame_idx) + index % 3)
+        elif split == "val" and index % 3 == 2:
+            preferences = [(future[:, :2].astype(np.float32), -1.0)] * 3  # unrated frame carrying -1 labels
+        cameras = [_camera(name, rng) for name in CAMERAS]
+        out.append(SynthFrame(split, sequence, frame_idx, cameras, past, future, INTENT[kind], preferences))
+    return out
+
+
+def make_dataset(count: int | None = None, seed: int = 0) -> SynthDataset:
+    """Ground truth: ``count`` segments (default 3) in each of train, val and test."""
+    rng = np.random.default_rng(seed)
+    frames: list[SynthFrame] = []
+    clusters: dict[str, str] = {}
+    for split in SHARD_STEMS:
+        for index in range(3 if count is None else count):
+            segment = _segment(split, index, rng)
+            frames.extend(segment)
+            if split == "val":
+                clusters[segment[0].sequence] = CLUSTERS[index % len(CLUSTERS)]
+    return SynthDataset(frames, clusters)
+
+
+def _masked_crc(data: bytes) -> int:
+    crc = crc32c.crc32c(data)
+    return ((crc >> 15 | crc << 17) & 0xFFFFFFFF) + 0xA282EAD8 & 0xFFFFFFFF
+
+
+def frame_record(payload: bytes) -> bytes:
+    """TFRecord framing: length, masked CRC of the length, payload, masked CRC of the payload."""
+    length = struct.pack("<Q", len(payload))
+    return length + struct.pack("<I", _masked_crc(length)) + payload + struct.pack("<I", _masked_crc(payload))
+
+
+def encode_frame(frame: SynthFrame) -> bytes:
+    """The serialized ``E2EDFrame`` of one ground-truth frame (cameras in a shuffled-looking fixed order)."""
+    order = [frame.cameras[i] for i in (3, 0, 7, 1, 5, 2, 6, 4)]
+    images = [camera_image(c.name, c.jpeg) for c in order]
+    calibrations = [camera_calibration(c.name, c.intrinsic, c.extrinsic, c.width, c.height) for c in reversed(order)]
+    p = frame.past.astype(np.float32)
+    past = States(p[:, 0], p[:, 1], vel_x=p[:, 2], vel_y=p[:, 3], accel_x=p[:, 4], accel_y=p[:, 5])
+    future = None
+    if frame.future is not None:
+        f = frame.future.astype(np.float32)
+        future = States(f[:, 0], f[:, 1], pos_z=f[:, 2])
+    preferences = [States(xy[:, 0], xy[:, 1], preference_score=score) for xy, score in frame.preferences]
+    return e2ed_frame(frame.name, images, calibrations, past, future, frame.intent, preferences)
+
+
+def shard_path(out: Path, split: str, shard: int) -> Path:
+    return Path(out) / f"{SHARD_STEMS[split]}.tfrecord-{shard:05d}-of-{SHARDS:05d}"
+
+
+def write_dataset(out: Path, dataset: SynthDataset, seed: int = 0) -> list[Path]:
+    """Write every split's records shuffled across :data:`SHARDS` shards, plus the cluster JSON."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    paths = []
+    for split in SHARD_STEMS:
+        frames = [f for f in dataset.frames if f.split == split]
+        order = rng.permutation(len(frames))
+        for shard in range(SHARDS):
+            path = shard_path(out, split, shard)
+            path.write_bytes(b"".join(frame_record(encode_frame(frames[i])) for i in order[shard::SHARDS]))
+            paths.append(path)
+    clusters = {uuid: {"scenario_cluster": name} for uuid, name in dataset.clusters.items()}
+    (out / CLUSTER_FILE).write_text(json.dumps(clusters, indent=1))
+    return paths
+
+
+def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
+    """``lead-s2r synth wod_e2e --out DIR [--segments N]``: N segments per split (default 3)."""
+    write_dataset(out, make_dataset(count, seed), seed)
