@@ -1,0 +1,30 @@
+"""Model-free planners: the floor any learned policy has to beat, and a quick way to exercise the scorers."""
+
+from typing import Any
+
+import numpy as np
+
+from lead_s2r.predictions import Prediction
+
+
+def constant_turn_rate(speed: float, yaw_rate: float, t: np.ndarray) -> np.ndarray:
+    """Poses [x, y, yaw] (T, 3) of an ego that keeps its speed and yaw rate (CTRV), from the origin at t = 0."""
+    t = np.asarray(t, np.float64)
+    yaw = yaw_rate * t
+    if abs(yaw_rate) < 1e-6:
+        return np.stack([speed * t, np.zeros_like(t), yaw], axis=1)
+    radius = speed / yaw_rate
+    return np.stack([radius * np.sin(yaw), radius * (1.0 - np.cos(yaw)), yaw], axis=1)
+
+
+def predict_constant_turn_rate(sample: dict[str, Any], t: np.ndarray | None = None) -> Prediction:
+    """CTRV prediction for a sample on ``t`` (default: the sample's own future grid)."""
+    if t is None:
+        if "future" not in sample:
+            raise ValueError(f"sample {sample['__key__']!r} has no future; pass the time grid to predict on")
+        t = sample["future"][:, 0]
+    ego = sample["meta"]["ego"]
+    poses = constant_turn_rate(ego["speed"], ego["yaw_rate"], t)
+    return Prediction(
+        sample["__key__"], sample["meta"]["dataset"], np.asarray(t, np.float32), poses[:, :2], poses[:, 2]
+    )
