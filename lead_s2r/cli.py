@@ -1,4 +1,4 @@
-"""The ``lead-s2r`` command: data verbs here, training verbs handed to LightningCLI."""
+"""The ``lead-s2r`` command line."""
 
 import argparse
 import importlib
@@ -11,8 +11,6 @@ from typing import Any
 
 from lead_s2r import __version__
 from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, names
-
-LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
 
 
 def _cast(value: str, annotation: Any) -> Any:
@@ -172,11 +170,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if argv and argv[0] in LIGHTNING_VERBS:
-        from lead_s2r.training.cli import run_lightning_cli
-
-        run_lightning_cli(argv)
-        return 0
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if args.verb == "convert":
