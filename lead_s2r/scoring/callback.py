@@ -1,0 +1,97 @@
+"""Run the open-loop scorers (RFS, ADE...) on validation predictions during training, per dataset.
+
+Contract with the LightningModule: ``validation_step`` returns a dict whose ``"predictions"`` entry is a list of
+:class:`~lead_s2r.predictions.Prediction` (one per sample and inference, in the sample's ego frame). The callback
+collects them over the epoch (from every rank), joins them by key with the converted validation folders, and logs
+each scorer's float aggregates as ``<prefix>/<dataset>/<name>`` (e.g. ``val/wod_e2e/rfs``, ``val/navsim/ade``).
+"""
+
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch.distributed as dist
+
+from lead_s2r.predictions import Prediction
+from lead_s2r.scoring.run import make_scorer
+from lead_s2r.shards import read_samples
+
+
+class ScoringCallback(L.Callback):
+    """Score validation predictions with registered scorers at the end of every validation epoch."""
+
+    def __init__(
+        self,
+        data: str | Path | Sequence[str | Path],
+        metrics: Sequence[str] = ("rfs@wod-e2e-2025", "ade"),
+        metric_config: dict[str, dict[str, Any]] | None = None,
+        prefix: str = "val",
+        output_key: str = "predictions",
+    ) -> None:
+        """``data``: converted folder(s) holding the validation samples; ``metric_config``: per-metric options."""
+        super().__init__()
+        self.folders = [Path(data)] if isinstance(data, str | Path) else [Path(folder) for folder in data]
+        metric_config = metric_config or {}
+        self.scorers = [make_scorer(metric, **metric_config.get(metric, {})) for metric in metrics]
+        self.prefix = prefix
+        self.output_key = output_key
+        self._samples: dict[str, dict[str, Any]] | None = None
+        self._predictions: list[Prediction] = []
+
+    def samples(self) -> dict[str, dict[str, Any]]:
+        """The validation samples by key, read once with only the fields the scorers need."""
+        if self._samples is None:
+            fields = sorted({name for scorer in self.scorers for name in scorer.fields})
+            self._samples = {s["__key__"]: s for folder in self.folders for s in read_samples(folder, fields=fields)}
+        return self._samples
+
+    def on_validation_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._predictions = []
+
+    def on_validation_batch_end(
+        self,
+        trainer: L.Trainer,
+        pl_module: L.LightningModule,
+        outputs: Any,
+        batch: Any,
+        batch_idx: int,
+        dataloader_idx: int = 0,
+    ) -> None:
+        if isinstance(outputs, dict) and self.output_key in outputs:
+            self._predictions.extend(outputs[self.output_key])
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking:
+            return
+        for name, value in self.compute(_gather(self._predictions)).items():
+            pl_module.log(name, value)
+        self._predictions = []
+
+    def compute(self, predictions: list[Prediction]) -> dict[str, float]:
+        """Float aggregates of every scorer for every dataset present in ``predictions``."""
+        unique = {(p.key, p.inference): p for p in reversed(predictions)}  # a distributed sampler repeats samples
+        by_dataset: dict[str, list[Prediction]] = defaultdict(list)
+        for p in reversed(unique.values()):
+            by_dataset[p.dataset].append(p)
+        samples = self.samples()
+        metrics = {}
+        for dataset, group in sorted(by_dataset.items()):
+            keys = dict.fromkeys(p.key for p in group)
+            data = [samples[key] for key in keys if key in samples]
+            for scorer in self.scorers:
+                aggregates = scorer.score(group, data).aggregates
+                for name, value in aggregates.items():
+                    if isinstance(value, float):
+                        metrics[f"{self.prefix}/{dataset}/{name}"] = value
+        return metrics
+
+
+def _gather(predictions: list[Prediction]) -> list[Prediction]:
+    """Every rank's predictions on every rank, so all ranks log the same values."""
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
+        return predictions
+    gathered: list[list[Prediction] | None] = [None] * dist.get_world_size()
+    dist.all_gather_object(gathered, predictions)
+    return [p for part in gathered for p in part or []]

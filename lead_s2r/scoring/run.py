@@ -1,0 +1,53 @@
+"""Score a predictions file against converted data: the body of ``lead-s2r score``."""
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+
+from lead_s2r import __version__
+from lead_s2r.predictions import read_predictions
+from lead_s2r.registry import SCORER_GROUP, load
+from lead_s2r.scoring.base import Scorer
+from lead_s2r.shards import read_samples
+
+SCORES_TABLE = "scores.parquet"
+SCORES_JSON = "scores.json"
+
+
+def make_scorer(metric: str, **config: Any) -> Scorer:
+    """The scorer registered under ``metric`` (e.g. ``rfs@wod-e2e-2025``, ``ade``), configured."""
+    return load(metric, SCORER_GROUP)(**config)
+
+
+def score_predictions(
+    metric: str, predictions: Path, data: Path | list[Path], out: Path, **config: Any
+) -> dict[str, Any]:
+    """Score ``predictions`` (predictions.parquet) against one or more converted folders.
+
+    Writes ``out/scores.parquet`` (one row per scored sample) and ``out/scores.json`` (aggregates, metric name
+    and version, config, package version, inputs) and returns the JSON content. ``config`` goes to the scorer.
+    """
+    scorer = make_scorer(metric, **config)
+    folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
+    start = time.perf_counter()
+    samples = [sample for folder in folders for sample in read_samples(folder, fields=scorer.fields)]
+    result = scorer.score(read_predictions(predictions), samples)
+    report = {
+        "metric": scorer.name,
+        "metric_version": scorer.version,
+        "package_version": __version__,
+        "config": scorer.config(),
+        "predictions": str(predictions),
+        "data": [str(folder) for folder in folders],
+        "aggregates": result.aggregates,
+        "seconds": round(time.perf_counter() - start, 3),
+    }
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    pq.write_table(result.table, out / SCORES_TABLE)
+    text = json.dumps(report, indent=2, allow_nan=False)
+    (out / SCORES_JSON).write_text(text + "\n")
+    return json.loads(text)
