@@ -1,0 +1,439 @@
+"""LEAD CARLA route folders -> schema v1 samples (one log = one route folder, one sample = one 4 Hz frame).
+
+LEAD stores everything in CARLA's ego frame (x forward, y right, yaw clockwise) with the origin at the vehicle
+centre; every geometric label here goes through ``geometry.carla_poses_to_iso`` / ``carla_points_to_iso``.
+The perturbated rig (``rig="perturbated"``) is LEAD's recovery augmentation: the sensors were rendered from a
+rig shifted sideways by ``perturbation_translation`` and turned by ``perturbation_rotation`` degrees, so every
+label is re-expressed in that virtual ego frame, as LEAD's own loader does. Facts: ``docs/datasets/carla_lead.md``.
+"""
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from lead_s2r.geometry import (
+    CARLA_REAR_AXLE_TO_CENTER,
+    carla_points_to_iso,
+    carla_poses_to_iso,
+    flip_y,
+    points_to_local,
+    rotate,
+    to_local,
+)
+from lead_s2r.registry import Adapter, LogRef, SkipLog
+from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key
+from lead_s2r_adapters.carla_lead_io import (
+    LeadFormatError,
+    array,
+    field,
+    read_jpeg,
+    read_laz,
+    read_pickle,
+    read_png,
+    read_radar,
+    route_skip_reason,
+)
+
+FPS = 20.0  # simulator and future-label rate
+FRAME_STEP = 5  # a frame is saved every 5th 20 Hz tick: 4 Hz
+MOSAIC_ID = "carla_mosaic"
+#: LEAD's 3-camera Leaderboard rig (``config_base.camera_calibration``): name, CARLA position (m, y right) and yaw
+#: (deg, clockwise), stitched left to right into one 1152x384 JPEG. Each tile is 384x384 with a 60 deg fov.
+CAMERA_RIG = (
+    ("left", (0.1, -0.35, 2.25), -54.5),
+    ("front", (0.35, 0.0, 2.25), 0.0),
+    ("right", (0.1, 0.35, 2.25), 54.5),
+)
+TILE_SIZE, CAMERA_FOV_DEG = 384, 60.0
+#: CARLA's Lincoln MKZ 2020 ego: half extents from LEAD's config, wheel base of the real car.
+EGO_HALF_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
+EGO_WHEEL_BASE = 2.85
+DEPTH_MAX_M, DEPTH_RATIO = 50.0, 4
+HDMAP_PX_PER_M, HDMAP_SIZE = 2.0, 256
+#: CARLA RoadOption -> unified command (VOID = -1 and anything unknown -> UNKNOWN).
+ROAD_OPTION = {
+    1: Command.LEFT,
+    2: Command.RIGHT,
+    3: Command.STRAIGHT,
+    4: Command.LANE_FOLLOW,
+    5: Command.CHANGE_LANE_LEFT,
+    6: Command.CHANGE_LANE_RIGHT,
+}
+EMERGENCY_TYPES = ("ambulance", "firetruck", "police")
+RIGS = ("normal", "perturbated", "both")
+
+
+def box_class(box: dict[str, Any]) -> BoxClass:
+    """LEAD bbox class (+ CARLA blueprint) -> unified box class."""
+    cls, type_id = box.get("class"), str(box.get("type_id", ""))
+    if cls == "car":
+        if any(name in type_id for name in EMERGENCY_TYPES):
+            return BoxClass.EMERGENCY_VEHICLE
+        return BoxClass.BICYCLE if box.get("base_type") == "bicycle" else BoxClass.VEHICLE
+    if cls == "static":
+        if "trafficcone" in type_id:
+            return BoxClass.TRAFFIC_CONE
+        return BoxClass.CZONE_SIGN if "warning" in type_id or "construction" in type_id else BoxClass.GENERIC_OBJECT
+    fixed = {
+        "walker": BoxClass.PEDESTRIAN,
+        "static_prop_car": BoxClass.VEHICLE,
+        "traffic_light": BoxClass.TRAFFIC_LIGHT,
+        "stop_sign": BoxClass.STOP_SIGN,
+    }
+    return fixed.get(cls, BoxClass.GENERIC_OBJECT)
+
+
+def camera_calibration() -> list[dict[str, Any]]:
+    """Per-tile pinhole calibration of the mosaic in the ISO rear-axle ego frame (OpenCV camera axes)."""
+    focal = TILE_SIZE / (2 * math.tan(math.radians(CAMERA_FOV_DEG) / 2))
+    cam_axes = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera x/y/z in ego axes (columns)
+    cameras = []
+    for tile, (name, position, yaw_deg) in enumerate(CAMERA_RIG):
+        yaw = -math.radians(yaw_deg)
+        cam_to_ego = np.eye(4)
+        cam_to_ego[:3, :3] = np.array(
+            [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
+        )
+        cam_to_ego[:3, :3] = cam_to_ego[:3, :3] @ cam_axes
+        cam_to_ego[:3, 3] = carla_points_to_iso(np.array(position))
+        cameras.append(
+            {
+                "id": MOSAIC_ID,
+                "native_name": f"rgb_{tile + 1}",
+                "tile_name": name,
+                "width": TILE_SIZE,
+                "height": TILE_SIZE,
+                "K": [[focal, 0.0, TILE_SIZE / 2], [0.0, focal, TILE_SIZE / 2], [0.0, 0.0, 1.0]],
+                "distortion": [0.0] * 5,
+                "cam_to_ego": cam_to_ego.tolist(),
+                "tile": [tile * TILE_SIZE, TILE_SIZE],
+            }
+        )
+    return cameras
+
+
+def hdmap_pixel_to_ego() -> list[list[float]]:
+    """Affine (2x3) from (column, row, 1) of the stored ``bev_semantic`` to ISO ego x, y (pixel centres).
+
+    LEAD's raster has rows along CARLA y and columns along x around the vehicle centre; it is stored rotated
+    (losslessly, ``np.rot90``) so that row 0 is the front and column 0 the left.
+    """
+    res, half = 1.0 / HDMAP_PX_PER_M, (HDMAP_SIZE - 1) / 2
+    return [[0.0, -res, half * res + CARLA_REAR_AXLE_TO_CENTER], [-res, 0.0, half * res]]
+
+
+class _Frame:
+    """Moves CARLA ego-centre geometry of one frame into the chosen rig's ISO rear-axle frame."""
+
+    def __init__(self, view: np.ndarray) -> None:
+        self.view = view  # the rig's pose (x, y, yaw) in the CARLA ego-centre frame
+
+    def poses(self, poses: np.ndarray) -> np.ndarray:
+        return carla_poses_to_iso(to_local(poses, self.view))
+
+    def points(self, points: np.ndarray) -> np.ndarray:
+        return carla_points_to_iso(points_to_local(points, self.view))
+
+    def vectors(self, vectors: np.ndarray) -> np.ndarray:
+        return flip_y(rotate(np.asarray(vectors, np.float64), -float(self.view[2])))
+
+
+class CarlaLeadAdapter(Adapter):
+    """Reads route folders as the LEAD expert writes them (``<root>/data/<Scenario>/<Route>/``).
+
+    Options: ``rig`` normal | perturbated | both (two samples per frame, keys ``..._perturbated_NNNN``);
+    ``split`` for every route, except towns in ``heldout_towns`` (comma-separated) which get ``heldout_split``;
+    ``tp_distance`` selects the ``next_target_points_<d>`` planner (LEAD trains with 3.25 m);
+    ``skip_first`` / ``skip_last`` frames per route (LEAD pretraining: 1 / 1); ``keep_failed`` keeps routes
+    that LEAD's route filter drops.
+    """
+
+    name: ClassVar[str] = "carla_lead"
+    version: ClassVar[str] = "1"
+    extras: ClassVar[str | None] = "carla"
+
+    def __init__(
+        self,
+        rig: str = "normal",
+        split: str = "train",
+        heldout_towns: str = "",
+        heldout_split: str = "val",
+        tp_distance: float = 3.25,
+        skip_first: int = 0,
+        skip_last: int = 0,
+        keep_failed: bool = False,
+    ) -> None:
+        if rig not in RIGS:
+            raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
+        if skip_first < 0 or skip_last < 0:
+            raise ValueError("skip_first and skip_last must be >= 0")
+        self.rig, self.split, self.heldout_split = rig, split, heldout_split
+        self.heldout_towns = tuple(town.strip() for town in heldout_towns.split(",") if town.strip())
+        self.tp_distance, self.skip_first, self.skip_last = float(tp_distance), skip_first, skip_last
+        self.keep_failed = keep_failed
+
+    # ------------------------------------------------------------------ logs
+
+    def list_logs(self, src: Path) -> list[LogRef]:
+        """Route folders under ``src/data/*/`` (or ``src/*/`` when ``src`` is the data folder), sorted."""
+        src = Path(src)
+        root = src / "data" if (src / "data").is_dir() else src
+        if not root.is_dir():
+            raise FileNotFoundError(f"{root}: not a folder of LEAD scenarios")
+        logs = []
+        for folder in sorted(p for p in root.glob("*/*") if p.is_dir()):
+            town = folder.name.split("_Rep")[0]
+            split = self.heldout_split if town in self.heldout_towns else self.split
+            log_id = f"{folder.parent.name}/{folder.name}"
+            logs.append(LogRef(log_id, split, str(folder), {"town": town, "scenario": folder.parent.name}))
+        return logs
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "dataset": "carla_lead",
+            "frame_rate_hz": FPS / FRAME_STEP,
+            "future": {"rate_hz": FPS, "horizon_s": 3.0},
+            "past": {"rate_hz": FPS, "horizon_s": 3.0},
+            "agents_future": {"rate_hz": FPS, "horizon_s": 2.0},
+            "rig": self.rig,
+            "tp_distance": self.tp_distance,
+            "cameras": camera_calibration(),
+            "source_frame": "CARLA ego (x forward, y right), vehicle centre; converted to ISO 8855 rear axle",
+        }
+
+    # ------------------------------------------------------------------ samples
+
+    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
+        folder = Path(log.path)
+        if not self.keep_failed:
+            reason = route_skip_reason(folder)
+            if reason is not None:
+                raise SkipLog(f"{log.log_id}: {reason}")
+        frames = sorted(path.stem for path in (folder / "bboxes").glob("*.pkl"))
+        if not frames:
+            raise LeadFormatError(folder / "bboxes", "no frames (LEAD counts frames by the files in bboxes/)")
+        rigs = ("normal", "perturbated") if self.rig == "both" else (self.rig,)
+        for name in frames[self.skip_first : len(frames) - self.skip_last]:
+            meta_path = folder / "metas" / f"{name}.pkl"
+            meta = read_pickle(meta_path)
+            boxes = read_pickle(folder / "bboxes" / f"{name}.pkl")
+            if not isinstance(boxes, list):
+                raise LeadFormatError(folder / "bboxes" / f"{name}.pkl", f"expected a list, got {type(boxes).__name__}")
+            for rig in rigs:
+                yield self._sample(log, folder, name, meta, meta_path, boxes, rig)
+
+    def _view(self, meta: dict[str, Any], path: Path, rig: str) -> np.ndarray:
+        if rig == "normal":
+            return np.zeros(3)
+        translation = float(field(meta, "perturbation_translation", path))
+        rotation = float(field(meta, "perturbation_rotation", path))
+        return np.array([0.0, translation, math.radians(rotation)])
+
+    def _sample(
+        self, log: LogRef, folder: Path, name: str, meta: dict[str, Any], path: Path, boxes: list, rig: str
+    ) -> dict[str, Any]:
+        frame = _Frame(self._view(meta, path, rig))
+        suffix = "_perturbated" if rig == "perturbated" else ""
+        index = int(name)
+        key = make_key(log.log_id, name) if rig == "normal" else make_key(log.log_id, "perturbated", name)
+        sample: dict[str, Any] = {"__key__": key, "past": self._past(meta, path, frame)}
+        future = self._future(meta, path, frame)
+        if future is not None:
+            sample["future"] = future
+        command_raw, target_points = self._navigation(meta, path, frame)
+        sample["target_points"] = target_points
+        route = array(meta, "route", path, columns=2) if "route" in meta else None
+        if route is not None and len(route):
+            sample["route"] = frame.points(route[:, :2]).astype(np.float32)
+        sample.update(self._boxes(boxes, frame))
+        sample.update(self._sensors(folder, name, suffix, frame))
+        extras = self._extras(log, meta, boxes, rig)
+        sample["meta"] = self._meta(log, meta, path, index, frame, command_raw, sample, extras)
+        return sample
+
+    def _future(self, meta: dict[str, Any], path: Path, frame: _Frame) -> np.ndarray | None:
+        """``future_positions``/``future_yaws`` at 20 Hz, index 0 = now (dropped), in the current ego frame."""
+        positions = array(meta, "future_positions", path, columns=2)
+        yaws = array(meta, "future_yaws", path)
+        if len(yaws) != len(positions):
+            raise LeadFormatError(path, f"{len(yaws)} yaws for {len(positions)} future positions", "future_yaws")
+        if len(positions) < 2:
+            return None
+        poses = frame.poses(np.column_stack([positions[1:, :2], yaws[1:]]))
+        t = np.arange(1, len(positions)) / FPS
+        return np.column_stack([t, poses]).astype(np.float32)
+
+    def _past(self, meta: dict[str, Any], path: Path, frame: _Frame) -> np.ndarray:
+        """``past_positions``/``past_yaws`` at 20 Hz, newest first (index 0 = now); just t = 0 when absent."""
+        if "past_positions" in meta and "past_yaws" in meta:
+            positions = array(meta, "past_positions", path, columns=2)[::-1]
+            yaws = array(meta, "past_yaws", path)[::-1]
+            if len(yaws) != len(positions):
+                raise LeadFormatError(path, f"{len(yaws)} yaws for {len(positions)} past positions", "past_yaws")
+        else:
+            positions, yaws = np.zeros((0, 2)), np.zeros(0)
+        if len(positions) == 0:
+            positions, yaws = np.zeros((1, 2)), np.zeros(1)
+        poses = frame.poses(np.column_stack([positions[:, :2], yaws]))
+        t = (np.arange(len(positions)) - (len(positions) - 1)) / FPS
+        return np.column_stack([t, poses]).astype(np.float32)
+
+    def _navigation(self, meta: dict[str, Any], path: Path, frame: _Frame) -> tuple[int, np.ndarray]:
+        """Previous / current / next target point (NaN row = absent) and the command of the previous one.
+
+        World points go to the ego frame as ``R(theta)^T (p - pos_global)``; consecutive duplicates are merged.
+        """
+        suffix = f"_{self.tp_distance}"
+        points = array(meta, f"next_target_points{suffix}", path, columns=2)[:, :2]
+        commands = list(field(meta, f"next_commands{suffix}", path))
+        origin = np.r_[array(meta, "pos_global", path)[:2], float(field(meta, "theta", path))]
+        local = points_to_local(points, origin)
+        if len(local) > 1:
+            keep = np.r_[True, np.any(np.abs(np.diff(local, axis=0)) > 1e-6, axis=1)]
+            local = local[keep]
+        rows = np.full((3, 2), np.nan)
+        if len(local):
+            rows[: min(3, len(local))] = frame.points(local[:3])
+        command_raw = int(commands[0]) if commands else -1
+        return command_raw, rows.astype(np.float32)
+
+    def _boxes(self, boxes: list[dict[str, Any]], frame: _Frame) -> dict[str, Any]:
+        """``boxes`` (N, 10) and, for boxes with ``future_positions`` (20 Hz, index 0 = now), ``agents_future``."""
+        others = [box for box in boxes if box.get("class") != "ego_car"]
+        rows = np.zeros((len(others), 10), np.float64)
+        horizon = max((len(box["future_positions"]) - 1 for box in others if "future_positions" in box), default=0)
+        poses = np.full((len(others), horizon, 3), np.nan)
+        for i, box in enumerate(others):
+            extent = np.asarray(box["extent"], np.float64)
+            position = np.asarray(box["position"], np.float64)
+            yaw = float(box["yaw"])
+            pose = frame.poses(np.array([position[0], position[1], yaw]))
+            velocity = frame.vectors(float(box.get("speed", 0.0)) * np.array([math.cos(yaw), math.sin(yaw)]))
+            rows[i] = [*pose[:2], position[2], *(2 * extent), pose[2], *velocity, box_class(box)]
+            if "future_positions" in box:
+                future = np.asarray(box["future_positions"], np.float64)[1:, :2]
+                yaws = np.asarray(box["future_yaws"], np.float64)[1:]
+                poses[i, : len(future)] = frame.poses(np.column_stack([future, yaws]))
+        out: dict[str, Any] = {"boxes": rows.astype(np.float32)}
+        if horizon:
+            valid = ~np.isnan(poses[..., 0])
+            t = (np.arange(1, horizon + 1) / FPS).astype(np.float32)
+            out["agents_future"] = {"poses": poses.astype(np.float32), "valid": valid, "t": t}
+        return out
+
+    def _sensors(self, folder: Path, name: str, suffix: str, frame: _Frame) -> dict[str, Any]:
+        """Camera mosaic, perspective labels, hdmap, LiDAR and radar of one frame, each where its file exists."""
+        out: dict[str, Any] = {}
+        rgb = folder / f"rgb{suffix}" / f"{name}.jpg"
+        if rgb.is_file():
+            out[f"cam_{MOSAIC_ID}"] = read_jpeg(rgb)
+        semantic = folder / f"semantics{suffix}" / f"{name}.png"
+        if semantic.is_file():
+            out[f"semantic_{MOSAIC_ID}"] = read_png(semantic)
+        depth = folder / f"depth{suffix}" / f"{name}.png"
+        if depth.is_file():
+            out[f"depth_{MOSAIC_ID}"] = read_png(depth)
+        hdmap = folder / f"hdmap{suffix}" / f"{name}.png"
+        if hdmap.is_file():
+            out["bev_semantic"] = np.ascontiguousarray(np.rot90(read_png(hdmap)))
+        lidar = folder / "lidar" / f"{name}.laz"
+        if lidar.is_file():  # one LiDAR for both rigs: LEAD re-aligns it in software
+            points, sweep = read_laz(lidar)
+            out["lidar"] = np.column_stack([frame.points(points), -sweep / FPS]).astype(np.float32)
+        radar = folder / f"radar{suffix}" / f"{name}.npz"
+        if radar.is_file():  # the perturbated radar was recorded from the perturbated rig, in its frame
+            clouds = read_radar(radar)
+            rows = [
+                np.column_stack([carla_points_to_iso(c[:, :3]), c[:, 3], np.full(len(c), i)])
+                for i, c in enumerate(clouds)
+            ]
+            out["radar"] = np.concatenate(rows).astype(np.float32)
+        return out
+
+    def _extras(self, log: LogRef, meta: dict[str, Any], boxes: list[dict[str, Any]], rig: str) -> dict[str, Any]:
+        others = [box for box in boxes if box.get("class") != "ego_car"]
+        return {
+            "carla_lead": {
+                "town": meta.get("town", log.extra.get("town")),
+                "scenario": meta.get("scenario", log.extra.get("scenario")),
+                "route": Path(log.path).name,
+                "weather": meta.get("weather_setting"),
+                "jpeg_quality": meta.get("jpeg_storage_quality"),
+                "rig": rig,
+                "perturbation_translation": meta.get("perturbation_translation"),
+                "perturbation_rotation_deg": meta.get("perturbation_rotation"),
+                "target_speed": _number(meta.get("target_speed")),
+                "brake": bool(meta.get("brake", False)),
+                "box_ids": [int(box.get("id", -1)) for box in others],
+                "box_classes": [str(box.get("class")) for box in others],
+                "traffic_light_states": [
+                    str(box.get("state")) for box in others if box.get("class") == "traffic_light"
+                ],
+            }
+        }
+
+    def _meta(
+        self,
+        log: LogRef,
+        meta: dict[str, Any],
+        path: Path,
+        index: int,
+        frame: _Frame,
+        command_raw: int,
+        sample: dict[str, Any],
+        extras: dict[str, Any],
+    ) -> dict[str, Any]:
+        speed = float(field(meta, "speed", path))
+        acceleration = [float(meta.get("accel_x", 0.0)), float(meta.get("accel_y", 0.0))]
+        out: dict[str, Any] = {
+            "schema_version": SCHEMA_VERSION,
+            "dataset": "carla_lead",
+            "split": log.split,
+            "log_id": log.log_id,
+            "frame_idx": index,
+            "timestamp_us": index * FRAME_STEP * 1_000_000 // int(FPS),
+            "is_synthetic": True,
+            "location": extras["carla_lead"]["town"],
+            "adapter": self.name,
+            "adapter_version": self.version,
+            "ego": {
+                "speed": speed,
+                "velocity": frame.vectors(np.array([speed, 0.0])).tolist(),
+                "acceleration": frame.vectors(np.array(acceleration)).tolist(),
+                "yaw_rate": -float(meta.get("angular_velocity_z", 0.0)),
+                "command": int(ROAD_OPTION.get(command_raw, Command.UNKNOWN)),
+                "command_raw": command_raw,
+            },
+            "vehicle": {
+                "length": 2 * EGO_HALF_EXTENT[0],
+                "width": 2 * EGO_HALF_EXTENT[1],
+                "height": 2 * EGO_HALF_EXTENT[2],
+                "wheel_base": EGO_WHEEL_BASE,
+                "rear_axle_to_center": CARLA_REAR_AXLE_TO_CENTER,
+            },
+            "cameras": camera_calibration() if f"cam_{MOSAIC_ID}" in sample else [],
+            "has": {name: True for name in sample if name != "__key__"},
+            "extras": extras,
+        }
+        for name in ("future", "lidar", "radar", "route", f"cam_{MOSAIC_ID}", "bev_semantic", "agents_future"):
+            out["has"].setdefault(name, False)
+        out["has"].setdefault(f"depth_{MOSAIC_ID}", False)
+        out["has"].setdefault(f"semantic_{MOSAIC_ID}", False)
+        if "lidar" in sample:
+            out["lidar_columns"] = ["x", "y", "z", "time"]
+        if "radar" in sample:
+            out["radar_sensors"] = ["radar1", "radar2", "radar3", "radar4"]
+        if "bev_semantic" in sample:
+            out["bev"] = {"classes": "carla_hdmap", "pixel_to_ego": hdmap_pixel_to_ego()}
+        if f"depth_{MOSAIC_ID}" in sample:
+            out["depth"] = {"encoding": "linear_uint8", "max_m": DEPTH_MAX_M, "downscale": DEPTH_RATIO}
+        if f"semantic_{MOSAIC_ID}" in sample:
+            out["semantic"] = {"classes": "carla_semantic"}
+        return out
+
+
+def _number(value: Any) -> float | None:
+    return None if value is None else float(value)

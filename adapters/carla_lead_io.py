@@ -1,0 +1,186 @@
+"""Readers for the files of a LEAD route folder; every failure names the file (and the field where there is one).
+
+LEAD's ``.pkl`` files are LZMA streams holding pickles. Pickles can run arbitrary code, so they are loaded with an
+unpickler that only admits plain builtin containers/scalars and numpy arrays/scalars.
+"""
+
+import io
+import json
+import lzma
+import pickle
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Builtins a LEAD pickle may name: data types only (never eval, getattr, __import__...).
+_SAFE_BUILTINS = frozenset(
+    {"dict", "list", "tuple", "set", "frozenset", "int", "float", "complex", "bool", "str", "bytes", "bytearray",
+     "slice", "range"}
+)  # fmt: skip
+#: numpy callables that (un)pickling arrays, dtypes and scalars goes through, per numpy 1.x and 2.x module layout.
+_SAFE_NUMPY = frozenset({"_reconstruct", "scalar", "ndarray", "dtype", "_frombuffer"})
+_NUMPY_MODULES = frozenset(
+    {"numpy", "numpy.core.multiarray", "numpy._core.multiarray", "numpy.core.numeric", "numpy._core.numeric"}
+)
+
+
+class LeadFormatError(ValueError):
+    """A LEAD file that cannot be read as LEAD writes it; the message names the file and the field."""
+
+    def __init__(self, path: Path, problem: str, field: str | None = None) -> None:
+        where = f"{path}" if field is None else f"{path} (field {field!r})"
+        super().__init__(f"{where}: {problem}")
+        self.path, self.field, self.problem = path, field, problem
+
+
+class _NumpyOnlyUnpickler(pickle.Unpickler):
+    def __init__(self, file: io.BufferedIOBase, path: Path) -> None:
+        super().__init__(file)
+        self.path = path
+
+    def find_class(self, module: str, name: str) -> Any:
+        if module == "builtins" and name in _SAFE_BUILTINS:
+            return super().find_class(module, name)
+        if module in _NUMPY_MODULES and name in _SAFE_NUMPY:
+            return super().find_class(module, name)
+        if module == "numpy.dtypes" and name.endswith("DType"):
+            return super().find_class(module, name)
+        if (
+            module == "numpy"
+            and isinstance(getattr(np, name, None), type)
+            and issubclass(getattr(np, name), np.generic)
+        ):
+            return super().find_class(module, name)
+        raise LeadFormatError(self.path, f"pickle refers to {module}.{name}; only builtins and numpy are allowed")
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise LeadFormatError(self.path, "pickle uses persistent ids, which LEAD never writes")
+
+
+def read_pickle(path: Path) -> Any:
+    """Load one LZMA-compressed LEAD pickle with the restricted unpickler."""
+    try:
+        with lzma.open(path, "rb") as file:
+            return _NumpyOnlyUnpickler(file, path).load()
+    except LeadFormatError:
+        raise
+    except (lzma.LZMAError, EOFError) as err:
+        raise LeadFormatError(path, f"truncated or corrupt LZMA pickle ({err or type(err).__name__})") from err
+    except (pickle.UnpicklingError, ValueError, TypeError, AttributeError, IndexError) as err:
+        raise LeadFormatError(path, f"not a valid pickle ({type(err).__name__}: {err})") from err
+    except OSError as err:
+        raise LeadFormatError(path, f"cannot be read ({err})") from err
+
+
+def field(record: dict[str, Any], name: str, path: Path) -> Any:
+    """``record[name]`` or an error naming the file and the missing field."""
+    if not isinstance(record, dict):
+        raise LeadFormatError(path, f"expected a dict, got {type(record).__name__}")
+    if name not in record:
+        raise LeadFormatError(path, "required field is missing", name)
+    return record[name]
+
+
+def array(record: dict[str, Any], name: str, path: Path, columns: int | None = None) -> np.ndarray:
+    """A numeric field as float64 (N,) or (N, columns), with an error naming file and field on a bad shape."""
+    try:
+        values = np.asarray(field(record, name, path), dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise LeadFormatError(path, f"not numeric ({err})", name) from err
+    if columns is not None:
+        if values.size == 0:
+            values = values.reshape(0, columns)
+        if values.ndim != 2 or values.shape[1] < columns:
+            raise LeadFormatError(path, f"expected shape (N, >={columns}), got {values.shape}", name)
+    return values
+
+
+def read_laz(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file."""
+    try:
+        import laspy
+    except ImportError as err:  # pragma: no cover - depends on the environment
+        raise ImportError("reading LEAD LiDAR needs laspy with lazrs: pip install 'lead-s2r[carla]'") from err
+    try:
+        las = laspy.read(str(path))
+        points = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)]).astype(np.float64)
+        names = set(las.point_format.extra_dimension_names)
+        if "time" not in names:
+            raise LeadFormatError(path, "LAS file has no extra dimension 'time'", "time")
+        return points, np.asarray(las["time"], dtype=np.float64)
+    except LeadFormatError:
+        raise
+    except Exception as err:  # laspy/lazrs raise many types for damaged files
+        raise LeadFormatError(path, f"corrupt LAZ file ({type(err).__name__}: {err})") from err
+
+
+RADAR_KEYS = ("radar1", "radar2", "radar3", "radar4")
+
+
+def read_radar(path: Path) -> list[np.ndarray]:
+    """The four radar clouds (n, 4) = x, y, z, radial velocity of one LEAD radar ``.npz`` (float16 on disk)."""
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            clouds = []
+            for key in RADAR_KEYS:
+                cloud = npz[key] if key in npz.files else np.zeros((0, 4), np.float16)
+                if cloud.ndim != 2 or cloud.shape[1] != 4:
+                    raise LeadFormatError(path, f"expected shape (n, 4), got {cloud.shape}", key)
+                clouds.append(cloud.astype(np.float64))
+            return clouds
+    except LeadFormatError:
+        raise
+    except Exception as err:
+        raise LeadFormatError(path, f"corrupt radar npz ({type(err).__name__}: {err})") from err
+
+
+def read_png(path: Path) -> np.ndarray:
+    """A single-channel uint8 PNG label exactly as stored."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise LeadFormatError(path, "cannot be decoded as PNG")
+    if image.ndim != 2 or image.dtype != np.uint8:
+        raise LeadFormatError(path, f"expected a single-channel uint8 image, got {image.dtype} {image.shape}")
+    return image
+
+
+def read_jpeg(path: Path) -> bytes:
+    """JPEG bytes as stored (never decoded and re-encoded)."""
+    data = path.read_bytes()
+    if data[:2] != b"\xff\xd8":
+        raise LeadFormatError(path, "not a JPEG file (no FFD8 start marker)")
+    return data
+
+
+#: Infractions LEAD tolerates in a route it would otherwise drop (``route_filtering.py``).
+_MIN_SPEED = "min_speed_infractions"
+_OUTSIDE_LANES = "outside_route_lanes"
+
+
+def route_skip_reason(folder: Path) -> str | None:
+    """Why LEAD's route filter leaves this route out, or None if it keeps it.
+
+    Kept: score 100; or only min-speed infractions; or status Completed with only min-speed / outside-lane ones.
+    """
+    results = folder / "results.json"
+    if not results.is_file():
+        return "no results.json (the route did not finish recording)"
+    if not (folder / "metas" / "0000.pkl").is_file():
+        return "no metas/0000.pkl"
+    try:
+        record = json.loads(results.read_text())
+    except json.JSONDecodeError as err:
+        raise LeadFormatError(results, f"invalid JSON ({err})") from err
+    score = float(field(field(record, "scores", results), "score_composed", results))
+    if score >= 100.0:
+        return None
+    kinds = {name for name, items in (record.get("infractions") or {}).items() if items}
+    if kinds <= {_MIN_SPEED}:
+        return None
+    status = str(record.get("status", ""))
+    if status.startswith("Completed") and kinds <= {_MIN_SPEED, _OUTSIDE_LANES}:
+        return None
+    return f"failed route: status {status!r}, score {score:g}, infractions {sorted(kinds)}"

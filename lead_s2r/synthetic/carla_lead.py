@@ -1,0 +1,494 @@
+"""Write tiny LEAD CARLA route folders in the expert's true on-disk format (see ``docs/datasets/carla_lead.md``).
+
+Each route is a short, physically plausible drive in CARLA's left-handed world (x forward, y right, yaw
+clockwise): a left turn, a right turn, or a stop, cycled over the routes. Everything is written the way the LEAD
+expert writes it: 4 Hz frames of a 20 Hz simulation, LZMA-compressed pickles for metas and boxes (ego-centre
+frame, y right), a 3-camera 1152x384 JPEG mosaic at q=30 plus a perturbated-rig twin, 1/4-resolution 8-bit depth,
+256x256 hdmap at 2 px/m, LAZ LiDAR with a ``time`` extra dimension and float16 radar npz files.
+"""
+
+import json
+import lzma
+import pickle
+import pickletools
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+FPS = 20
+SAVE_FREQ = 5
+DT = 1.0 / FPS
+EGO_FUTURE_STEPS = 60
+OTHER_FUTURE_STEPS = 40
+PAST_STEPS = 60
+TP_DISTANCES = (3.0, 3.25)
+DEFAULT_TP_DISTANCE = 7.5
+ROUTE_POINTS = 50
+TURN_RADIUS = 10.0
+TURN_START = 8.0
+MOSAIC = (384, 1152)
+DEPTH_RATIO = 4
+HDMAP_SIZE = 256
+HDMAP_PX_PER_M = 2.0
+JPEG_QUALITY = 30
+EGO_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
+
+# CARLA RoadOption codes as the expert stores them.
+LEFT, RIGHT, STRAIGHT, LANEFOLLOW = 1, 2, 3, 4
+KINDS = ("left", "right", "stop")
+SCENARIOS = {
+    "left": "SignalizedJunctionLeftTurn",
+    "right": "SignalizedJunctionRightTurn",
+    "stop": "PedestrianCrossing",
+}
+TOWNS = ("Town12", "Town13", "Town10HD")
+
+
+@dataclass
+class Drive:
+    """The ego's 20 Hz world trajectory and the geometric path it follows (arc length -> pose)."""
+
+    kind: str
+    pose: np.ndarray  # (S, 3) world x, y, theta
+    speed: np.ndarray  # (S,)
+    accel: np.ndarray  # (S,) longitudinal
+    yaw_rate: np.ndarray  # (S,) CARLA sign: positive turns right
+    arc: np.ndarray  # (S,) arc length travelled
+    path: np.ndarray  # (P, 3) world poses every 0.1 m of arc length
+    plan: list[tuple[float, int]]  # (arc length, RoadOption) of the sparse global plan
+
+
+def _curvature(kind: str, s: np.ndarray) -> np.ndarray:
+    """Signed curvature along the path; a left turn is negative in CARLA's clockwise-yaw convention."""
+    turning = (s >= TURN_START) & (s < TURN_START + np.pi / 2 * TURN_RADIUS)
+    sign = {"left": -1.0, "right": 1.0, "stop": 0.0}[kind]
+    return np.where(turning, sign / TURN_RADIUS, 0.0)
+
+
+def _integrate_path(kind: str, start: np.ndarray, length: float, ds: float = 0.1) -> np.ndarray:
+    """World poses every ``ds`` metres of the route centreline (midpoint rule, exact on arcs to 1e-6 m)."""
+    s = np.arange(0.0, length + ds, ds)
+    theta = start[2] + np.concatenate([[0.0], np.cumsum(_curvature(kind, s[:-1] + ds / 2) * ds)])
+    mid = (theta[:-1] + theta[1:]) / 2
+    x = start[0] + np.concatenate([[0.0], np.cumsum(np.cos(mid) * ds)])
+    y = start[1] + np.concatenate([[0.0], np.cumsum(np.sin(mid) * ds)])
+    return np.stack([x, y, theta], axis=1)
+
+
+def _speed_profile(kind: str, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Speed and longitudinal acceleration at 20 Hz: cruise through turns, brake to a standstill for a stop."""
+    t = np.arange(steps) * DT
+    if kind != "stop":
+        return np.full(steps, 6.0), np.zeros(steps)
+    v0, brake_at, decel = 7.0, 1.0, 3.0
+    speed = np.clip(v0 - decel * np.clip(t - brake_at, 0.0, None), 0.0, None)
+    accel = np.where((t >= brake_at) & (speed > 0), -decel, 0.0)
+    return speed, accel
+
+
+def make_drive(kind: str, steps: int, rng: np.random.Generator) -> Drive:
+    """Simulate the ego along its route for ``steps`` 20 Hz ticks."""
+    speed, accel = _speed_profile(kind, steps)
+    s = np.concatenate([[0.0], np.cumsum((speed[:-1] + speed[1:]) / 2 * DT)])
+    start = np.array([rng.uniform(-200, 200), rng.uniform(-200, 200), rng.uniform(-np.pi, np.pi)])
+    path = _integrate_path(kind, start, s[-1] + ROUTE_POINTS + 40.0)
+    idx = s / 0.1
+    lo = np.minimum(idx.astype(int), len(path) - 2)
+    frac = (idx - lo)[:, None]
+    pose = path[lo] * (1 - frac) + path[lo + 1] * frac
+    yaw_rate = _curvature(kind, s) * speed
+    turn_end = TURN_START + np.pi / 2 * TURN_RADIUS
+    if kind == "stop":
+        plan = [(10.0 * i, STRAIGHT if i == 2 else LANEFOLLOW) for i in range(int(path_len(path) // 10))]
+    else:
+        option = LEFT if kind == "left" else RIGHT
+        plan = [(0.0, LANEFOLLOW), (TURN_START, option), ((TURN_START + turn_end) / 2, option), (turn_end, LANEFOLLOW)]
+        plan += [(d, LANEFOLLOW) for d in np.arange(turn_end + 10.0, path_len(path), 10.0)]
+    return Drive(kind, pose, speed, accel, yaw_rate, s, path, plan)
+
+
+def path_len(path: np.ndarray) -> float:
+    return (len(path) - 1) * 0.1
+
+
+def to_ego(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """World xy (..., 2) -> ego frame of ``pose`` (x forward, y right in CARLA's left-handed world)."""
+    delta = np.asarray(points, np.float64)[..., :2] - pose[:2]
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    return np.stack([cos * delta[..., 0] + sin * delta[..., 1], -sin * delta[..., 0] + cos * delta[..., 1]], -1)
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def write_pickle(path: Path, obj: object) -> None:
+    """LEAD's ``write_pickle``: an optimised pickle inside an LZMA stream, despite the ``.pkl`` name."""
+    with lzma.open(path, "wb") as file:
+        file.write(pickletools.optimize(pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)))
+
+
+class _Planner:
+    """A route planner popping global-plan points once the ego is within ``distance`` of the next one."""
+
+    def __init__(self, points: np.ndarray, commands: list[int], distance: float) -> None:
+        self.points, self.commands, self.distance = list(points), list(commands), distance
+        self.popped: list[tuple[np.ndarray, int]] = []
+
+    def step(self, position: np.ndarray) -> None:
+        while len(self.points) > 1 and np.hypot(*(self.points[1][:2] - position[:2])) < self.distance:
+            self.popped.append((self.points.pop(0), self.commands.pop(0)))
+
+    def state(self, suffix: str) -> dict[str, list]:
+        last = self.popped[-1:]
+        return {
+            f"next_target_points{suffix}": [p.tolist() for p in self.points],
+            f"next_commands{suffix}": list(self.commands),
+            f"previous_target_points{suffix}": [p.tolist() for p, _ in last],
+            f"previous_commands{suffix}": [c for _, c in last],
+        }
+
+
+@dataclass
+class Actor:
+    """Another road user moving at constant velocity in the world, or a static object."""
+
+    cls: str
+    actor_id: int
+    type_id: str
+    extent: tuple[float, float, float]
+    start: np.ndarray  # world x, y, yaw
+    speed: float
+
+    def pose_at(self, step: np.ndarray) -> np.ndarray:
+        t = np.asarray(step, np.float64) * DT
+        x = self.start[0] + self.speed * t * np.cos(self.start[2])
+        y = self.start[1] + self.speed * t * np.sin(self.start[2])
+        return np.stack([x, y, np.full_like(t, self.start[2])], -1)
+
+
+def make_actors(drive: Drive, rng: np.random.Generator) -> list[Actor]:
+    """A car ahead in the ego's lane, an oncoming car, a crossing pedestrian, a cone and a traffic light."""
+
+    def at(s: float, lateral: float) -> np.ndarray:
+        pose = drive.path[int(s / 0.1)]
+        return pose + np.array([-np.sin(pose[2]) * lateral, np.cos(pose[2]) * lateral, 0.0])
+
+    car = at(14.0, 0.0)
+    oncoming = at(30.0, -3.5) + np.array([0.0, 0.0, np.pi])
+    walker = at(20.0, 6.0) + np.array([0.0, 0.0, -np.pi / 2])
+    return [
+        Actor("car", 101, "vehicle.lincoln.mkz_2020", (2.45, 1.06, 0.76), car, 5.0 + rng.uniform(0, 1)),
+        Actor("car", 102, "vehicle.ford.ambulance", (3.2, 1.2, 1.2), oncoming, 4.0),
+        Actor("walker", 201, "walker.pedestrian.0012", (0.3, 0.3, 0.9), walker, 1.2),
+        Actor("static", 301, "static.prop.trafficcone01", (0.2, 0.2, 0.4), at(6.0, 2.5), 0.0),
+        Actor("traffic_light", 401, "traffic.traffic_light", (0.3, 0.3, 1.5), at(19.0, 3.0), 0.0),
+    ]
+
+
+def _matrix(pose: np.ndarray) -> list[list[float]]:
+    """4x4 world transform of a planar pose, as CARLA's ``get_matrix`` gives it."""
+    matrix = np.eye(4)
+    matrix[:2, :2] = [[np.cos(pose[2]), -np.sin(pose[2])], [np.sin(pose[2]), np.cos(pose[2])]]
+    matrix[:2, 3] = pose[:2]
+    return matrix.tolist()
+
+
+def _box(actor: Actor, ego: np.ndarray, step: int, kind: str) -> dict:
+    pose = actor.pose_at(np.array([step]))[0]
+    rel = to_ego(pose[None, :2], ego)[0]
+    box = {
+        "class": actor.cls,
+        "extent": list(actor.extent),
+        "position": [float(rel[0]), float(rel[1]), float(actor.extent[2])],
+        "yaw": float(_wrap(pose[2] - ego[2])),
+        "speed": actor.speed,
+        "id": actor.actor_id,
+        "type_id": actor.type_id,
+        "distance": float(np.hypot(*rel)),
+        "matrix": _matrix(pose),
+        "num_points": 40,
+        "visible_pixels": 500,
+    }
+    if actor.cls == "traffic_light":
+        box.update(state="Red" if kind == "stop" else "Green", affects_ego=True, same_lane_as_ego=True)
+        return box
+    if actor.cls == "static":
+        box["mesh_path"] = "/Game/Carla/Static/TrafficCone/SM_TrafficCone.SM_TrafficCone"
+        return box
+    future = actor.pose_at(step + np.arange(OTHER_FUTURE_STEPS + 1))
+    box.update(
+        brake=False,
+        num_radar_points=3,
+        role_name="scenario" if actor.cls == "car" else "walker",
+        transfuser_semantics_id=1 if actor.cls == "car" else 4,
+        lane_type_str="Driving",
+        base_type="car" if actor.cls == "car" else "",
+        future_positions=to_ego(future[:, :2], ego).astype(np.float16),
+        future_yaws=_wrap(future[:, 2] - ego[2]).astype(np.float16),
+    )
+    return box
+
+
+def _ego_box(speed: float) -> dict:
+    return {
+        "class": "ego_car",
+        "extent": list(EGO_EXTENT),
+        "position": [0.0, 0.0, 0.0],
+        "yaw": 0.0,
+        "speed": speed,
+        "brake": False,
+        "id": 1,
+        "matrix": np.eye(4).tolist(),
+    }
+
+
+def _mosaic(frame: int, shift: float, rng: np.random.Generator) -> np.ndarray:
+    """A cheap but frame-specific BGR scene: sky, road with lane lines, the frame number."""
+    h, w = MOSAIC
+    image = np.empty((h, w, 3), np.uint8)
+    image[: h // 2] = (200, 160, 110)
+    image[h // 2 :] = (90, 90, 90)
+    for tile in range(3):
+        x0 = tile * 384 + 192 + int(shift * 40)
+        cv2.line(image, (x0, h // 2), (x0 - 150, h - 1), (255, 255, 255), 4)
+        cv2.line(image, (x0, h // 2), (x0 + 150, h - 1), (255, 255, 255), 4)
+    cv2.putText(image, f"frame {frame}", (40, 60), cv2.FONT_HERSHEY_SIMPLEX, 1.5, (0, 0, 255), 3)
+    image[h // 2 :] += rng.integers(0, 20, (h - h // 2, w, 3), dtype=np.uint8)
+    return image
+
+
+def _semantics() -> np.ndarray:
+    h, w = MOSAIC
+    label = np.zeros((h, w), np.uint8)
+    label[h // 2 :] = 2  # ROAD
+    label[h // 2 + 20 : h // 2 + 30] = 5  # ROAD_LINE
+    label[h // 2 - 40 : h // 2, 500:560] = 1  # VEHICLE
+    return label
+
+
+def _depth(frame: int) -> np.ndarray:
+    """Depth in metres per pixel at 1/4 resolution, encoded as LEAD does: clip(d, 0, 50) / 50 * 255."""
+    h, w = MOSAIC[0] // DEPTH_RATIO, MOSAIC[1] // DEPTH_RATIO
+    rows = np.linspace(80.0, 2.0, h)[:, None] + np.zeros((1, w)) + 0.1 * frame
+    return (np.clip(rows, 0, 50) / 50 * 255).astype(np.uint8)
+
+
+def _hdmap(drive: Drive, ego: np.ndarray) -> np.ndarray:
+    """Ego-centred ChauffeurNet raster: rows follow ego y (right), columns ego x, 2 px/m, ego centre in the middle."""
+    raster = np.zeros((HDMAP_SIZE, HDMAP_SIZE), np.uint8)
+    local = to_ego(drive.path[::10, :2], ego)
+    pixels = np.round(local * HDMAP_PX_PER_M + HDMAP_SIZE / 2 - 0.5).astype(np.int32)[:, None, :]
+    cv2.polylines(raster, [pixels], False, 1, thickness=int(7 * HDMAP_PX_PER_M))  # ROAD
+    cv2.polylines(raster, [pixels], False, 4, thickness=1)  # LANE_MARKERS_BROKEN
+    return raster
+
+
+def _lidar_points(boxes: list[dict], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the box surfaces (sweeps 0..4) and a building facade, in the ego frame, inside the BEV box."""
+    clouds, times = [], []
+    for box in boxes[1:]:
+        n = 60
+        local = rng.uniform(-1, 1, (n, 3)) * np.asarray(box["extent"])
+        yaw = box["yaw"]
+        xy = np.stack(
+            [
+                np.cos(yaw) * local[:, 0] - np.sin(yaw) * local[:, 1],
+                np.sin(yaw) * local[:, 0] + np.cos(yaw) * local[:, 1],
+            ],
+            -1,
+        )
+        clouds.append(np.column_stack([xy + box["position"][:2], local[:, 2] + box["position"][2]]))
+        times.append(rng.integers(0, 5, n))
+    facade = np.column_stack([rng.uniform(-30, 60, 400), np.full(400, 15.0), rng.uniform(0.2, 8, 400)])
+    clouds.append(facade)
+    times.append(rng.integers(0, 10, 400))
+    points = np.concatenate(clouds)
+    keep = (points[:, 0] > -32) & (points[:, 0] < 64) & (np.abs(points[:, 1]) < 40)
+    keep &= (points[:, 2] > -4) & (points[:, 2] < 10)
+    return points[keep], np.concatenate(times)[keep].astype(np.uint8)
+
+
+def write_laz(path: Path, points: np.ndarray, time: np.ndarray) -> None:
+    """LAS 1.2, point format 0, 0.1 m scale, offset at the minimum, extra uint8 ``time``, LAZ via lazrs."""
+    import laspy
+
+    header = laspy.LasHeader(point_format=0, version="1.2")
+    header.add_extra_dim(laspy.ExtraBytesParams(name="time", type=np.uint8))
+    header.scales = np.array([0.1, 0.1, 0.1])
+    header.offsets = points.min(axis=0) if len(points) else np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = points[:, 0], points[:, 1], points[:, 2]
+    las.time = time
+    las.write(str(path), laz_backend=laspy.LazBackend.Lazrs)
+
+
+def _radar(boxes: list[dict], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Four float16 (n, 4) radar clouds: x, y, z, radial velocity of hits on the moving boxes, ego frame."""
+    hits = [box for box in boxes[1:] if "num_radar_points" in box]
+    out = {}
+    for sensor in range(1, 5):
+        rows = []
+        for box in hits:
+            x, y, z = box["position"]
+            if (x >= 0) == (sensor <= 2):
+                radial = box["speed"] * np.cos(box["yaw"] - np.arctan2(y, x))
+                rows.append([x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z, radial])
+        out[f"radar{sensor}"] = np.asarray(rows, np.float16).reshape(-1, 4)
+    return out
+
+
+def _view(points: np.ndarray, translation: float, rotation_deg: float) -> np.ndarray:
+    """Ego-frame xy -> the perturbated rig's view frame (shifted by ``translation`` along y, rotated by yaw)."""
+    return to_ego(points, np.array([0.0, translation, np.deg2rad(rotation_deg)]))
+
+
+def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict) -> dict:
+    ego = drive.pose[step]
+    future = drive.pose[step : step + EGO_FUTURE_STEPS + 1]
+    past = drive.pose[max(step - PAST_STEPS, 0) : step + 1][::-1]
+    s_now = float(drive.arc[step])
+    route_s = s_now + 2.5 + np.arange(ROUTE_POINTS)
+    route_world = drive.path[np.minimum((route_s / 0.1).round().astype(int), len(drive.path) - 1)]
+    meta = {
+        "pos_global": [float(ego[0]), float(ego[1]), 0.0],
+        "theta": float(ego[2]),
+        "ego_matrix": _matrix(ego),
+        "speed": float(drive.speed[step]),
+        "accel_x": float(drive.accel[step]),
+        "accel_y": float(drive.speed[step] * drive.yaw_rate[step]),
+        "accel_z": 9.81,
+        "angular_velocity_x": 0.0,
+        "angular_velocity_y": 0.0,
+        "angular_velocity_z": float(drive.yaw_rate[step]),
+        "target_speed": 0.0 if drive.kind == "stop" and drive.speed[step] < 3 else 6.0,
+        "steer": float(np.clip(drive.yaw_rate[step] / 2, -1, 1)),
+        "throttle": 0.3 if drive.accel[step] >= 0 and drive.speed[step] > 0 else 0.0,
+        "brake": bool(drive.accel[step] < 0 or drive.speed[step] == 0),
+        "route": to_ego(route_world[:, :2], ego).astype(np.float32),
+        "changed_route": False,
+        "future_positions": np.column_stack([to_ego(future[:, :2], ego), np.zeros(len(future))]),
+        "future_yaws": _wrap(future[:, 2] - ego[2]),
+        "future_speeds": drive.speed[step : step + EGO_FUTURE_STEPS + 1].copy(),
+        "past_positions": np.column_stack([to_ego(past[:, :2], ego), np.zeros(len(past))]),
+        "past_yaws": _wrap(past[:, 2] - ego[2]),
+        "past_speeds": drive.speed[max(step - PAST_STEPS, 0) : step + 1][::-1].copy(),
+        "stop_sign_hazard": False,
+        "light_hazard": drive.kind == "stop",
+        "walker_hazard": False,
+        "vehicle_hazard": False,
+        "dist_to_junction": None,
+        "is_junction": TURN_START < s_now < TURN_START + np.pi / 2 * TURN_RADIUS and drive.kind != "stop",
+        "scenario_obstacles_ids": [],
+        "vehicle_opened_door": False,
+        "vehicle_door_side": None,
+        "over_head_traffic_light": False,
+        "europe_traffic_light": False,
+        "dataset_information": {
+            "save_depth_resolution_ratio": DEPTH_RATIO,
+            "save_depth_bits": 8,
+            "target_dataset": "CARLA_LEADERBOARD2_3CAMERAS",
+            "data_save_freq": SAVE_FREQ,
+        },
+        **extras,
+    }
+    for distance, planner in planners.items():
+        meta.update(planner.state("" if distance == DEFAULT_TP_DISTANCE else f"_{distance}"))
+    return meta
+
+
+def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -> Path:
+    """One route folder with ``frames`` 4 Hz frames and every LEAD sensor folder."""
+    kind = KINDS[index % len(KINDS)]
+    town = TOWNS[index % len(TOWNS)]
+    route_id = 1000 + index
+    folder = root / "data" / SCENARIOS[kind] / f"{town}_Rep0_{route_id}_route0_01_10_05_46_{index % 60:02d}"
+    for name in (
+        "rgb",
+        "rgb_perturbated",
+        "semantics",
+        "semantics_perturbated",
+        "depth",
+        "depth_perturbated",
+        "hdmap",
+        "hdmap_perturbated",
+        "lidar",
+        "radar",
+        "radar_perturbated",
+        "bboxes",
+        "metas",
+    ):
+        (folder / name).mkdir(parents=True, exist_ok=True)
+    steps = (frames - 1) * SAVE_FREQ + EGO_FUTURE_STEPS + 1
+    drive = make_drive(kind, steps, rng)
+    actors = make_actors(drive, rng)
+    translation = float(rng.choice([-1, 1]) * rng.uniform(0.1, 1.0))
+    rotation = float(-np.sign(translation) * (5.0 + (abs(translation) - 0.1) / 0.9 * 7.5))
+    plan_s = np.array([s for s, _ in drive.plan])
+    plan_points = np.column_stack([drive.path[(plan_s / 0.1).round().astype(int), :2], np.zeros(len(plan_s))])
+    commands = [c for _, c in drive.plan]
+    planners = {d: _Planner(plan_points, commands, d) for d in (*TP_DISTANCES, DEFAULT_TP_DISTANCE)}
+    extras = {
+        "town": town,
+        "scenario": SCENARIOS[kind],
+        "weather_setting": "ClearNoon",
+        "weather_parameters": {"cloudiness": 5.0, "precipitation": 0.0, "sun_altitude_angle": 45.0},
+        "jpeg_storage_quality": JPEG_QUALITY,
+        "perturbation_translation": translation,
+        "perturbation_rotation": rotation,
+    }
+    for step in range((frames - 1) * SAVE_FREQ + 1):
+        for planner in planners.values():
+            planner.step(drive.pose[step])
+        if step % SAVE_FREQ:
+            continue
+        frame = step // SAVE_FREQ
+        name = f"{frame:04d}"
+        ego = drive.pose[step]
+        boxes = [_ego_box(float(drive.speed[step]))] + [_box(actor, ego, step, kind) for actor in actors]
+        write_pickle(folder / "bboxes" / f"{name}.pkl", boxes)
+        write_pickle(folder / "metas" / f"{name}.pkl", _meta(drive, step, planners, extras))
+        for suffix, shift in (("", 0.0), ("_perturbated", translation)):
+            jpeg = cv2.imencode(".jpg", _mosaic(frame, shift, rng), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
+            (folder / f"rgb{suffix}" / f"{name}.jpg").write_bytes(jpeg.tobytes())
+            cv2.imwrite(str(folder / f"semantics{suffix}" / f"{name}.png"), _semantics())
+            cv2.imwrite(str(folder / f"depth{suffix}" / f"{name}.png"), _depth(frame))
+        cv2.imwrite(str(folder / "hdmap" / f"{name}.png"), _hdmap(drive, ego))
+        view_pose = _view_pose(ego, translation, rotation)
+        cv2.imwrite(str(folder / "hdmap_perturbated" / f"{name}.png"), _hdmap(drive, view_pose))
+        points, times = _lidar_points(boxes, rng)
+        write_laz(folder / "lidar" / f"{name}.laz", points, times)
+        radar = _radar(boxes, rng)
+        np.savez_compressed(folder / "radar" / f"{name}.npz", **radar)
+        view_radar = {}
+        for key, cloud in radar.items():
+            moved = cloud.astype(np.float64)
+            moved[:, :2] = _view(moved[:, :2], translation, rotation)
+            view_radar[key] = moved.astype(np.float16)
+        np.savez_compressed(folder / "radar_perturbated" / f"{name}.npz", **view_radar)
+    results = {
+        "index": index,
+        "route_id": f"{route_id}",
+        "status": "Completed",
+        "num_infractions": 0,
+        "infractions": {"collisions_vehicle": [], "min_speed_infractions": [], "outside_route_lanes": []},
+        "scores": {"score_route": 100.0, "score_penalty": 1.0, "score_composed": 100.0},
+        "meta": {"route_length": float(path_len(drive.path)), "duration_game": steps * DT},
+    }
+    (folder / "results.json").write_text(json.dumps(results, indent=2))
+    return folder
+
+
+def _view_pose(ego: np.ndarray, translation: float, rotation_deg: float) -> np.ndarray:
+    """World pose of the perturbated rig: the ego shifted sideways (y right) and turned by the rotation."""
+    cos, sin = np.cos(ego[2]), np.sin(ego[2])
+    return np.array([ego[0] - sin * translation, ego[1] + cos * translation, ego[2] + np.deg2rad(rotation_deg)])
+
+
+def generate(out: Path, count: int | None = None, seed: int = 0, frames: int = 16) -> None:
+    """Write ``count`` routes (default 3: left turn, right turn, stop) under ``out/data/<Scenario>/<route>/``."""
+    rng = np.random.default_rng(seed)
+    for index in range(3 if count is None else count):
+        write_route(Path(out), index, frames, rng)
