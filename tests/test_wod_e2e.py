@@ -1,0 +1,279 @@
+"""WOD-E2E: synthetic TFRecords (hand-encoded protos) -> adapter -> convert -> shards, checked value by value."""
+
+import json
+import math
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lead_s2r.cli import main as cli_main
+from lead_s2r.convert import convert
+from lead_s2r.schema import Command, make_key, validate
+from lead_s2r.shards import load_info, load_manifest, read_samples
+from lead_s2r.synthetic.wod_e2e import (
+    CLUSTER_FILE,
+    SynthFrame,
+    frame_record,
+    make_dataset,
+    shard_path,
+    write_dataset,
+)
+from lead_s2r_adapters.wod_e2e import WodE2EAdapter, WodE2EError
+
+COMMANDS = {1: Command.STRAIGHT, 2: Command.LEFT, 3: Command.RIGHT}
+CAMERA_IDS = ["front", "front_left", "front_right", "side_left", "side_right", "rear_left", "rear", "rear_right"]
+
+
+@pytest.fixture(scope="module")
+def dataset():
+    return make_dataset(count=3, seed=7)
+
+
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory, dataset):
+    root = tmp_path_factory.mktemp("wod")
+    write_dataset(root / "src", dataset, seed=7)
+    result = convert(WodE2EAdapter(history=2), root / "src", root / "out", workers=1, shard_size=20)
+    assert result.ok, result.errors
+    samples = {s["__key__"]: s for s in read_samples(root / "out")}
+    return root, samples
+
+
+def key(frame: SynthFrame) -> str:
+    return make_key(frame.sequence, f"{frame.frame_idx:03d}")
+
+
+def test_every_frame_converted_once_and_regrouped(converted, dataset):
+    root, samples = converted
+    assert sorted(samples) == sorted(key(f) for f in dataset.frames)
+    manifest = load_manifest(root / "out")
+    assert Counter(manifest["split"].to_pylist()) == Counter(f.split for f in dataset.frames)
+    # records of a sequence are spread over several source shards, yet every log is complete and in frame order
+    by_log: dict[str, list[int]] = {}
+    for log, frame in zip(manifest["log"].to_pylist(), manifest["frame"].to_pylist(), strict=True):
+        by_log.setdefault(log, []).append(frame)
+    truth: dict[str, list[int]] = {}
+    for f in dataset.frames:
+        truth.setdefault(f.sequence, []).append(f.frame_idx)
+    assert by_log == truth
+    shards_of = {
+        s["meta"]["log_id"]: {
+            x["meta"]["extras"]["wod_e2e"]["record"]["shard"]
+            for x in samples.values()
+            if x["meta"]["log_id"] == s["meta"]["log_id"]
+        }
+        for s in samples.values()
+    }
+    assert all(len(shards) > 1 for shards in shards_of.values())
+
+
+def test_values_round_trip(converted, dataset):
+    _, samples = converted
+    for frame in dataset.frames:
+        sample = samples[key(frame)]
+        validate(sample)
+        meta, extras = sample["meta"], sample["meta"]["extras"]["wod_e2e"]
+        past = frame.past.astype(np.float32)
+        assert meta["split"] == frame.split and meta["log_id"] == frame.sequence
+        assert meta["frame_idx"] == frame.frame_idx and meta["timestamp_us"] == frame.frame_idx * 100_000
+        assert extras["frame_name"] == frame.name
+        np.testing.assert_array_equal(sample["past"][:, 0], 0.25 * (np.arange(16) - 15))
+        np.testing.assert_array_equal(sample["past"][:, 1:3], past[:, :2])
+        np.testing.assert_array_equal(np.isnan(sample["past"][:, 3]), np.arange(16) < 15)
+        np.testing.assert_array_equal(np.float32(extras["past_velocity"]), past[:, 2:4])
+        np.testing.assert_array_equal(np.float32(extras["past_acceleration"]), past[:, 4:6])
+        ego = meta["ego"]
+        assert ego["velocity"] == [float(v) for v in past[-1, 2:4]]
+        assert ego["acceleration"] == [float(v) for v in past[-1, 4:6]]
+        assert ego["speed"] == pytest.approx(math.hypot(*past[-1, 2:4]), rel=1e-6)
+        assert ego["command"] == COMMANDS[frame.intent] and ego["command_raw"] == frame.intent
+        if frame.future is None:
+            assert "future" not in sample and meta["has"]["future"] is False
+        else:
+            np.testing.assert_array_equal(sample["future"][:, 0], 0.25 * (np.arange(20) + 1))
+            np.testing.assert_array_equal(sample["future"][:, 1:3], frame.future[:, :2].astype(np.float32))
+            assert np.isnan(sample["future"][:, 3]).all()
+
+
+def test_cameras_jpeg_bytes_and_calibration(converted, dataset):
+    _, samples = converted
+    for frame in dataset.frames:
+        sample = samples[key(frame)]
+        cameras = {c["id"]: c for c in sample["meta"]["cameras"]}
+        for truth, camera_id in zip(frame.cameras, CAMERA_IDS, strict=True):
+            assert sample[f"cam_{camera_id}"] == truth.jpeg  # stored as written, never re-encoded
+            camera = cameras[camera_id]
+            f_u, f_v, c_u, c_v, *distortion = truth.intrinsic
+            assert camera["K"] == [[f_u, 0.0, c_u], [0.0, f_v, c_v], [0.0, 0.0, 1.0]]
+            assert camera["distortion"] == distortion
+            assert (camera["width"], camera["height"]) == (truth.width, truth.height)
+
+
+def test_extrinsics_use_opencv_camera_axes(converted, dataset):
+    """Waymo's camera frame looks along +x with +y left; ours along +z with +x right (image right)."""
+    _, samples = converted
+    frame = dataset.frames[0]
+    cameras = {c["id"]: c for c in samples[key(frame)]["meta"]["cameras"]}
+    for truth, camera_id in zip(frame.cameras, CAMERA_IDS, strict=True):
+        waymo = np.reshape(truth.extrinsic, (4, 4))
+        ego_to_cam = np.linalg.inv(np.asarray(cameras[camera_id]["cam_to_ego"]))
+        ahead = waymo @ [10.0, 0, 0, 1]  # 10 m along the optical axis
+        left = waymo @ [10.0, 2.0, 0, 1]  # and 2 m to the camera's left
+        up = waymo @ [10.0, 0, 1.0, 1]
+        np.testing.assert_allclose((ego_to_cam @ ahead)[:3], [0, 0, 10], atol=1e-9)
+        np.testing.assert_allclose((ego_to_cam @ left)[:3], [-2, 0, 10], atol=1e-9)
+        np.testing.assert_allclose((ego_to_cam @ up)[:3], [0, -1, 10], atol=1e-9)
+
+
+def test_left_turn_ends_left_without_a_flip(converted, dataset):
+    _, samples = converted
+    turns = [f for f in dataset.frames if f.intent == 2 and f.future is not None]
+    assert turns
+    for frame in turns:
+        sample = samples[key(frame)]
+        assert sample["future"][-1, 2] > 1.0
+        assert sample["meta"]["ego"]["command"] == Command.LEFT
+        assert sample["meta"]["ego"]["yaw_rate"] == pytest.approx(0.25, abs=2e-3)
+    for frame in (f for f in dataset.frames if f.intent == 3 and f.future is not None):
+        assert samples[key(frame)]["future"][-1, 2] < -1.0
+        assert samples[key(frame)]["meta"]["ego"]["yaw_rate"] == pytest.approx(-0.2, abs=2e-3)
+
+
+def test_raters_drop_unlabelled_and_pad_short(converted, dataset):
+    _, samples = converted
+    seen_short = seen_dropped = False
+    for frame in dataset.frames:
+        sample = samples[key(frame)]
+        valid = [(xy, s) for xy, s in frame.preferences if s is not None and s >= 0]
+        seen_dropped |= len(valid) < len(frame.preferences)
+        if not valid:
+            assert "raters" not in sample and sample["meta"]["has"]["raters"] is False
+            continue
+        raters = sample["raters"]
+        longest = max(len(xy) for xy, _ in valid)
+        assert raters["trajectories"].shape == (len(valid), longest, 2) and raters["trajectories"].dtype == np.float32
+        np.testing.assert_array_equal(raters["scores"], np.float32([s for _, s in valid]))
+        np.testing.assert_array_equal(raters["lengths"], np.int32([len(xy) for xy, _ in valid]))
+        for row, (xy, _) in zip(raters["trajectories"], valid, strict=True):
+            np.testing.assert_array_equal(row[: len(xy)], xy)
+            assert np.isnan(row[len(xy) :]).all()
+            seen_short |= len(xy) < longest
+    assert seen_short and seen_dropped
+
+
+def test_clusters_and_info(converted, dataset):
+    root, samples = converted
+    for frame in dataset.frames:
+        assert samples[key(frame)]["meta"]["extras"]["wod_e2e"]["cluster"] == dataset.clusters.get(frame.sequence)
+    info = load_info(root / "out")
+    assert info["skipped_records"] == [] and info["rates_hz"]["future"] == 4.0
+    assert info["counts"]["by_split"] == dict(Counter(f.split for f in dataset.frames))
+
+
+def test_history_front_images_with_gaps(converted, dataset):
+    _, samples = converted
+    present = {(f.sequence, f.frame_idx): f for f in dataset.frames}
+    gaps = 0
+    for frame in dataset.frames:
+        sample = samples[key(frame)]
+        history = sample["meta"]["extras"]["wod_e2e"]["history"]
+        assert history["frames"] == [frame.frame_idx - 1, frame.frame_idx - 2]
+        for k in (1, 2):
+            earlier = present.get((frame.sequence, frame.frame_idx - k))
+            assert sample["meta"]["has"][f"cam_front_prev{k}"] is (earlier is not None)
+            assert history["present"][k - 1] is (earlier is not None)
+            if earlier is None:
+                assert f"cam_front_prev{k}" not in sample
+                gaps += 1
+            else:
+                assert sample[f"cam_front_prev{k}"] == earlier.cameras[0].jpeg
+                camera = next(c for c in sample["meta"]["cameras"] if c["id"] == f"front_prev{k}")
+                assert camera["dt"] == pytest.approx(-0.1 * k)
+    # per sequence: 2 + 1 missing at its first two frames; the frame dropped inside segment 0 of each split
+    # leaves frames after it without prev1, then prev2
+    assert gaps == 9 * 3 + 3 * 2
+
+
+def corrupt(src: Path, dataset) -> dict[str, tuple[Path, int]]:
+    """Break one record three ways (CRC, truncation, not an E2EDFrame); return where."""
+    where = {}
+    path = shard_path(src, "train", 0)
+    data = bytearray(path.read_bytes())
+    length = int.from_bytes(data[:8], "little")
+    data[12 + length // 2] ^= 0x55  # payload CRC no longer matches
+    where["crc"] = (path, 0)
+    path.write_bytes(bytes(data))
+    path = shard_path(src, "train", 1)
+    size = path.stat().st_size
+    with open(path, "ab") as file:  # a valid frame for a proto, but not an E2EDFrame (no context.name)
+        file.write(frame_record(b"\x08\x96\x01"))
+    where["foreign"] = (path, size)
+    path = shard_path(src, "val", 2)
+    size = path.stat().st_size
+    whole = frame_record(b"\x0a\x00" * 50)
+    with open(path, "ab") as file:
+        file.write(whole[:-7])
+    where["truncated"] = (path, size)
+    return where
+
+
+def test_bad_records_are_skipped_with_a_record(tmp_path, dataset):
+    write_dataset(tmp_path / "src", dataset, seed=7)
+    where = corrupt(tmp_path / "src", dataset)
+    result = convert(WodE2EAdapter(), tmp_path / "src", tmp_path / "out", workers=1)
+    assert result.ok
+    skipped = load_info(tmp_path / "out")["skipped_records"]
+    assert sorted((s["shard"], s["offset"]) for s in skipped) == sorted((str(p), o) for p, o in where.values())
+    messages = {(s["shard"], s["offset"]): s["error"] for s in skipped}
+    assert "payload CRC mismatch" in messages[str(where["crc"][0]), 0]
+    assert "not an E2EDFrame" in messages[str(where["foreign"][0]), where["foreign"][1]]
+    assert "truncated" in messages[str(where["truncated"][0]), where["truncated"][1]]
+    assert all(message.startswith(shard) for (shard, _), message in messages.items())
+    assert result.samples == len(dataset.frames) - 1  # only the CRC-broken frame is lost
+    with pytest.raises(WodE2EError, match=r"strict.*record at offset"):
+        WodE2EAdapter(strict=True).list_logs(tmp_path / "src")
+
+
+def test_record_changed_after_indexing_fails_its_log_cleanly(tmp_path, dataset):
+    write_dataset(tmp_path / "src", dataset, seed=7)
+    adapter = WodE2EAdapter()
+    logs = adapter.list_logs(tmp_path / "src")
+    _, shard, offset, _ = logs[0].extra["records"][3]
+    data = bytearray(Path(shard).read_bytes())
+    data[offset + 12 + 5] ^= 0x01
+    Path(shard).write_bytes(bytes(data))
+    samples = adapter.iter_samples(logs[0])
+    for _ in range(3):
+        next(samples)
+    with pytest.raises(ValueError, match=f"{shard}: record at offset {offset}: payload CRC"):
+        next(samples)
+
+
+def test_index_cache_is_reused(tmp_path, dataset):
+    write_dataset(tmp_path / "src", dataset, seed=7)
+    first = WodE2EAdapter(index_dir=str(tmp_path / "index")).list_logs(tmp_path / "src")
+    assert sorted(p.name for p in (tmp_path / "index").iterdir()) == [
+        "test.index.parquet",
+        "train.index.parquet",
+        "val.index.parquet",
+    ]
+    again = WodE2EAdapter(index_dir=str(tmp_path / "index")).list_logs(tmp_path / "src")
+    assert [(log.log_id, log.extra) for log in first] == [(log.log_id, log.extra) for log in again]
+
+
+def test_cluster_json_format_and_cli(tmp_path):
+    assert cli_main(["synth", "wod_e2e", "--out", str(tmp_path / "src"), "--count", "1"]) == 0
+    clusters = json.loads((tmp_path / "src" / CLUSTER_FILE).read_text())
+    assert all(set(entry) == {"scenario_cluster"} for entry in clusters.values()) and len(clusters) == 1
+    out = tmp_path / "out"
+    argv = ["convert", "wod_e2e", "--src", str(tmp_path / "src"), "--out", str(out), "--quiet", "--history", "1"]
+    assert cli_main(argv) == 0
+    assert load_info(out)["history"] == 1 and load_info(out)["counts"]["logs"] == 3
+
+
+def test_unknown_split_prefix_is_a_clear_error(tmp_path):
+    (tmp_path / "mystery_0001.tfrecord-00000-of-00001").write_bytes(b"")
+    with pytest.raises(WodE2EError, match=r"mystery_0001\.tfrecord.*cannot tell its split"):
+        WodE2EAdapter().list_logs(tmp_path)
