@@ -102,7 +102,13 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 def cmd_score(args: argparse.Namespace) -> int:
     from lead_s2r.scoring.run import score_predictions
 
-    options = dict(option.split("=", 1) for option in args.option)
+    options = {}
+    for option in args.option:
+        name, _, value = option.partition("=")
+        try:
+            options[name] = json.loads(value)  # numbers, booleans, lists
+        except json.JSONDecodeError:
+            options[name] = value
     data = [Path(folder) for folder in args.data]
     summary = score_predictions(args.metric, Path(args.predictions), data, Path(args.out), **options)
     print(json.dumps(summary, indent=2))
