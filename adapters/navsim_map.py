@@ -214,7 +214,7 @@ def scoring_context(
     red_ids, red_offsets = _ragged_ids(red_lights)
     return {
         "origin": np.asarray(origin, np.float64),
-        "map_radius": np.float32(radius),
+        "map_radius": np.array(radius, np.float32),
         "polygon_xy": polygon_xy,
         "polygon_offsets": polygon_offsets,
         "polygon_id": ids.astype(np.int64),
