@@ -147,8 +147,8 @@ class CarlaLeadAdapter(Adapter):
     Options: ``rig`` normal | perturbated | both (two samples per frame, keys ``..._perturbated_NNNN``);
     ``split`` for every route, except towns in ``heldout_towns`` (comma-separated) which get ``heldout_split``;
     ``tp_distance`` selects the ``next_target_points_<d>`` planner (LEAD trains with 3.25 m);
-    ``skip_first`` / ``skip_last`` frames per route (LEAD pretraining: 1 / 1); ``keep_failed`` keeps routes
-    that LEAD's route filter drops.
+    ``skip_first`` / ``skip_last`` frames per route (LEAD pretraining: 1 / 1); ``keep_failed`` keeps finished
+    routes that LEAD's route filter drops for their infractions.
     """
 
     name: ClassVar[str] = "carla_lead"
@@ -208,10 +208,9 @@ class CarlaLeadAdapter(Adapter):
 
     def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
         folder = Path(log.path)
-        if not self.keep_failed:
-            reason = route_skip_reason(folder)
-            if reason is not None:
-                raise SkipLog(f"{log.log_id}: {reason}")
+        reason = route_skip_reason(folder, self.keep_failed)
+        if reason is not None:
+            raise SkipLog(f"{log.log_id}: {reason}")
         frames = sorted(path.stem for path in (folder / "bboxes").glob("*.pkl"))
         if not frames:
             raise LeadFormatError(folder / "bboxes", "no frames (LEAD counts frames by the files in bboxes/)")

@@ -160,10 +160,12 @@ _MIN_SPEED = "min_speed_infractions"
 _OUTSIDE_LANES = "outside_route_lanes"
 
 
-def route_skip_reason(folder: Path) -> str | None:
+def route_skip_reason(folder: Path, keep_failed: bool = False) -> str | None:
     """Why LEAD's route filter leaves this route out, or None if it keeps it.
 
-    Kept: score 100; or only min-speed infractions; or status Completed with only min-speed / outside-lane ones.
+    An unfinished route (no results.json or no first meta) is always left out. A finished one is kept with
+    ``keep_failed``, else only if: score 100; or only min-speed infractions; or status Completed with only
+    min-speed / outside-lane ones.
     """
     results = folder / "results.json"
     if not results.is_file():
@@ -174,6 +176,8 @@ def route_skip_reason(folder: Path) -> str | None:
         record = json.loads(results.read_text())
     except json.JSONDecodeError as err:
         raise LeadFormatError(results, f"invalid JSON ({err})") from err
+    if keep_failed:
+        return None
     score = float(field(field(record, "scores", results), "score_composed", results))
     if score >= 100.0:
         return None

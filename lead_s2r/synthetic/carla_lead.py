@@ -82,7 +82,7 @@ def _speed_profile(kind: str, steps: int) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(steps) * DT
     if kind != "stop":
         return np.full(steps, 6.0), np.zeros(steps)
-    v0, brake_at, decel = 7.0, 1.0, 3.0
+    v0, brake_at, decel = 7.0, 0.5, 3.5
     speed = np.clip(v0 - decel * np.clip(t - brake_at, 0.0, None), 0.0, None)
     accel = np.where((t >= brake_at) & (speed > 0), -decel, 0.0)
     return speed, accel
