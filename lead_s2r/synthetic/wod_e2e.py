@@ -104,12 +104,12 @@ def _local(track: np.ndarray, i0: int, rows: np.ndarray) -> np.ndarray:
     return np.concatenate([pos, sel[:, 4:6] @ rot.T, sel[:, 6:8] @ rot.T], axis=1)
 
 
-def _camera(name: int, rng: np.random.Generator) -> SynthCamera:
+def _camera(name: int, rng: np.random.Generator, scale: float) -> SynthCamera:
     height, width, yaw_deg, (px, py, pz) = CAMERAS[name]
-    height, width = round(height * IMAGE_SCALE), round(width * IMAGE_SCALE)
+    height, width = round(height * scale), round(width * scale)
     image = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
     jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 70])[1].tobytes()
-    f = 1112.18 * IMAGE_SCALE
+    f = 1112.18 * scale
     intrinsic = [f, f * 0.9999, width / 2 + 0.3, height * 0.66, -0.0736, -0.0366, 0.0, 0.0, 0.0]
     yaw, pitch = math.radians(yaw_deg), 0.02  # a slight downward pitch about the camera's y axis
     rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
@@ -133,7 +133,7 @@ def _preferences(future: np.ndarray, rng: np.random.Generator, variant: int) -> 
     return list(zip(trajs, scores, strict=True))
 
 
-def _segment(split: str, index: int, rng: np.random.Generator) -> list[SynthFrame]:
+def _segment(split: str, index: int, rng: np.random.Generator, scale: float) -> list[SynthFrame]:
     sequence = rng.bytes(16).hex()
     kind = ("left", "straight", "right")[index % 3]
     yaw_rate = {"left": 0.25, "straight": 0.0, "right": -0.2}[kind]
@@ -152,19 +152,19 @@ def _segment(split: str, index: int, rng: np.random.Generator) -> list[SynthFram
             preferences = _preferences(future, rng, variant=rated.index(frame_idx) + index % 3)
         elif split == "val" and index % 3 == 2:
             preferences = [(future[:, :2].astype(np.float32), -1.0)] * 3  # unrated frame carrying -1 labels
-        cameras = [_camera(name, rng) for name in CAMERAS]
+        cameras = [_camera(name, rng, scale) for name in CAMERAS]
         out.append(SynthFrame(split, sequence, frame_idx, cameras, past, future, INTENT[kind], preferences))
     return out
 
 
-def make_dataset(count: int | None = None, seed: int = 0) -> SynthDataset:
-    """Ground truth: ``count`` segments (default 3) in each of train, val and test."""
+def make_dataset(count: int | None = None, seed: int = 0, image_scale: float = IMAGE_SCALE) -> SynthDataset:
+    """Ground truth: ``count`` segments (default 3) in each of train, val and test; images at ``image_scale``."""
     rng = np.random.default_rng(seed)
     frames: list[SynthFrame] = []
     clusters: dict[str, str] = {}
     for split in SHARD_STEMS:
         for index in range(3 if count is None else count):
-            segment = _segment(split, index, rng)
+            segment = _segment(split, index, rng, image_scale)
             frames.extend(segment)
             if split == "val":
                 clusters[segment[0].sequence] = CLUSTERS[index % len(CLUSTERS)]
