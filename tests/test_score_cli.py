@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 
-from lead_s2r import __version__
+from lead_s2r import __version__, cli
 from lead_s2r.predictions import Prediction, PredictionError, read_predictions, write_predictions
 from lead_s2r.schema import SCHEMA_VERSION, validate
 from lead_s2r.scoring.callback import ScoringCallback
@@ -137,6 +137,16 @@ def test_config_reaches_the_scorer(wod_folder: Path, tmp_path: Path) -> None:
     assert floored["aggregates"]["rfs"] > unfloored["aggregates"]["rfs"]
     assert table["rfs"][0] == pytest.approx(6.0, abs=1e-12)  # inside rater 2's box (label 6)
     assert unfloored["config"]["floor"] == 0.0
+
+
+def test_score_verb(wod_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    keys = ("seg_a", "seg_b", "seg_c", "seg_d")
+    path = write_predictions(tmp_path / "p.parquet", [prediction(k, straight(10, lateral=3)) for k in keys])
+    argv = ["score", "--metric", "rfs@wod-e2e-2025", "--predictions", str(path), "--data", str(wod_folder)]
+    assert cli.main([*argv, "--out", str(tmp_path / "out"), "--option", "floor=0"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((tmp_path / "out" / "scores.json").read_text())
+    assert printed["config"]["floor"] == 0 and printed["aggregates"]["frames_scored"] == 3
 
 
 def test_ade_scores_files_per_dataset(wod_folder: Path, tmp_path: Path) -> None:
