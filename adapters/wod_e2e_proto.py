@@ -7,6 +7,8 @@ is kept instead of being silently dropped to its default. A private descriptor p
 from clashing with an installed waymo-open-dataset package.
 """
 
+from typing import NamedTuple
+
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import Message
 
@@ -14,42 +16,47 @@ _PACKAGE = "lead_s2r.wod_e2e"
 _F = descriptor_pb2.FieldDescriptorProto
 
 
-def _field(name: str, number: int, kind: int, repeated: bool = False, message: str = "", packed: bool = False):
-    return (name, number, kind, repeated, message, packed)
+class _Field(NamedTuple):
+    name: str
+    number: int
+    kind: int
+    repeated: bool = False
+    message: str = ""
+    packed: bool = False
 
 
-_MESSAGES: dict[str, list[tuple]] = {
-    "Transform": [_field("transform", 1, _F.TYPE_DOUBLE, repeated=True)],
+_MESSAGES: dict[str, list[_Field]] = {
+    "Transform": [_Field("transform", 1, _F.TYPE_DOUBLE, repeated=True)],
     "CameraCalibration": [
-        _field("name", 1, _F.TYPE_INT32),
-        _field("intrinsic", 2, _F.TYPE_DOUBLE, repeated=True),
-        _field("extrinsic", 3, _F.TYPE_MESSAGE, message="Transform"),
-        _field("width", 4, _F.TYPE_INT32),
-        _field("height", 5, _F.TYPE_INT32),
+        _Field("name", 1, _F.TYPE_INT32),
+        _Field("intrinsic", 2, _F.TYPE_DOUBLE, repeated=True),
+        _Field("extrinsic", 3, _F.TYPE_MESSAGE, message="Transform"),
+        _Field("width", 4, _F.TYPE_INT32),
+        _Field("height", 5, _F.TYPE_INT32),
     ],
     "Context": [
-        _field("name", 1, _F.TYPE_STRING),
-        _field("camera_calibrations", 2, _F.TYPE_MESSAGE, repeated=True, message="CameraCalibration"),
+        _Field("name", 1, _F.TYPE_STRING),
+        _Field("camera_calibrations", 2, _F.TYPE_MESSAGE, repeated=True, message="CameraCalibration"),
     ],
-    "CameraImage": [_field("name", 1, _F.TYPE_INT32), _field("image", 2, _F.TYPE_BYTES)],
+    "CameraImage": [_Field("name", 1, _F.TYPE_INT32), _Field("image", 2, _F.TYPE_BYTES)],
     "Frame": [
-        _field("context", 1, _F.TYPE_MESSAGE, message="Context"),
-        _field("timestamp_micros", 2, _F.TYPE_INT64),
-        _field("images", 4, _F.TYPE_MESSAGE, repeated=True, message="CameraImage"),
+        _Field("context", 1, _F.TYPE_MESSAGE, message="Context"),
+        _Field("timestamp_micros", 2, _F.TYPE_INT64),
+        _Field("images", 4, _F.TYPE_MESSAGE, repeated=True, message="CameraImage"),
     ],
     "EgoTrajectoryStates": [
         *(
-            _field(name, number, _F.TYPE_FLOAT, repeated=True, packed=True)
+            _Field(name, number, _F.TYPE_FLOAT, repeated=True, packed=True)
             for number, name in enumerate(("pos_x", "pos_y", "pos_z", "vel_x", "vel_y", "accel_x", "accel_y"), 1)
         ),
-        _field("preference_score", 8, _F.TYPE_FLOAT),
+        _Field("preference_score", 8, _F.TYPE_FLOAT),
     ],
     "E2EDFrame": [
-        _field("frame", 1, _F.TYPE_MESSAGE, message="Frame"),
-        _field("future_states", 5, _F.TYPE_MESSAGE, message="EgoTrajectoryStates"),
-        _field("past_states", 6, _F.TYPE_MESSAGE, message="EgoTrajectoryStates"),
-        _field("intent", 7, _F.TYPE_INT32),
-        _field("preference_trajectories", 8, _F.TYPE_MESSAGE, repeated=True, message="EgoTrajectoryStates"),
+        _Field("frame", 1, _F.TYPE_MESSAGE, message="Frame"),
+        _Field("future_states", 5, _F.TYPE_MESSAGE, message="EgoTrajectoryStates"),
+        _Field("past_states", 6, _F.TYPE_MESSAGE, message="EgoTrajectoryStates"),
+        _Field("intent", 7, _F.TYPE_INT32),
+        _Field("preference_trajectories", 8, _F.TYPE_MESSAGE, repeated=True, message="EgoTrajectoryStates"),
     ],
 }
 
@@ -58,12 +65,12 @@ def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
     proto = descriptor_pb2.FileDescriptorProto(name="lead_s2r/wod_e2e.proto", package=_PACKAGE, syntax="proto2")
     for message_name, fields in _MESSAGES.items():
         message = proto.message_type.add(name=message_name)
-        for name, number, kind, repeated, type_name, packed in fields:
-            field = message.field.add(name=name, number=number, type=kind)
-            field.label = _F.LABEL_REPEATED if repeated else _F.LABEL_OPTIONAL
-            if type_name:
-                field.type_name = f".{_PACKAGE}.{type_name}"
-            if packed:
+        for spec in fields:
+            field = message.field.add(name=spec.name, number=spec.number, type=spec.kind)
+            field.label = _F.LABEL_REPEATED if spec.repeated else _F.LABEL_OPTIONAL
+            if spec.message:
+                field.type_name = f".{_PACKAGE}.{spec.message}"
+            if spec.packed:
                 field.options.packed = True
     return proto
 
