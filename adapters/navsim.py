@@ -310,20 +310,22 @@ class NavsimAdapter(Adapter):
         """Report scene-filter tokens (and log names) that no log on disk provides; yields no samples."""
         assert self.filter is not None
         found: set[str] = set()
+        unreadable = []
         for path in log.extra[CHECK]:
             try:
                 frames = load_log(Path(path))
                 found.update(str(frames[current].get("token")) for _, current in self.windows(frames, path))
-            except (OSError, ValueError):  # an unreadable log is reported by its own conversion
-                continue
+            except (OSError, ValueError):  # its own conversion reports why
+                unreadable.append(Path(path).stem)
         missing = sorted((self.filter.tokens or set()) - found)
         problems = []
         if log.extra["missing_logs"]:
-            problems.append(f"log names with no pickle: {', '.join(log.extra['missing_logs'][:5])}")
+            problems.append(f"log names with no pickle: {', '.join(log.extra['missing_logs'][:20])}")
         if missing:
             problems.append(
                 f"{len(missing)} tokens in no readable log with a full {self.history}+{self.future}-frame window: "
-                f"{', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}"
+                f"{', '.join(missing[:20])}{' ...' if len(missing) > 20 else ''}"
+                + (f" (unreadable logs: {', '.join(unreadable)})" if unreadable else "")
             )
         if problems:
             raise LookupError(f"scene filter {log.path}: " + "; ".join(problems))
