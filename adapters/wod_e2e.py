@@ -279,6 +279,7 @@ class WodE2EAdapter(Adapter):
             raise WodE2EError(f"{where}: past_states is empty")
         future_xy = _states(message.future_states, ("pos_x", "pos_y"), f"{where}: future_states")
         sample: dict[str, Any] = {"__key__": make_key(log.log_id, f"{frame_idx:03d}")}
+        cluster = log.extra.get("cluster")
         sample["past"] = _trajectory(
             past_states[:, :2], STATE_DT * (np.arange(len(past_states)) - len(past_states) + 1)
         )
@@ -313,10 +314,11 @@ class WodE2EAdapter(Adapter):
             "vehicle": dict(VEHICLE),
             "cameras": [camera for camera, _ in cameras],
             "has": has,
+            "tags": [] if cluster is None else [f"cluster:{cluster}"],
             "extras": {
                 "wod_e2e": {
                     "frame_name": message.frame.context.name,
-                    "cluster": log.extra.get("cluster"),
+                    "cluster": cluster,
                     "intent": message.intent,
                     "past_velocity": past_states[:, 2:4].tolist(),
                     "past_acceleration": past_states[:, 4:6].tolist(),

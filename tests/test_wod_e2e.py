@@ -167,6 +167,13 @@ def test_clusters_and_info(converted, dataset):
     root, samples = converted
     for frame in dataset.frames:
         assert samples[key(frame)]["meta"]["extras"]["wod_e2e"]["cluster"] == dataset.clusters.get(frame.sequence)
+    manifest = load_manifest(root / "out")
+    for key_, tags in zip(manifest["key"].to_pylist(), manifest["tags"].to_pylist(), strict=True):
+        cluster = samples[key_]["meta"]["extras"]["wod_e2e"]["cluster"]
+        assert tags == ([] if cluster is None else [f"cluster:{cluster}"])
+    assert {t for tags in manifest["tags"].to_pylist() for t in tags} == {
+        f"cluster:{c}" for c in dataset.clusters.values()
+    }
     info = load_info(root / "out")
     assert info["skipped_records"] == [] and info["rates_hz"]["future"] == 4.0
     assert info["counts"]["by_split"] == dict(Counter(f.split for f in dataset.frames))
