@@ -1,0 +1,149 @@
+"""Per-source webdataset pipelines mixed by a :class:`MixingSchedule`: the training data of a sim-to-real run.
+
+Training: one infinite, shard-resampled pipeline per source whose scheduled batch size is non-zero, each cut to
+``steps_per_epoch`` batches, so every rank and every source yields the same number of steps (DDP never waits on an
+exhausted rank). Lightning's ``CombinedLoader`` zips them into ``{source: batch}``. Dataloaders are rebuilt each epoch
+(``reload_dataloaders_every_n_epochs=1``) to follow the schedule. Evaluation: one finite, ordered pipeline per
+source, split over ranks by shard.
+"""
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+import lightning as L
+import webdataset as wds
+
+from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.data.transforms import SourceTransform, collate
+from lead_s2r.models.config import TFv6Config
+from lead_s2r.shards import decode_sample, shard_paths
+
+
+@dataclass
+class SourceSpec:
+    """Where one source's samples come from and how they become model inputs.
+
+    Args:
+        paths: converted folders (``lead-s2r convert`` outputs).
+        splits: keep samples whose ``meta.split`` is listed (None keeps all).
+        cameras: camera fields stitched left to right (without the ``cam_`` prefix).
+    """
+
+    paths: list[str]
+    splits: list[str] | None = None
+    cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
+
+    def shards(self) -> list[str]:
+        return [shard for path in self.paths for shard in shard_paths(path)]
+
+
+class _SplitFilter:
+    """Keeps raw samples of the wanted splits; a class (not a lambda) so dataloader workers can pickle it."""
+
+    def __init__(self, splits: list[str] | None) -> None:
+        self.splits = None if splits is None else set(splits)
+
+    def __call__(self, raw: dict[str, Any]) -> bool:
+        return self.splits is None or json.loads(raw["meta.json"])["split"] in self.splits
+
+
+class _Prepare:
+    """Decode a raw webdataset sample and turn it into tensors."""
+
+    def __init__(self, transform: SourceTransform) -> None:
+        self.transform = transform
+
+    def __call__(self, raw: dict[str, Any]) -> dict[str, Any]:
+        return self.transform(decode_sample(raw))
+
+
+class DriveDataModule(L.LightningDataModule):
+    """Mixed-source training data and per-source evaluation data for the TFv6 family.
+
+    Args:
+        train: source name -> spec of its training data; names are the model's sources ("carla", "navsim", "wod").
+        val: source name -> spec of its validation data.
+        predict: source name -> spec of the data to predict on.
+        schedule: per-epoch source composition of each global batch (default: equal shares of 8 samples).
+        steps_per_epoch: optimizer steps per epoch (every source yields exactly this many batches per rank).
+        eval_batch_size: batch size of validation and prediction loaders.
+        num_workers: dataloader workers per source.
+        shuffle_buffer: samples in each source's shuffle buffer.
+        config: the model configuration the transforms follow (linked from the model by the CLI).
+    """
+
+    def __init__(
+        self,
+        train: dict[str, SourceSpec] | None = None,
+        val: dict[str, SourceSpec] | None = None,
+        predict: dict[str, SourceSpec] | None = None,
+        schedule: MixingSchedule | None = None,
+        steps_per_epoch: int = 100,
+        eval_batch_size: int = 8,
+        num_workers: int = 0,
+        shuffle_buffer: int = 256,
+        config: TFv6Config | None = None,
+    ) -> None:
+        super().__init__()
+        self.train_sources = train or {}
+        self.val_sources = val or {}
+        self.predict_sources = predict or {}
+        self.schedule = schedule or MixingSchedule.constant({name: 1.0 for name in self.train_sources}, 8)
+        unknown = set(self.schedule.sources) - set(self.train_sources)
+        if self.train_sources and unknown:
+            raise ValueError(f"the schedule mixes {sorted(unknown)} but train lists only {sorted(self.train_sources)}")
+        self.steps_per_epoch = steps_per_epoch
+        self.eval_batch_size = eval_batch_size
+        self.num_workers = num_workers
+        self.shuffle_buffer = shuffle_buffer
+        self.config = config or TFv6Config()
+
+    def _pipeline(self, name: str, spec: SourceSpec, batch_size: int, training: bool) -> wds.WebDataset:
+        dataset = wds.WebDataset(
+            spec.shards(),
+            resampled=training,
+            shardshuffle=False,  # training resamples shards instead
+            nodesplitter=None if training else wds.split_by_node,
+            empty_check=False,
+        )
+        dataset = dataset.select(_SplitFilter(spec.splits))
+        if training:
+            dataset = dataset.shuffle(self.shuffle_buffer)
+        transform = SourceTransform(name, self.config, list(spec.cameras))
+        return dataset.map(_Prepare(transform)).batched(batch_size, collation_fn=collate, partial=not training)
+
+    def _loader(self, dataset: wds.WebDataset) -> wds.WebLoader:
+        return wds.WebLoader(dataset, batch_size=None, num_workers=self.num_workers)
+
+    def current_batch_sizes(self) -> dict[str, int]:
+        """Per-rank batch size of each source in the trainer's current epoch."""
+        epoch = self.trainer.current_epoch if self.trainer else 0
+        world_size = self.trainer.world_size if self.trainer else 1
+        return self.schedule.batch_sizes(epoch, world_size)
+
+    def train_dataloader(self) -> dict[str, wds.WebLoader]:
+        if not self.train_sources:
+            raise ValueError("no training sources configured (data.train)")
+        loaders = {}
+        for name, size in self.current_batch_sizes().items():
+            if size > 0:
+                pipeline = self._pipeline(name, self.train_sources[name], size, training=True)
+                loaders[name] = self._loader(pipeline).with_epoch(self.steps_per_epoch)
+        return loaders
+
+    def _eval_loaders(self, sources: dict[str, SourceSpec], what: str) -> list[wds.WebLoader]:
+        if not sources:
+            raise ValueError(f"no {what} sources configured (data.{what})")
+        return [self._loader(self._pipeline(n, s, self.eval_batch_size, training=False)) for n, s in sources.items()]
+
+    def val_dataloader(self) -> list[wds.WebLoader]:
+        return self._eval_loaders(self.val_sources, "val")
+
+    def predict_dataloader(self) -> list[wds.WebLoader]:
+        return self._eval_loaders(self.predict_sources, "predict")
+
+    def source_of(self, dataloader_idx: int, stage: str) -> str:
+        """The source name behind an evaluation ``dataloader_idx``."""
+        sources = self.val_sources if stage == "val" else self.predict_sources
+        return list(sources)[dataloader_idx]

@@ -1,0 +1,261 @@
+"""Schema v1 sample -> model input tensors (the :class:`lead_s2r.models.inputs.Batch` contract), per source.
+
+Everything here is a pure function of one decoded sample and the model configuration: resampling of the
+native-rate future to the model's grid, cameras stitched and resized, LiDAR rasterised onto the BEV grid, CenterNet
+box targets, BEV/perspective labels moved onto the model's grids. A label a sample does not have is left out, and
+the loss masks it.
+"""
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from lead_s2r.geometry import resample
+from lead_s2r.models.config import BEVGrid, TFv6Config
+from lead_s2r.schema import BoxClass, command4
+
+#: Radar points kept per sample (LEAD: 4 sensors x 75).
+MAX_RADAR_POINTS = 300
+#: Boxes kept per sample for the CenterNet regression targets.
+MAX_BOXES = 64
+#: LiDAR histogram saturation (LEAD's ``rasterize_lidar``: clip at 5 hits per cell, scale to [0, 1]).
+LIDAR_HITS_MAX = 5.0
+#: Route checkpoints start this far ahead, then come every metre (LEAD's ``smooth_path``).
+ROUTE_START_M = 2.5
+CENTERNET_STRIDE = 4
+
+
+@dataclass
+class SourceTransform:
+    """Turns samples of one source into tensors for ``config``.
+
+    Args:
+        source: the source name the model knows (its trajectory grid and label space), e.g. "carla".
+        config: the model configuration (image size, BEV grid, trajectory grids, head sizes).
+        cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
+    """
+
+    source: str
+    config: TFv6Config
+    cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
+
+    def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
+        meta = sample["meta"]
+        ego = meta["ego"]
+        out: dict[str, Any] = {
+            "__key__": sample["__key__"],
+            "rgb": self.image(sample),
+            "speed": torch.tensor(float(ego["speed"])),
+            "acceleration": torch.tensor(ego["acceleration"], dtype=torch.float32),
+            "command": torch.tensor(int(command4(ego["command"])), dtype=torch.int64),
+        }
+        out.update(self.target_points(sample))
+        if self.config.bev_input == "raster":
+            out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), self.config.bev))[None]
+        if self.config.use_radar:
+            out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
+        if "future" in sample:
+            out.update(self.trajectory(sample["future"]))
+        if "route" in sample:
+            out.update(route_checkpoints(sample["route"], self.config.num_route_points))
+        target_speed = meta["extras"].get(meta["dataset"], {}).get("target_speed")
+        if target_speed is not None:
+            out["target_speed"] = torch.tensor(float(target_speed))
+            out["target_speed_valid"] = torch.tensor(True)
+        space = self.config.space(self.source)
+        if "bev_semantic" in sample and space in self.config.bev_semantic_classes:
+            out["bev_semantic"] = torch.from_numpy(bev_labels(sample["bev_semantic"], meta["bev"], self.config.bev))
+        if "boxes" in sample and space in self.config.box_classes:
+            out.update(centernet_targets(sample["boxes"], self.config.bev, self.config.box_classes[space]))
+        if len(self.cameras) == 1:
+            out.update(self.perspective_labels(sample, space))
+        return out
+
+    def image(self, sample: dict[str, Any]) -> torch.Tensor:
+        """Cameras decoded, stitched left to right and resized to ``config.image_size``: uint8 (3, H, W) RGB."""
+        tiles = []
+        for camera in self.cameras:
+            data = sample.get(f"cam_{camera}")
+            if data is None:
+                raise KeyError(f"sample {sample['__key__']!r} has no camera {camera!r} (field cam_{camera})")
+            tiles.append(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
+        height = min(tile.shape[0] for tile in tiles)
+        tiles = [tile if tile.shape[0] == height else _resize_height(tile, height) for tile in tiles]
+        h, w = self.config.image_size
+        image = cv2.resize(np.hstack(tiles), (w, h), interpolation=cv2.INTER_AREA)
+        return torch.from_numpy(np.ascontiguousarray(image[:, :, ::-1].transpose(2, 0, 1)))
+
+    def target_points(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
+        points = sample.get("target_points")
+        if points is None:
+            return {"target_points": torch.zeros(3, 2), "target_points_valid": torch.zeros(3, dtype=torch.bool)}
+        valid = np.isfinite(points).all(axis=1)
+        return {
+            "target_points": torch.from_numpy(np.where(valid[:, None], points, 0).astype(np.float32)),
+            "target_points_valid": torch.from_numpy(valid),
+        }
+
+    def trajectory(self, future: np.ndarray) -> dict[str, torch.Tensor]:
+        """Waypoints and headings on the source's output grid; beyond the recorded horizon they are masked."""
+        times = np.asarray(self.config.trajectory_grids[self.source].times)
+        knots = np.vstack([np.zeros((1, 4), np.float32), future])  # the ego sits at the origin at t = 0
+        poses, valid = resample(knots[:, 0], knots[:, 1:], times, angle_columns=(2,))
+        heading_valid = valid & np.isfinite(poses[:, 2])
+        return {
+            "waypoints": torch.from_numpy(np.nan_to_num(poses[:, :2]).astype(np.float32)),
+            "waypoints_valid": torch.from_numpy(valid),
+            "headings": torch.from_numpy(np.nan_to_num(poses[:, 2]).astype(np.float32)),
+            "headings_valid": torch.from_numpy(heading_valid),
+        }
+
+    def perspective_labels(self, sample: dict[str, Any], space: str) -> dict[str, torch.Tensor]:
+        """Depth (metres) and semantic ids of the single input camera, on the input image's pixel grid."""
+        camera = self.cameras[0]
+        h, w = self.config.image_size
+        out = {}
+        depth = sample.get(f"depth_{camera}")
+        if depth is not None and space in self.config.depth_sources:
+            encoding = sample["meta"].get("depth", {})
+            metres = depth.astype(np.float32) / 255.0 * float(encoding.get("max_m", self.config.max_depth))
+            out["depth"] = torch.from_numpy(cv2.resize(metres, (w, h), interpolation=cv2.INTER_LINEAR))
+        semantic = sample.get(f"semantic_{camera}")
+        if semantic is not None and space in self.config.semantic_classes:
+            ids = cv2.resize(semantic, (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+            out["semantic"] = torch.from_numpy(ids)
+        return out
+
+
+def _resize_height(image: np.ndarray, height: int) -> np.ndarray:
+    width = max(1, round(image.shape[1] * height / image.shape[0]))
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+
+
+def bev_cell_centres(grid: BEVGrid, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Ego x (rows) and y (columns) of the cell centres of ``grid`` at ``stride``."""
+    h, w = grid.shape
+    cell = stride / grid.pixels_per_meter
+    xs = grid.x_min + (np.arange(h // stride) + 0.5) * cell
+    ys = grid.y_min + (np.arange(w // stride) + 0.5) * cell
+    return xs, ys
+
+
+def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
+    """Point histogram on ``grid`` (H along +x, W along +y), saturated at 5 hits: float32 (H, W) in [0, 1]."""
+    h, w = grid.shape
+    if points is None or not len(points):
+        return np.zeros((h, w), np.float32)
+    rows = np.floor((points[:, 0] - grid.x_min) * grid.pixels_per_meter).astype(np.int64)
+    cols = np.floor((points[:, 1] - grid.y_min) * grid.pixels_per_meter).astype(np.int64)
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    counts = np.bincount(rows[inside] * w + cols[inside], minlength=h * w).reshape(h, w)
+    return (np.minimum(counts, LIDAR_HITS_MAX) / LIDAR_HITS_MAX).astype(np.float32)
+
+
+def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) -> dict[str, torch.Tensor]:
+    """First ``size`` rows of ``points`` zero-padded to a fixed length, with a validity mask."""
+    padded = np.zeros((size, columns), np.float32)
+    valid = np.zeros(size, bool)
+    if points is not None:
+        n = min(len(points), size)
+        padded[:n] = points[:n, :columns]
+        valid[:n] = True
+    return {name: torch.from_numpy(padded), f"{name}_valid": torch.from_numpy(valid)}
+
+
+def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
+    """Points along the route at 2.5 m, 3.5 m, ... of arc length from the ego (the origin); masked past its end."""
+    route = np.vstack([np.zeros((1, 2)), np.asarray(route, np.float64)])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
+    keep = np.concatenate([[True], np.diff(arc) > 1e-6])  # repeated points would stall the interpolation
+    targets = ROUTE_START_M + np.arange(count, dtype=np.float64)
+    if keep.sum() < 2:
+        points, valid = np.zeros((count, 2)), np.zeros(count, bool)
+    else:
+        points, valid = resample(arc[keep], route[keep], targets)
+    return {
+        "route": torch.from_numpy(np.nan_to_num(points).astype(np.float32)),
+        "route_valid": torch.from_numpy(valid),
+    }
+
+
+def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
+    """Class ids of a stored BEV raster looked up at ``grid``'s cell centres (nearest); -1 outside the raster.
+
+    ``spec["pixel_to_ego"]`` is the 2x3 affine map from (column, row) pixel coordinates to ego (x, y) metres.
+    """
+    affine = np.vstack([np.asarray(spec["pixel_to_ego"], np.float64), [0.0, 0.0, 1.0]])
+    ego_to_pixel = np.linalg.inv(affine)
+    xs, ys = bev_cell_centres(grid)
+    x, y = np.meshgrid(xs, ys, indexing="ij")
+    pixel = np.einsum("ij,jhw->ihw", ego_to_pixel, np.stack([x, y, np.ones_like(x)]))
+    cols, rows = np.floor(pixel[0]).astype(np.int64), np.floor(pixel[1]).astype(np.int64)
+    inside = (rows >= 0) & (rows < labels.shape[0]) & (cols >= 0) & (cols < labels.shape[1])
+    out = np.full(x.shape, -1, np.int64)
+    out[inside] = labels[rows[inside], cols[inside]]
+    return out
+
+
+def centernet_targets(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, torch.Tensor]:
+    """CenterNet targets on ``grid`` at stride 4: Gaussian heatmaps per class and per-box regression targets.
+
+    With a single class only vehicles are kept (NAVSIM's agent head); otherwise the class is the unified
+    :class:`~lead_s2r.schema.BoxClass` id.
+    """
+    xs, ys = bev_cell_centres(grid, CENTERNET_STRIDE)
+    h, w = len(xs), len(ys)
+    cell = CENTERNET_STRIDE / grid.pixels_per_meter
+    heatmap = np.zeros((num_classes, h, w), np.float32)
+    regression = {
+        "box_index": np.zeros(MAX_BOXES, np.int64),
+        "box_valid": np.zeros(MAX_BOXES, bool),
+        "box_offset": np.zeros((MAX_BOXES, 2), np.float32),
+        "box_size": np.zeros((MAX_BOXES, 2), np.float32),
+        "box_yaw": np.zeros(MAX_BOXES, np.float32),
+        "box_velocity": np.zeros(MAX_BOXES, np.float32),
+    }
+    slot = 0
+    rows_grid, cols_grid = np.arange(h)[:, None], np.arange(w)[None, :]
+    for box in boxes:
+        label = int(box[9])
+        if num_classes == 1:
+            if label != BoxClass.VEHICLE:
+                continue
+            label = 0
+        elif label >= num_classes:
+            continue
+        row_f, col_f = (box[0] - grid.x_min) / cell, (box[1] - grid.y_min) / cell
+        row, col = math.floor(row_f), math.floor(col_f)
+        if not (0 <= row < h and 0 <= col < w) or slot == MAX_BOXES:
+            continue
+        sigma = max(0.5, min(box[3], box[4]) / cell / 6.0)
+        gaussian = np.exp(-((rows_grid - row) ** 2 + (cols_grid - col) ** 2) / (2 * sigma**2)).astype(np.float32)
+        np.maximum(heatmap[label], gaussian, out=heatmap[label])
+        regression["box_index"][slot] = row * w + col
+        regression["box_valid"][slot] = True
+        regression["box_offset"][slot] = (row_f - row, col_f - col)
+        regression["box_size"][slot] = (box[3], box[4])
+        regression["box_yaw"][slot] = box[6]
+        regression["box_velocity"][slot] = math.hypot(box[7], box[8])
+        slot += 1
+    return {"box_heatmap": torch.from_numpy(heatmap), **{k: torch.from_numpy(v) for k, v in regression.items()}}
+
+
+#: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
+IGNORE_VALUE = {"bev_semantic": -1, "semantic": -1}
+
+
+def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
+    """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
+
+    The filler is masked out by construction: validity masks are False, class maps -1, depth 0.
+    """
+    batch: dict[str, Any] = {"__key__": [sample["__key__"] for sample in samples]}
+    for key in sorted(set().union(*samples) - {"__key__"}):
+        template = next(sample[key] for sample in samples if key in sample)
+        filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
+        batch[key] = torch.stack([sample.get(key, filler) for sample in samples])
+    return batch

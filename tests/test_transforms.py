@@ -1,0 +1,89 @@
+import numpy as np
+import torch
+from toy_adapter import toy_sample
+
+from lead_s2r.data.transforms import (
+    SourceTransform,
+    bev_labels,
+    centernet_targets,
+    collate,
+    rasterize_lidar,
+    route_checkpoints,
+)
+from lead_s2r.models.config import BEVGrid, TrajectoryGrid, tfv6_config
+
+GRID = BEVGrid(-32.0, 64.0, -40.0, 40.0, 4.0)
+
+
+def transform(**overrides) -> SourceTransform:
+    config = tfv6_config(**{"image_size": (32, 96), "trajectory_grids": {"toy": TrajectoryGrid(6, 0.5)}, **overrides})
+    return SourceTransform("toy", config, ["front"])
+
+
+def test_future_is_resampled_onto_the_model_grid_and_masked_past_the_horizon():
+    sample = toy_sample("log000", 0, yaw_rate=0.2)  # future: 8 points at 2 Hz, 4 s
+    out = transform(trajectory_grids={"toy": TrajectoryGrid(10, 0.5)})(sample)
+    assert out["waypoints_valid"].tolist() == [True] * 8 + [False] * 2
+    assert torch.allclose(out["waypoints"][:8], torch.from_numpy(sample["future"][:, 1:3]))
+    assert (out["waypoints"][1:8, 1] > 0).all()  # a left turn stays on the left
+
+
+def test_waypoints_between_source_points_are_interpolated():
+    sample = toy_sample("log000", 0, yaw_rate=0.0)  # x = 5 t
+    result = transform(trajectory_grids={"toy": TrajectoryGrid(4, 0.25)})(sample)
+    assert torch.allclose(result["waypoints"][:, 0], torch.tensor([1.25, 2.5, 3.75, 5.0]))  # first knot is the origin
+
+
+def test_image_is_rgb_at_the_configured_size():
+    sample = toy_sample("log000", 0)
+    out = transform()(sample)
+    assert out["rgb"].shape == (3, 32, 96) and out["rgb"].dtype == torch.uint8
+
+
+def test_lidar_cells_follow_x_along_rows_and_y_along_columns():
+    raster = rasterize_lidar(np.array([[10.0, 5.0, 0, 0]] * 7 + [[-31.9, -39.9, 0, 0], [100.0, 0, 0, 0]]), GRID)
+    assert raster.shape == (384, 320)
+    assert raster[(10 + 32) * 4, (5 + 40) * 4] == 1.0  # saturated at 5 hits
+    assert raster[0, 0] == 0.2 and raster.sum() == 1.2  # the out-of-range point is dropped
+
+
+def test_bev_labels_follow_the_pixel_to_ego_map():
+    # a 2 px/m, 50 m raster centred on the ego, rows along -x, columns along -y (image convention, forward up)
+    labels = np.zeros((100, 100), np.uint8)
+    labels[50 - 2 * 10, 50 - 2 * 5] = 7  # x = 10 m ahead, y = 5 m left
+    spec = {"pixel_to_ego": [[0.0, -0.5, 25.0], [-0.5, 0.0, 25.0]]}
+    out = bev_labels(labels, spec, GRID)
+    hits = np.argwhere(out == 7)
+    assert len(hits) == 4  # one source pixel covers 2 x 2 cells at 4 px/m
+    x = GRID.x_min + (hits[:, 0] + 0.5) / 4
+    y = GRID.y_min + (hits[:, 1] + 0.5) / 4
+    assert np.all(np.abs(x - 9.75) <= 0.25) and np.all(np.abs(y - 4.75) <= 0.25)
+    assert out[-1, 0] == -1 and out[0, 0] == -1  # x = 64 m and x = -32 m lie outside the raster
+    assert out[32 * 4, 40 * 4] == 0  # the ego cell is inside
+
+
+def test_centernet_peak_sits_at_the_box_centre():
+    boxes = np.array([[10.1, -3.2, 0, 4.5, 2.0, 1.5, 0.3, 3.0, 4.0, 0], [5, 5, 0, 0.5, 0.5, 1, 0, 0, 0, 1]], np.float32)
+    out = centernet_targets(boxes, GRID, num_classes=10)
+    row, col = int((10.1 + 32) // 1), int((-3.2 + 40) // 1)  # stride 4 at 4 px/m: 1 m cells
+    assert out["box_heatmap"][0, row, col] == 1.0 and out["box_heatmap"][1].max() == 1.0
+    assert out["box_index"][0] == row * 80 + col and out["box_valid"][:2].all() and not out["box_valid"][2:].any()
+    assert torch.allclose(out["box_offset"][0], torch.tensor([0.1, 0.8]), atol=1e-5)
+    assert out["box_velocity"][0] == 5.0
+    vehicles_only = centernet_targets(boxes, GRID, num_classes=1)
+    assert vehicles_only["box_valid"].sum() == 1
+
+
+def test_route_checkpoints_start_ahead_and_step_one_metre():
+    route = np.stack([np.linspace(3, 8, 6), np.zeros(6)], axis=1)
+    out = route_checkpoints(route, 10)
+    assert out["route_valid"].tolist() == [True] * 6 + [False] * 4
+    assert torch.allclose(out["route"][:6, 0], torch.tensor([2.5, 3.5, 4.5, 5.5, 6.5, 7.5]))
+
+
+def test_collate_masks_labels_a_sample_lacks():
+    with_future = transform()(toy_sample("log000", 0))
+    without = transform()({k: v for k, v in toy_sample("log000", 1).items() if k != "future"})
+    batch = collate([with_future, without])
+    assert batch["waypoints_valid"][1].sum() == 0 and batch["waypoints_valid"][0].all()
+    assert batch["__key__"] == ["toy_log000_000000", "toy_log000_000001"]
