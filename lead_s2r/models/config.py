@@ -1,0 +1,169 @@
+"""Model configurations: plain dataclasses, so LightningCLI reads them from YAML and checkpoints store them.
+
+Presets follow the LEAD repo (``lead/tfv6``, ``TrainingConfig``): :func:`tfv6_config` (ResNet34 TFv6, ~60M parameters
+with token dim 256), :func:`ltfv6_config` (no LiDAR: a fixed coordinate grid feeds the BEV branch) and
+:func:`tfv5_config` (GRU refinement initialised with one target point).
+"""
+
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+#: LEAD's target-speed bins, m/s (``target_speed_classes``); a label is two-hot encoded between neighbours.
+TARGET_SPEED_CLASSES = (0.0, 4.0, 8.0, 10.0, 13.89, 16.0, 17.78, 20.0)
+
+#: Where each target-point slot sits in ``target_points`` (B, 3, 2).
+TARGET_POINT_SLOTS = ("previous", "current", "next")
+
+
+@dataclass(frozen=True)
+class TrajectoryGrid:
+    """A dataset's output grid: ``num_points`` poses at ``t = dt, 2 dt, ...`` seconds."""
+
+    num_points: int
+    dt: float
+
+    @property
+    def times(self) -> tuple[float, ...]:
+        return tuple(self.dt * (i + 1) for i in range(self.num_points))
+
+
+@dataclass(frozen=True)
+class BEVGrid:
+    """Bird's-eye-view raster in the ISO ego frame.
+
+    Array axis H runs along +x (row ``i`` covers ``x_min + i / ppm``), axis W along +y (column ``j`` covers
+    ``y_min + j / ppm``): index order follows coordinate order, so no flip hides in the layout.
+    """
+
+    x_min: float = -32.0
+    x_max: float = 64.0
+    y_min: float = -40.0
+    y_max: float = 40.0
+    pixels_per_meter: float = 4.0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (
+            round((self.x_max - self.x_min) * self.pixels_per_meter),
+            round((self.y_max - self.y_min) * self.pixels_per_meter),
+        )
+
+
+#: LEAD's CARLA leaderboard BEV box (x in [-32, 64], y in [-40, 40], 4 px/m -> 384 x 320).
+CARLA_BEV = BEVGrid()
+#: NAVSIM's +-32 m square (256 x 256).
+NAVSIM_BEV = BEVGrid(-32.0, 32.0, -32.0, 32.0)
+
+
+def default_grids() -> dict[str, TrajectoryGrid]:
+    """LEAD's output grids: CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz."""
+    return {"carla": TrajectoryGrid(8, 0.25), "navsim": TrajectoryGrid(8, 0.5), "wod": TrajectoryGrid(10, 0.5)}
+
+
+@dataclass
+class TFv6Config:
+    """Everything that shapes a TFv6 / LTFv6 / TFv5 network.
+
+    Per-source dictionaries are keyed by *label space*: a source uses ``label_space.get(source, source)``, so two
+    sources that share CARLA classes can share one head instance while CARLA and NAVSIM classes never do.
+    """
+
+    # backbone
+    image_architecture: str = "resnet34"
+    bev_architecture: str = "resnet34"
+    pretrained: bool = False
+    image_size: tuple[int, int] = (384, 1152)
+    bev: BEVGrid = CARLA_BEV
+    #: "raster": LiDAR BEV histogram input (TFv6); "coordinates": fixed 2-channel grid (LTFv6);
+    #: "latent": learned (C, H, W) tensor as in NAVSIM's LTF.
+    bev_input: Literal["raster", "coordinates", "latent"] = "raster"
+    lidar_channels: int = 1
+    #: Camera ablations: the mosaic is cut into ``camera_tiles`` equal tiles, ``use_tiles`` pick and order them
+    #: (None: all), and ``fov_fraction`` keeps that central share of each tile's width.
+    camera_tiles: int = 1
+    use_tiles: tuple[int, ...] | None = None
+    fov_fraction: float = 1.0
+    fusion_layers: int = 2
+    fusion_heads: int = 4
+    fusion_dropout: float = 0.1
+    bev_feature_channels: int = 64
+    # planning decoder
+    decoder: Literal["v6", "v5"] = "v6"
+    token_dim: int = 256
+    decoder_layers: int = 6
+    decoder_heads: int = 8
+    decoder_ffn: int = 2048
+    decoder_dropout: float = 0.1
+    gru_hidden: int = 64
+    use_speed: bool = True
+    use_acceleration: bool = True
+    use_command: bool = True
+    num_commands: int = 4
+    target_points: tuple[str, ...] = TARGET_POINT_SLOTS
+    #: Target points are mapped from [low, high] to [-1, 1] and clamped; LEAD's fixed x/200, y/50 by default,
+    #: training-data statistics through :func:`lead_s2r.models.inputs.target_point_range`.
+    target_point_low: tuple[float, float] = (-200.0, -50.0)
+    target_point_high: tuple[float, float] = (200.0, 50.0)
+    max_speed: float = 20.0
+    max_acceleration: float = 4.0
+    trajectory_grids: dict[str, TrajectoryGrid] = field(default_factory=default_grids)
+    predict_headings: bool = True
+    num_route_points: int = 10
+    target_speed_classes: tuple[float, ...] = TARGET_SPEED_CLASSES
+    # radar
+    use_radar: bool = True
+    radar_sensors: int = 4
+    radar_queries: int = 20
+    radar_layers: int = 4
+    radar_ffn: int = 1024
+    radar_sources: tuple[str, ...] = ("carla",)
+    # auxiliary heads, per label space
+    label_space: dict[str, str] = field(default_factory=dict)
+    bev_semantic_classes: dict[str, int] = field(default_factory=lambda: {"carla": 9, "navsim": 7})
+    box_classes: dict[str, int] = field(default_factory=lambda: {"carla": 10, "navsim": 1})
+    box_yaw_bins: int = 12
+    semantic_classes: dict[str, int] = field(default_factory=lambda: {"carla": 10})
+    depth_sources: tuple[str, ...] = ("carla",)
+    max_depth: float = 50.0
+
+    def space(self, source: str) -> str:
+        """The label space a source's perception targets live in."""
+        return self.label_space.get(source, source)
+
+
+def tfv6_config(**overrides: object) -> TFv6Config:
+    """TFv6 as in LEAD's CARLA model: camera + LiDAR + radar, ResNet34 encoders, token dim 256."""
+    return replace(TFv6Config(), **overrides)
+
+
+def ltfv6_config(**overrides: object) -> TFv6Config:
+    """LTFv6 for NAVSIM: 4-camera 1920x270 mosaic, no LiDAR and no radar; acceleration and command tokens."""
+    base = TFv6Config(
+        image_size=(270, 1920),
+        bev=NAVSIM_BEV,
+        bev_input="coordinates",
+        lidar_channels=2,
+        use_radar=False,
+        target_points=(),
+    )
+    return replace(base, **overrides)
+
+
+def tfv5_config(**overrides: object) -> TFv6Config:
+    """TFv5 ablation: GRU decoder initialised with the current target point; speed and command tokens only."""
+    base = TFv6Config(
+        decoder="v5", target_points=("current",), use_acceleration=False, use_radar=False, predict_headings=False
+    )
+    return replace(base, **overrides)
+
+
+@dataclass
+class EgoMLPConfig:
+    """The ego-status MLP baseline (NAVSIM's EgoStatusMLP): speed, acceleration, command -> trajectory."""
+
+    hidden: int = 512
+    layers: int = 3
+    num_commands: int = 4
+    max_speed: float = 20.0
+    max_acceleration: float = 4.0
+    trajectory_grids: dict[str, TrajectoryGrid] = field(default_factory=default_grids)

@@ -1,0 +1,163 @@
+"""Loss terms, one function per task. Each returns a scalar mean over the labelled entries of one source's batch.
+
+Predictions are cast to float32 first, so the terms are stable under bf16 autocast.
+"""
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy.optimize import linear_sum_assignment
+from torch import Tensor
+
+from lead_s2r.models.inputs import Batch
+
+#: Each task's target key in the batch; a term is computed only where that key is present.
+TASK_TARGETS = {
+    "waypoints": "waypoints",
+    "headings": "headings",
+    "route": "route",
+    "target_speed": "target_speed",
+    "bev_semantic": "bev_semantic",
+    "boxes": "box_heatmap",
+    "depth": "depth",
+    "semantic": "semantic",
+    "radar": "radar_targets",
+}
+
+
+def masked_mean(values: Tensor, mask: Tensor) -> Tensor:
+    """Mean of ``values`` over ``mask`` (broadcast from the left); zero, still in the graph, when nothing is valid."""
+    mask = mask.to(values.dtype)
+    while mask.dim() < values.dim():
+        mask = mask.unsqueeze(-1)
+    mask = mask.expand_as(values)
+    return (values * mask).sum() / mask.sum().clamp(min=1.0)
+
+
+def _valid(batch: Batch, key: str, like: Tensor) -> Tensor:
+    return batch.get(f"{key}_valid", torch.ones(like.shape[:2], dtype=torch.bool, device=like.device))
+
+
+def waypoint_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
+    """L1 over valid waypoints."""
+    return masked_mean(
+        (pred["waypoints"].float() - batch["waypoints"]).abs(), _valid(batch, "waypoints", batch["waypoints"])
+    )
+
+
+def heading_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
+    """L1 of the wrapped heading error, so +pi and -pi are the same heading."""
+    diff = pred["headings"].float() - batch["headings"]
+    wrapped = torch.remainder(diff + math.pi, 2 * math.pi) - math.pi
+    return masked_mean(wrapped.abs(), _valid(batch, "headings", batch["headings"]))
+
+
+def route_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
+    """L1 over the route checkpoints plus L1 of the last valid one (ADE + FDE, as LEAD)."""
+    target, route = batch["route"], pred["route"].float()
+    valid = _valid(batch, "route", target)
+    err = (route - target).abs()
+    last = valid.long().cumsum(1).argmax(1)  # index of the last valid checkpoint
+    rows = torch.arange(len(target), device=target.device)
+    return masked_mean(err, valid) + masked_mean(err[rows, last], valid.any(1))
+
+
+def two_hot(values: Tensor, classes: Tensor) -> Tensor:
+    """Encode scalars as weights on the two neighbouring classes (linear interpolation); clamps to the ends."""
+    values = values.float().clamp(classes[0], classes[-1])
+    upper = torch.searchsorted(classes, values, right=False).clamp(1, len(classes) - 1)
+    lower = upper - 1
+    frac = (values - classes[lower]) / (classes[upper] - classes[lower])
+    encoded = torch.zeros(*values.shape, len(classes), device=values.device)
+    encoded.scatter_(-1, lower[..., None], (1 - frac)[..., None])
+    encoded.scatter_add_(-1, upper[..., None], frac[..., None])
+    return encoded
+
+
+def target_speed_loss(pred: dict[str, Tensor], batch: Batch, classes: Tensor) -> Tensor:
+    """Cross-entropy against the two-hot encoded target speed."""
+    target = two_hot(batch["target_speed"], classes.to(batch["target_speed"].device))
+    ce = -(target * F.log_softmax(pred["target_speed_logits"].float(), dim=-1)).sum(-1)
+    valid = batch.get("target_speed_valid", torch.ones_like(ce, dtype=torch.bool))
+    return masked_mean(ce, valid)
+
+
+def _resize_logits(logits: Tensor, size: tuple[int, int]) -> Tensor:
+    if tuple(logits.shape[-2:]) == tuple(size):
+        return logits.float()
+    return F.interpolate(logits.float(), size=size, mode="bilinear", align_corners=False)
+
+
+def segmentation_loss(logits: Tensor, labels: Tensor) -> Tensor:
+    """Cross-entropy with logits resized to the label raster; label -1 is ignored."""
+    logits = _resize_logits(logits, tuple(labels.shape[-2:]))
+    if not (labels >= 0).any():
+        return logits.sum() * 0.0
+    return F.cross_entropy(logits, labels.long(), ignore_index=-1)
+
+
+def depth_loss(pred: Tensor, depth: Tensor) -> Tensor:
+    """L1 in metres where a depth label exists (> 0)."""
+    pred = _resize_logits(pred[:, None], tuple(depth.shape[-2:]))[:, 0]
+    return masked_mean((pred - depth).abs(), depth > 0)
+
+
+def focal_heatmap_loss(logits: Tensor, target: Tensor, alpha: float = 2.0, beta: float = 4.0) -> Tensor:
+    """CenterNet's penalty-reduced focal loss on a Gaussian heatmap, normalised by the number of peaks."""
+    prob = torch.sigmoid(logits.float()).clamp(1e-4, 1 - 1e-4)
+    peaks = target >= 1.0 - 1e-6
+    pos = -torch.log(prob) * (1 - prob) ** alpha * peaks
+    neg = -torch.log(1 - prob) * prob**alpha * (1 - target) ** beta * ~peaks
+    return (pos.sum() + neg.sum()) / peaks.sum().clamp(min=1)
+
+
+def box_loss(pred: dict[str, Tensor], batch: Batch, yaw_bins: int) -> Tensor:
+    """Heatmap focal loss + L1 offset/size/speed + yaw bin CE + yaw residual smooth-L1 at the box centres."""
+    heat = focal_heatmap_loss(pred["box_heatmap"], batch["box_heatmap"])
+    index, valid = batch["box_index"].long(), batch["box_valid"]
+
+    def at_centres(name: str) -> Tensor:
+        maps = pred[name].float().flatten(2)  # (B, C, h*w)
+        return maps.gather(2, index[:, None].expand(-1, maps.shape[1], -1)).transpose(1, 2)  # (B, M, C)
+
+    yaw = torch.remainder(batch["box_yaw"] + math.pi, 2 * math.pi)  # [0, 2 pi)
+    bin_width = 2 * math.pi / yaw_bins
+    yaw_class = (yaw / bin_width).long().clamp(max=yaw_bins - 1)
+    residual = yaw - (yaw_class.float() + 0.5) * bin_width
+    yaw_logits = at_centres("box_yaw_class")
+    terms = [
+        masked_mean((at_centres("box_offset") - batch["box_offset"]).abs(), valid),
+        masked_mean((at_centres("box_size") - batch["box_size"]).abs(), valid),
+        masked_mean(F.cross_entropy(yaw_logits.transpose(1, 2), yaw_class, reduction="none"), valid),
+        masked_mean(F.smooth_l1_loss(at_centres("box_yaw_residual")[..., 0], residual, reduction="none"), valid),
+        masked_mean((at_centres("box_velocity")[..., 0] - batch["box_velocity"]).abs(), valid),
+    ]
+    return heat + sum(terms)
+
+
+def radar_loss(pred: dict[str, Tensor], batch: Batch, scale: tuple[float, float, float]) -> Tensor:
+    """Hungarian-matched detection loss: ``5 * L1`` of scaled (x, y, speed) for matched queries + ``BCE`` validity.
+
+    Matching cost is the same combination, solved per sample with scipy on CPU (LEAD's RadarDetector loss).
+    """
+    xyv = torch.cat([pred["radar_xy"], pred["radar_speed"][..., None]], dim=-1).float()
+    norm = torch.tensor(scale, device=xyv.device)
+    xyv = xyv / norm
+    targets = batch["radar_targets"].float() / norm
+    logits = pred["radar_logit"].float()
+    label = torch.zeros_like(logits)
+    l1_terms = []
+    for i in range(len(xyv)):
+        tgt = targets[i][batch["radar_targets_valid"][i].bool()]
+        if len(tgt) == 0:
+            continue
+        dist = torch.cdist(xyv[i], tgt, p=1)  # (Q, R)
+        cost = 5.0 * dist + F.softplus(-logits[i])[:, None]  # BCE of calling the query valid
+        rows, cols = linear_sum_assignment(cost.detach().cpu().numpy().astype(np.float64))
+        rows_t, cols_t = torch.as_tensor(rows, device=xyv.device), torch.as_tensor(cols, device=xyv.device)
+        label[i, rows_t] = 1.0
+        l1_terms.append(dist[rows_t, cols_t])
+    l1 = torch.cat(l1_terms).mean() if l1_terms else xyv.sum() * 0.0
+    return 5.0 * l1 + F.binary_cross_entropy_with_logits(logits, label)

@@ -1,0 +1,174 @@
+"""The LightningModule: per-source forward passes, loss masking by what each source supervises, ADE/FDE validation,
+ISO-frame predictions."""
+
+from collections.abc import Mapping
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.utilities import rank_zero_info, rank_zero_warn
+from torch import Tensor, nn
+
+from lead_s2r.models.inputs import Batch
+from lead_s2r.training import losses
+from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
+from lead_s2r.training.weights import LoadReport, load_matching
+
+#: LEAD's weights (``detailed_loss_weights``): all 1 except depth.
+DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in losses.TASK_TARGETS} | {"depth": 1e-5}
+
+
+class DrivingModule(L.LightningModule):
+    """Trains any model with the TFv6 interface (``tasks(source)``, ``grid(source)``, ``forward(batch, source,
+    tasks)``) on ``{source: batch}`` inputs.
+
+    Each loss term is the mean over the samples of every source that supervises it, so a source's influence grows
+    with its share of the batch (the mixing schedule's knob), then terms are weighted and summed.
+
+    Args:
+        model: the network, e.g. ``TFv6(ltfv6_config())`` or ``EgoStatusMLP()``.
+        supervise: per source, task groups ("planning", "perception") or task names it supervises; default
+            sim-to-real (CARLA perception only, NAVSIM planning + perception, WOD planning).
+        loss_weights: per-task weights over :data:`DEFAULT_LOSS_WEIGHTS`.
+        lr, weight_decay, betas, amsgrad: AdamW settings (LEAD: 3e-4, 0.01, AMSGrad).
+        compile: wrap the model with ``torch.compile`` (parameter names stay the same).
+        init_from: checkpoint whose matching tensors initialise the model (fine-tuning); new heads are reported.
+    """
+
+    def __init__(
+        self,
+        model: nn.Module,
+        supervise: dict[str, list[str]] | None = None,
+        loss_weights: dict[str, float] | None = None,
+        lr: float = 3e-4,
+        weight_decay: float = 0.01,
+        betas: tuple[float, float] = (0.9, 0.999),
+        amsgrad: bool = True,
+        compile: bool = False,
+        init_from: str | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters(ignore=["model"])
+        self.model = model
+        self.supervise = {k: list(v) for k, v in (SIM_TO_REAL if supervise is None else supervise).items()}
+        self.loss_weights = DEFAULT_LOSS_WEIGHTS | (loss_weights or {})
+        unknown = set(self.loss_weights) - set(losses.TASK_TARGETS)
+        if unknown:
+            raise ValueError(f"loss_weights: unknown tasks {sorted(unknown)}; known: {sorted(losses.TASK_TARGETS)}")
+        self.init_report: LoadReport | None = None
+        if init_from is not None:
+            self.init_report = load_matching(self.model, init_from)
+            rank_zero_info(self.init_report.summary())
+        if compile:
+            self.model.compile()
+
+    # --- losses
+    def task_loss(self, task: str, pred: dict[str, Tensor], batch: Batch) -> Tensor:
+        """One loss term for one source's batch."""
+        config = getattr(self.model, "config", None)
+        if task == "waypoints":
+            return losses.waypoint_loss(pred, batch)
+        if task == "headings":
+            return losses.heading_loss(pred, batch)
+        if task == "route":
+            return losses.route_loss(pred, batch)
+        if task == "target_speed":
+            return losses.target_speed_loss(pred, batch, torch.tensor(config.target_speed_classes))
+        if task == "bev_semantic":
+            return losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
+        if task == "boxes":
+            return losses.box_loss(pred, batch, config.box_yaw_bins)
+        crop = getattr(self.model, "camera_select", nn.Identity())
+        if task == "semantic":
+            return losses.segmentation_loss(pred["semantic"], crop(batch["semantic"]))
+        if task == "depth":
+            return losses.depth_loss(pred["depth"], crop(batch["depth"]))
+        if task == "radar":
+            bev = config.bev
+            scale = ((bev.x_max - bev.x_min) / 2, (bev.y_max - bev.y_min) / 2, config.max_speed)
+            return losses.radar_loss(pred, batch, scale)
+        raise ValueError(f"unknown task {task!r}")
+
+    def compute_losses(self, batch: Mapping[str, Batch]) -> tuple[Tensor | None, dict[str, tuple[Tensor, int]]]:
+        """Weighted total (None when nothing is supervised) and every per-source term with its batch size."""
+        per_task: dict[str, list[tuple[Tensor, int]]] = {}
+        terms: dict[str, tuple[Tensor, int]] = {}
+        for source, source_batch in batch.items():
+            tasks = active_tasks(source, source_batch, self.model.tasks(source), self.supervise)
+            if not tasks:
+                continue
+            n = len(source_batch["speed"])
+            pred = self.model(source_batch, source, tasks)
+            for task in sorted(tasks):
+                value = self.task_loss(task, pred, source_batch)
+                terms[f"{source}/{task}"] = (value, n)
+                per_task.setdefault(task, []).append((value, n))
+        if not per_task:
+            return None, terms
+        total = sum(
+            self.loss_weights[task] * sum(v * n for v, n in values) / sum(n for _, n in values)
+            for task, values in per_task.items()
+        )
+        return total, terms
+
+    def training_step(self, batch: Mapping[str, Batch], batch_idx: int) -> Tensor | None:
+        total, terms = self.compute_losses(batch)
+        for name, (value, n) in terms.items():
+            self.log(f"train/{name}", value, batch_size=n)
+        if total is None:
+            rank_zero_warn(f"step {batch_idx}: no source in {sorted(batch)} supervises anything; step skipped")
+            return None
+        self.log("train/loss", total, prog_bar=True, batch_size=sum(len(b["speed"]) for b in batch.values()))
+        return total
+
+    # --- evaluation
+    def validation_step(self, batch: Mapping[str, Batch], batch_idx: int) -> None:
+        """ADE / FDE per dataset on the source's own grid (``val/<source>/ade``, ``.../fde``)."""
+        for source, source_batch in batch.items():
+            if "waypoints" not in source_batch or "waypoints" not in self.model.tasks(source):
+                continue
+            pred = self.model(source_batch, source, {"waypoints"})["waypoints"].float()
+            target = source_batch["waypoints"]
+            valid = source_batch.get(
+                "waypoints_valid", torch.ones(target.shape[:2], dtype=torch.bool, device=target.device)
+            )
+            err = (pred - target).norm(dim=-1)
+            has = valid.any(1)
+            if not has.any():
+                continue
+            last = valid.long().cumsum(1).argmax(1)
+            ade = losses.masked_mean(err, valid)
+            fde = err[torch.arange(len(err), device=err.device), last][has].mean()
+            n = int(has.sum())
+            self.log(f"val/{source}/ade", ade, batch_size=n, add_dataloader_idx=False)
+            self.log(f"val/{source}/fde", fde, batch_size=n, add_dataloader_idx=False)
+
+    def predict_step(self, batch: Mapping[str, Batch], batch_idx: int) -> dict[str, dict[str, Any]]:
+        """Per source: sample keys, time grid ``t`` (T,) in seconds and poses in the ISO ego frame.
+
+        ``xy`` (B, T, 2) metres and ``yaw`` (B, T) radians (NaN where the model predicts no headings).
+        """
+        result = {}
+        for source, source_batch in batch.items():
+            tasks = {"waypoints", "headings"} & self.model.tasks(source)
+            pred = self.model(source_batch, source, tasks)
+            xy = pred["waypoints"].float()
+            yaw = (
+                pred["headings"].float()
+                if "headings" in pred
+                else torch.full(xy.shape[:2], float("nan"), device=xy.device)
+            )
+            result[source] = {
+                "key": list(source_batch.get("__key__", [])),
+                "t": torch.tensor(self.model.grid(source).times, dtype=torch.float32),
+                "xy": xy,
+                "yaw": yaw,
+            }
+        return result
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        hp = self.hparams
+        return torch.optim.AdamW(
+            self.model.parameters(), lr=hp.lr, weight_decay=hp.weight_decay, betas=tuple(hp.betas), amsgrad=hp.amsgrad
+        )
+
