@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from test_score_cli import GRID, prediction, scoring_sample, straight
 
 from lead_s2r.predictions import PredictionError
+from lead_s2r.schema import SchemaError
 from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_rater_lists, pad_raters, rater_feedback_score, speed_scale
 
 # copy of shared/golden/wod_rfs_official_samples.json (the official unit-test samples, Apache-2.0) so CI runs anywhere
@@ -217,3 +218,10 @@ def test_scorer_multi_inference_and_sub_scores() -> None:
     assert table["rfs_3s"] == [pytest.approx(at_3s, abs=1e-12)]
     assert table["fully_within"] == [True]  # of the most probable inference
     assert GRID[11] == 3.0 and GRID[19] == 5.0
+
+
+def test_malformed_raters_name_the_sample() -> None:
+    sample = scoring_sample("seg_a", raters=[(RATER, 9.0)])
+    sample["raters"]["lengths"] = np.array([25], np.int32)
+    with pytest.raises(SchemaError, match=r"'seg_a', field 'raters': lengths \[25\] outside 1\.\.20"):
+        RFSScorer().score([prediction("seg_a", RATER)], [sample])

@@ -17,6 +17,7 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.predictions import Prediction, on_grid, regular_grid
+from lead_s2r.schema import SchemaError
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
 
 
@@ -70,8 +71,8 @@ def pad_raters(
     """
     lengths = np.asarray(lengths)
     counts = np.asarray(counts)
-    if (counts < 1).any() or (np.take_along_axis(lengths, np.maximum(counts - 1, 0)[:, None], 1) < 1).any():
-        raise ValueError("every frame needs at least one rater with at least one point")
+    if (counts < 1).any() or (lengths[np.arange(lengths.shape[1]) < counts[:, None]] < 1).any():
+        raise ValueError("every frame needs at least one rater and every rater at least one point")
     frames = np.arange(len(counts))[:, None]
     rater = np.minimum(np.arange(config.num_raters)[None, :], counts[:, None] - 1)
     point = np.minimum(np.arange(config.num_points)[None, None, :], lengths[frames, rater][..., None] - 1)
@@ -85,18 +86,30 @@ def pad_rater_lists(
     config: RFSConfig = RFSConfig(),
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`pad_raters` for ragged per-frame lists of (T_p, 2) trajectories and their labels."""
-    counts = np.array([len(frame) for frame in trajectories])
-    width = max(counts.max(), 1)
-    longest = max(len(t) for frame in trajectories for t in frame)
-    stacked = np.full((len(trajectories), width, longest, 2), np.nan)
-    lengths = np.zeros((len(trajectories), width), np.int64)
-    label_array = np.zeros((len(trajectories), width))
-    for b, frame in enumerate(trajectories):
+    frames = []
+    for frame, frame_labels in zip(trajectories, labels, strict=True):
+        padded = np.full((len(frame), max(len(t) for t in frame), 2), np.nan)
         for p, trajectory in enumerate(frame):
-            stacked[b, p, : len(trajectory)] = trajectory
-            lengths[b, p] = len(trajectory)
-        label_array[b, : len(frame)] = labels[b]
-    return pad_raters(stacked, lengths, counts, label_array, config)
+            padded[p, : len(trajectory)] = trajectory
+        frames.append((padded, np.array([len(t) for t in frame]), np.asarray(frame_labels, np.float64)))
+    return pad_raters(*_stack(frames), config)
+
+
+def _stack(
+    frames: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-frame (trajectories (P, T, 2), lengths (P,), labels (P,)) -> the padded inputs of :func:`pad_raters`."""
+    width = max(len(labels) for _, _, labels in frames)
+    longest = max(trajectories.shape[1] for trajectories, _, _ in frames)
+    stacked = np.full((len(frames), width, longest, 2), np.nan)
+    lengths = np.zeros((len(frames), width), np.int64)
+    labels = np.zeros((len(frames), width))
+    for b, (trajectories, length, scores) in enumerate(frames):
+        stacked[b, : len(scores), : trajectories.shape[1]] = trajectories
+        lengths[b, : len(scores)] = length
+        labels[b, : len(scores)] = scores
+    counts = np.array([len(scores) for _, _, scores in frames])
+    return stacked, lengths, counts, labels
 
 
 def _directions(raters: np.ndarray, indices: np.ndarray) -> np.ndarray:
@@ -162,22 +175,30 @@ def rater_arrays(samples: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndar
 
     Ratings below 0 (unlabelled) are dropped here too, in case a converter kept them.
     """
-    kept = []
+    frames = []
     for sample in samples:
-        raters = sample["raters"]
-        valid = np.asarray(raters["scores"]) >= 0
-        kept.append((raters["trajectories"][valid], raters["lengths"][valid], raters["scores"][valid]))
-    width = max(len(scores) for _, _, scores in kept)
-    longest = max(trajectories.shape[1] for trajectories, _, _ in kept)
-    stacked = np.full((len(kept), width, longest, 2), np.nan)
-    lengths = np.zeros((len(kept), width), np.int64)
-    labels = np.zeros((len(kept), width))
-    for b, (trajectories, length, scores) in enumerate(kept):
-        stacked[b, : len(scores), : trajectories.shape[1]] = trajectories
-        lengths[b, : len(scores)] = length
-        labels[b, : len(scores)] = scores
-    counts = np.array([len(scores) for _, _, scores in kept])
-    return stacked, lengths, counts, labels
+        trajectories, lengths, scores = (
+            np.asarray(sample["raters"][name]) for name in ("trajectories", "lengths", "scores")
+        )
+        _check_raters(sample["__key__"], trajectories, lengths, scores)
+        valid = scores >= 0
+        frames.append((trajectories[valid], lengths[valid], scores[valid]))
+    return _stack(frames)
+
+
+def _check_raters(key: str, trajectories: np.ndarray, lengths: np.ndarray, scores: np.ndarray) -> None:
+    """Raise :class:`SchemaError` naming the sample if its ``raters`` field cannot be scored."""
+    if (
+        trajectories.ndim != 3
+        or trajectories.shape[2] != 2
+        or not (lengths.shape == scores.shape == (len(trajectories),))
+    ):
+        raise SchemaError(key, "raters", "expected trajectories (P, T, 2), lengths (P,), scores (P,)")
+    if (lengths < 1).any() or (lengths > trajectories.shape[1]).any():
+        raise SchemaError(key, "raters", f"lengths {lengths.tolist()} outside 1..{trajectories.shape[1]}")
+    valid_points = np.arange(trajectories.shape[1]) < lengths[:, None]
+    if not np.isfinite(trajectories[valid_points]).all():
+        raise SchemaError(key, "raters", "trajectories must be finite within their lengths")
 
 
 def has_rating(sample: dict[str, Any]) -> bool:
