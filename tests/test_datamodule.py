@@ -1,0 +1,59 @@
+from collections import Counter
+from types import SimpleNamespace
+
+import pytest
+from toy_adapter import ToyAdapter, write_toy_logs
+
+from lead_s2r.convert import convert
+from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
+from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.models.config import TrajectoryGrid, tfv6_config
+
+
+@pytest.fixture(scope="module")
+def toy_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("toy")
+    write_toy_logs(root / "src", n_logs=4, frames=6)
+    convert(ToyAdapter(), root / "src", root / "data", shard_size=6)
+    return str(root / "data")
+
+
+def make_datamodule(path: str, epoch: int = 0) -> DriveDataModule:
+    grids = {"sim": TrajectoryGrid(4, 0.5), "real": TrajectoryGrid(4, 0.5)}
+    config = tfv6_config(image_size=(32, 96), trajectory_grids=grids, use_radar=False)
+    spec = SourceSpec([path], cameras=["front"])
+    dm = DriveDataModule(
+        train={"sim": spec, "real": spec},
+        val={"real": spec},
+        schedule=MixingSchedule.lead_sim2real("sim", "real", global_batch_size=8),
+        steps_per_epoch=3,
+        eval_batch_size=5,
+        config=config,
+    )
+    dm.trainer = SimpleNamespace(current_epoch=epoch, world_size=1)
+    return dm
+
+
+def test_training_batches_follow_the_schedule_with_equal_step_counts(toy_data):
+    loaders = make_datamodule(toy_data, epoch=0).train_dataloader()
+    sizes = {name: [len(batch["__key__"]) for batch in loader] for name, loader in loaders.items()}
+    assert sizes == {"sim": [5, 5, 5], "real": [3, 3, 3]}
+    late = make_datamodule(toy_data, epoch=31).train_dataloader()
+    assert list(late) == ["real"] and [len(b["__key__"]) for b in late["real"]] == [8, 8, 8]
+
+
+def test_validation_sees_every_sample_once(toy_data):
+    (loader,) = make_datamodule(toy_data).val_dataloader()
+    keys = [key for batch in loader for key in batch["__key__"]]
+    assert len(keys) == 24 and max(Counter(keys).values()) == 1
+    batch = next(iter(loader))
+    assert batch["rgb"].shape == (5, 3, 32, 96) and batch["waypoints"].shape == (5, 4, 2)
+
+
+def test_split_filter_and_schedule_mismatch(toy_data):
+    dm = make_datamodule(toy_data)
+    dm.val_sources = {"real": SourceSpec([toy_data], splits=["val"], cameras=["front"])}
+    (loader,) = dm.val_dataloader()
+    assert list(loader) == []  # toy data is all "train"
+    with pytest.raises(ValueError, match="mixes"):
+        DriveDataModule(train={"sim": SourceSpec([toy_data])}, schedule=MixingSchedule.constant({"sim": 1, "x": 1}))
