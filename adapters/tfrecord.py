@@ -7,9 +7,11 @@ Offsets always point at the start of a record (its length field), lengths are pa
 """
 
 import json
+import multiprocessing
 import os
 import struct
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -141,31 +143,44 @@ def _stamp(shards: Iterable[Path]) -> str:
     return json.dumps({str(p): [p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(shards)}, sort_keys=True)
 
 
-def build_index(shards: list[Path], describe: Describe, schema: dict[str, pa.DataType]) -> RecordIndex:
-    """One pass over ``shards``: a row per good record, and one ``skipped`` entry per bad one.
-
-    ``describe`` adds the columns named in ``schema``; a ValueError from it marks the record as skipped.
-    """
-    rows: dict[str, list[Any]] = {name: [] for name in {**_INDEX_COLUMNS, **schema}}
+def _index_shard(shard: Path, describe: Describe) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    rows: list[dict[str, Any]] = []
     skipped: list[dict[str, Any]] = []
-    for shard in shards:
-        for item in iter_records(shard):
-            if isinstance(item, TFRecordError):
-                skipped.append({"shard": item.path, "offset": item.offset, "error": str(item)})
-                continue
-            try:
-                columns = describe(item.payload)
-            except ValueError as err:
-                skipped.append({"shard": str(shard), "offset": item.offset, "error": f"{shard}: {err}"})
-                continue
-            for name, value in {"shard": str(shard), "offset": item.offset, "length": item.length, **columns}.items():
-                rows[name].append(value)
-    table = pa.table({name: pa.array(values, {**_INDEX_COLUMNS, **schema}[name]) for name, values in rows.items()})
-    return RecordIndex(table, skipped)
+    for item in iter_records(shard):
+        if isinstance(item, TFRecordError):
+            skipped.append({"shard": item.path, "offset": item.offset, "error": str(item)})
+            continue
+        try:
+            columns = describe(item.payload)
+        except ValueError as err:
+            error = f"{shard}: record at offset {item.offset}: {err}"
+            skipped.append({"shard": str(shard), "offset": item.offset, "error": error})
+            continue
+        rows.append({"shard": str(shard), "offset": item.offset, "length": item.length, **columns})
+    return rows, skipped
+
+
+def build_index(
+    shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], workers: int = 1
+) -> RecordIndex:
+    """One pass over ``shards`` (``workers`` processes): a row per good record, a ``skipped`` entry per bad one.
+
+    ``describe`` (picklable when ``workers > 1``) adds the columns named in ``schema``; a ValueError from it
+    marks the record as skipped.
+    """
+    if workers > 1:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            parts = list(pool.map(_index_shard, shards, [describe] * len(shards)))
+    else:
+        parts = [_index_shard(shard, describe) for shard in shards]
+    types = {**_INDEX_COLUMNS, **schema}
+    rows = [row for part_rows, _ in parts for row in part_rows]
+    table = pa.table({name: pa.array([row[name] for row in rows], kind) for name, kind in types.items()})
+    return RecordIndex(table, [entry for _, part_skipped in parts for entry in part_skipped])
 
 
 def cached_index(
-    shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], cache: Path | None
+    shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], cache: Path | None, workers: int = 1
 ) -> RecordIndex:
     """:func:`build_index`, stored at ``cache`` (parquet, skipped records in its metadata) and reused while valid."""
     stamp = _stamp(shards)
@@ -174,7 +189,7 @@ def cached_index(
         metadata = table.schema.metadata or {}
         if metadata.get(_STAMP_KEY, b"").decode() == stamp:
             return RecordIndex(table.replace_schema_metadata(None), json.loads(metadata[b"lead_s2r.skipped"]))
-    index = build_index(shards, describe, schema)
+    index = build_index(shards, describe, schema, workers)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         metadata = {_STAMP_KEY: stamp.encode(), b"lead_s2r.skipped": json.dumps(index.skipped).encode()}

@@ -220,20 +220,24 @@ class WodE2EAdapter(Adapter):
     version = "1"
     extras = "wod"
 
-    def __init__(self, history: int = 0, index_dir: str | None = None, strict: bool = False) -> None:
+    def __init__(
+        self, history: int = 0, index_dir: str | None = None, index_workers: int = 1, strict: bool = False
+    ) -> None:
         """``history``: attach the K previous frames' front images (``cam_front_prev1..K``, gaps flagged false);
-        ``index_dir``: where the per-split record index is cached; ``strict``: fail on any bad record."""
+        ``index_dir``: where the per-split record index is cached; ``index_workers``: processes for the indexing
+        pass (one shard each at a time); ``strict``: fail on any bad record instead of skipping it."""
         if history < 0:
             raise ValueError(f"history must be >= 0, got {history}")
         self.history = history
         self.index_dir = None if index_dir is None else Path(index_dir)
+        self.index_workers = index_workers
         self.strict = strict
         self.skipped: list[dict[str, Any]] = []
 
     def index(self, split: str, shards: list[Path]) -> list[dict[str, Any]]:
         """Index rows of one split sorted by (sequence, frame); duplicates and bad records go to :attr:`skipped`."""
         cache = None if self.index_dir is None else self.index_dir / f"{split}.index.parquet"
-        index = cached_index(shards, _index_columns, INDEX_SCHEMA, cache)
+        index = cached_index(shards, _index_columns, INDEX_SCHEMA, cache, self.index_workers)
         rows = sorted(index.table.to_pylist(), key=lambda r: (r["sequence"], r["frame"], r["shard"], r["offset"]))
         skipped = list(index.skipped)
         kept: list[dict[str, Any]] = []

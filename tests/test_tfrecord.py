@@ -122,7 +122,11 @@ def test_index_rows_skips_and_cache(tmp_path):
         {"shard": str(shards[1]), "offset": offsets_b[0], "length": 4, "n": 3},
     ]
     assert index.skipped == [
-        {"shard": str(shards[0]), "offset": offsets_a[1], "error": f"{shards[0]}: not one of ours"}
+        {
+            "shard": str(shards[0]),
+            "offset": offsets_a[1],
+            "error": f"{shards[0]}: record at offset {offsets_a[1]}: not one of ours",
+        }
     ]
     cache = tmp_path / "cache" / "index.parquet"
     first = cached_index(shards, describe, {"n": pa.int64()}, cache)

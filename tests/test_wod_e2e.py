@@ -237,7 +237,7 @@ def test_bad_records_are_skipped_with_a_record(tmp_path, dataset):
     assert "payload CRC mismatch" in messages[str(where["crc"][0]), 0]
     assert "not an E2EDFrame" in messages[str(where["foreign"][0]), where["foreign"][1]]
     assert "truncated" in messages[str(where["truncated"][0]), where["truncated"][1]]
-    assert all(message.startswith(shard) for (shard, _), message in messages.items())
+    assert all(message.startswith(f"{shard}: record at offset {o}: ") for (shard, o), message in messages.items())
     assert result.samples == len(dataset.frames) - 1  # only the CRC-broken frame is lost
     with pytest.raises(WodE2EError, match=r"strict.*record at offset"):
         WodE2EAdapter(strict=True).list_logs(tmp_path / "src")
@@ -258,9 +258,13 @@ def test_record_changed_after_indexing_fails_its_log_cleanly(tmp_path, dataset):
         next(samples)
 
 
-def test_index_cache_is_reused(tmp_path, dataset):
+def test_index_cache_is_reused_and_parallel_indexing_agrees(tmp_path, dataset):
     write_dataset(tmp_path / "src", dataset, seed=7)
-    first = WodE2EAdapter(index_dir=str(tmp_path / "index")).list_logs(tmp_path / "src")
+    first = WodE2EAdapter(index_dir=str(tmp_path / "index"), index_workers=2).list_logs(tmp_path / "src")
+    serial = WodE2EAdapter().list_logs(tmp_path / "src")
+    assert [(log.log_id, log.split, log.extra) for log in first] == [
+        (log.log_id, log.split, log.extra) for log in serial
+    ]
     assert sorted(p.name for p in (tmp_path / "index").iterdir()) == [
         "test.index.parquet",
         "train.index.parquet",
