@@ -21,6 +21,10 @@ from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
 from lead_s2r.scoring.rfs import RFSConfig, has_rating, pad_raters, rater_arrays
 
 SUMMED = ("ade", "fde", "min_ade", "min_fde", "ade_3s", "ade_5s")
+SCHEMA = pa.schema(
+    [("key", pa.string()), ("dataset", pa.string())]
+    + [(name, pa.float64()) for name in ("ade", "fde", "min_ade", "min_fde", "horizon_s", "ade_3s", "ade_5s")]
+)
 
 
 def future_errors(frame: list[Prediction], future: np.ndarray) -> dict[str, float]:
@@ -102,7 +106,7 @@ class DisplacementScorer(Scorer):
             ade = best_rater_ade(xy, probabilities, raters, labels, grid)
             for b, (ade_3s, ade_5s) in zip(rated, ade, strict=True):
                 rows[b]["ade_3s"], rows[b]["ade_5s"] = float(ade_3s), float(ade_5s)
-        table = pa.Table.from_pylist(rows) if rows else pa.table({"key": pa.array([], pa.string())})
+        table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, self._aggregate(rows))
 
     @staticmethod

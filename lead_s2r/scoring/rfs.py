@@ -230,9 +230,13 @@ class RFSScorer(Scorer):
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
         pairs = join(predictions, data, self.allow_missing)
         rated = [(sample, frame) for sample, frame in pairs if has_rating(sample)]
-        skipped = len(pairs) - len(rated)
-        columns: dict[str, list[Any]] = {"key": [], "dataset": [], "cluster": [], "speed": [], "rfs": []}
         names = [f"rfs_{t:g}s" for t in self.rfs.threshold_times]
+        schema = pa.schema(
+            [("key", pa.string()), ("dataset", pa.string()), ("cluster", pa.string()), ("speed", pa.float64())]
+            + [(name, pa.float64()) for name in ("rfs", *names)]
+            + [("fully_within", pa.bool_()), ("best_label", pa.float64())]
+        )
+        columns: dict[str, list[Any]] = {name: [] for name in schema.names}
         if rated:
             samples = [sample for sample, _ in rated]
             xy, probabilities = on_grid(
@@ -254,8 +258,8 @@ class RFSScorer(Scorer):
                 "fully_within": result.fully_within[np.arange(len(samples)), probabilities.argmax(-1)].tolist(),
                 "best_label": labels.max(-1).tolist(),
             }
-        table = pa.table(columns)
-        return ScoreResult(table, self._aggregate(table, len(pairs), skipped))
+        table = pa.table(columns, schema=schema)
+        return ScoreResult(table, self._aggregate(table, len(pairs), len(pairs) - len(rated)))
 
     def _aggregate(self, table: pa.Table, frames: int, skipped: int) -> dict[str, Any]:
         scores = np.asarray(table["rfs"].to_pylist(), np.float64)
@@ -269,9 +273,7 @@ class RFSScorer(Scorer):
             "rfs": mean_or_none(scores),
             "rfs_cluster_macro": float(np.mean(list(cluster_means.values()))) if cluster_means else None,
             "rfs_per_cluster": cluster_means,
-            "fully_within_rate": mean_or_none(np.asarray(table["fully_within"].to_pylist(), np.float64))
-            if "fully_within" in table.column_names
-            else None,
+            "fully_within_rate": mean_or_none(np.asarray(table["fully_within"].to_pylist(), np.float64)),
             "frames": frames,
             "frames_scored": len(scores),
             "frames_skipped_no_rating": skipped,
