@@ -169,12 +169,8 @@ def _cameras(message: E2EDFrame, where: str) -> list[tuple[dict[str, Any], bytes
             raise WodE2EError(f"{field}: unknown camera name")
         if image.name not in calibrations:
             raise WodE2EError(f"{field}: no frame.context.camera_calibrations entry for this camera")
-        out.append(
-            (
-                _camera(calibrations[image.name], f"{where}: frame.context.camera_calibrations[name={image.name}]"),
-                image.image,
-            )
-        )
+        calibration_field = f"{where}: frame.context.camera_calibrations[name={image.name}]"
+        out.append((_camera(calibrations[image.name], calibration_field), image.image))
     return out
 
 
