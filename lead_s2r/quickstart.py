@@ -20,7 +20,7 @@ from lead_s2r.shards import read_samples
 #: dataset -> (synthetic log count, adapter options relative to the raw folder, metrics)
 PLAN: dict[str, tuple[int, dict[str, str], tuple[str, ...]]] = {
     "carla_lead": (3, {}, ("ade",)),
-    "navsim": (2, {}, ("ade",)),
+    "navsim": (2, {"maps": "maps"}, ("ade",)),
     "wod_e2e": (3, {}, ("ade", "rfs@wod-e2e-2025")),
 }
 
