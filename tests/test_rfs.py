@@ -2,6 +2,7 @@
 
 import itertools
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -14,8 +15,9 @@ from lead_s2r.predictions import PredictionError
 from lead_s2r.schema import SchemaError
 from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_rater_lists, pad_raters, rater_feedback_score, speed_scale
 
-# copy of shared/golden/wod_rfs_official_samples.json (the official unit-test samples, Apache-2.0) so CI runs anywhere
-GOLDEN = json.loads((Path(__file__).parent / "golden" / "wod_rfs_official_samples.json").read_text())
+# the official unit-test samples (Apache-2.0), kept in the shared golden folder beside the checkout
+GOLDEN_PATH = Path(os.environ.get("LEAD_S2R_GOLDEN", Path(__file__).parents[2] / "shared" / "golden"))
+GOLDEN = json.loads((GOLDEN_PATH / "wod_rfs_official_samples.json").read_text())
 
 
 def shifted(xy: np.ndarray, dx: float, dy: float) -> np.ndarray:
