@@ -58,7 +58,7 @@ def test_official_zeros() -> None:
 
 
 @pytest.mark.parametrize(
-    ("multipliers", "decay", "floor"), itertools.product(((1, 2), (1, 4)), (0.1, 0.2, 0.3), (0, 0.4))
+    ("multipliers", "decay", "floor"), list(itertools.product(((1, 2), (1, 4)), (0.1, 0.2, 0.3), (0, 0.4)))
 )
 def test_official_grid(multipliers: tuple[float, float], decay: float, floor: float) -> None:
     config = RFSConfig(frequency=1, length_seconds=5, lat_lng_multipliers=multipliers, decay=decay, floor=floor)
