@@ -219,8 +219,8 @@ class CarlaLeadAdapter(Adapter):
             meta_path = folder / "metas" / f"{name}.pkl"
             meta = read_pickle(meta_path)
             boxes = read_pickle(folder / "bboxes" / f"{name}.pkl")
-            if not isinstance(boxes, list):
-                raise LeadFormatError(folder / "bboxes" / f"{name}.pkl", f"expected a list, got {type(boxes).__name__}")
+            if not isinstance(boxes, list) or not all(isinstance(box, dict) for box in boxes):
+                raise LeadFormatError(folder / "bboxes" / f"{name}.pkl", "expected a list of dicts (one per box)")
             for rig in rigs:
                 yield self._sample(log, folder, name, meta, meta_path, boxes, rig)
 
@@ -247,7 +247,7 @@ class CarlaLeadAdapter(Adapter):
         route = array(meta, "route", path, columns=2) if "route" in meta else None
         if route is not None and len(route):
             sample["route"] = frame.points(route[:, :2]).astype(np.float32)
-        sample.update(self._boxes(boxes, frame))
+        sample.update(self._boxes(boxes, folder / "bboxes" / f"{name}.pkl", frame))
         sample.update(self._sensors(folder, name, suffix, frame))
         extras = self._extras(log, meta, boxes, rig)
         sample["meta"] = self._meta(log, meta, path, index, frame, command_raw, sample, extras)
@@ -299,22 +299,24 @@ class CarlaLeadAdapter(Adapter):
         command_raw = int(commands[0]) if commands else -1
         return command_raw, rows.astype(np.float32)
 
-    def _boxes(self, boxes: list[dict[str, Any]], frame: _Frame) -> dict[str, Any]:
+    def _boxes(self, boxes: list[dict[str, Any]], path: Path, frame: _Frame) -> dict[str, Any]:
         """``boxes`` (N, 10) and, for boxes with ``future_positions`` (20 Hz, index 0 = now), ``agents_future``."""
         others = [box for box in boxes if box.get("class") != "ego_car"]
         rows = np.zeros((len(others), 10), np.float64)
         horizon = max((len(box["future_positions"]) - 1 for box in others if "future_positions" in box), default=0)
         poses = np.full((len(others), horizon, 3), np.nan)
         for i, box in enumerate(others):
-            extent = np.asarray(box["extent"], np.float64)
-            position = np.asarray(box["position"], np.float64)
-            yaw = float(box["yaw"])
+            extent = array(box, "extent", path)
+            position = array(box, "position", path)
+            yaw = float(field(box, "yaw", path))
+            if extent.shape != (3,) or position.shape != (3,):
+                raise LeadFormatError(path, f"box {i}: extent and position must hold 3 numbers", "extent/position")
             pose = frame.poses(np.array([position[0], position[1], yaw]))
             velocity = frame.vectors(float(box.get("speed", 0.0)) * np.array([math.cos(yaw), math.sin(yaw)]))
             rows[i] = [*pose[:2], position[2], *(2 * extent), pose[2], *velocity, box_class(box)]
             if "future_positions" in box:
-                future = np.asarray(box["future_positions"], np.float64)[1:, :2]
-                yaws = np.asarray(box["future_yaws"], np.float64)[1:]
+                future = array(box, "future_positions", path, columns=2)[1:, :2]
+                yaws = array(box, "future_yaws", path)[1:]
                 poses[i, : len(future)] = frame.poses(np.column_stack([future, yaws]))
         out: dict[str, Any] = {"boxes": rows.astype(np.float32)}
         if horizon:

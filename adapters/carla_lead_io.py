@@ -15,9 +15,23 @@ import numpy as np
 
 #: Builtins a LEAD pickle may name: data types only (never eval, getattr, __import__...).
 _SAFE_BUILTINS = frozenset(
-    {"dict", "list", "tuple", "set", "frozenset", "int", "float", "complex", "bool", "str", "bytes", "bytearray",
-     "slice", "range"}
-)  # fmt: skip
+    {
+        "dict",
+        "list",
+        "tuple",
+        "set",
+        "frozenset",
+        "int",
+        "float",
+        "complex",
+        "bool",
+        "str",
+        "bytes",
+        "bytearray",
+        "slice",
+        "range",
+    }
+)
 #: numpy callables that (un)pickling arrays, dtypes and scalars goes through, per numpy 1.x and 2.x module layout.
 _SAFE_NUMPY = frozenset({"_reconstruct", "scalar", "ndarray", "dtype", "_frombuffer"})
 _NUMPY_MODULES = frozenset(
