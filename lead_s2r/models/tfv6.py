@@ -90,7 +90,8 @@ class TFv6(nn.Module):
         radar_tokens = None
         if self.radar is not None and "radar" in batch and (needs_planner or "radar" in tasks):
             radar = self.radar(batch["radar"], batch["radar_valid"], features.bev_grid, bev_tokens, batch["speed"])
-            xy = self.radar.normalised(radar["radar_xy"]).clamp(0, 1)
+            # detached: planning trains the radar encoder, never the detection head
+            xy = self.radar.normalised(radar["radar_xy"].detach()).clamp(0, 1)
             feats = radar.pop("radar_features")
             radar_tokens = self.radar_tokens(feats) + sine_embedding(xy, feats.shape[-1]).to(feats.dtype)
             out.update(radar)

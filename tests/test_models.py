@@ -1,0 +1,217 @@
+"""Models: parameter counts, forward/backward of every variant on every source, and the pieces' exact maths."""
+
+import math
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lead_s2r.models.backbone import CameraSelect, StagedEncoder
+from lead_s2r.models.config import BEVGrid, EgoMLPConfig, ltfv6_config, tfv5_config, tfv6_config
+from lead_s2r.models.ego_mlp import EgoStatusMLP
+from lead_s2r.models.embeddings import grid_embedding, sine_embedding
+from lead_s2r.models.inputs import random_batch, target_point_range
+from lead_s2r.models.planning_decoder import TargetPointNorm
+from lead_s2r.models.tfv6 import TFv6, parameter_table
+from lead_s2r.training.losses import heading_loss, radar_loss, two_hot
+
+SOURCES = ("carla", "navsim", "wod")
+VARIANTS = {"tfv6": tfv6_config, "ltfv6": ltfv6_config, "tfv5": tfv5_config}
+
+#: A model small enough for two shared CPU cores; timm's ``test_*`` encoders.
+TINY = dict(
+    image_architecture="test_convnext",
+    bev_architecture="test_convnext",
+    image_size=(32, 64),
+    bev=BEVGrid(-8.0, 8.0, -8.0, 8.0, 2.0),
+    token_dim=32,
+    decoder_layers=1,
+    decoder_heads=4,
+    decoder_ffn=64,
+    radar_queries=4,
+    radar_layers=1,
+    radar_ffn=64,
+    bev_feature_channels=16,
+    fusion_layers=1,
+)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Two threads on a shared 2-core box run ~30x slower than one (oversubscription)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_parameter_counts_match_lead():
+    counts = {name: parameter_table(TFv6(make()))["total"] for name, make in VARIANTS.items()}
+    counts["ego_mlp"] = parameter_table(EgoStatusMLP(EgoMLPConfig()))["total"]
+    for name, n in counts.items():
+        print(f"{name:8s} {n / 1e6:6.2f}M")
+    # LEAD README: "ResNet34 (60M params)" with token dim 256 (two ResNet34 = 42.6M, fusion 8.4M, planner 9.6M)
+    assert 55e6 < counts["tfv6"] < 70e6
+    assert counts["ltfv6"] < counts["tfv6"]  # no radar branch
+    assert counts["ego_mlp"] < 1e6
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+@pytest.mark.parametrize("source", SOURCES)
+def test_forward_backward(variant, source):
+    config = VARIANTS[variant](**TINY)
+    model = TFv6(config)
+    batch = random_batch(config, 2, source)
+    out = model(batch, source)
+    grid = config.trajectory_grids[source]
+    assert out["waypoints"].shape == (2, grid.num_points, 2)
+    assert out["route"].shape == (2, config.num_route_points, 2)
+    assert ("headings" in out) == (variant != "tfv5")
+    assert set(model.tasks(source)) >= {"waypoints", "route", "target_speed"}
+    if source == "carla":
+        assert out["bev_semantic"].shape[1] == config.bev_semantic_classes["carla"]
+        assert out["box_heatmap"].shape[-2:] == (config.bev.shape[0] // 4, config.bev.shape[1] // 4)
+        assert ("radar_xy" in out) == config.use_radar
+    if source == "wod":
+        assert not model.tasks(source) & {"bev_semantic", "boxes", "depth", "semantic", "radar"}
+    sum(v.float().mean() for v in out.values()).backward()
+    grads = [p.grad for p in model.planner.parameters() if p.grad is not None]
+    assert grads and all(torch.isfinite(g).all() for g in grads)
+
+
+def test_forward_computes_only_requested_tasks():
+    config = tfv6_config(**TINY)
+    model = TFv6(config)
+    out = model(random_batch(config, 2, "carla"), "carla", {"bev_semantic"})
+    assert set(out) == {"bev_semantic"}
+    with pytest.raises(ValueError, match="depth"):
+        model(random_batch(config, 2, "wod"), "wod", {"depth"})
+
+
+def test_raster_model_needs_lidar():
+    config = tfv6_config(**TINY)
+    batch = random_batch(config, 1, "carla")
+    del batch["lidar_bev"]
+    with pytest.raises(KeyError, match="lidar_bev"):
+        TFv6(config)(batch, "carla")
+
+
+def test_ltfv6_reads_no_lidar_and_latent_option_learns_its_input():
+    config = ltfv6_config(**TINY)
+    assert "lidar_bev" not in random_batch(config, 1, "navsim")
+    latent = TFv6(ltfv6_config(**TINY, bev_input="latent"))
+    out = latent(random_batch(config, 1, "navsim"), "navsim", {"waypoints"})
+    out["waypoints"].sum().backward()
+    assert latent.backbone.bev_latent.grad.abs().sum() > 0
+
+
+def test_staged_encoder_rejects_unstageable_architecture():
+    with pytest.raises(ValueError, match="test_efficientnet"):
+        StagedEncoder("test_efficientnet", False, 3)
+    with pytest.raises(RuntimeError, match="no_such_net"):
+        StagedEncoder("no_such_net", False, 3)
+
+
+def test_staged_encoder_matches_timm_features():
+    import timm
+
+    torch.manual_seed(0)
+    net = timm.create_model("test_resnet", features_only=True)
+    staged = StagedEncoder("test_resnet", False, 3)
+    staged.load_state_dict({f"stages.{i}.{k}": v for i, s in enumerate(staged.stages) for k, v in _sub(net, s).items()})
+    net.eval(), staged.eval()
+    x = torch.rand(1, 3, 64, 64)
+    expected = net(x)[-4:]
+    got, y = [], x
+    for stage in staged.stages:
+        y = stage(y)
+        got.append(y)
+    for e, g in zip(expected, got, strict=True):
+        torch.testing.assert_close(e, g)
+
+
+def _sub(net: torch.nn.Module, stage: torch.nn.Sequential) -> dict[str, torch.Tensor]:
+    """The state of ``net``'s modules that ``stage`` holds, keyed as in the stage."""
+    state = net.state_dict()
+    return {k: state[k] for k in stage.state_dict()}
+
+
+def test_camera_select_keeps_chosen_tiles_and_fov():
+    image = torch.arange(12.0).view(1, 1, 12).expand(1, 2, 12)  # 3 tiles of width 4: [0..3] [4..7] [8..11]
+    assert CameraSelect(3, (2, 0), 1.0)(image)[0, 0].tolist() == [8, 9, 10, 11, 0, 1, 2, 3]
+    assert CameraSelect(3, None, 0.5)(image)[0, 0].tolist() == [1, 2, 5, 6, 9, 10]
+    assert CameraSelect(3, (1,), 0.5).output_width(12) == 2
+    with pytest.raises(ValueError, match="use_tiles"):
+        CameraSelect(3, (3,), 1.0)
+
+
+def test_target_point_norm_maps_range_to_unit_and_clamps():
+    norm = TargetPointNorm((-200.0, -50.0), (200.0, 50.0))
+    points = torch.tensor([[-200.0, -50.0], [200.0, 50.0], [100.0, 25.0], [1000.0, -1000.0]])
+    assert norm(points).tolist() == [[-1.0, -1.0], [1.0, 1.0], [0.5, 0.5], [1.0, -1.0]]
+
+
+def test_target_point_range_from_info():
+    info = {"statistics": {"target_points": {"low": [-5.0, -30.0], "high": [80.0, 30.0]}}}
+    assert target_point_range(info) == ((-5.0, -30.0), (80.0, 30.0))
+    with pytest.raises(KeyError, match="target_points"):
+        target_point_range({"statistics": {}})
+
+
+def test_masked_target_points_do_not_change_the_plan():
+    config = tfv6_config(**TINY, decoder_dropout=0.0, fusion_dropout=0.0)
+    model = TFv6(config).eval()
+    batch = random_batch(config, 2, "carla")
+    batch["target_points_valid"][:, 2] = False
+    out = model(batch, "carla", {"waypoints"})["waypoints"]
+    batch["target_points"][:, 2] += 37.0  # an absent next target point may hold anything
+    torch.testing.assert_close(model(batch, "carla", {"waypoints"})["waypoints"], out)
+    batch["target_points"][:, 1] += 37.0  # the present current target point matters
+    assert not torch.allclose(model(batch, "carla", {"waypoints"})["waypoints"], out)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-5.0, 30.0))
+def test_two_hot_decodes_to_the_clamped_value(speed):
+    classes = torch.tensor(tfv6_config().target_speed_classes)
+    encoded = two_hot(torch.tensor([speed]), classes)
+    assert encoded.sum().item() == pytest.approx(1.0)
+    assert (encoded > 0).sum() <= 2
+    assert (encoded * classes).sum().item() == pytest.approx(min(max(speed, 0.0), 20.0), abs=1e-4)
+
+
+def test_heading_loss_wraps_around_pi():
+    pred = {"headings": torch.tensor([[math.pi - 0.01]])}
+    batch = {"headings": torch.tensor([[-math.pi + 0.01]])}
+    assert heading_loss(pred, batch).item() == pytest.approx(0.02, abs=1e-5)
+
+
+def test_radar_loss_is_permutation_invariant_and_zero_l1_on_perfect_match():
+    targets = torch.tensor([[[10.0, 2.0, 5.0], [-3.0, 4.0, 1.0]]])
+    pred = {
+        "radar_xy": targets[:, [1, 0], :2].clone(),
+        "radar_speed": targets[:, [1, 0], 2].clone(),
+        "radar_logit": torch.full((1, 2), 20.0),
+    }
+    batch = {"radar_targets": targets, "radar_targets_valid": torch.ones(1, 2, dtype=torch.bool)}
+    assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(0.0, abs=1e-6)
+    pred["radar_xy"] = pred["radar_xy"] + torch.tensor([4.0, 0.0])  # 4 m off in x on both = 0.1 scaled
+    assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(5 * 0.1, abs=1e-5)
+
+
+def test_sine_embedding_shapes_and_distinct_cells():
+    emb = grid_embedding(3, 4, 16)
+    assert emb.shape == (12, 16)
+    assert torch.cdist(emb, emb).add(torch.eye(12) * 1e3).min() > 1e-3
+    with pytest.raises(ValueError, match="divisible by 4"):
+        sine_embedding(torch.zeros(2), 6)
+
+
+def test_ego_mlp_outputs_every_grid():
+    model = EgoStatusMLP(EgoMLPConfig(hidden=16))
+    config = tfv6_config(**TINY)
+    for source in SOURCES:
+        out = model(random_batch(config, 3, source), source)
+        assert out["waypoints"].shape == (3, config.trajectory_grids[source].num_points, 2)
+        assert out["headings"].shape == (3, config.trajectory_grids[source].num_points)

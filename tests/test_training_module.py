@@ -1,0 +1,189 @@
+"""LightningModule: loss masking per source, overfitting, init_from, bf16 fit, validation ADE/FDE, predictions."""
+
+import itertools
+
+import lightning as L
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from lead_s2r.models.config import BEVGrid, ltfv6_config, tfv6_config
+from lead_s2r.models.inputs import random_batch
+from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
+from lead_s2r.training.module import DrivingModule
+
+TINY = dict(
+    image_architecture="test_convnext",
+    bev_architecture="test_convnext",
+    image_size=(32, 64),
+    bev=BEVGrid(-8.0, 8.0, -8.0, 8.0, 2.0),
+    token_dim=32,
+    decoder_layers=1,
+    decoder_heads=4,
+    decoder_ffn=64,
+    radar_queries=4,
+    radar_layers=1,
+    radar_ffn=64,
+    bev_feature_channels=16,
+    fusion_layers=1,
+)
+PERCEPTION_MODULES = ("bev_semantic", "boxes", "perspective", "radar.out")
+EVERYTHING = {"carla": ["planning", "perception"], "navsim": ["planning", "perception"], "wod": ["planning"]}
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def grad_norm(module: torch.nn.Module) -> float:
+    return sum(float(p.grad.abs().sum()) for p in module.parameters() if p.grad is not None)
+
+
+def step(module: DrivingModule, batch: dict) -> dict:
+    module.model.zero_grad()
+    total, terms = module.compute_losses(batch)
+    total.backward()
+    return terms
+
+
+def test_sim_to_real_carla_batch_gives_no_planning_gradient():
+    config = tfv6_config(**TINY)
+    module = DrivingModule(TFv6(config))  # default supervise = sim-to-real
+    terms = step(module, {"carla": random_batch(config, 2, "carla")})
+    assert {t.split("/")[1] for t in terms} == {"bev_semantic", "boxes", "depth", "semantic", "radar"}
+    assert grad_norm(module.model.planner) == 0.0
+    assert all(grad_norm(module.model.get_submodule(m)) > 0 for m in PERCEPTION_MODULES)
+
+
+def test_sim_to_real_wod_batch_gives_no_perception_gradient():
+    config = tfv6_config(**TINY)
+    module = DrivingModule(TFv6(config))
+    terms = step(module, {"wod": random_batch(config, 2, "wod")})
+    assert set(terms) == {"wod/waypoints"}
+    assert all(grad_norm(module.model.get_submodule(m)) == 0.0 for m in PERCEPTION_MODULES)
+    assert grad_norm(module.model.planner) > 0
+
+
+@pytest.mark.parametrize(
+    "sources", [s for n in (1, 2, 3) for s in itertools.combinations(("carla", "navsim", "wod"), n)]
+)
+def test_every_source_mix_trains(sources):
+    config = tfv6_config(**TINY)
+    module = DrivingModule(TFv6(config), supervise=EVERYTHING)
+    terms = step(module, {s: random_batch(config, 2, s) for s in sources})
+    assert {t.split("/")[0] for t in terms} == set(sources)
+    assert all(torch.isfinite(v) for v, _ in terms.values())
+    assert grad_norm(module.model.backbone) > 0
+
+
+def test_loss_term_is_sample_weighted_mean_over_sources():
+    config = tfv6_config(**TINY, decoder_dropout=0.0, fusion_dropout=0.0)
+    module = DrivingModule(TFv6(config), supervise={"navsim": ["waypoints"], "wod": ["waypoints"]}).eval()
+    batch = {"navsim": random_batch(config, 1, "navsim"), "wod": random_batch(config, 3, "wod")}
+    total, terms = module.compute_losses(batch)
+    expected = (terms["navsim/waypoints"][0] * 1 + terms["wod/waypoints"][0] * 3) / 4
+    torch.testing.assert_close(total, expected)
+
+
+def test_supervise_errors_name_the_problem():
+    config = tfv6_config(**TINY)
+    model = TFv6(config)
+    batch = random_batch(config, 1, "wod")
+    with pytest.raises(ValueError, match="'flying'"):
+        active_tasks("wod", batch, model.tasks("wod"), {"wod": ["flying"]})
+    with pytest.raises(ValueError, match="'depth'"):
+        active_tasks("wod", batch, model.tasks("wod"), {"wod": ["depth"]})
+    with pytest.raises(KeyError, match="'route'"):
+        active_tasks("wod", batch, model.tasks("wod"), {"wod": ["route"]})
+    assert active_tasks("wod", batch, model.tasks("wod"), SIM_TO_REAL) == {"waypoints"}
+    with pytest.raises(ValueError, match="unknown tasks"):
+        DrivingModule(model, loss_weights={"wayponts": 1.0})
+
+
+def test_overfits_eight_samples():
+    torch.manual_seed(0)
+    config = ltfv6_config(**TINY, decoder_dropout=0.0, fusion_dropout=0.0)
+    module = DrivingModule(TFv6(config), supervise={"navsim": ["waypoints"]}, lr=2e-3, weight_decay=0.0)
+    batch = {"navsim": random_batch(config, 8, "navsim")}
+    optimizer = module.configure_optimizers()
+    losses = []
+    for _ in range(400):
+        optimizer.zero_grad()
+        total, _ = module.compute_losses(batch)
+        total.backward()
+        optimizer.step()
+        losses.append(total.item())
+    print(f"planning loss {losses[0]:.3f} -> {losses[-1]:.4f}")
+    assert losses[-1] < 0.1 * losses[0]
+
+
+def loader(batches: list[dict]) -> DataLoader:
+    return DataLoader(batches, batch_size=None, collate_fn=lambda b: b)
+
+
+def trainer(**kwargs) -> L.Trainer:
+    return L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        **kwargs,
+    )
+
+
+def test_bf16_fit_init_from_round_trip_validate_predict(tmp_path):
+    # pre-train: CARLA + NAVSIM perception and planning, bf16-mixed
+    pre_config = tfv6_config(**TINY)
+    pre = DrivingModule(TFv6(pre_config), supervise=EVERYTHING)
+    batches = [{s: random_batch(pre_config, 2, s) for s in ("carla", "navsim")} for _ in range(2)]
+    fit = trainer(max_steps=2, precision="bf16-mixed")
+    fit.fit(pre, loader(batches))
+    ckpt = tmp_path / "pre.ckpt"
+    fit.save_checkpoint(ckpt)
+
+    # fine-tune: NAVSIM-only heads, a WOD grid, no CARLA heads -> every matching tensor loads, new ones reported
+    fine_config = tfv6_config(
+        **TINY, bev_semantic_classes={"navsim": 7}, box_classes={"navsim": 1}, semantic_classes={}, depth_sources=()
+    )
+    fine = DrivingModule(TFv6(fine_config), init_from=str(ckpt))
+    report = fine.init_report
+    pre_state, fine_state = pre.model.state_dict(), fine.model.state_dict()
+    shared = [k for k in fine_state if k in pre_state and pre_state[k].shape == fine_state[k].shape]
+    assert sorted(report.loaded) == sorted(shared)
+    assert all(torch.equal(fine_state[k], pre_state[k]) for k in shared)
+    assert any(k.startswith("bev_semantic.carla") for k in report.unexpected)
+    assert report.missing == [k for k in fine_state if k not in pre_state]
+    assert "init_from: loaded" in report.summary()
+
+    # validation ADE / FDE per dataset equals a hand computation
+    val_batch = {"wod": random_batch(fine_config, 3, "wod")}
+    metrics = trainer().validate(fine, loader([val_batch]), verbose=False)[0]
+    fine.eval()
+    with torch.no_grad():
+        pred = fine.model(val_batch["wod"], "wod", {"waypoints"})["waypoints"]
+    err = (pred - val_batch["wod"]["waypoints"]).norm(dim=-1)
+    assert metrics["val/wod/ade"] == pytest.approx(err.mean().item(), rel=1e-5)
+    assert metrics["val/wod/fde"] == pytest.approx(err[:, -1].mean().item(), rel=1e-5)
+
+    # predictions: ISO ego frame poses on the source's own time grid
+    out = trainer().predict(fine, loader([val_batch]))[0]["wod"]
+    assert out["t"].tolist() == pytest.approx([0.5 * (i + 1) for i in range(10)])
+    assert out["xy"].shape == (3, 10, 2) and out["yaw"].shape == (3, 10)
+    assert out["key"] == val_batch["wod"]["__key__"]
+    torch.testing.assert_close(out["xy"], pred)
+
+
+def test_init_from_rejects_missing_and_foreign_files(tmp_path):
+    config = tfv6_config(**TINY)
+    with pytest.raises(FileNotFoundError, match=r"nope\.ckpt"):
+        DrivingModule(TFv6(config), init_from=str(tmp_path / "nope.ckpt"))
+    bad = tmp_path / "bad.ckpt"
+    torch.save({"state_dict": {"a": "not a tensor"}}, bad)
+    with pytest.raises(ValueError, match=r"bad\.ckpt"):
+        DrivingModule(TFv6(config), init_from=str(bad))
