@@ -261,6 +261,11 @@ BEV_META = {
     "resolution": BEV_RESOLUTION,
     "x_range": [-BEV_HALF, BEV_HALF],
     "y_range": [-BEV_HALF, BEV_HALF],
+    # pixel (column, row) index -> ego (x, y) of its centre
+    "pixel_to_ego": [
+        [0.0, -BEV_RESOLUTION, BEV_HALF - BEV_RESOLUTION / 2],
+        [-BEV_RESOLUTION, 0.0, BEV_HALF - BEV_RESOLUTION / 2],
+    ],
     "layout": "row 0 = x max (forward up), column 0 = y max (left on the left); pixel centre x = x_max - (row+0.5)*res",
 }
 

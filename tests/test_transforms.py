@@ -57,7 +57,7 @@ def test_bev_labels_follow_the_pixel_to_ego_map():
     assert len(hits) == 4  # one source pixel covers 2 x 2 cells at 4 px/m
     x = GRID.x_min + (hits[:, 0] + 0.5) / 4
     y = GRID.y_min + (hits[:, 1] + 0.5) / 4
-    assert np.all(np.abs(x - 9.75) <= 0.25) and np.all(np.abs(y - 4.75) <= 0.25)
+    assert np.all(np.abs(x - 10) <= 0.25) and np.all(np.abs(y - 5) <= 0.25)
     assert out[-1, 0] == -1 and out[0, 0] == -1  # x = 64 m and x = -32 m lie outside the raster
     assert out[32 * 4, 40 * 4] == 0  # the ego cell is inside
 
