@@ -171,4 +171,3 @@ class DrivingModule(L.LightningModule):
         return torch.optim.AdamW(
             self.model.parameters(), lr=hp.lr, weight_decay=hp.weight_decay, betas=tuple(hp.betas), amsgrad=hp.amsgrad
         )
-
