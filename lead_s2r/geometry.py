@@ -115,3 +115,18 @@ def resample(t_source: np.ndarray, values: np.ndarray, t_target: np.ndarray, ang
         if column in angle_columns:
             out[:, column] = wrap_angle(out[:, column])
     return out, valid
+
+
+def raster_lookup(raster: np.ndarray, pixel_to_ego: np.ndarray, x: np.ndarray, y: np.ndarray, fill: int = -1):
+    """Values of an ego-aligned raster at ego points (x, y), nearest pixel; ``fill`` outside the raster.
+
+    ``pixel_to_ego`` is the 2x3 affine map from a pixel's (column, row) index to the ego (x, y) of its centre.
+    """
+    affine = np.vstack([np.asarray(pixel_to_ego, np.float64), [0.0, 0.0, 1.0]])
+    ego_to_pixel = np.linalg.inv(affine)
+    cols = np.rint(ego_to_pixel[0, 0] * x + ego_to_pixel[0, 1] * y + ego_to_pixel[0, 2]).astype(np.int64)
+    rows = np.rint(ego_to_pixel[1, 0] * x + ego_to_pixel[1, 1] * y + ego_to_pixel[1, 2]).astype(np.int64)
+    inside = (rows >= 0) & (rows < raster.shape[0]) & (cols >= 0) & (cols < raster.shape[1])
+    out = np.full(np.shape(x), fill, np.int64)
+    out[inside] = raster[rows[inside], cols[inside]]
+    return out

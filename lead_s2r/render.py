@@ -1,13 +1,16 @@
 """Draw one sample as a picture a person can check at a glance: cameras on top, a BEV of the ego frame below.
 
 BEV: x forward points up, y left points left (ISO 8855 seen from above), ego rear axle marked; past grey,
-future green, boxes orange, target points red, route blue, LiDAR points faint.
+future green, boxes orange, target points red, route blue, LiDAR points faint, BEV semantic classes as muted
+colours underneath.
 """
 
 from typing import Any
 
 import cv2
 import numpy as np
+
+from lead_s2r.geometry import raster_lookup
 
 CANVAS_WIDTH = 960
 BEV_RANGE_M = (-16.0, 48.0, -32.0, 32.0)  # x min, x max, y min, y max
@@ -39,11 +42,27 @@ def _box_corners(box: np.ndarray) -> np.ndarray:
     return corners @ rotation.T + [x, y]
 
 
+def _semantic_layer(sample: dict[str, Any], height: int, width: int) -> np.ndarray | None:
+    """The stored BEV semantic raster resampled onto the panel, one muted colour per class (BGR)."""
+    spec = sample["meta"].get("bev")
+    if "bev_semantic" not in sample or not spec or "pixel_to_ego" not in spec:
+        return None
+    x_max, y_max = BEV_RANGE_M[1], BEV_RANGE_M[3]
+    rows, cols = np.mgrid[0:height, 0:width]
+    x, y = x_max - (rows + 0.5) / BEV_PX_PER_M, y_max - (cols + 0.5) / BEV_PX_PER_M
+    labels = raster_lookup(sample["bev_semantic"], spec["pixel_to_ego"], x, y, fill=0)
+    palette = cv2.applyColorMap(np.linspace(0, 255, 16, dtype=np.uint8)[:, None], cv2.COLORMAP_TURBO)[:, 0]
+    palette = (palette.astype(np.float32) * 0.45).astype(np.uint8)
+    palette[0] = 30  # class 0 (unlabeled / background) stays the canvas colour
+    return palette[np.clip(labels, 0, 15)]
+
+
 def render_bev(sample: dict[str, Any]) -> np.ndarray:
     """The BEV panel of one sample as a BGR image."""
     x_min, x_max, y_min, y_max = BEV_RANGE_M
     height, width = int((x_max - x_min) * BEV_PX_PER_M), int((y_max - y_min) * BEV_PX_PER_M)
-    image = np.full((height, width, 3), 30, np.uint8)
+    semantic = _semantic_layer(sample, height, width)
+    image = np.full((height, width, 3), 30, np.uint8) if semantic is None else semantic
     for metres in range(int(x_min), int(x_max) + 1, 8):  # grid every 8 m
         row = int((x_max - metres) * BEV_PX_PER_M)
         cv2.line(image, (0, row), (width, row), (55, 55, 55), 1)
@@ -99,6 +118,7 @@ def render_sample(sample: dict[str, Any]) -> np.ndarray:
         "past grey, future green",
         "boxes orange, target points red",
         "route blue, lidar dots, grid 8 m",
+        "BEV semantic classes underneath",
     ]
     for i, line in enumerate(lines):
         cv2.putText(bev, line, (650, 30 + 22 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (230, 230, 230), 1, cv2.LINE_AA)

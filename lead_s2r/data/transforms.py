@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import torch
 
-from lead_s2r.geometry import resample
+from lead_s2r.geometry import raster_lookup, resample
 from lead_s2r.models.config import BEVGrid, TFv6Config
 from lead_s2r.schema import BoxClass, command4
 
@@ -183,21 +183,10 @@ def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
 
 
 def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
-    """Class ids of a stored BEV raster looked up at ``grid``'s cell centres (nearest); -1 outside the raster.
-
-    ``spec["pixel_to_ego"]`` is the 2x3 affine map from a pixel's (column, row) index to the ego (x, y) of its
-    centre, so the nearest pixel of a point is the rounded inverse map.
-    """
-    affine = np.vstack([np.asarray(spec["pixel_to_ego"], np.float64), [0.0, 0.0, 1.0]])
-    ego_to_pixel = np.linalg.inv(affine)
+    """Class ids of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside the raster."""
     xs, ys = bev_cell_centres(grid)
     x, y = np.meshgrid(xs, ys, indexing="ij")
-    pixel = np.einsum("ij,jhw->ihw", ego_to_pixel, np.stack([x, y, np.ones_like(x)]))
-    cols, rows = np.rint(pixel[0]).astype(np.int64), np.rint(pixel[1]).astype(np.int64)
-    inside = (rows >= 0) & (rows < labels.shape[0]) & (cols >= 0) & (cols < labels.shape[1])
-    out = np.full(x.shape, -1, np.int64)
-    out[inside] = labels[rows[inside], cols[inside]]
-    return out
+    return raster_lookup(labels, spec["pixel_to_ego"], x, y)
 
 
 def centernet_targets(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, torch.Tensor]:
