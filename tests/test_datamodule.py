@@ -44,9 +44,10 @@ def test_training_batches_follow_the_schedule_with_equal_step_counts(toy_data):
 
 def test_validation_sees_every_sample_once(toy_data):
     (loader,) = make_datamodule(toy_data).val_dataloader()
-    keys = [key for batch in loader for key in batch["__key__"]]
+    keys = [key for batch in loader for key in batch["real"]["__key__"]]
     assert len(keys) == 24 and max(Counter(keys).values()) == 1
-    batch = next(iter(loader))
+    batch = next(iter(loader))["real"]
+    assert batch["__dataset__"] == ["toy"] * 5
     assert batch["rgb"].shape == (5, 3, 32, 96) and batch["waypoints"].shape == (5, 4, 2)
 
 

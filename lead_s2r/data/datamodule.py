@@ -4,7 +4,7 @@ Training: one infinite, shard-resampled pipeline per source whose scheduled batc
 ``steps_per_epoch`` batches, so every rank and every source yields the same number of steps (DDP never waits on an
 exhausted rank). Lightning's ``CombinedLoader`` zips them into ``{source: batch}``. Dataloaders are rebuilt each epoch
 (``reload_dataloaders_every_n_epochs=1``) to follow the schedule. Evaluation: one finite, ordered pipeline per
-source, split over ranks by shard.
+source, split over ranks by shard, whose batches come as ``{source: batch}`` like the training ones.
 """
 
 import json
@@ -56,6 +56,16 @@ class _Prepare:
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, Any]:
         return self.transform(decode_sample(raw))
+
+
+class _Tag:
+    """Wrap an evaluation batch as ``{source: batch}``, the shape every step of the module takes."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def __call__(self, batch: dict[str, Any]) -> dict[str, dict[str, Any]]:
+        return {self.source: batch}
 
 
 class DriveDataModule(L.LightningDataModule):
@@ -111,7 +121,8 @@ class DriveDataModule(L.LightningDataModule):
         if training:
             dataset = dataset.shuffle(self.shuffle_buffer)
         transform = SourceTransform(name, self.config, list(spec.cameras))
-        return dataset.map(_Prepare(transform)).batched(batch_size, collation_fn=collate, partial=not training)
+        dataset = dataset.map(_Prepare(transform)).batched(batch_size, collation_fn=collate, partial=not training)
+        return dataset if training else dataset.map(_Tag(name))
 
     def _loader(self, dataset: wds.WebDataset) -> wds.WebLoader:
         return wds.WebLoader(dataset, batch_size=None, num_workers=self.num_workers)

@@ -48,6 +48,7 @@ class SourceTransform:
         ego = meta["ego"]
         out: dict[str, Any] = {
             "__key__": sample["__key__"],
+            "__dataset__": meta["dataset"],
             "rgb": self.image(sample),
             "speed": torch.tensor(float(ego["speed"])),
             "acceleration": torch.tensor(ego["acceleration"], dtype=torch.float32),
@@ -241,10 +242,12 @@ IGNORE_VALUE = {"bev_semantic": -1, "semantic": -1}
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
 
-    The filler is masked out by construction: validity masks are False, class maps -1, depth 0.
+    Identity entries (``__key__``, ``__dataset__``) become lists. The filler is masked out by construction:
+    validity masks are False, class maps -1, depth 0.
     """
-    batch: dict[str, Any] = {"__key__": [sample["__key__"] for sample in samples]}
-    for key in sorted(set().union(*samples) - {"__key__"}):
+    names = set().union(*samples)
+    batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in names if name.startswith("__")}
+    for key in sorted(name for name in names if not name.startswith("__")):
         template = next(sample[key] for sample in samples if key in sample)
         filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
         batch[key] = torch.stack([sample.get(key, filler) for sample in samples])

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
-import torch.distributed as dist
 
+from lead_s2r.distributed import gather_lists
 from lead_s2r.predictions import Prediction
 from lead_s2r.scoring.run import make_scorer
 from lead_s2r.shards import read_samples
@@ -65,7 +65,7 @@ class ScoringCallback(L.Callback):
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
             return
-        for name, value in self.compute(_gather(self._predictions)).items():
+        for name, value in self.compute(gather_lists(self._predictions)).items():
             pl_module.log(name, value)
         self._predictions = []
 
@@ -86,12 +86,3 @@ class ScoringCallback(L.Callback):
                     if isinstance(value, float):
                         metrics[f"{self.prefix}/{dataset}/{name}"] = value
         return metrics
-
-
-def _gather(predictions: list[Prediction]) -> list[Prediction]:
-    """Every rank's predictions on every rank, so all ranks log the same values."""
-    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
-        return predictions
-    gathered: list[list[Prediction] | None] = [None] * dist.get_world_size()
-    dist.all_gather_object(gathered, predictions)
-    return [p for part in gathered for p in part or []]
