@@ -12,6 +12,8 @@ from typing import Any
 from lead_s2r import __version__
 from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, names
 
+LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
+
 
 def _cast(value: str, annotation: Any) -> Any:
     """Turn a command-line string into the type an adapter's ``__init__`` declares."""
@@ -123,7 +125,11 @@ def cmd_quickstart(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="lead-s2r", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="lead-s2r",
+        description=__doc__,
+        epilog="Training: lead-s2r fit|validate|test|predict --config recipes/... (LightningCLI; see --help there).",
+    )
     parser.add_argument("--version", action="version", version=f"lead-s2r {__version__}")
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
 
@@ -175,7 +181,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from_shell = argv is None
     argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] in LIGHTNING_VERBS:
+        from lead_s2r.training.cli import run_lightning_cli
+
+        run_lightning_cli(None if from_shell else argv)  # None: LightningCLI reads sys.argv itself
+        return 0
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if args.verb == "convert":

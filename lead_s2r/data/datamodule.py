@@ -80,7 +80,7 @@ class DriveDataModule(L.LightningDataModule):
         eval_batch_size: batch size of validation and prediction loaders.
         num_workers: dataloader workers per source.
         shuffle_buffer: samples in each source's shuffle buffer.
-        config: the model configuration the transforms follow (linked from the model by the CLI).
+        config: the model configuration the transforms follow; by default the trained model's own.
     """
 
     def __init__(
@@ -107,7 +107,18 @@ class DriveDataModule(L.LightningDataModule):
         self.eval_batch_size = eval_batch_size
         self.num_workers = num_workers
         self.shuffle_buffer = shuffle_buffer
-        self.config = config or TFv6Config()
+        self._config = config
+
+    @property
+    def config(self) -> TFv6Config:
+        """The model configuration: given, else the attached LightningModule's ``model.config``."""
+        if self._config is None:
+            model = getattr(self.trainer, "lightning_module", None)
+            config = getattr(getattr(model, "model", None), "config", None)
+            if not isinstance(config, TFv6Config):
+                raise ValueError("DriveDataModule needs a TFv6Config: pass config= or train a model that has one")
+            self._config = config
+        return self._config
 
     def _pipeline(self, name: str, spec: SourceSpec, batch_size: int, training: bool) -> wds.WebDataset:
         dataset = wds.WebDataset(

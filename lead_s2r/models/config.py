@@ -6,7 +6,7 @@ with token dim 256), :func:`ltfv6_config` (no LiDAR: a fixed coordinate grid fee
 """
 
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Literal, NamedTuple
 
 #: LEAD's target-speed bins, m/s (``target_speed_classes``); a label is two-hot encoded between neighbours.
 TARGET_SPEED_CLASSES = (0.0, 4.0, 8.0, 10.0, 13.89, 16.0, 17.78, 20.0)
@@ -15,9 +15,11 @@ TARGET_SPEED_CLASSES = (0.0, 4.0, 8.0, 10.0, 13.89, 16.0, 17.78, 20.0)
 TARGET_POINT_SLOTS = ("previous", "current", "next")
 
 
-@dataclass(frozen=True)
-class TrajectoryGrid:
-    """A dataset's output grid: ``num_points`` poses at ``t = dt, 2 dt, ...`` seconds."""
+class TrajectoryGrid(NamedTuple):
+    """A dataset's output grid: ``num_points`` poses at ``t = dt, 2 dt, ...`` seconds.
+
+    A NamedTuple rather than a dataclass so LightningCLI can write it back into saved configs inside a dict.
+    """
 
     num_points: int
     dt: float

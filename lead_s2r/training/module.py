@@ -12,6 +12,7 @@ from torch import Tensor, nn
 from lead_s2r.models.inputs import Batch
 from lead_s2r.training import losses
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
+from lead_s2r.training.prediction_writer import to_predictions
 from lead_s2r.training.weights import LoadReport, load_matching
 
 #: LEAD's weights (``detailed_loss_weights``): all 1 except depth.
@@ -122,35 +123,41 @@ class DrivingModule(L.LightningModule):
         return total
 
     # --- evaluation
-    def validation_step(self, batch: Mapping[str, Batch], batch_idx: int) -> None:
-        """ADE / FDE per dataset on the source's own grid (``val/<source>/ade``, ``.../fde``)."""
-        for source, source_batch in batch.items():
-            if "waypoints" not in source_batch or "waypoints" not in self.model.tasks(source):
+    def validation_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
+        """ADE / FDE per source on its own grid (``val/<source>/ade``, ``.../fde``).
+
+        Returns ``{"predictions": [Prediction, ...]}`` so scoring callbacks (RFS...) can use the same forward pass.
+        """
+        outputs = self.predict_step(batch, batch_idx)
+        for source, output in outputs.items():
+            source_batch = batch[source]
+            if "waypoints" not in source_batch:
                 continue
-            pred = self.model(source_batch, source, {"waypoints"})["waypoints"].float()
             target = source_batch["waypoints"]
             valid = source_batch.get(
                 "waypoints_valid", torch.ones(target.shape[:2], dtype=torch.bool, device=target.device)
             )
-            err = (pred - target).norm(dim=-1)
             has = valid.any(1)
             if not has.any():
                 continue
+            err = (output["xy"] - target).norm(dim=-1)
             last = valid.long().cumsum(1).argmax(1)
             ade = losses.masked_mean(err, valid)
             fde = err[torch.arange(len(err), device=err.device), last][has].mean()
             n = int(has.sum())
             self.log(f"val/{source}/ade", ade, batch_size=n, add_dataloader_idx=False)
             self.log(f"val/{source}/fde", fde, batch_size=n, add_dataloader_idx=False)
+        return {"predictions": to_predictions(outputs)}
 
-    def predict_step(self, batch: Mapping[str, Batch], batch_idx: int) -> dict[str, dict[str, Any]]:
-        """Per source: sample keys, time grid ``t`` (T,) in seconds and poses in the ISO ego frame.
-
-        ``xy`` (B, T, 2) metres and ``yaw`` (B, T) radians (NaN where the model predicts no headings).
+    def predict_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
+        """Per source that has a planner: sample keys and datasets, time grid ``t`` (T,) in seconds, and poses in
+        the ISO ego frame: ``xy`` (B, T, 2) metres and ``yaw`` (B, T) radians (NaN where no headings are predicted).
         """
         result = {}
         for source, source_batch in batch.items():
             tasks = {"waypoints", "headings"} & self.model.tasks(source)
+            if "waypoints" not in tasks:
+                continue
             pred = self.model(source_batch, source, tasks)
             xy = pred["waypoints"].float()
             yaw = (
@@ -158,8 +165,10 @@ class DrivingModule(L.LightningModule):
                 if "headings" in pred
                 else torch.full(xy.shape[:2], float("nan"), device=xy.device)
             )
+            keys = list(source_batch.get("__key__", [f"{source}-{batch_idx}-{i}" for i in range(len(xy))]))
             result[source] = {
-                "key": list(source_batch.get("__key__", [])),
+                "key": keys,
+                "dataset": list(source_batch.get("__dataset__", [source] * len(xy))),
                 "t": torch.tensor(self.model.grid(source).times, dtype=torch.float32),
                 "xy": xy,
                 "yaw": yaw,

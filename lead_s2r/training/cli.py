@@ -1,0 +1,24 @@
+"""``lead-s2r fit|validate|test|predict``: LightningCLI over :class:`DrivingModule` and :class:`DriveDataModule`.
+
+Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overridden on the command line
+(``--trainer.max_epochs=31``) and the resolved config is saved next to each run.
+"""
+
+from lightning.pytorch.cli import LightningCLI
+
+from lead_s2r.data.datamodule import DriveDataModule
+from lead_s2r.training.module import DrivingModule
+
+#: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
+TRAINER_DEFAULTS = {"reload_dataloaders_every_n_epochs": 1, "use_distributed_sampler": False}
+
+
+def run_lightning_cli(args: list[str] | None = None) -> None:
+    """Run a LightningCLI subcommand with ``args`` (e.g. ``["fit", "--config", "recipes/..."]``; None: sys.argv)."""
+    LightningCLI(
+        DrivingModule,
+        DriveDataModule,
+        args=args,
+        trainer_defaults=TRAINER_DEFAULTS,
+        save_config_kwargs={"overwrite": True},
+    )
