@@ -337,8 +337,12 @@ def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _statistics(table: pa.Table) -> dict[str, Any]:
-    """Ranges a model needs for normalisation (e.g. target points) and a few sanity figures."""
-    stats = {}
+    """Ranges a model needs for normalisation and a few sanity figures.
+
+    ``target_points`` {low, high} holds the 1st/99th percentiles of the current target point's [x, y], the
+    range ``lead_s2r.models.inputs.target_point_range`` reads.
+    """
+    stats: dict[str, Any] = {}
     for column in ("speed", "tp_x", "tp_y"):
         values = table[column].to_numpy(zero_copy_only=False).astype(np.float64)
         values = values[np.isfinite(values)]
@@ -350,4 +354,9 @@ def _statistics(table: pa.Table) -> dict[str, Any]:
                 "p01": float(np.percentile(values, 1)),
                 "p99": float(np.percentile(values, 99)),
             }
+    if "tp_x" in stats and "tp_y" in stats and stats["tp_x"]["p99"] > stats["tp_x"]["p01"]:
+        stats["target_points"] = {
+            "low": [stats["tp_x"]["p01"], stats["tp_y"]["p01"]],
+            "high": [stats["tp_x"]["p99"], stats["tp_y"]["p99"]],
+        }
     return stats

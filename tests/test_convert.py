@@ -11,6 +11,7 @@ import pytest
 from toy_adapter import ToyAdapter, write_toy_logs
 
 from lead_s2r.convert import convert
+from lead_s2r.models.inputs import target_point_range
 from lead_s2r.shards import load_info, load_manifest, read_samples
 
 
@@ -35,6 +36,8 @@ def test_every_sample_once_and_manifest_matches(tmp_path, workers):
     info = load_info(tmp_path / "out")
     assert info["counts"]["samples"] == 35 and info["counts"]["logs"] == 5
     assert info["statistics"]["tp_x"]["max"] == 10.0
+    low, high = target_point_range(info)  # what the model reads to normalise target points
+    assert low[0] < high[0] <= 10.0 and low[1] < high[1]
     assert manifest["has_lidar"].to_pylist() == [True] * 35
 
 
@@ -68,6 +71,7 @@ import sys
 sys.path.insert(0, {tests!r})
 from toy_adapter import ToyAdapter
 from lead_s2r.convert import convert
+from lead_s2r.models.inputs import target_point_range
 convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers={workers}, shard_size=8)
 """
 
