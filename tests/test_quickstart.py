@@ -17,12 +17,10 @@ def test_quickstart_runs_every_stage(tmp_path):
         assert len(manifest) > 0 and set(manifest["dataset"].to_pylist()) == {dataset}
         assert (tmp_path / "data" / dataset / "errors.jsonl").read_text() == ""
     predictions = read_predictions(tmp_path / "runs" / "sim2real" / "predictions.parquet")
-    val_keys = {
-        key
-        for dataset, split in (("navsim", None), ("wod_e2e", "val"))
-        for key, s in zip(*load_manifest(tmp_path / "data" / dataset).select(["key", "split"]).to_pydict().values())
-        if split is None or s == split
-    }
+    val_keys = set()
+    for dataset, split in (("navsim", None), ("wod_e2e", "val")):
+        manifest = load_manifest(tmp_path / "data" / dataset).to_pydict()
+        val_keys |= {k for k, s in zip(manifest["key"], manifest["split"], strict=True) if split in (None, s)}
     assert {p.key for p in predictions} == val_keys  # the model predicted every validation sample once
     assert (tmp_path / "runs" / "sim2real" / "checkpoints" / "last.ckpt").exists()
     scores = pq.read_table(tmp_path / "runs" / "sim2real" / "scores" / "rfs@wod-e2e-2025" / "scores.parquet")
