@@ -59,18 +59,16 @@ def bench(name: str, args: argparse.Namespace) -> str:
         total.backward()
         optimizer.step()
 
-    start = time.perf_counter()
-    for _ in range(args.warmup):
-        train_step()
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    warm = time.perf_counter() - start
-    start = time.perf_counter()
-    for _ in range(args.steps):
-        train_step()
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    elapsed = time.perf_counter() - start
+    def timed(steps: int) -> float:
+        start = time.perf_counter()
+        for _ in range(steps):
+            train_step()
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+        return time.perf_counter() - start
+
+    warm = timed(args.warmup)
+    elapsed = timed(args.steps)
     rate = args.batch_size * args.steps / elapsed
     height, width = config.image_size
     return (

@@ -6,9 +6,10 @@ import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tiny_models import TINY
 
 from lead_s2r.models.backbone import CameraSelect, StagedEncoder
-from lead_s2r.models.config import BEVGrid, EgoMLPConfig, ltfv6_config, tfv5_config, tfv6_config
+from lead_s2r.models.config import EgoMLPConfig, ltfv6_config, tfv5_config, tfv6_config
 from lead_s2r.models.ego_mlp import EgoStatusMLP
 from lead_s2r.models.embeddings import grid_embedding, sine_embedding
 from lead_s2r.models.inputs import random_batch, target_point_range
@@ -19,31 +20,8 @@ from lead_s2r.training.losses import heading_loss, radar_loss, two_hot
 SOURCES = ("carla", "navsim", "wod")
 VARIANTS = {"tfv6": tfv6_config, "ltfv6": ltfv6_config, "tfv5": tfv5_config}
 
-#: A model small enough for two shared CPU cores; timm's ``test_*`` encoders.
-TINY = dict(
-    image_architecture="test_convnext",
-    bev_architecture="test_convnext",
-    image_size=(32, 64),
-    bev=BEVGrid(-8.0, 8.0, -8.0, 8.0, 2.0),
-    token_dim=32,
-    decoder_layers=1,
-    decoder_heads=4,
-    decoder_ffn=64,
-    radar_queries=4,
-    radar_layers=1,
-    radar_ffn=64,
-    bev_feature_channels=16,
-    fusion_layers=1,
-)
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Two threads on a shared 2-core box run ~30x slower than one (oversubscription)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_parameter_counts_match_lead():

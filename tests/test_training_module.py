@@ -5,39 +5,20 @@ import itertools
 import lightning as L
 import pytest
 import torch
+from tiny_models import TINY
 from torch.utils.data import DataLoader
 
-from lead_s2r.models.config import BEVGrid, ltfv6_config, tfv6_config
+from lead_s2r.models.config import ltfv6_config, tfv6_config
 from lead_s2r.models.inputs import random_batch
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.module import DrivingModule
 
-TINY = dict(
-    image_architecture="test_convnext",
-    bev_architecture="test_convnext",
-    image_size=(32, 64),
-    bev=BEVGrid(-8.0, 8.0, -8.0, 8.0, 2.0),
-    token_dim=32,
-    decoder_layers=1,
-    decoder_heads=4,
-    decoder_ffn=64,
-    radar_queries=4,
-    radar_layers=1,
-    radar_ffn=64,
-    bev_feature_channels=16,
-    fusion_layers=1,
-)
 PERCEPTION_MODULES = ("bev_semantic", "boxes", "perspective", "radar.out")
 EVERYTHING = {"carla": ["planning", "perception"], "navsim": ["planning", "perception"], "wod": ["planning"]}
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def grad_norm(module: torch.nn.Module) -> float:
