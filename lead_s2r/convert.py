@@ -339,8 +339,8 @@ def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
 def _statistics(table: pa.Table) -> dict[str, Any]:
     """Ranges a model needs for normalisation and a few sanity figures.
 
-    ``target_points`` {low, high} holds the 1st/99th percentiles of the current target point's [x, y], the
-    range ``lead_s2r.models.inputs.target_point_range`` reads.
+    ``target_points`` {low, high} holds the 1st/99th percentiles of the current target point's [x, y] (at least
+    1 m apart), the range ``lead_s2r.models.inputs.target_point_range`` reads.
     """
     stats: dict[str, Any] = {}
     for column in ("speed", "tp_x", "tp_y"):
@@ -354,9 +354,12 @@ def _statistics(table: pa.Table) -> dict[str, Any]:
                 "p01": float(np.percentile(values, 1)),
                 "p99": float(np.percentile(values, 99)),
             }
-    if "tp_x" in stats and "tp_y" in stats and stats["tp_x"]["p99"] > stats["tp_x"]["p01"]:
-        stats["target_points"] = {
-            "low": [stats["tp_x"]["p01"], stats["tp_y"]["p01"]],
-            "high": [stats["tp_x"]["p99"], stats["tp_y"]["p99"]],
-        }
+    if "tp_x" in stats and "tp_y" in stats:
+        low = [stats[axis]["p01"] for axis in ("tp_x", "tp_y")]
+        high = [stats[axis]["p99"] for axis in ("tp_x", "tp_y")]
+        for i in range(2):  # a constant coordinate still needs a non-empty range to normalise by
+            if high[i] - low[i] < 1.0:
+                centre = (high[i] + low[i]) / 2
+                low[i], high[i] = centre - 0.5, centre + 0.5
+        stats["target_points"] = {"low": low, "high": high}
     return stats

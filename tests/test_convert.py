@@ -37,7 +37,8 @@ def test_every_sample_once_and_manifest_matches(tmp_path, workers):
     assert info["counts"]["samples"] == 35 and info["counts"]["logs"] == 5
     assert info["statistics"]["tp_x"]["max"] == 10.0
     low, high = target_point_range(info)  # what the model reads to normalise target points
-    assert low[0] < high[0] <= 10.0 and low[1] < high[1]
+    assert (low[0], high[0]) == (9.5, 10.5)  # every toy target point has x = 10: widened to 1 m
+    assert (low[1], high[1]) == pytest.approx((-0.5, 0.5))  # y spans +-0.2 m: widened around its centre
     assert manifest["has_lidar"].to_pylist() == [True] * 35
 
 
