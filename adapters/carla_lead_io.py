@@ -4,7 +4,6 @@ LEAD's ``.pkl`` files are LZMA streams holding pickles. Pickles can run arbitrar
 unpickler that only admits plain builtin containers/scalars and numpy arrays/scalars.
 """
 
-import io
 import json
 import lzma
 import pickle
@@ -13,30 +12,7 @@ from typing import Any
 
 import numpy as np
 
-#: Builtins a LEAD pickle may name: data types only (never eval, getattr, __import__...).
-_SAFE_BUILTINS = frozenset(
-    {
-        "dict",
-        "list",
-        "tuple",
-        "set",
-        "frozenset",
-        "int",
-        "float",
-        "complex",
-        "bool",
-        "str",
-        "bytes",
-        "bytearray",
-        "slice",
-        "range",
-    }
-)
-#: numpy callables that (un)pickling arrays, dtypes and scalars goes through, per numpy 1.x and 2.x module layout.
-_SAFE_NUMPY = frozenset({"_reconstruct", "scalar", "ndarray", "dtype", "_frombuffer"})
-_NUMPY_MODULES = frozenset(
-    {"numpy", "numpy.core.multiarray", "numpy._core.multiarray", "numpy.core.numeric", "numpy._core.numeric"}
-)
+from lead_s2r import restricted_pickle
 
 
 class LeadFormatError(ValueError):
@@ -48,37 +24,11 @@ class LeadFormatError(ValueError):
         self.path, self.field, self.problem = path, field, problem
 
 
-class _NumpyOnlyUnpickler(pickle.Unpickler):
-    def __init__(self, file: io.BufferedIOBase, path: Path) -> None:
-        super().__init__(file)
-        self.path = path
-
-    def find_class(self, module: str, name: str) -> Any:
-        if module == "builtins" and name in _SAFE_BUILTINS:
-            return super().find_class(module, name)
-        if module in _NUMPY_MODULES and name in _SAFE_NUMPY:
-            return super().find_class(module, name)
-        if module == "numpy.dtypes" and name.endswith("DType"):
-            return super().find_class(module, name)
-        if (
-            module == "numpy"
-            and isinstance(getattr(np, name, None), type)
-            and issubclass(getattr(np, name), np.generic)
-        ):
-            return super().find_class(module, name)
-        raise LeadFormatError(self.path, f"pickle refers to {module}.{name}; only builtins and numpy are allowed")
-
-    def persistent_load(self, pid: Any) -> Any:
-        raise LeadFormatError(self.path, "pickle uses persistent ids, which LEAD never writes")
-
-
 def read_pickle(path: Path) -> Any:
     """Load one LZMA-compressed LEAD pickle with the restricted unpickler."""
     try:
         with lzma.open(path, "rb") as file:
-            return _NumpyOnlyUnpickler(file, path).load()
-    except LeadFormatError:
-        raise
+            return restricted_pickle.load(file)
     except (lzma.LZMAError, EOFError) as err:
         raise LeadFormatError(path, f"truncated or corrupt LZMA pickle ({err or type(err).__name__})") from err
     except (pickle.UnpicklingError, ValueError, TypeError, AttributeError, IndexError) as err:

@@ -10,15 +10,15 @@ pickle once and a map once per location. Layout of every field: ``docs/datasets/
 
 import io
 import math
-import pickle
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import yaml
 
+from lead_s2r import restricted_pickle
 from lead_s2r.geometry import rotate, to_global, to_local, wrap_angle
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key
@@ -58,30 +58,11 @@ class NavsimFormatError(ValueError):
 # --------------------------------------------------------------------------- readers
 
 
-class _SafeUnpickler(pickle.Unpickler):
-    """Admits only plain builtins and what numpy needs to rebuild arrays; OpenScene pickles need nothing else."""
-
-    SAFE: ClassVar[set[tuple[str, str]]] = {
-        *(("builtins", n) for n in ("list", "dict", "set", "frozenset", "tuple", "str", "bytes", "bytearray")),
-        *(("builtins", n) for n in ("int", "float", "complex", "bool", "slice", "range")),
-        *((m, n) for m in ("numpy.core.multiarray", "numpy._core.multiarray") for n in ("_reconstruct", "scalar")),
-        *((m, "_frombuffer") for m in ("numpy.core.numeric", "numpy._core.numeric")),
-        ("numpy", "ndarray"),
-        ("numpy", "dtype"),
-        ("_codecs", "encode"),  # bytes in protocol-2 pickles
-    }
-
-    def find_class(self, module: str, name: str) -> Any:
-        if (module, name) in self.SAFE or (module == "numpy.dtypes" and name.endswith("DType")):
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(f"global {module}.{name} is not allowed (only builtins and numpy)")
-
-
 def load_log(path: Path) -> list[dict[str, Any]]:
     """The frames of an OpenScene log pickle, checked to be a non-empty list of dicts."""
     try:
         with open(path, "rb") as file:
-            frames = _SafeUnpickler(file).load()
+            frames = restricted_pickle.load(file)
     except FileNotFoundError:
         raise
     except Exception as err:
