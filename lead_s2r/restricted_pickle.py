@@ -4,6 +4,7 @@ A pickle can name any importable callable; this unpickler admits only the builti
 to rebuild arrays, dtypes and scalars (module layouts of numpy 1.x and 2.x). Anything else is refused by name.
 """
 
+import _compat_pickle
 import pickle
 from typing import IO, Any
 
@@ -23,6 +24,10 @@ class RestrictedUnpickler(pickle.Unpickler):
     """Unpickles builtin containers and scalars and numpy arrays/scalars; raises UnpicklingError for the rest."""
 
     def find_class(self, module: str, name: str) -> Any:
+        # protocol <= 2 pickles use Python 2 names (__builtin__.xrange...): translate them as pickle itself does
+        if (module, name) in _compat_pickle.NAME_MAPPING:
+            module, name = _compat_pickle.NAME_MAPPING[(module, name)]
+        module = _compat_pickle.IMPORT_MAPPING.get(module, module)
         if _allowed(module, name):
             return super().find_class(module, name)
         raise pickle.UnpicklingError(f"pickle refers to {module}.{name}; only builtins and numpy are allowed")
@@ -32,7 +37,7 @@ class RestrictedUnpickler(pickle.Unpickler):
 
 
 def _allowed(module: str, name: str) -> bool:
-    if module in ("builtins", "__builtin__"):  # protocol <= 2 pickles spell it the Python 2 way
+    if module == "builtins":
         return name in _BUILTINS
     if module == "_codecs":
         return name == "encode"  # how protocol-2 pickles store bytes

@@ -9,7 +9,7 @@ import pytest
 from lead_s2r import restricted_pickle
 
 VALUES = {
-    "arrays": [np.arange(6, dtype=dtype).reshape(2, 3) for dtype in ("float16", "float32", "float64", "int8", "uint64")],
+    "arrays": [np.arange(6, dtype=t).reshape(2, 3) for t in ("float16", "float32", "float64", "int8", "uint64")],
     "strings": np.array(["vehicle", "pedestrian"]),
     "scalars": [np.float32(1.5), np.int64(-3), np.bool_(True)],
     "builtins": {"t": (1, 2.0, "x", b"raw", None, True), "s": {1, 2}, "f": frozenset({3}), "c": 1j, "r": range(3)},
