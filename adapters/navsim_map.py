@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow as pa
 import shapely
 
-from lead_s2r.geometry import rotate
+from lead_s2r.geometry import box_corners, points_to_local
 from lead_s2r.schema import BevClassNavsim, BoxClass
 
 #: Legacy ``map_location`` values of OpenScene pickles -> nuPlan map folder.
@@ -170,11 +170,6 @@ def load_map(path: str) -> NuplanMap:
     )
 
 
-def _to_ego(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    """Global (N, 2) -> ego frame of the global pose ``origin`` [x, y, yaw], float32."""
-    return rotate(np.asarray(points, np.float64) - origin[:2], -float(origin[2])).astype(np.float32)
-
-
 def _ragged(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Concatenated (P, 2) float32 points and (K + 1,) int64 offsets."""
     offsets = np.zeros(len(arrays) + 1, np.int64)
@@ -202,11 +197,12 @@ def scoring_context(
     index = nuplan_map.near(origin[:2], radius)
     kinds = nuplan_map.kinds[index]
     ids = nuplan_map.ids[index]
-    polygon_xy, polygon_offsets = _ragged([_to_ego(_exterior(nuplan_map.polygons[i]), origin) for i in index])
+    polygon_xy, polygon_offsets = _ragged([points_to_local(_exterior(nuplan_map.polygons[i]), origin) for i in index])
     lanes = ids[(kinds == MapKind.LANE) | (kinds == MapKind.LANE_CONNECTOR)]
     lane_kinds = kinds[(kinds == MapKind.LANE) | (kinds == MapKind.LANE_CONNECTOR)]
     have = [i for i, lane in enumerate(lanes) if int(lane) in nuplan_map.centerlines]
-    centerline_xy, centerline_offsets = _ragged([_to_ego(nuplan_map.centerlines[int(lanes[i])], origin) for i in have])
+    centerlines = [points_to_local(nuplan_map.centerlines[int(lanes[i])], origin) for i in have]
+    centerline_xy, centerline_offsets = _ragged(centerlines)
     local_connectors = set(ids[kinds == MapKind.LANE_CONNECTOR].tolist())
     connectors = nuplan_map.connectors[np.isin(nuplan_map.connectors[:, 0], list(local_connectors))]
     local_rbc = set(ids[kinds == MapKind.ROADBLOCK_CONNECTOR].tolist())
@@ -275,12 +271,6 @@ def _pixels(points: np.ndarray) -> np.ndarray:
     col = (BEV_HALF - points[:, 1]) / BEV_RESOLUTION
     row = (BEV_HALF - points[:, 0]) / BEV_RESOLUTION
     return np.round(np.column_stack([col, row]) * 4 - 2).astype(np.int32)
-
-
-def box_corners(boxes: np.ndarray) -> np.ndarray:
-    """(N, 4, 2) footprint corners of (N, 10) schema boxes, counter-clockwise from front-left."""
-    half = boxes[:, None, 3:5] / 2 * np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]])
-    return rotate(half, boxes[:, None, 6]) + boxes[:, None, :2]
 
 
 def render_bev(context: dict[str, np.ndarray], boxes: np.ndarray) -> np.ndarray:

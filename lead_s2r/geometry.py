@@ -52,6 +52,14 @@ def points_to_local(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
     return rotate(points, -float(origin[2]))
 
 
+def box_corners(boxes: np.ndarray) -> np.ndarray:
+    """(N, 4, 2) footprint corners of boxes laid out like the schema's ``boxes`` (x, y, z, length, width, height,
+    yaw, ...), counter-clockwise from front-left."""
+    boxes = np.asarray(boxes, np.float64)
+    half = boxes[:, None, 3:5] / 2 * np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]])
+    return rotate(half, boxes[:, None, 6]) + boxes[:, None, :2]
+
+
 def flip_y(values: np.ndarray, columns: tuple[int, ...] = (1,)) -> np.ndarray:
     """Negate the given columns: CARLA (y right, yaw clockwise) <-> ISO (y left, yaw counter-clockwise).
 

@@ -10,7 +10,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lead_s2r.geometry import raster_lookup
+from lead_s2r.geometry import box_corners, raster_lookup
 
 CANVAS_WIDTH = 960
 BEV_RANGE_M = (-16.0, 48.0, -32.0, 32.0)  # x min, x max, y min, y max
@@ -33,13 +33,6 @@ def _polyline(image: np.ndarray, xy: np.ndarray, color: tuple[int, int, int], ra
     cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, color, 2, cv2.LINE_AA)
     for col, row in pixels:
         cv2.circle(image, (int(col), int(row)), radius, color, -1, cv2.LINE_AA)
-
-
-def _box_corners(box: np.ndarray) -> np.ndarray:
-    x, y, _, length, width, _, yaw = box[:7]
-    corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
-    rotation = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
-    return corners @ rotation.T + [x, y]
 
 
 def _semantic_layer(sample: dict[str, Any], height: int, width: int) -> np.ndarray | None:
@@ -72,9 +65,9 @@ def render_bev(sample: dict[str, Any]) -> np.ndarray:
         image[pixels[inside, 1], pixels[inside, 0]] = (110, 110, 110)
     if "route" in sample:
         _polyline(image, sample["route"], (230, 150, 40), 1)
-    for box in sample.get("boxes", np.zeros((0, 10))):
-        corners = np.round(_bev_pixels(_box_corners(box))).astype(np.int32)
-        cv2.polylines(image, [corners.reshape(-1, 1, 2)], True, (0, 150, 255), 2, cv2.LINE_AA)
+    for corners in box_corners(sample.get("boxes", np.zeros((0, 10)))):
+        pixels = np.round(_bev_pixels(corners)).astype(np.int32)
+        cv2.polylines(image, [pixels.reshape(-1, 1, 2)], True, (0, 150, 255), 2, cv2.LINE_AA)
     _polyline(image, sample["past"][:, 1:3], (160, 160, 160), 2)
     if "future" in sample:
         _polyline(image, sample["future"][:, 1:3], (60, 220, 60), 2)
@@ -85,7 +78,7 @@ def render_bev(sample: dict[str, Any]) -> np.ndarray:
                 cv2.circle(image, (col, row), 6, (40, 40, 240), -1, cv2.LINE_AA)
     vehicle = sample["meta"]["vehicle"]
     ego = np.array([vehicle["rear_axle_to_center"], 0, 0, vehicle["length"], vehicle["width"], 0, 0], np.float64)
-    corners = np.round(_bev_pixels(_box_corners(ego))).astype(np.int32)
+    corners = np.round(_bev_pixels(box_corners(ego[None])[0])).astype(np.int32)
     cv2.fillPoly(image, [corners.reshape(-1, 1, 2)], (255, 255, 255))
     return image
 

@@ -5,6 +5,7 @@ from hypothesis.extra.numpy import arrays
 
 from lead_s2r.geometry import (
     CARLA_REAR_AXLE_TO_CENTER,
+    box_corners,
     carla_points_to_iso,
     carla_poses_to_iso,
     flip_y,
@@ -101,3 +102,10 @@ def test_resample_reproduces_source_grid(n, dt):
     assert valid.all() and np.allclose(out, values)
     _, valid = resample(t, values, t + dt / 2)
     assert not valid[-1]  # never extrapolates past the last source point
+
+
+def test_box_corners_turn_with_the_box():
+    box = np.array([[1.0, 2.0, 0.0, 4.0, 2.0, 1.5, np.pi / 2, 0, 0, 0]])
+    corners = box_corners(box)[0]
+    # facing +y: the front-left corner lies ahead (+y) and to the box's left (-x)
+    assert np.allclose(corners, [[0.0, 4.0], [0.0, 0.0], [2.0, 0.0], [2.0, 4.0]])
