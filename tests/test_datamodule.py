@@ -2,20 +2,10 @@ from collections import Counter
 from types import SimpleNamespace
 
 import pytest
-from toy_adapter import ToyAdapter, write_toy_logs
 
-from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import TrajectoryGrid, tfv6_config
-
-
-@pytest.fixture(scope="module")
-def toy_data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("toy")
-    write_toy_logs(root / "src", n_logs=4, frames=6)
-    convert(ToyAdapter(), root / "src", root / "data", shard_size=6)
-    return str(root / "data")
 
 
 def make_datamodule(path: str, epoch: int = 0) -> DriveDataModule:

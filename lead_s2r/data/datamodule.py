@@ -160,7 +160,8 @@ class DriveDataModule(L.LightningDataModule):
         return [self._loader(self._pipeline(n, s, self.eval_batch_size, training=False)) for n, s in sources.items()]
 
     def val_dataloader(self) -> list[wds.WebLoader]:
-        return self._eval_loaders(self.val_sources, "val")
+        """One loader per validation source; none configured means no validation loop."""
+        return self._eval_loaders(self.val_sources, "val") if self.val_sources else []
 
     def predict_dataloader(self) -> list[wds.WebLoader]:
         return self._eval_loaders(self.predict_sources, "predict")

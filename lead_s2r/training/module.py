@@ -1,8 +1,9 @@
 """The LightningModule: per-source forward passes, loss masking by what each source supervises, ADE/FDE validation,
 ISO-frame predictions."""
 
+import math
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Literal
 
 import lightning as L
 import torch
@@ -32,6 +33,9 @@ class DrivingModule(L.LightningModule):
             sim-to-real (CARLA perception only, NAVSIM planning + perception, WOD planning).
         loss_weights: per-task weights over :data:`DEFAULT_LOSS_WEIGHTS`.
         lr, weight_decay, betas, amsgrad: AdamW settings (LEAD: 3e-4, 0.01, AMSGrad).
+        lr_schedule: stepped every optimizer step. "cosine_restarts" is LEAD's CARLA/NAVSIM schedule (warm
+            restarts after 1, 2, 4, 8... epochs, so cycles end at epochs 1, 3, 7, 15, 31, the mixing anchors);
+            "cosine" decays once over the whole run (LEAD's WOD-E2E schedule).
         compile: wrap the model with ``torch.compile`` (parameter names stay the same).
         init_from: checkpoint whose matching tensors initialise the model (fine-tuning); new heads are reported.
     """
@@ -45,6 +49,7 @@ class DrivingModule(L.LightningModule):
         weight_decay: float = 0.01,
         betas: tuple[float, float] = (0.9, 0.999),
         amsgrad: bool = True,
+        lr_schedule: Literal["constant", "cosine_restarts", "cosine"] = "constant",
         compile: bool = False,
         init_from: str | None = None,
     ) -> None:
@@ -175,8 +180,27 @@ class DrivingModule(L.LightningModule):
             }
         return result
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
+    def configure_optimizers(self) -> Any:
         hp = self.hparams
-        return torch.optim.AdamW(
+        optimizer = torch.optim.AdamW(
             self.model.parameters(), lr=hp.lr, weight_decay=hp.weight_decay, betas=tuple(hp.betas), amsgrad=hp.amsgrad
         )
+        if hp.lr_schedule == "constant":
+            return optimizer
+        steps = self._steps_per_epoch()
+        if hp.lr_schedule == "cosine_restarts":
+            scheduler = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(optimizer, T_0=steps, T_mult=2)
+        else:
+            epochs = max(1, self.trainer.max_epochs or 1)
+            scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=steps * epochs)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    def _steps_per_epoch(self) -> int:
+        """Optimizer steps per epoch: the data module's fixed epoch length, else Lightning's estimate."""
+        steps = getattr(self.trainer.datamodule, "steps_per_epoch", None)
+        if steps is None:
+            total = self.trainer.estimated_stepping_batches
+            if not math.isfinite(total):
+                raise ValueError(f"lr_schedule {self.hparams.lr_schedule!r} needs a finite number of steps per epoch")
+            steps = int(total) // max(1, self.trainer.max_epochs or 1)
+        return max(1, int(steps) // self.trainer.accumulate_grad_batches)
