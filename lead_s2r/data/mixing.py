@@ -48,9 +48,10 @@ class MixingSchedule:
     mode: Literal["step", "linear"] = "step"
 
     def __post_init__(self) -> None:
-        if not self.anchors or 0 not in self.anchors:
+        # epochs may arrive as strings (JSON, dumped configs)
+        self.anchors = {int(epoch): dict(mix) for epoch, mix in sorted(self.anchors.items(), key=lambda i: int(i[0]))}
+        if 0 not in self.anchors:
             raise ValueError("anchors must start at epoch 0")
-        self.anchors = {int(epoch): dict(mix) for epoch, mix in sorted(self.anchors.items())}
         sources = list(self.anchors[0])
         for epoch, mix in self.anchors.items():
             if list(mix) != sources:

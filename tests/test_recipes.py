@@ -1,0 +1,27 @@
+"""Every recipe must parse against the current signatures, so a renamed argument cannot rot a recipe unnoticed."""
+
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from lead_s2r.cli import main
+from lead_s2r.data.mixing import MixingSchedule
+
+RECIPES = sorted((Path(__file__).parents[1] / "recipes").rglob("*.yaml"))
+
+
+@pytest.mark.parametrize("recipe", RECIPES, ids=lambda p: str(p.relative_to(p.parents[1])))
+def test_recipe_parses(recipe, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI warns when the process has other arguments
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fit", "--config", str(recipe), "--print_config"])
+    assert exit_info.value.code in (0, None)
+    resolved = yaml.safe_load(capsys.readouterr().out)
+    schedule = MixingSchedule(**resolved["data"]["schedule"])
+    assert set(schedule.sources) == set(resolved["data"]["train"])
+
+
+def test_there_are_recipes():
+    assert len(RECIPES) >= 3
