@@ -87,3 +87,10 @@ def test_collate_masks_labels_a_sample_lacks():
     batch = collate([with_future, without])
     assert batch["waypoints_valid"][1].sum() == 0 and batch["waypoints_valid"][0].all()
     assert batch["__key__"] == ["toy_log000_000000", "toy_log000_000001"]
+
+
+def test_a_future_without_yaw_gives_no_heading_target():
+    sample = toy_sample("log000", 0)
+    sample["future"][:, 3] = np.nan  # WOD-E2E stores no heading
+    out = transform()(sample)
+    assert "headings" not in out and out["waypoints_valid"].any()

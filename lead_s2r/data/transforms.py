@@ -101,17 +101,20 @@ class SourceTransform:
         }
 
     def trajectory(self, future: np.ndarray) -> dict[str, torch.Tensor]:
-        """Waypoints and headings on the source's output grid; beyond the recorded horizon they are masked."""
+        """Waypoints (and headings, where the source has them) on the source's output grid, masked beyond the
+        recorded horizon."""
         times = np.asarray(self.config.trajectory_grids[self.source].times)
         knots = np.vstack([np.zeros((1, 4), np.float32), future])  # the ego sits at the origin at t = 0
         poses, valid = resample(knots[:, 0], knots[:, 1:], times, angle_columns=(2,))
-        heading_valid = valid & np.isfinite(poses[:, 2])
-        return {
+        out = {
             "waypoints": torch.from_numpy(np.nan_to_num(poses[:, :2]).astype(np.float32)),
             "waypoints_valid": torch.from_numpy(valid),
-            "headings": torch.from_numpy(np.nan_to_num(poses[:, 2]).astype(np.float32)),
-            "headings_valid": torch.from_numpy(heading_valid),
         }
+        heading_valid = valid & np.isfinite(poses[:, 2])
+        if heading_valid.any():  # a source without headings (WOD-E2E) must not dilute the heading loss of others
+            out["headings"] = torch.from_numpy(np.nan_to_num(poses[:, 2]).astype(np.float32))
+            out["headings_valid"] = torch.from_numpy(heading_valid)
+        return out
 
     def perspective_labels(self, sample: dict[str, Any], space: str) -> dict[str, torch.Tensor]:
         """Depth (metres) and semantic ids of the single input camera, on the input image's pixel grid."""
