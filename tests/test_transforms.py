@@ -7,6 +7,7 @@ from lead_s2r.data.transforms import (
     bev_labels,
     centernet_targets,
     collate,
+    radar_targets,
     rasterize_lidar,
     route_checkpoints,
 )
@@ -94,3 +95,15 @@ def test_a_future_without_yaw_gives_no_heading_target():
     sample["future"][:, 3] = np.nan  # WOD-E2E stores no heading
     out = transform()(sample)
     assert "headings" not in out and out["waypoints_valid"].any()
+
+
+def test_radar_targets_are_the_boxes_radar_points_hit_fastest_first():
+    boxes = np.zeros((3, 10), np.float32)
+    boxes[:, :2] = [[10, 0], [20, 5], [30, -5]]
+    boxes[:, 3:5] = [4.0, 2.0]
+    boxes[:, 6] = [0.0, np.pi / 2, 0.0]  # the second box is turned: 2 m along x, 4 m along y
+    boxes[:, 7] = [3.0, 8.0, 1.0]
+    radar = np.array([[11.5, 0.5, 0, 2, 0], [20.0, 6.8, 0, 7, 1], [40.0, 0, 0, 0, 2]], np.float32)
+    out = radar_targets(radar, boxes)
+    assert out["radar_targets_valid"].tolist()[:3] == [True, True, False]
+    assert torch.allclose(out["radar_targets"][:2], torch.tensor([[20.0, 5.0, 8.0], [10.0, 0.0, 3.0]]))

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import torch
 
-from lead_s2r.geometry import raster_lookup, resample
+from lead_s2r.geometry import raster_lookup, resample, rotate
 from lead_s2r.models.config import BEVGrid, TFv6Config
 from lead_s2r.schema import BoxClass, command4
 
@@ -22,6 +22,10 @@ from lead_s2r.schema import BoxClass, command4
 MAX_RADAR_POINTS = 300
 #: Boxes kept per sample for the CenterNet regression targets.
 MAX_BOXES = 64
+#: Radar detection targets per sample (LEAD: up to 20 objects with at least one radar hit).
+MAX_RADAR_TARGETS = 20
+#: A radar point counts as a hit on a box up to this far outside its footprint, metres.
+RADAR_HIT_MARGIN_M = 0.5
 #: LiDAR histogram saturation (LEAD's ``rasterize_lidar``: clip at 5 hits per cell, scale to [0, 1]).
 LIDAR_HITS_MAX = 5.0
 #: Route checkpoints start this far ahead, then come every metre (LEAD's ``smooth_path``).
@@ -59,6 +63,8 @@ class SourceTransform:
             out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), self.config.bev))[None]
         if self.config.use_radar:
             out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
+            if "radar" in sample and "boxes" in sample and self.source in self.config.radar_sources:
+                out.update(radar_targets(sample["radar"], sample["boxes"]))
         if "future" in sample:
             out.update(self.trajectory(sample["future"]))
         if "route" in sample:
@@ -168,6 +174,24 @@ def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) ->
         padded[:n] = points[:n, :columns]
         valid[:n] = True
     return {name: torch.from_numpy(padded), f"{name}_valid": torch.from_numpy(valid)}
+
+
+def radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, torch.Tensor]:
+    """Radar detection targets: [x, y, speed] of the boxes radar points fall on, fastest first (as LEAD sorts).
+
+    A point hits a box when it lies inside the box's footprint grown by :data:`RADAR_HIT_MARGIN_M`.
+    """
+    targets = np.zeros((MAX_RADAR_TARGETS, 3), np.float32)
+    valid = np.zeros(MAX_RADAR_TARGETS, bool)
+    if len(radar) and len(boxes):
+        local = rotate(radar[None, :, :2] - boxes[:, None, :2], -boxes[:, None, 6])  # (N boxes, P points, 2)
+        half = boxes[:, None, 3:5] / 2 + RADAR_HIT_MARGIN_M
+        hit = (np.abs(local) <= half).all(axis=-1).any(axis=1)
+        speed = np.hypot(boxes[:, 7], boxes[:, 8])
+        chosen = np.flatnonzero(hit)[np.argsort(-speed[hit], kind="stable")][:MAX_RADAR_TARGETS]
+        targets[: len(chosen)] = np.stack([boxes[chosen, 0], boxes[chosen, 1], speed[chosen]], axis=1)
+        valid[: len(chosen)] = True
+    return {"radar_targets": torch.from_numpy(targets), "radar_targets_valid": torch.from_numpy(valid)}
 
 
 def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
