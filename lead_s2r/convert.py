@@ -75,7 +75,7 @@ def manifest_row(sample: dict[str, Any], shard: str) -> dict[str, Any]:
 # --------------------------------------------------------------------------- worker side
 
 
-def _convert_log(adapter: Adapter, log: LogRef, shard: ShardFile, shard_name: str) -> list[dict[str, Any]]:
+def _convert_log(adapter: Adapter, log: LogRef, shard: ShardFile) -> list[dict[str, Any]]:
     """Write every sample of ``log`` to ``shard``; on any exception the log is rolled back out of the shard."""
     mark = shard.mark()
     rows = []
@@ -83,7 +83,7 @@ def _convert_log(adapter: Adapter, log: LogRef, shard: ShardFile, shard_name: st
         for sample in adapter.iter_samples(log):
             validate(sample)
             shard.write(sample)
-            rows.append(manifest_row(sample, shard_name))
+            rows.append(manifest_row(sample, shard.path.name))
     except BaseException:
         shard.rollback(mark)
         raise
@@ -109,7 +109,7 @@ class _Worker:
         if self.shard is None:
             self.shard = ShardFile(self.out / SHARD_DIR / f"{self.adapter.name}-{self.next_index():06d}.tar")
         try:
-            rows = _convert_log(self.adapter, log, self.shard, self.shard.path.name)
+            rows = _convert_log(self.adapter, log, self.shard)
         except SkipLog as reason:
             self.emit(("skipped", log.log_id, str(reason)))
             return

@@ -41,11 +41,11 @@ class SourceSpec:
 class _SplitFilter:
     """Keeps raw samples of the wanted splits; a class (not a lambda) so dataloader workers can pickle it."""
 
-    def __init__(self, splits: list[str] | None) -> None:
-        self.splits = None if splits is None else set(splits)
+    def __init__(self, splits: list[str]) -> None:
+        self.splits = set(splits)
 
     def __call__(self, raw: dict[str, Any]) -> bool:
-        return self.splits is None or json.loads(raw["meta.json"])["split"] in self.splits
+        return json.loads(raw["meta.json"])["split"] in self.splits
 
 
 class _Prepare:
@@ -128,7 +128,8 @@ class DriveDataModule(L.LightningDataModule):
             nodesplitter=None if training else wds.split_by_node,
             empty_check=False,
         )
-        dataset = dataset.select(_SplitFilter(spec.splits))
+        if spec.splits is not None:  # peeks at meta.json; everything else is decoded once, after shuffling
+            dataset = dataset.select(_SplitFilter(spec.splits))
         if training:
             dataset = dataset.shuffle(self.shuffle_buffer)
         transform = SourceTransform(name, self.config, list(spec.cameras))
