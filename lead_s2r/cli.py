@@ -96,7 +96,10 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
 def cmd_inspect(args: argparse.Namespace) -> int:
     from lead_s2r.inspection import inspect_dataset
 
-    report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
+    try:
+        report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
+    except KeyError as err:
+        raise SystemExit(f"error: {err.args[0]}") from None
     print(json.dumps(report, indent=2))
     return 1 if report["invalid"] else 0
 

@@ -6,11 +6,12 @@ from typing import Any
 
 import cv2
 import numpy as np
+import pyarrow as pa
 import pyarrow.compute as pc
 
 from lead_s2r.render import render_sample
 from lead_s2r.schema import SchemaError, validate
-from lead_s2r.shards import load_info, load_manifest, read_samples
+from lead_s2r.shards import SHARD_DIR, load_info, load_manifest, read_samples
 
 
 def _range(values: np.ndarray) -> dict[str, float] | None:
@@ -35,11 +36,9 @@ def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None
     commands = manifest["command"].to_pylist()
     stats["command"] = {str(c): commands.count(c) for c in sorted(set(commands))}
     invalid: list[str] = []
-    checked = 0
     lengths: dict[str, list[float]] = {"past_s": [], "future_s": []}
-    drawn = None
-    for sample in itertools.islice(read_samples(path), max(n, 1) if key is None else None):
-        checked += 1
+    samples = list(itertools.islice(read_samples(path), max(n, 1)))
+    for sample in samples:
         try:
             validate(sample)
         except SchemaError as err:
@@ -47,10 +46,6 @@ def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None
         lengths["past_s"].append(-float(sample["past"][0, 0]))
         if "future" in sample:
             lengths["future_s"].append(float(sample["future"][-1, 0]))
-        if drawn is None and (key is None or sample["__key__"] == key):
-            drawn = sample
-            if key is not None:
-                break
     stats.update({name: _range(np.array(v)) for name, v in lengths.items()})
     report = {
         "path": str(path),
@@ -60,13 +55,20 @@ def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None
         "by_dataset_split": counts,
         "fields_present": has,
         "statistics": stats,
-        "checked": checked,
+        "checked": len(samples),
         "invalid": invalid,
         "failed_logs": info.get("failed_logs", 0),
     }
     if png is not None:
-        if drawn is None:
-            raise KeyError(f"no sample with key {key!r} in {path}")
-        cv2.imwrite(str(png), render_sample(drawn))
+        cv2.imwrite(str(png), render_sample(samples[0] if key is None else find_sample(path, manifest, key)))
         report["png"] = str(png)
     return report
+
+
+def find_sample(path: Path, manifest: pa.Table, key: str) -> dict[str, Any]:
+    """One sample by key, reading only the shard the manifest puts it in."""
+    rows = manifest.filter(pc.equal(manifest["key"], key))
+    if not len(rows):
+        raise KeyError(f"no sample with key {key!r} in {path}")
+    shard = path / SHARD_DIR / rows["shard"][0].as_py()
+    return next(sample for sample in read_samples(shard) if sample["__key__"] == key)

@@ -54,3 +54,5 @@ def test_inspect_reports_and_draws(tmp_path, capsys):
     rows = green.nonzero()[0]
     ego_row = image.shape[0] - 16 * 10  # x = 0 lies 16 m above the bottom edge at 10 px/m
     assert len(rows) and rows.max() < ego_row
+    with pytest.raises(SystemExit, match="no sample with key 'nope'"):
+        cli.main(["inspect", str(tmp_path / "out"), "--png", str(png), "--key", "nope"])
