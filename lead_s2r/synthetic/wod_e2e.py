@@ -18,6 +18,7 @@ import crc32c
 import cv2
 import numpy as np
 
+from lead_s2r.geometry import rotate
 from lead_s2r.synthetic.wod_e2e_proto import States, camera_calibration, camera_image, e2ed_frame
 
 SHARDS = 3
@@ -97,11 +98,9 @@ def _drive(duration: float, speed: float, accel: float, yaw_rate: float) -> np.n
 
 def _local(track: np.ndarray, i0: int, rows: np.ndarray) -> np.ndarray:
     """Rows of ``track`` in the frame of row ``i0``: (N, 6) x, y, vx, vy, ax, ay."""
-    cos, sin = math.cos(track[i0, 3]), math.sin(track[i0, 3])
-    rot = np.array([[cos, sin], [-sin, cos]])
-    sel = track[rows]
-    pos = (sel[:, 1:3] - track[i0, 1:3]) @ rot.T
-    return np.concatenate([pos, sel[:, 4:6] @ rot.T, sel[:, 6:8] @ rot.T], axis=1)
+    sel, heading = track[rows], track[i0, 3]
+    pos = rotate(sel[:, 1:3] - track[i0, 1:3], -heading)
+    return np.concatenate([pos, rotate(sel[:, 4:6], -heading), rotate(sel[:, 6:8], -heading)], axis=1)
 
 
 def _camera(name: int, rng: np.random.Generator, scale: float) -> SynthCamera:
