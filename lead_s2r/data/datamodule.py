@@ -49,13 +49,13 @@ class _SplitFilter:
 
 
 class _Prepare:
-    """Decode a raw webdataset sample and turn it into tensors."""
+    """Decode the fields the transform reads from a raw webdataset sample and turn them into tensors."""
 
     def __init__(self, transform: SourceTransform) -> None:
         self.transform = transform
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, Any]:
-        return self.transform(decode_sample(raw))
+        return self.transform(decode_sample(raw, self.transform.fields))
 
 
 class _Tag:

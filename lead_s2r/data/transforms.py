@@ -47,6 +47,15 @@ class SourceTransform:
     config: TFv6Config
     cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
 
+    @property
+    def fields(self) -> list[str]:
+        """The sample fields this transform reads, so loaders decode nothing else (``meta`` always comes)."""
+        fields = ["past", "future", "target_points", "route", "lidar", "radar", "boxes", "bev_semantic"]
+        fields += [f"cam_{camera}" for camera in self.cameras]
+        if len(self.cameras) == 1:
+            fields += [f"depth_{self.cameras[0]}", f"semantic_{self.cameras[0]}"]
+        return fields
+
     def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
         meta = sample["meta"]
         ego = meta["ego"]
