@@ -253,7 +253,10 @@ class WodE2EAdapter(Adapter):
         with RecordReader() as reader:
             for frame_idx, shard, offset, length in log.extra["records"]:
                 where = f"{shard}: record at offset {offset}"
-                message = parse_frame(reader.read(shard, offset, length))
+                try:
+                    message = parse_frame(reader.read(shard, offset, length))
+                except WodE2EError as err:
+                    raise WodE2EError(f"{where}: {err}") from None
                 if split_name(message.frame.context.name) != (log.log_id, frame_idx):
                     raise WodE2EError(f"{where}: holds {message.frame.context.name!r}, not the indexed frame; re-index")
                 sample = self._sample(message, log, frame_idx, shard, offset)

@@ -258,6 +258,19 @@ def test_record_changed_after_indexing_fails_its_log_cleanly(tmp_path, dataset):
         next(samples)
 
 
+def test_record_replaced_after_indexing_names_shard_and_offset(tmp_path, dataset):
+    """A record with good framing and CRCs that no longer parses as an E2EDFrame still says where it is."""
+    write_dataset(tmp_path / "src", dataset, seed=7)
+    adapter = WodE2EAdapter()
+    logs = adapter.list_logs(tmp_path / "src")
+    _, shard, offset, length = logs[0].extra["records"][3]
+    data = bytearray(Path(shard).read_bytes())
+    data[offset : offset + 16 + length] = frame_record(b"\xff" * length)
+    Path(shard).write_bytes(bytes(data))
+    with pytest.raises(WodE2EError, match=f"{shard}: record at offset {offset}: not an E2EDFrame"):
+        list(adapter.iter_samples(logs[0]))
+
+
 def test_index_cache_is_reused_and_parallel_indexing_agrees(tmp_path, dataset):
     write_dataset(tmp_path / "src", dataset, seed=7)
     first = WodE2EAdapter(index_dir=str(tmp_path / "index"), index_workers=2).list_logs(tmp_path / "src")
