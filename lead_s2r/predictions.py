@@ -155,6 +155,15 @@ def _check_unique(predictions: Sequence[Prediction]) -> None:
         seen.add((p.key, p.inference))
 
 
+def drop_repeats(predictions: Iterable[Prediction]) -> list[Prediction]:
+    """The first prediction of every (key, inference), in first-seen order: a distributed sampler pads the last
+    batches with samples it already gave out, so gathered predictions may repeat."""
+    unique: dict[tuple[str, int], Prediction] = {}
+    for p in predictions:
+        unique.setdefault((p.key, p.inference), p)
+    return list(unique.values())
+
+
 def group_by_key(predictions: Iterable[Prediction]) -> dict[str, list[Prediction]]:
     """Inferences of each sample key, ordered by ``inference``; keys in first-seen order."""
     groups: dict[str, list[Prediction]] = defaultdict(list)

@@ -254,3 +254,13 @@ def test_callback_logs_rfs_and_ade_per_dataset(wod_folder: Path) -> None:
     assert metrics["val/wod_e2e/rfs"] == pytest.approx((10 + 8 + 4) / 3, abs=1e-6)
     assert metrics["val/wod_e2e/ade"] == pytest.approx(0.0, abs=1e-6)
     assert metrics["val/wod_e2e/ade_5s"] > 0
+
+
+def test_callback_drops_repeated_predictions(wod_folder: Path) -> None:
+    """A distributed sampler pads the last batches with samples it already gave out: each counts once."""
+    callback = ScoringCallback(wod_folder)
+    keys = ["seg_a", "seg_b", "seg_c", "seg_d"]
+    predictions = [prediction(k, straight(10)) for k in keys]
+    repeated = [*predictions, prediction("seg_b", straight(10, lateral=3)), prediction("seg_a", straight(5))]
+    assert callback.compute(repeated) == callback.compute(predictions)
+    assert callback.compute(predictions)["val/wod_e2e/rfs"] == pytest.approx((10 + 8 + 4) / 3, abs=1e-6)

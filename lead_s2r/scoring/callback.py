@@ -14,7 +14,7 @@ from typing import Any
 import lightning as L
 
 from lead_s2r.distributed import gather_lists
-from lead_s2r.predictions import Prediction
+from lead_s2r.predictions import Prediction, drop_repeats
 from lead_s2r.scoring.run import make_scorer
 from lead_s2r.shards import read_samples
 
@@ -71,9 +71,8 @@ class ScoringCallback(L.Callback):
 
     def compute(self, predictions: list[Prediction]) -> dict[str, float]:
         """Float aggregates of every scorer for every dataset present in ``predictions``."""
-        unique = {(p.key, p.inference): p for p in reversed(predictions)}  # a distributed sampler repeats samples
         by_dataset: dict[str, list[Prediction]] = defaultdict(list)
-        for p in reversed(unique.values()):
+        for p in drop_repeats(predictions):
             by_dataset[p.dataset].append(p)
         samples = self.samples()
         metrics = {}
