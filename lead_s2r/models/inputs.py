@@ -53,11 +53,13 @@ class Batch(TypedDict, total=False):
     radar_targets_valid: Tensor  # (B, R)
 
 
+#: Loss terms by group: the planner's outputs, and the perception heads' (``supervise:`` names these groups).
+PLANNING_TASKS = frozenset({"waypoints", "headings", "route", "target_speed"})
+PERCEPTION_TASKS = frozenset({"bev_semantic", "boxes", "depth", "semantic", "radar"})
+
 #: Targets each built-in dataset provides; :func:`random_batch` mimics them.
 SOURCE_TARGETS: dict[str, frozenset[str]] = {
-    "carla": frozenset(
-        {"waypoints", "headings", "route", "target_speed", "bev_semantic", "boxes", "depth", "semantic", "radar"}
-    ),
+    "carla": PLANNING_TASKS | PERCEPTION_TASKS,
     "navsim": frozenset({"waypoints", "headings", "bev_semantic", "boxes"}),
     "wod": frozenset({"waypoints"}),
 }

@@ -8,13 +8,10 @@ from lead_s2r.models.backbone import TransfuserBackbone
 from lead_s2r.models.config import TFv6Config, TrajectoryGrid
 from lead_s2r.models.embeddings import grid_embedding, sine_embedding
 from lead_s2r.models.heads import BEVSemanticHead, CenterNetHead, PerspectiveHead
-from lead_s2r.models.inputs import Batch
+from lead_s2r.models.inputs import PLANNING_TASKS, Batch
 from lead_s2r.models.planning_decoder import PlanningDecoder
 from lead_s2r.models.radar import RadarDetector
 from lead_s2r.models.tfv5_decoder import TFv5Decoder
-
-PLANNING_TASKS = frozenset({"waypoints", "headings", "route", "target_speed"})
-PERCEPTION_TASKS = frozenset({"bev_semantic", "boxes", "depth", "semantic", "radar"})
 
 
 class TFv6(nn.Module):

@@ -2,13 +2,10 @@
 
 from collections.abc import Collection, Mapping
 
-from lead_s2r.models.inputs import Batch
+from lead_s2r.models.inputs import PERCEPTION_TASKS, PLANNING_TASKS, Batch
 from lead_s2r.training.losses import TASK_TARGETS
 
-GROUPS: dict[str, frozenset[str]] = {
-    "planning": frozenset({"waypoints", "headings", "route", "target_speed"}),
-    "perception": frozenset({"bev_semantic", "boxes", "depth", "semantic", "radar"}),
-}
+GROUPS: dict[str, frozenset[str]] = {"planning": PLANNING_TASKS, "perception": PERCEPTION_TASKS}
 
 #: The paper's sim-to-real setting: CARLA teaches perception only, real data teaches driving.
 SIM_TO_REAL: dict[str, list[str]] = {
