@@ -2,7 +2,7 @@
 
 A log is one sequence (segment); a sample is one 10 Hz frame. Records of a sequence are shuffled across all
 shards of a split, so :meth:`WodE2EAdapter.list_logs` makes one indexing pass per split (``shard, offset,
-length, sequence, frame``; cached as parquet under ``index_dir``) and each log carries
+length, sequence, frame, has_future, n_rated``; cached as parquet under ``index_dir``) and each log carries
 the byte ranges of its frames; workers read them by random access in frame order.
 
 Bad records (CRC mismatch, truncated tail, a payload that is not an ``E2EDFrame``) are found by the indexing
@@ -51,7 +51,7 @@ OPENCV_TO_WAYMO = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 0
 #: WOD-E2E does not state its vehicle; nominal Jaguar I-PACE figures (Waymo's 5th-generation platform).
 VEHICLE = {"length": 4.682, "width": 2.011, "wheel_base": 2.990, "rear_axle_to_center": 1.51}
 MIN_SPEED_FOR_YAW_RATE = 0.5
-INDEX_SCHEMA = {"sequence": pa.string(), "frame": pa.int32()}
+INDEX_SCHEMA = {"sequence": pa.string(), "frame": pa.int32(), "has_future": pa.bool_(), "n_rated": pa.int32()}
 
 
 class WodE2EError(ValueError):
@@ -76,14 +76,24 @@ def split_name(name: str) -> tuple[str, int]:
     return sequence, int(frame)
 
 
+def n_rated(message: E2EDFrame) -> int:
+    return sum(1 for p in message.preference_trajectories if _rated(p))
+
+
 def _rated(states: Any) -> bool:
     """A usable rater trajectory: a score that was set and is not the -1 'no label' marker, and some points."""
     return states.HasField("preference_score") and states.preference_score >= 0 and len(states.pos_x) > 0
 
 
 def _index_columns(payload: bytes) -> dict[str, Any]:
-    sequence, frame = split_name(parse_frame(payload).frame.context.name)
-    return {"sequence": sequence, "frame": frame}
+    message = parse_frame(payload)
+    sequence, frame = split_name(message.frame.context.name)
+    return {
+        "sequence": sequence,
+        "frame": frame,
+        "has_future": len(message.future_states.pos_x) > 0,
+        "n_rated": n_rated(message),
+    }
 
 
 def find_shards(src: Path) -> dict[str, list[Path]]:
