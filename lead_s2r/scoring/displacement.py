@@ -20,10 +20,13 @@ from lead_s2r.predictions import TIME_TOLERANCE, Prediction, on_grid, regular_gr
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
 from lead_s2r.scoring.rfs import RFSConfig, has_rating, pad_raters, rater_arrays
 
-SUMMED = ("ade", "fde", "min_ade", "min_fde", "ade_3s", "ade_5s")
+#: per-sample columns from the logged future (:func:`future_errors`) and from the best rater.
+FUTURE_COLUMNS = ("ade", "fde", "min_ade", "min_fde", "horizon_s")
+RATER_COLUMNS = ("ade_3s", "ade_5s")
+SUMMED = ("ade", "fde", "min_ade", "min_fde", *RATER_COLUMNS)
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string())]
-    + [(name, pa.float64()) for name in ("ade", "fde", "min_ade", "min_fde", "horizon_s", "ade_3s", "ade_5s")]
+    + [(name, pa.float64()) for name in (*FUTURE_COLUMNS, *RATER_COLUMNS)]
 )
 
 
@@ -36,7 +39,7 @@ def future_errors(frame: list[Prediction], future: np.ndarray) -> dict[str, floa
     times = future[:, 0].astype(np.float64)
     covered = times <= horizon + TIME_TOLERANCE
     if not covered.any():
-        return dict.fromkeys(("ade", "fde", "min_ade", "min_fde", "horizon_s"), float("nan"))
+        return dict.fromkeys(FUTURE_COLUMNS, float("nan"))
     xy, probabilities = on_grid([frame], times[covered])
     errors = np.linalg.norm(xy[0] - future[covered, 1:3].astype(np.float64), axis=-1)  # (I, T)
     top = int(probabilities[0].argmax())
@@ -87,16 +90,11 @@ class DisplacementScorer(Scorer):
         nan = float("nan")
         rows = []
         for sample, frame in pairs:
-            errors = future_errors(frame, sample["future"]) if "future" in sample else {}
-            rows.append(
-                {
-                    "key": sample["__key__"],
-                    "dataset": sample["meta"]["dataset"],
-                    **{name: errors.get(name, nan) for name in ("ade", "fde", "min_ade", "min_fde", "horizon_s")},
-                    "ade_3s": nan,
-                    "ade_5s": nan,
-                }
-            )
+            row = {"key": sample["__key__"], "dataset": sample["meta"]["dataset"]}
+            row.update(dict.fromkeys((*FUTURE_COLUMNS, *RATER_COLUMNS), nan))
+            if "future" in sample:
+                row.update(future_errors(frame, sample["future"]))
+            rows.append(row)
         rated = [b for b, (sample, _) in enumerate(pairs) if has_rating(sample)]
         if rated:
             grid = regular_grid(self.frequency, self.length_seconds)
