@@ -49,6 +49,8 @@ COMMANDS = (Command.LEFT, Command.STRAIGHT, Command.RIGHT, Command.UNKNOWN)
 #: nuPlan's Chrysler Pacifica (``get_pacifica_parameters``).
 PACIFICA = {"length": 5.176, "width": 2.297, "wheel_base": 3.089, "rear_axle_to_center": 1.461}
 CHECK = "check_tokens"
+#: NAVSIM SceneFilter defaults (navtrain / navtest): 4 history frames including the current one, 10 future frames.
+DEFAULT_HISTORY, DEFAULT_FUTURE = 4, 10
 
 
 class NavsimFormatError(ValueError):
@@ -188,13 +190,17 @@ def read_scene_filter(path: Path) -> SceneFilter:
         return value
 
     tokens, logs = optional("tokens", list), optional("log_names", list)
+    history, future = optional("num_history_frames", int), optional("num_future_frames", int)
+    interval = optional("frame_interval", int)
+    if interval is None:  # NAVSIM's SceneFilter: no frame_interval = back-to-back scenes of its own num_frames
+        interval = (history or DEFAULT_HISTORY) + (future or DEFAULT_FUTURE)
     return SceneFilter(
         name=path.stem,
         tokens=None if tokens is None else frozenset(map(str, tokens)),
         log_names=None if logs is None else frozenset(map(str, logs)),
-        num_history_frames=optional("num_history_frames", int),
-        num_future_frames=optional("num_future_frames", int),
-        frame_interval=optional("frame_interval", int),
+        num_history_frames=history,
+        num_future_frames=future,
+        frame_interval=interval,
         has_route=bool(config.get("has_route", True)),
     )
 
@@ -235,8 +241,8 @@ class NavsimAdapter(Adapter):
         self.filter_path = scene_filter
         self.maps = Path(maps) if maps else None
         given = self.filter or SceneFilter("all")
-        self.history = num_history_frames or given.num_history_frames or 4
-        self.future = num_future_frames or given.num_future_frames or 10
+        self.history = num_history_frames or given.num_history_frames or DEFAULT_HISTORY
+        self.future = num_future_frames or given.num_future_frames or DEFAULT_FUTURE
         self.interval = frame_interval or given.frame_interval or 1
         self.has_route = given.has_route
         self.map_radius = map_radius

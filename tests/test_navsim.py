@@ -283,6 +283,16 @@ def test_bad_pickle_and_token_list(tmp_path: Path, raw: Path) -> None:
     assert [s["meta"]["extras"]["navsim"]["scene_token"] for s in got] == [token]
 
 
+def test_filter_without_frame_interval_cuts_back_to_back_scenes(tmp_path: Path, raw: Path) -> None:
+    """NAVSIM's SceneFilter turns a missing / null frame_interval into num_frames: windows do not overlap."""
+    log_name = synth.LOGS[0].name
+    config = {"num_history_frames": 4, "num_future_frames": 4, "frame_interval": None, "log_names": [log_name]}
+    (tmp_path / "backtoback.yaml").write_text(yaml.safe_dump(config))
+    adapter = NavsimAdapter(scene_filter=str(tmp_path / "backtoback.yaml"))
+    got = [s["meta"]["frame_idx"] for log in adapter.list_logs(raw) for s in adapter.iter_samples(log)]
+    assert got == [3, 11]  # windows [0, 8) and [8, 16) of 20 frames; [16, 24) is too short
+
+
 def test_pcd_reader_mixed_types_and_ascii(tmp_path: Path) -> None:
     header = "VERSION 0.7\nFIELDS x y ring\nSIZE 4 8 1\nTYPE F F U\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nPOINTS 2\n"
     records = np.array([(1.5, -2.25, 7), (3.0, 4.0, 255)], dtype=[("x", "<f4"), ("y", "<f8"), ("r", "u1")])
