@@ -1,7 +1,8 @@
 """LEAD CARLA route folders -> schema v1 samples (one log = one route folder, one sample = one 4 Hz frame).
 
 LEAD stores everything in CARLA's ego frame (x forward, y right, yaw clockwise) with the origin at the vehicle
-centre; every geometric label here goes through ``geometry.carla_poses_to_iso`` / ``carla_points_to_iso``.
+centre; ego poses go through ``geometry.carla_poses_to_iso``, points through ``carla_points_to_iso``, and other
+actors' box centres move like points (only the frame origin goes to the rear axle, not each box's own centre).
 The perturbated rig (``rig="perturbated"``) is LEAD's recovery augmentation: the sensors were rendered from a
 rig shifted sideways by ``perturbation_translation`` and turned by ``perturbation_rotation`` degrees, so every
 label is re-expressed in that virtual ego frame, as LEAD's own loader does. Facts: ``docs/datasets/carla_lead.md``.
@@ -18,6 +19,7 @@ from lead_s2r.geometry import (
     CARLA_REAR_AXLE_TO_CENTER,
     carla_points_to_iso,
     carla_poses_to_iso,
+    centre_points_to_rear_axle,
     flip_y,
     points_to_local,
     rotate,
@@ -132,7 +134,12 @@ class _Frame:
         self.view = view  # the rig's pose (x, y, yaw) in the CARLA ego-centre frame
 
     def poses(self, poses: np.ndarray) -> np.ndarray:
+        """Ego poses: each one's origin also moves from the vehicle centre to the rear axle."""
         return carla_poses_to_iso(to_local(poses, self.view))
+
+    def box_poses(self, poses: np.ndarray) -> np.ndarray:
+        """Other actors' box-centre poses: the frame changes, but a box centre stays a box centre."""
+        return centre_points_to_rear_axle(flip_y(to_local(poses, self.view), (1, 2)), CARLA_REAR_AXLE_TO_CENTER)
 
     def points(self, points: np.ndarray) -> np.ndarray:
         return carla_points_to_iso(points_to_local(points, self.view))
@@ -311,13 +318,13 @@ class CarlaLeadAdapter(Adapter):
             yaw = float(field(box, "yaw", path))
             if extent.shape != (3,) or position.shape != (3,):
                 raise LeadFormatError(path, f"box {i}: extent and position must hold 3 numbers", "extent/position")
-            pose = frame.poses(np.array([position[0], position[1], yaw]))
+            pose = frame.box_poses(np.array([position[0], position[1], yaw]))
             velocity = frame.vectors(float(box.get("speed", 0.0)) * np.array([math.cos(yaw), math.sin(yaw)]))
             rows[i] = [*pose[:2], position[2], *(2 * extent), pose[2], *velocity, box_class(box)]
             if "future_positions" in box:
                 future = array(box, "future_positions", path, columns=2)[1:, :2]
                 yaws = array(box, "future_yaws", path)[1:]
-                poses[i, : len(future)] = frame.poses(np.column_stack([future, yaws]))
+                poses[i, : len(future)] = frame.box_poses(np.column_stack([future, yaws]))
         out: dict[str, Any] = {"boxes": rows.astype(np.float32)}
         if horizon:
             valid = ~np.isnan(poses[..., 0])

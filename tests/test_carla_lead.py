@@ -67,6 +67,11 @@ def expected_points(xy: np.ndarray, view: tuple[float, float, float]) -> np.ndar
     return np.column_stack([c * dx + s * dy + REAR, -(-s * dx + c * dy)])
 
 
+def expected_box_poses(xy: np.ndarray, yaw: np.ndarray, view: tuple[float, float, float]) -> np.ndarray:
+    """Another actor's box centre: moved like a point (no rear-axle shift of its own), heading negated."""
+    return np.column_stack([expected_points(xy, view), -(yaw - view[2])])
+
+
 def assert_poses(actual: np.ndarray, want: np.ndarray, atol: float) -> None:
     """Compare [x, y, yaw] rows, yaw modulo 2 pi (float32 rounding may put -pi at +pi)."""
     np.testing.assert_allclose(actual[..., :2], want[..., :2], atol=atol)
@@ -114,7 +119,7 @@ def test_round_trip_every_value(converted: tuple[Path, Path, list[dict]]) -> Non
         others = [box for box in boxes if box["class"] != "ego_car"]
         assert sample["meta"]["extras"]["carla_lead"]["box_ids"] == [box["id"] for box in others]
         for row, box in zip(sample["boxes"], others, strict=True):
-            pose = expected_poses(np.array([box["position"][:2]]), np.array([box["yaw"]]), view)[0]
+            pose = expected_box_poses(np.array([box["position"][:2]]), np.array([box["yaw"]]), view)[0]
             assert_poses(row[[0, 1, 6]], pose, atol=1e-4)
             np.testing.assert_allclose(row[2:6], [box["position"][2], *(2 * np.asarray(box["extent"]))], atol=1e-5)
             assert math.hypot(row[7], row[8]) == pytest.approx(box["speed"], rel=1e-5)
@@ -123,7 +128,7 @@ def test_round_trip_every_value(converted: tuple[Path, Path, list[dict]]) -> Non
         assert agents["valid"].sum(axis=1).tolist() == [40 if i in moving else 0 for i in range(len(others))]
         for i in moving:
             fut = np.asarray(others[i]["future_positions"], np.float64)
-            want = expected_poses(fut[1:], np.asarray(others[i]["future_yaws"], np.float64)[1:], view)
+            want = expected_box_poses(fut[1:], np.asarray(others[i]["future_yaws"], np.float64)[1:], view)
             assert_poses(agents["poses"][i], want, atol=1e-3)
 
         assert sample["cam_carla_mosaic"] == (route / f"rgb{suffix}" / f"{name}.jpg").read_bytes()
@@ -144,6 +149,27 @@ def test_round_trip_every_value(converted: tuple[Path, Path, list[dict]]) -> Non
         radar = np.concatenate([np.column_stack([c, np.full(len(c), i)]) for i, c in enumerate(clouds)])
         want_radar = np.column_stack([radar[:, 0] + REAR, -radar[:, 1], radar[:, 2:]])
         np.testing.assert_allclose(sample["radar"], want_radar, atol=1e-4)
+
+
+def test_lidar_points_on_a_box_lie_inside_its_converted_box(converted: tuple[Path, Path, list[dict]]) -> None:
+    """The generator scatters LiDAR points inside every box; LiDAR and boxes must land in the same place."""
+    src, _, samples = converted
+    for sample in samples:
+        route, name = route_folder(src, sample), f"{sample['meta']['frame_idx']:04d}"
+        raw_boxes = [box for box in raw(route, "bboxes", name) if box["class"] != "ego_car"]
+        raw_lidar = laspy.read(str(route / "lidar" / f"{name}.laz"))
+        raw_xy = np.column_stack([raw_lidar.x, raw_lidar.y])
+        for box, raw_box in zip(sample["boxes"], raw_boxes, strict=True):
+            # the points of this box in the raw file (0.1 m LAS quantisation), then where the adapter put them
+            offset = raw_xy - np.asarray(raw_box["position"][:2])
+            c, s = math.cos(raw_box["yaw"]), math.sin(raw_box["yaw"])
+            along, across = c * offset[:, 0] + s * offset[:, 1], -s * offset[:, 0] + c * offset[:, 1]
+            mine = (np.abs(along) <= raw_box["extent"][0]) & (np.abs(across) <= raw_box["extent"][1])
+            assert mine.sum() > 5
+            offset = sample["lidar"][mine, :2] - box[:2]
+            c, s = math.cos(box[6]), math.sin(box[6])
+            along, across = c * offset[:, 0] + s * offset[:, 1], -s * offset[:, 0] + c * offset[:, 1]
+            assert np.abs(along).max() <= box[3] / 2 + 1e-3 and np.abs(across).max() <= box[4] / 2 + 1e-3
 
 
 def test_expected_points_is_a_plain_frame_change() -> None:
