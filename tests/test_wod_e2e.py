@@ -6,6 +6,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from lead_s2r.cli import main as cli_main
@@ -285,6 +286,17 @@ def test_index_cache_is_reused_and_parallel_indexing_agrees(tmp_path, dataset):
     ]
     again = WodE2EAdapter(index_dir=str(tmp_path / "index")).list_logs(tmp_path / "src")
     assert [(log.log_id, log.extra) for log in first] == [(log.log_id, log.extra) for log in again]
+    # the index lets a user pick frames with a future or with ratings without reading any record
+    rows = [
+        row
+        for split in ("train", "val", "test")
+        for row in pq.read_table(tmp_path / "index" / f"{split}.index.parquet").to_pylist()
+    ]
+    truth = {
+        (f.sequence, f.frame_idx): (f.future is not None, sum(1 for xy, s in f.preferences if s is not None and s >= 0))
+        for f in dataset.frames
+    }
+    assert {(r["sequence"], r["frame"]): (r["has_future"], r["n_rated"]) for r in rows} == truth
 
 
 def test_cluster_json_format_and_cli(tmp_path):
