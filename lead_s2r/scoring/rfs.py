@@ -225,7 +225,7 @@ class RFSScorer(Scorer):
         self.rfs = RFSConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in constants.items()})
 
     def config(self) -> dict[str, Any]:
-        return {**asdict(self.rfs), "allow_missing": self.allow_missing}
+        return {**super().config(), **asdict(self.rfs)}
 
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
         pairs = join(predictions, data, self.allow_missing)
