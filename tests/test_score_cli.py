@@ -216,6 +216,11 @@ def test_bad_joins_name_the_frame(wod_folder: Path, tmp_path: Path) -> None:
             "'seg_a'.*horizon 4.75 s ends before the scored 5 s",
         ),
         "dataset": ([prediction(k, straight(10), dataset="navsim") for k in keys], "'seg_a': dataset 'navsim'"),
+        "dataset_of_a_later_inference": (
+            [prediction(k, straight(10)) for k in keys]
+            + [prediction("seg_b", straight(10), dataset="navsim", probability=0.0, inference=1)],
+            "'seg_b': dataset 'navsim'",
+        ),
     }
     for name, (predictions, message) in cases.items():
         path = write_predictions(tmp_path / f"{name}.parquet", predictions)

@@ -61,8 +61,9 @@ def join(
             unpredicted.append(key)
             continue
         dataset = sample["meta"]["dataset"]
-        if frame[0].dataset != dataset:
-            raise PredictionError(f"prediction {key!r}: dataset {frame[0].dataset!r} but the sample is {dataset!r}")
+        for p in frame:
+            if p.dataset != dataset:
+                raise PredictionError(f"prediction {key!r}: dataset {p.dataset!r} but the sample is {dataset!r}")
         pairs.append((sample, frame))
     if groups:
         unknown = list(groups)
