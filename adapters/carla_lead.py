@@ -228,8 +228,11 @@ class CarlaLeadAdapter(Adapter):
             boxes = read_pickle(folder / "bboxes" / f"{name}.pkl")
             if not isinstance(boxes, list) or not all(isinstance(box, dict) for box in boxes):
                 raise LeadFormatError(folder / "bboxes" / f"{name}.pkl", "expected a list of dicts (one per box)")
+            others = [box for box in boxes if box.get("class") != "ego_car"]
+            lidar_path = folder / "lidar" / f"{name}.laz"
+            lidar = read_laz(lidar_path) if lidar_path.is_file() else None  # one LiDAR for both rigs
             for rig in rigs:
-                yield self._sample(log, folder, name, meta, meta_path, boxes, rig)
+                yield self._sample(log, folder, name, meta, meta_path, others, lidar, rig)
 
     def _view(self, meta: dict[str, Any], path: Path, rig: str) -> np.ndarray:
         if rig == "normal":
@@ -239,8 +242,18 @@ class CarlaLeadAdapter(Adapter):
         return np.array([0.0, translation, math.radians(rotation)])
 
     def _sample(
-        self, log: LogRef, folder: Path, name: str, meta: dict[str, Any], path: Path, boxes: list, rig: str
+        self,
+        log: LogRef,
+        folder: Path,
+        name: str,
+        meta: dict[str, Any],
+        path: Path,
+        others: list[dict[str, Any]],
+        lidar: tuple[np.ndarray, np.ndarray] | None,
+        rig: str,
     ) -> dict[str, Any]:
+        """One rig's sample of a frame; ``others`` are the frame's boxes without the ego, ``lidar`` its point
+        cloud and sweep index, both read once for every rig."""
         frame = _Frame(self._view(meta, path, rig))
         suffix = "_perturbated" if rig == "perturbated" else ""
         index = int(name)
@@ -254,9 +267,12 @@ class CarlaLeadAdapter(Adapter):
         route = array(meta, "route", path, columns=2) if "route" in meta else None
         if route is not None and len(route):
             sample["route"] = frame.points(route[:, :2]).astype(np.float32)
-        sample.update(self._boxes(boxes, folder / "bboxes" / f"{name}.pkl", frame))
-        sample.update(self._sensors(folder, name, suffix, frame))
-        extras = self._extras(log, meta, boxes, rig)
+        sample.update(self._boxes(others, folder / "bboxes" / f"{name}.pkl", frame))
+        sample.update(self._sensors(folder, name, suffix))
+        if lidar is not None:  # LEAD re-aligns the one LiDAR to the perturbated rig in software
+            points, sweep = lidar
+            sample["lidar"] = np.column_stack([frame.points(points), -sweep / FPS]).astype(np.float32)
+        extras = self._extras(log, meta, others, rig)
         sample["meta"] = self._meta(log, meta, path, index, frame, command_raw, sample, extras)
         return sample
 
@@ -306,9 +322,8 @@ class CarlaLeadAdapter(Adapter):
         command_raw = int(commands[0]) if commands else -1
         return command_raw, rows.astype(np.float32)
 
-    def _boxes(self, boxes: list[dict[str, Any]], path: Path, frame: _Frame) -> dict[str, Any]:
+    def _boxes(self, others: list[dict[str, Any]], path: Path, frame: _Frame) -> dict[str, Any]:
         """``boxes`` (N, 10) and, for boxes with ``future_positions`` (20 Hz, index 0 = now), ``agents_future``."""
-        others = [box for box in boxes if box.get("class") != "ego_car"]
         rows = np.zeros((len(others), 10), np.float64)
         horizon = max((len(box["future_positions"]) - 1 for box in others if "future_positions" in box), default=0)
         poses = np.full((len(others), horizon, 3), np.nan)
@@ -332,8 +347,8 @@ class CarlaLeadAdapter(Adapter):
             out["agents_future"] = {"poses": poses.astype(np.float32), "valid": valid, "t": t}
         return out
 
-    def _sensors(self, folder: Path, name: str, suffix: str, frame: _Frame) -> dict[str, Any]:
-        """Camera mosaic, perspective labels, hdmap, LiDAR and radar of one frame, each where its file exists."""
+    def _sensors(self, folder: Path, name: str, suffix: str) -> dict[str, Any]:
+        """Camera mosaic, perspective labels, hdmap and radar of one frame and rig, each where its file exists."""
         out: dict[str, Any] = {}
         rgb = folder / f"rgb{suffix}" / f"{name}.jpg"
         if rgb.is_file():
@@ -347,10 +362,6 @@ class CarlaLeadAdapter(Adapter):
         hdmap = folder / f"hdmap{suffix}" / f"{name}.png"
         if hdmap.is_file():
             out["bev_semantic"] = np.ascontiguousarray(np.rot90(read_png(hdmap)))
-        lidar = folder / "lidar" / f"{name}.laz"
-        if lidar.is_file():  # one LiDAR for both rigs: LEAD re-aligns it in software
-            points, sweep = read_laz(lidar)
-            out["lidar"] = np.column_stack([frame.points(points), -sweep / FPS]).astype(np.float32)
         radar = folder / f"radar{suffix}" / f"{name}.npz"
         if radar.is_file():  # the perturbated radar was recorded from the perturbated rig, in its frame
             clouds = read_radar(radar)
@@ -361,8 +372,7 @@ class CarlaLeadAdapter(Adapter):
             out["radar"] = np.concatenate(rows).astype(np.float32)
         return out
 
-    def _extras(self, log: LogRef, meta: dict[str, Any], boxes: list[dict[str, Any]], rig: str) -> dict[str, Any]:
-        others = [box for box in boxes if box.get("class") != "ego_car"]
+    def _extras(self, log: LogRef, meta: dict[str, Any], others: list[dict[str, Any]], rig: str) -> dict[str, Any]:
         return {
             "carla_lead": {
                 "town": meta.get("town", log.extra.get("town")),
