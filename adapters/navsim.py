@@ -395,7 +395,7 @@ class _LogContext:
             extras.update(track_tokens=now["tracks"], box_names=now["names"])
         bev = None
         if adapter.maps is not None:
-            sample["scoring"] = self.scoring(current, extras["roadblock_ids"], location)
+            sample["scoring"] = self.scoring(current, extras["roadblock_ids"], extras["map_name"])
             sample["bev_semantic"] = navsim_map.render_bev(sample["scoring"], sample.get("boxes", np.zeros((0, 10))))
             bev = navsim_map.BEV_META
         sample["meta"] = self.meta(current, where, trajectory, cameras, columns, extras, sample, bev)
@@ -539,10 +539,10 @@ class _LogContext:
             "num_boxes": np.array(len(now["tracks"]), np.int64),
         }
 
-    def scoring(self, current: int, roadblocks: list[str], location: str) -> dict[str, np.ndarray]:
+    def scoring(self, current: int, roadblocks: list[str], map_name: str) -> dict[str, np.ndarray]:
         adapter = self.adapter
         assert adapter.maps is not None
-        nuplan_map = navsim_map.load_map(str(navsim_map.find_map(adapter.maps, location)))
+        nuplan_map = navsim_map.load_map(adapter.maps, map_name)
         index = range(current, current + adapter.future + 1)
         red = [
             [int(lc) for lc, is_red in _field(self.frames[i], "traffic_lights", self.where(i)) if is_red] for i in index

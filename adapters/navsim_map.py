@@ -105,11 +105,10 @@ class NuplanMap:
 
 
 @lru_cache(maxsize=8)
-def load_map(path: str) -> NuplanMap:
-    """Read the layers the scorer needs; cached, so each worker process reads a location once."""
-    path = Path(path)
-    if not path.is_file():
-        raise MapError(f"map file {path} does not exist")
+def load_map(maps_root: Path, location: str) -> NuplanMap:
+    """Read the layers the scorer needs from :func:`find_map`'s file; cached, so each worker process finds and reads
+    a location once (pass the resolved location, so an alias does not read the map again)."""
+    path = find_map(maps_root, location)
     polygons, ids, kinds, parents, limits = [], [], [], [], []
     connector_info = _read_layer(path, "lane_connectors")
     for kind, (layer, id_field, parent_field, limit_field) in POLYGON_LAYERS.items():
