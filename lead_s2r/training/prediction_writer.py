@@ -8,7 +8,7 @@ import numpy as np
 from lightning.pytorch.callbacks import BasePredictionWriter
 
 from lead_s2r.distributed import gather_lists
-from lead_s2r.predictions import Prediction, write_predictions
+from lead_s2r.predictions import Prediction, drop_repeats, write_predictions
 
 
 def to_predictions(output: dict[str, dict[str, Any]]) -> list[Prediction]:
@@ -49,7 +49,6 @@ class PredictionWriter(BasePredictionWriter):
     def on_predict_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         predictions = gather_lists(self._predictions)
         if trainer.is_global_zero:
-            unique = {(p.key, p.inference): p for p in predictions}  # ranks may repeat samples at the end
             self.output.parent.mkdir(parents=True, exist_ok=True)
-            write_predictions(self.output, unique.values())
+            write_predictions(self.output, drop_repeats(predictions))  # ranks may repeat samples at the end
         self._predictions = []
