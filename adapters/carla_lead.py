@@ -325,23 +325,32 @@ class CarlaLeadAdapter(Adapter):
     def _boxes(self, others: list[dict[str, Any]], path: Path, frame: _Frame) -> dict[str, Any]:
         """``boxes`` (N, 10) and, for boxes with ``future_positions`` (20 Hz, index 0 = now), ``agents_future``."""
         rows = np.zeros((len(others), 10), np.float64)
+        centres = np.zeros((len(others), 3))  # x, y, yaw in the CARLA ego-centre frame
+        speeds = np.zeros(len(others))
         horizon = max((len(box["future_positions"]) - 1 for box in others if "future_positions" in box), default=0)
-        poses = np.full((len(others), horizon, 3), np.nan)
+        futures = np.full((len(others), horizon, 3), np.nan)
         for i, box in enumerate(others):
             extent = array(box, "extent", path)
             position = array(box, "position", path)
             yaw = float(field(box, "yaw", path))
             if extent.shape != (3,) or position.shape != (3,):
                 raise LeadFormatError(path, f"box {i}: extent and position must hold 3 numbers", "extent/position")
-            pose = frame.box_poses(np.array([position[0], position[1], yaw]))
-            velocity = frame.vectors(float(box.get("speed", 0.0)) * np.array([math.cos(yaw), math.sin(yaw)]))
-            rows[i] = [*pose[:2], position[2], *(2 * extent), pose[2], *velocity, box_class(box)]
+            centres[i] = position[0], position[1], yaw
+            rows[i, 2:6] = position[2], *(2 * extent)
+            rows[i, 9] = box_class(box)
+            speeds[i] = float(box.get("speed", 0.0))
             if "future_positions" in box:
                 future = array(box, "future_positions", path, columns=2)[1:, :2]
                 yaws = array(box, "future_yaws", path)[1:]
-                poses[i, : len(future)] = frame.box_poses(np.column_stack([future, yaws]))
+                if len(yaws) != len(future):
+                    raise LeadFormatError(path, f"box {i}: {len(yaws)} future yaws for {len(future)} positions")
+                futures[i, : len(future)] = np.column_stack([future, yaws])
+        rows[:, [0, 1, 6]] = frame.box_poses(centres)
+        heading = np.column_stack([np.cos(centres[:, 2]), np.sin(centres[:, 2])])
+        rows[:, 7:9] = frame.vectors(speeds[:, None] * heading)
         out: dict[str, Any] = {"boxes": rows.astype(np.float32)}
         if horizon:
+            poses = frame.box_poses(futures)  # NaN padding stays NaN
             valid = ~np.isnan(poses[..., 0])
             t = (np.arange(1, horizon + 1) / FPS).astype(np.float32)
             out["agents_future"] = {"poses": poses.astype(np.float32), "valid": valid, "t": t}
