@@ -9,6 +9,7 @@ GeoPandas/Fiona stack, and unlike hand-rolled sqlite3 + GPKG blob parsing it cop
 from dataclasses import dataclass
 from enum import IntEnum
 from functools import lru_cache
+from itertools import pairwise
 from pathlib import Path
 
 import cv2
@@ -95,6 +96,7 @@ class NuplanMap:
     parents: np.ndarray  # int64 (K,): lane -> roadblock, lane connector -> roadblock connector, else -1
     speed_limits: np.ndarray  # float64 (K,), NaN where none
     tree: shapely.STRtree
+    exteriors: list[np.ndarray]  # (R, 2) exterior ring of each polygon (of its convex hull for a multipolygon)
     centerlines: dict[int, np.ndarray]  # lane or lane connector id -> (Q, 2)
     connectors: np.ndarray  # int64 (C, 3): lane connector id, exit lane (from), entry lane (to)
     roadblock_connectors: np.ndarray  # int64 (B, 3): roadblock connector id, from roadblock, to roadblock
@@ -136,6 +138,10 @@ def load_map(maps_root: Path, location: str) -> NuplanMap:
     polygons_all = np.concatenate(polygons)
     if not all(isinstance(g, shapely.Polygon | shapely.MultiPolygon) for g in polygons_all):
         raise MapError(f"{path}: a polygon layer holds a geometry that is not a polygon")
+    multi = shapely.get_type_id(polygons_all) == shapely.GeometryType.MULTIPOLYGON
+    rings = shapely.get_exterior_ring(np.where(multi, shapely.convex_hull(polygons_all), polygons_all))
+    ring_xy, owner = shapely.get_coordinates(rings, return_index=True)
+    ring_offsets = np.r_[0, np.cumsum(np.bincount(owner, minlength=len(polygons_all)))]
     baselines = _read_layer(path, "baseline_paths")
     lane = _column(path, "baseline_paths", baselines, "lane_fid")
     connector = _column(path, "baseline_paths", baselines, "lane_connector_fid")
@@ -153,6 +159,7 @@ def load_map(maps_root: Path, location: str) -> NuplanMap:
         parents=np.concatenate(parents),
         speed_limits=np.concatenate(limits),
         tree=shapely.STRtree(polygons_all),
+        exteriors=_split(ring_xy, ring_offsets),
         centerlines=centerlines,
         connectors=np.column_stack(
             [
@@ -169,19 +176,22 @@ def load_map(maps_root: Path, location: str) -> NuplanMap:
     )
 
 
-def _ragged(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Concatenated (P, 2) float32 points and (K + 1,) int64 offsets."""
-    offsets = np.zeros(len(arrays) + 1, np.int64)
-    offsets[1:] = np.cumsum([len(a) for a in arrays])
-    points = np.concatenate(arrays).astype(np.float32) if arrays else np.zeros((0, 2), np.float32)
-    return points.reshape(-1, 2), offsets
+def _offsets(groups: list) -> np.ndarray:
+    """(K + 1,) int64 offsets of K groups laid end to end."""
+    offsets = np.zeros(len(groups) + 1, np.int64)
+    offsets[1:] = np.cumsum([len(g) for g in groups])
+    return offsets
 
 
-def _exterior(polygon: shapely.Geometry) -> np.ndarray:
-    """A polygon's exterior ring (closed); for a multipolygon that of its convex hull."""
-    if isinstance(polygon, shapely.MultiPolygon):
-        polygon = polygon.convex_hull
-    return shapely.get_coordinates(polygon.exterior)
+def _split(points: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
+    """The K groups of ``points`` delimited by (K + 1,) ``offsets`` (the inverse of laying them end to end)."""
+    return [points[start:end] for start, end in pairwise(offsets)]
+
+
+def _local_ragged(arrays: list[np.ndarray], origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global (Q_k, 2) point arrays -> concatenated (P, 2) float32 points in the ``origin`` frame and offsets."""
+    points = np.concatenate(arrays) if arrays else np.zeros((0, 2))
+    return points_to_local(points, origin).astype(np.float32).reshape(-1, 2), _offsets(arrays)
 
 
 def scoring_context(
@@ -196,17 +206,15 @@ def scoring_context(
     index = nuplan_map.near(origin[:2], radius)
     kinds = nuplan_map.kinds[index]
     ids = nuplan_map.ids[index]
-    polygon_xy, polygon_offsets = _ragged([points_to_local(_exterior(nuplan_map.polygons[i]), origin) for i in index])
-    lanes = ids[(kinds == MapKind.LANE) | (kinds == MapKind.LANE_CONNECTOR)]
-    lane_kinds = kinds[(kinds == MapKind.LANE) | (kinds == MapKind.LANE_CONNECTOR)]
+    polygon_xy, polygon_offsets = _local_ragged([nuplan_map.exteriors[i] for i in index], origin)
+    is_lane = (kinds == MapKind.LANE) | (kinds == MapKind.LANE_CONNECTOR)
+    lanes, lane_kinds = ids[is_lane], kinds[is_lane]
     have = [i for i, lane in enumerate(lanes) if int(lane) in nuplan_map.centerlines]
-    centerlines = [points_to_local(nuplan_map.centerlines[int(lanes[i])], origin) for i in have]
-    centerline_xy, centerline_offsets = _ragged(centerlines)
+    centerline_xy, centerline_offsets = _local_ragged([nuplan_map.centerlines[int(lanes[i])] for i in have], origin)
     local_connectors = set(ids[kinds == MapKind.LANE_CONNECTOR].tolist())
     connectors = nuplan_map.connectors[np.isin(nuplan_map.connectors[:, 0], list(local_connectors))]
     local_rbc = set(ids[kinds == MapKind.ROADBLOCK_CONNECTOR].tolist())
     rbc = nuplan_map.roadblock_connectors[np.isin(nuplan_map.roadblock_connectors[:, 0], list(local_rbc))]
-    red_ids, red_offsets = _ragged_ids(red_lights)
     return {
         "origin": np.asarray(origin, np.float64),
         "map_radius": np.array(radius, np.float32),
@@ -224,8 +232,8 @@ def scoring_context(
         "roadblock_connector_edges": rbc.astype(np.int64).reshape(-1, 3),
         "route_roadblock_ids": _int_ids(route_roadblocks),
         "red_light_t": np.asarray(times, np.float32),
-        "red_light_ids": red_ids,
-        "red_light_offsets": red_offsets,
+        "red_light_ids": np.array([i for group in red_lights for i in group], np.int64),
+        "red_light_offsets": _offsets(red_lights),
     }
 
 
@@ -234,13 +242,6 @@ def _int_ids(values: list[str]) -> np.ndarray:
         return np.array([int(v) for v in values], np.int64)
     except ValueError:
         raise MapError(f"roadblock ids must be integers (nuPlan fids), got {values!r}") from None
-
-
-def _ragged_ids(groups: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
-    offsets = np.zeros(len(groups) + 1, np.int64)
-    offsets[1:] = np.cumsum([len(g) for g in groups])
-    flat = np.array([i for group in groups for i in group], np.int64)
-    return flat, offsets
 
 
 # --------------------------------------------------------------------------- BEV label
@@ -276,15 +277,15 @@ def render_bev(context: dict[str, np.ndarray], boxes: np.ndarray) -> np.ndarray:
     """NAVSIM's 7-class label: road (lanes + intersections), walkways, centerlines, then static objects,
     vehicles and pedestrians, later classes painted over earlier ones."""
     bev = np.zeros((BEV_SIZE, BEV_SIZE), np.uint8)
-    xy, offsets, kinds = context["polygon_xy"], context["polygon_offsets"], context["polygon_kind"]
+    polygons = _split(_pixels(context["polygon_xy"]), context["polygon_offsets"])
+    kinds = context["polygon_kind"]
 
     def rings(wanted: set[int]) -> list[np.ndarray]:
-        return [_pixels(xy[offsets[i] : offsets[i + 1]]) for i in range(len(kinds)) if kinds[i] in wanted]
+        return [ring for ring, kind in zip(polygons, kinds, strict=True) if kind in wanted]
 
     cv2.fillPoly(bev, rings({MapKind.LANE, MapKind.INTERSECTION}), int(BevClassNavsim.ROAD), shift=2)
     cv2.fillPoly(bev, rings({MapKind.WALKWAY}), int(BevClassNavsim.WALKWAYS), shift=2)
-    lines = context["centerline_xy"], context["centerline_offsets"]
-    polylines = [_pixels(lines[0][lines[1][i] : lines[1][i + 1]]) for i in range(len(lines[1]) - 1)]
+    polylines = _split(_pixels(context["centerline_xy"]), context["centerline_offsets"])
     cv2.polylines(bev, polylines, False, int(BevClassNavsim.CENTERLINE), thickness=2, shift=2)
     classes = boxes[:, 9].astype(int)
     for label, wanted in (
