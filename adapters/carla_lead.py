@@ -28,6 +28,7 @@ from lead_s2r.geometry import (
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key
 from lead_s2r_adapters.carla_lead_io import (
+    RADAR_KEYS,
     LeadFormatError,
     array,
     field,
@@ -91,15 +92,11 @@ def box_class(box: dict[str, Any]) -> BoxClass:
 def camera_calibration() -> list[dict[str, Any]]:
     """Per-tile pinhole calibration of the mosaic in the ISO rear-axle ego frame (OpenCV camera axes)."""
     focal = TILE_SIZE / (2 * math.tan(math.radians(CAMERA_FOV_DEG) / 2))
-    cam_axes = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera x/y/z in ego axes (columns)
+    cam_axes = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # camera x/y/z in ego axes (rows)
     cameras = []
     for tile, (name, position, yaw_deg) in enumerate(CAMERA_RIG):
-        yaw = -math.radians(yaw_deg)
         cam_to_ego = np.eye(4)
-        cam_to_ego[:3, :3] = np.array(
-            [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
-        )
-        cam_to_ego[:3, :3] = cam_to_ego[:3, :3] @ cam_axes
+        cam_to_ego[:3, :3] = rotate(cam_axes, -math.radians(yaw_deg)).T  # CARLA yaw is clockwise
         cam_to_ego[:3, 3] = carla_points_to_iso(np.array(position))
         cameras.append(
             {
@@ -452,7 +449,7 @@ class CarlaLeadAdapter(Adapter):
         if "lidar" in sample:
             out["lidar_columns"] = ["x", "y", "z", "time"]
         if "radar" in sample:
-            out["radar_sensors"] = ["radar1", "radar2", "radar3", "radar4"]
+            out["radar_sensors"] = list(RADAR_KEYS)
         if "bev_semantic" in sample:
             out["bev"] = {"classes": "carla_hdmap", "pixel_to_ego": hdmap_pixel_to_ego()}
         if f"depth_{MOSAIC_ID}" in sample:
