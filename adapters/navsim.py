@@ -501,36 +501,45 @@ class _LogContext:
         rotation = quaternion_matrix(_field(frame, "lidar2ego_rotation", self.where(index)))
         velocity = np.nan_to_num(velocity) @ rotation.T  # OpenScene rotates velocities into the lidar frame
         classes = np.array([BOX_CLASSES[n] for n in names], np.float64)
-        return {"boxes": boxes, "names": names, "velocity": velocity[:, :2], "tracks": tracks, "classes": classes}
+        return {
+            "boxes": boxes,
+            "names": names,
+            "velocity": velocity[:, :2],
+            "tracks": tracks,
+            "classes": classes,
+            "global_poses": to_global(boxes[:, [0, 1, 6]], self.poses[index]),  # for the scenes it is a future of
+        }
 
     def agents_future(self, current: int, now: dict[str, Any]) -> dict[str, np.ndarray]:
         """Future poses of every track seen from ``current`` on, in the current ego frame: the boxes' tracks
         first (row i = box i), then tracks that appear later; NaN and ``valid`` False where unseen."""
         horizon = self.adapter.future
+        index = np.arange(current + 1, current + 1 + horizon)
+        steps = [self.annotations(i) for i in index]
         order = {token: i for i, token in enumerate(now["tracks"])}
-        rows: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         size = {t: box[3:6] for t, box in zip(now["tracks"], now["boxes"], strict=True)}
         classes = {t: int(label) for t, label in zip(now["tracks"], now["classes"], strict=True)}
-        origin = self.poses[current]
-        for step in range(horizon):
-            index = current + 1 + step
-            anns = self.annotations(index)
-            poses = to_local(to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index]), origin)
-            velocity = rotate(anns["velocity"], self.poses[index][2] - origin[2])
+        rows = []
+        for anns in steps:
             for i, token in enumerate(anns["tracks"]):
                 if token not in order:
                     order[token] = len(order)
                     size[token], classes[token] = anns["boxes"][i, 3:6], int(anns["classes"][i])
-                rows.append((order[token], step, poses[i], velocity[i]))
+                rows.append(order[token])
+        # every future box of every step in one frame change: (B,) step of each box, its pose and velocity
+        step = np.repeat(np.arange(horizon), [len(anns["tracks"]) for anns in steps])
+        origin = self.poses[current]
+        poses = to_local(np.concatenate([anns["global_poses"] for anns in steps]), origin)
+        velocity = rotate(np.concatenate([anns["velocity"] for anns in steps]), self.poses[index[step], 2] - origin[2])
         count = len(order)
         out_poses = np.full((count, horizon, 3), np.nan, np.float32)
         out_velocity = np.full((count, horizon, 2), np.nan, np.float32)
         valid = np.zeros((count, horizon), bool)
-        for row, step, pose, velocity in rows:
-            out_poses[row, step], out_velocity[row, step], valid[row, step] = pose, velocity, True
+        rows = np.array(rows, np.int64)
+        out_poses[rows, step], out_velocity[rows, step], valid[rows, step] = poses, velocity, True
         ordered = sorted(order, key=order.get)
         return {
-            "t": ((self.stamps[current + 1 : current + 1 + horizon] - self.stamps[current]) / 1e6).astype(np.float32),
+            "t": ((self.stamps[index] - self.stamps[current]) / 1e6).astype(np.float32),
             "poses": out_poses,
             "velocity": out_velocity,
             "valid": valid,
