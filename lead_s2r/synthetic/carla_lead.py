@@ -17,6 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lead_s2r.geometry import points_to_local, resample, rotate, to_global, wrap_angle
+
 FPS = 20
 SAVE_FREQ = 5
 DT = 1.0 / FPS
@@ -94,10 +96,7 @@ def make_drive(kind: str, steps: int, rng: np.random.Generator) -> Drive:
     s = np.concatenate([[0.0], np.cumsum((speed[:-1] + speed[1:]) / 2 * DT)])
     start = np.array([rng.uniform(-200, 200), rng.uniform(-200, 200), rng.uniform(-np.pi, np.pi)])
     path = _integrate_path(kind, start, s[-1] + ROUTE_POINTS + 40.0)
-    idx = s / 0.1
-    lo = np.minimum(idx.astype(int), len(path) - 2)
-    frac = (idx - lo)[:, None]
-    pose = path[lo] * (1 - frac) + path[lo + 1] * frac
+    pose, _ = resample(np.arange(len(path)) * 0.1, path, s, angle_columns=(2,))
     yaw_rate = _curvature(kind, s) * speed
     turn_end = TURN_START + np.pi / 2 * TURN_RADIUS
     if kind == "stop":
@@ -111,17 +110,6 @@ def make_drive(kind: str, steps: int, rng: np.random.Generator) -> Drive:
 
 def path_len(path: np.ndarray) -> float:
     return (len(path) - 1) * 0.1
-
-
-def to_ego(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """World xy (..., 2) -> ego frame of ``pose`` (x forward, y right in CARLA's left-handed world)."""
-    delta = np.asarray(points, np.float64)[..., :2] - pose[:2]
-    cos, sin = np.cos(pose[2]), np.sin(pose[2])
-    return np.stack([cos * delta[..., 0] + sin * delta[..., 1], -sin * delta[..., 0] + cos * delta[..., 1]], -1)
-
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 def write_pickle(path: Path, obj: object) -> None:
@@ -198,12 +186,12 @@ def _matrix(pose: np.ndarray) -> list[list[float]]:
 
 def _box(actor: Actor, ego: np.ndarray, step: int, kind: str) -> dict:
     pose = actor.pose_at(np.array([step]))[0]
-    rel = to_ego(pose[None, :2], ego)[0]
+    rel = points_to_local(pose[:2], ego)
     box = {
         "class": actor.cls,
         "extent": list(actor.extent),
         "position": [float(rel[0]), float(rel[1]), float(actor.extent[2])],
-        "yaw": float(_wrap(pose[2] - ego[2])),
+        "yaw": float(wrap_angle(pose[2] - ego[2])),
         "speed": actor.speed,
         "id": actor.actor_id,
         "type_id": actor.type_id,
@@ -226,8 +214,8 @@ def _box(actor: Actor, ego: np.ndarray, step: int, kind: str) -> dict:
         transfuser_semantics_id=1 if actor.cls == "car" else 4,
         lane_type_str="Driving",
         base_type="car" if actor.cls == "car" else "",
-        future_positions=to_ego(future[:, :2], ego).astype(np.float16),
-        future_yaws=_wrap(future[:, 2] - ego[2]).astype(np.float16),
+        future_positions=points_to_local(future[:, :2], ego).astype(np.float16),
+        future_yaws=wrap_angle(future[:, 2] - ego[2]).astype(np.float16),
     )
     return box
 
@@ -279,7 +267,7 @@ def _depth(frame: int) -> np.ndarray:
 def _hdmap(drive: Drive, ego: np.ndarray) -> np.ndarray:
     """Ego-centred ChauffeurNet raster: rows follow ego y (right), columns ego x, 2 px/m, ego centre in the middle."""
     raster = np.zeros((HDMAP_SIZE, HDMAP_SIZE), np.uint8)
-    local = to_ego(drive.path[::10, :2], ego)
+    local = points_to_local(drive.path[::10, :2], ego)
     pixels = np.round(local * HDMAP_PX_PER_M + HDMAP_SIZE / 2 - 0.5).astype(np.int32)[:, None, :]
     cv2.polylines(raster, [pixels], False, 1, thickness=int(7 * HDMAP_PX_PER_M))  # ROAD
     cv2.polylines(raster, [pixels], False, 4, thickness=1)  # LANE_MARKERS_BROKEN
@@ -292,15 +280,7 @@ def _lidar_points(boxes: list[dict], rng: np.random.Generator) -> tuple[np.ndarr
     for box in boxes[1:]:
         n = 60
         local = rng.uniform(-1, 1, (n, 3)) * np.asarray(box["extent"])
-        yaw = box["yaw"]
-        xy = np.stack(
-            [
-                np.cos(yaw) * local[:, 0] - np.sin(yaw) * local[:, 1],
-                np.sin(yaw) * local[:, 0] + np.cos(yaw) * local[:, 1],
-            ],
-            -1,
-        )
-        clouds.append(np.column_stack([xy + box["position"][:2], local[:, 2] + box["position"][2]]))
+        clouds.append(rotate(local, box["yaw"]) + box["position"])
         times.append(rng.integers(0, 5, n))
     facade = np.column_stack([rng.uniform(-30, 60, 400), np.full(400, 15.0), rng.uniform(0.2, 8, 400)])
     clouds.append(facade)
@@ -340,11 +320,6 @@ def _radar(boxes: list[dict], rng: np.random.Generator) -> dict[str, np.ndarray]
     return out
 
 
-def _view(points: np.ndarray, translation: float, rotation_deg: float) -> np.ndarray:
-    """Ego-frame xy -> the perturbated rig's view frame (shifted by ``translation`` along y, rotated by yaw)."""
-    return to_ego(points, np.array([0.0, translation, np.deg2rad(rotation_deg)]))
-
-
 def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict) -> dict:
     ego = drive.pose[step]
     future = drive.pose[step : step + EGO_FUTURE_STEPS + 1]
@@ -367,13 +342,13 @@ def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict) 
         "steer": float(np.clip(drive.yaw_rate[step] / 2, -1, 1)),
         "throttle": 0.3 if drive.accel[step] >= 0 and drive.speed[step] > 0 else 0.0,
         "brake": bool(drive.accel[step] < 0 or drive.speed[step] == 0),
-        "route": to_ego(route_world[:, :2], ego).astype(np.float32),
+        "route": points_to_local(route_world[:, :2], ego).astype(np.float32),
         "changed_route": False,
-        "future_positions": np.column_stack([to_ego(future[:, :2], ego), np.zeros(len(future))]),
-        "future_yaws": _wrap(future[:, 2] - ego[2]),
+        "future_positions": np.column_stack([points_to_local(future[:, :2], ego), np.zeros(len(future))]),
+        "future_yaws": wrap_angle(future[:, 2] - ego[2]),
         "future_speeds": drive.speed[step : step + EGO_FUTURE_STEPS + 1].copy(),
-        "past_positions": np.column_stack([to_ego(past[:, :2], ego), np.zeros(len(past))]),
-        "past_yaws": _wrap(past[:, 2] - ego[2]),
+        "past_positions": np.column_stack([points_to_local(past[:, :2], ego), np.zeros(len(past))]),
+        "past_yaws": wrap_angle(past[:, 2] - ego[2]),
         "past_speeds": drive.speed[max(step - PAST_STEPS, 0) : step + 1][::-1].copy(),
         "stop_sign_hazard": False,
         "light_hazard": drive.kind == "stop",
@@ -426,6 +401,7 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -
     actors = make_actors(drive, rng)
     translation = float(rng.choice([-1, 1]) * rng.uniform(0.1, 1.0))
     rotation = float(-np.sign(translation) * (5.0 + (abs(translation) - 0.1) / 0.9 * 7.5))
+    view = np.array([0.0, translation, np.deg2rad(rotation)])  # the perturbated rig's pose in the ego frame
     plan_s = np.array([s for s, _ in drive.plan])
     plan_points = np.column_stack([drive.path[(plan_s / 0.1).round().astype(int), :2], np.zeros(len(plan_s))])
     commands = [c for _, c in drive.plan]
@@ -456,8 +432,7 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -
             cv2.imwrite(str(folder / f"semantics{suffix}" / f"{name}.png"), _semantics())
             cv2.imwrite(str(folder / f"depth{suffix}" / f"{name}.png"), _depth(frame))
         cv2.imwrite(str(folder / "hdmap" / f"{name}.png"), _hdmap(drive, ego))
-        view_pose = _view_pose(ego, translation, rotation)
-        cv2.imwrite(str(folder / "hdmap_perturbated" / f"{name}.png"), _hdmap(drive, view_pose))
+        cv2.imwrite(str(folder / "hdmap_perturbated" / f"{name}.png"), _hdmap(drive, to_global(view, ego)))
         points, times = _lidar_points(boxes, rng)
         write_laz(folder / "lidar" / f"{name}.laz", points, times)
         radar = _radar(boxes, rng)
@@ -465,7 +440,7 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -
         view_radar = {}
         for key, cloud in radar.items():
             moved = cloud.astype(np.float64)
-            moved[:, :2] = _view(moved[:, :2], translation, rotation)
+            moved[:, :2] = points_to_local(moved[:, :2], view)
             view_radar[key] = moved.astype(np.float16)
         np.savez_compressed(folder / "radar_perturbated" / f"{name}.npz", **view_radar)
     results = {
@@ -479,12 +454,6 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -
     }
     (folder / "results.json").write_text(json.dumps(results, indent=2))
     return folder
-
-
-def _view_pose(ego: np.ndarray, translation: float, rotation_deg: float) -> np.ndarray:
-    """World pose of the perturbated rig: the ego shifted sideways (y right) and turned by the rotation."""
-    cos, sin = np.cos(ego[2]), np.sin(ego[2])
-    return np.array([ego[0] - sin * translation, ego[1] + cos * translation, ego[2] + np.deg2rad(rotation_deg)])
 
 
 def generate(out: Path, count: int | None = None, seed: int = 0, frames: int = 16) -> None:
