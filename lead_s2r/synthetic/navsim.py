@@ -27,6 +27,7 @@ import numpy as np
 import shapely
 import yaml
 
+from lead_s2r.geometry import rotate, to_local
 from lead_s2r.synthetic import navsim_map
 
 DATA_SPLIT = "mini"
@@ -203,16 +204,14 @@ def annotations(agents: list[Agent], frame: int, pose: np.ndarray, tokens: list[
     """OpenScene ``anns`` of the agents seen in ``frame``, in the ego frame at ``pose``."""
     t = frame * DT_US / 1e6
     boxes, names, velocities, tracks = [], [], [], []
-    to_ego = rot_z(-pose[2])[:2, :2]
     for agent, token in zip(agents, tokens, strict=True):
         if not agent.first <= frame <= agent.last:
             continue
         centre = np.array(agent.xy) + t * np.array(agent.velocity)
-        local = to_ego @ (centre - pose[:2])
-        yaw = (agent.yaw - pose[2] + math.pi) % (2 * math.pi) - math.pi
+        x, y, yaw = to_local(np.r_[centre, agent.yaw], pose)
         length, width, height = agent.size
-        boxes.append([local[0], local[1], height / 2, length, width, height, yaw])
-        velocity = to_ego @ np.array(agent.velocity)  # the lidar frame is not rotated against the ego frame here
+        boxes.append([x, y, height / 2, length, width, height, yaw])
+        velocity = rotate(np.array(agent.velocity), -pose[2])  # the lidar frame is not rotated against the ego's here
         velocities.append([velocity[0], velocity[1], 0.0])
         names.append(agent.name)
         tracks.append(token)
