@@ -19,7 +19,7 @@ frame, velocities rotated into the lidar frame.
 
 import math
 import pickle
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -324,8 +324,7 @@ def log_specs(count: int | None) -> list[LogSpec]:
     specs = []
     for i in range(count):
         base = LOGS[i % len(LOGS)]
-        name = base.name if i < len(LOGS) else f"{base.name[:-11]}{i:05d}_{i + 1:05d}"
-        specs.append(LogSpec(name, *[getattr(base, f) for f in LogSpec.__dataclass_fields__ if f != "name"]))
+        specs.append(base if i < len(LOGS) else replace(base, name=f"{base.name[:-11]}{i:05d}_{i + 1:05d}"))
     return specs
 
 
