@@ -156,7 +156,7 @@ class CarlaLeadAdapter(Adapter):
     """
 
     name: ClassVar[str] = "carla_lead"
-    version: ClassVar[str] = "1"
+    version: ClassVar[str] = "2"  # 2: box and agent-future centres are no longer shifted along their heading
     extras: ClassVar[str | None] = "carla"
 
     def __init__(
