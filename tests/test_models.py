@@ -15,7 +15,7 @@ from lead_s2r.models.embeddings import grid_embedding, sine_embedding
 from lead_s2r.models.inputs import random_batch, target_point_range
 from lead_s2r.models.planning_decoder import TargetPointNorm
 from lead_s2r.models.tfv6 import TFv6, parameter_table
-from lead_s2r.training.losses import heading_loss, radar_loss, two_hot
+from lead_s2r.training.losses import heading_loss, radar_loss, segmentation_loss, two_hot
 
 SOURCES = ("carla", "navsim", "wod")
 VARIANTS = {"tfv6": tfv6_config, "ltfv6": ltfv6_config, "tfv5": tfv5_config}
@@ -176,6 +176,27 @@ def test_radar_loss_is_permutation_invariant_and_zero_l1_on_perfect_match():
     assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(0.0, abs=1e-6)
     pred["radar_xy"] = pred["radar_xy"] + torch.tensor([4.0, 0.0])  # 4 m off in x on both = 0.1 scaled
     assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(5 * 0.1, abs=1e-5)
+
+
+def test_radar_loss_matches_within_each_sample_of_a_batch():
+    """Sample 0 has no object; sample 1 has two, in slots 0 and 2 (slot 1 is padding holding junk)."""
+    targets = torch.tensor([[[0.0, 0.0, 0.0]] * 3, [[10.0, 2.0, 5.0], [99.0, 99.0, 9.0], [-3.0, 4.0, 1.0]]])
+    valid = torch.tensor([[False, False, False], [True, False, True]])
+    pred = {
+        "radar_xy": torch.stack([targets[1, [2, 0], :2], targets[1, [2, 0], :2]]) + torch.tensor([4.0, 0.0]),
+        "radar_speed": torch.stack([targets[1, [2, 0], 2]] * 2),
+        "radar_logit": torch.tensor([[-20.0, -20.0], [20.0, 20.0]]),
+    }
+    batch = {"radar_targets": targets, "radar_targets_valid": valid}
+    assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(5 * 0.1, abs=1e-5)
+
+
+def test_segmentation_loss_is_the_mean_over_labelled_pixels():
+    logits = torch.zeros(1, 4, 2, 2, requires_grad=True)  # uniform: log 4 per labelled pixel
+    labels = torch.tensor([[[0, -1], [3, -1]]])
+    assert segmentation_loss(logits, labels).item() == pytest.approx(math.log(4))
+    unlabelled = segmentation_loss(logits, torch.full((1, 2, 2), -1))
+    assert unlabelled.item() == 0.0 and unlabelled.requires_grad
 
 
 def test_sine_embedding_shapes_and_distinct_cells():

@@ -91,11 +91,10 @@ def _resize_logits(logits: Tensor, size: tuple[int, int]) -> Tensor:
 
 
 def segmentation_loss(logits: Tensor, labels: Tensor) -> Tensor:
-    """Cross-entropy with logits resized to the label raster; label -1 is ignored."""
+    """Cross-entropy with logits resized to the label raster, mean over labelled pixels; label -1 is ignored."""
     logits = _resize_logits(logits, tuple(labels.shape[-2:]))
-    if not (labels >= 0).any():
-        return logits.sum() * 0.0
-    return F.cross_entropy(logits, labels.long(), ignore_index=-1)
+    ce = F.cross_entropy(logits, labels.long(), ignore_index=-1, reduction="none")
+    return masked_mean(ce, labels >= 0)
 
 
 def depth_loss(pred: Tensor, depth: Tensor) -> Tensor:
@@ -140,24 +139,27 @@ def box_loss(pred: dict[str, Tensor], batch: Batch, yaw_bins: int) -> Tensor:
 def radar_loss(pred: dict[str, Tensor], batch: Batch, scale: tuple[float, float, float]) -> Tensor:
     """Hungarian-matched detection loss: ``5 * L1`` of scaled (x, y, speed) for matched queries + ``BCE`` validity.
 
-    Matching cost is the same combination, solved per sample with scipy on CPU (LEAD's RadarDetector loss).
+    Matching cost is the same combination, solved per sample with scipy on CPU (LEAD's RadarDetector loss); the
+    costs of the whole batch go to the CPU in one transfer.
     """
-    xyv = torch.cat([pred["radar_xy"], pred["radar_speed"][..., None]], dim=-1).float()
-    norm = torch.tensor(scale, device=xyv.device)
-    xyv = xyv / norm
+    norm = torch.tensor(scale, device=pred["radar_xy"].device)
+    xyv = torch.cat([pred["radar_xy"], pred["radar_speed"][..., None]], dim=-1).float() / norm
     targets = batch["radar_targets"].float() / norm
     logits = pred["radar_logit"].float()
+    dist = torch.cdist(xyv, targets, p=1)  # (B, Q, R)
+    cost = 5.0 * dist + F.softplus(-logits)[..., None]  # softplus(-logit): BCE of calling the query valid
+    cost_np = cost.detach().cpu().numpy().astype(np.float64)
+    valid_np = batch["radar_targets_valid"].bool().cpu().numpy()
+    samples, queries, objects = [], [], []
+    for i, (sample_cost, valid) in enumerate(zip(cost_np, valid_np, strict=True)):
+        columns = np.flatnonzero(valid)
+        rows, cols = linear_sum_assignment(sample_cost[:, columns])
+        samples.append(np.full(len(rows), i))
+        queries.append(rows)
+        objects.append(columns[cols])
+    matches = np.stack([np.concatenate(v) for v in (samples, queries, objects)])
+    b, q, r = torch.as_tensor(matches, device=xyv.device)
     label = torch.zeros_like(logits)
-    l1_terms = []
-    for i in range(len(xyv)):
-        tgt = targets[i][batch["radar_targets_valid"][i].bool()]
-        if len(tgt) == 0:
-            continue
-        dist = torch.cdist(xyv[i], tgt, p=1)  # (Q, R)
-        cost = 5.0 * dist + F.softplus(-logits[i])[:, None]  # BCE of calling the query valid
-        rows, cols = linear_sum_assignment(cost.detach().cpu().numpy().astype(np.float64))
-        rows_t, cols_t = torch.as_tensor(rows, device=xyv.device), torch.as_tensor(cols, device=xyv.device)
-        label[i, rows_t] = 1.0
-        l1_terms.append(dist[rows_t, cols_t])
-    l1 = torch.cat(l1_terms).mean() if l1_terms else xyv.sum() * 0.0
+    label[b, q] = 1.0
+    l1 = dist[b, q, r].mean() if len(b) else xyv.sum() * 0.0
     return 5.0 * l1 + F.binary_cross_entropy_with_logits(logits, label)
