@@ -39,6 +39,8 @@ class StatusEncoder(nn.Module):
             raise ValueError(f"target_points entries must be among {TARGET_POINT_SLOTS}, got {sorted(unknown)}")
         self.config = config
         self.slots = [TARGET_POINT_SLOTS.index(s) for s in config.target_points]
+        # an index tensor on the model's device: indexing with the list would copy it from the host every step
+        self.register_buffer("slot_index", torch.tensor(self.slots, dtype=torch.long), persistent=False)
         self.speed = nn.Linear(1, dim) if config.use_speed else None
         self.acceleration = nn.Linear(2, dim) if config.use_acceleration else None
         self.command = nn.Linear(config.num_commands, dim) if config.use_command else None
@@ -65,8 +67,8 @@ class StatusEncoder(nn.Module):
         pad = torch.zeros(b, len(tokens), dtype=torch.bool, device=device)
         if self.target_point is not None:
             if "target_points" in batch:
-                points = self.tp_norm(batch["target_points"][:, self.slots])
-                valid = batch["target_points_valid"][:, self.slots].bool()
+                points = self.tp_norm(batch["target_points"][:, self.slot_index])
+                valid = batch["target_points_valid"][:, self.slot_index].bool()
             else:  # a source without route target points (NAVSIM, WOD): masked tokens
                 points = torch.zeros(b, len(self.slots), 2, device=device)
                 valid = torch.zeros(b, len(self.slots), dtype=torch.bool, device=device)

@@ -40,6 +40,11 @@ class RadarDetector(nn.Module):
         layer = nn.TransformerDecoderLayer(dim, heads, ffn, dropout, activation="gelu", batch_first=True)
         self.decoder = nn.TransformerDecoder(layer, layers, norm=nn.LayerNorm(dim))
         self.out = nn.Linear(dim, 4)  # x, y, speed, validity logit
+        # output box: built once, so the forward pass copies nothing from the host
+        centre = [(bev.x_min + bev.x_max) / 2, (bev.y_min + bev.y_max) / 2]
+        half = [(bev.x_max - bev.x_min) / 2, (bev.y_max - bev.y_min) / 2]
+        self.register_buffer("centre", torch.tensor(centre), persistent=False)
+        self.register_buffer("half_extent", torch.tensor(half), persistent=False)
 
     def normalised(self, xy: Tensor) -> Tensor:
         """Metres -> [0, 1] over the BEV extent, per axis (x along H, y along W)."""
@@ -69,11 +74,8 @@ class RadarDetector(nn.Module):
         )
         q = self.decoder(self.queries.expand(memory.shape[0], -1, -1), memory, memory_key_padding_mask=pad)
         raw = self.out(q).float()
-        b = self.bev
-        centre = torch.tensor([(b.x_min + b.x_max) / 2, (b.y_min + b.y_max) / 2], device=raw.device)
-        half = torch.tensor([(b.x_max - b.x_min) / 2, (b.y_max - b.y_min) / 2], device=raw.device)
         return {
-            "radar_xy": torch.tanh(raw[..., :2]) * half + centre,
+            "radar_xy": torch.tanh(raw[..., :2]) * self.half_extent + self.centre,
             "radar_speed": (torch.tanh(raw[..., 2]) + 1.0) / 2.0 * self.max_speed,
             "radar_logit": raw[..., 3],
             "radar_features": q,
