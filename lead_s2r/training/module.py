@@ -79,7 +79,7 @@ class DrivingModule(L.LightningModule):
         if task == "route":
             return losses.route_loss(pred, batch)
         if task == "target_speed":
-            return losses.target_speed_loss(pred, batch, torch.tensor(config.target_speed_classes))
+            return losses.target_speed_loss(pred, batch, self.model.planner.speed_classes)  # a buffer: no copy
         if task == "bev_semantic":
             return losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
         if task == "boxes":
