@@ -244,14 +244,23 @@ def test_bad_records_are_skipped_with_a_record(tmp_path, dataset):
         WodE2EAdapter(strict=True).list_logs(tmp_path / "src")
 
 
-def test_record_changed_after_indexing_fails_its_log_cleanly(tmp_path, dataset):
+def damage_after_indexing(tmp_path: Path, dataset, patch) -> tuple[WodE2EAdapter, list, str, int]:
+    """Index a written dataset, then rewrite the 4th record of the first log in place with ``patch``."""
     write_dataset(tmp_path / "src", dataset, seed=7)
     adapter = WodE2EAdapter()
     logs = adapter.list_logs(tmp_path / "src")
-    _, shard, offset, _ = logs[0].extra["records"][3]
+    _, shard, offset, length = logs[0].extra["records"][3]
     data = bytearray(Path(shard).read_bytes())
-    data[offset + 12 + 5] ^= 0x01
+    patch(data, offset, length)
     Path(shard).write_bytes(bytes(data))
+    return adapter, logs, shard, offset
+
+
+def test_record_changed_after_indexing_fails_its_log_cleanly(tmp_path, dataset):
+    def flip_a_payload_bit(data: bytearray, offset: int, length: int) -> None:
+        data[offset + 12 + 5] ^= 0x01
+
+    adapter, logs, shard, offset = damage_after_indexing(tmp_path, dataset, flip_a_payload_bit)
     samples = adapter.iter_samples(logs[0])
     for _ in range(3):
         next(samples)
@@ -261,13 +270,11 @@ def test_record_changed_after_indexing_fails_its_log_cleanly(tmp_path, dataset):
 
 def test_record_replaced_after_indexing_names_shard_and_offset(tmp_path, dataset):
     """A record with good framing and CRCs that no longer parses as an E2EDFrame still says where it is."""
-    write_dataset(tmp_path / "src", dataset, seed=7)
-    adapter = WodE2EAdapter()
-    logs = adapter.list_logs(tmp_path / "src")
-    _, shard, offset, length = logs[0].extra["records"][3]
-    data = bytearray(Path(shard).read_bytes())
-    data[offset : offset + 16 + length] = frame_record(b"\xff" * length)
-    Path(shard).write_bytes(bytes(data))
+
+    def replace_with_garbage(data: bytearray, offset: int, length: int) -> None:
+        data[offset : offset + 16 + length] = frame_record(b"\xff" * length)
+
+    adapter, logs, shard, offset = damage_after_indexing(tmp_path, dataset, replace_with_garbage)
     with pytest.raises(WodE2EError, match=f"{shard}: record at offset {offset}: not an E2EDFrame"):
         list(adapter.iter_samples(logs[0]))
 
