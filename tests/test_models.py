@@ -15,7 +15,7 @@ from lead_s2r.models.embeddings import grid_embedding, sine_embedding
 from lead_s2r.models.inputs import random_batch, target_point_range
 from lead_s2r.models.planning_decoder import TargetPointNorm
 from lead_s2r.models.tfv6 import TFv6, parameter_table
-from lead_s2r.training.losses import heading_loss, radar_loss, segmentation_loss, two_hot
+from lead_s2r.training.losses import focal_heatmap_loss, heading_loss, radar_loss, segmentation_loss, two_hot
 
 SOURCES = ("carla", "navsim", "wod")
 VARIANTS = {"tfv6": tfv6_config, "ltfv6": ltfv6_config, "tfv5": tfv5_config}
@@ -214,3 +214,15 @@ def test_ego_mlp_outputs_every_grid():
         out = model(random_batch(config, 3, source), source)
         assert out["waypoints"].shape == (3, config.trajectory_grids[source].num_points, 2)
         assert out["headings"].shape == (3, config.trajectory_grids[source].num_points)
+
+
+def test_focal_loss_ignores_unlabelled_cells():
+    logits = torch.randn(1, 1, 4, 4, generator=torch.Generator().manual_seed(0))
+    target = torch.zeros(1, 1, 4, 4)
+    target[0, 0, 0, 0] = 1.0
+    target[0, 0, 1, 1] = 0.5
+    partial = target.clone()
+    partial[..., 2:, :] = -1.0  # rows without a label (filled by collate for a sample without boxes)
+    labelled_rows_only = focal_heatmap_loss(logits[..., :2, :], target[..., :2, :])
+    assert torch.isclose(focal_heatmap_loss(logits, partial), labelled_rows_only)
+    assert focal_heatmap_loss(logits, partial) < focal_heatmap_loss(logits, target)  # the ignored cells counted before

@@ -83,10 +83,13 @@ def test_route_checkpoints_start_ahead_and_step_one_metre():
 
 
 def test_collate_masks_labels_a_sample_lacks():
-    with_future = transform()(toy_sample("log000", 0))
-    without = transform()({k: v for k, v in toy_sample("log000", 1).items() if k != "future"})
+    boxes_in_carla_space = transform(label_space={"toy": "carla"})
+    with_future = boxes_in_carla_space(toy_sample("log000", 0))
+    without = boxes_in_carla_space({k: v for k, v in toy_sample("log000", 1).items() if k != "future"})
+    del without["box_heatmap"], without["box_valid"]
     batch = collate([with_future, without])
     assert batch["waypoints_valid"][1].sum() == 0 and batch["waypoints_valid"][0].all()
+    assert (batch["box_heatmap"][1] == -1).all() and not batch["box_valid"][1].any()  # no boxes field: ignored
     assert batch["__key__"] == ["toy_log000_000000", "toy_log000_000001"]
 
 

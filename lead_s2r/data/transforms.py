@@ -272,7 +272,7 @@ def centernet_targets(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dic
 
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
-IGNORE_VALUE = {"bev_semantic": -1, "semantic": -1}
+IGNORE_VALUE = {"bev_semantic": -1, "semantic": -1, "box_heatmap": -1}
 
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:

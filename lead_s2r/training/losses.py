@@ -104,11 +104,15 @@ def depth_loss(pred: Tensor, depth: Tensor) -> Tensor:
 
 
 def focal_heatmap_loss(logits: Tensor, target: Tensor, alpha: float = 2.0, beta: float = 4.0) -> Tensor:
-    """CenterNet's penalty-reduced focal loss on a Gaussian heatmap, normalised by the number of peaks."""
+    """CenterNet's penalty-reduced focal loss on a Gaussian heatmap, normalised by the number of peaks.
+
+    Negative targets mark cells without a label (a sample that has no boxes field): they add nothing.
+    """
     prob = torch.sigmoid(logits.float()).clamp(1e-4, 1 - 1e-4)
     peaks = target >= 1.0 - 1e-6
+    negatives = (target >= 0) & ~peaks
     pos = -torch.log(prob) * (1 - prob) ** alpha * peaks
-    neg = -torch.log(1 - prob) * prob**alpha * (1 - target) ** beta * ~peaks
+    neg = -torch.log(1 - prob) * prob**alpha * (1 - target) ** beta * negatives
     return (pos.sum() + neg.sum()) / peaks.sum().clamp(min=1)
 
 
