@@ -7,7 +7,6 @@ GeoPandas/Fiona stack, and unlike hand-rolled sqlite3 + GPKG blob parsing it cop
 """
 
 from dataclasses import dataclass
-from enum import IntEnum
 from functools import lru_cache
 from itertools import pairwise
 from pathlib import Path
@@ -18,22 +17,10 @@ import pyarrow as pa
 import shapely
 
 from lead_s2r.geometry import box_corners, points_to_local
-from lead_s2r.schema import BevClassNavsim, BoxClass
+from lead_s2r.schema import BevClassNavsim, BoxClass, MapKind
 
 #: Legacy ``map_location`` values of OpenScene pickles -> nuPlan map folder.
 LOCATION_ALIASES = {"las_vegas": "us-nv-las-vegas-strip"}
-
-
-class MapKind(IntEnum):
-    """``polygon_kind`` codes of ``scoring.npz`` (nuPlan SemanticMapLayer names)."""
-
-    ROADBLOCK = 0
-    LANE = 1
-    LANE_CONNECTOR = 2
-    INTERSECTION = 3
-    CARPARK_AREA = 4
-    ROADBLOCK_CONNECTOR = 5
-    WALKWAY = 6
 
 
 #: kind -> (layer, id column or None for the fid, parent column, speed-limit column); missing optional layers are empty.

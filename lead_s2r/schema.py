@@ -109,6 +109,18 @@ BOX_COLUMNS = ("x", "y", "z", "length", "width", "height", "yaw", "vx", "vy", "c
 TRAJECTORY_COLUMNS = ("t", "x", "y", "yaw")
 
 
+class MapKind(IntEnum):
+    """``polygon_kind`` codes of ``scoring.npz`` (nuPlan SemanticMapLayer names)."""
+
+    ROADBLOCK = 0
+    LANE = 1
+    LANE_CONNECTOR = 2
+    INTERSECTION = 3
+    CARPARK_AREA = 4
+    ROADBLOCK_CONNECTOR = 5
+    WALKWAY = 6
+
+
 class SchemaError(ValueError):
     """A sample breaks the schema; the message names the sample key and the field."""
 

@@ -16,12 +16,11 @@ from hypothesis import strategies as st
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.geometry import to_local
-from lead_s2r.schema import BevClassNavsim, BoxClass, Command
+from lead_s2r.schema import BevClassNavsim, BoxClass, Command, MapKind
 from lead_s2r.shards import load_manifest, read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r_adapters.navsim import NavsimAdapter, NavsimFormatError, jpeg_size, load_log, quaternion_yaw, read_pcd
-from lead_s2r_adapters.navsim_map import MapKind
 
 SCENES_PER_LOG = synth.FRAMES - synth.HISTORY - synth.FUTURE + 1
 

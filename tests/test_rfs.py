@@ -2,7 +2,6 @@
 
 import itertools
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +14,8 @@ from lead_s2r.predictions import PredictionError
 from lead_s2r.schema import SchemaError
 from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_rater_lists, pad_raters, rater_feedback_score, speed_scale
 
-# the official unit-test samples (Apache-2.0), kept in the shared golden folder beside the checkout
-GOLDEN_PATH = Path(os.environ.get("LEAD_S2R_GOLDEN", Path(__file__).parents[2] / "shared" / "golden"))
-GOLDEN = json.loads((GOLDEN_PATH / "wod_rfs_official_samples.json").read_text())
+# the official unit-test samples (Apache-2.0), copied into tests/data so the suite stands alone
+GOLDEN = json.loads((Path(__file__).parent / "data" / "wod_rfs_official_samples.json").read_text())
 
 
 def shifted(xy: np.ndarray, dx: float, dy: float) -> np.ndarray:

@@ -1,0 +1,6 @@
+"""NAVSIM's PDM score (PDMS v1.1, EPDMS v2.2) in plain numpy and shapely: no nuplan-devkit, no torch.
+
+The pipeline mirrors NAVSIM's ``pdm_score``: proposals are interpolated to 10 Hz, tracked by a batched LQR and
+propagated by a kinematic bicycle, then scored against the map and the logged agents. Constants and every rule are
+in ``docs/metrics.md``; the facts come from NAVSIM's own code (see the module docstrings).
+"""
