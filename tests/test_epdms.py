@@ -69,7 +69,9 @@ def columns_of(record: dict) -> dict[str, np.ndarray]:
     return {SHORT[short]: np.array([float(record[short])]) for short in SHORT}
 
 
-@pytest.mark.parametrize(("case", "official", "human"), golden_trajectories(), ids=lambda v: v if isinstance(v, str) else "")
+@pytest.mark.parametrize(
+    ("case", "official", "human"), golden_trajectories(), ids=lambda v: v if isinstance(v, str) else ""
+)
 def test_golden_filter_and_final_score(case: str, official: dict, human: dict) -> None:
     before = columns_of(official["before_human_filter"])
     assert E.multiplicative_product(before)[0] == official["before_human_filter"]["multiplicative_metrics_prod"]
