@@ -223,7 +223,7 @@ class NavsimAdapter(Adapter):
     """
 
     name = "navsim"
-    version = "1.0.0"
+    version = "1.1.0"
     extras = "navsim"
 
     def __init__(
@@ -557,4 +557,19 @@ class _LogContext:
             [int(lc) for lc, is_red in _field(self.frames[i], "traffic_lights", self.where(i)) if is_red] for i in index
         ]
         times = (self.stamps[list(index)] - self.stamps[current]) / 1e6
-        return navsim_map.scoring_context(nuplan_map, self.poses[current], adapter.map_radius, roadblocks, red, times)
+        context = navsim_map.scoring_context(nuplan_map, self.poses[current], adapter.map_radius, roadblocks, red, times)
+        context["ego_past"] = self.ego_past(current)
+        return context
+
+    def ego_past(self, current: int) -> np.ndarray:
+        """(P, 8) float64 of the history frames up to and including ``current``: t, x, y, heading in the current ego
+        frame, then ``ego_dynamic_state`` (vx, vy, ax, ay, body frame): the logged past EPDMS's history comfort reads."""
+        index = np.arange(current - self.adapter.history + 1, current + 1)
+        dynamics = []
+        for i in index:
+            state = np.asarray(_field(self.frames[i], "ego_dynamic_state", self.where(i)), np.float64).ravel()
+            if state.shape != (4,) or not np.isfinite(state).all():
+                raise NavsimFormatError(f"{self.where(i)}: field 'ego_dynamic_state' must be 4 finite numbers")
+            dynamics.append(state)
+        t = (self.stamps[index] - self.stamps[current]) / 1e6
+        return np.column_stack([t, to_local(self.poses[index], self.poses[current]), np.array(dynamics)])
