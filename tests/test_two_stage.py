@@ -1,5 +1,6 @@
 """Two-stage (pseudo closed-loop) aggregation on one hand-worked navhard group."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -76,6 +77,9 @@ def test_missing_stage_two_token_is_an_error_naming_it() -> None:
         T.two_stage_aggregate([r for r in rows() if r.token != "now2"], [GROUP], accel_only)
     with pytest.raises(KeyError, match="stray"):
         T.two_stage_aggregate([*rows(), row("stray", 0.0, (0, 0), (0, 0))], [GROUP], accel_only)
+    lacking = [dataclasses.replace(r, columns={E.NC: 1.0}) if r.token == "prev1" else r for r in rows()]
+    with pytest.raises(KeyError, match="prev1 has no column drivable_area_compliance"):
+        T.two_stage_aggregate(lacking, [GROUP], accel_only)
 
 
 def test_pair_frames_must_be_half_a_second_apart() -> None:

@@ -134,6 +134,9 @@ def _pair_ec(rows: Mapping[str, TokenRow], now: str, before: str, features: Feat
 
 
 def _token_columns(row: TokenRow, ec: float, weight: float, stage: int) -> dict[str, float]:
+    missing = [name for name in E.FILTERED if name not in row.columns]
+    if missing:
+        raise KeyError(f"two-stage aggregation: token {row.token} has no column {', '.join(missing)}")
     columns = {name: float(row.columns[name]) for name in E.FILTERED}
     columns[E.EC] = ec
     columns["score"] = float(E.epdms(columns))
