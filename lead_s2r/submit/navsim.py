@@ -47,7 +47,7 @@ NUM_POSES = 8
 INTERVAL = 0.5
 SAMPLING = {"num_poses": NUM_POSES, "time_horizon": NUM_POSES * INTERVAL, "interval_length": INTERVAL}
 POSE_TIMES = INTERVAL * np.arange(1, NUM_POSES + 1)
-#: Server key -> our metadata field (the CLI option is ``--`` + the field).
+#: Server key -> our metadata field.
 METADATA_KEYS = {
     "team_name": "team_name",
     "authors": "authors",
@@ -55,8 +55,16 @@ METADATA_KEYS = {
     "institution": "institution",
     "country / region": "country",
 }
+#: Our metadata field -> the ``lead-s2r submit navsim`` option that sets it.
+OPTIONS = {"team_name": "--team", "authors": "--authors", "email": "--email", "institution": "--institution",
+           "country": "--country"}  # fmt: skip
 V1_LISTS = ("predictions",)
 V2_LISTS = ("first_stage_predictions", "second_stage_predictions")
+LABELS = {
+    "predictions": "token",
+    "first_stage_predictions": "first-stage token",
+    "second_stage_predictions": "second-stage token",
+}
 
 
 @dataclass(frozen=True)
@@ -71,7 +79,7 @@ class NavsimMetadata:
 
     def __post_init__(self) -> None:
         for field in METADATA_KEYS.values():
-            object.__setattr__(self, field, require_text(getattr(self, field), field, f"--{field.replace('_', '-')}"))
+            object.__setattr__(self, field, require_text(getattr(self, field), field, OPTIONS[field]))
 
     def as_keys(self) -> dict[str, str]:
         """The metadata under the server's key names."""
@@ -135,7 +143,7 @@ def seed_lists(split: Split, predictions: Sequence[Path]) -> dict[str, list[dict
         best = best_inferences(path)
         by_token = {token: best[key] for token, key in split.keys.items() if key in best}
         for name, tokens in split.tokens.items():
-            require_coverage(f"{name.replace('_predictions', '').replace('_', '-')} token", tokens, by_token, str(path))
+            require_coverage(LABELS[name], tokens, by_token, str(path))
             lists[name].append({token: poses(by_token[token]) for token in tokens})
     return lists
 
@@ -151,7 +159,7 @@ def validate(submission: dict[str, Any], expected: dict[str, list[str]] | None =
     if keys != wanted:
         raise SubmissionError(f"keys {sorted(keys - wanted)} unexpected, {sorted(wanted - keys)} missing")
     for key, field in METADATA_KEYS.items():
-        require_text(submission[key], key, f"--{field.replace('_', '-')}")
+        require_text(submission[key], key, OPTIONS[field])
     for name in lists:
         seeds = submission[name]
         if not isinstance(seeds, list) or not seeds:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from google.protobuf.message import DecodeError
 
-from lead_s2r.predictions import on_grid, regular_grid
+from lead_s2r.predictions import PredictionError, on_grid, regular_grid
 from lead_s2r.submit.common import (
     SubmissionError,
     best_inferences,
@@ -119,7 +119,10 @@ def trajectories(predictions: Path, frames: dict[str, str]) -> dict[str, np.ndar
         "frame", (frames[key] for key in frames), (frames[key] for key in frames if key in best), str(predictions)
     )
     keys = sorted(frames)
-    xy, _ = on_grid([[best[key]] for key in keys], regular_grid(FREQUENCY, LENGTH_SECONDS))
+    try:
+        xy, _ = on_grid([[best[key]] for key in keys], regular_grid(FREQUENCY, LENGTH_SECONDS))
+    except PredictionError as err:  # a horizon short of 5 s: name the file too
+        raise SubmissionError(f"{predictions}: {err}") from None
     return {frames[key]: xy[i, 0].astype(np.float32) for i, key in enumerate(keys)}
 
 
