@@ -153,7 +153,10 @@ def validate(submission: dict[str, Any], expected: dict[str, list[str]] | None =
     server reads. ``expected``: the tokens each list must hold; None = every seed of a list holds the same tokens."""
     lists = tuple(name for name in (*V1_LISTS, *V2_LISTS) if name in submission)
     if lists not in (V1_LISTS, V2_LISTS):
-        raise SubmissionError(f"prediction keys {list(lists)}; expected {list(V1_LISTS)} or {list(V2_LISTS)}")
+        raise SubmissionError(
+            f"prediction lists {list(lists)}: expected 'predictions' (v1.1) or 'first_stage_predictions' and "
+            "'second_stage_predictions' (v2)"
+        )
     keys = set(submission)
     wanted = set(METADATA_KEYS) | set(lists)
     if keys != wanted:
