@@ -44,6 +44,8 @@ from lead_s2r.submit.common import (
 TRAJECTORY = ForeignClass("navsim.common.dataclasses", "Trajectory")
 TRAJECTORY_SAMPLING = ForeignClass("nuplan.planning.simulation.trajectory.trajectory_sampling", "TrajectorySampling")
 NUM_POSES = 8
+#: The file name the leaderboard looks for in the uploaded Hugging Face model repo.
+UPLOAD_NAME = "submission.pkl"
 INTERVAL = 0.5
 SAMPLING = {"num_poses": NUM_POSES, "time_horizon": NUM_POSES * INTERVAL, "interval_length": INTERVAL}
 POSE_TIMES = INTERVAL * np.arange(1, NUM_POSES + 1)
@@ -211,7 +213,10 @@ def write_navsim(
     validate(submission, split.tokens)
     payload = encode(submission)
     write_atomically(Path(out), lambda path: path.write_bytes(payload))
-    return check_navsim(Path(out))
+    report = check_navsim(Path(out))
+    if Path(out).name != UPLOAD_NAME:
+        report["note"] = f"rename the file to {UPLOAD_NAME}: the leaderboard reads that name from your HF repo"
+    return report
 
 
 def load_navsim(path: Path) -> dict[str, Any]:
