@@ -58,8 +58,7 @@ METADATA_KEYS = {
     "country / region": "country",
 }
 #: Our metadata field -> the ``lead-s2r submit navsim`` option that sets it.
-OPTIONS = {"team_name": "--team", "authors": "--authors", "email": "--email", "institution": "--institution",
-           "country": "--country"}  # fmt: skip
+OPTIONS = {field: f"--{field}" for field in METADATA_KEYS.values()} | {"team_name": "--team"}
 V1_LISTS = ("predictions",)
 V2_LISTS = ("first_stage_predictions", "second_stage_predictions")
 LABELS = {
