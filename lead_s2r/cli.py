@@ -154,8 +154,10 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
 def _check_submission(path: Path) -> dict[str, Any]:
     """A ``.pkl`` is a NAVSIM submission; a tar.gz, a folder or a ``.binproto-*`` shard is WOD-E2E's."""
+    from lead_s2r.submit.common import SubmissionError
+
     if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist")
+        raise SubmissionError(f"{path}: no such submission file (--check)")
     if path.suffix == ".pkl":
         from lead_s2r.submit.navsim import check_navsim
 

@@ -244,6 +244,7 @@ def test_missing_token_nan_pose_short_horizon_and_missing_metadata_write_nothing
     refused(lambda: N.write_navsim(out, METADATA, [short], [data]), out, "ends at 3 s, NAVSIM needs 8 poses up to 4 s")
 
     full = predictions_file(tmp_path / "full.parquet", keys, GRID)
+    refused(lambda: N.write_navsim(out, METADATA, [full], [tmp_path / "nope"]), out, "nope: no such converted folder")
     argv = ["submit", "navsim", "--data", str(data), "--out", str(out), "--predictions", str(full)]
     refused(lambda: cli_main([*argv, *metadata_args(country=" ")]), out, "'country' .*--country")
 

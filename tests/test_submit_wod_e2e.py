@@ -134,6 +134,8 @@ def test_check_reads_a_folder_and_rejects_tutorial_part_names(converted, tmp_pat
     assert cli_main(["submit", "--check", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["frames"] == len(frames) and report["metadata"]["num_model_parameters"] == "60M"
+    with pytest.raises(SubmissionError, match=r"nope\.tar\.gz: no such submission file"):
+        cli_main(["submit", "--check", str(tmp_path / "nope.tar.gz")])
     (out / "submission.binproto-00000-of-00001").rename(out / "part0")
     with pytest.raises(SubmissionError, match=r"part0 are not <stem>\.binproto-00000-of-0000N"):
         W.check_wod(out)

@@ -43,6 +43,8 @@ def split_metas(data: Sequence[Path], dataset: str) -> dict[str, dict[str, Any]]
     """``meta`` of every ``dataset`` sample in the converted folders, by sample key."""
     metas: dict[str, dict[str, Any]] = {}
     for folder in data:
+        if not Path(folder).is_dir():
+            raise SubmissionError(f"{folder}: no such converted folder (--data)")
         found = {
             s["__key__"]: s["meta"] for s in read_samples(folder, fields=("meta",)) if s["meta"]["dataset"] == dataset
         }
@@ -55,6 +57,8 @@ def split_metas(data: Sequence[Path], dataset: str) -> dict[str, dict[str, Any]]
 def best_inferences(path: Path) -> dict[str, Prediction]:
     """The highest-probability inference of every key in a predictions file (the lowest ``inference`` on ties):
     both leaderboards take exactly one trajectory per token / frame."""
+    if not Path(path).is_file():
+        raise SubmissionError(f"{path}: no such predictions file (--predictions)")
     groups = group_by_key(read_predictions(path))
     return {key: max(group, key=lambda p: p.probability) for key, group in groups.items()}
 
