@@ -203,6 +203,8 @@ def test_two_stage_lists_follow_the_converted_navhard_split(navhard, tmp_path: P
     assert set(second[0]) == set(info["stage_two_tokens"]) and len(second[0]) == 6
     assert all(len(token) == 17 for token in second[0])
     np.testing.assert_array_equal(np.float32(second[0][info["stage_two_tokens"][0]]["poses"]), expected_poses())
+    with pytest.raises(SubmissionError, match="--two-stage with 2 --predictions files; NAVSIM v2 scores exactly one"):
+        N.write_navsim(tmp_path / "v2.pkl", METADATA, [predictions, predictions], [data], two_stage=True)
     with pytest.raises(SubmissionError, match=r"synthetic.*--two-stage"):
         N.write_navsim(tmp_path / "v1.pkl", METADATA, [predictions], [data])
 

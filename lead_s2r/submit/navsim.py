@@ -13,7 +13,8 @@ and holds arrays in numpy 1.x's layout (NAVSIM pins numpy 1.23.4, which cannot i
 
 Two-stage (navhard): the first stage is every original scene of the split (NAVSIM's ``tokens_stage_one``, here
 the converted non-synthetic samples); the second stage is the reactive synthetic scenes (``reactive_tokens_stage_two``,
-here the converted mapping's ``stage_two_tokens`` in info.json). Poses come from our predictions by
+here the converted mapping's ``stage_two_tokens`` in info.json). v2 scores one seed: its scoring script asserts
+one dict per stage list. Poses come from our predictions by
 :func:`lead_s2r.geometry.resample` (the ego at the origin at t = 0 is the first knot; never extrapolated).
 """
 
@@ -61,6 +62,8 @@ METADATA_KEYS = {
 OPTIONS = {field: f"--{field}" for field in METADATA_KEYS.values()} | {"team_name": "--team"}
 V1_LISTS = ("predictions",)
 V2_LISTS = ("first_stage_predictions", "second_stage_predictions")
+#: NAVSIM v2's ``run_pdm_score_from_submission.py`` asserts one dict per stage.
+V2_ONE_SEED = "NAVSIM v2 scores exactly one seed (one dict per stage): pass one predictions file"
 LABELS = {
     "predictions": "token",
     "first_stage_predictions": "first-stage token",
@@ -168,6 +171,8 @@ def validate(submission: dict[str, Any], expected: dict[str, list[str]] | None =
         seeds = submission[name]
         if not isinstance(seeds, list) or not seeds:
             raise SubmissionError(f"{name!r} must be a non-empty list with one {{token: Trajectory}} dict per seed")
+        if name in V2_LISTS and len(seeds) != 1:
+            raise SubmissionError(f"{name!r} holds {len(seeds)} seeds; {V2_ONE_SEED}")
         tokens = expected[name] if expected is not None else list(seeds[0])
         for seed, trajectories in enumerate(seeds):
             require_coverage("token", tokens, trajectories, f"{name}[{seed}]")
@@ -207,6 +212,8 @@ def write_navsim(
     """Validate, then write ``out``; returns what :func:`check_navsim` reports of the written file."""
     if not predictions:
         raise SubmissionError("no --predictions given; pass one predictions.parquet per seed")
+    if two_stage and len(predictions) != 1:
+        raise SubmissionError(f"--two-stage with {len(predictions)} --predictions files; {V2_ONE_SEED}")
     split = read_split(data, two_stage)
     submission: dict[str, Any] = {**metadata.as_keys(), **seed_lists(split, predictions)}
     validate(submission, split.tokens)
