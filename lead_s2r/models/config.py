@@ -2,7 +2,7 @@
 
 Presets follow the LEAD repo (``lead/tfv6``, ``TrainingConfig``): :func:`tfv6_config` (ResNet34 TFv6, ~60M parameters
 with token dim 256), :func:`ltfv6_config` (no LiDAR: a fixed coordinate grid feeds the BEV branch) and
-:func:`tfv5_config` (GRU refinement initialised with one target point).
+:func:`tfv5_config` (GRU refinement initialised with the current target point, which is no decoder token).
 """
 
 from dataclasses import dataclass, field, replace
@@ -102,8 +102,12 @@ class TFv6Config:
     use_command: bool = True
     num_commands: int = 4
     target_points: tuple[str, ...] = TARGET_POINT_SLOTS
-    #: Target points are mapped from [low, high] to [-1, 1] and clamped; LEAD's fixed x/200, y/50 by default,
-    #: training-data statistics through :func:`lead_s2r.models.inputs.target_point_range`.
+    #: Target points are mapped from [low, high] to [-1, 1] per axis and clamped. "data": when a fit starts, the
+    #: range becomes the training sources' statistics (``info.json`` ``statistics.target_points``, see
+    #: :func:`lead_s2r.models.inputs.target_point_range`) and is saved with the weights, so validation and
+    #: prediction use the range the model was trained with; "fixed": ``target_point_low/high`` as given (LEAD's
+    #: x/200, y/50 by default, also the fallback when no training source has target-point statistics).
+    target_point_normalisation: Literal["data", "fixed"] = "data"
     target_point_low: tuple[float, float] = (-200.0, -50.0)
     target_point_high: tuple[float, float] = (200.0, 50.0)
     max_speed: float = 20.0
@@ -152,10 +156,9 @@ def ltfv6_config(**overrides: object) -> TFv6Config:
 
 
 def tfv5_config(**overrides: object) -> TFv6Config:
-    """TFv5 ablation: GRU decoder initialised with the current target point; speed and command tokens only."""
-    base = TFv6Config(
-        decoder="v5", target_points=("current",), use_acceleration=False, use_radar=False, predict_headings=False
-    )
+    """TFv5 ablation as LEAD's ``tfv5_planning_decoder``: the decoder context holds the speed and command tokens
+    only; the current target point never becomes a token, it initialises the GRUs' hidden state."""
+    base = TFv6Config(decoder="v5", target_points=(), use_acceleration=False, use_radar=False, predict_headings=False)
     return replace(base, **overrides)
 
 
