@@ -5,11 +5,15 @@ with token dim 256), :func:`ltfv6_config` (no LiDAR: a fixed coordinate grid fee
 :func:`tfv5_config` (GRU refinement initialised with the current target point, which is no decoder token).
 """
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Literal, NamedTuple
 
 #: LEAD's target-speed bins, m/s (``target_speed_classes``); a label is two-hot encoded between neighbours.
 TARGET_SPEED_CLASSES = (0.0, 4.0, 8.0, 10.0, 13.89, 16.0, 17.78, 20.0)
+
+#: Vertical field of view of LEAD's NAVSIM camera rig (nuPlan's 63.71 deg across 480 px, 270 of 280 rows kept), deg.
+NAVSIM_VERTICAL_FOV_DEG = 2 * math.degrees(math.atan(math.tan(math.radians(63.71 / 2)) * 270 / 480))
 
 #: Where each target-point slot sits in ``target_points`` (B, 3, 2).
 TARGET_POINT_SLOTS = ("previous", "current", "next")
@@ -75,6 +79,11 @@ class TFv6Config:
     bev_architecture: str = "resnet34"
     pretrained: bool = False
     image_size: tuple[int, int] = (384, 1152)
+    #: Vertical field of view of the input rows, degrees: every camera tile is cropped (or padded) by its
+    #: calibration to this band around its principal point, so every source shows the world at the same angular
+    #: scale. None keeps each tile's full height. Tiles are never squashed: a strip whose aspect differs from
+    #: ``image_size`` is letterboxed (see :mod:`lead_s2r.data.transforms`).
+    vertical_fov_deg: float | None = None
     bev: BEVGrid = CARLA_BEV
     #: "raster": LiDAR BEV histogram input (TFv6); "coordinates": fixed 2-channel grid (LTFv6);
     #: "latent": learned (C, H, W) tensor as in NAVSIM's LTF.
@@ -143,9 +152,11 @@ def tfv6_config(**overrides: object) -> TFv6Config:
 
 
 def ltfv6_config(**overrides: object) -> TFv6Config:
-    """LTFv6 for NAVSIM: 4-camera 1920x270 mosaic, no LiDAR and no radar; acceleration and command tokens."""
+    """LTFv6 for NAVSIM: 4-camera 1920x270 mosaic at NAVSIM's vertical field of view, no LiDAR and no radar;
+    acceleration and command tokens."""
     base = TFv6Config(
         image_size=(270, 1920),
+        vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG,
         bev=NAVSIM_BEV,
         bev_input="coordinates",
         lidar_channels=2,
