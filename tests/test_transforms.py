@@ -192,6 +192,9 @@ def test_a_strip_of_another_aspect_is_letterboxed_with_a_warning_and_labels_foll
     semantic = out["semantic"].numpy()
     assert (semantic[:, :48] == -1).all() and (semantic[:, 144:] == -1).all()
     np.testing.assert_array_equal(semantic == 3, white)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        transform(mosaic_sample())  # once per rig, not once per sample
 
 
 def test_tiles_are_cut_to_the_vertical_fov_around_their_principal_point():

@@ -197,6 +197,7 @@ class SourceTransform:
     source: str
     config: TFv6Config
     cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
+    _reported: set[CameraLayout] = field(default_factory=set, init=False, repr=False)  # letterboxed layouts warned of
 
     @property
     def fields(self) -> list[str]:
@@ -269,7 +270,8 @@ class SourceTransform:
             layout = camera_layout(tuple(cameras), tuple(self.config.image_size), fov)
         except ValueError as err:
             raise ValueError(f"source {self.source!r}, cameras {self.cameras}: {err}") from None
-        if layout.letterboxed:
+        if layout.letterboxed and layout not in self._reported:
+            self._reported.add(layout)
             self._letterboxed(layout)
         return layout
 
