@@ -144,8 +144,9 @@ def box_class(box: dict[str, Any]) -> BoxClass:
     return fixed.get(cls, BoxClass.GENERIC_OBJECT)
 
 
-def camera_calibration(target_dataset: str = DEFAULT_TARGET_DATASET) -> list[dict[str, Any]]:
-    """Per-tile pinhole calibration of a rig's stored mosaic in the ISO rear-axle ego frame (OpenCV camera axes)."""
+def camera_calibration(target_dataset: str = DEFAULT_TARGET_DATASET, height: int | None = None) -> list[dict[str, Any]]:
+    """Per-tile pinhole calibration of a rig's mosaic, ``height`` rows stored (default: the rows LEAD keeps), in the
+    ISO rear-axle ego frame (OpenCV camera axes)."""
     cam_axes = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # camera x/y/z in ego axes (rows)
     cameras, x0 = [], 0
     for camera in CAMERA_RIGS[target_dataset]:
@@ -159,7 +160,7 @@ def camera_calibration(target_dataset: str = DEFAULT_TARGET_DATASET) -> list[dic
                 "native_name": f"rgb_{camera.number}",
                 "tile_name": camera.name,
                 "width": camera.width,
-                "height": camera.stored_height,
+                "height": camera.stored_height if height is None else height,
                 "K": [[focal, 0.0, camera.width / 2], [0.0, focal, camera.height / 2], [0.0, 0.0, 1.0]],
                 "distortion": [0.0] * 5,
                 "cam_to_ego": cam_to_ego.tolist(),
@@ -187,20 +188,22 @@ def target_dataset(meta: dict[str, Any], path: Path) -> str:
     return name
 
 
-def check_mosaic(data: bytes, rig: str, path: Path) -> None:
-    """The stored mosaic must have the rig's width and stored height, or its calibration would be wrong."""
+def mosaic_height(data: bytes, rig: str, path: Path) -> int:
+    """Rows of a stored mosaic, which must have the rig's width and its kept (or full rendered) height, or the
+    calibration written beside it would be wrong."""
     try:
         width, height = Image.open(io.BytesIO(data)).size
     except Exception as err:  # Pillow raises several types for damaged headers
         raise LeadFormatError(path, f"unreadable JPEG header ({err})") from err
     cameras = CAMERA_RIGS[rig]
-    want = (sum(c.width for c in cameras), cameras[0].stored_height)
-    if (width, height) != want:
+    want_width, heights = sum(c.width for c in cameras), (cameras[0].stored_height, cameras[0].height)
+    if width != want_width or height not in heights:
         raise LeadFormatError(
             path,
-            f"mosaic is {width}x{height}, but rig {rig} (dataset_information.target_dataset) stores {want[0]}x"
-            f"{want[1]}; the route's metas name the wrong rig",
+            f"mosaic is {width}x{height}, but rig {rig} (dataset_information.target_dataset) stores {want_width}x"
+            f"{heights[0]}; the route's metas name the wrong rig",
         )
+    return height
 
 
 def hdmap_pixel_to_ego() -> list[list[float]]:
@@ -357,15 +360,17 @@ class CarlaLeadAdapter(Adapter):
             sample["route"] = frame.points(route[:, :2]).astype(np.float32)
         sample.update(self._boxes(others, folder / "bboxes" / f"{name}.pkl", frame))
         sample.update(self._sensors(folder, name, suffix))
-        camera_rig = target_dataset(meta, path)
+        camera_rig, cameras = target_dataset(meta, path), []
         if f"cam_{MOSAIC_ID}" in sample:
-            check_mosaic(sample[f"cam_{MOSAIC_ID}"], camera_rig, folder / f"rgb{suffix}" / f"{name}.jpg")
+            height = mosaic_height(sample[f"cam_{MOSAIC_ID}"], camera_rig, folder / f"rgb{suffix}" / f"{name}.jpg")
+            cameras = camera_calibration(camera_rig, height)
         if lidar is not None:  # LEAD re-aligns the one LiDAR to the perturbated rig in software
             points, sweep = lidar
             sample["lidar"] = np.column_stack([frame.points(points), -sweep / FPS]).astype(np.float32)
         extras = self._extras(log, meta, others, rig)
         extras["carla_lead"]["target_dataset"] = camera_rig
         sample["meta"] = self._meta(log, meta, path, index, frame, command_raw, sample, extras)
+        sample["meta"]["cameras"] = cameras
         return sample
 
     def _future(self, meta: dict[str, Any], path: Path, frame: _Frame) -> np.ndarray | None:
@@ -533,9 +538,6 @@ class CarlaLeadAdapter(Adapter):
                 "wheel_base": EGO_WHEEL_BASE,
                 "rear_axle_to_center": CARLA_REAR_AXLE_TO_CENTER,
             },
-            "cameras": camera_calibration(extras["carla_lead"]["target_dataset"])
-            if f"cam_{MOSAIC_ID}" in sample
-            else [],
             "has": {name: True for name in sample if name != "__key__"},
             "extras": extras,
         }

@@ -462,3 +462,16 @@ def test_the_rig_comes_from_the_meta_and_a_wrong_one_is_refused(tmp_path: Path) 
     assert "metas/0000.pkl" in errors[unknown.name] and "dataset_information.target_dataset" in errors[unknown.name]
     assert "WAYMO_E2E_2025_3CAMERAS" in errors[unknown.name]
     assert "rgb/0000.jpg" in errors[wrong.name] and "mosaic is 2304x384" in errors[wrong.name]
+
+
+def test_a_mosaic_stored_uncropped_keeps_its_principal_row(tmp_path: Path) -> None:
+    """LEAD renders the NAVSIM-matched tiles 280 rows high and keeps the top 270; a full-height mosaic is accepted too,
+    with the same principal row (the rendered centre), and any other size names the rig."""
+    from lead_s2r_adapters.carla_lead import mosaic_height
+
+    full = cv2.imencode(".jpg", np.zeros((280, 1920, 3), np.uint8))[1].tobytes()
+    assert mosaic_height(full, "NAVSIM_4CAMERAS", tmp_path / "0000.jpg") == 280
+    cameras = camera_calibration("NAVSIM_4CAMERAS", 280)
+    assert cameras[0]["height"] == 280 and cameras[0]["K"][1][2] == 140.0
+    with pytest.raises(LeadFormatError, match=r"0000\.jpg.*1920x280.*CARLA_LEADERBOARD2_3CAMERAS .*stores 1152x384"):
+        mosaic_height(full, "CARLA_LEADERBOARD2_3CAMERAS", tmp_path / "0000.jpg")
