@@ -89,7 +89,8 @@ class DrivingModule(L.LightningModule):
         if resolved is None:
             rank_zero_warn(
                 "target_point_normalisation='data', but no training folder has statistics.target_points in its "
-                f"info.json; target points keep the range {model.target_point_range} (re-run convert to add them)"
+                f"info.json (its samples have no target points, or convert predates them); target points keep the "
+                f"range {model.target_point_range}"
             )
             return
         model.set_target_point_range(*resolved)
