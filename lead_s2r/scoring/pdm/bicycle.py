@@ -12,38 +12,64 @@ Behaviours reproduced on purpose:
 - the heading is wrapped to [-pi, pi) (nuPlan ``principal_value``).
 """
 
-import numpy as np
+from typing import NamedTuple
 
-from lead_s2r.scoring.pdm.state import StateIndex as S
-from lead_s2r.scoring.pdm.vehicle import VehicleParameters
+import numpy as np
 
 MAX_STEERING_ANGLE = np.pi / 3
 ACCEL_TIME_CONSTANT = 0.2
 STEERING_ANGLE_TIME_CONSTANT = 0.05
 
 
+class BicycleState(NamedTuple):
+    """The ego states of all proposals at one time, one ``(N,)`` array per quantity (vy = ay = 0 after t0)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    speed: np.ndarray
+    accel: np.ndarray
+    steering: np.ndarray
+    steering_rate: np.ndarray
+    yaw_rate: np.ndarray
+    yaw_accel: np.ndarray
+
+
+def heading_rate(state: BicycleState, wheel_base: float) -> np.ndarray:
+    """``v tan(delta) / L``: the state's yaw rate, except at t0 where NAVSIM stores 0 but still turns at this rate."""
+    return state.speed * np.tan(state.steering) / wheel_base
+
+
 def propagate(
-    states: np.ndarray, accel_cmd: np.ndarray, steering_rate_cmd: np.ndarray, dt: float, vehicle: VehicleParameters
-) -> np.ndarray:
-    """States ``(N, 11)`` after ``dt`` seconds under commanded acceleration and steering rate ``(N,)``."""
-    speed, heading, steering = states[:, S.VELOCITY_X], states[:, S.HEADING], states[:, S.STEERING_ANGLE]
-    accel = states[:, S.ACCELERATION_X]
+    state: BicycleState,
+    turn_rate: np.ndarray,
+    accel_cmd: np.ndarray,
+    steering_rate_cmd: np.ndarray,
+    dt: float,
+    wheel_base: float,
+) -> BicycleState:
+    """The state after ``dt`` seconds under commanded acceleration and steering rate ``(N,)``.
+
+    ``turn_rate`` is ``heading_rate(state)`` (the previous step's ``yaw_rate``, computed the same way).
+    """
+    speed, steering, accel = state.speed, state.steering, state.accel
     lagged_accel = dt / (dt + ACCEL_TIME_CONSTANT) * (accel_cmd - accel) + accel
     ideal_steering = dt * steering_rate_cmd + steering
     lagged_steering = dt / (dt + STEERING_ANGLE_TIME_CONSTANT) * (ideal_steering - steering) + steering
     lagged_rate = (lagged_steering - steering) / dt
 
-    out = np.empty_like(states)
-    out[:, S.X] = states[:, S.X] + speed * np.cos(heading) * dt
-    out[:, S.Y] = states[:, S.Y] + speed * np.sin(heading) * dt
-    new_heading = heading + speed * np.tan(steering) / vehicle.wheel_base * dt
-    out[:, S.HEADING] = (new_heading + np.pi) % (2 * np.pi) - np.pi
-    out[:, S.VELOCITY_X] = speed + lagged_accel * dt
-    out[:, S.VELOCITY_Y] = 0.0
-    out[:, S.ACCELERATION_X] = lagged_accel
-    out[:, S.ACCELERATION_Y] = 0.0
-    out[:, S.STEERING_ANGLE] = np.clip(steering + lagged_rate * dt, -MAX_STEERING_ANGLE, MAX_STEERING_ANGLE)
-    out[:, S.STEERING_RATE] = lagged_rate
-    out[:, S.ANGULAR_VELOCITY] = out[:, S.VELOCITY_X] * np.tan(out[:, S.STEERING_ANGLE]) / vehicle.wheel_base
-    out[:, S.ANGULAR_ACCELERATION] = (out[:, S.ANGULAR_VELOCITY] - states[:, S.ANGULAR_VELOCITY]) / dt
-    return out
+    new_heading = state.heading + turn_rate * dt
+    new_speed = speed + lagged_accel * dt
+    new_steering = np.minimum(np.maximum(steering + lagged_rate * dt, -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
+    new_yaw_rate = new_speed * np.tan(new_steering) / wheel_base
+    return BicycleState(
+        x=state.x + speed * np.cos(state.heading) * dt,
+        y=state.y + speed * np.sin(state.heading) * dt,
+        heading=(new_heading + np.pi) % (2 * np.pi) - np.pi,
+        speed=new_speed,
+        accel=lagged_accel,
+        steering=new_steering,
+        steering_rate=lagged_rate,
+        yaw_rate=new_yaw_rate,
+        yaw_accel=(new_yaw_rate - state.yaw_rate) / dt,
+    )

@@ -87,15 +87,45 @@ def _curvature_profile(heading_steps: np.ndarray, speed: np.ndarray, dt: float) 
     return solution[:, :1] + np.concatenate([np.zeros((len(speed), 1)), np.cumsum(solution[:, 1:] * dt, 1)], 1)
 
 
+@lru_cache(maxsize=8)
+def _lookahead_weights(horizon: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Weights of the unrolled lateral dynamics over a lookahead of speeds u_k / dt = v + k dt a (k < horizon).
+
+    Returns ``(horizon, 3)`` curvature weights (of sum u_k kappa_k split into v and a parts, and of
+    sum_{j<k} kappa_j u_j u_k split into v^2, v a, a^2 parts, see ``_curvature_moments``) and the constants
+    ``[sum_{j<k} u_j u_k, sum_{j<k} j u_j u_k]`` per v^2, v a, a^2, as a ``(2, 3)`` array.
+    """
+    k = np.arange(horizon, dtype=np.float64)
+    first, second = np.triu_indices(horizon, 1)  # all pairs j < k
+    # u_j u_k = dt^2 (v^2 + dt (j + k) v a + dt^2 j k a^2)
+    pair_terms = dt**2 * np.stack([np.ones(len(first)), dt * (first + second), dt**2 * first * second], 1)
+    curvature = np.zeros((horizon, 5))
+    curvature[:, 0] = dt
+    curvature[:, 1] = dt**2 * k
+    np.add.at(curvature[:, 2:], first, pair_terms)
+    constants = np.stack([pair_terms.sum(0), (first[:, None] * pair_terms).sum(0)])
+    return curvature, constants
+
+
 @dataclass
-class ReferenceProfiles:
-    """Per proposal and step: reference speed 10 steps ahead ``(N, S)``, curvature lookahead ``(N, S, 10)``."""
+class TrackingReference:
+    """What the tracker reads at each of the S = T - 1 steps, one row ``(N,)`` per step.
 
+    ``moments`` (5, S, N): over the curvature lookahead, dt sum kappa_k, dt^2 sum k kappa_k and the three parts
+    of sum_{j<k} kappa_j u_j u_k (per v^2, v a, a^2).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    sin: np.ndarray
+    cos: np.ndarray
     speed: np.ndarray
-    curvature: np.ndarray
+    may_stop: list[bool]
+    moments: np.ndarray
 
 
-def reference_profiles(targets: np.ndarray, dt: float) -> ReferenceProfiles:
+def tracking_reference(targets: np.ndarray, dt: float) -> TrackingReference:
     """Targets ``(N, T, 3)`` -> the tracker's references at each of the T - 1 tracking steps."""
     steps = np.diff(targets, axis=1)
     headings = targets[:, :-1, 2]
@@ -103,56 +133,64 @@ def reference_profiles(targets: np.ndarray, dt: float) -> ReferenceProfiles:
     num_fits = steps.shape[1]
     speed = projected @ _speed_fit_matrix(num_fits, dt).T
     curvature = _curvature_profile(wrap_angle(steps[..., 2]), speed, dt)
-    step_index = np.arange(num_fits)
-    ahead = np.minimum(step_index[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, 11)
-    return ReferenceProfiles(speed=speed[:, ahead[:, -1]], curvature=curvature[:, ahead[:, :-1]])
-
-
-def _lateral_steering_rate(
-    lateral_state: np.ndarray, speeds: np.ndarray, curvature: np.ndarray, dt: float, wheel_base: float
-) -> np.ndarray:
-    """One-step lateral LQR: steering rate ``(N,)`` from the error state ``(N, 3)`` and lookahead ``(N, H)``.
-
-    Step k maps (e, h, s) to (e + u_k h, h + u_k s / L - u_k kappa_k, s) with u_k = v_k dt; the input enters the
-    steering angle with dt. Unrolled: h_k = h_0 + s_0 U_k / L - W_k with U, W exclusive cumulative sums.
-    """
-    error, heading, steering = lateral_state[:, 0], lateral_state[:, 1], lateral_state[:, 2]
-    u = speeds * dt
-    u_sum = np.cumsum(u, axis=1)
-    w_sum = np.cumsum(u * curvature, axis=1)
-    before_u = u_sum - u  # sum_{j < k}
-    before_w = w_sum - u * curvature
-    heading_k = heading[:, None] + steering[:, None] * before_u / wheel_base - before_w
-    final_error = error + np.sum(u * heading_k, axis=1)
-    final_heading = wrap_angle(heading + steering * u_sum[:, -1] / wheel_base - w_sum[:, -1])
-    # response to a unit input: steering angle k dt before step k; heading, then lateral error, accumulate it
-    input_steering = np.arange(speeds.shape[1]) * dt
-    input_heading_after = np.cumsum(u * input_steering / wheel_base, axis=1)
-    input_error = np.sum(u * (input_heading_after - u * input_steering / wheel_base), axis=1)
-    input_heading = input_heading_after[:, -1]
-    q_error, q_heading, _ = Q_LATERAL  # the steering-angle weight is 0
-    gain = -1.0 / (q_error * input_error**2 + q_heading * input_heading**2 + R_LATERAL)
-    return gain * (q_error * input_error * final_error + q_heading * input_heading * final_heading)
+    ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
+    reference_speed = speed[:, ahead[:, -1]].T
+    weights, _ = _lookahead_weights(TRACKING_HORIZON, dt)
+    moments = np.moveaxis(curvature[:, ahead[:, :-1]] @ weights, -1, 0).transpose(0, 2, 1)
+    poses = np.ascontiguousarray(targets[:, :-1].transpose(2, 1, 0))
+    return TrackingReference(
+        x=poses[0],
+        y=poses[1],
+        heading=poses[2],
+        sin=np.sin(poses[2]),
+        cos=np.cos(poses[2]),
+        speed=reference_speed,
+        may_stop=list((reference_speed <= STOPPING_VELOCITY).any(axis=1)),
+        moments=np.ascontiguousarray(moments),
+    )
 
 
 def track(
-    states: np.ndarray, targets: np.ndarray, profiles: ReferenceProfiles, step: int, dt: float, wheel_base: float
+    ref: TrackingReference,
+    step: int,
+    ego: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    dt: float,
+    wheel_base: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Acceleration and steering-rate commands ``(N,)`` for ego states ``(N, 11)`` at tracking step ``step``."""
-    target = targets[:, step]
-    dx, dy = states[:, 0] - target[:, 0], states[:, 1] - target[:, 1]
-    lateral_error = -dx * np.sin(target[:, 2]) + dy * np.cos(target[:, 2])
-    heading_error = wrap_angle(states[:, 2] - target[:, 2])
-    speed, reference_speed = states[:, 3], profiles.speed[:, step]
+    """Acceleration and steering-rate commands ``(N,)`` for ego ``(x, y, heading, speed, steering)`` at ``step``.
 
-    horizon_time = TRACKING_HORIZON * dt
-    accel = -1.0 / (horizon_time * Q_LONGITUDINAL * horizon_time + R_LONGITUDINAL)
-    accel = accel * horizon_time * Q_LONGITUDINAL * (speed - reference_speed)
-    lookahead = speed[:, None] + np.arange(TRACKING_HORIZON) * (accel * dt)[:, None]
-    lateral_state = np.stack([lateral_error, heading_error, states[:, 7]], axis=1)
-    steering_rate = _lateral_steering_rate(lateral_state, lookahead, profiles.curvature[:, step], dt, wheel_base)
+    Lateral problem unrolled over the lookahead (u_k = v_k dt, steering s constant, U_k / W_k the sums of u_j and
+    u_j kappa_j over j < k): heading error h_k = h + s U_k / L - W_k, lateral error e + sum_k u_k h_k; a unit
+    steering rate adds k dt to the steering angle before step k. Every sum is a polynomial in the ego speed v and
+    the acceleration command a, with the curvature parts precomputed in ``ref.moments``.
+    """
+    x, y, heading, speed, steering = ego
+    lateral_error = (y - ref.y[step]) * ref.cos[step] - (x - ref.x[step]) * ref.sin[step]
+    heading_error = wrap_angle(heading - ref.heading[step])
+    reference_speed = ref.speed[step]
 
-    stopping = (reference_speed <= STOPPING_VELOCITY) & (speed <= STOPPING_VELOCITY)
-    accel = np.where(stopping, -STOPPING_GAIN * (speed - reference_speed), accel)
-    steering_rate = np.where(stopping, 0.0, steering_rate)
+    horizon, horizon_time = TRACKING_HORIZON, TRACKING_HORIZON * dt
+    gain = -1.0 / (horizon_time * Q_LONGITUDINAL * horizon_time + R_LONGITUDINAL) * horizon_time * Q_LONGITUDINAL
+    accel = gain * (speed - reference_speed)
+
+    _, (pairs, index_pairs) = _lookahead_weights(horizon, dt)
+    k_sum, k_sq_sum = horizon * (horizon - 1) / 2, (horizon - 1) * horizon * (2 * horizon - 1) / 6
+    v_sq, v_a, a_sq = speed * speed, speed * accel, accel * accel
+    u_sum = dt * horizon * speed + dt**2 * k_sum * accel
+    m = ref.moments[:, step]
+    steer_per_length = steering / wheel_base
+    final_heading = wrap_angle(heading_error + steer_per_length * u_sum - (m[0] * speed + m[1] * accel))
+    uu = pairs[0] * v_sq + pairs[1] * v_a + pairs[2] * a_sq
+    kuu = m[2] * v_sq + m[3] * v_a + m[4] * a_sq
+    final_error = lateral_error + heading_error * u_sum + steer_per_length * uu - kuu
+    input_heading = dt / wheel_base * (dt * k_sum * speed + dt**2 * k_sq_sum * accel)
+    input_error = dt / wheel_base * (index_pairs[0] * v_sq + index_pairs[1] * v_a + index_pairs[2] * a_sq)
+    q_error, q_heading, _ = Q_LATERAL  # the steering-angle weight is 0
+    lateral_gain = -1.0 / (q_error * input_error * input_error + q_heading * input_heading * input_heading + R_LATERAL)
+    steering_rate = lateral_gain * (q_error * input_error * final_error + q_heading * input_heading * final_heading)
+
+    if ref.may_stop[step]:
+        stopping = (reference_speed <= STOPPING_VELOCITY) & (speed <= STOPPING_VELOCITY)
+        accel = np.where(stopping, -STOPPING_GAIN * (speed - reference_speed), accel)
+        steering_rate = np.where(stopping, 0.0, steering_rate)
     return accel, steering_rate

@@ -12,15 +12,28 @@ files), in the ego frame instead of the global frame: every step is invariant to
 
 import numpy as np
 
-from lead_s2r.scoring.pdm.bicycle import propagate
+from lead_s2r.scoring.pdm.bicycle import BicycleState, heading_rate, propagate
 from lead_s2r.scoring.pdm.interpolation import PROPOSAL_INTERVAL
-from lead_s2r.scoring.pdm.lqr import reference_profiles, track
+from lead_s2r.scoring.pdm.lqr import track, tracking_reference
 from lead_s2r.scoring.pdm.state import STATE_SIZE
 from lead_s2r.scoring.pdm.state import StateIndex as S
 from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
 
 #: nuPlan steps the bicycle by ``TimeDuration.from_s(0.1).time_s`` = 100000 us * 1e-6 (0.09999999999999999).
 SIMULATION_DT = int(PROPOSAL_INTERVAL * 1e6) * 1e-6
+
+#: The state columns the bicycle integrates, in ``BicycleState`` order (vy and ay are 0 after t0).
+_BICYCLE_COLUMNS = [
+    S.X,
+    S.Y,
+    S.HEADING,
+    S.VELOCITY_X,
+    S.ACCELERATION_X,
+    S.STEERING_ANGLE,
+    S.STEERING_RATE,
+    S.ANGULAR_VELOCITY,
+    S.ANGULAR_ACCELERATION,
+]
 
 
 def initial_state(
@@ -46,10 +59,19 @@ def simulate_proposals(
     if targets.ndim != 3 or targets.shape[-1] != 3 or targets.shape[1] < 4:
         raise ValueError(f"targets: expected shape (N, T >= 4, 3) of x, y, heading every 0.1 s, got {targets.shape}")
     count, num_states, _ = targets.shape
-    profiles = reference_profiles(targets, PROPOSAL_INTERVAL)
-    states = np.empty((count, num_states, STATE_SIZE))
-    states[:, 0] = initial_state(np.asarray(ego_velocity), np.asarray(ego_acceleration), tire_steering_angle)
+    wheel_base = vehicle.wheel_base
+    reference = tracking_reference(targets, PROPOSAL_INTERVAL)
+    first = initial_state(np.asarray(ego_velocity), np.asarray(ego_acceleration), tire_steering_angle)
+    state = BicycleState(*(np.full(count, first[column]) for column in _BICYCLE_COLUMNS))
+    turn_rate = heading_rate(state, wheel_base)
+    history = [state]
     for step in range(num_states - 1):
-        accel, steering_rate = track(states[:, step], targets, profiles, step, PROPOSAL_INTERVAL, vehicle.wheel_base)
-        states[:, step + 1] = propagate(states[:, step], accel, steering_rate, SIMULATION_DT, vehicle)
+        ego = (state.x, state.y, state.heading, state.speed, state.steering)
+        accel, steering_rate = track(reference, step, ego, PROPOSAL_INTERVAL, wheel_base)
+        state = propagate(state, turn_rate, accel, steering_rate, SIMULATION_DT, wheel_base)
+        turn_rate = state.yaw_rate
+        history.append(state)
+    states = np.zeros((count, num_states, STATE_SIZE))
+    states[..., _BICYCLE_COLUMNS] = np.array(history).transpose(2, 0, 1)
+    states[:, 0] = first
     return states
