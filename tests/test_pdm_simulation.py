@@ -82,8 +82,9 @@ def frames(scene: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
+@pytest.mark.parametrize("scalar_proposals", [0, 64], ids=["arrays", "floats"])
 @pytest.mark.parametrize(("name", "scene_id"), golden_scenes())
-def test_golden_targets_and_simulation(name: str, scene_id: str) -> None:
+def test_golden_targets_and_simulation(name: str, scene_id: str, scalar_proposals: int) -> None:
     scene = next(s for s in golden(name)["scenes"] if s["id"] == scene_id)
     for frame in frames(scene):
         ego, t0_us = frame["ego"], frame["t0_us"]
@@ -100,6 +101,7 @@ def test_golden_targets_and_simulation(name: str, scene_id: str) -> None:
             np.array([ego["vx"], ego["vy"]]),
             np.array([ego["ax"], ego["ay"]]),
             ego.get("tire_steering_angle", 0.0),
+            scalar_proposals=scalar_proposals,
         )
         for (case_id, *_, official), states in zip(frame["cases"], simulated, strict=True):
             states = np.concatenate([to_global(states[:, :3], ego), states[:, 3:]], axis=1)
@@ -197,11 +199,13 @@ def test_stopping_controller_takes_over_at_or_below_20_cm_per_s() -> None:
     assert simulate_proposals(aside, np.array([0.25, 0.0]), np.zeros(2))[0, 2, S.STEERING_ANGLE] > 0.0
 
 
-def test_proposals_are_simulated_independently() -> None:
-    batch = np.concatenate([straight(10.0), arc(100.0, 8.0), np.zeros((1, 8, 3))])
-    together = simulate_proposals(interpolate_proposals(batch, 0.5), np.array([9.0, 0.0]), np.zeros(2))
+def test_proposals_are_simulated_independently_on_arrays_or_floats() -> None:
+    batch = np.concatenate([straight(10.0), arc(100.0, 8.0), np.zeros((1, 8, 3)), arc(-30.0, 4.0)])
+    targets = interpolate_proposals(batch, 0.5)
+    velocity, acceleration = np.array([9.0, 0.0]), np.array([-0.5, 0.0])
+    together = simulate_proposals(targets, velocity, acceleration, scalar_proposals=0)
+    one_by_one = simulate_proposals(targets, velocity, acceleration, scalar_proposals=len(batch))
+    np.testing.assert_allclose(together, one_by_one, rtol=0, atol=1e-10)
     for index in range(len(batch)):
-        alone = simulate_proposals(
-            interpolate_proposals(batch[index : index + 1], 0.5), np.array([9.0, 0]), np.zeros(2)
-        )
-        np.testing.assert_allclose(together[index], alone[0], atol=1e-12)
+        alone = simulate_proposals(targets[index : index + 1], velocity, acceleration, scalar_proposals=0)
+        np.testing.assert_allclose(together[index], alone[0], rtol=0, atol=1e-12)

@@ -6,21 +6,28 @@ steering rate, yaw rate and yaw acceleration 0. Each step the tracker (``lqr.py`
 ``interpolation.py`` into commands and the bicycle (``bicycle.py``) applies them. Targets carry only poses: NAVSIM
 gives the agent's states zero velocity and acceleration and the tracker never reads them.
 
-The result equals the official one to ~1e-9 (``tests/test_pdm_simulation.py`` against the v1.1 and v2.2 golden
-files), in the ego frame instead of the global frame: every step is invariant to a rigid motion of the scene.
+The result equals the official one to ~1e-9 (``tests/test_pdm_simulation.py`` against every trajectory of the
+v1.1 and v2.2 golden files), in the ego frame instead of the global frame: every step is invariant to a rigid
+motion of the scene. The 40 steps are sequential; each is ~80 tiny operations per proposal, so up to
+``SCALAR_PROPOSALS`` proposals run one by one on Python floats and more run together on numpy arrays, through
+the same step code (``elementwise.py``). Costs: ``benchmarks/pdm_simulation.py``.
 """
 
 import numpy as np
 
-from lead_s2r.scoring.pdm.bicycle import BicycleState, heading_rate, propagate
+from lead_s2r.scoring.pdm.bicycle import BicycleConstants, BicycleState, bicycle_constants, heading_rate, propagate
+from lead_s2r.scoring.pdm.elementwise import FLOATS, NUMPY, Elementwise
 from lead_s2r.scoring.pdm.interpolation import PROPOSAL_INTERVAL
-from lead_s2r.scoring.pdm.lqr import track, tracking_reference
+from lead_s2r.scoring.pdm.lqr import StepReference, step_references, stop_where_slow, track, tracking_reference
 from lead_s2r.scoring.pdm.state import STATE_SIZE
 from lead_s2r.scoring.pdm.state import StateIndex as S
 from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
 
 #: nuPlan steps the bicycle by ``TimeDuration.from_s(0.1).time_s`` = 100000 us * 1e-6 (0.09999999999999999).
 SIMULATION_DT = int(PROPOSAL_INTERVAL * 1e6) * 1e-6
+
+#: Up to this many proposals, stepping each on Python floats beats numpy on tiny arrays (``elementwise.py``).
+SCALAR_PROPOSALS = 6
 
 #: The state columns the bicycle integrates, in ``BicycleState`` order (vy and ay are 0 after t0).
 _BICYCLE_COLUMNS = [
@@ -47,31 +54,58 @@ def initial_state(
     return state
 
 
+def _run(
+    references: list[StepReference],
+    may_stop: list[bool],
+    state: BicycleState,
+    constants: BicycleConstants,
+    wheel_base: float,
+    ops: Elementwise,
+) -> list[BicycleState]:
+    """The states at every step, the given one first."""
+    turn_rate = heading_rate(state, wheel_base, ops)
+    history = [state]
+    for reference, slow in zip(references, may_stop, strict=True):
+        accel, steering_rate = track(reference, state.x, state.y, state.heading, state.speed, state.steering, ops)
+        if slow:
+            accel, steering_rate = stop_where_slow(reference, state.speed, accel, steering_rate, ops)
+        state = propagate(state, turn_rate, accel, steering_rate, constants, ops)
+        turn_rate = state.yaw_rate
+        history.append(state)
+    return history
+
+
 def simulate_proposals(
     targets: np.ndarray,
     ego_velocity: np.ndarray,
     ego_acceleration: np.ndarray,
     tire_steering_angle: float = 0.0,
     vehicle: VehicleParameters = PACIFICA,
+    scalar_proposals: int = SCALAR_PROPOSALS,
 ) -> np.ndarray:
-    """Targets ``(N, T, 3)`` (T = 41: t = 0..4 s every 0.1 s, ego frame) -> simulated states ``(N, T, 11)``."""
+    """Targets ``(N, T, 3)`` (T = 41: t = 0..4 s every 0.1 s, ego frame) -> simulated states ``(N, T, 11)``.
+
+    Up to ``scalar_proposals`` proposals are stepped one by one on Python floats, more together on arrays; both
+    give the same states to float rounding.
+    """
     targets = np.asarray(targets, np.float64)
     if targets.ndim != 3 or targets.shape[-1] != 3 or targets.shape[1] < 4:
         raise ValueError(f"targets: expected shape (N, T >= 4, 3) of x, y, heading every 0.1 s, got {targets.shape}")
     count, num_states, _ = targets.shape
     wheel_base = vehicle.wheel_base
-    reference = tracking_reference(targets, PROPOSAL_INTERVAL)
+    table, may_stop = tracking_reference(targets, PROPOSAL_INTERVAL, wheel_base)
     first = initial_state(np.asarray(ego_velocity), np.asarray(ego_acceleration), tire_steering_angle)
-    state = BicycleState(*(np.full(count, first[column]) for column in _BICYCLE_COLUMNS))
-    turn_rate = heading_rate(state, wheel_base)
-    history = [state]
-    for step in range(num_states - 1):
-        ego = (state.x, state.y, state.heading, state.speed, state.steering)
-        accel, steering_rate = track(reference, step, ego, PROPOSAL_INTERVAL, wheel_base)
-        state = propagate(state, turn_rate, accel, steering_rate, SIMULATION_DT, wheel_base)
-        turn_rate = state.yaw_rate
-        history.append(state)
     states = np.zeros((count, num_states, STATE_SIZE))
-    states[..., _BICYCLE_COLUMNS] = np.array(history).transpose(2, 0, 1)
+    if count <= scalar_proposals:
+        constants = bicycle_constants(SIMULATION_DT, wheel_base)
+        start = BicycleState(*first[_BICYCLE_COLUMNS].tolist())
+        for proposal in range(count):
+            history = _run(step_references(table, proposal), may_stop, start, constants, wheel_base, FLOATS)
+            states[proposal][:, _BICYCLE_COLUMNS] = history
+    else:
+        constants = bicycle_constants(SIMULATION_DT, wheel_base, count)
+        start = BicycleState(*(np.full(count, first[column]) for column in _BICYCLE_COLUMNS))
+        history = _run(step_references(table), may_stop, start, constants, wheel_base, NUMPY)
+        states[..., _BICYCLE_COLUMNS] = np.array(history).transpose(2, 0, 1)
     states[:, 0] = first
     return states
