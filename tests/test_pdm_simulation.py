@@ -157,6 +157,10 @@ def test_bad_shapes_are_errors_naming_the_argument() -> None:
         interpolate_proposals(np.zeros((8, 3)), 0.5)
     with pytest.raises(ValueError, match="reference"):
         interpolate_reference(np.zeros((1, 3)))
+    nan = interpolate_proposals(straight(10.0), 0.5)[:, :8].copy()
+    nan[0, 3, 1] = np.nan
+    with pytest.raises(ValueError, match=r"proposals: NaN .* \[\[0, 3\]\]"):
+        interpolate_proposals(nan, 0.5)
     with pytest.raises(ValueError, match="targets"):
         simulate_proposals(np.zeros((41, 3)), np.zeros(2), np.zeros(2))
 

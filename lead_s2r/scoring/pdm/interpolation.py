@@ -54,6 +54,12 @@ def interpolate_knots(knot_us: np.ndarray, knots: np.ndarray, sample_us: np.ndar
     return out
 
 
+def _require_finite(poses: np.ndarray, name: str) -> None:
+    if not np.isfinite(poses).all():
+        bad = np.unique(np.argwhere(~np.isfinite(poses))[:, :-1], axis=0)
+        raise ValueError(f"{name}: NaN or infinite pose values at index {bad[:5].tolist()} (first 5); remove them")
+
+
 def proposal_knot_us(num_poses: int, interval: float, t0_us: int | None = None) -> np.ndarray:
     """Knot times (us after t0) of the initial pose and ``num_poses`` poses at ``interval * (k + 1)``.
 
@@ -70,6 +76,7 @@ def interpolate_proposals(proposals: np.ndarray, interval: float, t0_us: int | N
         raise ValueError(f"proposals: expected shape (N, K >= 1, 3) of x, y, heading, got {proposals.shape}")
     if not interval > 0:
         raise ValueError(f"interval: expected a positive number of seconds, got {interval}")
+    _require_finite(proposals, "proposals")
     count, num_poses, _ = proposals.shape
     knots = np.concatenate([np.zeros((count, 1, 3)), proposals], axis=1)
     return interpolate_knots(proposal_knot_us(num_poses, interval, t0_us), knots, sample_times_us(t0_us))
@@ -86,5 +93,6 @@ def interpolate_reference(
     reference = np.asarray(reference, np.float64)
     if reference.ndim != 2 or reference.shape[-1] != 3 or len(reference) < 2:
         raise ValueError(f"reference: expected shape (M >= 2, 3) of x, y, heading from t = 0, got {reference.shape}")
+    _require_finite(reference, "reference")
     knot_us = np.round(np.arange(len(reference)) * interval * 1e6).astype(np.int64)
     return interpolate_knots(knot_us, reference, sample_times_us(t0_us))
