@@ -156,7 +156,7 @@ class StepReference(NamedTuple):
     input_error_0: Values
     inverse_wheel_base: Values
     q_heading: Values
-    one: Values
+    r_lateral: Values
 
 
 def _linear_in_speed(coefficients: np.ndarray, accel: tuple[float, np.ndarray]) -> list[np.ndarray]:
@@ -208,7 +208,7 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
         *_quadratic_in_speed(fixed["input_error"], accel),
         1.0 / wheel_base,
         Q_LATERAL[1],
-        1.0,
+        R_LATERAL,
     ]
     table = np.empty((num_fits, len(rows), count))
     for field, row in enumerate(rows):
@@ -232,7 +232,8 @@ def track(
     Lateral problem unrolled over the lookahead (u_k = v_k dt, steering s constant, U_k / W_k the sums of u_j and
     u_j kappa_j over j < k): heading error h_k = h + s U_k / L - W_k, lateral error e + sum_k u_k h_k
     = e + h U + s / L sum_{j<k} u_j u_k - sum_{j<k} kappa_j u_j u_k; a unit steering rate adds k dt to the
-    steering angle before step k. The lateral error weight Q[0] is 1, the steering weight 0, R is 1.
+    steering angle before step k. Q_LATERAL's lateral-error weight is 1 and its steering weight 0, so neither
+    appears below.
     """
     lateral_error = (y - ref.y) * ref.cos - (x - ref.x) * ref.sin
     heading_error = wrap_angle(heading - ref.heading, ops)
@@ -249,7 +250,7 @@ def track(
     input_heading = ref.input_heading_1 * speed + ref.input_heading_0
     input_error = (ref.input_error_2 * speed + ref.input_error_1) * speed + ref.input_error_0
     weighted_heading = ref.q_heading * input_heading
-    denominator = input_error * input_error + weighted_heading * input_heading + ref.one
+    denominator = input_error * input_error + weighted_heading * input_heading + ref.r_lateral
     steering_rate = (input_error * final_error + weighted_heading * final_heading) / denominator
     return accel, -steering_rate
 
