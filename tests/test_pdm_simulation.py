@@ -14,7 +14,17 @@ from typing import Any
 import numpy as np
 import pytest
 
+from lead_s2r.scoring.pdm.elementwise import NUMPY
 from lead_s2r.scoring.pdm.interpolation import interpolate_proposals, interpolate_reference, sample_times_us
+from lead_s2r.scoring.pdm.lqr import (
+    JERK_PENALTY,
+    StepReference,
+    curvature_profile,
+    speed_fit_matrix,
+    track,
+    tracking_reference,
+    wrap_angle,
+)
 from lead_s2r.scoring.pdm.simulation import simulate_proposals
 from lead_s2r.scoring.pdm.state import StateIndex as S
 
@@ -213,3 +223,60 @@ def test_proposals_are_simulated_independently_on_arrays_or_floats() -> None:
     for index in range(len(batch)):
         alone = simulate_proposals(targets[index : index + 1], velocity, acceleration, scalar_proposals=0)
         np.testing.assert_allclose(together[index], alone[0], rtol=0, atol=1e-12)
+
+
+def test_speed_fit_is_the_regularised_least_squares_of_its_definition() -> None:
+    """Displacement i = dt v_i along the target heading, v_i = v_0 + dt sum_{j<i} a_j; penalty 1e-4 on -a_r for
+    r < M - 2 and on a_{M-2} - a_{M-3} (nuPlan's overwritten difference matrix)."""
+    rng = np.random.default_rng(0)
+    m, dt = 40, 0.1
+    headings = rng.uniform(-np.pi, np.pi, m)
+    displacements = rng.normal(1.0, 0.3, (m, 2))
+    design = np.zeros((2 * m, m))
+    for i in range(m):
+        unit = [np.cos(headings[i]), np.sin(headings[i])]
+        design[2 * i : 2 * i + 2, 0] = np.multiply(unit, dt)
+        for c in range(1, i + 1):
+            design[2 * i : 2 * i + 2, c] = np.multiply(unit, dt**2)
+    penalty = np.zeros((m - 2, m))
+    penalty[np.arange(m - 2), np.arange(1, m - 1)] = -1.0
+    penalty[-1, -1] = 1.0
+    stacked = np.vstack([design, np.sqrt(JERK_PENALTY) * penalty])
+    solution = np.linalg.lstsq(stacked, np.concatenate([displacements.ravel(), np.zeros(m - 2)]), rcond=None)[0]
+    expected = solution[0] + dt * np.concatenate([[0.0], np.cumsum(solution[1:])])
+    projected = np.cos(headings) * displacements[:, 0] + np.sin(headings) * displacements[:, 1]
+    np.testing.assert_allclose(speed_fit_matrix(m, dt) @ projected, expected, rtol=0, atol=1e-9)
+
+
+def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:
+    """The unrolled tracker against the 10 step matrices multiplied out, for random ego states off the targets."""
+    rng = np.random.default_rng(1)
+    dt, wheel_base, horizon = 0.1, 3.089, 10
+    targets = interpolate_proposals(np.concatenate([arc(40.0, 9.0), arc(-25.0, 5.0), straight(3.0)]), 0.5)
+    table, _ = tracking_reference(targets, dt, wheel_base)
+    steps = np.diff(targets, axis=1)
+    speed_fit = (np.cos(targets[:, :-1, 2]) * steps[..., 0] + np.sin(targets[:, :-1, 2]) * steps[..., 1]) @ (
+        speed_fit_matrix(40, dt).T
+    )
+    curvature = curvature_profile(wrap_angle(steps[..., 2]), speed_fit, dt)
+    for step in (0, 17, 35):
+        ahead = np.minimum(step + np.arange(horizon + 1), 39)
+        x, y, heading = targets[:, step].T + rng.normal(0, [0.5, 0.5, 0.05], (3, 3)).T
+        speed, steering = rng.uniform(1, 12, 3), rng.normal(0, 0.1, 3)
+        accel, rate = track(StepReference(*table[step]), x, y, heading, speed, steering, NUMPY)
+        for n in range(3):
+            expected_accel = -10.0 / 11.0 * (speed[n] - speed_fit[n, ahead[-1]])
+            lookahead = speed[n] + dt * expected_accel * np.arange(horizon)
+            cos, sin = np.cos(targets[n, step, 2]), np.sin(targets[n, step, 2])
+            error = np.array([-(x[n] - targets[n, step, 0]) * sin + (y[n] - targets[n, step, 1]) * cos, 0.0, 0.0])
+            error[1:] = [wrap_angle(heading[n] - targets[n, step, 2]), steering[n]]
+            response = np.zeros(3)
+            for k in range(horizon):
+                dynamics = np.array([[1, lookahead[k] * dt, 0], [0, 1, lookahead[k] * dt / wheel_base], [0, 0, 1]])
+                error = dynamics @ error - [0, lookahead[k] * curvature[n, ahead[k]] * dt, 0]
+                response = dynamics @ response + [0, 0, dt]
+            error[1:] = wrap_angle(error[1:])
+            weights = np.array([1.0, 10.0, 0.0])
+            expected_rate = -(response * weights) @ error / ((response * weights) @ response + 1.0)
+            assert accel[n] == pytest.approx(expected_accel, abs=1e-12)
+            assert rate[n] == pytest.approx(expected_rate, rel=1e-9, abs=1e-12)

@@ -57,7 +57,7 @@ def wrap_angle(angle: Values, ops: Elementwise = NUMPY) -> Values:
 
 
 @lru_cache(maxsize=8)
-def _speed_fit_matrix(num_displacements: int, dt: float) -> np.ndarray:
+def speed_fit_matrix(num_displacements: int, dt: float) -> np.ndarray:
     """``(M, M)``: projected displacements -> fitted speed at each pose (``v0`` then ``v0 + dt * cumsum(a)``).
 
     nuPlan's design matrix has entry ``heading_column * w_c`` for c <= i (w_0 = dt, w_c = dt^2), so its normal
@@ -80,7 +80,7 @@ def _speed_fit_matrix(num_displacements: int, dt: float) -> np.ndarray:
     return integrate @ solution
 
 
-def _curvature_profile(heading_steps: np.ndarray, speed: np.ndarray, dt: float) -> np.ndarray:
+def curvature_profile(heading_steps: np.ndarray, speed: np.ndarray, dt: float) -> np.ndarray:
     """``(N, M)`` curvature at each pose from heading displacements and fitted speeds ``(N, M)``.
 
     Unknowns: initial curvature and M - 1 curvature rates; row i predicts ``speed_i * dt * curvature_i``.
@@ -180,8 +180,8 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     headings = targets[:, :-1, 2]
     projected = np.cos(headings) * steps[..., 0] + np.sin(headings) * steps[..., 1]
     num_fits = steps.shape[1]
-    speed = projected @ _speed_fit_matrix(num_fits, dt).T
-    curvature = _curvature_profile(wrap_angle(steps[..., 2]), speed, dt)
+    speed = projected @ speed_fit_matrix(num_fits, dt).T
+    curvature = curvature_profile(wrap_angle(steps[..., 2]), speed, dt)
     ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
     reference_speed = speed[:, ahead[:, -1]].T  # (S, N)
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
