@@ -9,7 +9,7 @@ rate 0).
 
 Reference speed and curvature come from regularised least squares on the 41 target poses, as nuPlan's tracker
 does. NAVSIM forms the normal equations and applies ``np.linalg.pinv`` per proposal; here the same minimisers are
-computed with less work, equal up to float rounding (the golden tests agree to ~1e-9):
+computed with less work, equal up to float rounding (``tests/test_pdm_simulation.py``):
 
 - speed: the normal matrix does not depend on the poses (cos^2 + sin^2 = 1), so the whole fit is one constant
   (40 x 40) matrix applied to the displacements projected on the target headings;

@@ -6,11 +6,11 @@ steering rate, yaw rate and yaw acceleration 0. Each step the tracker (``lqr.py`
 ``interpolation.py`` into commands and the bicycle (``bicycle.py``) applies them. Targets carry only poses: NAVSIM
 gives the agent's states zero velocity and acceleration and the tracker never reads them.
 
-The result equals the official one to ~1e-9 (``tests/test_pdm_simulation.py`` against every trajectory of the
-v1.1 and v2.2 golden files), in the ego frame instead of the global frame: every step is invariant to a rigid
-motion of the scene. The 40 steps are sequential; each is ~80 tiny operations per proposal, so up to
-``SCALAR_PROPOSALS`` proposals run one by one on Python floats and more run together on numpy arrays, through
-the same step code (``elementwise.py``). Costs: ``benchmarks/pdm_simulation.py``.
+The result equals the official one within the 1e-6 rounding of the golden files (``tests/test_pdm_simulation.py``,
+every trajectory of the v1.1 and v2.2 files), in the ego frame instead of the global frame: every step is
+invariant to a rigid motion of the scene. The 40 steps are sequential; each is ~80 tiny operations per proposal,
+so up to ``SCALAR_PROPOSALS`` proposals run one by one on Python floats and more run together on numpy arrays,
+through the same step code (``elementwise.py``). Costs: ``benchmarks/pdm_simulation.py``.
 """
 
 import numpy as np
