@@ -173,6 +173,8 @@ def test_bad_shapes_are_errors_naming_the_argument() -> None:
         interpolate_proposals(nan, 0.5)
     with pytest.raises(ValueError, match="targets"):
         simulate_proposals(np.zeros((41, 3)), np.zeros(2), np.zeros(2))
+    with pytest.raises(ValueError, match="ego_velocity"):
+        simulate_proposals(np.zeros((1, 41, 3)), np.array(10.0), np.zeros(2))
 
 
 def test_initial_state_is_the_logged_ego() -> None:

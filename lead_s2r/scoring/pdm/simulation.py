@@ -47,6 +47,9 @@ def initial_state(
     ego_velocity: np.ndarray, ego_acceleration: np.ndarray, tire_steering_angle: float = 0.0
 ) -> np.ndarray:
     """The ``(11,)`` state at t0 in the ego frame, as ``ego_state_to_state_array`` fills it."""
+    for name, value in (("ego_velocity", ego_velocity), ("ego_acceleration", ego_acceleration)):
+        if np.shape(value) != (2,) or not np.isfinite(value).all():
+            raise ValueError(f"{name}: expected 2 finite numbers (x, y in the ego body frame), got {value!r}")
     state = np.zeros(STATE_SIZE)
     state[S.VELOCITY_X : S.VELOCITY_Y + 1] = ego_velocity
     state[S.ACCELERATION_X : S.ACCELERATION_Y + 1] = ego_acceleration
