@@ -230,17 +230,20 @@ def write_wod(
     )
     validate(messages, list(frames.values()))
     payloads = {name: message.SerializeToString() for name, message in messages.items()}
-    archive = tar_path(out)
-    write_atomically(archive, lambda path: path.write_bytes(tar_gz(out.name, payloads)))
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir(parents=True)
-    for name, payload in payloads.items():
-        (partial / name).write_bytes(payload)
+    try:
+        partial.mkdir(parents=True)
+        for name, payload in payloads.items():
+            (partial / name).write_bytes(payload)
+        write_atomically(tar_path(out), lambda path: path.write_bytes(tar_gz(out.name, payloads)))
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
     if out.exists():
         out.rmdir()
     partial.rename(out)
-    return check_wod(archive)
+    return check_wod(tar_path(out))
 
 
 def tar_path(out: Path) -> Path:
