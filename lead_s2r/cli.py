@@ -120,6 +120,14 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_carla_metrics(args: argparse.Namespace) -> int:
+    from lead_s2r.scoring.carla_leaderboard import carla_metrics
+
+    summary = carla_metrics(args.results, args.benchmark, Path(args.out), args.routes)
+    print(json.dumps(summary["aggregates"], indent=2))
+    return 0
+
+
 def cmd_quickstart(args: argparse.Namespace) -> int:
     from lead_s2r.quickstart import quickstart
 
@@ -175,6 +183,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", required=True)
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
     sub.set_defaults(run=cmd_score)
+
+    sub = verbs.add_parser("carla-metrics", help="CARLA leaderboard 2.0 results -> DS, RC, IS, SR, NDS, per 100 km")
+    sub.add_argument("results", nargs="+", help="results JSON files (one per seed or route batch)")
+    sub.add_argument("--benchmark", required=True, choices=["bench2drive", "longest6", "town13"])
+    sub.add_argument("--out", required=True)
+    sub.add_argument("--routes", default=None, help="the benchmark's routes XML, to name the missing routes")
+    sub.set_defaults(run=cmd_carla_metrics)
 
     sub = verbs.add_parser("quickstart", help="synthetic data -> conversion -> baseline predictions -> scores")
     sub.add_argument("--out", default="quickstart")
