@@ -128,6 +128,13 @@ def cmd_carla_metrics(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_table(args: argparse.Namespace) -> int:
+    from lead_s2r.tables import build_table
+
+    print(build_table(args.spec, args.runs, args.out), end="")
+    return 0
+
+
 def cmd_quickstart(args: argparse.Namespace) -> int:
     from lead_s2r.quickstart import quickstart
 
@@ -190,6 +197,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", required=True)
     sub.add_argument("--routes", default=None, help="the benchmark's routes XML, to name the missing routes")
     sub.set_defaults(run=cmd_carla_metrics)
+
+    sub = verbs.add_parser("table", help="a paper table from runs: mean ± std over seeds beside the paper's numbers")
+    sub.add_argument("--spec", required=True, help="table spec, e.g. recipes/paper/table4_real_data.yaml")
+    sub.add_argument("--runs", required=True, nargs="+", help="run directories or glob patterns (runs/*/seed*)")
+    sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
+    sub.set_defaults(run=cmd_table)
 
     sub = verbs.add_parser("quickstart", help="synthetic data -> conversion -> baseline predictions -> scores")
     sub.add_argument("--out", default="quickstart")
