@@ -23,6 +23,8 @@ from typing import Any
 
 import yaml
 
+from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
+
 SEED_FOLDER = re.compile(r"^seed[_-]?(\d+)$")
 MISSING = "missing"
 
@@ -86,12 +88,26 @@ def load_spec(path: str | Path) -> TableSpec:
         )
     except (KeyError, TypeError) as err:
         raise TableError(f"{path}: bad table spec ({type(err).__name__}: {err}); see docs/reproducing.md") from None
+    _check_figure(path, spec.figure)
     for row in spec.rows:
         if len(row.paper) != len(spec.columns):
             raise TableError(
                 f"{path}: row {row.name!r} lists {len(row.paper)} paper numbers for {len(columns)} columns"
             )
     return spec
+
+
+def _check_figure(path: Path, figure: dict[str, Any] | None) -> None:
+    if figure is None:
+        return
+    infractions = figure.get("infractions") if isinstance(figure, dict) else None
+    if not isinstance(figure.get("metric") if isinstance(figure, dict) else None, str) or not infractions:
+        raise TableError(f"{path}: figure needs 'metric' (a carla-metrics metric) and a list of 'infractions'")
+    unknown = sorted(set(infractions) - set(INFRACTIONS))
+    if unknown:
+        raise TableError(
+            f"{path}: figure.infractions: unknown {unknown}; the leaderboard's names are {list(INFRACTIONS)}"
+        )
 
 
 @dataclass
@@ -122,7 +138,7 @@ def run_identity(config_path: Path) -> tuple[str, int]:
 
 def load_run(path: Path) -> Run:
     """A run directory: its saved config(s) and every ``scores.json`` below it."""
-    configs = sorted(path.rglob("config.yaml"), key=lambda p: (len(p.parts), str(p)))
+    configs = list(path.rglob("config.yaml"))  # fit and predict each save one; they must agree
     if not configs:
         raise TableError(f"{path}: no config.yaml below it (LightningCLI saves one in the run's log folder)")
     identities = {run_identity(config) for config in configs}
@@ -131,7 +147,10 @@ def load_run(path: Path) -> Run:
     run_id, seed = identities.pop()
     run = Run(path, run_id, seed)
     for scores in sorted(path.rglob("scores.json")):
-        report = json.loads(scores.read_text())
+        try:
+            report = json.loads(scores.read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise TableError(f"{scores}: cannot read scores: {err}") from None
         metric = report.get("metric")
         if metric in run.scores:
             raise TableError(f"{path}: two scores.json for metric {metric!r} (one is {scores}); keep one")

@@ -131,3 +131,12 @@ def test_figure_bar_heights_follow_the_rates(tmp_path):
     assert len(filled) == pytest.approx(320, abs=2)  # 50 is the axis top: a full-height bar
     second = image[:, 70 + 15 + (160 - 30) // 2 + 5]
     assert len(np.flatnonzero((second == PALETTE[1]).all(axis=1))) == pytest.approx(160, abs=2)
+
+
+def test_figure_spec_names_leaderboard_infractions(tmp_path):
+    spec = yaml.safe_load(write_spec(tmp_path).read_text())
+    spec["figure"]["infractions"] = ["red_lights"]
+    bad = tmp_path / "bad_figure.yaml"
+    bad.write_text(yaml.safe_dump(spec))
+    with pytest.raises(TableError, match=r"unknown \['red_lights'\]"):
+        load_spec(bad)
