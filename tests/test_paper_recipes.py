@@ -2,14 +2,18 @@
 chained by init_from, table specs pointing at recipes that exist, and the ego-status MLP trainable through the CLI."""
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from tiny_models import TINY
 
 from lead_s2r.cli import main
 from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.models.config import BEVGrid, TFv6Config
+from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.tables import SEED_FOLDER, load_spec
 
 RECIPES = Path(__file__).parents[1] / "recipes"
@@ -124,3 +128,23 @@ def test_ego_mlp_trains_and_predicts_through_the_cli(toy_data, tmp_path, monkeyp
     main(["predict", "--config", str(recipe), "--ckpt_path", str(checkpoint)])
     table = pq.read_table(predictions)
     assert table.num_rows > 0 and set(table.column("dataset").to_pylist()) == {"toy"}
+
+
+def tfv6_config_of(recipe: dict) -> TFv6Config:
+    """The recipe's TFv6Config, as LightningCLI would build it (BEV box as a BEVGrid, lists as tuples)."""
+    fields = dict(recipe["model"]["model"]["init_args"]["config"])
+    if "bev" in fields:
+        fields["bev"] = BEVGrid(**fields["bev"])
+    return TFv6Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+
+
+@pytest.mark.parametrize("recipe", FULL_SCALE, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_recipe_models_build(recipe, one_thread):
+    """A switch combination the model refuses (TFv5 with target-point tokens...) fails here, not on a GPU node."""
+    config = yaml.safe_load(recipe.read_text())
+    if not config["model"]["model"]["class_path"].endswith("TFv6"):
+        return
+    full = tfv6_config_of(config)
+    tiny = {k: v for k, v in TINY.items() if k not in ("image_size", "bev")} | {"pretrained": False}
+    model = TFv6(replace(full, **tiny))
+    assert model.config.decoder == full.decoder and model.config.target_points == full.target_points
