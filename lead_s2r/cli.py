@@ -199,7 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.set_defaults(run=cmd_carla_metrics)
 
     sub = verbs.add_parser("table", help="a paper table from runs: mean ± std over seeds beside the paper's numbers")
-    sub.add_argument("--spec", required=True, help="table spec, e.g. recipes/paper/table4_real_data.yaml")
+    sub.add_argument(
+        "--spec", required=True, help="table spec: a file, or a shipped name (table1 ... table5 in recipes/paper)"
+    )
     sub.add_argument("--runs", required=True, nargs="+", help="run directories or glob patterns (runs/*/seed*)")
     sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
     sub.set_defaults(run=cmd_table)

@@ -25,6 +25,8 @@ import yaml
 
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
 
+#: The table specs of the paper (Tables 1-5), next to the recipes they read.
+PAPER_SPECS = Path(__file__).resolve().parents[1] / "recipes" / "paper"
 SEED_FOLDER = re.compile(r"^seed[_-]?(\d+)$")
 MISSING = "missing"
 
@@ -65,9 +67,17 @@ class TableSpec:
     figure: dict[str, Any] | None = None
 
 
+def spec_path(spec: str | Path) -> Path:
+    """A spec file, or the name of one shipped in ``recipes/paper`` (``table4``) of this source checkout."""
+    path = Path(spec)
+    if not path.exists() and path.parent == Path(".") and (PAPER_SPECS / f"{path.stem}.yaml").exists():
+        return PAPER_SPECS / f"{path.stem}.yaml"
+    return path
+
+
 def load_spec(path: str | Path) -> TableSpec:
-    """Read and check a table spec; every error names the file and the field."""
-    path = Path(path)
+    """Read and check a table spec (a path or a shipped name, see :func:`spec_path`); errors name file and field."""
+    path = spec_path(path)
     try:
         raw = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as err:
@@ -310,17 +320,17 @@ def to_csv(spec: TableSpec, cells: list[list[Cell]]) -> str:
     return out.getvalue()
 
 
-def build_table(spec_path: str | Path, run_patterns: list[str], out: str | Path | None = None) -> str:
+def build_table(spec_name: str | Path, run_patterns: list[str], out: str | Path | None = None) -> str:
     """The body of ``lead-s2r table``: the markdown table; with ``out``, also ``<spec>.md/.tex/.csv`` (and
     ``<spec>.png`` when the spec asks for the infractions figure)."""
-    spec = load_spec(spec_path)
+    spec = load_spec(spec_name)
     runs = find_runs(run_patterns)
     cells = collect(spec, runs)
     markdown = to_markdown(spec, cells)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        stem = Path(spec_path).stem
+        stem = spec_path(spec_name).stem
         (out / f"{stem}.md").write_text(markdown)
         (out / f"{stem}.tex").write_text(to_latex(spec, cells))
         (out / f"{stem}.csv").write_text(to_csv(spec, cells))

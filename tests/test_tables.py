@@ -140,3 +140,26 @@ def test_figure_spec_names_leaderboard_infractions(tmp_path):
     bad.write_text(yaml.safe_dump(spec))
     with pytest.raises(TableError, match=r"unknown \['red_lights'\]"):
         load_spec(bad)
+
+
+def test_table5_from_leaderboard_results_end_to_end(tmp_path):
+    """results JSON -> carla-metrics into each seed's run folder -> the shipped Table 5 spec, by name."""
+    from test_carla_leaderboard import VEHICLE_HIT, record, results_file
+
+    from lead_s2r.scoring.carla_leaderboard import carla_metrics
+
+    root = tmp_path / "runs"
+    for seed, hits in ((0, 0), (1, 1), (2, 2)):  # routes with a vehicle hit each: DS 100 or 60 per route
+        run = make_run(root, "carla/tfv6_resnet34", seed, {})
+        for benchmark, n in (("bench2drive", 220), ("longest6", 36), ("town13", 20)):
+            records = [
+                record(i, infractions={"collisions_vehicle": [VEHICLE_HIT]} if i < hits else {}) for i in range(n)
+            ]
+            carla_metrics([results_file(tmp_path, records, f"{benchmark}{seed}.json")], benchmark, run / benchmark)
+    markdown = build_table("table5", [str(root / "carla" / "*" / "seed*")], tmp_path / "tables")
+    ds = [100 - 40 * hits / 220 for hits in (0, 1, 2)]  # Bench2Drive DS per seed
+    mean, std = np.mean(ds), np.std(ds, ddof=1)
+    assert f"| TFv6 ResNet-34 | {mean:.1f} ± {std:.1f} | 94.7 |" in markdown
+    assert "| TFv6 RegNetY-032 (full) | missing | 95.2 |" in markdown
+    figure = cv2.imread(str(tmp_path / "tables" / "table5.png"))
+    assert figure is not None and figure.shape[1] > 6 * 160  # one bar group per row of the table
