@@ -117,24 +117,22 @@ def min_speed_percentage(message: str) -> float:
     return float(match.group(1))
 
 
-def _speed_factor(pct: float) -> float:
-    return 1.0 - (1.0 - MIN_SPEED_PENALTY) * (1.0 - pct / 100.0)
-
-
-def _lane_factor(pct: float) -> float:
-    return 1.0 - pct / 100.0
+def percentage_factors(record: RouteRecord, min_speed: bool = True) -> float:
+    """The product of the min-speed factors (skipped with ``min_speed=False``) and the outside-lane factor."""
+    factor = 1.0
+    if min_speed:
+        for message in record.infractions.get("min_speed_infractions", ()):
+            factor *= 1.0 - (1.0 - MIN_SPEED_PENALTY) * (1.0 - min_speed_percentage(message) / 100.0)
+    for message in record.infractions.get("outside_route_lanes", ()):
+        factor *= 1.0 - outside_lane_event(message)[1] / 100.0
+    return factor
 
 
 def infraction_score(record: RouteRecord, min_speed: bool = True) -> float:
     """Leaderboard 2.0 IS of one route: the product of one factor per event (``min_speed=False``: Bench2Drive)."""
-    score = 1.0
+    score = percentage_factors(record, min_speed)
     for name, penalty in PENALTIES.items():
         score *= penalty ** record.count(name)
-    if min_speed:
-        for message in record.infractions.get("min_speed_infractions", ()):
-            score *= _speed_factor(min_speed_percentage(message))
-    for message in record.infractions.get("outside_route_lanes", ()):
-        score *= _lane_factor(outside_lane_event(message)[1])
     return score
 
 
@@ -143,15 +141,11 @@ def normalised_infraction_score(record: RouteRecord) -> float:
 
     The per-km term is skipped when the route was not driven at all (RC 0 or length 0).
     """
-    score = 1.0
+    score = percentage_factors(record)
     km = record.driven_km
     if km > 0:
         for name, penalty in PENALTIES.items():
             score *= (NIS_SCALE * penalty) ** (record.count(name) / km)
-    for message in record.infractions.get("min_speed_infractions", ()):
-        score *= _speed_factor(min_speed_percentage(message))
-    for message in record.infractions.get("outside_route_lanes", ()):
-        score *= _lane_factor(outside_lane_event(message)[1])
     return score
 
 
