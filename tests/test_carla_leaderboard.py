@@ -117,6 +117,15 @@ def test_min_speed_and_outside_lane_factors():
     assert infraction_score(lanes) == pytest.approx(0.9)
 
 
+def test_the_leaderboards_own_scores_are_compared():
+    hit = record(0, rc=80.0, infractions={"collisions_vehicle": [VEHICLE_HIT]})
+    hit["scores"] |= {"score_penalty": 0.6, "score_composed": 48.0}
+    lanes = record(1, infractions={"outside_route_lanes": [off_lane(12.3, 1.23)]})
+    lanes["scores"] |= {"score_penalty": 0.98771, "score_composed": 98.771}  # unrounded 1.229 % off-lane
+    assert score([hit, lanes])["max_ds_difference_to_reported"] == pytest.approx(0.001, abs=1e-9)
+    assert score([record(0)])["max_ds_difference_to_reported"] is None
+
+
 def test_a_route_that_was_never_driven_skips_the_per_km_term():
     crashed = one(record(0, rc=0.0, infractions={"collisions_vehicle": [VEHICLE_HIT]}, status="Failed - Agent crashed"))
     assert normalised_infraction_score(crashed) == 1.0

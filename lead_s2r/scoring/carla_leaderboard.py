@@ -291,8 +291,16 @@ def score_records(
         "records": len(rows),
         "missing_evaluations": missing,
         "missing_routes": _missing_routes(evaluations, repetitions, route_ids),
+        "max_ds_difference_to_reported": _max_difference(rows, "ds", "reported_ds"),
     }
     return ScoreResult(pa.Table.from_pylist(rows) if rows else pa.table({}), aggregates)
+
+
+def _max_difference(rows: Sequence[dict[str, Any]], ours: str, theirs: str) -> float | None:
+    """Largest |recomputed - leaderboard's own| over the records that carry the leaderboard's value: a check that the
+    results come from the leaderboard version these formulas describe (None: no record carries one)."""
+    pairs = [(row[ours], row[theirs]) for row in rows if isinstance(row[theirs], int | float)]
+    return max((abs(a - b) for a, b in pairs), default=None)
 
 
 def _missing_routes(evaluations: Counter, repetitions: int, route_ids: Sequence[str] | None) -> list[str]:
