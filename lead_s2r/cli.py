@@ -208,6 +208,21 @@ def _submit_parser(verbs: Any) -> None:
     wod.add_argument("--method-link", default="")
 
 
+def cmd_carla_metrics(args: argparse.Namespace) -> int:
+    from lead_s2r.scoring.carla_leaderboard import carla_metrics
+
+    summary = carla_metrics(args.results, args.benchmark, Path(args.out), args.routes)
+    print(json.dumps(summary["aggregates"], indent=2))
+    return 0
+
+
+def cmd_table(args: argparse.Namespace) -> int:
+    from lead_s2r.tables import build_table
+
+    print(build_table(args.spec, args.runs, args.out), end="")
+    return 0
+
+
 def cmd_quickstart(args: argparse.Namespace) -> int:
     from lead_s2r.quickstart import quickstart
 
@@ -265,6 +280,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub.set_defaults(run=cmd_score)
 
     _submit_parser(verbs)
+
+    sub = verbs.add_parser("carla-metrics", help="CARLA leaderboard 2.0 results -> DS, RC, IS, SR, NDS, per 100 km")
+    sub.add_argument("results", nargs="+", help="results JSON files (one per seed or route batch)")
+    sub.add_argument("--benchmark", required=True, choices=["bench2drive", "longest6", "town13"])
+    sub.add_argument("--out", required=True)
+    sub.add_argument("--routes", default=None, help="the benchmark's routes XML, to name the missing routes")
+    sub.set_defaults(run=cmd_carla_metrics)
+
+    sub = verbs.add_parser("table", help="a paper table from runs: mean ± std over seeds beside the paper's numbers")
+    sub.add_argument(
+        "--spec", required=True, help="table spec: a file, or a shipped name (table1 ... table5 in recipes/paper)"
+    )
+    sub.add_argument("--runs", required=True, nargs="+", help="run directories or glob patterns (runs/*/seed*)")
+    sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
+    sub.set_defaults(run=cmd_table)
 
     sub = verbs.add_parser("quickstart", help="synthetic data -> conversion -> baseline predictions -> scores")
     sub.add_argument("--out", default="quickstart")

@@ -17,7 +17,7 @@ import webdataset as wds
 
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform, collate
-from lead_s2r.models.config import TFv6Config
+from lead_s2r.models.config import EgoMLPConfig, TFv6Config
 from lead_s2r.models.inputs import target_point_range
 from lead_s2r.shards import INFO, decode_sample, load_info, shard_paths
 
@@ -70,6 +70,19 @@ class _Tag:
         return {self.source: batch}
 
 
+def ego_status_transform_config(config: EgoMLPConfig) -> TFv6Config:
+    """What the transforms need for the ego-status MLP: its output grids and no sensor input or perception label."""
+    return TFv6Config(
+        bev_input="coordinates",
+        use_radar=False,
+        trajectory_grids=dict(config.trajectory_grids),
+        bev_semantic_classes={},
+        box_classes={},
+        semantic_classes={},
+        depth_sources=(),
+    )
+
+
 class DriveDataModule(L.LightningDataModule):
     """Mixed-source training data and per-source evaluation data for the TFv6 family.
 
@@ -117,6 +130,8 @@ class DriveDataModule(L.LightningDataModule):
         if self._config is None:
             model = getattr(self.trainer, "lightning_module", None)
             config = getattr(getattr(model, "model", None), "config", None)
+            if isinstance(config, EgoMLPConfig):
+                config = ego_status_transform_config(config)
             if not isinstance(config, TFv6Config):
                 raise ValueError("DriveDataModule needs a TFv6Config: pass config= or train a model that has one")
             self._config = config

@@ -211,15 +211,15 @@ class SourceTransform:
     def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
         meta = sample["meta"]
         ego = meta["ego"]
-        rgb, layout = self.image(sample)
         out: dict[str, Any] = {
             "__key__": sample["__key__"],
             "__dataset__": meta["dataset"],
-            "rgb": rgb,
             "speed": torch.tensor(float(ego["speed"])),
             "acceleration": torch.tensor(ego["acceleration"], dtype=torch.float32),
             "command": torch.tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
+        if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
+            out["rgb"], layout = self.image(sample)
         out.update(self.target_points(sample))
         if self.config.bev_input == "raster":
             out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), self.config.bev))[None]
