@@ -41,49 +41,60 @@ STATIC_AT_FAULT_SCORE = 0.5
 TTC_OFFSETS = (0, 3, 6, 9)  # steps: np.arange(0, int(1.0 / 0.1), 3)
 
 
+#: Slack [m] on the bounding-circle test that picks candidate pairs, far above any rounding in the box corners.
+CIRCLE_SLACK = 1e-6
+#: Candidate pairs are searched this many query boxes at a time (bounds the (chunk, Gmax) temporaries).
+CHUNK = 4096
+
+
 @dataclass
 class Hits:
-    """Overlaps found over a run of steps: proposal row, ego step, observation step, object, and the object's
-    polygon and centroid at the observation step."""
+    """Overlapping (ego box, observation geometry) pairs: the query's proposal row, its order key (the ego step for
+    NC, ``step * len(offsets) + k`` for TTC) and the geometry index in the observation."""
 
     row: np.ndarray
-    step: np.ndarray
-    obs_step: np.ndarray
-    obj: np.ndarray
-    polygon: np.ndarray
-    centroid: np.ndarray
-
-    @classmethod
-    def collect(cls, observation: Observation, queries: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]) -> "Hits":
-        """Run each query ``(obs_step, polygons, rows, steps)`` against the tree of ``obs_step``."""
-        parts = []
-        for obs_step, polygons, rows, steps in queries:
-            query, geom = observation.query(obs_step, polygons)
-            obj = observation.objects[obs_step][geom]
-            parts.append(
-                (
-                    rows[query],
-                    steps[query],
-                    np.full(len(query), obs_step),
-                    obj,
-                    observation.polygons[obs_step][geom],
-                    observation.centroids[obs_step][geom],
-                )
-            )
-        if not parts:
-            empty = np.zeros(0, np.int64)
-            return cls(empty, empty, empty, empty, np.zeros(0, object), np.zeros((0, 2)))
-        return cls(*(np.concatenate(column) for column in zip(*parts, strict=True)))
+    order: np.ndarray
+    geom: np.ndarray
 
     def select(self, keep: np.ndarray) -> "Hits":
-        return Hits(
-            self.row[keep],
-            self.step[keep],
-            self.obs_step[keep],
-            self.obj[keep],
-            self.polygon[keep],
-            self.centroid[keep],
-        )
+        return Hits(self.row[keep], self.order[keep], self.geom[keep])
+
+
+def candidate_pairs(
+    observation: Observation, centers: np.ndarray, obs_steps: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``(Q, 2)`` and enclosing
+    radius ``radius`` against the geometries of observation step ``obs_steps (Q,)``. Every intersecting pair is
+    among them, so the exact test runs on few pairs and no STRtree is needed."""
+    queries, geoms = [], []
+    for start in range(0, len(centers), CHUNK):
+        step_geoms = observation.step_geoms[obs_steps[start : start + CHUNK]]  # (C, Gmax)
+        safe = np.maximum(step_geoms, 0)
+        offset = observation.centroids[safe] - centers[start : start + CHUNK, None]
+        reach = radius + observation.radius[safe] + CIRCLE_SLACK
+        query, slot = np.nonzero((step_geoms >= 0) & (np.einsum("cgi,cgi->cg", offset, offset) <= reach * reach))
+        queries.append(query + start)
+        geoms.append(step_geoms[query, slot])
+    if not queries:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(queries), np.concatenate(geoms)
+
+
+def find_hits(
+    observation: Observation,
+    coords: np.ndarray,
+    obs_steps: np.ndarray,
+    rows: np.ndarray,
+    order: np.ndarray,
+    radius: float,
+) -> Hits:
+    """Geometries that intersect query boxes ``coords (Q, 5, 2)`` at observation steps ``obs_steps (Q,)``; polygons
+    are built only for boxes with a candidate."""
+    query, geom = candidate_pairs(observation, coords[:, Corner.CENTER], obs_steps, radius)
+    boxes, inverse = np.unique(query, return_inverse=True)
+    intersects = shapely.intersects(box_polygons(coords[boxes])[inverse.reshape(-1)], observation.polygons[geom])
+    query, geom = query[intersects], geom[intersects]
+    return Hits(rows[query], order[query], geom)
 
 
 def relative_angle(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -115,56 +126,59 @@ def _first_step(rows: np.ndarray, steps: np.ndarray, num_rows: int) -> np.ndarra
 
 
 def _usable(hits: Hits, observation: Observation) -> np.ndarray:
-    return ~observation.object_is_red_light[hits.obj] & ~observation.initially_ignored[hits.obj]
+    obj = observation.objects[hits.geom]
+    return ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
+
+
+def enclosing_radius(length: float, width: float) -> float:
+    """Radius of the circle about a box's centre that holds the box."""
+    return float(np.hypot(length / 2.0, width / 2.0))
 
 
 def no_at_fault_collisions(
     states: np.ndarray,
-    ego_polygons: np.ndarray,
     ego_coords: np.ndarray,
+    ego_radius: float,
     observation: Observation,
     lanes_or_off_road: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """NC ``(N,)`` in {0, 0.5, 1} and the first at-fault step ``(N,)`` (-1 if none), for states ``(N, T, 11)``,
-    their polygons ``(N, T)`` and boxes ``(N, T, 5, 2)``; ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or
+    """NC ``(N,)`` in {0, 0.5, 1} and the first at-fault step ``(N,)`` (-1 if none), for states ``(N, T, 11)`` and
+    their boxes ``(N, T, 5, 2)`` (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or
     NON_DRIVABLE_AREA."""
-    num_rows, num_steps = ego_polygons.shape
-    rows = np.arange(num_rows)
-    hits = Hits.collect(observation, [(t, ego_polygons[:, t], rows, np.full(num_rows, t)) for t in range(num_steps)])
+    num_rows, num_steps = ego_coords.shape[:2]
+    row, step = np.divmod(np.arange(num_rows * num_steps), num_steps)
+    hits = find_hits(observation, ego_coords.reshape(-1, 5, 2), step, row, step, ego_radius)
     hits = hits.select(_usable(hits, observation))
-    ego = states[hits.row, hits.step]
-    ego_speed = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y])
-    ego_stopped = ego_speed <= STOPPED_EGO_SPEED
-    track_stopped = ~observation.object_is_agent[hits.obj] | (observation.object_speed[hits.obj] <= STOPPED_TRACK_SPEED)
-    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], hits.centroid) > np.deg2rad(BEHIND_DEG)
-    front = ego_coords[hits.row, hits.step][:, [Corner.FRONT_LEFT, Corner.FRONT_RIGHT]]
-    front_hit = shapely.intersects(shapely.linestrings(front), hits.polygon)
+    row, step, obj = hits.row, hits.order, observation.objects[hits.geom]
+    ego = states[row, step]
+    ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
+    track_stopped = ~observation.object_is_agent[obj] | (observation.object_speed[obj] <= STOPPED_TRACK_SPEED)
+    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], observation.centroids[hits.geom]) > np.deg2rad(BEHIND_DEG)
+    front = ego_coords[row, step][:, [Corner.FRONT_LEFT, Corner.FRONT_RIGHT]]
+    front_hit = shapely.intersects(shapely.linestrings(front), observation.polygons[hits.geom])
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
-    at_fault = ~ego_stopped & (
-        track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[hits.row, hits.step])
-    )
-    counted = counted_before_release(hits.row, hits.obj, hits.step, at_fault)
+    at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
+    counted = counted_before_release(row, obj, step, at_fault)
 
-    severity = np.where(observation.object_is_agent[hits.obj], 0.0, STATIC_AT_FAULT_SCORE)
+    severity = np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE)
     scores = np.ones(num_rows)
-    np.minimum.at(scores, hits.row[counted], severity[counted])
-    return scores, _first_step(hits.row[counted], hits.step[counted], num_rows)
+    np.minimum.at(scores, row[counted], severity[counted])
+    return scores, _first_step(row[counted], step[counted], num_rows)
 
 
-def ttc_polygons(states: np.ndarray, ego_coords: np.ndarray, interval: float, offsets: tuple[int, ...]) -> np.ndarray:
-    """Ego boxes ``(N, T, len(offsets))`` moved ahead at constant speed along the heading by ``offset * interval``."""
+def ttc_coords(states: np.ndarray, ego_coords: np.ndarray, interval: float, offsets: tuple[int, ...]) -> np.ndarray:
+    """Ego boxes ``(N, T, len(offsets), 5, 2)`` moved along the heading at the current speed by ``offset * interval``
+    (``float(k) * interval`` as NAVSIM computes it)."""
     speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
     heading = states[..., StateIndex.HEADING]
     per_second = np.stack([np.cos(heading) * speed, np.sin(heading) * speed], axis=-1)
-    ring = ego_coords.copy()
-    ring[:, :, Corner.CENTER] = ring[:, :, Corner.FRONT_LEFT]
-    moved = np.stack([ring + per_second[:, :, None] * (float(k) * interval) for k in offsets], axis=2)
-    return box_polygons(moved)
+    return np.stack([ego_coords + per_second[:, :, None] * (float(k) * interval) for k in offsets], axis=2)
 
 
 def time_to_collision(
     states: np.ndarray,
     ego_coords: np.ndarray,
+    ego_radius: float,
     observation: Observation,
     lanes_or_off_road: np.ndarray,
     in_intersection: np.ndarray,
@@ -177,25 +191,20 @@ def time_to_collision(
     ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon."""
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
-    polygons = ttc_polygons(states, ego_coords, interval, offsets)
+    coords = ttc_coords(states[:, :num_steps], ego_coords[:, :num_steps], interval, offsets)
+    row, step, k = np.unravel_index(np.arange(coords[..., 0, 0].size), coords.shape[:3])
     speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
-    rows = np.arange(num_rows)
-    queries = []
-    for obs_step in range(min(num_steps - 1 + max(offsets), observation.num_steps - 1) + 1):
-        pairs = [(t, k) for k, offset in enumerate(offsets) if 0 <= (t := obs_step - offset) < num_steps]
-        if pairs:
-            steps = np.repeat([t for t, _ in pairs], num_rows)
-            ks = np.repeat([k for _, k in pairs], num_rows)
-            query_rows = np.tile(rows, len(pairs))
-            queries.append((obs_step, polygons[query_rows, steps, ks], query_rows, steps * len(offsets) + ks))
-    hits = Hits.collect(observation, queries)
-    step = hits.step // len(offsets)
-    keep = _usable(hits, observation) & (speed[hits.row, step] >= TTC_STOPPED_SPEED)
-    hits, step, order = hits.select(keep), step[keep], hits.step[keep]
+    moving = (speed[row, step] >= TTC_STOPPED_SPEED) & (step + np.asarray(offsets)[k] < observation.num_steps)
+    row, step, k = row[moving], step[moving], k[moving]
+    obs_step = step + np.asarray(offsets)[k]
+    order = step * len(offsets) + k
+    hits = find_hits(observation, coords[row, step, k], obs_step, row, order, ego_radius)
+    hits = hits.select(_usable(hits, observation))
+    step = hits.order // len(offsets)
     rear_axle = states[hits.row, step, : StateIndex.HEADING + 1]
-    angle = relative_angle(rear_axle, hits.centroid)
+    angle = relative_angle(rear_axle, observation.centroids[hits.geom])
     risky_area = lanes_or_off_road[hits.row, step] | in_intersection[hits.row, step]
     violation = (angle < np.deg2rad(AHEAD_DEG)) | (risky_area & ~(angle > np.deg2rad(BEHIND_DEG)))
-    counted = counted_before_release(hits.row, hits.obj, order, violation)
+    counted = counted_before_release(hits.row, observation.objects[hits.geom], hits.order, violation)
     first = _first_step(hits.row[counted], step[counted], num_rows)
     return np.where(first >= 0, 0.0, 1.0), first

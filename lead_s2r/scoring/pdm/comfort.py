@@ -14,7 +14,13 @@ feature is rounded to 8 decimals. Official behaviours reproduced on purpose:
 * Bounds are strict and must hold at every step: -4.05 < a_lon < 2.40 m/s^2, |a_lat| < 4.89 m/s^2,
   |jerk| < 8.37 m/s^3, |jerk_lon| < 4.13 m/s^3, |yaw accel| < 1.93 rad/s^2, |yaw rate| < 0.95 rad/s.
 * The derivative step is the mean of the time differences (``np.diff(t).mean()``).
+
+A Savitzky-Golay filter of fixed length, window, order and step is a linear map, so it is taken once from scipy as a
+``(T, T)`` matrix (the filter applied to the identity) and then applied to all proposals by one product: the same
+operator as ``savgol_filter`` row by row, up to the order of floating-point additions.
 """
+
+from functools import lru_cache
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -32,6 +38,17 @@ ACCEL_WINDOW = 8  # the extractor default that the jerk's smoothing keeps
 YAW_WINDOW = 5
 
 
+@lru_cache(maxsize=64)
+def _savgol_matrix(length: int, window_length: int, polyorder: int, deriv: int, delta: float) -> np.ndarray:
+    identity = np.eye(length)
+    return savgol_filter(identity, window_length, polyorder, deriv=deriv, delta=delta, axis=0, mode="interp")
+
+
+def savgol(values: np.ndarray, window_length: int, polyorder: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    """``scipy.signal.savgol_filter(values, ..., axis=-1, mode="interp")`` for a batch ``(..., T)`` of signals."""
+    return values @ _savgol_matrix(values.shape[-1], window_length, polyorder, deriv, delta).T
+
+
 def acceleration(states: np.ndarray, coordinate: str, window: int = ACCEL_WINDOW, poly_order: int = 2) -> np.ndarray:
     """Smoothed acceleration ``(N, T)``: ``coordinate`` "x", "y" or "magnitude" of ``ACCELERATION_X/Y``."""
     ax, ay = states[..., StateIndex.ACCELERATION_X], states[..., StateIndex.ACCELERATION_Y]
@@ -43,7 +60,7 @@ def acceleration(states: np.ndarray, coordinate: str, window: int = ACCEL_WINDOW
         signal = np.hypot(ax, ay)
     else:
         raise ValueError(f"acceleration coordinate {coordinate!r}: use 'x', 'y' or 'magnitude'")
-    smoothed = savgol_filter(signal, polyorder=poly_order, window_length=min(window, states.shape[-2]), axis=-1)
+    smoothed = savgol(signal, window_length=min(window, states.shape[-2]), polyorder=poly_order)
     return np.round(smoothed, DECIMALS)
 
 
@@ -57,7 +74,7 @@ def derivative(
     step = np.diff(times)
     if not (step > 0).all():
         raise ValueError("comfort times must increase strictly")
-    return savgol_filter(values, polyorder=poly_order, window_length=window, deriv=order, delta=step.mean(), axis=-1)
+    return savgol(values, window_length=window, polyorder=poly_order, deriv=order, delta=float(step.mean()))
 
 
 def jerk(

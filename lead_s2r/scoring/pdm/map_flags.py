@@ -27,16 +27,22 @@ SCORED_KINDS = (MapKind.ROADBLOCK, MapKind.LANE, MapKind.LANE_CONNECTOR, MapKind
 DRIVABLE_KINDS = (MapKind.ROADBLOCK, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
 LANE_KINDS = (MapKind.LANE, MapKind.LANE_CONNECTOR)
 NUM_CORNERS = 4
+#: Slack [m] on the ego box's enclosing radius when picking candidate polygons.
+REACH_SLACK = 1e-6
 
 
 @dataclass
 class DrivableMap:
-    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`) with their ids, kinds and an STRtree."""
+    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids and kinds, and an STRtree
+    over their bounding boxes grown by ``reach``: a box centre finds every polygon that a point of the box within
+    ``reach`` of it can lie in, without building the box's polygon."""
 
     polygons: np.ndarray  # (K,) shapely Polygons
     ids: np.ndarray  # (K,) int64
     kinds: np.ndarray  # (K,) MapKind codes
+    reach: float
     tree: STRtree
+    bounds: np.ndarray  # (K, 4) xmin, ymin, xmax, ymax
 
     @classmethod
     def from_scene(cls, scene: PDMScene) -> "DrivableMap":
@@ -50,62 +56,82 @@ class DrivableMap:
                 f"{len(keep)}; every polygon needs at least one point (rebuild scoring.npz)"
             )
         polygons = shapely.polygons(rings[keep])
-        return cls(
-            polygons,
-            np.asarray(scene.polygon_id, np.int64)[keep],
-            np.asarray(scene.polygon_kind)[keep],
-            STRtree(polygons),
-        )
+        shapely.prepare(polygons)
+        ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
+        reach = float(np.hypot(scene.vehicle.length / 2, scene.vehicle.width / 2)) + REACH_SLACK
+        bounds = shapely.bounds(polygons)
+        grown = shapely.box(bounds[:, 0] - reach, bounds[:, 1] - reach, bounds[:, 2] + reach, bounds[:, 3] + reach)
+        return cls(polygons, ids, kinds, reach, STRtree(grown), bounds)
 
-    def points_within(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(point index, polygon index)`` of every point ``(P, 2)`` strictly inside a polygon."""
-        hits = self.tree.query(shapely.points(points), predicate="within")
-        return hits[0], hits[1]
-
-    def in_kind(self, points: np.ndarray, kinds: tuple[MapKind, ...]) -> np.ndarray:
-        """``(...)`` whether each point ``(..., 2)`` lies strictly inside a polygon of one of ``kinds``."""
-        flat = points.reshape(-1, 2)
-        point, polygon = self.points_within(flat)
-        inside = np.zeros(len(flat), bool)
-        inside[point[np.isin(self.kinds[polygon], kinds)]] = True
-        return inside.reshape(points.shape[:-1])
+    def locate(self, points: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon; every point of row b
+        must lie within ``reach`` of ``centers[b]``."""
+        box, polygon = self.tree.query(shapely.points(centers))
+        box, point = np.repeat(box, points.shape[1]), np.tile(np.arange(points.shape[1]), len(polygon))
+        polygon = np.repeat(polygon, points.shape[1])
+        x, y = points[box, point].T
+        bounds = self.bounds[polygon].T
+        near = np.flatnonzero((x >= bounds[0]) & (y >= bounds[1]) & (x <= bounds[2]) & (y <= bounds[3]))
+        inside = near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]
+        return box[inside], point[inside], polygon[inside]
 
 
 @dataclass
 class EgoAreas:
-    """``(N, T)`` flags of NAVSIM's ``EgoAreaIndex``."""
+    """``(N, T)`` flags of NAVSIM's ``EgoAreaIndex`` and INTERSECTION membership of the rear axle and the centre."""
 
     multiple_lanes: np.ndarray
     non_drivable_area: np.ndarray
     oncoming_traffic: np.ndarray
+    rear_axle_in_intersection: np.ndarray
+    center_in_intersection: np.ndarray
 
 
-def ego_areas(drivable_map: DrivableMap, coords: np.ndarray, route_lane_ids: np.ndarray) -> EgoAreas:
-    """The three ego-area flags of boxes ``(N, T, 5, 2)`` (4 corners + centre)."""
-    n_rows, n_steps, n_points, _ = coords.shape
-    point, polygon = drivable_map.points_within(coords.reshape(-1, 2))
-    box, corner = np.divmod(point, n_points)
-    kind = drivable_map.kinds[polygon]
-    is_corner = corner != Corner.CENTER
+def ego_areas(
+    drivable_map: DrivableMap,
+    coords: np.ndarray,
+    rear_axles: np.ndarray,
+    route_lane_ids: np.ndarray,
+) -> EgoAreas:
+    """The ego-area flags of ego boxes ``(N, T, 5, 2)`` (4 corners + centre) with rear axles ``(N, T, 2)``."""
+    n_rows, n_steps = coords.shape[:2]
     num_boxes = n_rows * n_steps
+    points = np.concatenate([coords.reshape(num_boxes, -1, 2), rear_axles.reshape(num_boxes, 1, 2)], axis=1)
+    rear_axle = points.shape[1] - 1
+    box, point, polygon = drivable_map.locate(points, points[:, Corner.CENTER])
+    kind = drivable_map.kinds[polygon]
+    is_corner = point < NUM_CORNERS
 
-    drivable_corners = np.zeros((num_boxes, n_points), bool)
+    drivable_corners = np.zeros((num_boxes, NUM_CORNERS), bool)
     drivable = np.isin(kind, DRIVABLE_KINDS) & is_corner
-    drivable_corners[box[drivable], corner[drivable]] = True
-    non_drivable = drivable_corners[:, :NUM_CORNERS].sum(-1) < NUM_CORNERS
+    drivable_corners[box[drivable], point[drivable]] = True
+    non_drivable = drivable_corners.sum(-1) < NUM_CORNERS
 
     lane = np.isin(kind, LANE_KINDS)
+    num_polygons = max(len(drivable_map.ids), 1)
     pairs, corners_in_lane = np.unique(
-        box[lane & is_corner] * len(drivable_map.ids) + polygon[lane & is_corner], return_counts=True
+        box[lane & is_corner] * num_polygons + polygon[lane & is_corner], return_counts=True
     )
-    lane_box = pairs // len(drivable_map.ids) if len(drivable_map.ids) else pairs
+    lane_box = pairs // num_polygons
     lanes_touched = np.bincount(lane_box, minlength=num_boxes)
     all_corners_in_one = np.bincount(lane_box, weights=corners_in_lane == NUM_CORNERS, minlength=num_boxes) > 0
     multiple_lanes = (lanes_touched > 1) & ~all_corners_in_one
 
-    on_route = lane & ~is_corner & np.isin(drivable_map.ids[polygon], route_lane_ids)
+    on_route = lane & (point == Corner.CENTER) & np.isin(drivable_map.ids[polygon], route_lane_ids)
     oncoming = np.ones(num_boxes, bool)
     oncoming[box[on_route]] = False
 
-    shape = (n_rows, n_steps)
-    return EgoAreas(multiple_lanes.reshape(shape), non_drivable.reshape(shape), oncoming.reshape(shape))
+    intersection = kind == MapKind.INTERSECTION
+    in_intersection = np.zeros((num_boxes, points.shape[1]), bool)
+    in_intersection[box[intersection], point[intersection]] = True
+
+    def grid(flags: np.ndarray) -> np.ndarray:
+        return flags.reshape(n_rows, n_steps)
+
+    return EgoAreas(
+        grid(multiple_lanes),
+        grid(non_drivable),
+        grid(oncoming),
+        grid(in_intersection[:, rear_axle]),
+        grid(in_intersection[:, Corner.CENTER]),
+    )

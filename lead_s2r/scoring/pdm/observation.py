@@ -17,7 +17,7 @@ behaviours reproduced on purpose:
 Constants: v1.1 keyframes every 0.5 s up to 5 s, 51 steps of 0.1 s (TTC looks 0.9 s past the 4 s horizon).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
@@ -36,27 +36,33 @@ STEP_S = 0.1
 
 @dataclass
 class Observation:
-    """Per step ``s``: polygons, their object index and centroid, and an STRtree over the polygons. Objects are the
-    M tracks followed by red-light pseudo-objects; per-object arrays describe the first appearance."""
+    """G box polygons over all steps, step by step (``step_offsets``), with their object index, centroid and the
+    radius of a circle about the centroid that holds them; ``step_geoms (S, Gmax)`` lists each step's geometries
+    (padded with -1). Objects are the M tracks followed by red-light pseudo-objects; per-object arrays describe
+    the first appearance."""
 
-    polygons: list[np.ndarray]  # per step (G_s,) shapely Polygons
-    objects: list[np.ndarray]  # per step (G_s,) int64 object index
-    centroids: list[np.ndarray]  # per step (G_s, 2)
-    trees: list[STRtree]
+    polygons: np.ndarray  # (G,) shapely Polygons
+    objects: np.ndarray  # (G,) int64 object index
+    centroids: np.ndarray  # (G, 2)
+    radius: np.ndarray  # (G,)
+    step_offsets: np.ndarray  # (S + 1,) geometries of step s are [step_offsets[s], step_offsets[s + 1])
+    step_geoms: np.ndarray  # (S, Gmax) geometry index, -1 pads
     object_class: np.ndarray  # (O,) BoxClass codes (-1 for red lights)
     object_is_agent: np.ndarray  # (O,) nuPlan Agent (moving kind) rather than static object
     object_speed: np.ndarray  # (O,) speed at the first appearance
     object_is_red_light: np.ndarray  # (O,)
     initially_ignored: np.ndarray  # (O,) objects NC and TTC ignore from the start (PDM-Closed's collided tracks)
+    trees: dict[int, STRtree] = field(default_factory=dict, repr=False)
 
     @property
     def num_steps(self) -> int:
-        return len(self.trees)
+        return len(self.step_offsets) - 1
 
-    def query(self, step: int, geometries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(query index, geometry index at this step)`` of every pair that intersects."""
-        hits = self.trees[step].query(geometries, predicate="intersects")
-        return hits[0], hits[1]
+    def tree(self, step: int) -> STRtree:
+        """An STRtree over the polygons of ``step`` (built on first use), for callers that search the boxes."""
+        if step not in self.trees:
+            self.trees[step] = STRtree(self.polygons[self.step_offsets[step] : self.step_offsets[step + 1]])
+        return self.trees[step]
 
 
 def interpolate_track(times: np.ndarray, states: np.ndarray, query_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,6 +106,14 @@ def interpolate_keyframes(
     return out_poses, out_velocity, out_valid
 
 
+def _enclosing_radius(polygons: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+    """Per polygon the largest distance from its centroid to a vertex: a circle that holds the polygon."""
+    coords, index = shapely.get_coordinates(polygons, return_index=True)
+    radius = np.zeros(len(polygons))
+    np.maximum.at(radius, index, np.hypot(*(coords - centroids[index]).T))
+    return radius
+
+
 def log_observation(scene: PDMScene, num_steps: int = V11_STEPS) -> Observation:
     """The logged agents of ``scene`` at 10 Hz, as NAVSIM's metric cache builds them (v1.1: 51 steps)."""
     is_agent = np.isin(scene.agent_class, AGENT_CLASSES)
@@ -127,29 +141,33 @@ def dense_observation(
     coords = box_coords(poses[..., :2], poses[..., 2], size[:, None, 0], size[:, None, 1])
     step_of, track_of = np.nonzero(valid.T)  # sorted by step
     track_polygons = box_polygons(coords[track_of, step_of])
-    bounds = np.searchsorted(step_of, np.arange(num_steps + 1))
     red = red_light_polygons if red_light_polygons is not None else [[] for _ in range(num_steps)]
     if len(red) != num_steps:
         raise ValueError(f"red_light_polygons has {len(red)} steps, the boxes {num_steps}: give one list per step")
-    polygons, objects = [], []
-    next_red = num_tracks
-    for s in range(num_steps):
-        lights = np.array(red[s], dtype=object).reshape(-1)
-        polygons.append(np.concatenate([track_polygons[bounds[s] : bounds[s + 1]], lights]))
-        objects.append(
-            np.concatenate([track_of[bounds[s] : bounds[s + 1]], np.arange(next_red, next_red + len(lights))])
-        )
-        next_red += len(lights)
-    num_red = next_red - num_tracks
+    lights = [np.array(step, dtype=object).reshape(-1) for step in red]
+    num_red = sum(len(step) for step in lights)
+    red_of = np.repeat(np.arange(num_steps), [len(step) for step in lights])
+    step_of = np.concatenate([step_of, red_of])
+    order = np.argsort(step_of, kind="stable")
+    polygons = np.concatenate([track_polygons, *lights])[order] if num_red else track_polygons
+    objects = np.concatenate([track_of, num_tracks + np.arange(num_red)])[order]
+    step_of = step_of[order]
     first = np.argmax(valid, axis=1)
     first_velocity = velocity[np.arange(num_tracks), first] if num_steps else np.zeros((num_tracks, 2))
     is_agent = np.isin(agent_class, AGENT_CLASSES)
     ignored = np.zeros(num_tracks, bool) if initially_ignored is None else np.asarray(initially_ignored, bool)
+    centroids = shapely.get_coordinates(shapely.centroid(polygons)).reshape(-1, 2)
+    step_offsets = np.searchsorted(step_of, np.arange(num_steps + 1))
+    rank = np.arange(len(step_of)) - step_offsets[step_of]
+    step_geoms = np.full((num_steps, int(np.diff(step_offsets).max(initial=0))), -1, np.int64)
+    step_geoms[step_of, rank] = np.arange(len(step_of))
     return Observation(
         polygons=polygons,
-        objects=[o.astype(np.int64) for o in objects],
-        centroids=[shapely.get_coordinates(shapely.centroid(p)).reshape(-1, 2) for p in polygons],
-        trees=[STRtree(p) for p in polygons],
+        objects=objects.astype(np.int64),
+        centroids=centroids,
+        radius=_enclosing_radius(polygons, centroids),
+        step_offsets=step_offsets,
+        step_geoms=step_geoms,
         object_class=np.concatenate([np.asarray(agent_class, np.int64), np.full(num_red, -1)]),
         object_is_agent=np.concatenate([is_agent, np.zeros(num_red, bool)]),
         object_speed=np.concatenate([np.hypot(first_velocity[:, 0], first_velocity[:, 1]), np.zeros(num_red)]),

@@ -12,10 +12,9 @@ from typing import Any
 import numpy as np
 import shapely
 
-from lead_s2r.schema import MapKind
-from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, no_at_fault_collisions, time_to_collision
+from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, enclosing_radius, no_at_fault_collisions, time_to_collision
 from lead_s2r.scoring.pdm.comfort import comfort
-from lead_s2r.scoring.pdm.footprint import Corner, box_polygons, ego_coords
+from lead_s2r.scoring.pdm.footprint import Corner, ego_coords
 from lead_s2r.scoring.pdm.map_flags import DrivableMap, ego_areas
 from lead_s2r.scoring.pdm.metrics import (
     drivable_area_compliance,
@@ -86,17 +85,20 @@ def score_states(
     _check_states(scene, states, observation)
     drivable_map = DrivableMap.from_scene(scene) if drivable_map is None else drivable_map
     coords = ego_coords(states, scene.vehicle)
-    areas = ego_areas(drivable_map, coords, np.asarray(scene.route_lane_ids, np.int64))
+    radius = enclosing_radius(scene.vehicle.length, scene.vehicle.width)
+    rear_axles = states[..., StateIndex.X : StateIndex.Y + 1]
+    areas = ego_areas(drivable_map, coords, rear_axles, np.asarray(scene.route_lane_ids, np.int64))
     lanes_or_off_road = areas.multiple_lanes | areas.non_drivable_area
-    in_intersection = drivable_map.in_kind(states[..., StateIndex.X : StateIndex.Y + 1], (MapKind.INTERSECTION,))
 
-    nc, collision_idx = no_at_fault_collisions(states, box_polygons(coords), coords, observation, lanes_or_off_road)
+    nc, collision_idx = no_at_fault_collisions(states, coords, radius, observation, lanes_or_off_road)
     dac = drivable_area_compliance(areas.non_drivable_area)
     centers = coords[:, :, Corner.CENTER]
     ddc = driving_direction_compliance(centers, areas.oncoming_traffic, INTERVAL_S)
     progress = progress_along(_centerline(scene), centers[:, 0], centers[:, -1])
     ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
-    ttc, ttc_idx = time_to_collision(states, coords, observation, lanes_or_off_road, in_intersection, INTERVAL_S)
+    ttc, ttc_idx = time_to_collision(
+        states, coords, radius, observation, lanes_or_off_road, areas.rear_axle_in_intersection, INTERVAL_S
+    )
     c = comfort(states, INTERVAL_S)
     return {
         "no_at_fault_collisions": nc,
