@@ -140,9 +140,6 @@ def score_proposals(
     """PDMS v1.1 of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``), one row each, with the
     columns of :data:`COLUMNS`. ``reference (M, 3)``: the EP normaliser's trajectory at 0.1 s steps from t = 0 (row 0
     is the initial pose; it is replaced by the exact initial state); None plans it with PDM-Closed."""
-    from lead_s2r.scoring.pdm.interpolation import interpolate_proposals
-    from lead_s2r.scoring.pdm.simulation import simulate_proposals
-
     if metric != METRIC:
         raise ValueError(f"metric {metric!r} is not scored here; score_proposals computes {METRIC!r}")
     proposals = _poses(scene, proposals, "proposals", "N, K, 3")
@@ -153,6 +150,9 @@ def score_proposals(
     reference = _poses(scene, reference, "reference", "M, 3")
     if len(reference) < 2:
         raise ValueError(f"scene {scene.key!r}: reference needs poses after t = 0, got shape {reference.shape}")
+    from lead_s2r.scoring.pdm.interpolation import interpolate_proposals
+    from lead_s2r.scoring.pdm.simulation import simulate_proposals
+
     targets = np.concatenate(
         [interpolate_proposals(reference[None, 1:], REFERENCE_INTERVAL_S), interpolate_proposals(proposals, interval)]
     )
