@@ -19,6 +19,9 @@ overlap with the same object". Official behaviours reproduced on purpose:
   objects and an ego slower than 5e-3 m/s. A violation is an object within 30 deg ahead, or one not behind (150 deg)
   while the ego is in MULTIPLE_LANES, NON_DRIVABLE_AREA or has its rear axle inside an INTERSECTION. TTC's ignore
   list is its own (NC's does not carry over).
+* NAVSIM queries an STRtree per step with predicate "intersects"; here candidate pairs come from overlapping
+  enclosing circles (a superset of the intersecting pairs) and the same GEOS ``intersects`` decides, so the pairs
+  are the same and polygons are built only for ego boxes that come near an object.
 * The relative angle is ``arccos`` of the dot product without clipping; a centroid exactly at the rear axle gives
   NaN, which is neither ahead nor behind.
 """

@@ -1,4 +1,4 @@
-"""The agents the PDM score checks the ego against: one STRtree of box polygons per 10 Hz step.
+"""The agents the PDM score checks the ego against: their box polygons at every 10 Hz step.
 
 ``log_observation`` rebuilds NAVSIM v1.1's ``MetricCacheProcessor._interpolate_gt_observation`` from the 2 Hz
 keyframes; ``dense_observation`` takes boxes already at 10 Hz (PDM-Closed's constant-velocity forecasts). Official
@@ -15,6 +15,9 @@ behaviours reproduced on purpose:
 * Red-light pseudo-objects (EPDMS, PDM-Closed) live in the same per-step trees and are skipped by NC and TTC.
 
 Constants: v1.1 keyframes every 0.5 s up to 5 s, 51 steps of 0.1 s (TTC looks 0.9 s past the 4 s horizon).
+
+NAVSIM keeps one STRtree per step; NC and TTC here find candidate pairs by enclosing circles instead (see
+``collisions``), and :meth:`Observation.tree` builds a step's STRtree on demand for other searches.
 """
 
 from dataclasses import dataclass, field
@@ -106,6 +109,15 @@ def interpolate_keyframes(
     return out_poses, out_velocity, out_valid
 
 
+def _step_layout(step_of: np.ndarray, num_steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets ``(S + 1,)`` and the padded ``(S, Gmax)`` index table of geometries sorted by step."""
+    step_offsets = np.searchsorted(step_of, np.arange(num_steps + 1))
+    rank = np.arange(len(step_of)) - step_offsets[step_of]
+    step_geoms = np.full((num_steps, int(np.diff(step_offsets).max(initial=0))), -1, np.int64)
+    step_geoms[step_of, rank] = np.arange(len(step_of))
+    return step_offsets, step_geoms
+
+
 def _enclosing_radius(polygons: np.ndarray, centroids: np.ndarray) -> np.ndarray:
     """Per polygon the largest distance from its centroid to a vertex: a circle that holds the polygon."""
     coords, index = shapely.get_coordinates(polygons, return_index=True)
@@ -157,10 +169,7 @@ def dense_observation(
     is_agent = np.isin(agent_class, AGENT_CLASSES)
     ignored = np.zeros(num_tracks, bool) if initially_ignored is None else np.asarray(initially_ignored, bool)
     centroids = shapely.get_coordinates(shapely.centroid(polygons)).reshape(-1, 2)
-    step_offsets = np.searchsorted(step_of, np.arange(num_steps + 1))
-    rank = np.arange(len(step_of)) - step_offsets[step_of]
-    step_geoms = np.full((num_steps, int(np.diff(step_offsets).max(initial=0))), -1, np.int64)
-    step_geoms[step_of, rank] = np.arange(len(step_of))
+    step_offsets, step_geoms = _step_layout(step_of, num_steps)
     return Observation(
         polygons=polygons,
         objects=objects.astype(np.int64),
