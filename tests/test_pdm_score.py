@@ -2,13 +2,14 @@
 
 import numpy as np
 import pytest
+import shapely
 from pdm_golden import agent_states_10hz, golden_scene, load_golden, reference_poses, simulated_states
 
 from lead_s2r.schema import BoxClass, MapKind
 from lead_s2r.scoring.pdm.comfort import comfort, phase_unwrap
 from lead_s2r.scoring.pdm.map_flags import DrivableMap
 from lead_s2r.scoring.pdm.metrics import driving_direction_compliance, ego_progress, pdms_v11
-from lead_s2r.scoring.pdm.observation import interpolate_keyframes, log_observation
+from lead_s2r.scoring.pdm.observation import dense_observation, interpolate_keyframes, log_observation
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.score import COLUMNS, score_proposals, score_states
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
@@ -90,7 +91,9 @@ def test_score_proposals_reproduces_official_scores() -> None:
         scene = golden_scene(case)
         proposals = np.array([t["poses"] for t in case["trajectories"]], np.float64)
         intervals = {t["interval_s"] for t in case["trajectories"]}
-        scores = score_proposals(scene, proposals, intervals.pop(), reference=reference_poses(case))
+        scores = score_proposals(
+            scene, proposals, intervals.pop(), reference=reference_poses(case), t0_us=case["t0_us"]
+        )
         assert set(scores) == set(COLUMNS)
         for row, trajectory in enumerate(case["trajectories"]):
             official = trajectory["official"]
@@ -331,3 +334,22 @@ def test_drivable_map_ignores_roadblock_connectors_and_walkways() -> None:
     assert len(DrivableMap.from_scene(scene).polygons) == len(ROAD) - 1
     scores = score(scene, drive(10.0 * TIMES))
     assert scores["drivable_area_compliance"][0] == 0.0  # lanes alone are not drivable area
+
+
+def test_dense_observation_red_lights_and_ignored_tracks_never_count() -> None:
+    """PDM-Closed's forecasts: a red-light polygon across the lane and a stopped car the ego overlapped at t0 are
+    skipped by NC and TTC; the same car, not ignored, is a collision."""
+    scene = road_scene()
+    poses = np.zeros((1, 51, 3))
+    poses[0, :, 0] = 20.0
+    boxes = dict(velocity=np.zeros((1, 51, 2)), valid=np.ones((1, 51), bool), size=[[4.8, 2.0, 1.6]])
+    red = [[shapely.box(10.0, -1.75, 12.0, 1.75)]] * 51
+    path = drive(10.0 * TIMES)
+    for ignored, expected in (([True], 1.0), ([False], 0.0)):
+        observation = dense_observation(
+            poses, agent_class=[BoxClass.VEHICLE], red_light_polygons=red, initially_ignored=np.array(ignored), **boxes
+        )
+        scores = score_states(scene, path, observation, ep_reference=None)
+        assert scores["no_at_fault_collisions"][0] == expected
+        assert scores["time_to_collision_within_bound"][0] == expected
+    assert len(observation.tree(7).query(shapely.box(9.0, -1.0, 25.0, 1.0))) == 2  # the light and the car

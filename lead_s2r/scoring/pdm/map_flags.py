@@ -27,6 +27,17 @@ SCORED_KINDS = (MapKind.ROADBLOCK, MapKind.LANE, MapKind.LANE_CONNECTOR, MapKind
 DRIVABLE_KINDS = (MapKind.ROADBLOCK, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
 LANE_KINDS = (MapKind.LANE, MapKind.LANE_CONNECTOR)
 NUM_CORNERS = 4
+
+
+def _kind_table(kinds: tuple[MapKind, ...]) -> np.ndarray:
+    """Membership of every MapKind code in ``kinds`` as a lookup table (``table[codes]``)."""
+    table = np.zeros(max(MapKind) + 1, bool)
+    table[list(kinds)] = True
+    return table
+
+
+IS_DRIVABLE = _kind_table(DRIVABLE_KINDS)
+IS_LANE = _kind_table(LANE_KINDS)
 #: Slack [m] on the ego box's enclosing radius when picking candidate polygons.
 REACH_SLACK = 1e-6
 
@@ -103,11 +114,11 @@ def ego_areas(
     is_corner = point < NUM_CORNERS
 
     drivable_corners = np.zeros((num_boxes, NUM_CORNERS), bool)
-    drivable = np.isin(kind, DRIVABLE_KINDS) & is_corner
+    drivable = IS_DRIVABLE[kind] & is_corner
     drivable_corners[box[drivable], point[drivable]] = True
     non_drivable = drivable_corners.sum(-1) < NUM_CORNERS
 
-    lane = np.isin(kind, LANE_KINDS)
+    lane = IS_LANE[kind]
     num_polygons = max(len(drivable_map.ids), 1)
     pairs, corners_in_lane = np.unique(
         box[lane & is_corner] * num_polygons + polygon[lane & is_corner], return_counts=True
@@ -117,7 +128,7 @@ def ego_areas(
     all_corners_in_one = np.bincount(lane_box, weights=corners_in_lane == NUM_CORNERS, minlength=num_boxes) > 0
     multiple_lanes = (lanes_touched > 1) & ~all_corners_in_one
 
-    on_route = lane & (point == Corner.CENTER) & np.isin(drivable_map.ids[polygon], route_lane_ids)
+    on_route = lane & (point == Corner.CENTER) & np.isin(drivable_map.ids, route_lane_ids)[polygon]
     oncoming = np.ones(num_boxes, bool)
     oncoming[box[on_route]] = False
 

@@ -136,10 +136,12 @@ def score_proposals(
     *,
     observation: Observation | None = None,
     drivable_map: DrivableMap | None = None,
+    t0_us: int | None = None,
 ) -> dict[str, np.ndarray]:
     """PDMS v1.1 of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``), one row each, with the
     columns of :data:`COLUMNS`. ``reference (M, 3)``: the EP normaliser's trajectory at 0.1 s steps from t = 0 (row 0
-    is the initial pose; it is replaced by the exact initial state); None plans it with PDM-Closed."""
+    is the initial pose); None plans it with PDM-Closed. ``t0_us`` (the sample's timestamp) reproduces NAVSIM's
+    microsecond truncation of the interpolation times (see ``interpolation``)."""
     if metric != METRIC:
         raise ValueError(f"metric {metric!r} is not scored here; score_proposals computes {METRIC!r}")
     proposals = _poses(scene, proposals, "proposals", "N, K, 3")
@@ -150,11 +152,14 @@ def score_proposals(
     reference = _poses(scene, reference, "reference", "M, 3")
     if len(reference) < 2:
         raise ValueError(f"scene {scene.key!r}: reference needs poses after t = 0, got shape {reference.shape}")
-    from lead_s2r.scoring.pdm.interpolation import interpolate_proposals
+    from lead_s2r.scoring.pdm.interpolation import interpolate_proposals, interpolate_reference
     from lead_s2r.scoring.pdm.simulation import simulate_proposals
 
     targets = np.concatenate(
-        [interpolate_proposals(reference[None, 1:], REFERENCE_INTERVAL_S), interpolate_proposals(proposals, interval)]
+        [
+            interpolate_reference(reference, REFERENCE_INTERVAL_S, t0_us)[None],
+            interpolate_proposals(proposals, interval, t0_us),
+        ]
     )
     states = simulate_proposals(
         targets, scene.ego_velocity, scene.ego_acceleration, scene.tire_steering_angle, scene.vehicle
