@@ -1,5 +1,6 @@
 """Where the ego is on the map, per proposal and step: NAVSIM's ``PDMScorer._calculate_ego_area`` and
-``PDMDrivableMap.is_in_layer``, with one STRtree "within" query for all points instead of a loop over polygons.
+``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, one STRtree query (box centres against bounding
+boxes grown by the box's reach) picks candidate polygons and prepared ``shapely.contains_xy`` decides.
 
 The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
 CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
@@ -10,7 +11,7 @@ CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are
   Lanes do not count as drivable.
 * MULTIPLE_LANES: more than one LANE/LANE_CONNECTOR polygon holds a corner, and none holds all four.
 * ONCOMING_TRAFFIC: the box centre lies in no LANE/LANE_CONNECTOR whose id is on the route (``route_lane_ids``).
-* INTERSECTION membership (TTC, and v2's DDC/LK exclusions) is tested on whatever point the caller gives.
+* INTERSECTION membership of the rear axle (v1.1 TTC, ``is_in_layer``) and of the centre (v2's DDC/LK exclusions).
 """
 
 from dataclasses import dataclass

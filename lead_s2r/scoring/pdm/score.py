@@ -28,7 +28,6 @@ from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
 
 METRIC = "pdms@navsim-1.1"
-NUM_STATES = 41  # 4 s at 10 Hz, t = 0 included
 INTERVAL_S = 0.1
 REFERENCE_INTERVAL_S = 0.1
 COLUMNS = (
@@ -118,10 +117,11 @@ def score_states(
     }
 
 
-def _poses(scene: PDMScene, poses: Any, name: str, shape: str) -> np.ndarray:
+def _poses(scene: PDMScene, poses: Any, name: str, dims: str) -> np.ndarray:
+    """``poses`` as float64 with the axes named in ``dims`` (ending in 3) and only finite values."""
     array = np.asarray(poses, np.float64)
-    if array.ndim != len(shape.split(",")) or array.shape[-1] != 3 or array.shape[-2] < 1:
-        raise ValueError(f"scene {scene.key!r}: {name} must be ({shape}) ego-frame poses, got shape {array.shape}")
+    if array.ndim != len(dims.split(",")) or array.shape[-1] != 3 or array.shape[-2] < 1:
+        raise ValueError(f"scene {scene.key!r}: {name} must be ({dims}) ego-frame poses, got shape {array.shape}")
     if not np.isfinite(array).all():
         raise ValueError(f"scene {scene.key!r}: {name} holds NaN or inf poses; the planner's output is invalid here")
     return array
