@@ -353,3 +353,15 @@ def test_dense_observation_red_lights_and_ignored_tracks_never_count() -> None:
         assert scores["no_at_fault_collisions"][0] == expected
         assert scores["time_to_collision_within_bound"][0] == expected
     assert len(observation.tree(7).query(shapely.box(9.0, -1.0, 25.0, 1.0))) == 2  # the light and the car
+
+
+def test_log_observation_reads_keyframes_up_to_its_horizon() -> None:
+    """Seen at 2.0 s and 4.5 s: bridged over 2.0..4.5 s with v1.1's 5 s horizon; within v2's 4 s (41 steps) it is
+    seen once, so it stands at its 2.0 s pose at every step."""
+    car = agent(BoxClass.VEHICLE, 20.0, 0.0, vx=2.0)
+    car["valid"] = np.isin(np.arange(11), [4, 9])
+    scene = road_scene([car])
+    v11, v2 = log_observation(scene), log_observation(scene, num_steps=41)
+    assert np.diff(v11.step_offsets).tolist() == [0] * 20 + [1] * 26 + [0] * 5
+    assert np.diff(v2.step_offsets).tolist() == [1] * 41
+    np.testing.assert_allclose(v2.centroids, np.tile([24.0, 0.0], (41, 1)), atol=1e-12)

@@ -35,6 +35,8 @@ AGENT_CLASSES = (BoxClass.VEHICLE, BoxClass.PEDESTRIAN, BoxClass.BICYCLE, BoxCla
 #: Observation steps of NAVSIM v1.1 (0..5 s at 10 Hz).
 V11_STEPS = 51
 STEP_S = 0.1
+#: Tolerance [s] when comparing keyframe times with the horizon.
+KEYFRAME_SLACK_S = 1e-6
 
 
 @dataclass
@@ -127,10 +129,19 @@ def _enclosing_radius(polygons: np.ndarray, centroids: np.ndarray) -> np.ndarray
 
 
 def log_observation(scene: PDMScene, num_steps: int = V11_STEPS) -> Observation:
-    """The logged agents of ``scene`` at 10 Hz, as NAVSIM's metric cache builds them (v1.1: 51 steps)."""
+    """The logged agents of ``scene`` at 10 Hz, as NAVSIM's metric cache builds them (v1.1: 51 steps). Only
+    keyframes up to the last step's time are read, as NAVSIM samples keyframes up to its horizon (v1.1 5 s, v2 4 s
+    with ``num_steps=41``): "seen once" and the first/last sighting are counted within that horizon."""
+    keyframe_t = np.asarray(scene.agent_t, np.float64)
+    within = keyframe_t <= (num_steps - 1) * STEP_S + KEYFRAME_SLACK_S
     is_agent = np.isin(scene.agent_class, AGENT_CLASSES)
     poses, velocity, valid = interpolate_keyframes(
-        np.asarray(scene.agent_t), scene.agent_poses, scene.agent_velocity, scene.agent_valid, is_agent, num_steps
+        keyframe_t[within],
+        scene.agent_poses[:, within],
+        scene.agent_velocity[:, within],
+        scene.agent_valid[:, within],
+        is_agent,
+        num_steps,
     )
     return dense_observation(poses, velocity, valid, scene.agent_size, scene.agent_class)
 
