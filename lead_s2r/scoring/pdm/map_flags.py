@@ -77,14 +77,22 @@ class DrivableMap:
 
     def locate(self, points: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon; every point of row b
-        must lie within ``reach`` of ``centers[b]``."""
+        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grown-box query to polygons
+        whose bounding box meets the row's, then to points inside the polygon's bounding box."""
         box, polygon = self.tree.query(shapely.points(centers))
-        box, point = np.repeat(box, points.shape[1]), np.tile(np.arange(points.shape[1]), len(polygon))
-        polygon = np.repeat(polygon, points.shape[1])
-        x, y = points[box, point].T
-        bounds = self.bounds[polygon].T
-        near = np.flatnonzero((x >= bounds[0]) & (y >= bounds[1]) & (x <= bounds[2]) & (y <= bounds[3]))
-        inside = near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]
+        low, high = points.min(axis=1), points.max(axis=1)  # (B, 2) each
+        near = np.all((low[box] <= self.bounds[polygon, 2:]) & (high[box] >= self.bounds[polygon, :2]), axis=1)
+        box, polygon = box[near], polygon[near]
+        num_points = points.shape[1]
+        box, point, polygon = (
+            np.repeat(box, num_points),
+            np.tile(np.arange(num_points), len(box)),
+            np.repeat(polygon, num_points),
+        )
+        xy = points[box, point]
+        near = np.all((xy >= self.bounds[polygon, :2]) & (xy <= self.bounds[polygon, 2:]), axis=1)
+        box, point, polygon, xy = box[near], point[near], polygon[near], xy[near]
+        inside = shapely.contains_xy(self.polygons[polygon], xy[:, 0], xy[:, 1])
         return box[inside], point[inside], polygon[inside]
 
 
