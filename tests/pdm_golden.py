@@ -111,6 +111,7 @@ def golden_scene(case: dict[str, Any]) -> PDMScene:
         ego_acceleration=np.array([ego["ax"], ego["ay"]]),
         tire_steering_angle=float(ego["tire_steering_angle"]),
         key=case["id"],
+        t0_us=int(case["t0_us"]),
     )
 
 

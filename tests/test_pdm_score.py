@@ -85,21 +85,25 @@ def test_golden_observation_interpolation(case_id: str) -> None:
 
 
 def test_score_proposals_reproduces_official_scores() -> None:
+    """Interpolation, simulation and scoring end to end: the official sub-scores, EP and PDMS of every trajectory."""
     pytest.importorskip("lead_s2r.scoring.pdm.interpolation")
     pytest.importorskip("lead_s2r.scoring.pdm.simulation")
     for case in GOLDEN["scenes"]:
         scene = golden_scene(case)
         proposals = np.array([t["poses"] for t in case["trajectories"]], np.float64)
-        intervals = {t["interval_s"] for t in case["trajectories"]}
-        scores = score_proposals(
-            scene, proposals, intervals.pop(), reference=reference_poses(case), t0_us=case["t0_us"]
-        )
+        (interval,) = {t["interval_s"] for t in case["trajectories"]}
+        scores = score_proposals(scene, proposals, interval, reference=reference_poses(case))
         assert set(scores) == set(COLUMNS)
         for row, trajectory in enumerate(case["trajectories"]):
             official = trajectory["official"]
             for name, column in SUB_SCORES.items():
                 assert scores[column][row] == official[name], (trajectory["id"], name)
+            assert scores["ego_progress"][row] == pytest.approx(official["EP"], abs=1e-6)
             assert scores["score"][row] == pytest.approx(official["PDMS"], abs=1e-6), trajectory["id"]
+            assert scores["progress_m"][row] == pytest.approx(official["progress_m"], abs=2e-6)
+            assert scores["ep_normaliser_m"][row] == pytest.approx(official["ep_normaliser_m"], abs=2e-6)
+            assert scores["collision_time_idx"][row] == _idx(official["collision_time_idx"])
+            assert scores["ttc_time_idx"][row] == _idx(official["ttc_time_idx"])
 
 
 # ---------------------------------------------------------------------------------------------------------------

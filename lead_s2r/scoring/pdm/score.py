@@ -136,11 +136,10 @@ def score_proposals(
     *,
     observation: Observation | None = None,
     drivable_map: DrivableMap | None = None,
-    t0_us: int | None = None,
 ) -> dict[str, np.ndarray]:
     """PDMS v1.1 of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``), one row each, with the
     columns of :data:`COLUMNS`. ``reference (M, 3)``: the EP normaliser's trajectory at 0.1 s steps from t = 0 (row 0
-    is the initial pose); None plans it with PDM-Closed. ``t0_us`` (the sample's timestamp) reproduces NAVSIM's
+    is the initial pose); None plans it with PDM-Closed. The scene's ``t0_us`` (when known) reproduces NAVSIM's
     microsecond truncation of the interpolation times (see ``interpolation``)."""
     if metric != METRIC:
         raise ValueError(f"metric {metric!r} is not scored here; score_proposals computes {METRIC!r}")
@@ -157,8 +156,8 @@ def score_proposals(
 
     targets = np.concatenate(
         [
-            interpolate_reference(reference, REFERENCE_INTERVAL_S, t0_us)[None],
-            interpolate_proposals(proposals, interval, t0_us),
+            interpolate_reference(reference, REFERENCE_INTERVAL_S, scene.t0_us)[None],
+            interpolate_proposals(proposals, interval, scene.t0_us),
         ]
     )
     states = simulate_proposals(
