@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from lead_s2r import restricted_pickle
+from lead_s2r.errors import UserError
 from lead_s2r.geometry import rotate, to_global, to_local, wrap_angle
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key
@@ -53,7 +54,7 @@ CHECK = "check_tokens"
 DEFAULT_HISTORY, DEFAULT_FUTURE = 4, 10
 
 
-class NavsimFormatError(ValueError):
+class NavsimFormatError(UserError, ValueError):
     """A source file breaks the OpenScene format; the message names the file and the field."""
 
 

@@ -20,6 +20,8 @@ import crc32c
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from lead_s2r.errors import UserError
+
 HEADER = 12  # uint64 length + uint32 crc of the length
 FOOTER = 4  # uint32 crc of the payload
 _MASK_DELTA = 0xA282EAD8
@@ -27,7 +29,7 @@ _INDEX_COLUMNS = {"shard": pa.string(), "offset": pa.int64(), "length": pa.int64
 _STAMP_KEY = b"lead_s2r.shards"
 
 
-class TFRecordError(ValueError):
+class TFRecordError(UserError, ValueError):
     """A record that cannot be trusted; names the shard and the byte offset of the record."""
 
     def __init__(self, path: str | Path, offset: int, problem: str, framing_intact: bool = False) -> None:

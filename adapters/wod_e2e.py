@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 from google.protobuf.message import DecodeError
 
+from lead_s2r.errors import UserError
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
 from lead_s2r_adapters.tfrecord import RecordReader, cached_index
@@ -54,7 +55,7 @@ MIN_SPEED_FOR_YAW_RATE = 0.5
 INDEX_SCHEMA = {"sequence": pa.string(), "frame": pa.int32(), "has_future": pa.bool_(), "n_rated": pa.int32()}
 
 
-class WodE2EError(ValueError):
+class WodE2EError(UserError, ValueError):
     """A record whose content breaks what the adapter expects; names the shard, offset and field."""
 
 

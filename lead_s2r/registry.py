@@ -7,6 +7,8 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, ClassVar
 
+from lead_s2r.errors import UserError
+
 ADAPTER_GROUP = "lead_s2r.adapters"
 SCORER_GROUP = "lead_s2r.scorers"
 
@@ -46,7 +48,7 @@ class SkipLog(Exception):
     """Raised by an adapter for a log it deliberately leaves out (e.g. a failed CARLA route); not an error."""
 
 
-class RegistryError(LookupError):
+class RegistryError(UserError, LookupError):
     """An unknown name or an entry point that cannot be loaded."""
 
 
