@@ -250,6 +250,17 @@ class NavsimAdapter(Adapter):
         if self.history < 2 or self.future < 1 or self.interval < 1:
             raise ValueError("need num_history_frames >= 2, num_future_frames >= 1 and frame_interval >= 1")
 
+    def options(self) -> dict[str, Any]:
+        return {
+            "split": self.split,
+            "scene_filter": self.filter_path,
+            "maps": None if self.maps is None else str(self.maps),
+            "num_history_frames": self.history,
+            "num_future_frames": self.future,
+            "frame_interval": self.interval,
+            "map_radius": self.map_radius,
+        }
+
     # ----------------------------------------------------------------------- logs
 
     def list_logs(self, src: Path) -> list[LogRef]:

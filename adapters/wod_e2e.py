@@ -6,9 +6,10 @@ length, sequence, frame, has_future, n_rated``; cached as parquet under ``index_
 the byte ranges of its frames; workers read them by random access in frame order.
 
 Bad records (CRC mismatch, truncated tail, a payload that is not an ``E2EDFrame``) are found by the indexing
-pass: each is left out with a record naming shard and offset (``describe()['skipped_records']``, hence in
-info.json) and every other record converts; ``strict=True`` makes any of them fail ``list_logs`` instead. A
-record that goes bad after indexing fails its log in the worker, with the same shard/offset message.
+pass: each is left out with a record naming shard and offset (:meth:`WodE2EAdapter.bad_records`; the conversion
+reports them in errors.jsonl, its summary line and its exit status) and every other record converts;
+``strict=True`` makes any of them fail ``list_logs`` instead. A record that goes bad after indexing fails its
+log in the worker, with the same shard/offset message.
 
 WOD-E2E trajectories are already in our frame (ISO 8855, origin at the rear axle at t0): nothing is flipped.
 """
@@ -358,6 +359,12 @@ class WodE2EAdapter(Adapter):
             recent[frame_idx] = (front, sample["cam_front"])
         for old in [f for f in recent if f < frame_idx - self.history + 1]:
             del recent[old]
+
+    def options(self) -> dict[str, Any]:
+        return {"history": self.history}  # index_dir, index_workers and strict never change a sample
+
+    def bad_records(self) -> list[dict[str, Any]]:
+        return list(self.skipped)
 
     def describe(self) -> dict[str, Any]:
         return {

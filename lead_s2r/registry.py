@@ -1,5 +1,6 @@
 """Adapters and scorers are found through entry points, so a third-party package adds one without touching ours."""
 
+import inspect
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -42,6 +43,18 @@ class Adapter(ABC):
     def describe(self) -> dict[str, Any]:
         """Dataset facts written to ``info.json`` (rates, horizons, cameras...)."""
         return {}
+
+    def options(self) -> dict[str, Any]:
+        """The constructor options that shape the samples, recorded with a conversion: resuming into a folder
+        converted with other options is refused. Default: every ``__init__`` parameter the adapter keeps as a
+        same-named attribute; override it to add renamed ones or to drop those that only change speed."""
+        names = inspect.signature(type(self).__init__).parameters
+        return {name: getattr(self, name) for name in names if name != "self" and hasattr(self, name)}
+
+    def bad_records(self) -> list[dict[str, Any]]:
+        """Records :meth:`list_logs` found unreadable and left out, each with an ``error`` naming file and place;
+        a conversion reports them in ``errors.jsonl`` and its exit status."""
+        return []
 
 
 class SkipLog(Exception):

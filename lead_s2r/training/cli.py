@@ -7,15 +7,26 @@ Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overr
 from lightning.pytorch.cli import LightningCLI
 
 from lead_s2r.data.datamodule import DriveDataModule
+from lead_s2r.models.config import TFv6Config
 from lead_s2r.training.module import DrivingModule
 
 #: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
 TRAINER_DEFAULTS = {"reload_dataloaders_every_n_epochs": 1, "use_distributed_sampler": False}
 
 
+class DrivingCLI(LightningCLI):
+    """LightningCLI that checks the data's source names against the model before anything is written."""
+
+    def instantiate_classes(self) -> None:
+        super().instantiate_classes()
+        config = getattr(getattr(self.model, "model", None), "config", None)
+        if isinstance(self.datamodule, DriveDataModule) and isinstance(config, TFv6Config):
+            self.datamodule.check_sources(config)
+
+
 def run_lightning_cli(args: list[str] | None = None) -> None:
     """Run a LightningCLI subcommand with ``args`` (e.g. ``["fit", "--config", "recipes/..."]``; None: sys.argv)."""
-    LightningCLI(
+    DrivingCLI(
         DrivingModule,
         DriveDataModule,
         args=args,
