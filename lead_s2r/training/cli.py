@@ -4,6 +4,9 @@ Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overr
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run.
 """
 
+from typing import Any
+
+from lightning.pytorch import Trainer
 from lightning.pytorch.cli import LightningCLI
 
 from lead_s2r.data.datamodule import DriveDataModule
@@ -17,11 +20,11 @@ TRAINER_DEFAULTS = {"reload_dataloaders_every_n_epochs": 1, "use_distributed_sam
 class DrivingCLI(LightningCLI):
     """LightningCLI that checks the data's source names against the model before anything is written."""
 
-    def instantiate_classes(self) -> None:
-        super().instantiate_classes()
+    def instantiate_trainer(self, **kwargs: Any) -> Trainer:
         config = getattr(getattr(self.model, "model", None), "config", None)
         if isinstance(self.datamodule, DriveDataModule) and isinstance(config, TFv6Config):
             self.datamodule.check_sources(config)
+        return super().instantiate_trainer(**kwargs)
 
 
 def run_lightning_cli(args: list[str] | None = None) -> None:
