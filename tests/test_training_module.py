@@ -5,11 +5,11 @@ import itertools
 import lightning as L
 import pytest
 import torch
+from batches import random_batch
 from tiny_models import TINY
 from torch.utils.data import DataLoader
 
 from lead_s2r.models.config import ltfv6_config, tfv6_config
-from lead_s2r.models.inputs import random_batch
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.module import DrivingModule

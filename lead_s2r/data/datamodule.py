@@ -191,8 +191,3 @@ class DriveDataModule(L.LightningDataModule):
 
     def predict_dataloader(self) -> list[wds.WebLoader]:
         return self._eval_loaders(self.predict_sources, "predict")
-
-    def source_of(self, dataloader_idx: int, stage: str) -> str:
-        """The source name behind an evaluation ``dataloader_idx``."""
-        sources = self.val_sources if stage == "val" else self.predict_sources
-        return list(sources)[dataloader_idx]
