@@ -209,11 +209,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; a :class:`UserError` is one line on stderr and exit status 2 (its traceback with --debug)."""
+    from_shell = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = DEBUG_FLAG in argv
     argv = [arg for arg in argv if arg != DEBUG_FLAG]
+    if from_shell:  # LightningCLI reads sys.argv itself (and warns when given both)
+        sys.argv[1:] = argv
     try:
-        return _run(argv)
+        return _run(argv, from_shell)
     except UserError as err:
         if debug:
             raise
@@ -221,11 +224,11 @@ def main(argv: list[str] | None = None) -> int:
         return USER_ERROR_STATUS
 
 
-def _run(argv: list[str]) -> int:
+def _run(argv: list[str], from_shell: bool) -> int:
     if argv and argv[0] in LIGHTNING_VERBS:
         from lead_s2r.training.cli import run_lightning_cli
 
-        run_lightning_cli(argv)
+        run_lightning_cli(None if from_shell else argv)
         return 0
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)

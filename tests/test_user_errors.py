@@ -228,3 +228,11 @@ def test_fit_source_the_model_does_not_know(tmp_path, toy_data, plain_argv, caps
     line = user_error(["fit", "--config", str(config)], capsys)
     assert "data.train.carla_lead: the model knows no source 'carla_lead'; name it one of ['carla'" in line
     assert not (tmp_path / "run").exists()
+
+
+def test_fit_missing_config_file_or_bad_value(tmp_path, plain_argv, capsys):
+    line = user_error(["fit", "--config", str(tmp_path / "nope.yaml")], capsys)
+    assert f"File does not exist: '{tmp_path / 'nope.yaml'}' (see lead-s2r fit --help)" in line
+    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path)], "cameras": ["front"]}})
+    line = user_error(["fit", "--config", str(config), "--trainer.max_epochs", "many"], capsys)
+    assert 'Parser key "trainer.max_epochs"' in line and "Given value: many" in line
