@@ -127,6 +127,19 @@ def test_truncated_shard_names_the_tar(tmp_path, toy_data, capsys):
     assert not Path("o").exists()
 
 
+def test_shard_cut_inside_zeros_names_the_tar(tmp_path, capsys):
+    """Cut at a block boundary inside a member of zeros: the tail looks like an end of archive, tarfile finds out."""
+    sample = toy_sample("log000", 0)
+    sample["lidar"] = np.zeros((4096, 4), np.float32)  # 64 KiB of zeros
+    shard = write_shard(tmp_path / "data", [sample])
+    data = shard.read_bytes()
+    start = data.index(b"toy_log000_000000.lidar.npy")
+    shard.write_bytes(data[: start + 16 * 1024 - start % 512])
+    argv = ["score", "--metric", "ade", "--predictions", "p", "--data", str(shard), "--out", str(tmp_path / "o")]
+    line = user_error(argv, capsys)
+    assert f"{shard}: cannot be read (unexpected end of data); the tar is truncated or corrupt" in line
+
+
 def test_wrong_dtype_member_names_key_and_field(tmp_path, capsys):
     sample = toy_sample("log000", 0)
     sample["future"] = sample["future"].astype(np.float64)  # the writer does not validate; a foreign tool might

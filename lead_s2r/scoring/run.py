@@ -33,7 +33,10 @@ def make_scorer(metric: str, **config: Any) -> Scorer:
     try:
         return cls(**config)
     except (TypeError, ValueError) as err:  # a scorer's constructor validates its options
-        takes = [name for name in inspect.signature(cls).parameters if name not in ("self", "constants")]
+        parameters = inspect.signature(cls).parameters.values()
+        takes = [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+        if any(p.kind == p.VAR_KEYWORD for p in parameters):
+            takes.append("the metric's constants")
         raise UserError(
             f"--metric {metric}: bad --option ({err}); it takes {', '.join(takes)} (see docs/metrics.md)"
         ) from None
