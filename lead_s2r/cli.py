@@ -152,7 +152,7 @@ def cmd_quickstart(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lead-s2r",
-        description=__doc__,
+        description=__doc__.splitlines()[0],
         epilog="Training: lead-s2r fit|validate|test|predict --config recipes/... (LightningCLI; see --help there).",
     )
     parser.add_argument("--version", action="version", version=f"lead-s2r {__version__}")
