@@ -21,6 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
+from lead_s2r.processes import exit_with_parent
 
 HEADER = 12  # uint64 length + uint32 crc of the length
 FOOTER = 4  # uint32 crc of the payload
@@ -171,7 +172,8 @@ def build_index(
     marks the record as skipped.
     """
     if workers > 1:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(workers, context, initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
             parts = list(pool.map(_index_shard, shards, [describe] * len(shards)))
     else:
         parts = [_index_shard(shard, describe) for shard in shards]

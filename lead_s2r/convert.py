@@ -9,8 +9,8 @@ records the adapter's ``list_logs`` found unreadable (``Adapter.bad_records``); 
 
 A folder belongs to one adapter, version and set of options (``convert.json``, written before the first shard):
 resuming with others would mix two conversions in one manifest, so it is refused unless ``force``. Inputs are
-checked (``src`` exists, holds logs) before ``out`` is created. Workers watch their parent and exit when it is
-gone, so a killed driver leaves no orphans converting into a folder nobody will finish.
+checked (``src`` exists, holds logs) before ``out`` is created. Workers end with their driver
+(:func:`lead_s2r.processes.exit_with_parent`), so a killed driver leaves no orphans converting into the folder.
 """
 
 import itertools
@@ -19,7 +19,6 @@ import multiprocessing as mp
 import os
 import queue
 import shutil
-import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -34,13 +33,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
+from lead_s2r.processes import exit_with_parent
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, validate
 from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile
 
 PROGRESS = "progress.jsonl"
 IDENTITY = "convert.json"
-PARENT_POLL_S = 0.2
 
 
 @dataclass
@@ -150,21 +149,10 @@ class _Worker:
             self.shard.abort()
 
 
-def _exit_with_parent(parent: int) -> None:
-    """End this process as soon as ``parent`` is gone (its pid is no longer our parent's), even mid-log."""
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(PARENT_POLL_S)
-        os._exit(1)  # the partial shard is dropped by the rerun that resumes
-
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
 def _worker_main(
     adapter: Adapter, out: Path, shard_size: int, counter: Any, tasks: Any, results: Any, parent: int
 ) -> None:
-    _exit_with_parent(parent)
+    exit_with_parent(parent)
 
     def next_index() -> int:
         with counter.get_lock():
@@ -249,7 +237,7 @@ def _check_identity(out: Path, identity: dict[str, Any]) -> None:
 
 
 def _differences(recorded: dict[str, Any], identity: dict[str, Any]) -> str:
-    """``'carla_lead 2 (rig='both'), this run asks for carla_lead 2 (rig='normal')'``: only what differs."""
+    """``"carla_lead 2 (rig='both'), but this run asks for carla_lead 2 (rig='normal')"``: only what differs."""
 
     def describe(entry: dict[str, Any], names: list[str]) -> str:
         options = entry.get("options") or {}
