@@ -32,7 +32,9 @@ class Scorer(ABC):
     fields: ClassVar[tuple[str, ...]]
 
     def __init__(self, allow_missing: bool = False) -> None:
-        """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones."""
+        """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones (off by
+        default in Python, where a missing prediction is usually a bug; ``lead-s2r score`` turns it on unless
+        ``--strict``, and lists the unpredicted samples in scores.json)."""
         self.allow_missing = allow_missing
 
     def config(self) -> dict[str, Any]:
