@@ -17,9 +17,10 @@ import webdataset as wds
 
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform, collate
+from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.shards import INFO, decode_sample, load_info, shard_paths
+from lead_s2r.shards import INFO, ShardError, decode_sample, load_info, raise_shard_error, shard_paths
 
 
 @dataclass
@@ -123,6 +124,29 @@ class DriveDataModule(L.LightningDataModule):
         self.num_workers = num_workers
         self.shuffle_buffer = shuffle_buffer
         self._config = config
+        for stage, sources in self._stages().items():
+            for name, spec in sources.items():
+                try:
+                    spec.shards()
+                except ShardError as err:
+                    raise UserError(f"data.{stage}.{name}.paths: {err}") from None
+
+    def _stages(self) -> dict[str, dict[str, SourceSpec]]:
+        return {"train": self.train_sources, "val": self.val_sources, "predict": self.predict_sources}
+
+    def check_sources(self, config: TFv6Config) -> None:
+        """Raise :class:`UserError` naming ``data.<stage>.<name>`` for a source the model has no trajectory grid for."""
+        known = sorted(config.trajectory_grids)
+        for stage, sources in self._stages().items():
+            for name in sources:
+                if name not in config.trajectory_grids:
+                    raise UserError(
+                        f"data.{stage}.{name}: the model knows no source {name!r}; name it one of {known} "
+                        "(the model config's trajectory_grids)"
+                    )
+
+    def setup(self, stage: str) -> None:
+        self.check_sources(self.config)
 
     @property
     def config(self) -> TFv6Config:
@@ -165,6 +189,7 @@ class DriveDataModule(L.LightningDataModule):
             shardshuffle=False,  # training resamples shards instead
             nodesplitter=None if training else wds.split_by_node,
             empty_check=False,
+            handler=raise_shard_error,
         )
         if spec.splits is not None:  # peeks at meta.json; everything else is decoded once, after shuffling
             dataset = dataset.select(_SplitFilter(spec.splits))
@@ -204,8 +229,3 @@ class DriveDataModule(L.LightningDataModule):
 
     def predict_dataloader(self) -> list[wds.WebLoader]:
         return self._eval_loaders(self.predict_sources, "predict")
-
-    def source_of(self, dataloader_idx: int, stage: str) -> str:
-        """The source name behind an evaluation ``dataloader_idx``."""
-        sources = self.val_sources if stage == "val" else self.predict_sources
-        return list(sources)[dataloader_idx]
