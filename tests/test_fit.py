@@ -53,3 +53,55 @@ def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
     restarts = [step for step in range(1, len(lrs)) if lrs[step] > lrs[step - 1]]
     assert restarts == [2, 6]  # warm restarts after 1 and 2 more epochs (T_0 = one epoch, T_mult = 2)
     assert lrs[0] == pytest.approx(1e-3) and lrs[2] == pytest.approx(1e-3)
+
+
+class KeyRecorder(L.Callback):
+    """The sample keys of every training batch, per epoch: ``keys[epoch][step]`` is a sorted list."""
+
+    def __init__(self) -> None:
+        self.keys: dict[int, list[list[str]]] = {}
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        keys = sorted(key for b in batch.values() for key in b["__key__"])
+        self.keys.setdefault(trainer.current_epoch, []).append(keys)
+
+
+def fit_keys(data: str, epochs: int, root=None, resume: str | None = None) -> dict[int, list[list[str]]]:
+    """Fit a tiny model and return the keys it trained on; ``root`` keeps a last.ckpt, ``resume`` restarts from one."""
+    grids = {"carla": TrajectoryGrid(4, 0.5), "navsim": TrajectoryGrid(4, 0.5)}
+    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
+    spec = SourceSpec([data], cameras=["front"])
+    datamodule = DriveDataModule(
+        train={"carla": spec, "navsim": spec},
+        schedule=MixingSchedule.constant({"carla": 1, "navsim": 1}, 4),
+        steps_per_epoch=3,
+        shuffle_buffer=8,
+    )
+    recorder = KeyRecorder()
+    callbacks: list[L.Callback] = [recorder]
+    if root is not None:
+        callbacks.append(L.pytorch.callbacks.ModelCheckpoint(dirpath=root, save_last=True))
+    trainer = L.Trainer(
+        max_epochs=epochs,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=root is not None,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=callbacks,
+        **TRAINER_DEFAULTS,
+    )
+    trainer.fit(DrivingModule(TFv6(config), lr=1e-3), datamodule=datamodule, ckpt_path=resume)
+    return recorder.keys
+
+
+def test_same_seed_same_batches_and_a_resumed_fit_goes_on_with_the_same_stream(toy_data, tmp_path, monkeypatch):
+    monkeypatch.setenv("PL_GLOBAL_SEED", "7")  # what seed_everything(7) leaves for the data module
+    whole = fit_keys(toy_data, epochs=2)
+    first = fit_keys(toy_data, epochs=1, root=tmp_path)
+    assert first[0] == whole[0]  # the same first 3 batches
+    assert whole[1] != whole[0]  # the epoch is part of the seed
+    resumed = fit_keys(toy_data, epochs=2, resume=str(tmp_path / "last.ckpt"))
+    assert list(resumed) == [1] and resumed[1] == whole[1]
+    monkeypatch.setenv("PL_GLOBAL_SEED", "8")
+    assert fit_keys(toy_data, epochs=1)[0] != whole[0]
