@@ -1,15 +1,19 @@
 """A real Lightning fit over converted shards: the mixing schedule and the LR schedule act per epoch."""
 
+import sys
+
 import lightning as L
 import pytest
 import torch
+import yaml
 from tiny_models import TINY
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import TrajectoryGrid, tfv6_config
 from lead_s2r.models.tfv6 import TFv6
-from lead_s2r.training.cli import TRAINER_DEFAULTS
+from lead_s2r.predictions import read_predictions
+from lead_s2r.training.cli import TRAINER_DEFAULTS, run_lightning_cli
 from lead_s2r.training.module import DrivingModule
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -105,3 +109,39 @@ def test_same_seed_same_batches_and_a_resumed_fit_goes_on_with_the_same_stream(t
     assert list(resumed) == [1] and resumed[1] == whole[1]
     monkeypatch.setenv("PL_GLOBAL_SEED", "8")
     assert fit_keys(toy_data, epochs=1)[0] != whole[0]
+
+
+def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_data, tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI warns when the process has other arguments
+    spec = {"paths": [toy_data], "cameras": ["front"]}
+    config = {
+        "trainer": {
+            "accelerator": "cpu",
+            "max_epochs": 1,
+            "enable_progress_bar": False,
+            "enable_model_summary": False,
+            "default_root_dir": str(tmp_path / "elsewhere"),
+            "callbacks": [
+                {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", "init_args": {"save_last": True}},
+                {"class_path": "lead_s2r.training.prediction_writer.PredictionWriter"},
+            ],
+        },
+        "model": {
+            "model": {
+                "class_path": "lead_s2r.models.tfv6.TFv6",
+                "init_args": {"config": {**TINY, "bev": vars(TINY["bev"]), "use_radar": False}},
+            }
+        },
+        "data": {"train": {"navsim": spec}, "predict": {"navsim": spec}, "steps_per_epoch": 1, "shuffle_buffer": 4},
+    }
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text(yaml.safe_dump(config))
+    root = tmp_path / "root"
+    root_option = ["--config", str(recipe), "--trainer.default_root_dir", str(root)]
+    run_lightning_cli(["fit", *root_option])
+    last = root / "checkpoints" / "last.ckpt"
+    assert last.exists()
+    run_lightning_cli(["predict", *root_option, "--ckpt_path", str(last)])
+    assert len(read_predictions(root / "predictions.parquet")) == 24
+    assert (root / "lightning_logs" / "version_0" / "metrics.csv").exists()
+    assert not (tmp_path / "elsewhere").exists()
