@@ -1,5 +1,6 @@
 """A real Lightning fit over converted shards: the mixing schedule and the LR schedule act per epoch."""
 
+import csv
 import sys
 
 import lightning as L
@@ -143,5 +144,7 @@ def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_da
     assert last.exists()
     run_lightning_cli(["predict", *root_option, "--ckpt_path", str(last)])
     assert len(read_predictions(root / "predictions.parquet")) == 24
-    assert (root / "lightning_logs" / "version_0" / "metrics.csv").exists()
+    with (root / "lightning_logs" / "version_0" / "metrics.csv").open() as file:
+        logged = [row["train/batch_size/navsim"] for row in csv.DictReader(file)]
+    assert [size for size in logged if size] == ["8.0"]  # the epoch's per-rank batch size of the source
     assert not (tmp_path / "elsewhere").exists()
