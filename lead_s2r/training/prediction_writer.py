@@ -52,5 +52,5 @@ class PredictionWriter(BasePredictionWriter):
         if trainer.is_global_zero:
             output = self.output or Path(trainer.default_root_dir) / "predictions.parquet"
             output.parent.mkdir(parents=True, exist_ok=True)
-            write_predictions(output, drop_repeats(predictions))  # ranks may repeat samples at the end
+            write_predictions(output, drop_repeats(predictions))  # a padding sampler may repeat samples
         self._predictions = []
