@@ -203,10 +203,18 @@ def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
 def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Iterator[dict[str, Any]]:
     """Yield decoded samples from a converted folder or shard(s), in shard order.
 
-    ``fields`` limits decoding to those fields (``meta`` is always decoded).
+    ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
+    no splitting over ranks or workers (webdataset's default refuses to run under DDP), the caller decides.
     """
     fields = None if fields is None else tuple(fields)
-    dataset = wds.WebDataset(shard_paths(path), shardshuffle=False, empty_check=False, handler=raise_shard_error)
+    dataset = wds.WebDataset(
+        shard_paths(path),
+        shardshuffle=False,
+        empty_check=False,
+        nodesplitter=None,
+        workersplitter=None,
+        handler=raise_shard_error,
+    )
     for raw in dataset:
         yield decode_sample(raw, fields)
 

@@ -4,6 +4,10 @@ Contract with the LightningModule: ``validation_step`` returns a dict whose ``"p
 :class:`~lead_s2r.predictions.Prediction` (one per sample and inference, in the sample's ego frame). The callback
 collects them over the epoch (from every rank), joins them by key with the converted validation folders, and logs
 each scorer's float aggregates as ``<prefix>/<dataset>/<name>`` (e.g. ``val/wod_e2e/rfs``, ``val/navsim/ade``).
+
+Under DDP each rank predicts its own share of the samples (the data module splits by sample); rank 0 gathers them,
+scores every sample once and broadcasts the aggregates, so every rank logs the numbers a single process would
+(a metric monitored by a checkpoint callback must exist on every rank).
 """
 
 from collections import defaultdict
@@ -65,8 +69,10 @@ class ScoringCallback(L.Callback):
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
             return
-        for name, value in self.compute(gather_lists(self._predictions)).items():
-            pl_module.log(name, value)
+        predictions = gather_lists(self._predictions)
+        metrics = self.compute(predictions) if trainer.is_global_zero else None
+        for name, value in trainer.strategy.broadcast(metrics, src=0).items():
+            pl_module.log(name, value, sync_dist=True)  # the same value on every rank: the reduction keeps it
         self._predictions = []
 
     def compute(self, predictions: list[Prediction]) -> dict[str, float]:

@@ -3,10 +3,16 @@
 Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overridden on the command line
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
 missing config file, a value of the wrong type) become a :class:`UserError`, one line like every other verb's.
+
+A run's outputs share one root, ``trainer.default_root_dir``: checkpoints in ``<root>/checkpoints`` (a
+``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in the logger's version folder), logs and
+the resolved config in ``<root>/lightning_logs/version_N``, predictions in ``<root>/predictions.parquet`` (a
+``PredictionWriter`` without ``output``). So ``--trainer.default_root_dir`` moves all of them together.
 """
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from lightning.pytorch import Trainer
@@ -25,13 +31,20 @@ PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_erro
 
 
 class DrivingCLI(LightningCLI):
-    """LightningCLI that checks the data's source names against the model before anything is written."""
+    """LightningCLI that checks the data's source names against the model before anything is written, and roots
+    checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``."""
 
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
         config = getattr(getattr(self.model, "model", None), "config", None)
         if isinstance(self.datamodule, DriveDataModule) and isinstance(config, TFv6Config):
             self.datamodule.check_sources(config)
         return super().instantiate_trainer(**kwargs)
+
+    def after_instantiate_classes(self) -> None:
+        super().after_instantiate_classes()
+        for callback in self.trainer.checkpoint_callbacks:
+            if callback.dirpath is None:
+                callback.dirpath = str(Path(self.trainer.default_root_dir) / "checkpoints")
 
 
 def run_lightning_cli(args: list[str] | None = None) -> None:
