@@ -1,9 +1,11 @@
-"""Run the open-loop scorers (RFS, ADE...) on validation predictions during training, per dataset.
+"""Run the open-loop scorers (RFS, ADE, PDMS...) on validation predictions during training, per dataset.
 
 Contract with the LightningModule: ``validation_step`` returns a dict whose ``"predictions"`` entry is a list of
 :class:`~lead_s2r.predictions.Prediction` (one per sample and inference, in the sample's ego frame). The callback
 collects them over the epoch (from every rank), joins them by key with the converted validation folders, and logs
 each scorer's float aggregates as ``<prefix>/<dataset>/<name>`` (e.g. ``val/wod_e2e/rfs``, ``val/navsim/ade``).
+A scorer runs only on the datasets it declares (``pdms@navsim-1.1``: NAVSIM, logged as ``val/navsim/pdms``); give
+it ``metric_config={"pdms@navsim-1.1": {"reference_cache": DIR}}`` so PDM-Closed plans each sample once.
 """
 
 from collections import defaultdict
@@ -80,6 +82,8 @@ class ScoringCallback(L.Callback):
             keys = dict.fromkeys(p.key for p in group)
             data = [samples[key] for key in keys if key in samples]
             for scorer in self.scorers:
+                if scorer.datasets is not None and dataset not in scorer.datasets:
+                    continue
                 aggregates = scorer.score(group, data).aggregates
                 for name, value in aggregates.items():
                     if isinstance(value, float):

@@ -8,13 +8,26 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from lead_s2r import __version__
-from lead_s2r.predictions import read_predictions
+from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer
 from lead_s2r.shards import read_samples
 
 SCORES_TABLE = "scores.parquet"
 SCORES_JSON = "scores.json"
+
+
+def planner_predictions(planner: str, data: Path | list[Path], path: Path) -> Path:
+    """Write the predictions of a model-free planner (``lead_s2r.baselines.PLANNERS``: ``human`` replays the
+    logged future, ``constant-velocity`` is NAVSIM's baseline) on every sample of ``data`` to ``path``."""
+    from lead_s2r.baselines import PLANNERS
+
+    if planner not in PLANNERS:
+        raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
+    folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
+    predict = PLANNERS[planner]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_predictions(path, (predict(s) for folder in folders for s in read_samples(folder, fields=("future",))))
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
@@ -48,6 +61,7 @@ def score_predictions(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     pq.write_table(result.table, out / SCORES_TABLE)
+    scorer.write_files(result, out)
     text = json.dumps(report, indent=2, allow_nan=False)
     (out / SCORES_JSON).write_text(text + "\n")
     return json.loads(text)

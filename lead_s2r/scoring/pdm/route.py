@@ -342,9 +342,7 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
                     depth[position] = lane_depth + 1
     if end is None:
         deepest = max(expanded_depth)
-        end = min(
-            (expanded_dist[i], i, expanded[i]) for i in range(len(expanded)) if expanded_depth[i] == deepest
-        )[2]
+        end = min((expanded_dist[i], i, expanded[i]) for i in range(len(expanded)) if expanded_depth[i] == deepest)[2]
     path = [end]
     while parent[path[-1]] is not None:
         path.append(parent[path[-1]])

@@ -72,8 +72,8 @@ def agent_tracks(sample: dict[str, Any]) -> dict[str, np.ndarray]:
 def scene_from_sample(sample: dict[str, Any]) -> PDMScene:
     """The scoring scene of a converted NAVSIM sample, with PDM-Closed's corrected route and centreline.
 
-    Raises :class:`SchemaError` naming the key when ``scoring`` is missing (converted without maps) or the route
-    cannot be followed in the map context.
+    Raises :class:`SchemaError` naming the key when ``scoring`` is missing (converted without maps) and
+    :class:`RouteError` naming it when the route cannot be followed in the map context.
     """
     key = sample.get("__key__", "")
     scoring = _scoring(sample)
@@ -82,7 +82,7 @@ def scene_from_sample(sample: dict[str, Any]) -> PDMScene:
     try:
         route = plan_route(graph, np.asarray(scoring["route_roadblock_ids"], np.int64).tolist())
     except RouteError as err:
-        raise SchemaError(key, "scoring", f"{err}; PDM-Closed needs an on-route lane near the ego") from None
+        raise RouteError(f"sample {key!r}, field 'scoring': {err}; PDM-Closed needs an on-route lane") from None
     uncorrected = set(np.asarray(scoring["route_roadblock_ids"], np.int64).tolist())
     future = sample.get("future")
     ego = meta["ego"]
@@ -108,4 +108,3 @@ def scene_from_sample(sample: dict[str, Any]) -> PDMScene:
         is_synthetic=bool(meta.get("is_synthetic", False)),
         speed_limit_mps=route.speed_limit,
     )
-
