@@ -224,6 +224,8 @@ def forecast(scene: PDMScene, config: PDMClosedConfig = PDMClosedConfig()) -> Fo
 
 def red_light_polygons(scene: PDMScene) -> list[shapely.Polygon]:
     """Polygons of on-route lane connectors red at t = 0, except one containing the ego footprint."""
+    if len(scene.red_light_offsets) < 2:  # no traffic-light keyframes
+        return []
     red = set(scene.red_light_ids[scene.red_light_offsets[0] : scene.red_light_offsets[1]].tolist())
     on_route = red & set(scene.route_lane_ids.tolist())
     wanted = (scene.polygon_kind == MapKind.LANE_CONNECTOR) & np.isin(scene.polygon_id, list(on_route))
