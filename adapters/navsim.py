@@ -22,6 +22,7 @@ from lead_s2r import restricted_pickle
 from lead_s2r.geometry import rotate, to_global, to_local, wrap_angle
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key
+from lead_s2r.scoring.pdm.two_stage import TwoStageGroup, parse_mapping
 from lead_s2r_adapters import navsim_map
 
 #: NAVSIM camera -> our camera id.
@@ -49,8 +50,21 @@ COMMANDS = (Command.LEFT, Command.STRAIGHT, Command.RIGHT, Command.UNKNOWN)
 #: nuPlan's Chrysler Pacifica (``get_pacifica_parameters``).
 PACIFICA = {"length": 5.176, "width": 2.297, "wheel_base": 3.089, "rear_axle_to_center": 1.461}
 CHECK = "check_tokens"
+SYNTHETIC = "synthetic_scene"
 #: NAVSIM SceneFilter defaults (navtrain / navtest): 4 history frames including the current one, 10 future frames.
 DEFAULT_HISTORY, DEFAULT_FUTURE = 4, 10
+#: SceneFilter fields that select v2 synthetic scenes (their union is converted).
+SYNTHETIC_TOKEN_FIELDS = (
+    "synthetic_scene_tokens",
+    "reactive_synthetic_initial_tokens",
+    "non_reactive_synthetic_initial_tokens",
+)
+#: v2 two-stage split folders (``navhard_two_stage``, ...): logs, sensors and synthetic scenes side by side.
+TWO_STAGE_LOGS, TWO_STAGE_SENSORS, TWO_STAGE_SYNTHETIC = (
+    "openscene_meta_datas",
+    "sensor_blobs",
+    "synthetic_scene_pickles",
+)
 
 
 class NavsimFormatError(ValueError):
@@ -169,6 +183,8 @@ class SceneFilter:
     num_future_frames: int | None = None
     frame_interval: int | None = None
     has_route: bool = True
+    include_synthetic: bool = False
+    synthetic_tokens: frozenset[str] | None = None  # v2 synthetic (stage-2) scenes to convert; None = all
 
 
 def read_scene_filter(path: Path) -> SceneFilter:
@@ -192,6 +208,7 @@ def read_scene_filter(path: Path) -> SceneFilter:
     tokens, logs = optional("tokens", list), optional("log_names", list)
     history, future = optional("num_history_frames", int), optional("num_future_frames", int)
     interval = optional("frame_interval", int)
+    synthetic = [optional(name, list) for name in SYNTHETIC_TOKEN_FIELDS]
     if interval is None:  # NAVSIM's SceneFilter: no frame_interval = back-to-back scenes of its own num_frames
         interval = (history or DEFAULT_HISTORY) + (future or DEFAULT_FUTURE)
     return SceneFilter(
@@ -202,7 +219,38 @@ def read_scene_filter(path: Path) -> SceneFilter:
         num_future_frames=future,
         frame_interval=interval,
         has_route=bool(config.get("has_route", True)),
+        include_synthetic=bool(config.get("include_synthetic_scenes", False)),
+        synthetic_tokens=None
+        if all(v is None for v in synthetic)
+        else frozenset(str(t) for v in synthetic for t in v or []),
     )
+
+
+def read_two_stage_mapping(path: Path) -> list[TwoStageGroup]:
+    """``reactive_all_mapping`` of a NAVSIM v2 train/test-split yaml (e.g. ``navhard_two_stage.yaml``)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"two-stage mapping {path} does not exist")
+    config = yaml.safe_load(path.read_text()) or {}
+    raw = config.get("reactive_all_mapping") if isinstance(config, dict) else None
+    if not isinstance(raw, list):
+        raise NavsimFormatError(f"{path}: field 'reactive_all_mapping' must be a list of [orig, prev, pairs] entries")
+    try:
+        return parse_mapping(raw)
+    except ValueError as err:
+        raise NavsimFormatError(f"{path}: {err}") from None
+
+
+def two_stage_roles(groups: list[TwoStageGroup]) -> dict[str, dict[str, Any]]:
+    """token -> ``stage`` (1 or 2), ``two_stage_role`` and the token's ``two_stage_group`` [orig, prev, pairs]."""
+    roles: dict[str, dict[str, Any]] = {}
+    for group in groups:
+        raw = [group.original, group.previous, [list(pair) for pair in group.pairs]]
+        roles[group.original] = {"stage": 1, "two_stage_role": "original", "two_stage_group": raw}
+        roles[group.previous] = {"stage": 1, "two_stage_role": "previous", "two_stage_group": raw}
+        for now, before in group.pairs:
+            roles[now] = {"stage": 2, "two_stage_role": "now", "two_stage_group": raw}
+            roles[before] = {"stage": 2, "two_stage_role": "previous", "two_stage_group": raw}
+    return roles
 
 
 # --------------------------------------------------------------------------- the adapter
@@ -219,11 +267,15 @@ class NavsimAdapter(Adapter):
 
     ``split`` picks a folder of ``navsim_logs`` (``trainval``, ``test``, ``mini``; default all);
     ``scene_filter`` a NAVSIM scene-filter yaml or token list (its frame counts apply unless given here);
-    ``maps`` the nuPlan maps root, which adds ``scoring`` and ``bev_semantic``.
+    ``maps`` the nuPlan maps root, which adds ``scoring`` and ``bev_semantic``;
+    ``two_stage_mapping`` a NAVSIM v2 train/test-split yaml with ``reactive_all_mapping`` (navhard two-stage): every
+    sample then records its stage and group in ``meta.extras.navsim`` and info.json keeps the whole mapping.
+    A split folder laid out as NAVSIM v2's two-stage splits (``<src>/<split>/openscene_meta_datas``, ...) is read
+    with its synthetic scenes (:mod:`lead_s2r_adapters.navsim_synthetic`).
     """
 
     name = "navsim"
-    version = "1.0.0"
+    version = "1.1.0"
     extras = "navsim"
 
     def __init__(
@@ -235,6 +287,7 @@ class NavsimAdapter(Adapter):
         num_future_frames: int | None = None,
         frame_interval: int | None = None,
         map_radius: float = 100.0,
+        two_stage_mapping: str | None = None,
     ) -> None:
         self.split = split
         self.filter = read_scene_filter(Path(scene_filter)) if scene_filter else None
@@ -248,10 +301,15 @@ class NavsimAdapter(Adapter):
         self.map_radius = map_radius
         if self.history < 2 or self.future < 1 or self.interval < 1:
             raise ValueError("need num_history_frames >= 2, num_future_frames >= 1 and frame_interval >= 1")
+        self.mapping = read_two_stage_mapping(Path(two_stage_mapping)) if two_stage_mapping else None
+        self._roles = two_stage_roles(self.mapping or [])
 
     # ----------------------------------------------------------------------- logs
 
     def list_logs(self, src: Path) -> list[LogRef]:
+        two_stage = Path(src) / (self.split or "") / TWO_STAGE_LOGS
+        if self.split and two_stage.is_dir():
+            return self._list_two_stage(Path(src), self.split)
         root = Path(src) / "navsim_logs"
         if not root.is_dir():
             raise FileNotFoundError(f"{root} does not exist: src must be an OpenScene root with navsim_logs/")
@@ -260,17 +318,46 @@ class NavsimAdapter(Adapter):
         for split in splits:
             if not (root / split).is_dir():
                 raise FileNotFoundError(f"split folder {root / split} does not exist")
-            sensors = str(Path(src) / "sensor_blobs" / split)
-            for path in sorted((root / split).glob("*.pkl")):
-                if self.filter and self.filter.log_names is not None and path.stem not in self.filter.log_names:
-                    continue
-                refs.append(LogRef(path.stem, split, str(path), {"sensors": sensors}))
-        if self.filter is not None and (self.filter.tokens is not None or self.filter.log_names is not None):
-            found = {ref.log_id for ref in refs}
-            missing = sorted((self.filter.log_names or set()) - found)
-            check = {CHECK: [ref.path for ref in refs], "missing_logs": missing}
-            refs.append(LogRef(f"scene-filter-{self.filter.name}", ",".join(splits), str(self.filter_path), check))
+            refs += self._log_refs(root / split, Path(src) / "sensor_blobs" / split, split)
+        return refs + self._filter_check(refs, ",".join(splits), [])
+
+    def _log_refs(self, logs: Path, sensors: Path, split: str) -> list[LogRef]:
+        refs = []
+        for path in sorted(logs.glob("*.pkl")):
+            if self.filter and self.filter.log_names is not None and path.stem not in self.filter.log_names:
+                continue
+            refs.append(LogRef(path.stem, split, str(path), {"sensors": str(sensors)}))
         return refs
+
+    def _list_two_stage(self, src: Path, split: str) -> list[LogRef]:
+        """A v2 two-stage split folder: its logs (stage 1), then one work item per synthetic scene (stage 2)."""
+        folder = src / split
+        refs = self._log_refs(folder / TWO_STAGE_LOGS, folder / TWO_STAGE_SENSORS, split)
+        wanted = self.filter.synthetic_tokens if self.filter else None
+        missing: list[str] = []
+        if self.filter is None or self.filter.include_synthetic or self.mapping is not None:
+            scenes = folder / TWO_STAGE_SYNTHETIC
+            stems = {path.stem: path for path in sorted(scenes.glob("*.pkl"))}
+            tokens = sorted(stems if wanted is None else wanted)
+            missing = [token for token in tokens if token not in stems]
+            extra = {"sensors": str(folder / TWO_STAGE_SENSORS), "logs": str(folder / TWO_STAGE_LOGS), SYNTHETIC: True}
+            refs += [LogRef(token, split, str(stems[token]), extra) for token in tokens if token in stems]
+        original = [ref for ref in refs if SYNTHETIC not in ref.extra]
+        return refs + self._filter_check(original, split, missing)
+
+    def _filter_check(self, refs: list[LogRef], splits: str, missing_synthetic: list[str]) -> list[LogRef]:
+        if self.filter is None or (
+            self.filter.tokens is None and self.filter.log_names is None and not missing_synthetic
+        ):
+            return []
+        found = {ref.log_id for ref in refs}
+        missing = sorted((self.filter.log_names or set()) - found)
+        check = {CHECK: [ref.path for ref in refs], "missing_logs": missing, "missing_synthetic": missing_synthetic}
+        return [LogRef(f"scene-filter-{self.filter.name}", splits, str(self.filter_path), check)]
+
+    def two_stage_extras(self, token: str) -> dict[str, Any]:
+        """``meta.extras.navsim`` fields of a token of the two-stage mapping: its stage (1 or 2), role and group."""
+        return dict(self._roles.get(token, {}))
 
     def windows(self, frames: list[dict[str, Any]], where: str) -> Iterator[tuple[int, int]]:
         """(first, current) frame indices of NAVSIM's scenes in a log, before the token filter."""
@@ -284,6 +371,11 @@ class NavsimAdapter(Adapter):
     def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
         if CHECK in log.extra:
             yield from self._check_filter(log)
+            return
+        if SYNTHETIC in log.extra:
+            from lead_s2r_adapters import navsim_synthetic  # it builds on this module
+
+            yield from navsim_synthetic.iter_samples(self, log)
             return
         path = Path(log.path)
         frames = load_log(path)
@@ -308,6 +400,9 @@ class NavsimAdapter(Adapter):
         problems = []
         if log.extra["missing_logs"]:
             problems.append(f"log names with no pickle: {', '.join(log.extra['missing_logs'][:20])}")
+        if log.extra.get("missing_synthetic"):
+            names = log.extra["missing_synthetic"]
+            problems.append(f"{len(names)} synthetic scene tokens with no pickle: {', '.join(names[:20])}")
         if missing:
             problems.append(
                 f"{len(missing)} tokens in no readable log with a full {self.history}+{self.future}-frame window: "
@@ -329,6 +424,13 @@ class NavsimAdapter(Adapter):
             "scene_filter": self.filter.name if self.filter else None,
             "maps": self.maps is not None,
             "bev": navsim_map.BEV_META if self.maps is not None else None,
+            "two_stage": None
+            if self.mapping is None
+            else {
+                "stage_one_tokens": [t for g in self.mapping for t in (g.original, g.previous)],
+                "stage_two_tokens": [t for g in self.mapping for pair in g.pairs for t in pair],
+                "reactive_all_mapping": [[g.original, g.previous, [list(p) for p in g.pairs]] for g in self.mapping],
+            },
         }
 
 
@@ -385,7 +487,7 @@ class _LogContext:
             "data_split": self.log.split,
             "roadblock_ids": [str(r) for r in _field(frame, "roadblock_ids", where)],
             "traffic_lights": [[int(lc), bool(red)] for lc, red in _field(frame, "traffic_lights", where)],
-        }
+        } | adapter.two_stage_extras(token)
         if "anns" in frame:
             now = self.annotations(current)
             boxes = np.column_stack([now["boxes"], now["velocity"], now["classes"]]).astype(np.float32).reshape(-1, 10)
@@ -557,4 +659,21 @@ class _LogContext:
             [int(lc) for lc, is_red in _field(self.frames[i], "traffic_lights", self.where(i)) if is_red] for i in index
         ]
         times = (self.stamps[list(index)] - self.stamps[current]) / 1e6
-        return navsim_map.scoring_context(nuplan_map, self.poses[current], adapter.map_radius, roadblocks, red, times)
+        context = navsim_map.scoring_context(
+            nuplan_map, self.poses[current], adapter.map_radius, roadblocks, red, times
+        )
+        context["ego_past"] = self.ego_past(current)
+        return context
+
+    def ego_past(self, current: int) -> np.ndarray:
+        """(P, 8) float64 of the history frames up to and including ``current``: t, x, y, heading in the current
+        ego frame, then ``ego_dynamic_state`` (vx, vy, ax, ay, body frame), the logged past EPDMS's HC reads."""
+        index = np.arange(current - self.adapter.history + 1, current + 1)
+        dynamics = []
+        for i in index:
+            state = np.asarray(_field(self.frames[i], "ego_dynamic_state", self.where(i)), np.float64).ravel()
+            if state.shape != (4,) or not np.isfinite(state).all():
+                raise NavsimFormatError(f"{self.where(i)}: field 'ego_dynamic_state' must be 4 finite numbers")
+            dynamics.append(state)
+        t = (self.stamps[index] - self.stamps[current]) / 1e6
+        return np.column_stack([t, to_local(self.poses[index], self.poses[current]), np.array(dynamics)])

@@ -145,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.set_defaults(run=cmd_adapters)
 
     sub = verbs.add_parser("synth", help="write synthetic raw data in a source's true on-disk format")
-    sub.add_argument("name", help="carla_lead | navsim | wod_e2e")
+    sub.add_argument("name", help="carla_lead | navsim | navsim_navhard | wod_e2e")
     sub.add_argument("--out", required=True)
     sub.add_argument("--count", "--routes", "--logs", "--segments", type=int, default=None, help="number of logs")
     sub.add_argument("--seed", type=int, default=0)

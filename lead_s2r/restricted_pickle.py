@@ -1,12 +1,18 @@
-"""Load source pickles (LEAD metas and boxes, OpenScene logs) without letting them run code.
+"""Load source pickles (LEAD metas and boxes, OpenScene logs, NAVSIM v2 synthetic scenes) without letting them run code.
 
-A pickle can name any importable callable; this unpickler admits only the builtin data types and what numpy needs
+A pickle can name any importable callable. This unpickler admits only the builtin data types and what numpy needs
 to rebuild arrays, dtypes and scalars (module layouts of numpy 1.x and 2.x). Anything else is refused by name.
+
+Some sources pickle foreign classes: NAVSIM's synthetic scenes hold nuPlan objects. A caller may name such classes
+(``records``). Each one is then rebuilt as a :class:`Record`, plain data holding the constructor arguments and the
+attribute dict. Nothing is imported and none of the foreign code runs, so reading needs no nuPlan install.
 """
 
 import _compat_pickle
 import pickle
-from typing import IO, Any
+from collections.abc import Collection
+from functools import cache
+from typing import IO, Any, ClassVar
 
 import numpy as np
 
@@ -20,14 +26,50 @@ _NUMPY_MODULES = frozenset(
 )
 
 
+class Record:
+    """A foreign object rebuilt as plain data. ``path`` is its class's import path, ``args`` its constructor (or
+    ``__new__``) arguments (an enum's value), and ``state`` the attribute dict its pickle restores."""
+
+    path: ClassVar[str] = ""
+
+    def __new__(cls, *args: Any) -> "Record":
+        record = object.__new__(cls)
+        record.args, record.state = args, {}
+        return record
+
+    def __init__(self, *args: Any) -> None:  # REDUCE calls the class; __new__ already kept the arguments
+        pass
+
+    def __setstate__(self, state: Any) -> None:
+        if isinstance(state, tuple):  # (dict, slots) from classes with __slots__
+            state = {**(state[0] or {}), **(state[1] or {})}
+        self.state = dict(state)
+
+    def __repr__(self) -> str:
+        return f"Record({self.path}, args={self.args!r}, state={self.state!r})"
+
+
+@cache
+def record_class(module: str, name: str) -> type[Record]:
+    """The :class:`Record` subclass standing in for ``module.name`` (one per path, so ``isinstance`` works)."""
+    return type(name, (Record,), {"path": f"{module}.{name}"})
+
+
 class RestrictedUnpickler(pickle.Unpickler):
-    """Unpickles builtin containers and scalars and numpy arrays/scalars; raises UnpicklingError for the rest."""
+    """Unpickles builtin containers and scalars and numpy arrays/scalars, and the classes named in ``records``
+    (``(module, name)`` pairs) as :class:`Record`; raises UnpicklingError for the rest."""
+
+    def __init__(self, file: IO[bytes], records: Collection[tuple[str, str]] = ()) -> None:
+        super().__init__(file)
+        self.records = frozenset(records)
 
     def find_class(self, module: str, name: str) -> Any:
         # protocol <= 2 pickles use Python 2 names (__builtin__.xrange...): translate them as pickle itself does
         if (module, name) in _compat_pickle.NAME_MAPPING:
             module, name = _compat_pickle.NAME_MAPPING[(module, name)]
         module = _compat_pickle.IMPORT_MAPPING.get(module, module)
+        if (module, name) in self.records:
+            return record_class(module, name)
         if _allowed(module, name):
             return super().find_class(module, name)
         raise pickle.UnpicklingError(f"pickle refers to {module}.{name}; only builtins and numpy are allowed")
@@ -49,6 +91,7 @@ def _allowed(module: str, name: str) -> bool:
     return isinstance(candidate, type) and issubclass(candidate, np.generic)
 
 
-def load(file: IO[bytes]) -> Any:
-    """Unpickle one object from a binary file with :class:`RestrictedUnpickler`."""
-    return RestrictedUnpickler(file).load()
+def load(file: IO[bytes], records: Collection[tuple[str, str]] = ()) -> Any:
+    """Unpickle one object from a binary file with :class:`RestrictedUnpickler` (``records``: foreign classes to
+    rebuild as :class:`Record`)."""
+    return RestrictedUnpickler(file, records).load()

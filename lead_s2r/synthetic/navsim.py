@@ -234,9 +234,14 @@ def _hex(rng: np.random.Generator) -> str:
     return rng.bytes(8).hex()
 
 
-def write_log(out: Path, spec: LogSpec, rng: np.random.Generator) -> list[dict]:
-    """Write one log's sensor blobs and pickle; return its frames."""
-    sensors = out / "sensor_blobs" / DATA_SPLIT / spec.name
+def write_log(
+    out: Path, spec: LogSpec, rng: np.random.Generator, logs: Path | None = None, blobs: Path | None = None
+) -> list[dict]:
+    """Write one log's sensor blobs and pickle (under ``logs`` and ``blobs``, by default the ``mini`` split's
+    ``navsim_logs`` and ``sensor_blobs`` folders of ``out``); return its frames."""
+    logs = out / "navsim_logs" / DATA_SPLIT if logs is None else logs
+    blobs = out / "sensor_blobs" / DATA_SPLIT if blobs is None else blobs
+    sensors = blobs / spec.name
     for folder in [*CAMERAS, "MergedPointCloud"]:
         (sensors / folder).mkdir(parents=True, exist_ok=True)
     states = ego_states(spec)
@@ -257,10 +262,10 @@ def write_log(out: Path, spec: LogSpec, rng: np.random.Generator) -> list[dict]:
         cams = {}
         for name in CAMERAS:
             blob = f"{spec.name}/{name}/{_hex(rng)}.jpg"
-            write_jpeg(out / "sensor_blobs" / DATA_SPLIT / blob, rng)
+            write_jpeg(blobs / blob, rng)
             cams[name] = {"data_path": blob, **camera_calibration(name)}
         lidar_path = f"{spec.name}/MergedPointCloud/{_hex(rng)}.pcd"
-        write_pcd(out / "sensor_blobs" / DATA_SPLIT / lidar_path, lidar_points(rng))
+        write_pcd(blobs / lidar_path, lidar_points(rng))
         command = np.array(spec.command, dtype=np.int64)
         frames.append(
             {
@@ -294,7 +299,7 @@ def write_log(out: Path, spec: LogSpec, rng: np.random.Generator) -> list[dict]:
                 "flow_gt_final_path": None,
             }
         )
-    path = out / "navsim_logs" / DATA_SPLIT / f"{spec.name}.pkl"
+    path = logs / f"{spec.name}.pkl"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(pickle.dumps(frames, protocol=pickle.HIGHEST_PROTOCOL))
     return frames

@@ -1,0 +1,367 @@
+"""NAVSIM v2 synthetic scenes (``<split>/synthetic_scene_pickles/<17hex>.pkl``) -> schema v1 samples.
+
+A synthetic scene pickle is the dict ``Scene.save_to_disk`` writes. ``scene_metadata``, ``frames`` (history only,
+each with ``annotations`` in the frame's ego frame and ``ego_status`` in the global frame) and the cameras of the
+current frame are plain data. The future is stored as nuPlan objects: ``extended_detections_tracks``
+(``DetectionsTracks``, global boxes) and ``extended_traffic_light_data`` (``TrafficLightStatuses``), one per 2 Hz
+keyframe after the current frame. The pickle is read with the restricted unpickler, which admits exactly the nuPlan
+classes in :data:`NUPLAN_RECORDS` as plain :class:`~lead_s2r.restricted_pickle.Record` data. Nothing from nuPlan is
+imported or run, and any other class is refused by name.
+
+Synthetic scenes have no logged future ego (NAVSIM's human trajectory is None for them), so the sample has no
+``future`` and ``meta.is_synthetic`` is true. There is no lidar either. The camera extrinsics are ``sensor2lidar``,
+as in the logs, and ``cam_to_ego`` uses the ``lidar2ego`` of the scene's original log, which has the same vehicle
+and sensor rig.
+"""
+
+import math
+from collections.abc import Iterator
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lead_s2r import restricted_pickle
+from lead_s2r.geometry import rotate, to_local, wrap_angle
+from lead_s2r.registry import LogRef
+from lead_s2r.restricted_pickle import Record
+from lead_s2r.schema import SCHEMA_VERSION, make_key
+from lead_s2r_adapters import navsim, navsim_map
+
+_ACTOR = "nuplan.common.actor_state"
+_MAPS = "nuplan.common.maps.maps_datatypes"
+#: The nuPlan classes a synthetic scene pickle holds, read as plain records.
+NUPLAN_RECORDS = frozenset(
+    {
+        ("nuplan.planning.simulation.observation.observation_type", "DetectionsTracks"),
+        (f"{_ACTOR}.tracked_objects", "TrackedObjects"),
+        (f"{_ACTOR}.agent", "Agent"),
+        (f"{_ACTOR}.static_object", "StaticObject"),
+        (f"{_ACTOR}.oriented_box", "OrientedBox"),
+        (f"{_ACTOR}.state_representation", "StateSE2"),
+        (f"{_ACTOR}.state_representation", "StateVector2D"),
+        (f"{_ACTOR}.scene_object", "SceneObjectMetadata"),
+        (f"{_ACTOR}.tracked_objects_types", "TrackedObjectType"),
+        (_MAPS, "TrafficLightStatuses"),
+        (_MAPS, "TrafficLightStatusData"),
+        (_MAPS, "TrafficLightStatusType"),
+    }
+)
+SCENE_KEYS = ("scene_metadata", "frames", "extended_traffic_light_data", "extended_detections_tracks")
+#: nuPlan ``TrackedObjectType`` values -> OpenScene names (EGO = 7 never appears among detections).
+OBJECT_TYPES = ("vehicle", "pedestrian", "bicycle", "traffic_cone", "barrier", "czone_sign", "generic_object")
+RED = 2  # nuPlan TrafficLightStatusType.RED
+
+
+def load_scene(path: Path) -> dict[str, Any]:
+    """A synthetic scene pickle as a dict, its nuPlan objects as records; checked for NAVSIM's top-level keys."""
+    try:
+        with open(path, "rb") as file:
+            scene = restricted_pickle.load(file, NUPLAN_RECORDS)
+    except FileNotFoundError:
+        raise
+    except Exception as err:
+        raise navsim.NavsimFormatError(
+            f"{path}: not a readable NAVSIM synthetic scene pickle ({type(err).__name__}: {err})"
+        ) from None
+    if not isinstance(scene, dict) or any(key not in scene for key in SCENE_KEYS):
+        raise navsim.NavsimFormatError(f"{path}: a synthetic scene must be a dict with keys {', '.join(SCENE_KEYS)}")
+    if not scene["frames"]:
+        raise navsim.NavsimFormatError(f"{path}: field 'frames' is empty")
+    return scene
+
+
+def _record(value: Any, name: str, where: str) -> Record:
+    if not isinstance(value, Record) or not value.path.endswith(f".{name}"):
+        raise navsim.NavsimFormatError(f"{where}: expected a nuPlan {name}, got {value!r:.120}")
+    return value
+
+
+def _xy_heading(pose: Record, where: str) -> tuple[float, float, float]:
+    """A ``StateSE2`` from its constructor arguments (``__reduce__``) or its attributes."""
+    pose = _record(pose, "StateSE2", where)
+    if len(pose.args) == 3:
+        return tuple(float(v) for v in pose.args)
+    return float(pose.state["x"]), float(pose.state["y"]), float(pose.state["heading"])
+
+
+def _vector(vector: Record | None, where: str) -> tuple[float, float]:
+    if vector is None:
+        return 0.0, 0.0
+    vector = _record(vector, "StateVector2D", where)
+    if len(vector.args) == 2:
+        return float(vector.args[0]), float(vector.args[1])
+    return float(vector.state["x"]), float(vector.state["y"])
+
+
+def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
+    """The boxes of a ``DetectionsTracks``: track token, OpenScene class name, global pose, size and velocity."""
+    container = _record(
+        _record(detections, "DetectionsTracks", where).state.get("tracked_objects"), "TrackedObjects", where
+    )
+    out = []
+    for i, item in enumerate(container.state.get("tracked_objects", [])):
+        at = f"{where} object {i}"
+        if not isinstance(item, Record) or not item.path.endswith((".Agent", ".StaticObject")):
+            raise navsim.NavsimFormatError(f"{at}: expected a nuPlan Agent or StaticObject, got {item!r:.120}")
+        box = _record(item.state.get("_box"), "OrientedBox", at)
+        kind = int(_record(item.state.get("_tracked_object_type"), "TrackedObjectType", at).args[0])
+        if not 0 <= kind < len(OBJECT_TYPES):
+            raise navsim.NavsimFormatError(f"{at}: TrackedObjectType {kind} is not an OpenScene class")
+        metadata = _record(item.state.get("_metadata"), "SceneObjectMetadata", at)
+        out.append(
+            {
+                "track_token": str(metadata.state["track_token"]),
+                "name": OBJECT_TYPES[kind],
+                "pose": _xy_heading(box.state["_center"], at),
+                "size": (float(box.state["_length"]), float(box.state["_width"]), float(box.state["_height"])),
+                "velocity": _vector(item.state.get("_velocity"), at),
+            }
+        )
+    return out
+
+
+def red_lights(statuses: Record, where: str) -> list[int]:
+    """Lane connector ids whose light is red in a ``TrafficLightStatuses``."""
+    red = []
+    for data in _record(statuses, "TrafficLightStatuses", where).state.get("traffic_lights", []):
+        data = _record(data, "TrafficLightStatusData", where)
+        if int(_record(data.state["status"], "TrafficLightStatusType", where).args[0]) == RED:
+            red.append(int(data.state["lane_connector_id"]))
+    return red
+
+
+@lru_cache(maxsize=32)
+def log_lidar2ego(log_path: str) -> np.ndarray:
+    """The (constant) lidar2ego of a log's first frame, read once per worker and log."""
+    frame = navsim.load_log(Path(log_path))[0]
+    where = f"{log_path} frame 0"
+    rotation = navsim.quaternion_matrix(navsim._field(frame, "lidar2ego_rotation", where))
+    return navsim.homogeneous(rotation, navsim._field(frame, "lidar2ego_translation", where))
+
+
+def iter_samples(adapter: "navsim.NavsimAdapter", log: LogRef) -> Iterator[dict[str, Any]]:
+    """The one sample of the synthetic scene ``log.path``."""
+    yield _SyntheticScene(adapter, log).sample()
+
+
+class _SyntheticScene:
+    """One loaded synthetic scene: history poses in the current ego frame, then the sample fields."""
+
+    def __init__(self, adapter: "navsim.NavsimAdapter", log: LogRef) -> None:
+        self.adapter, self.log, self.path = adapter, log, Path(log.path)
+        self.scene = load_scene(self.path)
+        self.metadata = self.scene["scene_metadata"]
+        self.frames = self.scene["frames"]
+        self.where = f"{self.path}"
+        self.current = int(self.metadata.get("num_history_frames", len(self.frames))) - 1
+        if not 0 <= self.current < len(self.frames):
+            raise navsim.NavsimFormatError(
+                f"{self.path}: num_history_frames does not fit its {len(self.frames)} frames"
+            )
+        self.poses = np.array([self._status(i)["ego_pose"] for i in range(len(self.frames))], np.float64)
+        self.stamps = np.array([int(f["timestamp"]) for f in self.frames], np.int64)
+        self.origin = self.poses[self.current]
+
+    def _status(self, index: int) -> dict[str, np.ndarray]:
+        status = navsim._field(self.frames[index], "ego_status", f"{self.where} frame {index}")
+        out = {}
+        for name, size in (("ego_pose", 3), ("ego_velocity", 2), ("ego_acceleration", 2), ("driving_command", 4)):
+            value = np.asarray(status.get(name), np.float64).ravel() if name in status else None
+            if value is None or value.shape != (size,) or not np.isfinite(value).all():
+                raise navsim.NavsimFormatError(
+                    f"{self.where} frame {index}: ego_status.{name} must be {size} finite numbers"
+                )
+            out[name] = value
+        return out
+
+    def sample(self) -> dict[str, Any]:
+        adapter, frame = self.adapter, self.frames[self.current]
+        token = str(self.metadata.get("initial_token") or frame["token"])
+        log_name = str(self.metadata["log_name"])
+        t = ((self.stamps - self.stamps[self.current]) / 1e6).astype(np.float32)
+        past = np.column_stack([t, to_local(self.poses, self.origin)]).astype(np.float32)[: self.current + 1]
+        lidar2ego = log_lidar2ego(str(Path(self.log.extra["logs"]) / f"{log_name}.pkl"))
+        sample: dict[str, Any] = {"__key__": make_key(log_name, token), "past": past}
+        cameras = self.cameras(frame, lidar2ego, sample)
+        now = self.annotations(frame, lidar2ego)
+        sample["boxes"] = now["boxes"]
+        sample["agents_future"] = self.agents_future(now)
+        map_name = navsim_map.resolve_location(str(self.metadata["map_name"]))
+        roadblocks = [str(r) for r in frame.get("roadblock_ids", [])]
+        bev = None
+        if adapter.maps is not None:
+            sample["scoring"] = self.scoring(map_name, roadblocks)
+            sample["bev_semantic"] = navsim_map.render_bev(sample["scoring"], sample["boxes"])
+            bev = navsim_map.BEV_META
+        extras = {
+            "scene_token": token,
+            "initial_token": token,
+            "log_name": log_name,
+            "map_location": str(self.metadata["map_name"]),
+            "map_name": map_name,
+            "data_split": self.log.split,
+            "roadblock_ids": roadblocks,
+            "traffic_lights": [[int(lc), bool(red)] for lc, red in frame.get("traffic_lights", [])],
+            "track_tokens": now["tracks"],
+            "box_names": now["names"],
+            "corresponding_original_scene": self.metadata.get("corresponding_original_scene"),
+            "corresponding_original_initial_token": self.metadata.get("corresponding_original_initial_token"),
+        } | adapter.two_stage_extras(token)
+        sample["meta"] = self.meta(log_name, past, cameras, extras, sample, bev)
+        return sample
+
+    def cameras(self, frame: dict, lidar2ego: np.ndarray, sample: dict) -> list[dict[str, Any]]:
+        """The current frame's cameras (``camera_dict`` keys ``cam_f0`` ...; a camera without an image is ``{}``)."""
+        cameras = []
+        camera_dict = frame.get("camera_dict") or {}
+        sensors = Path(self.log.extra["sensors"])
+        for native, cam_id in navsim.CAMERAS.items():
+            cam = camera_dict.get(native.lower()) or {}
+            if not cam.get("data_path"):
+                continue
+            where = f"{self.where} camera_dict.{native.lower()}"
+            path = sensors / str(cam["data_path"])
+            if not path.is_file():
+                raise FileNotFoundError(f"{where}: sensor blob {path} is missing")
+            data = path.read_bytes()
+            width, height = navsim.jpeg_size(data, str(path))
+            sensor2lidar = navsim.homogeneous(
+                navsim._field(cam, "sensor2lidar_rotation", where),
+                navsim._field(cam, "sensor2lidar_translation", where),
+            )
+            sample[f"cam_{cam_id}"] = data
+            cameras.append(
+                {
+                    "id": cam_id,
+                    "native_name": native,
+                    "width": width,
+                    "height": height,
+                    "K": np.asarray(navsim._field(cam, "cam_intrinsic", where), np.float64).tolist(),
+                    "distortion": np.asarray(navsim._field(cam, "distortion", where), np.float64).tolist(),
+                    "cam_to_ego": (lidar2ego @ sensor2lidar).tolist(),
+                }
+            )
+        return cameras
+
+    def annotations(self, frame: dict, lidar2ego: np.ndarray) -> dict[str, Any]:
+        """The current frame's boxes (N, 10) as the logs' are converted (velocity rotated by lidar2ego)."""
+        where = f"{self.where} frame {self.current} annotations"
+        anns = navsim._field(frame, "annotations", f"{self.where} frame {self.current}")
+        boxes = np.asarray(navsim._field(anns, "boxes", where), np.float64).reshape(-1, 7)
+        names = [str(n) for n in navsim._field(anns, "names", where)]
+        velocity = np.asarray(navsim._field(anns, "velocity_3d", where), np.float64).reshape(-1, 3)
+        tracks = [str(t) for t in navsim._field(anns, "track_tokens", where)]
+        if not len(boxes) == len(names) == len(velocity) == len(tracks):
+            raise navsim.NavsimFormatError(f"{where}: boxes, names, velocity_3d and track_tokens differ in length")
+        unknown = sorted(set(names) - set(navsim.BOX_CLASSES))
+        if unknown:
+            raise navsim.NavsimFormatError(f"{where}: field 'names' has unknown classes {unknown}")
+        velocity = (np.nan_to_num(velocity) @ lidar2ego[:3, :3].T)[:, :2]
+        classes = np.array([navsim.BOX_CLASSES[n] for n in names], np.float64)
+        out = np.column_stack([boxes, velocity, classes]).astype(np.float32).reshape(-1, 10)
+        out[:, 6] = wrap_angle(out[:, 6])
+        return {"boxes": out, "names": names, "tracks": tracks}
+
+    def agents_future(self, now: dict[str, Any]) -> dict[str, np.ndarray]:
+        """Every track of ``extended_detections_tracks`` (2 Hz after the current frame) in the current ego frame:
+        the current boxes' tracks first, then tracks that appear later (layout of the logs' ``agents_future``)."""
+        steps = [
+            tracked_objects(d, f"{self.where} extended_detections_tracks[{k}]")
+            for k, d in enumerate(self.scene["extended_detections_tracks"] or [])
+        ]
+        horizon = len(steps)
+        order = {token: i for i, token in enumerate(now["tracks"])}
+        size = {t: box[3:6] for t, box in zip(now["tracks"], now["boxes"], strict=True)}
+        classes = {t: int(box[9]) for t, box in zip(now["tracks"], now["boxes"], strict=True)}
+        for objects in steps:
+            for item in objects:
+                if item["track_token"] not in order:
+                    order[item["track_token"]] = len(order)
+                    size[item["track_token"]] = np.array(item["size"])
+                    classes[item["track_token"]] = int(navsim.BOX_CLASSES[item["name"]])
+        count = len(order)
+        poses = np.full((count, horizon, 3), np.nan, np.float32)
+        velocity = np.full((count, horizon, 2), np.nan, np.float32)
+        valid = np.zeros((count, horizon), bool)
+        for k, objects in enumerate(steps):
+            for item in objects:
+                row = order[item["track_token"]]
+                poses[row, k] = to_local(np.array(item["pose"]), self.origin)
+                velocity[row, k] = rotate(np.array(item["velocity"]), -self.origin[2])
+                valid[row, k] = True
+        ordered = sorted(order, key=order.get)
+        return {
+            "t": (np.arange(1, horizon + 1) * 0.5).astype(np.float32),
+            "poses": poses,
+            "velocity": velocity,
+            "valid": valid,
+            "size": np.array([size[t] for t in ordered], np.float32).reshape(count, 3),
+            "class": np.array([classes[t] for t in ordered], np.int8),
+            "num_boxes": np.array(len(now["tracks"]), np.int64),
+        }
+
+    def scoring(self, map_name: str, roadblocks: list[str]) -> dict[str, np.ndarray]:
+        adapter = self.adapter
+        nuplan_map = navsim_map.load_map(adapter.maps, map_name)
+        frame = self.frames[self.current]
+        red = [[int(lc) for lc, is_red in frame.get("traffic_lights", []) if is_red]]
+        red += [
+            red_lights(s, f"{self.where} extended_traffic_light_data[{k}]")
+            for k, s in enumerate(self.scene["extended_traffic_light_data"] or [])
+        ]
+        times = np.arange(len(red)) * 0.5
+        context = navsim_map.scoring_context(nuplan_map, self.origin, adapter.map_radius, roadblocks, red, times)
+        context["ego_past"] = self.ego_past()
+        return context
+
+    def ego_past(self) -> np.ndarray:
+        """(P, 8) t, x, y, heading (current ego frame), vx, vy, ax, ay (body frame) of the history frames."""
+        index = np.arange(self.current + 1)
+        dynamics = [np.r_[self._status(i)["ego_velocity"], self._status(i)["ego_acceleration"]] for i in index]
+        t = (self.stamps[index] - self.stamps[self.current]) / 1e6
+        return np.column_stack([t, to_local(self.poses[index], self.origin), np.array(dynamics)])
+
+    def meta(
+        self,
+        log_name: str,
+        past: np.ndarray,
+        cameras: list[dict[str, Any]],
+        extras: dict[str, Any],
+        sample: dict[str, Any],
+        bev: dict[str, Any] | None,
+    ) -> dict[str, Any]:
+        status = self._status(self.current)
+        velocity, acceleration = status["ego_velocity"].tolist(), status["ego_acceleration"].tolist()
+        one_hot = status["driving_command"]
+        raw = int(np.argmax(one_hot)) if one_hot.sum() == 1 else 3
+        previous = past[-2] if len(past) > 1 else past[-1]
+        yaw_rate = float(wrap_angle(0.0 - previous[3]) / (0.0 - previous[0])) if previous[0] < 0 else 0.0
+        meta = {
+            "schema_version": SCHEMA_VERSION,
+            "dataset": "navsim",
+            "split": self.adapter.filter.name if self.adapter.filter else self.log.split,
+            "log_id": log_name,
+            "frame_idx": self.current,
+            "timestamp_us": int(self.stamps[self.current]),
+            "is_synthetic": True,
+            "location": extras["map_name"],
+            "adapter": self.adapter.name,
+            "adapter_version": self.adapter.version,
+            "ego": {
+                "speed": math.hypot(*velocity),
+                "velocity": velocity,
+                "acceleration": acceleration,
+                "yaw_rate": yaw_rate,
+                "command": int(navsim.COMMANDS[raw]),
+                "command_raw": raw,
+            },
+            "vehicle": dict(navsim.PACIFICA),
+            "cameras": cameras,
+            "has": {name: True for name in sample if name not in ("__key__", "meta")},
+            "extras": {"navsim": extras},
+        }
+        if bev is not None:
+            meta["bev"] = bev
+        return meta

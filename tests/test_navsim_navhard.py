@@ -1,0 +1,198 @@
+"""navhard two-stage: the synthetic split (nuPlan-object pickles) -> NAVSIM adapter -> samples -> two-stage math."""
+
+import importlib.util
+import json
+import pickle
+import pickletools
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from lead_s2r.cli import main as cli_main
+from lead_s2r.convert import convert
+from lead_s2r.geometry import to_global, to_local
+from lead_s2r.scoring.pdm import two_stage as T
+from lead_s2r.scoring.pdm.epdms import FILTERED
+from lead_s2r.scoring.pdm.state import STATE_SIZE
+from lead_s2r.shards import read_samples
+from lead_s2r.synthetic import navsim as synth
+from lead_s2r.synthetic import navsim_map as synth_map
+from lead_s2r.synthetic import navsim_navhard as hard
+from lead_s2r.synthetic.nuplan_pickle import NuplanClass, NuplanObject, dumps
+from lead_s2r_adapters import navsim_synthetic
+from lead_s2r_adapters.navsim import NavsimAdapter, NavsimFormatError
+
+
+@pytest.fixture(scope="module")
+def raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("navhard_raw")
+    assert cli_main(["synth", "navsim_navhard", "--out", str(out)]) == 0
+    return out
+
+
+def adapter(raw: Path) -> NavsimAdapter:
+    return NavsimAdapter(
+        split=hard.SPLIT,
+        scene_filter=str(raw / "scene_filters" / f"{hard.SPLIT}.yaml"),
+        maps=str(raw / "maps"),
+        two_stage_mapping=str(raw / "train_test_split" / f"{hard.SPLIT}.yaml"),
+    )
+
+
+@pytest.fixture(scope="module")
+def converted(raw: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("navhard_out")
+    result = convert(adapter(raw), raw, out)
+    assert result.ok, result.errors
+    return out
+
+
+@pytest.fixture(scope="module")
+def samples(converted: Path) -> dict[str, dict]:
+    return {s["meta"]["extras"]["navsim"]["scene_token"]: s for s in read_samples(converted)}
+
+
+@pytest.fixture(scope="module")
+def mapping(raw: Path) -> list[T.TwoStageGroup]:
+    config = yaml.safe_load((raw / "train_test_split" / f"{hard.SPLIT}.yaml").read_text())
+    return T.parse_mapping(config["reactive_all_mapping"])
+
+
+def scene_paths(raw: Path) -> list[Path]:
+    return sorted((raw / hard.SPLIT / "synthetic_scene_pickles").glob("*.pkl"))
+
+
+def test_synthetic_pickles_name_nuplan_classes_and_no_nuplan_is_importable(raw: Path) -> None:
+    assert importlib.util.find_spec("nuplan") is None
+    data = scene_paths(raw)[0].read_bytes()
+    globals_named = {arg for op, arg, _ in pickletools.genops(data) if op.name == "SHORT_BINUNICODE"}
+    assert {"nuplan.common.actor_state.agent", "Agent", "nuplan.common.maps.maps_datatypes"} <= globals_named
+    with pytest.raises(ModuleNotFoundError, match="nuplan"):
+        pickle.loads(data)  # a plain unpickler needs nuPlan: the references are real
+
+
+def test_restricted_reader_maps_nuplan_objects_to_plain_data(raw: Path) -> None:
+    scene = navsim_synthetic.load_scene(scene_paths(raw)[0])
+    assert len(scene["frames"]) == hard.HISTORY and len(scene["extended_detections_tracks"]) == hard.FUTURE
+    objects = navsim_synthetic.tracked_objects(scene["extended_detections_tracks"][0], "test")
+    assert {o["name"] for o in objects} >= {"vehicle", "pedestrian", "traffic_cone"}
+    cone = next(o for o in objects if o["name"] == "traffic_cone")
+    assert cone["velocity"] == (0.0, 0.0) and cone["size"] == pytest.approx((0.4, 0.4, 0.7))
+    # frames 12..19 of every log: connector 2012 red, 2021 green
+    assert navsim_synthetic.red_lights(scene["extended_traffic_light_data"][0], "test") == [2012]
+
+
+def test_a_foreign_class_in_a_synthetic_scene_is_refused_by_name(tmp_path: Path) -> None:
+    path = tmp_path / "bad.pkl"
+    hostile = NuplanObject(NuplanClass("os", "system"), ("echo pwned",), reduce=True)
+    path.write_bytes(dumps({key: [hostile] for key in navsim_synthetic.SCENE_KEYS}))
+    with pytest.raises(NavsimFormatError, match=r"os\.system"):
+        navsim_synthetic.load_scene(path)
+
+
+def test_every_stage_one_and_stage_two_token_is_one_sample(samples: dict, mapping: list) -> None:
+    tokens = {t for group in mapping for t in group.tokens()}
+    assert set(samples) == tokens and len(tokens) == 3 * (2 + 2 * len(hard.OFFSETS))
+    for group in mapping:
+        for token, stage, role in [(group.original, 1, "original"), (group.previous, 1, "previous")] + [
+            (t, 2, r) for pair in group.pairs for t, r in zip(pair, ("now", "previous"), strict=True)
+        ]:
+            extras, meta = samples[token]["meta"]["extras"]["navsim"], samples[token]["meta"]
+            assert (extras["stage"], extras["two_stage_role"], meta["is_synthetic"]) == (stage, role, stage == 2)
+            assert extras["two_stage_group"][0] == group.original
+
+
+def test_info_keeps_the_whole_mapping(converted: Path, raw: Path) -> None:
+    info = json.loads((converted / "info.json").read_text())
+    config = yaml.safe_load((raw / "train_test_split" / f"{hard.SPLIT}.yaml").read_text())
+    blob = json.dumps(info)
+    assert all(token in blob for entry in config["reactive_all_mapping"] for token in entry[:2])
+    assert "reactive_all_mapping" in blob
+
+
+def spec_of(log_name: str) -> synth.LogSpec:
+    return next(spec for spec in synth.log_specs(None) if spec.name == log_name)
+
+
+def test_synthetic_sample_geometry_matches_the_generator(samples: dict, mapping: list) -> None:
+    group = mapping[0]
+    sample = samples[group.pairs[2][0]]  # "now" variant shifted 1.2 m to the left
+    spec = spec_of(sample["meta"]["log_id"])
+    truth = hard.shifted_pose(synth.ego_states(spec)["poses"][hard.ORIGINAL_FRAME + hard.FUTURE], hard.OFFSETS[2])
+    origin = sample["scoring"]["origin"]
+    np.testing.assert_allclose(origin[:2] - synth_map.ORIGIN, truth[:2], atol=1e-6)
+    assert "future" not in sample and "lidar" not in sample and "cam_front" in sample
+    np.testing.assert_allclose(sample["past"][-1], [0, 0, 0, 0], atol=1e-6)
+    # the lead vehicle (box 0) 2 s later, in the shifted ego frame
+    agents = synth.agents_for(synth.ego_states(spec)["poses"][0], spec.speed)
+    t = (hard.ORIGINAL_FRAME + hard.FUTURE + 4) * synth.DT_US / 1e6
+    lead = np.r_[np.array(agents[0].xy) + t * np.array(agents[0].velocity), agents[0].yaw]
+    np.testing.assert_allclose(sample["agents_future"]["poses"][0, 3], to_local(lead, truth), atol=1e-4)
+    red = sample["scoring"]
+    assert red["red_light_ids"][red["red_light_offsets"][1] : red["red_light_offsets"][2]].tolist() == [2012]
+    assert sample["scoring"]["ego_past"].shape == (hard.HISTORY, 8)
+
+
+def test_stage_one_samples_store_the_logged_past_dynamics(samples: dict, mapping: list, raw: Path) -> None:
+    sample = samples[mapping[1].original]
+    frames = pickle.loads((raw / hard.SPLIT / "openscene_meta_datas" / f"{sample['meta']['log_id']}.pkl").read_bytes())
+    past = sample["scoring"]["ego_past"]
+    np.testing.assert_allclose(past[:, 0], [-1.5, -1.0, -0.5, 0.0], atol=1e-6)
+    np.testing.assert_allclose(past[-1, 1:4], 0.0, atol=1e-9)
+    current = hard.ORIGINAL_FRAME
+    expected = [frames[i]["ego_dynamic_state"] for i in range(current - 3, current + 1)]
+    np.testing.assert_allclose(past[:, 4:], expected, atol=1e-9)
+    np.testing.assert_allclose(past[:, 1:3], sample["past"][:, 1:3], atol=1e-5)
+
+
+def rows_from_samples(samples: dict) -> list[T.TokenRow]:
+    """Stand-in scores (all 1) on the converted samples' start points, planned endpoints (the logged future's end
+    for stage 1) and times: what the two-stage math needs from a conversion."""
+    rows = []
+    for token, sample in samples.items():
+        origin = sample["scoring"]["origin"]
+        end = to_global(sample["future"][-1, 1:], origin)[:2] if "future" in sample else origin[:2]
+        rows.append(
+            T.TokenRow(
+                token,
+                dict.fromkeys(FILTERED, 1.0),
+                sample["meta"]["timestamp_us"] / 1e6,
+                origin[:2],
+                end,
+                np.zeros((41, STATE_SIZE)),
+            )
+        )
+    return rows
+
+
+def no_features(states: np.ndarray, time: np.ndarray) -> dict[str, np.ndarray]:
+    return {name: np.zeros(len(time)) for name in ("acceleration", "jerk", "yaw_rate", "yaw_accel")}
+
+
+def test_converted_split_aggregates_two_stage(samples: dict, mapping: list) -> None:
+    result = T.two_stage_aggregate(rows_from_samples(samples), mapping, no_features)
+    raw = np.exp(-np.square(hard.OFFSETS) / 0.2)  # the logged endpoint is the unshifted synthetic start
+    for group in mapping:
+        weights = [result.per_token[now]["weight"] for now, _ in group.pairs]
+        assert weights == pytest.approx(raw / raw.sum(), abs=1e-6)
+    assert result.combined["score"] == pytest.approx(1.0) and result.stage_two["score"] == pytest.approx(1.0)
+
+
+def test_a_missing_stage_two_token_fails_with_its_name(samples: dict, mapping: list) -> None:
+    dropped = mapping[2].pairs[1][1]
+    rows = [row for row in rows_from_samples(samples) if row.token != dropped]
+    with pytest.raises(KeyError, match=dropped):
+        T.two_stage_aggregate(rows, mapping, no_features)
+
+
+def test_a_filter_token_without_a_synthetic_pickle_is_reported(raw: Path, tmp_path: Path) -> None:
+    config = yaml.safe_load((raw / "scene_filters" / f"{hard.SPLIT}.yaml").read_text())
+    config["reactive_synthetic_initial_tokens"].append("0123456789abcdef0")
+    broken = tmp_path / "filter.yaml"
+    broken.write_text(yaml.safe_dump(config))
+    checker = NavsimAdapter(split=hard.SPLIT, scene_filter=str(broken))
+    ref = next(r for r in checker.list_logs(raw) if r.log_id.startswith("scene-filter"))
+    with pytest.raises(LookupError, match="0123456789abcdef0"):
+        list(checker.iter_samples(ref))
