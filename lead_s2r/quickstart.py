@@ -24,12 +24,12 @@ from lead_s2r.training.cli import run_lightning_cli
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "smoke" / "sim2real.yaml"
 #: The trained model predicts on the real datasets' validation data and is scored with these metrics.
 MODEL_DATASETS = ("navsim", "wod_e2e")
-MODEL_METRICS = ("ade", "rfs@wod-e2e-2025")
+MODEL_METRICS = ("ade", "rfs@wod-e2e-2025", "pdms@navsim-1.1")
 
 #: dataset -> (synthetic log count, adapter options relative to the raw folder, metrics)
 PLAN: dict[str, tuple[int, dict[str, str], tuple[str, ...]]] = {
     "carla_lead": (3, {}, ("ade",)),
-    "navsim": (2, {"maps": "maps"}, ("ade",)),
+    "navsim": (2, {"maps": "maps"}, ("ade", "pdms@navsim-1.1")),
     "wod_e2e": (3, {}, ("ade", "rfs@wod-e2e-2025")),
 }
 

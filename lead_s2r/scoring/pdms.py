@@ -128,9 +128,12 @@ class PDMSScorer(Scorer):
         return {**super().config(), "reference_cache": self.reference_cache}
 
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
-        rows = [self.score_sample(sample, frame) for sample, frame in join(predictions, data, self.allow_missing)]
+        """Samples of other datasets (e.g. WOD-E2E beside NAVSIM in one run) are skipped and counted."""
+        pairs = join(predictions, data, self.allow_missing)
+        ours = [(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
+        rows = [self.score_sample(sample, frame) for sample, frame in ours]
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
-        return ScoreResult(table, self._aggregate(rows))
+        return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": len(pairs) - len(ours)})
 
     def score_sample(self, sample: dict[str, Any], frame: list[Prediction]) -> dict[str, Any]:
         """One row of the table: NAVSIM's sub-scores of the most probable inference, or an invalid row."""

@@ -103,6 +103,7 @@ def scene_from_sample(sample: dict[str, Any]) -> PDMScene:
         light_route_lane_ids=np.asarray(
             [lane for lane, block in graph.lane_block.items() if block in uncorrected], np.int64
         ),
+        ego_past=np.asarray(scoring["ego_past"], np.float64) if "ego_past" in scoring else None,
         human_poses=None if future is None else np.asarray(future[:, 1:4], np.float64),
         human_interval=0.5,
         is_synthetic=bool(meta.get("is_synthetic", False)),
