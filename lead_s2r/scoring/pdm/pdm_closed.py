@@ -23,7 +23,7 @@ facts: tuplan_garage / navsim ``pdm_generator.py``, ``batch_idm_policy.py``, ``p
   [1e-5, length]; the plan is the IDM path poses, not the simulated states.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
@@ -31,7 +31,7 @@ import shapely.ops
 
 from lead_s2r.geometry import wrap_angle
 from lead_s2r.schema import BoxClass, MapKind
-from lead_s2r.scoring.pdm.route import ego_footprint, ragged_polygons
+from lead_s2r.scoring.pdm.route import ego_footprint, ego_footprints, ragged_polygons
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
 
@@ -149,17 +149,21 @@ class Forecast:
     speed: np.ndarray  # (M,) |v| at t = 0 (0 for static objects)
     heading: np.ndarray  # (M,) heading at t = 0
     red_lights: list[shapely.Polygon]
+    built: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
 
     def polygons(self, step: int) -> np.ndarray:
-        """Object polygons at 10 Hz step ``step``, then the red lights (which never move)."""
-        return np.concatenate([box_polygons(self.poses[:, step], self.size), np.array(self.red_lights, object)])
+        """Object polygons at 10 Hz step ``step``, then the red lights (which never move); built once per step."""
+        if step not in self.built:
+            moving = box_polygons(self.poses[:, step], self.size)
+            self.built[step] = np.concatenate([moving, np.array(self.red_lights, object)])
+        return self.built[step]
 
-    def lead_speed(self, index: np.ndarray, ego_heading: float) -> np.ndarray:
-        """Speed of objects (indices into :meth:`polygons`) along the ego heading; 0 for red lights."""
+    def lead_speed(self, index: np.ndarray, ego_heading: np.ndarray) -> np.ndarray:
+        """Speed of objects (indices into :meth:`polygons`) along the ego headings; 0 for red lights."""
         out = np.zeros(len(index))
         objects = index < len(self.speed)
         chosen = index[objects]
-        out[objects] = self.speed[chosen] * np.cos(wrap_angle(self.heading[chosen] - ego_heading))
+        out[objects] = self.speed[chosen] * np.cos(wrap_angle(self.heading[chosen] - ego_heading[objects]))
         return out
 
 
@@ -260,19 +264,22 @@ def _leaders(
     vehicle: VehicleParameters,
 ) -> np.ndarray:
     """Leader (progress, velocity, rear length) for proposals at ``progress`` with rear-axle ``poses`` (N, 3)."""
+    lead = np.tile([path.length, 0.0, vehicle.length / 2], (len(progress), 1))
     polygons = observation.polygons(step)
     hits = np.flatnonzero(shapely.intersects(polygons, corridor))
-    object_progress = path.project(shapely.get_coordinates(shapely.centroid(polygons[hits])).reshape(-1, 2))
-    lead = np.zeros((len(progress), 3))
-    for n, (ego_progress, pose) in enumerate(zip(progress, poses, strict=True)):
-        ahead = hits[object_progress > ego_progress]
-        if len(ahead) == 0:
-            lead[n] = (path.length, 0.0, vehicle.length / 2)
-            continue
-        distance = shapely.distance(ego_footprint(pose, vehicle), polygons[ahead])
-        nearest = int(np.argmin(distance))
-        lead[n, 0] = ego_progress + distance[nearest]
-        lead[n, 1] = observation.lead_speed(ahead[nearest : nearest + 1], pose[2])[0]
+    if len(hits) == 0:
+        return lead
+    object_progress = path.project(shapely.get_coordinates(shapely.centroid(polygons[hits])))
+    ahead = object_progress[None, :] > progress[:, None]  # (N, H)
+    rows = np.flatnonzero(ahead.any(axis=1))
+    if len(rows) == 0:
+        return lead
+    distance = shapely.distance(ego_footprints(poses[rows], vehicle)[:, None], polygons[hits][None, :])
+    distance = np.where(ahead[rows], distance, np.inf)
+    nearest = np.argmin(distance, axis=1)
+    lead[rows, 0] = progress[rows] + distance[np.arange(len(rows)), nearest]
+    lead[rows, 1] = observation.lead_speed(hits[nearest], poses[rows, 2])
+    lead[rows, 2] = 0.0
     return lead
 
 

@@ -292,9 +292,9 @@ def starting_lane(
     return best
 
 
-def ego_footprint(pose: np.ndarray, vehicle: VehicleParameters = PACIFICA) -> shapely.Polygon:
-    """The ego box of a rear-axle pose."""
-    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+def ego_footprints(poses: np.ndarray, vehicle: VehicleParameters = PACIFICA) -> np.ndarray:
+    """The ego boxes (N,) of rear-axle poses (N, 3)."""
+    poses = np.asarray(poses, np.float64).reshape(-1, 3)
     local = np.array(
         [
             [vehicle.front_length, vehicle.width / 2],
@@ -303,8 +303,15 @@ def ego_footprint(pose: np.ndarray, vehicle: VehicleParameters = PACIFICA) -> sh
             [vehicle.front_length, -vehicle.width / 2],
         ]
     )
-    corners = local @ np.array([[cos, sin], [-sin, cos]]) + pose[:2]
-    return shapely.Polygon(corners)
+    cos, sin = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    x = poses[:, None, 0] + cos * local[:, 0] - sin * local[:, 1]
+    y = poses[:, None, 1] + sin * local[:, 0] + cos * local[:, 1]
+    return shapely.polygons(np.stack([x, y], axis=-1))
+
+
+def ego_footprint(pose: np.ndarray, vehicle: VehicleParameters = PACIFICA) -> shapely.Polygon:
+    """The ego box of one rear-axle pose."""
+    return ego_footprints(pose, vehicle)[0]
 
 
 def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], target_block: int) -> list[int]:
