@@ -171,3 +171,15 @@ def test_score_cli_writes_navsim_csv_and_reuses_the_reference_cache(
     assert rows[-1][1] == "average" and len(rows) == len(keys) + 2
     assert float(rows[-1][-1]) == pytest.approx(aggregates["pdms"])
     assert all(len(row[1]) == 16 for row in rows[1:-1])  # NAVSIM scene tokens, not our keys
+
+
+def test_validation_callback_logs_pdms_for_navsim_only(core: None, converted: Path) -> None:
+    from lead_s2r.scoring.callback import ScoringCallback
+
+    callback = ScoringCallback(converted, metrics=("ade", "pdms@navsim-1.1"))
+    predictions = [predict_human(sample) for sample in read_samples(converted, fields=("future",))]
+    metrics = callback.compute(predictions)
+    assert 0.0 <= metrics["val/navsim/pdms"] <= 1.0 and "val/navsim/ade" in metrics
+    assert metrics["val/navsim/no_at_fault_collisions"] <= 1.0 and "val/navsim/frames_valid" not in metrics  # ints
+    scorer = callback.scorers[1]
+    assert len(scorer.references.memory) == len(predictions)  # planned once, kept for the next epoch
