@@ -7,7 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lead_s2r.scoring.pdm.route import LaneGraph, bfs_roadblocks, dijkstra_lanes, discrete_path
+from lead_s2r.schema import MapKind
+from lead_s2r.scoring.pdm.route import LaneGraph, bfs_roadblocks, correct_route, dijkstra_lanes, discrete_path
 
 
 def queue_bfs(start: int, graph: dict[int, list[int]], targets: list[int], max_depth: int) -> list[int] | None:
@@ -79,3 +80,47 @@ def test_dijkstra_without_a_path_ends_at_the_cheapest_deepest_lane() -> None:
 def test_discrete_path_heads_to_the_next_point_and_repeats_the_last() -> None:
     path = discrete_path(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]))
     np.testing.assert_allclose(path[:, 2], [0.0, np.pi / 2, np.pi / 2])
+
+
+def scoring_of(polygons: list[tuple[int, int, int, tuple[float, float, float, float]]], **arrays: list) -> dict:
+    """A ``scoring.npz`` dict of axis-aligned boxes (id, MapKind, parent, (x0, y0, x1, y1)); lanes get a centreline
+    along x through their box's middle."""
+    rings = [[(x0, y0), (x1, y0), (x1, y1), (x0, y1)] for *_, (x0, y0, x1, y1) in polygons]
+    lanes = [(fid, box) for fid, kind, _, box in polygons if kind in (MapKind.LANE, MapKind.LANE_CONNECTOR)]
+    lines = [[(x0, (y0 + y1) / 2), (x1, (y0 + y1) / 2)] for _, (x0, y0, x1, y1) in lanes]
+    return {
+        "polygon_xy": np.array([point for ring in rings for point in ring], np.float64),
+        "polygon_offsets": np.arange(len(rings) + 1) * 4,
+        "polygon_id": np.array([p[0] for p in polygons]),
+        "polygon_kind": np.array([p[1] for p in polygons]),
+        "polygon_parent": np.array([p[2] for p in polygons]),
+        "polygon_speed_limit": np.full(len(polygons), 10.0),
+        "centerline_xy": np.array([point for line in lines for point in line], np.float64).reshape(-1, 2),
+        "centerline_offsets": np.arange(len(lines) + 1) * 2,
+        "centerline_id": np.array([fid for fid, _ in lanes]),
+        "lane_connector_edges": np.array(arrays.get("lane_edges", []), np.int64).reshape(-1, 3),
+        "roadblock_connector_edges": np.array(arrays.get("block_edges", []), np.int64).reshape(-1, 3),
+    }
+
+
+def corridor_map() -> LaneGraph:
+    """Blocks along x: X (-10..10, the ego's), then connector 5 to C (20..40) and on to D; B (-40..-20) leads to
+    connector 6, which overlaps connector 5, into D. Each block has one lane (id + 100)."""
+    road, connector, lane = MapKind.ROADBLOCK, MapKind.ROADBLOCK_CONNECTOR, MapKind.LANE
+    blocks = [(1, road, (-10, -2, 10, 2)), (3, road, (20, -2, 40, 2)), (4, road, (50, -2, 70, 2)),
+              (2, road, (-40, -2, -20, 2)), (5, connector, (10, -2, 20, 2)), (6, connector, (12, -2, 22, 2)),
+              (7, connector, (40, -2, 50, 2))]  # fmt: skip
+    polygons = [(fid, kind, -1, box) for fid, kind, box in blocks]
+    polygons += [(fid + 100, lane, fid, box) for fid, kind, box in blocks if kind == road]
+    return LaneGraph.from_scoring(scoring_of(polygons, block_edges=[[5, 1, 3], [6, 2, 4], [7, 3, 4]]))
+
+
+def test_off_route_start_falls_back_to_the_forward_search() -> None:
+    # the route starts at 2, which the ego's block 1 cannot reach; 1 -> 5 -> 3 reaches the route's second block
+    assert correct_route(corridor_map(), [2, 3, 7, 4], np.zeros(3)) == [1, 5, 3, 7, 4]
+    # off route behind a reachable start: the backward search prepends the way
+    assert correct_route(corridor_map(), [3, 7, 4], np.zeros(3)) == [1, 5, 3, 7, 4]
+
+
+def test_route_is_cut_before_a_connector_overlapping_an_earlier_one() -> None:
+    assert correct_route(corridor_map(), [1, 5, 3, 7, 4, 6], np.zeros(3)) == [1, 5, 3, 7, 4]
