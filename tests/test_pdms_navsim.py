@@ -108,6 +108,14 @@ def test_constant_velocity_is_a_straight_line_at_the_current_speed(first: dict) 
     assert not prediction.xy[:, 1].any() and not prediction.yaw.any()
 
 
+def test_score_cli_scores_a_model_free_planner(converted: Path, tmp_path: Path) -> None:
+    args = ["score", "--metric", "ade", "--planner", "human", "--data", str(converted), "--out", str(tmp_path)]
+    assert cli_main(args) == 0
+    aggregates = json.loads((tmp_path / "scores.json").read_text())["aggregates"]
+    assert aggregates["ade"] == pytest.approx(0.0, abs=1e-5) and aggregates["frames"] == 14
+    assert (tmp_path / "predictions-human.parquet").is_file()
+
+
 # --------------------------------------------------------------------------- with the metric core
 
 
