@@ -6,14 +6,22 @@ actors' box centres move like points (only the frame origin goes to the rear axl
 The perturbated rig (``rig="perturbated"``) is LEAD's recovery augmentation: the sensors were rendered from a
 rig shifted sideways by ``perturbation_translation`` and turned by ``perturbation_rotation`` degrees, so every
 label is re-expressed in that virtual ego frame, as LEAD's own loader does. Facts: ``docs/datasets/carla_lead.md``.
+
+The camera rig is not one rig: LEAD collects with the rig of ``dataset_information.target_dataset`` (3 or 6
+Leaderboard cameras, one wide camera, or cameras matched to NAVSIM's), so the calibration is read from each frame's
+meta, and the stored mosaic's width (read from the JPEG header with Pillow, never decoding it) must match that rig's,
+or the calibration written beside it would be wrong.
 """
 
+import io
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+from PIL import Image
 
 from lead_s2r.geometry import (
     CARLA_REAR_AXLE_TO_CENTER,
@@ -43,14 +51,61 @@ from lead_s2r_adapters.carla_lead_io import (
 FPS = 20.0  # simulator and future-label rate
 FRAME_STEP = 5  # a frame is saved every 5th 20 Hz tick: 4 Hz
 MOSAIC_ID = "carla_mosaic"
-#: LEAD's 3-camera Leaderboard rig (``config_base.camera_calibration``): name, CARLA position (m, y right) and yaw
-#: (deg, clockwise), stitched left to right into one 1152x384 JPEG. Each tile is 384x384 with a 60 deg fov.
-CAMERA_RIG = (
-    ("left", (0.1, -0.35, 2.25), -54.5),
-    ("front", (0.35, 0.0, 2.25), 0.0),
-    ("right", (0.1, 0.35, 2.25), 54.5),
-)
-TILE_SIZE, CAMERA_FOV_DEG = 384, 60.0
+
+
+@dataclass(frozen=True)
+class RigCamera:
+    """One camera of a LEAD rig (``config_base.camera_calibration``): CARLA position (m, y right) and yaw (deg,
+    clockwise); rendered ``width`` x ``height`` with a horizontal ``fov_deg``. LEAD keeps the top ``stored_height``
+    rows, so the principal point stays at ``height / 2``."""
+
+    name: str
+    number: int  # LEAD's camera index: native name rgb_<number>
+    position: tuple[float, float, float]
+    yaw_deg: float
+    width: int = 384
+    height: int = 384
+    stored_height: int = 384
+    fov_deg: float = 60.0
+
+
+def _navsim_camera(name: str, number: int, position: tuple[float, float, float], yaw_deg: float) -> RigCamera:
+    """nuPlan's calibration as LEAD renders it in CARLA: 1920x1120 / 4, 1080 / 4 rows kept, 63.71 deg."""
+    return RigCamera(name, number, position, yaw_deg, width=480, height=280, stored_height=270, fov_deg=63.71)
+
+
+#: LEAD's camera rigs by ``dataset_information.target_dataset``, cameras in stitch order (left to right). Roll and
+#: pitch of the NAVSIM-matched rig (under 2.4 deg) are left out, as for the Leaderboard rigs, which have none.
+CAMERA_RIGS: dict[str, tuple[RigCamera, ...]] = {
+    "CARLA_LEADERBOARD2_3CAMERAS": (
+        RigCamera("left", 1, (0.1, -0.35, 2.25), -54.5),
+        RigCamera("front", 2, (0.35, 0.0, 2.25), 0.0),
+        RigCamera("right", 3, (0.1, 0.35, 2.25), 54.5),
+    ),
+    # stitched |1 2 3|6 5 4| (LEAD issue #63): the rear cameras read like a rear-view mirror
+    "CARLA_LEADERBOARD2_6CAMERAS": (
+        RigCamera("front_left", 1, (0.0, -0.3, 2.25), -57.5),
+        RigCamera("front", 2, (0.25, 0.0, 2.25), 0.0),
+        RigCamera("front_right", 3, (0.0, 0.3, 2.25), 57.5),
+        RigCamera("back_left", 6, (-0.3, -0.3, 2.25), -122.5),
+        RigCamera("back", 5, (-0.55, 0.0, 2.25), 180.0),
+        RigCamera("back_right", 4, (-0.3, 0.3, 2.25), 122.5),
+    ),
+    "CARLA_PY123D_1CAMERA": (
+        RigCamera("front", 1, (-1.5, 0.0, 2.0), 0.0, width=1024, height=512, stored_height=384, fov_deg=110.0),
+    ),
+    "NAVSIM_4CAMERAS": (
+        _navsim_camera("front_left", 1, (0.2568, -0.1491, 1.9612), -56.01),
+        _navsim_camera("front", 2, (0.3436, 0.0098, 1.9521), -1.03),
+        _navsim_camera("front_right", 3, (0.3628, 0.1638, 1.9540), 54.26),
+        _navsim_camera("back", 4, (-1.8372, 0.0231, 1.9105), 180.0),
+    ),
+}
+#: The rig of routes whose metas name none (LEAD's default ``carla_leaderboard2`` data, the paper's).
+DEFAULT_TARGET_DATASET = "CARLA_LEADERBOARD2_3CAMERAS"
+#: ``target_dataset`` stored as the number of LEAD's ``TargetDataset`` IntEnum (the snapshot's numbering; a wrong
+#: guess is caught by the mosaic-width check).
+TARGET_DATASET_NUMBERS = {1: "CARLA_LEADERBOARD2_3CAMERAS", 2: "CARLA_LEADERBOARD2_6CAMERAS", 3: "NAVSIM_4CAMERAS"}
 #: CARLA's Lincoln MKZ 2020 ego: half extents from LEAD's config, wheel base of the real car.
 EGO_HALF_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
 EGO_WHEEL_BASE = 2.85
@@ -89,29 +144,66 @@ def box_class(box: dict[str, Any]) -> BoxClass:
     return fixed.get(cls, BoxClass.GENERIC_OBJECT)
 
 
-def camera_calibration() -> list[dict[str, Any]]:
-    """Per-tile pinhole calibration of the mosaic in the ISO rear-axle ego frame (OpenCV camera axes)."""
-    focal = TILE_SIZE / (2 * math.tan(math.radians(CAMERA_FOV_DEG) / 2))
+def camera_calibration(target_dataset: str = DEFAULT_TARGET_DATASET, height: int | None = None) -> list[dict[str, Any]]:
+    """Per-tile pinhole calibration of a rig's mosaic, ``height`` rows stored (default: the rows LEAD keeps), in the
+    ISO rear-axle ego frame (OpenCV camera axes)."""
     cam_axes = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # camera x/y/z in ego axes (rows)
-    cameras = []
-    for tile, (name, position, yaw_deg) in enumerate(CAMERA_RIG):
+    cameras, x0 = [], 0
+    for camera in CAMERA_RIGS[target_dataset]:
+        focal = camera.width / (2 * math.tan(math.radians(camera.fov_deg) / 2))
         cam_to_ego = np.eye(4)
-        cam_to_ego[:3, :3] = rotate(cam_axes, -math.radians(yaw_deg)).T  # CARLA yaw is clockwise
-        cam_to_ego[:3, 3] = carla_points_to_iso(np.array(position))
+        cam_to_ego[:3, :3] = rotate(cam_axes, -math.radians(camera.yaw_deg)).T  # CARLA yaw is clockwise
+        cam_to_ego[:3, 3] = carla_points_to_iso(np.array(camera.position))
         cameras.append(
             {
                 "id": MOSAIC_ID,
-                "native_name": f"rgb_{tile + 1}",
-                "tile_name": name,
-                "width": TILE_SIZE,
-                "height": TILE_SIZE,
-                "K": [[focal, 0.0, TILE_SIZE / 2], [0.0, focal, TILE_SIZE / 2], [0.0, 0.0, 1.0]],
+                "native_name": f"rgb_{camera.number}",
+                "tile_name": camera.name,
+                "width": camera.width,
+                "height": camera.stored_height if height is None else height,
+                "K": [[focal, 0.0, camera.width / 2], [0.0, focal, camera.height / 2], [0.0, 0.0, 1.0]],
                 "distortion": [0.0] * 5,
                 "cam_to_ego": cam_to_ego.tolist(),
-                "tile": [tile * TILE_SIZE, TILE_SIZE],
+                "tile": [x0, camera.width],
             }
         )
+        x0 += camera.width
     return cameras
+
+
+def target_dataset(meta: dict[str, Any], path: Path) -> str:
+    """The rig a frame was recorded with: ``dataset_information.target_dataset`` (a name, or LEAD's enum number)."""
+    info = meta.get("dataset_information")
+    if info is None:
+        return DEFAULT_TARGET_DATASET
+    value = field(info, "target_dataset", path)
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        name = TARGET_DATASET_NUMBERS.get(int(value))
+    else:
+        name = str(value).rsplit(".", 1)[-1]  # "TargetDataset.NAVSIM_4CAMERAS" as str() of the enum writes it
+    if name not in CAMERA_RIGS:
+        raise LeadFormatError(
+            path, f"unknown camera rig {value!r}; known: {', '.join(CAMERA_RIGS)}", "dataset_information.target_dataset"
+        )
+    return name
+
+
+def mosaic_height(data: bytes, rig: str, path: Path) -> int:
+    """Rows of a stored mosaic, which must have the rig's width and its kept (or full rendered) height, or the
+    calibration written beside it would be wrong."""
+    try:
+        width, height = Image.open(io.BytesIO(data)).size
+    except Exception as err:  # Pillow raises several types for damaged headers
+        raise LeadFormatError(path, f"unreadable JPEG header ({err})") from err
+    cameras = CAMERA_RIGS[rig]
+    want_width, heights = sum(c.width for c in cameras), (cameras[0].stored_height, cameras[0].height)
+    if width != want_width or height not in heights:
+        raise LeadFormatError(
+            path,
+            f"mosaic is {width}x{height}, but rig {rig} (dataset_information.target_dataset) stores {want_width}x"
+            f"{heights[0]}; the route's metas name the wrong rig",
+        )
+    return height
 
 
 def hdmap_pixel_to_ego() -> list[list[float]]:
@@ -156,7 +248,9 @@ class CarlaLeadAdapter(Adapter):
     """
 
     name: ClassVar[str] = "carla_lead"
-    version: ClassVar[str] = "2"  # 2: box and agent-future centres are no longer shifted along their heading
+    #: 2: box and agent-future centres are no longer shifted along their heading;
+    #: 3: camera calibration of the route's own rig (dataset_information.target_dataset), not always 3 cameras
+    version: ClassVar[str] = "3"
     extras: ClassVar[str | None] = "carla"
 
     def __init__(
@@ -204,7 +298,7 @@ class CarlaLeadAdapter(Adapter):
             "agents_future": {"rate_hz": FPS, "horizon_s": 2.0},
             "rig": self.rig,
             "tp_distance": self.tp_distance,
-            "cameras": camera_calibration(),
+            "camera_rigs": "per route, from dataset_information.target_dataset (meta.cameras, extras target_dataset)",
             "source_frame": "CARLA ego (x forward, y right), vehicle centre; converted to ISO 8855 rear axle",
         }
 
@@ -266,11 +360,17 @@ class CarlaLeadAdapter(Adapter):
             sample["route"] = frame.points(route[:, :2]).astype(np.float32)
         sample.update(self._boxes(others, folder / "bboxes" / f"{name}.pkl", frame))
         sample.update(self._sensors(folder, name, suffix))
+        camera_rig, cameras = target_dataset(meta, path), []
+        if f"cam_{MOSAIC_ID}" in sample:
+            height = mosaic_height(sample[f"cam_{MOSAIC_ID}"], camera_rig, folder / f"rgb{suffix}" / f"{name}.jpg")
+            cameras = camera_calibration(camera_rig, height)
         if lidar is not None:  # LEAD re-aligns the one LiDAR to the perturbated rig in software
             points, sweep = lidar
             sample["lidar"] = np.column_stack([frame.points(points), -sweep / FPS]).astype(np.float32)
         extras = self._extras(log, meta, others, rig)
+        extras["carla_lead"]["target_dataset"] = camera_rig
         sample["meta"] = self._meta(log, meta, path, index, frame, command_raw, sample, extras)
+        sample["meta"]["cameras"] = cameras
         return sample
 
     def _future(self, meta: dict[str, Any], path: Path, frame: _Frame) -> np.ndarray | None:
@@ -438,7 +538,6 @@ class CarlaLeadAdapter(Adapter):
                 "wheel_base": EGO_WHEEL_BASE,
                 "rear_axle_to_center": CARLA_REAR_AXLE_TO_CENTER,
             },
-            "cameras": camera_calibration() if f"cam_{MOSAIC_ID}" in sample else [],
             "has": {name: True for name in sample if name != "__key__"},
             "extras": extras,
         }

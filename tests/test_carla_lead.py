@@ -9,6 +9,7 @@ import lzma
 import math
 import pickle
 import shutil
+import warnings
 from collections import OrderedDict
 from pathlib import Path
 
@@ -377,3 +378,100 @@ def test_synth_cli(tmp_path: Path) -> None:
     cli.main(["synth", "carla_lead", "--out", str(tmp_path), "--routes", "1"])
     routes = list((tmp_path / "data").glob("*/*"))
     assert len(routes) == 1 and len(list((routes[0] / "rgb").glob("*.jpg"))) == 16
+
+
+#: LEAD's rigs as its config lists them: tiles, tile width, stored rows, horizontal fov, principal row (the rendered
+#: height / 2: LEAD keeps the top rows), CARLA yaw of each tile left to right.
+LEAD_RIGS = {
+    "CARLA_LEADERBOARD2_3CAMERAS": (3, 384, 384, 60.0, 192.0, [-54.5, 0.0, 54.5]),
+    "CARLA_LEADERBOARD2_6CAMERAS": (6, 384, 384, 60.0, 192.0, [-57.5, 0.0, 57.5, -122.5, 180.0, 122.5]),
+    "CARLA_PY123D_1CAMERA": (1, 1024, 384, 110.0, 256.0, [0.0]),
+    "NAVSIM_4CAMERAS": (4, 480, 270, 63.71, 140.0, [-56.01, -1.03, 54.26, 180.0]),
+}
+
+
+def test_every_lead_camera_rig_converts_with_its_own_calibration(tmp_path: Path) -> None:
+    src, out = tmp_path / "src", tmp_path / "out"
+    synth.generate(src, count=4, seed=6, frames=2, rigs=tuple(LEAD_RIGS))
+    result = convert(CarlaLeadAdapter(), src, out)
+    assert result.ok and result.samples == 8, result.errors
+    seen = set()
+    for sample in read_samples(out):
+        rig = sample["meta"]["extras"]["carla_lead"]["target_dataset"]
+        seen.add(rig)
+        tiles, width, height, fov, cy, yaws = LEAD_RIGS[rig]
+        route, name = route_folder(src, sample), f"{sample['meta']['frame_idx']:04d}"
+        assert sample["cam_carla_mosaic"] == (route / "rgb" / f"{name}.jpg").read_bytes()
+        image = cv2.imdecode(np.frombuffer(sample["cam_carla_mosaic"], np.uint8), cv2.IMREAD_COLOR)
+        assert image.shape == (height, tiles * width, 3)
+        assert sample["semantic_carla_mosaic"].shape == (height, tiles * width)
+        cameras = sample["meta"]["cameras"]
+        assert [c["tile"] for c in cameras] == [[i * width, width] for i in range(tiles)]
+        assert all(c["width"] == width and c["height"] == height for c in cameras)
+        for camera, yaw in zip(cameras, yaws, strict=True):
+            K = np.asarray(camera["K"])
+            assert K[0, 0] == pytest.approx(width / 2 / math.tan(math.radians(fov / 2)))
+            assert (K[0, 2], K[1, 2]) == (width / 2, cy)
+            axis = np.asarray(camera["cam_to_ego"])[:3, 2]  # optical axis: CARLA's clockwise yaw, negated in ISO
+            np.testing.assert_allclose(
+                axis, [math.cos(math.radians(yaw)), -math.sin(math.radians(yaw)), 0.0], atol=1e-9
+            )
+    assert seen == set(LEAD_RIGS)
+
+
+def test_each_rig_is_laid_out_in_ltfv6_by_its_calibration(tmp_path: Path) -> None:
+    """Only the NAVSIM-matched rig fills LTFv6's 1920x270 input; the others are letterboxed, never squashed."""
+    from lead_s2r.data.transforms import SourceTransform
+    from lead_s2r.models.config import ltfv6_config
+
+    for rig, (tiles, width, height, *_) in LEAD_RIGS.items():
+        cameras = camera_calibration(rig)
+        transform = SourceTransform("carla", ltfv6_config(), ["carla_mosaic"])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            layout = transform.layout({"cameras": cameras}, [(height, tiles * width)])
+        assert layout.letterboxed == (rig != "NAVSIM_4CAMERAS") == bool(caught), rig
+        if rig == "NAVSIM_4CAMERAS":  # nuPlan's 38.5 deg around the principal row 140: rows [5, 275)
+            assert {(b.top, b.bottom) for b in layout.bands[0]} == {(5, 275)}
+
+
+def rewrite_meta(route: Path, name: str, **dataset_information: object) -> None:
+    meta = raw(route, "metas", name)
+    if dataset_information:
+        meta["dataset_information"].update(dataset_information)
+    else:
+        del meta["dataset_information"]
+    synth.write_pickle(route / "metas" / f"{name}.pkl", meta)
+
+
+def test_the_rig_comes_from_the_meta_and_a_wrong_one_is_refused(tmp_path: Path) -> None:
+    src = tmp_path / "src"
+    synth.generate(src, count=4, seed=7, frames=1, rigs=("CARLA_LEADERBOARD2_3CAMERAS", "CARLA_LEADERBOARD2_6CAMERAS"))
+    three, six, unknown, wrong = sorted((src / "data").glob("*/*"), key=lambda p: int(p.name.split("_")[2]))
+    rewrite_meta(three, "0000")  # no dataset_information: LEAD's default 3-camera rig
+    rewrite_meta(six, "0000", target_dataset=2)  # LEAD's enum number
+    rewrite_meta(unknown, "0000", target_dataset="WAYMO_E2E_2025_3CAMERAS")
+    rewrite_meta(wrong, "0000", target_dataset="NAVSIM_4CAMERAS")  # a 6-camera mosaic
+    result = convert(CarlaLeadAdapter(), src, tmp_path / "out")
+    assert not result.ok and result.logs_converted == 2
+    rigs = {
+        s["meta"]["log_id"]: s["meta"]["extras"]["carla_lead"]["target_dataset"] for s in read_samples(tmp_path / "out")
+    }
+    assert set(rigs.values()) == {"CARLA_LEADERBOARD2_3CAMERAS", "CARLA_LEADERBOARD2_6CAMERAS"} and len(rigs) == 2
+    errors = {e["log"].split("/")[1]: e["error"] for e in map(json.loads, (tmp_path / "out" / "errors.jsonl").open())}
+    assert "metas/0000.pkl" in errors[unknown.name] and "dataset_information.target_dataset" in errors[unknown.name]
+    assert "WAYMO_E2E_2025_3CAMERAS" in errors[unknown.name]
+    assert "rgb/0000.jpg" in errors[wrong.name] and "mosaic is 2304x384" in errors[wrong.name]
+
+
+def test_a_mosaic_stored_uncropped_keeps_its_principal_row(tmp_path: Path) -> None:
+    """LEAD renders the NAVSIM-matched tiles 280 rows high and keeps the top 270; a full-height mosaic is accepted too,
+    with the same principal row (the rendered centre), and any other size names the rig."""
+    from lead_s2r_adapters.carla_lead import mosaic_height
+
+    full = cv2.imencode(".jpg", np.zeros((280, 1920, 3), np.uint8))[1].tobytes()
+    assert mosaic_height(full, "NAVSIM_4CAMERAS", tmp_path / "0000.jpg") == 280
+    cameras = camera_calibration("NAVSIM_4CAMERAS", 280)
+    assert cameras[0]["height"] == 280 and cameras[0]["K"][1][2] == 140.0
+    with pytest.raises(LeadFormatError, match=r"0000\.jpg.*1920x280.*CARLA_LEADERBOARD2_3CAMERAS .*stores 1152x384"):
+        mosaic_height(full, "CARLA_LEADERBOARD2_3CAMERAS", tmp_path / "0000.jpg")

@@ -130,6 +130,44 @@ def test_target_point_norm_maps_range_to_unit_and_clamps():
     assert norm(points).tolist() == [[-1.0, -1.0], [1.0, 1.0], [0.5, 0.5], [1.0, -1.0]]
 
 
+def test_target_point_norm_range_can_be_reset_and_lives_in_the_state_dict():
+    model = TFv6(tfv6_config(**TINY))
+    model.set_target_point_range((0.0, -10.0), (40.0, 10.0))
+    assert model.target_point_range == ((0.0, -10.0), (40.0, 10.0))
+    assert model.planner.status.tp_norm(torch.tensor([[30.0, 5.0]])).tolist() == [[0.5, 0.5]]
+    state = model.state_dict()
+    assert state["planner.status.tp_norm.low"].tolist() == [0.0, -10.0]
+    fresh = TFv6(tfv6_config(**TINY))
+    fresh.load_state_dict(state)
+    assert fresh.target_point_range == ((0.0, -10.0), (40.0, 10.0))
+    with pytest.raises(ValueError, match="must exceed"):
+        model.set_target_point_range((0.0, 5.0), (40.0, 5.0))
+
+
+def test_tfv5_context_holds_speed_and_command_tokens_only():
+    """LEAD's TFv5: the current target point initialises the GRUs and is no decoder token."""
+    config = tfv5_config(**TINY, decoder_dropout=0.0, fusion_dropout=0.0)
+    model = TFv6(config).eval()
+    assert model.reads_target_points and model.planner.status.target_point is None
+    batch = random_batch(config, 2, "carla")
+    tokens, pad = model.planner.status(batch)
+    assert tokens.shape == (2, 2, config.token_dim) and not pad.any()  # speed, command
+    memory = {}
+    hook = model.planner.decoder.register_forward_hook(lambda module, args, out: memory.update(m=args[1]))
+    out = model(batch, "carla", {"waypoints"})["waypoints"]
+    hook.remove()
+    hb, wb = config.bev.shape
+    assert memory["m"].shape[1] == max(1, hb // 32) * max(1, wb // 32) + 2  # BEV tokens + speed + command
+    batch["target_points"][:, 1] += 20.0  # the current target point still steers the plan, through the GRUs
+    assert not torch.allclose(model(batch, "carla", {"waypoints"})["waypoints"], out)
+    batch["target_points"][:, [0, 2]] += 20.0  # previous and next never reach TFv5
+    moved = model(batch, "carla", {"waypoints"})["waypoints"]
+    batch["target_points"][:, [0, 2]] -= 20.0
+    torch.testing.assert_close(model(batch, "carla", {"waypoints"})["waypoints"], moved)
+    with pytest.raises(ValueError, match="no target-point tokens"):
+        TFv6(tfv5_config(**TINY, target_points=("current",)))
+
+
 def test_target_point_range_from_info():
     info = {"statistics": {"target_points": {"low": [-5.0, -30.0], "high": [80.0, 30.0]}}}
     assert target_point_range(info) == ((-5.0, -30.0), (80.0, 30.0))

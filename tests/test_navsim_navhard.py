@@ -12,6 +12,7 @@ import yaml
 
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
+from lead_s2r.foreign_pickle import ForeignClass, ForeignObject, dumps
 from lead_s2r.geometry import to_global, to_local
 from lead_s2r.scoring.pdm import two_stage as T
 from lead_s2r.scoring.pdm.epdms import FILTERED
@@ -20,7 +21,6 @@ from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r.synthetic import navsim_navhard as hard
-from lead_s2r.synthetic.nuplan_pickle import NuplanClass, NuplanObject, dumps
 from lead_s2r_adapters import navsim_synthetic
 from lead_s2r_adapters.navsim import NavsimAdapter, NavsimFormatError
 
@@ -86,7 +86,7 @@ def test_restricted_reader_maps_nuplan_objects_to_plain_data(raw: Path) -> None:
 
 def test_a_foreign_class_in_a_synthetic_scene_is_refused_by_name(tmp_path: Path) -> None:
     path = tmp_path / "bad.pkl"
-    hostile = NuplanObject(NuplanClass("os", "system"), ("echo pwned",), reduce=True)
+    hostile = ForeignObject(ForeignClass("os", "system"), ("echo pwned",), reduce=True)
     path.write_bytes(dumps({key: [hostile] for key in navsim_synthetic.SCENE_KEYS}))
     with pytest.raises(NavsimFormatError, match=r"os\.system"):
         navsim_synthetic.load_scene(path)

@@ -9,7 +9,8 @@ import yaml
 from lead_s2r.cli import main
 from lead_s2r.data.mixing import MixingSchedule
 
-RECIPES = sorted((Path(__file__).parents[1] / "recipes").rglob("*.yaml"))
+#: Training recipes; recipes/paper holds table specs for `lead-s2r table`, not LightningCLI configs.
+RECIPES = sorted(p for p in (Path(__file__).parents[1] / "recipes").rglob("*.yaml") if p.parent.name != "paper")
 
 
 @pytest.mark.parametrize("recipe", RECIPES, ids=lambda p: str(p.relative_to(p.parents[1])))

@@ -1,6 +1,9 @@
 """LightningModule: loss masking per source, overfitting, init_from, bf16 fit, validation ADE/FDE, predictions."""
 
 import itertools
+import json
+import shutil
+from dataclasses import replace
 
 import lightning as L
 import pytest
@@ -8,9 +11,12 @@ import torch
 from tiny_models import TINY
 from torch.utils.data import DataLoader
 
-from lead_s2r.models.config import ltfv6_config, tfv6_config
+from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
+from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.models.config import TrajectoryGrid, ltfv6_config, tfv6_config
 from lead_s2r.models.inputs import random_batch
 from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.module import DrivingModule
 
@@ -168,3 +174,55 @@ def test_init_from_rejects_missing_and_foreign_files(tmp_path):
     torch.save({"state_dict": {"a": "not a tensor"}}, bad)
     with pytest.raises(ValueError, match=r"bad\.ckpt"):
         DrivingModule(TFv6(config), init_from=str(bad))
+
+
+def converted_copy(source: str, target, target_points: dict | None) -> str:
+    """A copy of a converted folder whose info.json holds ``target_points`` statistics (None: no target points)."""
+    shutil.copytree(source, target)
+    info = json.loads((target / "info.json").read_text())
+    info["statistics"].pop("target_points", None)
+    if target_points is not None:
+        info["statistics"]["target_points"] = target_points
+    (target / "info.json").write_text(json.dumps(info))
+    return str(target)
+
+
+def test_training_folders_give_the_union_of_their_target_point_ranges(toy_data, tmp_path):
+    a = converted_copy(toy_data, tmp_path / "a", {"low": [-5.0, -20.0], "high": [60.0, 20.0]})
+    b = converted_copy(toy_data, tmp_path / "b", {"low": [0.0, -30.0], "high": [80.0, 3.0]})
+    none = converted_copy(toy_data, tmp_path / "none", None)
+    spec = lambda *paths: SourceSpec(list(paths), cameras=["front"])  # noqa: E731
+    data = DriveDataModule(train={"carla": spec(a, none), "navsim": spec(b)})
+    assert data.target_point_range() == ((-5.0, -30.0), (80.0, 20.0))
+    assert DriveDataModule(train={"navsim": spec(none)}).target_point_range() is None
+
+
+def test_fit_normalises_target_points_by_training_statistics_and_predict_keeps_the_checkpoints(toy_data, tmp_path):
+    a = converted_copy(toy_data, tmp_path / "a", {"low": [-5.0, -20.0], "high": [60.0, 20.0]})
+    b = converted_copy(toy_data, tmp_path / "b", {"low": [0.0, -3.0], "high": [15.0, 3.0]})
+    config = tfv6_config(**TINY, trajectory_grids={"carla": TrajectoryGrid(4, 0.5)}, use_radar=False)
+    spec_a, spec_b = SourceSpec([a], cameras=["front"]), SourceSpec([b], cameras=["front"])
+    schedule = MixingSchedule.constant({"carla": 1.0}, 2)
+    fit_data = DriveDataModule(train={"carla": spec_a}, predict={"carla": spec_a}, schedule=schedule, steps_per_epoch=1)
+    module = DrivingModule(TFv6(config), supervise={"carla": ["waypoints"]})
+    assert module.model.target_point_range == ((-200.0, -50.0), (200.0, 50.0))  # LEAD's constants until fit
+    fit = trainer(max_steps=1, **TRAINER_DEFAULTS)
+    fit.fit(module, datamodule=fit_data)
+    assert module.model.target_point_range == ((-5.0, -20.0), (60.0, 20.0))
+    ckpt = tmp_path / "a.ckpt"
+    fit.save_checkpoint(ckpt)
+    state = torch.load(ckpt, weights_only=True)["state_dict"]
+    assert state["model.planner.status.tp_norm.high"].tolist() == [60.0, 20.0]
+    want = trainer().predict(module, datamodule=fit_data)
+
+    # a run whose data has other statistics: prediction still uses the range the checkpoint was trained with
+    fresh = DrivingModule(TFv6(config), supervise={"carla": ["waypoints"]})
+    other_data = DriveDataModule(train={"carla": spec_b}, predict={"carla": spec_b}, schedule=schedule)
+    got = trainer().predict(fresh, datamodule=other_data, ckpt_path=ckpt)
+    assert fresh.model.target_point_range == ((-5.0, -20.0), (60.0, 20.0))
+    for mine, theirs in zip(got, want, strict=True):
+        torch.testing.assert_close(mine["carla"]["xy"], theirs["carla"]["xy"])
+
+    fixed = DrivingModule(TFv6(replace(config, target_point_normalisation="fixed")), supervise={"carla": ["waypoints"]})
+    trainer(max_steps=1, **TRAINER_DEFAULTS).fit(fixed, datamodule=fit_data)
+    assert fixed.model.target_point_range == ((-200.0, -50.0), (200.0, 50.0))

@@ -1,23 +1,31 @@
+import math
+import warnings
+
+import cv2
 import numpy as np
+import pytest
 import torch
 from toy_adapter import toy_sample
 
 from lead_s2r.data.transforms import (
+    Band,
     SourceTransform,
+    Tile,
     bev_labels,
+    camera_layout,
     centernet_targets,
     collate,
     radar_targets,
     rasterize_lidar,
     route_checkpoints,
 )
-from lead_s2r.models.config import BEVGrid, TrajectoryGrid, tfv6_config
+from lead_s2r.models.config import NAVSIM_VERTICAL_FOV_DEG, BEVGrid, TrajectoryGrid, tfv6_config
 
 GRID = BEVGrid(-32.0, 64.0, -40.0, 40.0, 4.0)
 
 
 def transform(**overrides) -> SourceTransform:
-    config = tfv6_config(**{"image_size": (32, 96), "trajectory_grids": {"toy": TrajectoryGrid(6, 0.5)}, **overrides})
+    config = tfv6_config(**{"image_size": (32, 64), "trajectory_grids": {"toy": TrajectoryGrid(6, 0.5)}, **overrides})
     return SourceTransform("toy", config, ["front"])
 
 
@@ -38,7 +46,7 @@ def test_waypoints_between_source_points_are_interpolated():
 def test_image_is_rgb_at_the_configured_size():
     sample = toy_sample("log000", 0)
     out = transform()(sample)
-    assert out["rgb"].shape == (3, 32, 96) and out["rgb"].dtype == torch.uint8
+    assert out["rgb"].shape == (3, 32, 64) and out["rgb"].dtype == torch.uint8
 
 
 def test_lidar_cells_follow_x_along_rows_and_y_along_columns():
@@ -110,3 +118,121 @@ def test_radar_targets_are_the_boxes_radar_points_hit_fastest_first():
     out = radar_targets(radar, boxes)
     assert out["radar_targets_valid"].tolist()[:3] == [True, True, False]
     assert torch.allclose(out["radar_targets"][:2], torch.tensor([[20.0, 5.0, 8.0], [10.0, 0.0, 3.0]]))
+
+
+CARLA_FOCAL = 192 / math.tan(math.radians(30))  # a 384 px tile with a 60 deg fov
+CARLA_TILES = tuple(Tile(384 * i, 384 * (i + 1), CARLA_FOCAL, 192.0) for i in range(3))
+
+
+def test_carla_mosaic_is_letterboxed_into_ltfv6_not_squashed():
+    full = camera_layout((((384, 1152), CARLA_TILES),), (270, 1920), None)
+    assert full.bands == ((Band(0, 1152, 0, 384),),)  # three tiles with the same rows: one band
+    assert full.strip == (384, 1152) and full.box == (0, 555, 270, 810)  # scale 270 / 384, centred
+    # at NAVSIM's vertical fov: rows 192 +- 332.55 tan(19.27 deg) = 192 +- 116.2 -> [76, 308), then scale 270 / 232
+    navsim_fov = camera_layout((((384, 1152), CARLA_TILES),), (270, 1920), NAVSIM_VERTICAL_FOV_DEG)
+    assert navsim_fov.bands == ((Band(0, 1152, 76, 308),),)
+    assert navsim_fov.box == (0, 289, 270, 1341) and navsim_fov.letterboxed
+
+
+def test_navsim_four_cameras_fill_ltfv6_exactly():
+    camera = ((1080, 1920), (Tile(0, 1920, 1545.0, 540.0),))
+    layout = camera_layout((camera,) * 4, (270, 1920), NAVSIM_VERTICAL_FOV_DEG)
+    assert layout.bands == ((Band(0, 1920, 0, 1080),),) * 4 and layout.box == (0, 0, 270, 1920)
+    assert not layout.letterboxed
+
+
+def mosaic_sample(cy: float = 16.0) -> dict:
+    """A 3-tile 96x32 mosaic (fy = 16: a 90 deg vertical fov) with an 8x8 white square and class-3 label at the
+    centre of each tile, and a red marker row at row 2."""
+    sample = toy_sample("log000", 0)
+    image = np.zeros((32, 96, 3), np.uint8)
+    semantic = np.zeros((32, 96), np.uint8)
+    for tile in range(3):
+        image[12:20, 32 * tile + 12 : 32 * tile + 20] = 255
+        semantic[12:20, 32 * tile + 12 : 32 * tile + 20] = 3
+    image[2, :] = (0, 0, 255)
+    sample["cam_mosaic"] = cv2.imencode(".png", image)[1].tobytes()  # lossless: exact pixel checks
+    sample["semantic_mosaic"] = semantic
+    sample["meta"]["cameras"] = [
+        {
+            "id": "mosaic",
+            "width": 32,
+            "height": 32,
+            "K": [[16.0, 0, 16], [0, 16.0, cy], [0, 0, 1]],
+            "tile": [32 * i, 32],
+        }
+        for i in range(3)
+    ]
+    return sample
+
+
+def mosaic_transform(**overrides) -> SourceTransform:
+    """A transform reading camera field ``mosaic`` with CARLA's perspective label space."""
+    grids = {"toy": TrajectoryGrid(6, 0.5)}
+    return SourceTransform(
+        "toy", tfv6_config(trajectory_grids=grids, label_space={"toy": "carla"}, **overrides), ["mosaic"]
+    )
+
+
+def square_extent(mask: np.ndarray) -> tuple[int, int]:
+    """Height and width of the first square (connected run of True) in a boolean image."""
+    rows, cols = np.nonzero(mask)
+    first = cols < cols.min() + 20
+    return int(rows[first].max() - rows[first].min() + 1), int(cols[first].max() - cols[first].min() + 1)
+
+
+def test_a_strip_of_another_aspect_is_letterboxed_with_a_warning_and_labels_follow():
+    transform = mosaic_transform(image_size=(32, 192))
+    with pytest.warns(UserWarning, match=r"96x32 strip \(aspect 3.00\).*192x32 \(aspect 6.00\); letterboxed"):
+        out = transform(mosaic_sample())
+    rgb = out["rgb"].numpy()
+    assert (rgb[:, :, :48] == 0).all() and (rgb[:, :, 144:] == 0).all()  # pillars either side
+    white = (rgb > 200).all(axis=0)
+    assert square_extent(white) == (8, 8)  # a square stays a square (squashed: 8 high, 16 wide)
+    semantic = out["semantic"].numpy()
+    assert (semantic[:, :48] == -1).all() and (semantic[:, 144:] == -1).all()
+    np.testing.assert_array_equal(semantic == 3, white)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        transform(mosaic_sample())  # once per rig, not once per sample
+
+
+def test_tiles_are_cut_to_the_vertical_fov_around_their_principal_point():
+    # fov 2 atan(8 / 16): 16 rows around cy = 12 -> rows [4, 20), which fill a 6:1 model image at scale 2
+    fov = 2 * math.degrees(math.atan(8 / 16))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the cut strip has the model's aspect: no warning
+        out = mosaic_transform(image_size=(32, 192), vertical_fov_deg=fov)(mosaic_sample(cy=12.0))
+    rgb = out["rgb"].numpy()
+    white = (rgb > 200).all(axis=0)
+    rows = np.nonzero(white.any(axis=1))[0]
+    assert (rows.min(), rows.max()) == (16, 31)  # source rows 12..19 -> (12 - 4) * 2 .. (20 - 4) * 2 - 1
+    assert square_extent(white) == (16, 16)
+    red = (rgb[0] > 200) & (rgb[2] < 50)
+    assert not red.any()  # row 2 lies outside the band
+    np.testing.assert_array_equal(out["semantic"].numpy() == 3, white)
+
+
+def test_a_band_beyond_the_camera_is_padded():
+    # fov 2 atan(24 / 16) > the camera's 90 deg: rows [-8, 40) of a 32-row tile, 8 padded rows above and below
+    layout = camera_layout((((32, 96), (Tile(0, 96, 16.0, 16.0),)),), (48, 96), 2 * math.degrees(math.atan(1.5)))
+    assert layout.bands == ((Band(0, 96, -8, 40),),) and not layout.letterboxed
+    out = mosaic_transform(image_size=(48, 96), vertical_fov_deg=2 * math.degrees(math.atan(1.5)))(mosaic_sample())
+    assert (out["rgb"].numpy()[:, :8] == 0).all() and (out["semantic"].numpy()[:8] == -1).all()
+    assert (out["rgb"].numpy()[:, 8 + 2] > 200).any()  # the red marker row moved down by the padding
+
+
+def test_a_near_match_is_stretched_without_warning():
+    transform = mosaic_transform(image_size=(32, 97))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert transform(mosaic_sample())["rgb"].shape == (3, 32, 97)
+
+
+def test_fov_crop_needs_calibration_and_ablations_need_a_full_mosaic():
+    sample = mosaic_sample()
+    del sample["meta"]["cameras"]
+    with pytest.raises(ValueError, match=r"source 'toy'.*calibration"):
+        mosaic_transform(image_size=(32, 96), vertical_fov_deg=40.0)(sample)
+    with pytest.raises(ValueError, match="camera ablations"):
+        mosaic_transform(image_size=(32, 192), camera_tiles=3, use_tiles=(1,))(mosaic_sample())

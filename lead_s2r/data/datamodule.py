@@ -9,6 +9,7 @@ source, split over ranks by shard, whose batches come as ``{source: batch}`` lik
 
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import lightning as L
@@ -16,8 +17,9 @@ import webdataset as wds
 
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform, collate
-from lead_s2r.models.config import TFv6Config
-from lead_s2r.shards import decode_sample, shard_paths
+from lead_s2r.models.config import EgoMLPConfig, TFv6Config
+from lead_s2r.models.inputs import target_point_range
+from lead_s2r.shards import INFO, decode_sample, load_info, shard_paths
 
 
 @dataclass
@@ -68,6 +70,19 @@ class _Tag:
         return {self.source: batch}
 
 
+def ego_status_transform_config(config: EgoMLPConfig) -> TFv6Config:
+    """What the transforms need for the ego-status MLP: its output grids and no sensor input or perception label."""
+    return TFv6Config(
+        bev_input="coordinates",
+        use_radar=False,
+        trajectory_grids=dict(config.trajectory_grids),
+        bev_semantic_classes={},
+        box_classes={},
+        semantic_classes={},
+        depth_sources=(),
+    )
+
+
 class DriveDataModule(L.LightningDataModule):
     """Mixed-source training data and per-source evaluation data for the TFv6 family.
 
@@ -115,10 +130,33 @@ class DriveDataModule(L.LightningDataModule):
         if self._config is None:
             model = getattr(self.trainer, "lightning_module", None)
             config = getattr(getattr(model, "model", None), "config", None)
+            if isinstance(config, EgoMLPConfig):
+                config = ego_status_transform_config(config)
             if not isinstance(config, TFv6Config):
                 raise ValueError("DriveDataModule needs a TFv6Config: pass config= or train a model that has one")
             self._config = config
         return self._config
+
+    def target_point_range(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """The range that holds every training folder's target points: the union of their ``info.json``
+        ``statistics.target_points`` (1st/99th percentiles per axis); None when no folder has target points.
+
+        A folder without target points (NAVSIM, WOD-E2E), or a path that is not a converted folder, adds nothing.
+        """
+        lows, highs = [], []
+        for spec in self.train_sources.values():
+            for path in spec.paths:
+                if not (Path(path) / INFO).is_file():
+                    continue
+                info = load_info(path)
+                if "target_points" not in info.get("statistics", {}):
+                    continue
+                low, high = target_point_range(info)
+                lows.append(low)
+                highs.append(high)
+        if not lows:
+            return None
+        return (min(x for x, _ in lows), min(y for _, y in lows)), (max(x for x, _ in highs), max(y for _, y in highs))
 
     def _pipeline(self, name: str, spec: SourceSpec, batch_size: int, training: bool) -> wds.WebDataset:
         dataset = wds.WebDataset(

@@ -1,13 +1,24 @@
 """Schema v1 sample -> model input tensors (the :class:`lead_s2r.models.inputs.Batch` contract), per source.
 
 Everything here is a pure function of one decoded sample and the model configuration: resampling of the
-native-rate future to the model's grid, cameras stitched and resized, LiDAR rasterised onto the BEV grid, CenterNet
-box targets, BEV/perspective labels moved onto the model's grids. A label a sample does not have is left out, and
-the loss masks it.
+native-rate future to the model's grid, cameras stitched into the input image, LiDAR rasterised onto the BEV grid,
+CenterNet box targets, BEV/perspective labels moved onto the model's grids. A label a sample does not have is left
+out, and the loss masks it.
+
+Cameras are never squashed: a CARLA 3:1 mosaic stretched into LTFv6's 7:1 input would show every object 2.4x too
+wide, a gap between sources that no amount of training closes. Each tile is first cut by its calibration to the
+vertical field of view the model asks for (``vertical_fov_deg``, rows around the principal point; padded where the
+camera sees less), the tiles are stitched at one height, and the strip is scaled uniformly into ``image_size``,
+centred and padded (letterboxed) when its aspect differs by more than :data:`ASPECT_TOLERANCE`, with a warning. The
+layout depends only on the configuration and the source's rig, so it is computed once per rig
+(:func:`camera_layout`) and then applied to the image and its perspective labels alike (:func:`render`).
 """
 
 import math
+import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import cv2
@@ -31,6 +42,146 @@ LIDAR_HITS_MAX = 5.0
 #: Route checkpoints start this far ahead, then come every metre (LEAD's ``smooth_path``).
 ROUTE_START_M = 2.5
 CENTERNET_STRIDE = 4
+#: A camera strip within this relative aspect difference of ``image_size`` is stretched to fill it (a distortion
+#: below what anyone sees); beyond it, it is letterboxed.
+ASPECT_TOLERANCE = 0.02
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One camera tile's geometry in a decoded camera image: columns ``[x0, x1)``; ``fy`` and ``cy`` (pixels) from
+    its calibration, None where the sample has none."""
+
+    x0: int
+    x1: int
+    fy: float | None = None
+    cy: float | None = None
+
+
+@dataclass(frozen=True)
+class Band:
+    """The pixels of one decoded image that become one tile of the input strip: columns ``[x0, x1)``, rows
+    ``[top, bottom)``. Rows outside the image are padding (the requested field of view exceeds the camera's)."""
+
+    x0: int
+    x1: int
+    top: int
+    bottom: int
+
+
+@dataclass(frozen=True)
+class CameraLayout:
+    """Where every camera's pixels go in the model's input image.
+
+    Attributes:
+        sizes: the decoded (height, width) of each camera field the bands refer to.
+        bands: per camera field, its bands left to right.
+        strip: (height, width) of the stitched strip, every band scaled to the first one's height.
+        image_size: the model's (H, W).
+        box: (y0, x0, height, width) that the scaled strip fills in the model image; the rest is padding.
+    """
+
+    sizes: tuple[tuple[int, int], ...]
+    bands: tuple[tuple[Band, ...], ...]
+    strip: tuple[int, int]
+    image_size: tuple[int, int]
+    box: tuple[int, int, int, int]
+
+    @property
+    def letterboxed(self) -> bool:
+        return self.box[2:] != self.image_size
+
+
+def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> tuple[Tile, ...]:
+    """The tiles of camera field ``camera`` from ``meta.cameras``, scaled to the decoded image ``shape``.
+
+    A mosaic lists one calibration per tile (``tile`` = [x0, width]); a camera without calibration is one tile
+    without intrinsics.
+    """
+    height, width = shape
+    entries = [c for c in meta.get("cameras", []) if c.get("id") == camera]
+    if not entries:
+        return (Tile(0, width),)
+    entries.sort(key=lambda c: c["tile"][0] if "tile" in c else 0)
+    stored_width = max((c["tile"][0] + c["tile"][1]) if "tile" in c else c["width"] for c in entries)
+    sx, sy = width / stored_width, height / entries[0]["height"]
+    tiles = []
+    for c in entries:
+        x0, w = c["tile"] if "tile" in c else (0, c["width"])
+        tiles.append(Tile(round(x0 * sx), round((x0 + w) * sx), float(c["K"][1][1]) * sy, float(c["K"][1][2]) * sy))
+    return tuple(tiles)
+
+
+def tile_bands(height: int, tiles: Sequence[Tile], vertical_fov_deg: float | None) -> tuple[Band, ...]:
+    """Rows of each tile covering ``vertical_fov_deg`` around its principal point (all rows when None);
+    neighbouring tiles with the same rows merge into one band."""
+    bands: list[Band] = []
+    for tile in tiles:
+        if vertical_fov_deg is None:
+            top, bottom = 0, height
+        elif tile.fy is None or tile.cy is None:
+            raise ValueError("vertical_fov_deg needs each camera's calibration (meta.cameras K), and one has none")
+        else:
+            half = tile.fy * math.tan(math.radians(vertical_fov_deg) / 2)
+            top, bottom = round(tile.cy - half), round(tile.cy + half)
+        last = bands[-1] if bands else None
+        if last is not None and last.x1 == tile.x0 and (last.top, last.bottom) == (top, bottom):
+            bands[-1] = Band(last.x0, tile.x1, top, bottom)
+        else:
+            bands.append(Band(tile.x0, tile.x1, top, bottom))
+    return tuple(bands)
+
+
+@lru_cache(maxsize=256)
+def camera_layout(
+    cameras: tuple[tuple[tuple[int, int], tuple[Tile, ...]], ...],
+    image_size: tuple[int, int],
+    vertical_fov_deg: float | None,
+) -> CameraLayout:
+    """The layout of camera fields given as ((height, width), tiles) each, in the model's ``image_size``."""
+    if vertical_fov_deg is not None and not 0.0 < vertical_fov_deg < 180.0:
+        raise ValueError(f"vertical_fov_deg must be in (0, 180), got {vertical_fov_deg}")
+    bands = tuple(tile_bands(shape[0], tiles, vertical_fov_deg) for shape, tiles in cameras)
+    flat = [band for per_camera in bands for band in per_camera]
+    strip_h = flat[0].bottom - flat[0].top
+    strip_w = sum(round((b.x1 - b.x0) * strip_h / (b.bottom - b.top)) for b in flat)
+    h, w = image_size
+    if abs(strip_w * h / (strip_h * w) - 1.0) <= ASPECT_TOLERANCE:
+        box = (0, 0, h, w)
+    else:
+        scale = min(h / strip_h, w / strip_w)
+        box_h, box_w = round(strip_h * scale), round(strip_w * scale)
+        box = ((h - box_h) // 2, (w - box_w) // 2, box_h, box_w)
+    sizes = tuple(shape for shape, _ in cameras)
+    return CameraLayout(sizes, bands, (strip_h, strip_w), (h, w), box)
+
+
+def _cut(image: np.ndarray, band: Band, scale: tuple[float, float], fill: float) -> np.ndarray:
+    """One band of ``image`` (which may be a label at another resolution than the layout's: ``scale``)."""
+    sy, sx = scale
+    top, bottom = round(band.top * sy), round(band.bottom * sy)
+    piece = image[max(top, 0) : min(bottom, image.shape[0]), round(band.x0 * sx) : round(band.x1 * sx)]
+    if top >= 0 and bottom <= image.shape[0]:
+        return piece
+    pad = [(max(-top, 0), max(bottom - image.shape[0], 0)), (0, 0)] + [(0, 0)] * (image.ndim - 2)
+    return np.pad(piece, pad, constant_values=fill)
+
+
+def render(layout: CameraLayout, images: Sequence[np.ndarray], interpolation: int, fill: float) -> np.ndarray:
+    """Apply ``layout`` to one image per camera field (RGB, or a label at any resolution): (H, W[, C])."""
+    pieces = []
+    for size, bands, image in zip(layout.sizes, layout.bands, images, strict=True):
+        scale = (image.shape[0] / size[0], image.shape[1] / size[1])
+        pieces.extend(_cut(image, band, scale, fill) for band in bands)
+    height = pieces[0].shape[0]
+    pieces = [p if p.shape[0] == height else _resize_height(p, height, interpolation) for p in pieces]
+    y0, x0, box_h, box_w = layout.box
+    strip = cv2.resize(np.hstack(pieces) if len(pieces) > 1 else pieces[0], (box_w, box_h), interpolation=interpolation)
+    if not layout.letterboxed:
+        return strip
+    canvas = np.full(layout.image_size + strip.shape[2:], fill, strip.dtype)
+    canvas[y0 : y0 + box_h, x0 : x0 + box_w] = strip
+    return canvas
 
 
 @dataclass
@@ -46,6 +197,7 @@ class SourceTransform:
     source: str
     config: TFv6Config
     cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
+    _reported: set[CameraLayout] = field(default_factory=set, init=False, repr=False)  # letterboxed layouts warned of
 
     @property
     def fields(self) -> list[str]:
@@ -62,11 +214,12 @@ class SourceTransform:
         out: dict[str, Any] = {
             "__key__": sample["__key__"],
             "__dataset__": meta["dataset"],
-            "rgb": self.image(sample),
             "speed": torch.tensor(float(ego["speed"])),
             "acceleration": torch.tensor(ego["acceleration"], dtype=torch.float32),
             "command": torch.tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
+        if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
+            out["rgb"], layout = self.image(sample)
         out.update(self.target_points(sample))
         if self.config.bev_input == "raster":
             out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), self.config.bev))[None]
@@ -88,22 +241,57 @@ class SourceTransform:
         if "boxes" in sample and space in self.config.box_classes:
             out.update(centernet_targets(sample["boxes"], self.config.bev, self.config.box_classes[space]))
         if len(self.cameras) == 1:
-            out.update(self.perspective_labels(sample, space))
+            out.update(self.perspective_labels(sample, space, layout))
         return out
 
-    def image(self, sample: dict[str, Any]) -> torch.Tensor:
-        """Cameras decoded, stitched left to right and resized to ``config.image_size``: uint8 (3, H, W) RGB."""
-        tiles = []
+    def image(self, sample: dict[str, Any]) -> tuple[torch.Tensor, CameraLayout]:
+        """Cameras decoded and laid out in ``config.image_size`` (see the module docstring): uint8 (3, H, W) RGB,
+        and the layout, which perspective labels follow."""
+        images = []
         for camera in self.cameras:
             data = sample.get(f"cam_{camera}")
             if data is None:
                 raise KeyError(f"sample {sample['__key__']!r} has no camera {camera!r} (field cam_{camera})")
-            tiles.append(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
-        height = min(tile.shape[0] for tile in tiles)
-        tiles = [tile if tile.shape[0] == height else _resize_height(tile, height) for tile in tiles]
-        h, w = self.config.image_size
-        image = cv2.resize(np.hstack(tiles), (w, h), interpolation=cv2.INTER_AREA)
-        return torch.from_numpy(np.ascontiguousarray(image[:, :, ::-1].transpose(2, 0, 1)))
+            images.append(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
+        layout = self.layout(sample["meta"], [image.shape[:2] for image in images])
+        image = render(layout, images, cv2.INTER_AREA, 0)
+        return torch.from_numpy(np.ascontiguousarray(image[:, :, ::-1].transpose(2, 0, 1))), layout
+
+    def layout(self, meta: dict[str, Any], shapes: Sequence[tuple[int, int]]) -> CameraLayout:
+        """The (cached) layout of this sample's rig; warns when it does not fill the model's image."""
+        fov = self.config.vertical_fov_deg
+        cameras = []
+        for camera, shape in zip(self.cameras, shapes, strict=True):
+            tiles = camera_tiles(meta, camera, shape)
+            if fov is None:  # intrinsics do not matter: one layout for every calibration of the rig
+                tiles = tuple(Tile(t.x0, t.x1) for t in tiles)
+            cameras.append((tuple(shape), tiles))
+        try:
+            layout = camera_layout(tuple(cameras), tuple(self.config.image_size), fov)
+        except ValueError as err:
+            raise ValueError(f"source {self.source!r}, cameras {self.cameras}: {err}") from None
+        if layout.letterboxed and layout not in self._reported:
+            self._reported.add(layout)
+            self._letterboxed(layout)
+        return layout
+
+    def _letterboxed(self, layout: CameraLayout) -> None:
+        (strip_h, strip_w), (h, w) = layout.strip, layout.image_size
+        y0, x0, box_h, box_w = layout.box
+        c = self.config
+        if c.use_tiles is not None or c.fov_fraction < 1.0:
+            raise ValueError(
+                f"source {self.source!r}: the camera ablations (camera_tiles, use_tiles, fov_fraction) cut equal "
+                f"tiles from a mosaic that fills image_size, but this source's {strip_w}x{strip_h} strip is "
+                f"letterboxed into {w}x{h}; set image_size to the strip's aspect"
+            )
+        warnings.warn(
+            f"source {self.source!r}: cameras {self.cameras} make a {strip_w}x{strip_h} strip (aspect "
+            f"{strip_w / strip_h:.2f}) but the model's image is {w}x{h} (aspect {w / h:.2f}); letterboxed into "
+            f"{box_w}x{box_h} at x={x0}, y={y0} instead of squashed. Match image_size (or vertical_fov_deg) to "
+            "this rig to use every input pixel",
+            stacklevel=2,
+        )
 
     def target_points(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
         points = sample.get("target_points")
@@ -131,26 +319,26 @@ class SourceTransform:
             out["headings_valid"] = torch.from_numpy(heading_valid)
         return out
 
-    def perspective_labels(self, sample: dict[str, Any], space: str) -> dict[str, torch.Tensor]:
-        """Depth (metres) and semantic ids of the single input camera, on the input image's pixel grid."""
+    def perspective_labels(self, sample: dict[str, Any], space: str, layout: CameraLayout) -> dict[str, torch.Tensor]:
+        """Depth (metres, 0 = no label) and semantic ids (-1 = ignore) of the single input camera, laid out on the
+        input image's pixel grid exactly as the image is."""
         camera = self.cameras[0]
-        h, w = self.config.image_size
         out = {}
         depth = sample.get(f"depth_{camera}")
         if depth is not None and space in self.config.depth_sources:
             encoding = sample["meta"].get("depth", {})
             metres = depth.astype(np.float32) / 255.0 * float(encoding.get("max_m", self.config.max_depth))
-            out["depth"] = torch.from_numpy(cv2.resize(metres, (w, h), interpolation=cv2.INTER_LINEAR))
+            out["depth"] = torch.from_numpy(render(layout, [metres], cv2.INTER_LINEAR, 0.0))
         semantic = sample.get(f"semantic_{camera}")
         if semantic is not None and space in self.config.semantic_classes:
-            ids = cv2.resize(semantic, (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-            out["semantic"] = torch.from_numpy(ids)
+            ids = render(layout, [semantic.astype(np.int16)], cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
+            out["semantic"] = torch.from_numpy(ids.astype(np.int64))
         return out
 
 
-def _resize_height(image: np.ndarray, height: int) -> np.ndarray:
+def _resize_height(image: np.ndarray, height: int, interpolation: int) -> np.ndarray:
     width = max(1, round(image.shape[1] * height / image.shape[0]))
-    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    return cv2.resize(image, (width, height), interpolation=interpolation)
 
 
 def bev_cell_centres(grid: BEVGrid, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:

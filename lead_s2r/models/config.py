@@ -2,14 +2,18 @@
 
 Presets follow the LEAD repo (``lead/tfv6``, ``TrainingConfig``): :func:`tfv6_config` (ResNet34 TFv6, ~60M parameters
 with token dim 256), :func:`ltfv6_config` (no LiDAR: a fixed coordinate grid feeds the BEV branch) and
-:func:`tfv5_config` (GRU refinement initialised with one target point).
+:func:`tfv5_config` (GRU refinement initialised with the current target point, which is no decoder token).
 """
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Literal, NamedTuple
 
 #: LEAD's target-speed bins, m/s (``target_speed_classes``); a label is two-hot encoded between neighbours.
 TARGET_SPEED_CLASSES = (0.0, 4.0, 8.0, 10.0, 13.89, 16.0, 17.78, 20.0)
+
+#: Vertical field of view of LEAD's NAVSIM camera rig (nuPlan's 63.71 deg across 480 px, 270 of 280 rows kept), deg.
+NAVSIM_VERTICAL_FOV_DEG = 2 * math.degrees(math.atan(math.tan(math.radians(63.71 / 2)) * 270 / 480))
 
 #: Where each target-point slot sits in ``target_points`` (B, 3, 2).
 TARGET_POINT_SLOTS = ("previous", "current", "next")
@@ -75,6 +79,11 @@ class TFv6Config:
     bev_architecture: str = "resnet34"
     pretrained: bool = False
     image_size: tuple[int, int] = (384, 1152)
+    #: Vertical field of view of the input rows, degrees: every camera tile is cropped (or padded) by its
+    #: calibration to this band around its principal point, so every source shows the world at the same angular
+    #: scale. None keeps each tile's full height. Tiles are never squashed: a strip whose aspect differs from
+    #: ``image_size`` is letterboxed (see :mod:`lead_s2r.data.transforms`).
+    vertical_fov_deg: float | None = None
     bev: BEVGrid = CARLA_BEV
     #: "raster": LiDAR BEV histogram input (TFv6); "coordinates": fixed 2-channel grid (LTFv6);
     #: "latent": learned (C, H, W) tensor as in NAVSIM's LTF.
@@ -102,8 +111,12 @@ class TFv6Config:
     use_command: bool = True
     num_commands: int = 4
     target_points: tuple[str, ...] = TARGET_POINT_SLOTS
-    #: Target points are mapped from [low, high] to [-1, 1] and clamped; LEAD's fixed x/200, y/50 by default,
-    #: training-data statistics through :func:`lead_s2r.models.inputs.target_point_range`.
+    #: Target points are mapped from [low, high] to [-1, 1] per axis and clamped. "data": when a fit starts, the
+    #: range becomes the training sources' statistics (``info.json`` ``statistics.target_points``, see
+    #: :func:`lead_s2r.models.inputs.target_point_range`) and is saved with the weights, so validation and
+    #: prediction use the range the model was trained with; "fixed": ``target_point_low/high`` as given (LEAD's
+    #: x/200, y/50 by default, also the fallback when no training source has target-point statistics).
+    target_point_normalisation: Literal["data", "fixed"] = "data"
     target_point_low: tuple[float, float] = (-200.0, -50.0)
     target_point_high: tuple[float, float] = (200.0, 50.0)
     max_speed: float = 20.0
@@ -139,9 +152,11 @@ def tfv6_config(**overrides: object) -> TFv6Config:
 
 
 def ltfv6_config(**overrides: object) -> TFv6Config:
-    """LTFv6 for NAVSIM: 4-camera 1920x270 mosaic, no LiDAR and no radar; acceleration and command tokens."""
+    """LTFv6 for NAVSIM: 4-camera 1920x270 mosaic at NAVSIM's vertical field of view, no LiDAR and no radar;
+    acceleration and command tokens."""
     base = TFv6Config(
         image_size=(270, 1920),
+        vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG,
         bev=NAVSIM_BEV,
         bev_input="coordinates",
         lidar_channels=2,
@@ -152,10 +167,9 @@ def ltfv6_config(**overrides: object) -> TFv6Config:
 
 
 def tfv5_config(**overrides: object) -> TFv6Config:
-    """TFv5 ablation: GRU decoder initialised with the current target point; speed and command tokens only."""
-    base = TFv6Config(
-        decoder="v5", target_points=("current",), use_acceleration=False, use_radar=False, predict_headings=False
-    )
+    """TFv5 ablation as LEAD's ``tfv5_planning_decoder``: the decoder context holds the speed and command tokens
+    only; the current target point never becomes a token, it initialises the GRUs' hidden state."""
+    base = TFv6Config(decoder="v5", target_points=(), use_acceleration=False, use_radar=False, predict_headings=False)
     return replace(base, **overrides)
 
 

@@ -18,12 +18,28 @@ def require(batch: Batch, key: str, why: str) -> Tensor:
 
 
 class TargetPointNorm(nn.Module):
-    """Map target points from [low, high] to [-1, 1] per axis and clamp, so far-away points cannot blow up tokens."""
+    """Map target points from [low, high] to [-1, 1] per axis and clamp, so far-away points cannot blow up tokens.
+
+    The range lives in persistent buffers: a checkpoint carries the range its weights were trained with.
+    """
 
     def __init__(self, low: tuple[float, float], high: tuple[float, float]) -> None:
         super().__init__()
-        self.register_buffer("low", torch.tensor(low, dtype=torch.float32))
-        self.register_buffer("high", torch.tensor(high, dtype=torch.float32))
+        self.register_buffer("low", torch.zeros(2))
+        self.register_buffer("high", torch.ones(2))
+        self.set_range(low, high)
+
+    def set_range(self, low: tuple[float, float], high: tuple[float, float]) -> None:
+        if not all(h > lo for lo, h in zip(low, high, strict=True)):
+            raise ValueError(f"target-point range: high {tuple(high)} must exceed low {tuple(low)} on both axes")
+        with torch.no_grad():
+            self.low.copy_(torch.tensor(low, dtype=torch.float32))
+            self.high.copy_(torch.tensor(high, dtype=torch.float32))
+
+    @property
+    def range(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        low, high = self.low.tolist(), self.high.tolist()
+        return (low[0], low[1]), (high[0], high[1])
 
     def forward(self, points: Tensor) -> Tensor:
         return (2.0 * (points.float() - self.low) / (self.high - self.low) - 1.0).clamp(-1.0, 1.0)

@@ -1,5 +1,10 @@
 """TFv5 planning decoder (ablation): the v6 query transformer, but route and waypoints come from GRUs whose hidden
 state is initialised with the single current target point, as in TransFuser++.
+
+As in LEAD's ``tfv5_planning_decoder``, the target point reaches the planner only through the GRU initialisation:
+the decoder context holds speed and command tokens, never a target-point token, or the GRU / one-target-point
+ablations would compare a model that sees the point twice. LEAD feeds the point in metres; here it goes through the
+same range normalisation as TFv6's tokens (``target_point_low/high``, resolved from the training data).
 """
 
 import torch
@@ -14,9 +19,10 @@ class TFv5Decoder(PlanningDecoder):
     """GRU refinement over the decoded query features; no headings."""
 
     def __init__(self, config: TFv6Config) -> None:
-        if config.target_points != ("current",):
+        if config.target_points:
             raise ValueError(
-                f"TFv5 conditions on the current target point only; got target_points={config.target_points}"
+                "TFv5's decoder context holds no target-point tokens (its GRUs read the current target point); "
+                f"set target_points=() instead of {config.target_points}"
             )
         if config.predict_headings:
             raise ValueError("TFv5 predicts no headings; set predict_headings=False")

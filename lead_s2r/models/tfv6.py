@@ -53,6 +53,19 @@ class TFv6(nn.Module):
         """The camera ablation crop; losses apply it to perspective labels too."""
         return self.backbone.cameras
 
+    @property
+    def reads_target_points(self) -> bool:
+        """Whether route target points reach the planner (as tokens, or as TFv5's GRU initialisation)."""
+        return bool(self.config.target_points) or self.config.decoder == "v5"
+
+    @property
+    def target_point_range(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """``(low, high)`` the planner normalises target points by (saved in the state dict)."""
+        return self.planner.status.tp_norm.range
+
+    def set_target_point_range(self, low: tuple[float, float], high: tuple[float, float]) -> None:
+        self.planner.status.tp_norm.set_range(low, high)
+
     def grid(self, source: str) -> TrajectoryGrid:
         return self.config.trajectory_grids[source]
 

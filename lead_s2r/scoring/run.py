@@ -5,6 +5,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r import __version__
@@ -59,9 +60,15 @@ def score_predictions(
         "seconds": round(time.perf_counter() - start, 3),
     }
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    pq.write_table(result.table, out / SCORES_TABLE)
+    report = write_scores(out, result.table, report)
     scorer.write_files(result, out)
+    return report
+
+
+def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
+    """Write ``out/scores.parquet`` and ``out/scores.json`` (strict JSON: no NaN) and return the JSON content."""
+    out.mkdir(parents=True, exist_ok=True)
+    pq.write_table(table, out / SCORES_TABLE)
     text = json.dumps(report, indent=2, allow_nan=False)
     (out / SCORES_JSON).write_text(text + "\n")
     return json.loads(text)

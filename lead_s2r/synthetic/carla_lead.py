@@ -3,8 +3,12 @@
 Each route is a short, physically plausible drive in CARLA's left-handed world (x forward, y right, yaw
 clockwise): a left turn, a right turn, or a stop, cycled over the routes. Everything is written the way the LEAD
 expert writes it: 4 Hz frames of a 20 Hz simulation, LZMA-compressed pickles for metas and boxes (ego-centre
-frame, y right), a 3-camera 1152x384 JPEG mosaic at q=30 plus a perturbated-rig twin, 1/4-resolution 8-bit depth,
+frame, y right), a JPEG camera mosaic at q=30 plus a perturbated-rig twin, 1/4-resolution 8-bit depth,
 256x256 hdmap at 2 px/m, LAZ LiDAR with a ``time`` extra dimension and float16 radar npz files.
+
+The mosaic follows the route's camera rig (``dataset_information.target_dataset``, :data:`RIG_MOSAICS`): LEAD's
+3-camera (1152x384, the default), 6-camera (2304x384), single wide camera (1024x384, the top 384 of 512 rows) and
+NAVSIM-matched (1920x270, the top 270 of 280 rows) rigs.
 """
 
 import json
@@ -30,7 +34,14 @@ DEFAULT_TP_DISTANCE = 7.5
 ROUTE_POINTS = 50
 TURN_RADIUS = 10.0
 TURN_START = 8.0
-MOSAIC = (384, 1152)
+#: Camera rig (LEAD's ``TargetDataset`` name) -> (tiles, tile width, stored rows) of the stitched JPEG.
+RIG_MOSAICS = {
+    "CARLA_LEADERBOARD2_3CAMERAS": (3, 384, 384),
+    "CARLA_LEADERBOARD2_6CAMERAS": (6, 384, 384),
+    "CARLA_PY123D_1CAMERA": (1, 1024, 384),
+    "NAVSIM_4CAMERAS": (4, 480, 270),
+}
+DEFAULT_RIG = "CARLA_LEADERBOARD2_3CAMERAS"
 DEPTH_RATIO = 4
 HDMAP_SIZE = 256
 HDMAP_PX_PER_M = 2.0
@@ -233,14 +244,21 @@ def _ego_box(speed: float) -> dict:
     }
 
 
-def _mosaic(frame: int, shift: float, rng: np.random.Generator) -> np.ndarray:
-    """A cheap but frame-specific BGR scene: sky, road with lane lines, the frame number."""
-    h, w = MOSAIC
+def mosaic_shape(rig: str) -> tuple[int, int]:
+    """(height, width) of a rig's stored mosaic."""
+    tiles, width, height = RIG_MOSAICS[rig]
+    return height, tiles * width
+
+
+def _mosaic(rig: str, frame: int, shift: float, rng: np.random.Generator) -> np.ndarray:
+    """A cheap but frame-specific BGR scene: sky, road with lane lines in every tile, the frame number."""
+    tiles, tile_width, _ = RIG_MOSAICS[rig]
+    h, w = mosaic_shape(rig)
     image = np.empty((h, w, 3), np.uint8)
     image[: h // 2] = (200, 160, 110)
     image[h // 2 :] = (90, 90, 90)
-    for tile in range(3):
-        x0 = tile * 384 + 192 + int(shift * 40)
+    for tile in range(tiles):
+        x0 = tile * tile_width + tile_width // 2 + int(shift * 40)
         cv2.line(image, (x0, h // 2), (x0 - 150, h - 1), (255, 255, 255), 4)
         cv2.line(image, (x0, h // 2), (x0 + 150, h - 1), (255, 255, 255), 4)
     cv2.putText(image, f"frame {frame}", (40, 60), cv2.FONT_HERSHEY_SIMPLEX, 1.5, (0, 0, 255), 3)
@@ -248,8 +266,8 @@ def _mosaic(frame: int, shift: float, rng: np.random.Generator) -> np.ndarray:
     return image
 
 
-def _semantics() -> np.ndarray:
-    h, w = MOSAIC
+def _semantics(rig: str) -> np.ndarray:
+    h, w = mosaic_shape(rig)
     label = np.zeros((h, w), np.uint8)
     label[h // 2 :] = 2  # ROAD
     label[h // 2 + 20 : h // 2 + 30] = 5  # ROAD_LINE
@@ -257,9 +275,9 @@ def _semantics() -> np.ndarray:
     return label
 
 
-def _depth(frame: int) -> np.ndarray:
+def _depth(rig: str, frame: int) -> np.ndarray:
     """Depth in metres per pixel at 1/4 resolution, encoded as LEAD does: clip(d, 0, 50) / 50 * 255."""
-    h, w = MOSAIC[0] // DEPTH_RATIO, MOSAIC[1] // DEPTH_RATIO
+    h, w = (side // DEPTH_RATIO for side in mosaic_shape(rig))
     rows = np.linspace(80.0, 2.0, h)[:, None] + np.zeros((1, w)) + 0.1 * frame
     return (np.clip(rows, 0, 50) / 50 * 255).astype(np.uint8)
 
@@ -320,7 +338,7 @@ def _radar(boxes: list[dict], rng: np.random.Generator) -> dict[str, np.ndarray]
     return out
 
 
-def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict) -> dict:
+def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict, rig: str) -> dict:
     ego = drive.pose[step]
     future = drive.pose[step : step + EGO_FUTURE_STEPS + 1]
     past = drive.pose[max(step - PAST_STEPS, 0) : step + 1][::-1]
@@ -364,7 +382,7 @@ def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict) 
         "dataset_information": {
             "save_depth_resolution_ratio": DEPTH_RATIO,
             "save_depth_bits": 8,
-            "target_dataset": "CARLA_LEADERBOARD2_3CAMERAS",
+            "target_dataset": rig,
             "data_save_freq": SAVE_FREQ,
         },
         **extras,
@@ -374,8 +392,8 @@ def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict) 
     return meta
 
 
-def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -> Path:
-    """One route folder with ``frames`` 4 Hz frames and every LEAD sensor folder."""
+def write_route(root: Path, index: int, frames: int, rng: np.random.Generator, rig: str = DEFAULT_RIG) -> Path:
+    """One route folder with ``frames`` 4 Hz frames and every LEAD sensor folder, cameras of camera rig ``rig``."""
     kind = KINDS[index % len(KINDS)]
     town = TOWNS[index % len(TOWNS)]
     route_id = 1000 + index
@@ -425,12 +443,13 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -
         ego = drive.pose[step]
         boxes = [_ego_box(float(drive.speed[step]))] + [_box(actor, ego, step, kind) for actor in actors]
         write_pickle(folder / "bboxes" / f"{name}.pkl", boxes)
-        write_pickle(folder / "metas" / f"{name}.pkl", _meta(drive, step, planners, extras))
+        write_pickle(folder / "metas" / f"{name}.pkl", _meta(drive, step, planners, extras, rig))
         for suffix, shift in (("", 0.0), ("_perturbated", translation)):
-            jpeg = cv2.imencode(".jpg", _mosaic(frame, shift, rng), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
+            mosaic = _mosaic(rig, frame, shift, rng)
+            jpeg = cv2.imencode(".jpg", mosaic, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
             (folder / f"rgb{suffix}" / f"{name}.jpg").write_bytes(jpeg.tobytes())
-            cv2.imwrite(str(folder / f"semantics{suffix}" / f"{name}.png"), _semantics())
-            cv2.imwrite(str(folder / f"depth{suffix}" / f"{name}.png"), _depth(frame))
+            cv2.imwrite(str(folder / f"semantics{suffix}" / f"{name}.png"), _semantics(rig))
+            cv2.imwrite(str(folder / f"depth{suffix}" / f"{name}.png"), _depth(rig, frame))
         cv2.imwrite(str(folder / "hdmap" / f"{name}.png"), _hdmap(drive, ego))
         cv2.imwrite(str(folder / "hdmap_perturbated" / f"{name}.png"), _hdmap(drive, to_global(view, ego)))
         points, times = _lidar_points(boxes, rng)
@@ -456,8 +475,14 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator) -
     return folder
 
 
-def generate(out: Path, count: int | None = None, seed: int = 0, frames: int = 16) -> None:
-    """Write ``count`` routes (default 3: left turn, right turn, stop) under ``out/data/<Scenario>/<route>/``."""
+def generate(
+    out: Path, count: int | None = None, seed: int = 0, frames: int = 16, rigs: tuple[str, ...] = (DEFAULT_RIG,)
+) -> None:
+    """Write ``count`` routes (default 3: left turn, right turn, stop) under ``out/data/<Scenario>/<route>/``,
+    cycling through the camera ``rigs`` (names of :data:`RIG_MOSAICS`)."""
+    unknown = set(rigs) - set(RIG_MOSAICS)
+    if unknown:
+        raise ValueError(f"unknown camera rigs {sorted(unknown)}; known: {', '.join(RIG_MOSAICS)}")
     rng = np.random.default_rng(seed)
     for index in range(3 if count is None else count):
-        write_route(Path(out), index, frames, rng)
+        write_route(Path(out), index, frames, rng, rigs[index % len(rigs)])

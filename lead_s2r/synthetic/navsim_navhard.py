@@ -22,8 +22,8 @@ writes:
 * ``extended_detections_tracks``: 8 nuPlan ``DetectionsTracks`` (global boxes, t = 0.5 ... 4 s);
 * ``extended_traffic_light_data``: 8 nuPlan ``TrafficLightStatuses``.
 
-The nuPlan objects are written by :mod:`nuplan_pickle` with nuPlan's own class paths. Synthetic tokens have 17 hex
-digits, as in NAVSIM.
+The nuPlan objects are written by :mod:`lead_s2r.foreign_pickle` with nuPlan's own class paths. Synthetic tokens
+have 17 hex digits, as in NAVSIM.
 """
 
 import math
@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from lead_s2r.foreign_pickle import ForeignClass, ForeignObject, dumps
 from lead_s2r.synthetic import navsim, navsim_map
-from lead_s2r.synthetic.nuplan_pickle import NuplanClass, NuplanObject, dumps
 
 SPLIT = "navhard_two_stage"
 HISTORY, FUTURE = 4, 8
@@ -44,18 +44,18 @@ OFFSETS = (0.0, 0.4, 1.2)
 MAP_NAME = navsim_map.LOCATION
 
 _ACTOR = "nuplan.common.actor_state"
-DETECTIONS_TRACKS = NuplanClass("nuplan.planning.simulation.observation.observation_type", "DetectionsTracks")
-TRACKED_OBJECTS = NuplanClass(f"{_ACTOR}.tracked_objects", "TrackedObjects")
-AGENT = NuplanClass(f"{_ACTOR}.agent", "Agent")
-STATIC_OBJECT = NuplanClass(f"{_ACTOR}.static_object", "StaticObject")
-ORIENTED_BOX = NuplanClass(f"{_ACTOR}.oriented_box", "OrientedBox")
-STATE_SE2 = NuplanClass(f"{_ACTOR}.state_representation", "StateSE2")
-STATE_VECTOR_2D = NuplanClass(f"{_ACTOR}.state_representation", "StateVector2D")
-SCENE_OBJECT_METADATA = NuplanClass(f"{_ACTOR}.scene_object", "SceneObjectMetadata")
-TRACKED_OBJECT_TYPE = NuplanClass(f"{_ACTOR}.tracked_objects_types", "TrackedObjectType")
-TRAFFIC_LIGHT_STATUSES = NuplanClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatuses")
-TRAFFIC_LIGHT_STATUS_DATA = NuplanClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusData")
-TRAFFIC_LIGHT_STATUS_TYPE = NuplanClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusType")
+DETECTIONS_TRACKS = ForeignClass("nuplan.planning.simulation.observation.observation_type", "DetectionsTracks")
+TRACKED_OBJECTS = ForeignClass(f"{_ACTOR}.tracked_objects", "TrackedObjects")
+AGENT = ForeignClass(f"{_ACTOR}.agent", "Agent")
+STATIC_OBJECT = ForeignClass(f"{_ACTOR}.static_object", "StaticObject")
+ORIENTED_BOX = ForeignClass(f"{_ACTOR}.oriented_box", "OrientedBox")
+STATE_SE2 = ForeignClass(f"{_ACTOR}.state_representation", "StateSE2")
+STATE_VECTOR_2D = ForeignClass(f"{_ACTOR}.state_representation", "StateVector2D")
+SCENE_OBJECT_METADATA = ForeignClass(f"{_ACTOR}.scene_object", "SceneObjectMetadata")
+TRACKED_OBJECT_TYPE = ForeignClass(f"{_ACTOR}.tracked_objects_types", "TrackedObjectType")
+TRAFFIC_LIGHT_STATUSES = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatuses")
+TRAFFIC_LIGHT_STATUS_DATA = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusData")
+TRAFFIC_LIGHT_STATUS_TYPE = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusType")
 #: nuPlan ``TrackedObjectType`` values of the OpenScene names.
 OBJECT_TYPES = {
     "vehicle": 0, "pedestrian": 1, "bicycle": 2, "traffic_cone": 3, "barrier": 4, "czone_sign": 5,
@@ -73,28 +73,28 @@ def _global_xy(xy: np.ndarray) -> np.ndarray:
     return np.asarray(xy, np.float64) + navsim_map.ORIGIN
 
 
-def tracked_object(agent: navsim.Agent, token: str, t: float, timestamp_us: int) -> NuplanObject:
+def tracked_object(agent: navsim.Agent, token: str, t: float, timestamp_us: int) -> ForeignObject:
     """The nuPlan ``Agent`` (moving classes) or ``StaticObject`` of ``agent`` at time ``t``, global frame."""
     centre = _global_xy(np.array(agent.xy) + t * np.array(agent.velocity))
     length, width, height = agent.size
-    pose = NuplanObject(STATE_SE2, (float(centre[0]), float(centre[1]), float(agent.yaw)), reduce=True)
-    box = NuplanObject(ORIENTED_BOX, (), {"_center": pose, "_length": length, "_width": width, "_height": height})
-    metadata = NuplanObject(
+    pose = ForeignObject(STATE_SE2, (float(centre[0]), float(centre[1]), float(agent.yaw)), reduce=True)
+    box = ForeignObject(ORIENTED_BOX, (), {"_center": pose, "_length": length, "_width": width, "_height": height})
+    metadata = ForeignObject(
         SCENE_OBJECT_METADATA,
         (),
         {"timestamp_us": timestamp_us, "token": token[::-1], "track_id": None, "track_token": token,
          "category_name": agent.name},
     )  # fmt: skip
-    kind = NuplanObject(TRACKED_OBJECT_TYPE, (OBJECT_TYPES[agent.name],), reduce=True)
+    kind = ForeignObject(TRACKED_OBJECT_TYPE, (OBJECT_TYPES[agent.name],), reduce=True)
     state = {"_box": box, "_metadata": metadata, "_tracked_object_type": kind}
     if agent.name not in MOVING:
-        return NuplanObject(STATIC_OBJECT, (), state)
-    velocity = NuplanObject(STATE_VECTOR_2D, tuple(float(v) for v in agent.velocity), reduce=True)
+        return ForeignObject(STATIC_OBJECT, (), state)
+    velocity = ForeignObject(STATE_VECTOR_2D, tuple(float(v) for v in agent.velocity), reduce=True)
     state |= {"_velocity": velocity, "_angular_velocity": 0.0, "_predictions": [], "_past_trajectory": None}
-    return NuplanObject(AGENT, (), state)
+    return ForeignObject(AGENT, (), state)
 
 
-def detections(agents: list[navsim.Agent], tokens: list[str], frame: int, timestamp_us: int) -> NuplanObject:
+def detections(agents: list[navsim.Agent], tokens: list[str], frame: int, timestamp_us: int) -> ForeignObject:
     """``DetectionsTracks`` of the agents seen at (fractional) log frame ``frame``."""
     t = frame * navsim.DT_US / 1e6
     seen = [
@@ -102,24 +102,24 @@ def detections(agents: list[navsim.Agent], tokens: list[str], frame: int, timest
         for agent, token in zip(agents, tokens, strict=True)
         if agent.first <= frame <= agent.last
     ]
-    objects = NuplanObject(TRACKED_OBJECTS, (), {"tracked_objects": seen})
-    return NuplanObject(DETECTIONS_TRACKS, (), {"tracked_objects": objects})
+    objects = ForeignObject(TRACKED_OBJECTS, (), {"tracked_objects": seen})
+    return ForeignObject(DETECTIONS_TRACKS, (), {"tracked_objects": objects})
 
 
-def traffic_light_statuses(frame: int, timestamp_us: int) -> NuplanObject:
+def traffic_light_statuses(frame: int, timestamp_us: int) -> ForeignObject:
     statuses = [
-        NuplanObject(
+        ForeignObject(
             TRAFFIC_LIGHT_STATUS_DATA,
             (),
             {
-                "status": NuplanObject(TRAFFIC_LIGHT_STATUS_TYPE, (RED if red else GREEN,), reduce=True),
+                "status": ForeignObject(TRAFFIC_LIGHT_STATUS_TYPE, (RED if red else GREEN,), reduce=True),
                 "lane_connector_id": int(connector),
                 "timestamp": timestamp_us,
             },
         )
         for connector, red in navsim.traffic_lights(frame)
     ]
-    return NuplanObject(TRAFFIC_LIGHT_STATUSES, (), {"traffic_lights": statuses})
+    return ForeignObject(TRAFFIC_LIGHT_STATUSES, (), {"traffic_lights": statuses})
 
 
 def shifted_pose(pose: np.ndarray, offset: float) -> np.ndarray:

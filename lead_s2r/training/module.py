@@ -68,6 +68,35 @@ class DrivingModule(L.LightningModule):
         if compile:
             self.model.compile()
 
+    # --- setup
+    def setup(self, stage: str) -> None:
+        """At the start of a fit, normalise target points by the training data's statistics.
+
+        Lightning restores a checkpoint after ``setup``, so a resumed fit, validation and prediction keep the range
+        the weights were trained with (it is saved in the state dict), whatever data the run is given.
+        """
+        if stage == "fit":
+            self._resolve_target_point_range()
+
+    def _resolve_target_point_range(self) -> None:
+        model = self.model
+        if not getattr(model, "reads_target_points", False) or model.config.target_point_normalisation != "data":
+            return
+        resolve = getattr(self.trainer.datamodule, "target_point_range", None)
+        if resolve is None:  # plain dataloaders: no converted folders to read statistics from
+            return
+        resolved = resolve()
+        if resolved is None:
+            rank_zero_warn(
+                "target_point_normalisation='data', but no training folder has statistics.target_points in its "
+                f"info.json (its samples have no target points, or convert predates them); target points keep the "
+                f"range {model.target_point_range}"
+            )
+            return
+        model.set_target_point_range(*resolved)
+        (x0, y0), (x1, y1) = resolved
+        rank_zero_info(f"target points normalised over x [{x0:.1f}, {x1:.1f}] m, y [{y0:.1f}, {y1:.1f}] m")
+
     # --- losses
     def task_loss(self, task: str, pred: dict[str, Tensor], batch: Batch) -> Tensor:
         """One loss term for one source's batch."""

@@ -4,3 +4,8 @@ The pipeline mirrors NAVSIM's ``pdm_score``: proposals are interpolated to 10 Hz
 propagated by a kinematic bicycle, then scored against the map and the logged agents. Constants and every rule are
 in ``docs/metrics.md``; the facts come from NAVSIM's own code (see the module docstrings).
 """
+
+from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.score import score_proposals, score_states
+
+__all__ = ["PDMScene", "score_proposals", "score_states"]

@@ -41,6 +41,9 @@ class PDMScene:
     tire_steering_angle: float = 0.0
     vehicle: VehicleParameters = PACIFICA
     key: str = ""
+    #: absolute time of t0 in microseconds: nuPlan truncates sample times to whole microseconds, so the exact
+    #: interpolation (and the simulation after it) depends on it; None interpolates at exact multiples of 0.1 s
+    t0_us: int | None = None
     # red lights per 2 Hz keyframe: lane-connector ids red at red_light_t[i] are red_light_ids[offsets[i]:offsets[i+1]]
     red_light_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     red_light_ids: np.ndarray = field(default_factory=_empty_ids)

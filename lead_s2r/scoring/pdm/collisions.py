@@ -1,0 +1,213 @@
+"""NC (no at-fault collision) and TTC (time to collision within bound): NAVSIM v1.1's
+``PDMScorer._calculate_no_at_fault_collision`` / ``_calculate_ttc`` and ``pdm_scorer_utils.get_collision_type``,
+with nuPlan-devkit v1.2's ``is_agent_ahead`` (30 deg), ``is_agent_behind`` (150 deg) and ``is_track_stopped``.
+
+Both walk the steps in order with a per-proposal list of objects to ignore: an overlap that is not the ego's fault
+(NC) or not threatening (TTC) puts the object on the list for every later check of that proposal. Here every
+overlap is classified at once and the walk becomes "count a violation only if it comes before the first harmless
+overlap with the same object". Official behaviours reproduced on purpose:
+
+* NC classifies with the object's *first* appearance (static kind, or its speed then <= 0.05 m/s: STOPPED_TRACK,
+  at fault) but with its polygon and centroid at the step of the overlap. Order: ego speed <= 0.05 m/s (STOPPED_EGO,
+  not at fault); STOPPED_TRACK; centroid more than 150 deg off the ego heading seen from the rear axle (ACTIVE_REAR,
+  not at fault); ego front edge (exterior coords 0 -> 3) touches the object (ACTIVE_FRONT, at fault); else
+  ACTIVE_LATERAL, at fault only while the ego is in MULTIPLE_LANES or NON_DRIVABLE_AREA.
+  An at-fault overlap scores 0 with an agent (vehicle, pedestrian, bicycle) and 0.5 with a static object. Overlaps
+  at t = 0 count.
+* TTC moves the ego box (centre slot replaced by the front-left corner) along its heading at its current speed by
+  0, 0.3, 0.6 and 0.9 s (``float(k) * 0.1``) and checks the observation at step t + k. Skipped: red lights, ignored
+  objects and an ego slower than 5e-3 m/s. A violation is an object within 30 deg ahead, or one not behind (150 deg)
+  while the ego is in MULTIPLE_LANES, NON_DRIVABLE_AREA or has its rear axle inside an INTERSECTION. TTC's ignore
+  list is its own (NC's does not carry over).
+* NAVSIM queries an STRtree per step with predicate "intersects"; here candidate pairs come from overlapping
+  enclosing circles (a superset of the intersecting pairs) and the same GEOS ``intersects`` decides, so the pairs
+  are the same and polygons are built only for ego boxes that come near an object.
+* The relative angle is ``arccos`` of the dot product without clipping; a centroid exactly at the rear axle gives
+  NaN, which is neither ahead nor behind.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from lead_s2r.scoring.pdm.footprint import Corner, box_polygons
+from lead_s2r.scoring.pdm.observation import Observation
+from lead_s2r.scoring.pdm.state import StateIndex
+
+STOPPED_EGO_SPEED = 5e-2  # [m/s] get_collision_type
+STOPPED_TRACK_SPEED = 5e-2  # [m/s] nuPlan v1.2 is_track_stopped
+TTC_STOPPED_SPEED = 5e-3  # [m/s] PDMScorerConfig.stopped_speed_threshold
+AHEAD_DEG = 30.0
+BEHIND_DEG = 150.0
+STATIC_AT_FAULT_SCORE = 0.5
+TTC_OFFSETS = (0, 3, 6, 9)  # steps: np.arange(0, int(1.0 / 0.1), 3)
+
+
+#: Slack [m] on the bounding-circle test that picks candidate pairs, far above any rounding in the box corners.
+CIRCLE_SLACK = 1e-6
+#: Candidate pairs are searched this many query boxes at a time (bounds the (chunk, Gmax) temporaries).
+CHUNK = 4096
+
+
+@dataclass
+class Hits:
+    """Overlapping (ego box, observation geometry) pairs: the query's proposal row, its order key (the ego step for
+    NC, ``step * len(offsets) + k`` for TTC) and the geometry index in the observation."""
+
+    row: np.ndarray
+    order: np.ndarray
+    geom: np.ndarray
+
+    def select(self, keep: np.ndarray) -> "Hits":
+        return Hits(self.row[keep], self.order[keep], self.geom[keep])
+
+
+def candidate_pairs(
+    observation: Observation, centers: np.ndarray, obs_steps: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``(Q, 2)`` and enclosing
+    radius ``radius`` against the geometries of observation step ``obs_steps (Q,)``. Every intersecting pair is
+    among them, so the exact test runs on few pairs and no STRtree is needed."""
+    queries, geoms = [], []
+    for start in range(0, len(centers), CHUNK):
+        step_geoms = observation.step_geoms[obs_steps[start : start + CHUNK]]  # (C, Gmax)
+        safe = np.maximum(step_geoms, 0)
+        offset = observation.centroids[safe] - centers[start : start + CHUNK, None]
+        reach = radius + observation.radius[safe] + CIRCLE_SLACK
+        query, slot = np.nonzero((step_geoms >= 0) & (np.einsum("cgi,cgi->cg", offset, offset) <= reach * reach))
+        queries.append(query + start)
+        geoms.append(step_geoms[query, slot])
+    if not queries:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(queries), np.concatenate(geoms)
+
+
+def find_hits(
+    observation: Observation,
+    coords: np.ndarray,
+    obs_steps: np.ndarray,
+    rows: np.ndarray,
+    order: np.ndarray,
+    radius: float,
+) -> Hits:
+    """Geometries that intersect query boxes ``coords (Q, 5, 2)`` at observation steps ``obs_steps (Q,)``; polygons
+    are built only for boxes with a candidate."""
+    query, geom = candidate_pairs(observation, coords[:, Corner.CENTER], obs_steps, radius)
+    boxes, inverse = np.unique(query, return_inverse=True)
+    intersects = shapely.intersects(box_polygons(coords[boxes])[inverse.reshape(-1)], observation.polygons[geom])
+    query, geom = query[intersects], geom[intersects]
+    return Hits(rows[query], order[query], geom)
+
+
+def relative_angle(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """nuPlan ``get_agent_relative_angle``: angle between the heading of ``poses (..., 3)`` and the direction to
+    ``points (..., 2)``."""
+    dx, dy = points[..., 0] - poses[..., 0], points[..., 1] - poses[..., 1]
+    norm = np.sqrt(dx * dx + dy * dy)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.arccos(np.cos(poses[..., 2]) * (dx / norm) + np.sin(poses[..., 2]) * (dy / norm))
+
+
+def counted_before_release(row: np.ndarray, obj: np.ndarray, order: np.ndarray, violation: np.ndarray) -> np.ndarray:
+    """Which violations count under the official walk: those ordered before the first non-violation of the same
+    (row, object), after which the object is ignored for that row."""
+    if len(row) == 0:
+        return np.zeros(0, bool)
+    _, group = np.unique(np.stack([row, obj]), axis=1, return_inverse=True)
+    group = group.reshape(-1)
+    release = np.full(group.max() + 1, np.inf)
+    np.minimum.at(release, group[~violation], order[~violation])
+    return violation & (order < release[group])
+
+
+def _first_step(rows: np.ndarray, steps: np.ndarray, num_rows: int) -> np.ndarray:
+    """Per row the smallest step among ``(rows, steps)`` pairs, -1 for rows without any."""
+    first = np.full(num_rows, np.iinfo(np.int64).max)
+    np.minimum.at(first, rows, steps.astype(np.int64))
+    return np.where(first == np.iinfo(np.int64).max, -1, first)
+
+
+def _usable(hits: Hits, observation: Observation) -> np.ndarray:
+    obj = observation.objects[hits.geom]
+    return ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
+
+
+def enclosing_radius(length: float, width: float) -> float:
+    """Radius of the circle about a box's centre that holds the box."""
+    return float(np.hypot(length / 2.0, width / 2.0))
+
+
+def no_at_fault_collisions(
+    states: np.ndarray,
+    ego_coords: np.ndarray,
+    ego_radius: float,
+    observation: Observation,
+    lanes_or_off_road: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """NC ``(N,)`` in {0, 0.5, 1} and the first at-fault step ``(N,)`` (-1 if none), for states ``(N, T, 11)`` and
+    their boxes ``(N, T, 5, 2)`` (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or
+    NON_DRIVABLE_AREA."""
+    num_rows, num_steps = ego_coords.shape[:2]
+    row, step = np.divmod(np.arange(num_rows * num_steps), num_steps)
+    hits = find_hits(observation, ego_coords.reshape(-1, 5, 2), step, row, step, ego_radius)
+    hits = hits.select(_usable(hits, observation))
+    row, step, obj = hits.row, hits.order, observation.objects[hits.geom]
+    ego = states[row, step]
+    ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
+    track_stopped = ~observation.object_is_agent[obj] | (observation.object_speed[obj] <= STOPPED_TRACK_SPEED)
+    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], observation.centroids[hits.geom]) > np.deg2rad(BEHIND_DEG)
+    front = ego_coords[row, step][:, [Corner.FRONT_LEFT, Corner.FRONT_RIGHT]]
+    front_hit = shapely.intersects(shapely.linestrings(front), observation.polygons[hits.geom])
+    lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
+    at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
+    counted = counted_before_release(row, obj, step, at_fault)
+
+    severity = np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE)
+    scores = np.ones(num_rows)
+    np.minimum.at(scores, row[counted], severity[counted])
+    return scores, _first_step(row[counted], step[counted], num_rows)
+
+
+def ttc_coords(states: np.ndarray, ego_coords: np.ndarray, interval: float, offsets: tuple[int, ...]) -> np.ndarray:
+    """Ego boxes ``(N, T, len(offsets), 5, 2)`` moved along the heading at the current speed by ``offset * interval``
+    (``float(k) * interval`` as NAVSIM computes it)."""
+    speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
+    heading = states[..., StateIndex.HEADING]
+    per_second = np.stack([np.cos(heading) * speed, np.sin(heading) * speed], axis=-1)
+    return np.stack([ego_coords + per_second[:, :, None] * (float(k) * interval) for k in offsets], axis=2)
+
+
+def time_to_collision(
+    states: np.ndarray,
+    ego_coords: np.ndarray,
+    ego_radius: float,
+    observation: Observation,
+    lanes_or_off_road: np.ndarray,
+    in_intersection: np.ndarray,
+    interval: float = 0.1,
+    offsets: tuple[int, ...] = TTC_OFFSETS,
+    num_steps: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """TTC ``(N,)`` in {0, 1} and the first violating ego step ``(N,)`` (-1 if none). Ego steps ``0..num_steps-1`` are
+    checked (v1.1: all 41, the observation reaching 0.9 s further; v2: ``num_steps = 41 - 9``).
+    ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon."""
+    num_rows, total_steps = states.shape[:2]
+    num_steps = total_steps if num_steps is None else num_steps
+    coords = ttc_coords(states[:, :num_steps], ego_coords[:, :num_steps], interval, offsets)
+    row, step, k = np.unravel_index(np.arange(coords[..., 0, 0].size), coords.shape[:3])
+    speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
+    moving = (speed[row, step] >= TTC_STOPPED_SPEED) & (step + np.asarray(offsets)[k] < observation.num_steps)
+    row, step, k = row[moving], step[moving], k[moving]
+    obs_step = step + np.asarray(offsets)[k]
+    order = step * len(offsets) + k
+    hits = find_hits(observation, coords[row, step, k], obs_step, row, order, ego_radius)
+    hits = hits.select(_usable(hits, observation))
+    step = hits.order // len(offsets)
+    rear_axle = states[hits.row, step, : StateIndex.HEADING + 1]
+    angle = relative_angle(rear_axle, observation.centroids[hits.geom])
+    risky_area = lanes_or_off_road[hits.row, step] | in_intersection[hits.row, step]
+    violation = (angle < np.deg2rad(AHEAD_DEG)) | (risky_area & ~(angle > np.deg2rad(BEHIND_DEG)))
+    counted = counted_before_release(hits.row, observation.objects[hits.geom], hits.order, violation)
+    first = _first_step(hits.row[counted], step[counted], num_rows)
+    return np.where(first >= 0, 0.0, 1.0), first

@@ -1,0 +1,157 @@
+"""Where the ego is on the map, per proposal and step: NAVSIM's ``PDMScorer._calculate_ego_area`` and
+``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, one STRtree query (box centres against bounding
+boxes grown by the box's reach) picks candidate polygons and prepared ``shapely.contains_xy`` decides.
+
+The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
+CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
+(a roadblock connector counts only through its lane connectors; nuPlan's DRIVABLE_AREA layer is never queried).
+"Inside" is strict (``shapely.vectorized.contains``): a point on a polygon's edge is outside it.
+
+* NON_DRIVABLE_AREA: some corner (of 4; the centre is not checked) lies in no ROADBLOCK, INTERSECTION or CARPARK_AREA.
+  Lanes do not count as drivable.
+* MULTIPLE_LANES: more than one LANE/LANE_CONNECTOR polygon holds a corner, and none holds all four.
+* ONCOMING_TRAFFIC: the box centre lies in no LANE/LANE_CONNECTOR whose id is on the route (``route_lane_ids``).
+* INTERSECTION membership of the rear axle (v1.1 TTC, ``is_in_layer``) and of the centre (v2's DDC/LK exclusions).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely import STRtree
+
+from lead_s2r.schema import MapKind
+from lead_s2r.scoring.pdm.footprint import Corner
+from lead_s2r.scoring.pdm.scene import PDMScene
+
+SCORED_KINDS = (MapKind.ROADBLOCK, MapKind.LANE, MapKind.LANE_CONNECTOR, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
+DRIVABLE_KINDS = (MapKind.ROADBLOCK, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
+LANE_KINDS = (MapKind.LANE, MapKind.LANE_CONNECTOR)
+NUM_CORNERS = 4
+
+
+def _kind_table(kinds: tuple[MapKind, ...]) -> np.ndarray:
+    """Membership of every MapKind code in ``kinds`` as a lookup table (``table[codes]``)."""
+    table = np.zeros(max(MapKind) + 1, bool)
+    table[list(kinds)] = True
+    return table
+
+
+IS_DRIVABLE = _kind_table(DRIVABLE_KINDS)
+IS_LANE = _kind_table(LANE_KINDS)
+#: Slack [m] on the ego box's enclosing radius when picking candidate polygons.
+REACH_SLACK = 1e-6
+
+
+@dataclass
+class DrivableMap:
+    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids and kinds, and an STRtree
+    over their bounding boxes grown by ``reach``: a box centre finds every polygon that a point of the box within
+    ``reach`` of it can lie in, without building the box's polygon."""
+
+    polygons: np.ndarray  # (K,) shapely Polygons
+    ids: np.ndarray  # (K,) int64
+    kinds: np.ndarray  # (K,) MapKind codes
+    reach: float
+    tree: STRtree
+    bounds: np.ndarray  # (K, 4) xmin, ymin, xmax, ymax
+
+    @classmethod
+    def from_scene(cls, scene: PDMScene) -> "DrivableMap":
+        offsets = np.asarray(scene.polygon_offsets, np.int64)
+        ring_of_point = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+        rings = shapely.linearrings(np.asarray(scene.polygon_xy, np.float64), indices=ring_of_point)
+        keep = np.isin(scene.polygon_kind, SCORED_KINDS)
+        if len(rings) != len(keep):
+            raise ValueError(
+                f"scene {scene.key!r}: polygon_offsets describe {len(rings)} polygons with points, polygon_kind has "
+                f"{len(keep)}; every polygon needs at least one point (rebuild scoring.npz)"
+            )
+        polygons = shapely.polygons(rings[keep])
+        shapely.prepare(polygons)
+        ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
+        reach = float(np.hypot(scene.vehicle.length / 2, scene.vehicle.width / 2)) + REACH_SLACK
+        bounds = shapely.bounds(polygons)
+        grown = shapely.box(bounds[:, 0] - reach, bounds[:, 1] - reach, bounds[:, 2] + reach, bounds[:, 3] + reach)
+        return cls(polygons, ids, kinds, reach, STRtree(grown), bounds)
+
+    def locate(self, points: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon; every point of row b
+        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grown-box query to polygons
+        whose bounding box meets the row's, then to points inside the polygon's bounding box."""
+        box, polygon = self.tree.query(shapely.points(centers))
+        low, high = points.min(axis=1), points.max(axis=1)  # (B, 2) each
+        near = np.all((low[box] <= self.bounds[polygon, 2:]) & (high[box] >= self.bounds[polygon, :2]), axis=1)
+        box, polygon = box[near], polygon[near]
+        num_points = points.shape[1]
+        box, point, polygon = (
+            np.repeat(box, num_points),
+            np.tile(np.arange(num_points), len(box)),
+            np.repeat(polygon, num_points),
+        )
+        xy = points[box, point]
+        near = np.all((xy >= self.bounds[polygon, :2]) & (xy <= self.bounds[polygon, 2:]), axis=1)
+        box, point, polygon, xy = box[near], point[near], polygon[near], xy[near]
+        inside = shapely.contains_xy(self.polygons[polygon], xy[:, 0], xy[:, 1])
+        return box[inside], point[inside], polygon[inside]
+
+
+@dataclass
+class EgoAreas:
+    """``(N, T)`` flags of NAVSIM's ``EgoAreaIndex`` and INTERSECTION membership of the rear axle and the centre."""
+
+    multiple_lanes: np.ndarray
+    non_drivable_area: np.ndarray
+    oncoming_traffic: np.ndarray
+    rear_axle_in_intersection: np.ndarray
+    center_in_intersection: np.ndarray
+
+
+def ego_areas(
+    drivable_map: DrivableMap,
+    coords: np.ndarray,
+    rear_axles: np.ndarray,
+    route_lane_ids: np.ndarray,
+) -> EgoAreas:
+    """The ego-area flags of ego boxes ``(N, T, 5, 2)`` (4 corners + centre) with rear axles ``(N, T, 2)``."""
+    n_rows, n_steps = coords.shape[:2]
+    num_boxes = n_rows * n_steps
+    points = np.concatenate([coords.reshape(num_boxes, -1, 2), rear_axles.reshape(num_boxes, 1, 2)], axis=1)
+    rear_axle = points.shape[1] - 1
+    box, point, polygon = drivable_map.locate(points, points[:, Corner.CENTER])
+    kind = drivable_map.kinds[polygon]
+    is_corner = point < NUM_CORNERS
+
+    drivable_corners = np.zeros((num_boxes, NUM_CORNERS), bool)
+    drivable = IS_DRIVABLE[kind] & is_corner
+    drivable_corners[box[drivable], point[drivable]] = True
+    non_drivable = drivable_corners.sum(-1) < NUM_CORNERS
+
+    lane = IS_LANE[kind]
+    num_polygons = max(len(drivable_map.ids), 1)
+    pairs, corners_in_lane = np.unique(
+        box[lane & is_corner] * num_polygons + polygon[lane & is_corner], return_counts=True
+    )
+    lane_box = pairs // num_polygons
+    lanes_touched = np.bincount(lane_box, minlength=num_boxes)
+    all_corners_in_one = np.bincount(lane_box, weights=corners_in_lane == NUM_CORNERS, minlength=num_boxes) > 0
+    multiple_lanes = (lanes_touched > 1) & ~all_corners_in_one
+
+    on_route = lane & (point == Corner.CENTER) & np.isin(drivable_map.ids, route_lane_ids)[polygon]
+    oncoming = np.ones(num_boxes, bool)
+    oncoming[box[on_route]] = False
+
+    intersection = kind == MapKind.INTERSECTION
+    in_intersection = np.zeros((num_boxes, points.shape[1]), bool)
+    in_intersection[box[intersection], point[intersection]] = True
+
+    def grid(flags: np.ndarray) -> np.ndarray:
+        return flags.reshape(n_rows, n_steps)
+
+    return EgoAreas(
+        grid(multiple_lanes),
+        grid(non_drivable),
+        grid(oncoming),
+        grid(in_intersection[:, rear_axle]),
+        grid(in_intersection[:, Corner.CENTER]),
+    )

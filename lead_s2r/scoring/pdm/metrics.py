@@ -1,0 +1,70 @@
+"""DAC, DDC, EP and the v1.1 aggregation of NAVSIM's ``PDMScorer``: small functions over ``(N, T)`` arrays.
+
+Constants and official behaviours reproduced on purpose:
+
+* DDC: per-step progress ``||centre_t - centre_{t-1}||`` counted only where ONCOMING_TRAFFIC holds, summed over the
+  window ``[t - 10, t]`` (horizon 1.0 s / 0.1 s, 11 samples, shorter at the start), maximum over t: 1 below 2 m,
+  0.5 below 6 m, else 0. v1.1 has no intersection exclusion (``exclude`` is v2's INTERSECTION mask) and gives DDC
+  weight 0: it is reported and never changes the PDMS. Window sums are taken slice by slice as NAVSIM does, so
+  floating-point rounding (and hence the band edges) match.
+* EP: raw progress = projection of the last box centre onto the centreline minus that of the first, clipped at 0.
+  v1.1 masks it with NC * DAC and divides by the largest masked progress of the normalisation group when that
+  exceeds 5 m; otherwise EP is 1, or 0 where NC * DAC is 0. So EP is 0 whenever NC or DAC is 0.
+* PDMS = NC * DAC * (5 * EP + 5 * TTC + 2 * C + 0 * DDC) / 12, in NAVSIM's order of operations.
+"""
+
+import numpy as np
+import shapely
+
+DDC_HORIZON_S = 1.0
+DDC_COMPLIANT_M = 2.0
+DDC_VIOLATION_M = 6.0
+PROGRESS_THRESHOLD_M = 5.0
+#: v1.1 ``PDMScorerConfig`` weights in ``WeightedMetricIndex`` order: progress, TTC, comfort, driving direction.
+V11_WEIGHTS = np.array([5.0, 5.0, 2.0, 0.0])
+
+
+def drivable_area_compliance(non_drivable_area: np.ndarray) -> np.ndarray:
+    """DAC ``(N,)``: 0 if NON_DRIVABLE_AREA holds at any step of ``(N, T)``."""
+    return np.where(non_drivable_area.any(axis=-1), 0.0, 1.0)
+
+
+def driving_direction_compliance(
+    centers: np.ndarray, oncoming: np.ndarray, interval: float = 0.1, exclude: np.ndarray | None = None
+) -> np.ndarray:
+    """DDC ``(N,)`` in {0, 0.5, 1} from box centres ``(N, T, 2)`` and ONCOMING_TRAFFIC ``(N, T)``; steps in
+    ``exclude (N, T)`` (v2: centre inside an INTERSECTION) do not count."""
+    progress = np.zeros(oncoming.shape)
+    progress[:, 1:] = np.linalg.norm(centers[:, 1:] - centers[:, :-1], axis=-1)
+    counted = oncoming if exclude is None else oncoming & ~exclude
+    progress[~counted] = 0.0
+    horizon = int(DDC_HORIZON_S / interval)
+    windows = np.stack([progress[:, max(0, t - horizon) : t + 1].sum(axis=-1) for t in range(progress.shape[-1])], -1)
+    worst = windows.max(axis=-1)
+    return np.where(worst < DDC_COMPLIANT_M, 1.0, np.where(worst < DDC_VIOLATION_M, 0.5, 0.0))
+
+
+def progress_along(centerline: shapely.LineString, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Raw progress ``(N,)`` [m] from centres ``start``/``end`` ``(N, 2)`` projected onto the centreline, >= 0."""
+    along = shapely.line_locate_point(centerline, shapely.points(np.concatenate([start, end])))
+    return np.clip(along[len(start) :] - along[: len(start)], 0.0, None)
+
+
+def ego_progress(raw: np.ndarray, multiplier: np.ndarray, reference: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """v1.1 EP ``(N,)`` and each row's normaliser [m] from raw progress and NC * DAC ``(N,)``. ``reference=None``:
+    all rows form one group (the scorer's own call, as PDM-Closed scores its proposals). ``reference=i``: each row is
+    normalised over ``[row i, itself]``, as one ``pdm_score`` call per row with row i as PDM-Closed would be."""
+    masked = raw * multiplier
+    normaliser = np.full(len(raw), np.max(masked)) if reference is None else np.maximum(masked[reference], masked)
+    above = normaliser > PROGRESS_THRESHOLD_M
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ep = np.where(above, masked / np.where(above, normaliser, 1.0), np.where(multiplier == 0.0, 0.0, 1.0))
+    return ep, normaliser
+
+
+def pdms_v11(
+    nc: np.ndarray, dac: np.ndarray, ep: np.ndarray, ttc: np.ndarray, c: np.ndarray, ddc: np.ndarray
+) -> np.ndarray:
+    """``PDMScorer._aggregate_scores`` with v1.1 weights."""
+    weighted = (np.stack([ep, ttc, c, ddc]) * V11_WEIGHTS[:, None]).sum(axis=0) / V11_WEIGHTS.sum()
+    return np.stack([nc, dac]).prod(axis=0) * weighted

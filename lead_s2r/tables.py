@@ -1,0 +1,351 @@
+"""The paper's tables from run results: mean ± std over seeds beside the paper's numbers, in markdown, LaTeX and CSV.
+
+A table spec (``recipes/paper/*.yaml``) names columns (a scorer's metric and an aggregate key of its
+``scores.json``) and rows (a run id and the paper's numbers). Runs are found, not listed: a run directory holds the
+``config.yaml`` LightningCLI saved (its ``seed_everything`` is the seed, its ``trainer.default_root_dir`` minus a
+trailing ``seed<N>`` folder is the run id) and any number of ``scores.json`` below it (``lead-s2r score`` and
+``lead-s2r carla-metrics`` outputs), so ``--runs runs/*/seed*`` is enough. A row matches a run whose id ends with the
+row's ``run`` path.
+
+The trap: a cell averaged over fewer seeds than the spec asks for looks like a result. Such cells carry a ``*`` and
+the seeds that are missing are listed under the table; a cell with no run at all reads ``missing``.
+"""
+
+import csv
+import glob
+import io
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
+
+#: The table specs of the paper (Tables 1-5), next to the recipes they read.
+PAPER_SPECS = Path(__file__).resolve().parents[1] / "recipes" / "paper"
+SEED_FOLDER = re.compile(r"^seed[_-]?(\d+)$")
+MISSING = "missing"
+
+
+class TableError(ValueError):
+    """A spec or run directory that cannot make a table; the message names the file and field."""
+
+
+@dataclass(frozen=True)
+class Column:
+    """One reported number: ``key`` (dots reach into nested aggregates) of the ``scores.json`` whose ``metric``
+    matches, times ``scale``."""
+
+    name: str
+    metric: str
+    key: str
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class Row:
+    """One model: the run id it is trained under and the paper's number per column (None: not reported)."""
+
+    name: str
+    run: str | None
+    paper: tuple[float | None, ...]
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    title: str
+    columns: tuple[Column, ...]
+    rows: tuple[Row, ...]
+    seeds: tuple[int, ...] = (0, 1, 2)
+    digits: int = 2
+    notes: str = ""
+    #: optional bar chart of infractions per 100 km: {"metric": ..., "infractions": [...]}
+    figure: dict[str, Any] | None = None
+
+
+def spec_path(spec: str | Path) -> Path:
+    """A spec file, or the name of one shipped in ``recipes/paper`` (``table4``) of this source checkout."""
+    path = Path(spec)
+    if not path.exists() and path.parent == Path(".") and (PAPER_SPECS / f"{path.stem}.yaml").exists():
+        return PAPER_SPECS / f"{path.stem}.yaml"
+    return path
+
+
+def load_spec(path: str | Path) -> TableSpec:
+    """Read and check a table spec (a path or a shipped name, see :func:`spec_path`); errors name file and field."""
+    path = spec_path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise TableError(f"{path}: cannot read table spec: {err}") from None
+    try:
+        columns = tuple(Column(**column) for column in raw["columns"])
+        rows = tuple(
+            Row(row["name"], row.get("run"), tuple(row.get("paper") or [None] * len(columns))) for row in raw["rows"]
+        )
+        spec = TableSpec(
+            title=raw["title"],
+            columns=columns,
+            rows=rows,
+            seeds=tuple(raw.get("seeds", (0, 1, 2))),
+            digits=int(raw.get("digits", 2)),
+            notes=raw.get("notes", ""),
+            figure=raw.get("figure"),
+        )
+    except (KeyError, TypeError) as err:
+        raise TableError(f"{path}: bad table spec ({type(err).__name__}: {err}); see docs/reproducing.md") from None
+    _check_figure(path, spec.figure)
+    for row in spec.rows:
+        if len(row.paper) != len(spec.columns):
+            raise TableError(
+                f"{path}: row {row.name!r} lists {len(row.paper)} paper numbers for {len(columns)} columns"
+            )
+    return spec
+
+
+def _check_figure(path: Path, figure: dict[str, Any] | None) -> None:
+    if figure is None:
+        return
+    infractions = figure.get("infractions") if isinstance(figure, dict) else None
+    if not isinstance(figure.get("metric") if isinstance(figure, dict) else None, str) or not infractions:
+        raise TableError(f"{path}: figure needs 'metric' (a carla-metrics metric) and a list of 'infractions'")
+    unknown = sorted(set(infractions) - set(INFRACTIONS))
+    if unknown:
+        raise TableError(
+            f"{path}: figure.infractions: unknown {unknown}; the leaderboard's names are {list(INFRACTIONS)}"
+        )
+
+
+@dataclass
+class Run:
+    """One trained seed: its id, seed and the aggregates of every scores.json below it, by metric."""
+
+    path: Path
+    run_id: str
+    seed: int
+    scores: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def run_identity(config_path: Path) -> tuple[str, int]:
+    """(run id, seed) from a LightningCLI ``config.yaml``."""
+    try:
+        config = yaml.safe_load(config_path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as err:
+        raise TableError(f"{config_path}: cannot read the saved config: {err}") from None
+    seed = config.get("seed_everything")
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise TableError(f"{config_path}: seed_everything is {seed!r}; train with a fixed integer seed")
+    root = (config.get("trainer") or {}).get("default_root_dir")
+    if not root:
+        raise TableError(f"{config_path}: trainer.default_root_dir is not set; recipes name the run there")
+    path = Path(root)
+    return str(path.parent if SEED_FOLDER.match(path.name) else path), seed
+
+
+def load_run(path: Path) -> Run:
+    """A run directory: its saved config(s) and every ``scores.json`` below it."""
+    configs = list(path.rglob("config.yaml"))  # fit and predict each save one; they must agree
+    if not configs:
+        raise TableError(f"{path}: no config.yaml below it (LightningCLI saves one in the run's log folder)")
+    identities = {run_identity(config) for config in configs}
+    if len(identities) > 1:
+        raise TableError(f"{path}: its config.yaml files disagree on (run id, seed): {sorted(identities)}")
+    run_id, seed = identities.pop()
+    run = Run(path, run_id, seed)
+    for scores in sorted(path.rglob("scores.json")):
+        try:
+            report = json.loads(scores.read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise TableError(f"{scores}: cannot read scores: {err}") from None
+        metric = report.get("metric")
+        if metric in run.scores:
+            raise TableError(f"{path}: two scores.json for metric {metric!r} (one is {scores}); keep one")
+        run.scores[metric] = report.get("aggregates", {})
+    return run
+
+
+def find_runs(patterns: list[str]) -> list[Run]:
+    """Run directories from paths or glob patterns (the shell may have expanded them already)."""
+    paths = [Path(p) for pattern in patterns for p in (sorted(glob.glob(pattern)) or [pattern])]
+    missing = [str(p) for p in paths if not p.is_dir()]
+    if missing:
+        raise TableError(f"--runs: no such directory {missing[0]}")
+    return [load_run(path) for path in paths]
+
+
+def _lookup(aggregates: dict[str, Any], key: str) -> float | None:
+    value: Any = aggregates
+    for part in key.split("."):
+        if not isinstance(value, dict) or part not in value:
+            return None
+        value = value[part]
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+@dataclass(frozen=True)
+class Cell:
+    """Mean and sample std (n - 1) over the seeds found; ``missing_seeds`` of those the spec asks for."""
+
+    values: tuple[float, ...]
+    missing_seeds: tuple[int, ...]
+
+    @property
+    def mean(self) -> float | None:
+        return sum(self.values) / len(self.values) if self.values else None
+
+    @property
+    def std(self) -> float | None:
+        if len(self.values) < 2:
+            return None
+        mean = self.mean
+        return math.sqrt(sum((v - mean) ** 2 for v in self.values) / (len(self.values) - 1))
+
+
+def matches(run: Run, row: Row) -> bool:
+    """Whether ``run`` is one of ``row``'s seeds: its id ends with the row's run path (whole components)."""
+    if row.run is None:
+        return False
+    wanted = Path(row.run).parts
+    return Path(run.run_id).parts[-len(wanted) :] == wanted
+
+
+def collect(spec: TableSpec, runs: list[Run]) -> list[list[Cell]]:
+    """One cell per row and column; a run seen twice for the same row and seed is an error."""
+    table = []
+    for row in spec.rows:
+        by_seed: dict[int, Run] = {}
+        for run in (run for run in runs if matches(run, row)):
+            if run.seed in by_seed:
+                raise TableError(
+                    f"row {row.name!r}: seed {run.seed} found twice ({by_seed[run.seed].path}, {run.path})"
+                )
+            by_seed[run.seed] = run
+        cells = []
+        for column in spec.columns:
+            values, missing = [], []
+            for seed in spec.seeds:
+                run = by_seed.get(seed)
+                value = None if run is None else _lookup(run.scores.get(column.metric, {}), column.key)
+                if value is None:
+                    missing.append(seed)
+                else:
+                    values.append(value * column.scale)
+            cells.append(Cell(tuple(values), tuple(missing)))
+        table.append(cells)
+    return table
+
+
+def format_cell(cell: Cell, digits: int) -> str:
+    """``mean ± std``, ``*`` when seeds are missing, ``missing`` when none was found."""
+    if cell.mean is None:
+        return MISSING
+    text = f"{cell.mean:.{digits}f}"
+    if cell.std is not None:
+        text += f" ± {cell.std:.{digits}f}"
+    return text + ("*" if cell.missing_seeds else "")
+
+
+def _paper(value: float | None, digits: int) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def _grid(spec: TableSpec, cells: list[list[Cell]]) -> tuple[list[str], list[list[str]]]:
+    header = ["model"] + [f"{c.name} {who}" for c in spec.columns for who in ("(ours)", "(paper)")]
+    body = [
+        [row.name]
+        + [
+            t
+            for cell, p in zip(row_cells, row.paper, strict=True)
+            for t in (format_cell(cell, spec.digits), _paper(p, spec.digits))
+        ]
+        for row, row_cells in zip(spec.rows, cells, strict=True)
+    ]
+    return header, body
+
+
+def _footnotes(spec: TableSpec, cells: list[list[Cell]]) -> list[str]:
+    notes = []
+    for row, row_cells in zip(spec.rows, cells, strict=True):
+        for column, cell in zip(spec.columns, row_cells, strict=True):
+            if cell.missing_seeds and cell.values:
+                notes.append(f"* {row.name} / {column.name}: seeds {list(cell.missing_seeds)} missing")
+    return notes
+
+
+def to_markdown(spec: TableSpec, cells: list[list[Cell]]) -> str:
+    header, body = _grid(spec, cells)
+    lines = [f"**{spec.title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in body]
+    extra = _footnotes(spec, cells) + ([spec.notes.strip()] if spec.notes.strip() else [])
+    return "\n".join(lines + (["", *extra] if extra else [])) + "\n"
+
+
+def _latex_escape(text: str) -> str:
+    for char, escaped in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#")):
+        text = text.replace(char, escaped)
+    return text.replace("±", r"$\pm$").replace("–", "--")
+
+
+def to_latex(spec: TableSpec, cells: list[list[Cell]]) -> str:
+    header, body = _grid(spec, cells)
+    lines = [
+        r"\begin{table}[t]",
+        r"\centering",
+        r"\begin{tabular}{l" + "rr" * len(spec.columns) + "}",
+        r"\toprule",
+        " & ".join(_latex_escape(h) for h in header) + r" \\",
+        r"\midrule",
+    ]
+    lines += [" & ".join(_latex_escape(t) for t in row) + r" \\" for row in body]
+    lines += [r"\bottomrule", r"\end{tabular}", r"\caption{" + _latex_escape(spec.title) + "}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(spec: TableSpec, cells: list[list[Cell]]) -> str:
+    """Long format: one line per cell with mean, std, seeds found and missing, and the paper's number."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["model", "column", "metric", "key", "mean", "std", "n", "missing_seeds", "paper"])
+    for row, row_cells in zip(spec.rows, cells, strict=True):
+        for column, cell, paper in zip(spec.columns, row_cells, row.paper, strict=True):
+            missing = " ".join(str(s) for s in cell.missing_seeds)
+            fields = (cell.mean, cell.std, len(cell.values), missing, paper)
+            writer.writerow(
+                [row.name, column.name, column.metric, column.key, *["" if f is None else f for f in fields]]
+            )
+    return out.getvalue()
+
+
+def build_table(spec_name: str | Path, run_patterns: list[str], out: str | Path | None = None) -> str:
+    """The body of ``lead-s2r table``: the markdown table; with ``out``, also ``<spec>.md/.tex/.csv`` (and
+    ``<spec>.png`` when the spec asks for the infractions figure)."""
+    spec = load_spec(spec_name)
+    runs = find_runs(run_patterns)
+    cells = collect(spec, runs)
+    markdown = to_markdown(spec, cells)
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        stem = spec_path(spec_name).stem
+        (out / f"{stem}.md").write_text(markdown)
+        (out / f"{stem}.tex").write_text(to_latex(spec, cells))
+        (out / f"{stem}.csv").write_text(to_csv(spec, cells))
+        if spec.figure is not None:
+            from lead_s2r.figures import infraction_bars
+
+            groups = {row.name: mean_infractions(spec, row, runs) for row in spec.rows}
+            infraction_bars(groups, list(spec.figure["infractions"]), out / f"{stem}.png", spec.title)
+    return markdown
+
+
+def mean_infractions(spec: TableSpec, row: Row, runs: list[Run]) -> dict[str, float] | None:
+    """Per-100-km rate of each figure infraction, averaged over the row's seeds (None: no run found)."""
+    metric = spec.figure["metric"]
+    rates = [run.scores[metric]["infractions_per_100km"] for run in runs if matches(run, row) and metric in run.scores]
+    if not rates:
+        return None
+    return {name: sum(r.get(name, 0.0) for r in rates) / len(rates) for name in spec.figure["infractions"]}

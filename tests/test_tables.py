@@ -1,0 +1,165 @@
+"""lead-s2r table: runs found from saved configs, mean ± std over seeds worked by hand, missing seeds marked."""
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from lead_s2r.cli import main
+from lead_s2r.figures import PALETTE, infraction_bars, nice_ceiling
+from lead_s2r.tables import MISSING, TableError, build_table, collect, find_runs, load_spec, run_identity
+
+RFS = "rfs@wod-e2e-2025"
+B2D = "carla-leaderboard-2.0/bench2drive"
+
+
+def make_run(root: Path, run_id: str, seed: int, scores: dict[str, dict[str, Any]]) -> Path:
+    """A run folder as `lead-s2r fit` + `score` leave it: a saved config in the log folder, scores below."""
+    run = root / run_id / f"seed{seed}"
+    logs = run / "lightning_logs" / "version_0"
+    logs.mkdir(parents=True)
+    config = {"seed_everything": seed, "trainer": {"default_root_dir": f"/scratch/runs/{run_id}/seed{seed}"}}
+    (logs / "config.yaml").write_text(yaml.safe_dump(config))
+    for i, (metric, aggregates) in enumerate(scores.items()):
+        (run / f"scores{i}").mkdir()
+        (run / f"scores{i}" / "scores.json").write_text(json.dumps({"metric": metric, "aggregates": aggregates}))
+    return run
+
+
+def write_spec(folder: Path) -> Path:
+    spec = {
+        "title": "Table 4: real data",
+        "columns": [
+            {"name": "RFS", "metric": RFS, "key": "rfs"},
+            {"name": "red lights / 100 km", "metric": B2D, "key": "infractions_per_100km.red_light"},
+        ],
+        "rows": [
+            {"name": "LTFv6", "run": "wod/ltfv6", "paper": [7.51, None]},
+            {"name": "LTFv6 + LEAD", "run": "wod/ltfv6_lead", "paper": [7.76, None]},
+            {"name": "Ego MLP", "run": "wod/ego_mlp", "paper": [7.31, None]},
+        ],
+        "figure": {"metric": B2D, "infractions": ["red_light", "collisions_vehicle"]},
+    }
+    path = folder / "table4.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
+@pytest.fixture
+def runs(tmp_path) -> Path:
+    root = tmp_path / "runs"
+    for seed, rfs, red in ((0, 7.5, 1.0), (1, 7.7, 2.0), (2, 7.9, 6.0)):
+        make_run(root, "wod/ltfv6", seed, {RFS: {"rfs": rfs}, B2D: {"infractions_per_100km": {"red_light": red}}})
+    for seed, rfs in ((0, 7.0), (2, 7.4)):  # seed 1 never finished
+        make_run(root, "wod/ltfv6_lead", seed, {RFS: {"rfs": rfs}})
+    return root
+
+
+def test_mean_and_std_over_three_seeds_match_a_hand_computation(tmp_path, runs):
+    spec = load_spec(write_spec(tmp_path))
+    cells = collect(spec, find_runs([str(runs / "*" / "*" / "seed*")]))
+    rfs = cells[0][0]
+    assert rfs.mean == pytest.approx(7.7)
+    assert rfs.std == pytest.approx(0.2)  # sqrt((0.04 + 0 + 0.04) / 2)
+    red = cells[0][1]
+    assert red.mean == pytest.approx(3.0)
+    assert red.std == pytest.approx(np.sqrt((4 + 1 + 9) / 2))
+    assert rfs.missing_seeds == red.missing_seeds == ()
+
+
+def test_missing_seeds_and_missing_runs_are_marked(tmp_path, runs):
+    markdown = build_table(write_spec(tmp_path), [str(runs / "*" / "*" / "seed*")], tmp_path / "out")
+    lines = markdown.splitlines()
+    assert "| LTFv6 | 7.70 ± 0.20 | 7.51 | 3.00 ± 2.65 | – |" in lines
+    assert "| LTFv6 + LEAD | 7.20 ± 0.28* | 7.76 | missing | – |" in lines
+    assert f"| Ego MLP | {MISSING} | 7.31 | {MISSING} | – |" in lines
+    assert "* LTFv6 + LEAD / RFS: seeds [1] missing" in lines
+    rows = list(csv.DictReader(io.StringIO((tmp_path / "out" / "table4.csv").read_text())))
+    lead = next(r for r in rows if r["model"] == "LTFv6 + LEAD" and r["column"] == "RFS")
+    assert (lead["n"], lead["missing_seeds"], float(lead["mean"])) == ("2", "1", pytest.approx(7.2))
+    latex = (tmp_path / "out" / "table4.tex").read_text()
+    assert r"7.70 $\pm$ 0.20" in latex and r"\begin{tabular}{lrrrr}" in latex
+    assert (tmp_path / "out" / "table4.png").exists()
+
+
+def test_cli_prints_the_table(tmp_path, runs, capsys):
+    spec = write_spec(tmp_path)
+    assert main(["table", "--spec", str(spec), "--runs", *map(str, sorted(runs.glob("*/*/seed*")))]) == 0
+    assert "| LTFv6 | 7.70 ± 0.20 | 7.51 |" in capsys.readouterr().out
+
+
+def test_run_identity_and_errors(tmp_path, runs):
+    config = next(runs.glob("wod/ltfv6/seed2/**/config.yaml"))
+    assert run_identity(config) == ("/scratch/runs/wod/ltfv6", 2)
+    make_run(tmp_path / "again", "wod/ltfv6", 2, {RFS: {"rfs": 1.0}})
+    spec = load_spec(write_spec(tmp_path))
+    with pytest.raises(TableError, match="seed 2 found twice"):
+        collect(spec, find_runs([str(runs / "*" / "*" / "seed*"), str(tmp_path / "again" / "*" / "*" / "seed*")]))
+    config.write_text(yaml.safe_dump({"seed_everything": True, "trainer": {"default_root_dir": "x"}}))
+    with pytest.raises(TableError, match="fixed integer seed"):
+        run_identity(config)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        yaml.safe_dump(
+            {
+                "title": "t",
+                "columns": [{"name": "a", "metric": RFS, "key": "rfs"}],
+                "rows": [{"name": "r", "run": "x", "paper": [1.0, 2.0]}],
+            }
+        )
+    )
+    with pytest.raises(TableError, match="2 paper numbers for 1 columns"):
+        load_spec(bad)
+
+
+def test_nice_ceiling():
+    assert [nice_ceiling(v) for v in (0.0, 0.7, 3.0, 37.0, 100.0)] == [1.0, 1.0, 5.0, 50.0, 100.0]
+
+
+def test_figure_bar_heights_follow_the_rates(tmp_path):
+    out = tmp_path / "fig.png"
+    image = infraction_bars({"A": {"red_light": 50.0, "x": 25.0}, "B": None}, ["red_light", "x"], out, "t")
+    assert cv2.imread(str(out)).shape == image.shape
+    column = image[:, 70 + 15 + 5]  # inside the first bar of the first group
+    filled = np.flatnonzero((column == PALETTE[0]).all(axis=1))
+    assert len(filled) == pytest.approx(320, abs=2)  # 50 is the axis top: a full-height bar
+    second = image[:, 70 + 15 + (160 - 30) // 2 + 5]
+    assert len(np.flatnonzero((second == PALETTE[1]).all(axis=1))) == pytest.approx(160, abs=2)
+
+
+def test_figure_spec_names_leaderboard_infractions(tmp_path):
+    spec = yaml.safe_load(write_spec(tmp_path).read_text())
+    spec["figure"]["infractions"] = ["red_lights"]
+    bad = tmp_path / "bad_figure.yaml"
+    bad.write_text(yaml.safe_dump(spec))
+    with pytest.raises(TableError, match=r"unknown \['red_lights'\]"):
+        load_spec(bad)
+
+
+def test_table5_from_leaderboard_results_end_to_end(tmp_path):
+    """results JSON -> carla-metrics into each seed's run folder -> the shipped Table 5 spec, by name."""
+    from test_carla_leaderboard import VEHICLE_HIT, record, results_file
+
+    from lead_s2r.scoring.carla_leaderboard import carla_metrics
+
+    root = tmp_path / "runs"
+    for seed, hits in ((0, 0), (1, 1), (2, 2)):  # routes with a vehicle hit each: DS 100 or 60 per route
+        run = make_run(root, "carla/tfv6_resnet34", seed, {})
+        for benchmark, n in (("bench2drive", 220), ("longest6", 36), ("town13", 20)):
+            records = [
+                record(i, infractions={"collisions_vehicle": [VEHICLE_HIT]} if i < hits else {}) for i in range(n)
+            ]
+            carla_metrics([results_file(tmp_path, records, f"{benchmark}{seed}.json")], benchmark, run / benchmark)
+    markdown = build_table("table5", [str(root / "carla" / "*" / "seed*")], tmp_path / "tables")
+    ds = [100 - 40 * hits / 220 for hits in (0, 1, 2)]  # Bench2Drive DS per seed
+    mean, std = np.mean(ds), np.std(ds, ddof=1)
+    assert f"| TFv6 ResNet-34 | {mean:.1f} ± {std:.1f} | 94.7 |" in markdown
+    assert "| TFv6 RegNetY-032 (full) | missing | 95.2 |" in markdown
+    figure = cv2.imread(str(tmp_path / "tables" / "table5.png"))
+    assert figure is not None and figure.shape[1] > 6 * 160  # one bar group per row of the table
