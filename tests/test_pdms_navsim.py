@@ -68,6 +68,7 @@ def test_scene_follows_the_corrected_route_through_the_turn(first: dict) -> None
     assert end[1] > 50.0 and abs(np.sin(end[2] + np.deg2rad(45.0)) - 1.0) < 0.05
     assert set(scene.light_route_lane_ids.tolist()) == {1011, 1012, 2021, 1031, 1032}  # uncorrected route, for TLC
     assert scene.ego_past.shape == (4, 8) and scene.ego_past[-1, 0] == 0.0
+    assert scene.t0_us == first[MID_TURN.name]["meta"]["timestamp_us"]  # NAVSIM's microsecond interpolation times
     assert scene.agent_poses.shape[1] == 11 and scene.agent_valid[: len(first[MID_TURN.name]["boxes"]), 0].all()
 
 

@@ -97,6 +97,7 @@ def scene_from_sample(sample: dict[str, Any]) -> PDMScene:
         ego_velocity=np.asarray(ego["velocity"], np.float64),
         ego_acceleration=np.asarray(ego["acceleration"], np.float64),
         key=key,
+        t0_us=int(meta["timestamp_us"]) if "timestamp_us" in meta else None,
         red_light_t=np.asarray(scoring["red_light_t"], np.float64),
         red_light_ids=np.asarray(scoring["red_light_ids"], np.int64),
         red_light_offsets=np.asarray(scoring["red_light_offsets"], np.int64),
