@@ -1,5 +1,5 @@
 """PDMS v1.1 on synthetic NAVSIM data converted by the adapter: scenes from samples (route correction,
-centreline), the scorer's input, and end to end through ``lead-s2r score`` (the metric core is needed there)."""
+centreline), the scorer's input, and end to end through ``lead-s2r score`` and the validation callback."""
 
 import csv
 import json
@@ -14,6 +14,8 @@ from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, PredictionError
 from lead_s2r.schema import SchemaError
+from lead_s2r.scoring.callback import ScoringCallback
+from lead_s2r.scoring.pdm import score_proposals
 from lead_s2r.scoring.pdm.route import LaneGraph, correct_route
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdms import NAVSIM_COLUMNS, proposal_of
@@ -117,35 +119,27 @@ def test_score_cli_scores_a_model_free_planner(converted: Path, tmp_path: Path) 
     assert (tmp_path / "predictions-human.parquet").is_file()
 
 
-# --------------------------------------------------------------------------- with the metric core
-
-
-@pytest.fixture(scope="module")
-def core() -> None:
-    pytest.importorskip("lead_s2r.scoring.pdm.score", reason="the PDMS metric core is merged from another branch")
-    pytest.importorskip("lead_s2r.scoring.pdm.simulation", reason="the PDM simulator is merged from another branch")
+# --------------------------------------------------------------------------- scored end to end
 
 
 def score_one(sample: dict, prediction: Prediction) -> dict[str, float]:
-    from lead_s2r.scoring.pdm.score import score_proposals
-
     poses, interval = proposal_of(prediction)
     result = score_proposals(PDMScene.from_sample(sample), poses[None], interval)
     return {name: float(np.asarray(values)[0]) for name, values in result.items()}
 
 
-def test_human_scores_near_the_top(core: None, first: dict) -> None:
+def test_human_scores_near_the_top(first: dict) -> None:
     result = score_one(first[CRUISE.name], predict_human(first[CRUISE.name]))
     assert result["no_at_fault_collisions"] == result["drivable_area_compliance"] == 1.0
     assert result["score"] >= 0.9
 
 
-def test_constant_velocity_through_a_turn_leaves_the_road(core: None, first: dict) -> None:
+def test_constant_velocity_through_a_turn_leaves_the_road(first: dict) -> None:
     result = score_one(first[MID_TURN.name], predict_constant_velocity(first[MID_TURN.name]))
     assert result["drivable_area_compliance"] == 0.0 and result["score"] == 0.0
 
 
-def test_zero_trajectory_of_an_ego_at_rest_makes_no_progress(core: None, first: dict) -> None:
+def test_zero_trajectory_of_an_ego_at_rest_makes_no_progress(first: dict) -> None:
     sample = dict(first[CRUISE.name])
     sample["meta"] = {**sample["meta"], "ego": {**sample["meta"]["ego"], "velocity": [0.0, 0.0]}}
     sample["meta"]["ego"]["acceleration"] = [0.0, 0.0]
@@ -158,9 +152,7 @@ def test_zero_trajectory_of_an_ego_at_rest_makes_no_progress(core: None, first: 
     assert moving["no_at_fault_collisions"] == 1.0 and 0.0 < moving["ego_progress"] < 0.5
 
 
-def test_score_cli_writes_navsim_csv_and_reuses_the_reference_cache(
-    core: None, converted: Path, tmp_path: Path
-) -> None:
+def test_score_cli_writes_navsim_csv_and_reuses_the_reference_cache(converted: Path, tmp_path: Path) -> None:
     cache = tmp_path / "references"
     args = ["score", "--metric", "pdms@navsim-1.1", "--data", str(converted), "--reference-cache", str(cache)]
     assert cli_main([*args, "--planner", "human", "--out", str(tmp_path / "human")]) == 0
@@ -182,9 +174,7 @@ def test_score_cli_writes_navsim_csv_and_reuses_the_reference_cache(
     assert all(len(row[1]) == 16 for row in rows[1:-1])  # NAVSIM scene tokens, not our keys
 
 
-def test_validation_callback_logs_pdms_for_navsim_only(core: None, converted: Path) -> None:
-    from lead_s2r.scoring.callback import ScoringCallback
-
+def test_validation_callback_logs_pdms_for_navsim_only(converted: Path) -> None:
     callback = ScoringCallback(converted, metrics=("ade", "pdms@navsim-1.1"))
     predictions = [predict_human(sample) for sample in read_samples(converted, fields=("future",))]
     metrics = callback.compute(predictions)

@@ -24,8 +24,10 @@ import pyarrow as pa
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
+from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.score import score_proposals
 
 METRIC = "pdms@navsim-1.1"
 #: NAVSIM v1.1 ``PDMResults`` fields, in the order its CSV writes them.
@@ -100,8 +102,6 @@ class ReferenceCache:
             if reference.shape != REFERENCE_SHAPE or not np.isfinite(reference).all():
                 raise ValueError(f"{path}: a reference must be {REFERENCE_SHAPE} finite poses; delete the file")
         else:
-            from lead_s2r.scoring.pdm.pdm_closed import plan_reference
-
             reference = plan_reference(scene)
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)
@@ -137,8 +137,6 @@ class PDMSScorer(Scorer):
 
     def score_sample(self, sample: dict[str, Any], frame: list[Prediction]) -> dict[str, Any]:
         """One row of the table: NAVSIM's sub-scores of the most probable inference, or an invalid row."""
-        from lead_s2r.scoring.pdm.score import score_proposals
-
         proposals, interval = proposal_of(top_inference(frame))
         row: dict[str, Any] = {
             "key": sample["__key__"],

@@ -31,8 +31,11 @@ import shapely.ops
 
 from lead_s2r.geometry import wrap_angle
 from lead_s2r.schema import BoxClass, MapKind
+from lead_s2r.scoring.pdm.observation import dense_observation
 from lead_s2r.scoring.pdm.route import ego_footprint, ego_footprints, ragged_polygons
 from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.score import score_states
+from lead_s2r.scoring.pdm.simulation import simulate_proposals
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
 
 #: nuPlan's AGENT_TYPES among our box classes: forecast with their velocity; the rest are static objects.
@@ -333,11 +336,6 @@ def target_velocities(speed_limit: float, config: PDMClosedConfig = PDMClosedCon
 
 def plan_reference(scene: PDMScene, config: PDMClosedConfig = PDMClosedConfig()) -> np.ndarray:
     """PDM-Closed's trajectory for ``scene``: (51, 3) ego-frame rear-axle poses at 0.1 s from t = 0."""
-    # the metric core (simulation, observation, score) is imported here: this module's pure pieces need none of it
-    from lead_s2r.scoring.pdm.observation import dense_observation
-    from lead_s2r.scoring.pdm.score import score_states
-    from lead_s2r.scoring.pdm.simulation import simulate_proposals
-
     observation = forecast(scene, config)
     paths = [PDMPath(scene.centerline)] + [PDMPath(offset_path(scene.centerline, o)) for o in config.lateral_offsets]
     targets = target_velocities(scene.speed_limit_mps, config)
