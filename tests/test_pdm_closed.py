@@ -165,6 +165,19 @@ def test_leader_is_the_nearest_object_ahead_in_the_corridor() -> None:
     np.testing.assert_allclose(free[0], [100.0, 0.0, PACIFICA.length / 2])
 
 
+def test_leader_row_is_carried_from_proposal_to_proposal() -> None:
+    path = PDMPath(STRAIGHT)
+    area = corridor(path, 0.0, 75.0, PACIFICA.width)
+    observation = observation_of([(30.0, 0.0, 0.0)], [4.0])
+    poses = np.array([[40.0, 0.0, 0.0], [0.0, 0.0, 0.0], [50.0, 0.0, 0.0]])
+    lead = _leaders(path, area, observation, 2, poses[:, 0], poses, PACIFICA)
+    half = PACIFICA.length / 2
+    # free; a leader keeps the free row's rear length; free again keeps the leader's speed
+    np.testing.assert_allclose(
+        lead, [[100.0, 0.0, half], [28.0 - PACIFICA.front_length, 4.0, half], [100.0, 4.0, half]]
+    )
+
+
 def test_unroll_copies_the_zero_leader_at_step_one_then_drives_free() -> None:
     state = unroll(PDMPath(STRAIGHT), np.array([10.0]), 0.0, observation_of([], []), 2, PACIFICA)
     assert state.idm[0, 1, 1] == 0.0  # a = 1.5 (1 - 0 - (1 / 1)^2) = 0

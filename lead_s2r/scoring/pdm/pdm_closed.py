@@ -13,7 +13,9 @@ facts: tuplan_garage / navsim ``pdm_generator.py``, ``batch_idm_policy.py``, ``p
 * leads are objects whose forecast polygon intersects the path corridor (the path's vertices between the ego's
   start progress and + v_max * 5 s, buffered by half the ego width with square caps) and whose centroid projects
   ahead of the ego; the gap is the footprint-to-polygon distance, the lead speed |v| cos(heading difference) of the
-  t = 0 object (0 for static objects and red lights); with no lead the path's end is one at half an ego length;
+  t = 0 object (0 for static objects); with no lead the path's end is one at half an ego length. The leader row is
+  carried from one proposal of a path to the next and only partly rewritten (a leader leaves the rear length, a
+  red light the speed, free road the speed of the previous proposal in place);
 * forecasts move every 0.2 s (the observation keeps every 2nd 10 Hz step), objects farther than 100 m from the ego
   centre are dropped, at most 50 vehicles, 25 pedestrians, 10 bicycles and 50 static objects nearest the ego
   centre are kept, and an agent moving backwards is forecast along its heading + pi;
@@ -266,23 +268,36 @@ def _leaders(
     poses: np.ndarray,
     vehicle: VehicleParameters,
 ) -> np.ndarray:
-    """Leader (progress, velocity, rear length) for proposals at ``progress`` with rear-axle ``poses`` (N, 3)."""
-    lead = np.tile([path.length, 0.0, vehicle.length / 2], (len(progress), 1))
+    """Leader (progress, velocity, rear length) for proposals at ``progress`` with rear-axle ``poses`` (N, 3).
+
+    As NAVSIM's generator, one row is carried through the proposals of a path in order and only partly rewritten:
+    a leader sets progress (and velocity unless it is a red light), free road sets progress and rear length, and
+    whatever a field held for the previous proposal stays."""
+    found = np.zeros(len(progress), bool)
+    gap, speed, red = np.zeros(len(progress)), np.zeros(len(progress)), np.zeros(len(progress), bool)
     polygons = observation.polygons(step)
     hits = np.flatnonzero(shapely.intersects(polygons, corridor))
-    if len(hits) == 0:
-        return lead
-    object_progress = path.project(shapely.get_coordinates(shapely.centroid(polygons[hits])))
-    ahead = object_progress[None, :] > progress[:, None]  # (N, H)
-    rows = np.flatnonzero(ahead.any(axis=1))
-    if len(rows) == 0:
-        return lead
-    distance = shapely.distance(ego_footprints(poses[rows], vehicle)[:, None], polygons[hits][None, :])
-    distance = np.where(ahead[rows], distance, np.inf)
-    nearest = np.argmin(distance, axis=1)
-    lead[rows, 0] = progress[rows] + distance[np.arange(len(rows)), nearest]
-    lead[rows, 1] = observation.lead_speed(hits[nearest], poses[rows, 2])
-    lead[rows, 2] = 0.0
+    if len(hits):
+        object_progress = path.project(shapely.get_coordinates(shapely.centroid(polygons[hits])))
+        ahead = object_progress[None, :] > progress[:, None]  # (N, H)
+        rows = np.flatnonzero(ahead.any(axis=1))
+        if len(rows):
+            distance = shapely.distance(ego_footprints(poses[rows], vehicle)[:, None], polygons[hits][None, :])
+            distance = np.where(ahead[rows], distance, np.inf)
+            nearest = np.argmin(distance, axis=1)
+            found[rows] = True
+            gap[rows] = distance[np.arange(len(rows)), nearest]
+            speed[rows] = observation.lead_speed(hits[nearest], poses[rows, 2])
+            red[rows] = hits[nearest] >= len(observation.speed)
+    lead = np.zeros((len(progress), 3))
+    row = np.zeros(3)
+    for n in range(len(progress)):
+        if found[n]:
+            row[0] = progress[n] + gap[n]
+            row[1] = row[1] if red[n] else speed[n]
+        else:
+            row[0], row[2] = path.length, vehicle.length / 2
+        lead[n] = row
     return lead
 
 
