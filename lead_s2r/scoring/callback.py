@@ -4,8 +4,9 @@ Contract with the LightningModule: ``validation_step`` returns a dict whose ``"p
 :class:`~lead_s2r.predictions.Prediction` (one per sample and inference, in the sample's ego frame). The callback
 collects them over the epoch (from every rank), joins them by key with the converted validation folders, and logs
 each scorer's float aggregates as ``<prefix>/<dataset>/<name>`` (e.g. ``val/wod_e2e/rfs``, ``val/navsim/ade``).
-A scorer runs only on the datasets it declares (``pdms@navsim-1.1``: NAVSIM, logged as ``val/navsim/pdms``); give
-it ``metric_config={"pdms@navsim-1.1": {"reference_cache": DIR}}`` so PDM-Closed plans each sample once.
+A scorer runs only on the datasets it declares (``pdms@navsim-1.1``: NAVSIM, logged as ``val/navsim/pdms``). PDMS
+keeps PDM-Closed's references in memory across epochs; ``metric_config={"pdms@navsim-1.1": {"reference_cache": DIR}}``
+keeps them across runs too.
 """
 
 from collections import defaultdict
