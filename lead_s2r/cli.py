@@ -125,7 +125,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from lead_s2r.scoring.run import score_predictions
+    from lead_s2r.scoring.run import planner_predictions, score_predictions
 
     options: dict[str, Any] = {"allow_missing": not args.strict}
     for option in args.option:
@@ -136,8 +136,13 @@ def cmd_score(args: argparse.Namespace) -> int:
             options[name] = json.loads(value)  # numbers, booleans, lists
         except json.JSONDecodeError:
             options[name] = value
+    if args.reference_cache:
+        options["reference_cache"] = args.reference_cache
     data = [Path(folder) for folder in args.data]
-    summary = score_predictions(args.metric, Path(args.predictions), data, Path(args.out), **options)
+    predictions = Path(args.predictions) if args.predictions else None
+    if predictions is None:
+        predictions = planner_predictions(args.planner, data, Path(args.out) / f"predictions-{args.planner}.parquet")
+    summary = score_predictions(args.metric, predictions, data, Path(args.out), **options)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -296,11 +301,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub = verbs.add_parser("score", help="score predictions open-loop")
     sub.add_argument("--metric", required=True, help=f"one of the {SCORER_GROUP} entry points")
-    sub.add_argument("--predictions", required=True)
+    source = sub.add_mutually_exclusive_group(required=True)
+    source.add_argument("--predictions", help="predictions.parquet of a model")
+    source.add_argument("--planner", choices=("human", "constant-velocity"), help="score a model-free planner instead")
     sub.add_argument("--data", required=True, nargs="+", help="converted folder(s)")
     sub.add_argument("--out", required=True)
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
+    sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
     sub.set_defaults(run=cmd_score)
 
     _submit_parser(verbs)

@@ -61,6 +61,7 @@ METRICS = (
     Metric("ADE", "ade", "ade"),
     Metric("FDE", "ade", "fde"),
     Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
+    Metric("PDMS", "pdms@navsim-1.1", "pdms", ("navsim",)),
 )
 
 

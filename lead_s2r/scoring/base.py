@@ -7,6 +7,7 @@ sample fields it reads (``meta`` always comes), so the data is decoded once with
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -30,6 +31,8 @@ class Scorer(ABC):
     version: ClassVar[str]
     #: sample fields read from the converted data besides ``meta``.
     fields: ClassVar[tuple[str, ...]]
+    #: datasets the metric is defined on (None: all); the validation callback skips the others.
+    datasets: ClassVar[tuple[str, ...] | None] = None
 
     def __init__(self, allow_missing: bool = False) -> None:
         """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones (off by
@@ -40,6 +43,10 @@ class Scorer(ABC):
     def config(self) -> dict[str, Any]:
         """JSON-ready configuration, written next to the scores."""
         return {"allow_missing": self.allow_missing}
+
+    def write_files(self, result: ScoreResult, out: Path) -> None:
+        """Extra files beside scores.parquet / scores.json (e.g. a benchmark's own CSV); none by default."""
+        return None
 
     @abstractmethod
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:

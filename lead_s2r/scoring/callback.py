@@ -1,4 +1,4 @@
-"""Run the open-loop scorers (RFS, ADE...) on validation predictions during training, per dataset.
+"""Run the open-loop scorers (RFS, ADE, PDMS...) on validation predictions during training, per dataset.
 
 Contract with the LightningModule: ``validation_step`` returns a dict whose ``"predictions"`` entry is a list of
 :class:`~lead_s2r.predictions.Prediction` (one per sample and inference, in the sample's ego frame). The callback
@@ -8,6 +8,10 @@ each scorer's float aggregates as ``<prefix>/<dataset>/<name>`` (e.g. ``val/wod_
 Under DDP each rank predicts its own share of the samples (the data module splits by sample); rank 0 gathers them,
 scores every sample once and broadcasts the aggregates, so every rank logs the numbers a single process would
 (a metric monitored by a checkpoint callback must exist on every rank).
+
+A scorer runs only on the datasets it declares (``pdms@navsim-1.1``: NAVSIM, logged as ``val/navsim/pdms``). PDMS
+keeps PDM-Closed's references in memory across epochs; ``metric_config={"pdms@navsim-1.1": {"reference_cache": DIR}}``
+keeps them across runs too.
 """
 
 from collections import defaultdict
@@ -86,6 +90,8 @@ class ScoringCallback(L.Callback):
             keys = dict.fromkeys(p.key for p in group)
             data = [samples[key] for key in keys if key in samples]
             for scorer in self.scorers:
+                if scorer.datasets is not None and dataset not in scorer.datasets:
+                    continue
                 aggregates = scorer.score(group, data).aggregates
                 for name, value in aggregates.items():
                     if isinstance(value, float):

@@ -16,13 +16,26 @@ import pyarrow.parquet as pq
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.predictions import read_predictions
+from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
 from lead_s2r.shards import read_samples
 
 SCORES_TABLE = "scores.parquet"
 SCORES_JSON = "scores.json"
+
+
+def planner_predictions(planner: str, data: Path | list[Path], path: Path) -> Path:
+    """Write the predictions of a model-free planner (``lead_s2r.baselines.PLANNERS``: ``human`` replays the
+    logged future, ``constant-velocity`` is NAVSIM's baseline) on every sample of ``data`` to ``path``."""
+    from lead_s2r.baselines import PLANNERS
+
+    if planner not in PLANNERS:
+        raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
+    folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
+    predict = PLANNERS[planner]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_predictions(path, (predict(s) for folder in folders for s in read_samples(folder, fields=("future",))))
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
@@ -78,7 +91,10 @@ def score_predictions(
         "other_datasets": covered["other_datasets"],
         "seconds": round(time.perf_counter() - start, 3),
     }
-    return write_scores(Path(out), result.table, report)
+    out = Path(out)
+    report = write_scores(out, result.table, report)
+    scorer.write_files(result, out)
+    return report
 
 
 def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
