@@ -88,7 +88,8 @@ def route_curvature(route: np.ndarray) -> float:
 def lookahead_index(speed: float, count: int, curvature: float = 0.0, correct: bool = True) -> int:
     """Route point the lateral controller aims at, for an ego at ``speed`` m/s on a route of ``count`` points."""
     kmh = speed * 3.6
-    index = int(min(np.clip(LOOKAHEAD_SLOPE * kmh + LOOKAHEAD_OFFSET, LOOKAHEAD_LOW, LOOKAHEAD_HIGH) / 10 - 2, count - 1))
+    points = np.clip(LOOKAHEAD_SLOPE * kmh + LOOKAHEAD_OFFSET, LOOKAHEAD_LOW, LOOKAHEAD_HIGH) / 10 - 2
+    index = int(min(points, count - 1))
     if correct:
         index += int(np.clip(int(curvature * CURVATURE_GAIN), 0, MAX_CURVATURE_SHIFT))
     return min(index, count - 1)
