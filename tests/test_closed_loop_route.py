@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from closed_loop_scene import world_to_gnss
 
 from lead_s2r.closed_loop.route import (
     GeoReference,
@@ -15,23 +16,11 @@ from lead_s2r.closed_loop.route import (
     merge_duplicates,
 )
 
-RADIUS = 6378137.0
-
-
-def world_to_gnss(world: np.ndarray, reference: GeoReference) -> np.ndarray:
-    """CARLA's location -> geolocation (LibCarla GeoLocation: Mercator at the reference's scale, y flipped)."""
-    scale = math.cos(math.radians(reference.lat))
-    mx = scale * math.radians(reference.lon) * RADIUS + world[:, 0]
-    my = scale * RADIUS * math.log(math.tan((90.0 + reference.lat) * math.pi / 360.0)) - world[:, 1]
-    lon = mx * 180.0 / (math.pi * RADIUS * scale)
-    lat = 360.0 * np.arctan(np.exp(my / (RADIUS * scale))) / math.pi - 90.0
-    return np.column_stack([lat, lon])
-
 
 def test_gnss_round_trip_with_a_non_zero_reference():
     reference = GeoReference(49.0, 8.0)  # a Town13-like reference, far from (0, 0)
     world = np.array([[0.0, 0.0], [1523.7, -2210.4], [-4800.0, 3900.5], [12.5, 7.25]])
-    gnss = world_to_gnss(world, reference)
+    gnss = world_to_gnss(world, (reference.lat, reference.lon))
     estimated = estimate_geo_reference(gnss, world)
     assert estimated.lat == pytest.approx(49.0, abs=1e-9) and estimated.lon == pytest.approx(8.0, abs=1e-9)
     assert np.abs(gnss_to_world(gnss[:, 0], gnss[:, 1], estimated) - world).max() < 1e-3
