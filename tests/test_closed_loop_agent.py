@@ -155,3 +155,16 @@ def test_the_benchmark_flag_is_a_real_boolean(tmp_path):
     path.write_text("checkpoint: runs/a\ncreeping: true\ncontroller: waypoint\n")
     config = ClosedLoopConfig.from_agent_config(str(path), {})
     assert (config.checkpoint, config.creeping, config.controller) == ("runs/a", True, "waypoint")
+
+
+def test_the_heuristics_and_the_waypoint_controller_switch_on_by_config(scene, tmp_path):
+    path = tmp_path / "drive.yaml"
+    options = {"checkpoint": str(scene["run"]), "controller": "waypoint", "creeping": True, "stop_sign_slowdown": True}
+    path.write_text(yaml.safe_dump(options))
+    agent = make_agent(path, scene["folder"])
+    frame = sensor_data(scene["folder"], 1)
+    controls = [agent.run_step(frame, step * 0.05) for step in range(5)]
+    assert controls[0].brake == 1.0
+    for control in controls:
+        assert -1.0 <= control.steer <= 1.0 and 0.0 <= control.throttle <= 1.0 and 0.0 <= control.brake <= 1.0
+    assert agent.creeper.stuck_frames == 0  # moving at the recorded speed: never stuck
