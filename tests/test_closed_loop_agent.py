@@ -65,8 +65,12 @@ def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("closed_loop")
     synth.generate(root / "src", count=1, frames=4)
     convert(CarlaLeadAdapter(), root / "src", root / "data", shard_size=8)
-    torch.set_num_threads(1)
-    run_lightning_cli(["fit", "--config", str(fit_config(root / "run", root / "data", MODEL, steps=2))])
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the shared CPU; restored for the other test modules
+    try:
+        run_lightning_cli(["fit", "--config", str(fit_config(root / "run", root / "data", MODEL, steps=2))])
+    finally:
+        torch.set_num_threads(threads)
     folder = next((root / "src" / "data").glob("*/*"))
     return {"run": root / "run", "folder": folder, "root": root}
 

@@ -24,8 +24,8 @@ import numpy as np
 import torch
 import yaml
 
-from lead_s2r.carla_rig import EGO_HALF_EXTENT
-from lead_s2r.closed_loop.checkpoint import check_drivable, find_checkpoint, load_model, rig_for
+from lead_s2r.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
+from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, check_drivable, find_checkpoint, load_model, rig_for
 from lead_s2r.closed_loop.controllers import (
     Control,
     Creeper,
@@ -49,6 +49,7 @@ from lead_s2r.closed_loop.route import (
 from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_sample, reading, sensor_specs
 from lead_s2r.data.transforms import CENTERNET_STRIDE, SourceTransform, bev_cell_centres, collate
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
+from lead_s2r.models.config import TFv6Config
 from lead_s2r.schema import BoxClass
 
 try:  # pragma: no cover - depends on the environment
@@ -117,6 +118,8 @@ class ClosedLoopConfig:
     def __post_init__(self) -> None:
         if self.controller not in ("route", "waypoint"):
             raise ValueError(f"controller must be 'route' or 'waypoint', got {self.controller!r}")
+        if self.rig is not None and self.rig not in CAMERA_RIGS:
+            raise ValueError(f"rig {self.rig!r} is not a LEAD camera rig; known: {', '.join(CAMERA_RIGS)}")
 
     @classmethod
     def from_agent_config(cls, agent_config: str, environ: dict[str, str] | None = None) -> "ClosedLoopConfig":
@@ -170,18 +173,12 @@ class LeadS2RAgent(Base):
     def setup(self, path_to_conf_file: str) -> None:
         self.track = SENSORS_TRACK
         self.config = config = ClosedLoopConfig.from_agent_config(path_to_conf_file)
-        path = find_checkpoint(config.checkpoint)
-        device = config.device or ("cuda" if torch.cuda.is_available() else "cpu")
-        self.device = torch.device(device)
-        self.model = load_model(path, device)
-        self.model_config = model_config = check_drivable(self.model, config.source, path)
-        rig = config.rig or rig_for(model_config)
-        self.rig = Rig(rig, lidar=model_config.bev_input == "raster", radar=model_config.use_radar)
-        self.transform = SourceTransform(config.source, model_config, cameras=["carla_mosaic"])
+        model_config = self._load_model(config)
+        self.rig = Rig(
+            config.rig or rig_for(model_config), lidar=model_config.bev_input == "raster", radar=model_config.use_radar
+        )
+        self.transform = SourceTransform(config.source, model_config, cameras=[MOSAIC_ID])
         self.classes = tuple(model_config.target_speed_classes)
-        if config.stop_sign_slowdown and model_config.space(config.source) not in model_config.box_classes:
-            raise ValueError(f"{path}: stop_sign_slowdown needs a box head for source {config.source!r}; the model "
-                             "has none (set stop_sign_slowdown: false)")  # fmt: skip
         self.lateral = LateralPID(config.steer_correction)
         self.waypoint_controller = WaypointController(model_config.trajectory_grids[config.source].dt)
         self.creeper = Creeper(EGO_HALF_EXTENT[0] + CARLA_REAR_AXLE_TO_CENTER, EGO_HALF_EXTENT[1])
@@ -191,6 +188,18 @@ class LeadS2RAgent(Base):
         self.reference: GeoReference | None = None
         self.step = 0
         self.last_sample: dict[str, Any] | None = None
+
+    def _load_model(self, config: ClosedLoopConfig) -> TFv6Config:
+        """The network on its device; its config, once it is known to drive with every switch ``config`` sets."""
+        path = find_checkpoint(config.checkpoint)
+        device = config.device or ("cuda" if torch.cuda.is_available() else "cpu")
+        self.device = torch.device(device)
+        self.model = load_model(path, device)
+        self.model_config = model_config = check_drivable(self.model, config.source, path)
+        if config.stop_sign_slowdown and model_config.space(config.source) not in model_config.box_classes:
+            raise UnsupportedCheckpoint(f"{path}: stop_sign_slowdown needs a box head for source {config.source!r}; "
+                                        "the model has none (set stop_sign_slowdown: false)")  # fmt: skip
+        return model_config
 
     def sensors(self) -> list[dict[str, Any]]:
         return sensor_specs(self.rig)

@@ -170,7 +170,8 @@ class WaypointController:
         desired = float(np.linalg.norm(waypoints[self.near] - waypoints[self.far])) / self.span
         brake = desired < WAYPOINT_STOP_SPEED or (desired > 0 and speed / desired > BRAKE_RATIO)
         delta = float(np.clip(desired - speed, 0.0, MAX_SPEED_DELTA))
-        throttle = 0.0 if brake else float(np.clip(self.speed_pid.step(delta), 0.0, 1.0))
+        throttle = float(np.clip(self.speed_pid.step(delta), 0.0, 1.0))  # the PID steps while braking too
+        throttle = 0.0 if brake else throttle
         aim_distance = AIM_NEAR if desired < AIM_SPEED_SWITCH else AIM_FAR
         far_enough = np.flatnonzero(np.linalg.norm(waypoints, axis=1) >= aim_distance)
         aim = waypoints[far_enough[0] if len(far_enough) else -1]
