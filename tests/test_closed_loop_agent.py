@@ -2,6 +2,7 @@
 through leaderboard-shaped sensor data; its preprocessing held against the adapter + training transform."""
 
 import json
+import os
 import shutil
 from dataclasses import asdict
 from pathlib import Path
@@ -15,7 +16,7 @@ from tiny_models import TINY
 
 from lead_s2r.closed_loop import agent as agent_module
 from lead_s2r.closed_loop.agent import ClosedLoopConfig, LeadS2RAgent, parse_bool
-from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, rig_for
+from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, find_checkpoint, rig_for, saved_config
 from lead_s2r.closed_loop.sensors import Rig, sensor_specs
 from lead_s2r.convert import convert
 from lead_s2r.data.transforms import SourceTransform
@@ -172,3 +173,18 @@ def test_the_heuristics_and_the_waypoint_controller_switch_on_by_config(scene, t
     for control in controls:
         assert -1.0 <= control.steer <= 1.0 and 0.0 <= control.throttle <= 1.0 and 0.0 <= control.brake <= 1.0
     assert agent.creeper.stuck_frames == 0  # moving at the recorded speed: never stuck
+
+
+def test_the_saved_config_is_found_beside_a_logger_run(tmp_path):
+    (tmp_path / "checkpoints").mkdir()
+    checkpoint = tmp_path / "checkpoints" / "last.ckpt"
+    checkpoint.touch()
+    for version in (0, 1):
+        (tmp_path / "lightning_logs" / f"version_{version}").mkdir(parents=True)
+        config = tmp_path / "lightning_logs" / f"version_{version}" / "config.yaml"
+        config.write_text(f"v: {version}\n")
+        os.utime(config, (1000 + version, 1000 + version))  # version 1 is the newer run
+    assert find_checkpoint(tmp_path) == checkpoint
+    assert saved_config(checkpoint) == tmp_path / "lightning_logs" / "version_1" / "config.yaml"
+    (tmp_path / "config.yaml").write_text("v: run\n")
+    assert saved_config(checkpoint) == tmp_path / "config.yaml"

@@ -53,7 +53,8 @@ def saved_config(checkpoint: Path) -> Path:
     """LightningCLI's ``config.yaml`` of the run a checkpoint belongs to: beside it or up to two folders up (the run
     folder of ``<run>/checkpoints/last.ckpt``), or in the newest ``lightning_logs/version_*`` there."""
     for folder in list(checkpoint.resolve().parents)[:3]:
-        candidates = [folder / CONFIG_NAME, *sorted(folder.glob(f"lightning_logs/version_*/{CONFIG_NAME}"))[::-1]]
+        logged = sorted(folder.glob(f"lightning_logs/version_*/{CONFIG_NAME}"), key=lambda p: p.stat().st_mtime)
+        candidates = [folder / CONFIG_NAME, *logged[::-1]]
         for candidate in candidates:
             if candidate.is_file():
                 return candidate
