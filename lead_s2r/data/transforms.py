@@ -606,7 +606,10 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     names = set().union(*samples)
     batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in names if name.startswith("__")}
     for key in sorted(name for name in names if not name.startswith("__")):
-        template = next(sample[key] for sample in samples if key in sample)
-        filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
-        batch[key] = torch.stack([sample.get(key, filler) for sample in samples])
+        values = [sample.get(key) for sample in samples]
+        if any(value is None for value in values):  # the filler is only built where a sample lacks the label
+            template = next(value for value in values if value is not None)
+            filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
+            values = [filler if value is None else value for value in values]
+        batch[key] = torch.stack(values)
     return batch
