@@ -3,7 +3,8 @@
 Tar members are ``<key>.<field>.<ext>`` (``meta.json``, ``future.npy``, ``cam_front.jpg``...). Arrays are stored
 with ``np.save(allow_pickle=False)``, JPEG bytes untouched, nothing is pickled. Shards are written by our own
 small tar writer (deterministic headers, and :meth:`ShardFile.rollback` to drop a half-written log) and read
-with webdataset.
+with webdataset, which is imported where it reads: it brings torch (4 s of start-up), and conversion workers, which
+only write, are spawned processes that must not pay it.
 """
 
 import io
@@ -18,7 +19,6 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-import webdataset as wds
 
 from lead_s2r.schema import field_spec
 
@@ -148,6 +148,8 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
 
     ``fields`` limits decoding to those fields (``meta`` is always decoded).
     """
+    import webdataset as wds  # here, not at the top: see the module docstring
+
     fields = None if fields is None else tuple(fields)
     dataset = wds.WebDataset(shard_paths(path), shardshuffle=False, empty_check=False)
     for raw in dataset:
