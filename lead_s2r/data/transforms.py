@@ -515,25 +515,23 @@ def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.nd
     The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
     (:func:`bev_gather_index`) and each sample is one gather."""
     pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
-    index, inside = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
-    out = np.full(inside.shape, -1, np.int64)
-    out[inside] = labels.reshape(-1)[index]
-    return out
+    index = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
+    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.int64)
+    values[:-1] = labels.reshape(-1)
+    values[-1] = -1  # where the index points for cells outside the raster
+    return values[index]
 
 
 @lru_cache(maxsize=64)
-def bev_gather_index(
-    pixel_to_ego: tuple[tuple[float, ...], ...], shape: tuple[int, int], grid: BEVGrid
-) -> tuple[np.ndarray, np.ndarray]:
-    """For a raster of ``shape``: the flat raster index of every grid cell inside it, and the (H, W) mask of those
-    cells. :func:`~lead_s2r.geometry.raster_lookup` of a raster of flat indices, so both agree by construction."""
+def bev_gather_index(pixel_to_ego: tuple[tuple[float, ...], ...], shape: tuple[int, int], grid: BEVGrid) -> np.ndarray:
+    """(H, W) flat index into a raster of ``shape`` of every grid cell; ``shape[0] * shape[1]`` (one past the end)
+    outside it. :func:`~lead_s2r.geometry.raster_lookup` of a raster of flat indices, so both agree by construction."""
     xs, ys = bev_cell_centres(grid)
     x, y = np.meshgrid(xs, ys, indexing="ij")
-    flat = raster_lookup(np.arange(shape[0] * shape[1]).reshape(shape), np.asarray(pixel_to_ego), x, y)
-    inside = flat >= 0
-    index, mask = flat[inside], inside
-    index.flags.writeable = mask.flags.writeable = False  # shared by every sample
-    return index, mask
+    size = shape[0] * shape[1]
+    index = raster_lookup(np.arange(size).reshape(shape), np.asarray(pixel_to_ego), x, y, fill=size)
+    index.flags.writeable = False  # shared by every sample
+    return index
 
 
 def centernet_targets(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, torch.Tensor]:
