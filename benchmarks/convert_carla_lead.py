@@ -5,11 +5,13 @@
 Runs ``convert`` with each worker count in turn, ``--rounds`` times (interleaved, so a machine shared with other
 jobs slows every count alike), and reports per round: wall time, samples/s in total and per worker, the CPU
 seconds of the driver and of its worker processes, and the speed-up over the first worker count measured in the
-same round. Then one process converts the routes again stage by stage and splits its CPU time: the adapter (reading
+same round, beside a machine check (how much faster two processes run a plain CPU loop than one at that
+moment). Then one process converts the routes again stage by stage and splits its CPU time: the adapter (reading
 LZMA pickles, LAZ, PNGs and building the sample), schema validation, encoding the fields, writing the tar.
 """
 
 import argparse
+import multiprocessing as mp
 import os
 import resource
 import statistics
@@ -23,6 +25,29 @@ from lead_s2r.registry import Adapter, get_adapter
 from lead_s2r.schema import validate
 from lead_s2r.shards import ShardFile, encode_sample
 from lead_s2r.synthetic.carla_lead import generate
+
+
+def spin(n: int) -> int:
+    total = 0
+    for i in range(n):
+        total += i
+    return total
+
+
+def machine_parallelism(n: int = 10_000_000) -> float:
+    """How much faster two processes run a pure-Python loop than one right now (2.0 on two idle cores): what the
+    machine, shared with other jobs, leaves for a 2-worker run."""
+    start = time.perf_counter()
+    spin(2 * n)
+    one = time.perf_counter() - start
+    context = mp.get_context("fork")  # no threads in this process yet; the loop needs no imports
+    start = time.perf_counter()
+    procs = [context.Process(target=spin, args=(n,)) for _ in range(2)]
+    for proc in procs:
+        proc.start()
+    for proc in procs:
+        proc.join()
+    return one / (time.perf_counter() - start)
 
 
 def children_cpu() -> float:
@@ -98,6 +123,7 @@ def main() -> None:
         per_worker: dict[int, list[float]] = defaultdict(list)
         cpu_per_sample: dict[int, list[float]] = defaultdict(list)
         for round_index in range(args.rounds):
+            print(f"round {round_index}: machine check, 2 processes of a CPU loop: {machine_parallelism():.2f}x one")
             base = None
             for workers in args.workers:
                 r = run(adapter, src, Path(tmp) / f"out{workers}", workers)
