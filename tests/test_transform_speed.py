@@ -19,15 +19,17 @@ from lead_s2r.data.transforms import (
     LIDAR_HITS_MAX,
     MAX_BOXES,
     SourceTransform,
+    Tile,
     bev_cell_centres,
     bev_labels,
+    camera_layout,
     centernet_targets,
     jpeg_reduction,
     rasterize_lidar,
     render,
 )
 from lead_s2r.geometry import raster_lookup
-from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, BEVGrid, tfv6_config
+from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import BoxClass
 from lead_s2r.synthetic.carla_lead import generate
@@ -255,3 +257,9 @@ def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int
     assert diff.mean() <= 0.5 and diff.max() <= 4, (diff.mean(), diff.max())
     if factor == 1:
         assert diff.max() == 0
+
+
+def test_ltfv6_on_four_navsim_cameras_decodes_at_a_quarter() -> None:
+    camera = ((1080, 1920), (Tile(0, 1920, 1545.0, 540.0),))
+    layout = camera_layout((camera,) * 4, (270, 1920), NAVSIM_VERTICAL_FOV_DEG)
+    assert jpeg_reduction(layout) == (4, cv2.IMREAD_REDUCED_COLOR_4 & ~cv2.IMREAD_COLOR)
