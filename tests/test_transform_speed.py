@@ -242,8 +242,10 @@ def smooth_camera_sample(width: int, height: int) -> dict:
     return {"__key__": "k", "meta": meta, "cam_front": cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1]}
 
 
+@pytest.mark.filterwarnings("ignore:source 'navsim'.*letterboxed")
 @pytest.mark.parametrize(
-    ("image_size", "factor"), [((270, 480), 4), ((540, 960), 2), ((135, 240), 8), ((720, 1280), 1)]
+    ("image_size", "factor"),
+    [((270, 480), 4), ((540, 960), 2), ((135, 240), 8), ((720, 1280), 1), ((200, 480), 4)],  # the last letterboxed
 )
 def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int], factor: int) -> None:
     sample = smooth_camera_sample(1920, 1080)
@@ -257,6 +259,23 @@ def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int
     assert diff.mean() <= 0.5 and diff.max() <= 4, (diff.mean(), diff.max())
     if factor == 1:
         assert diff.max() == 0
+
+
+@pytest.mark.filterwarnings("ignore:source 'carla'.*letterboxed")
+@pytest.mark.parametrize("image_size", [(270, 480), (200, 480)])
+def test_labels_of_a_reduced_decode_follow_the_full_size_layout(image_size: tuple[int, int]) -> None:
+    sample = smooth_camera_sample(1920, 1080)
+    rng = np.random.default_rng(4)
+    sample["semantic_front"] = np.kron(rng.integers(0, 20, (27, 48)), np.ones((40, 40))).astype(np.uint8)
+    sample["depth_front"] = rng.integers(0, 256, (270, 480)).astype(np.uint8)  # stored at 1/4, like LEAD's
+    sample["meta"]["depth"] = {"max_m": 50.0}
+    transform = SourceTransform("carla", tfv6_config(image_size=image_size), ["front"])
+    _, layout = transform.image(sample)
+    assert jpeg_reduction(layout)[0] == 4
+    got = transform.perspective_labels(sample, "carla", layout)
+    expected = reference_camera(transform, sample)
+    for name in ("semantic", "depth"):
+        np.testing.assert_array_equal(got[name].numpy(), expected[name], err_msg=name)
 
 
 def test_ltfv6_on_four_navsim_cameras_decodes_at_a_quarter() -> None:

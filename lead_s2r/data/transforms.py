@@ -326,8 +326,11 @@ class SourceTransform:
         layout = None if stored is None else self.layout(meta, stored)
         factor, flag = (1, 0) if layout is None else jpeg_reduction(layout)
         images = [self._decode(sample, camera, cv2.IMREAD_COLOR_RGB | flag) for camera in self.cameras]
-        shapes = [image.shape[:2] for image in images]
-        decoded = self.layout(meta, shapes) if factor == 1 else self._rig_layout(meta, shapes)
+        decoded = self._rig_layout(meta, [image.shape[:2] for image in images])
+        if factor > 1 and decoded.box != layout.box:  # rounding moved the letterbox: labels would not line up
+            factor, images = 1, [self._decode(sample, camera, cv2.IMREAD_COLOR_RGB) for camera in self.cameras]
+        if factor == 1:
+            decoded = self.layout(meta, [image.shape[:2] for image in images])
         image = render(decoded, images, cv2.INTER_AREA, 0)
         return torch.from_numpy(channels_first(image)), decoded if factor == 1 else layout
 
