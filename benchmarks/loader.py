@@ -3,7 +3,7 @@
 .venv/bin/python benchmarks/loader.py --routes 6 --frames 16 --steps 40 --rounds 3
 
 - plain decoding: ``read_samples`` over the converted shards, every field decoded (JPEG bytes stay bytes): the
-  floor any shard loader pays;
+  floor any shard loader pays; shown also with the JPEGs decoded to pixels, for reference;
 - ours: ``DriveDataModule``'s training loader (shard resampling, shuffle buffer, decoding the fields the transform
   reads, ``SourceTransform`` at paper sizes: 1152x384 mosaic, 384x320 LiDAR BEV, CenterNet at stride 4, BEV labels,
   depth and semantics; collation into batches);
@@ -31,6 +31,8 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import cv2
+import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
@@ -148,6 +150,7 @@ def main() -> None:
         )
         runs: dict[str, Callable[[], Iterator[int]]] = {
             "plain decoding (read_samples, every field)": lambda: (1 for _ in read_samples(data)),
+            "plain decoding + JPEG to pixels": lambda: (_decode_jpegs(sample) for sample in read_samples(data)),
             f"ours (DriveDataModule, workers={args.workers})": lambda: (
                 len(batch["__key__"]) for batch in dm.train_dataloader()["carla"]
             ),
@@ -156,7 +159,7 @@ def main() -> None:
             ),
         }
         timings: dict[str, list[Timing]] = {name: [] for name in runs}
-        plain, ours, per_file = list(runs)
+        plain, _, ours, per_file = list(runs)
         for round_index in range(args.rounds):
             for name, run in runs.items():
                 timing = timed(run())
@@ -176,6 +179,13 @@ def main() -> None:
             over_plain = _median_ratio(timings[ours], timings[plain], attribute, "rate")
             over_lead = _median_ratio(timings[ours], timings[per_file], attribute, attribute)
             print(f"  ours, {label}: {over_plain:.2f}x plain decoding, {over_lead:.2f}x LEAD-style")
+
+
+def _decode_jpegs(sample: dict[str, Any]) -> int:
+    for name, value in sample.items():
+        if name.startswith("cam_"):
+            cv2.imdecode(np.frombuffer(value, np.uint8), cv2.IMREAD_COLOR)
+    return 1
 
 
 def _median_ratio(a: list[Timing], b: list[Timing], attribute_a: str, attribute_b: str) -> float:
