@@ -1,45 +1,156 @@
-"""Conversion throughput of the LEAD CARLA adapter on generated routes: samples/s in total and per worker.
+"""Conversion throughput of the LEAD CARLA adapter on generated routes: scaling over workers, and CPU by stage.
 
-.venv/bin/python benchmarks/convert_carla_lead.py --routes 6 --frames 16 --workers 1 2
+.venv/bin/python benchmarks/convert_carla_lead.py --routes 64 --frames 16 --workers 1 2 --rounds 3
+
+Runs ``convert`` with each worker count in turn, ``--rounds`` times (interleaved, so a machine shared with other
+jobs slows every count alike), and reports per round: wall time, samples/s in total and per worker, the CPU
+seconds of the driver and of its worker processes, and the speed-up over the first worker count measured in the
+same round, beside a machine check (how much faster two processes run a plain CPU loop than one at that
+moment). Then one process converts the routes again stage by stage and splits its CPU time: the adapter (reading
+LZMA pickles, LAZ, PNGs and building the sample), schema validation, encoding the fields, writing the tar.
 """
 
 import argparse
+import multiprocessing as mp
+import os
+import resource
+import statistics
 import tempfile
 import time
+from collections import defaultdict
 from pathlib import Path
 
-from lead_s2r.convert import convert
-from lead_s2r.registry import get_adapter
+from lead_s2r.convert import convert, manifest_row
+from lead_s2r.registry import Adapter, get_adapter
+from lead_s2r.schema import validate
+from lead_s2r.shards import ShardFile, encode_sample
 from lead_s2r.synthetic.carla_lead import generate
+
+
+def spin(n: int) -> int:
+    total = 0
+    for i in range(n):
+        total += i
+    return total
+
+
+def machine_parallelism(n: int = 10_000_000) -> float:
+    """How much faster two processes run a pure-Python loop than one right now (2.0 on two idle cores): what the
+    machine, shared with other jobs, leaves for a 2-worker run."""
+    start = time.perf_counter()
+    spin(2 * n)
+    one = time.perf_counter() - start
+    context = mp.get_context("fork")  # no threads in this process yet; the loop needs no imports
+    start = time.perf_counter()
+    procs = [context.Process(target=spin, args=(n,)) for _ in range(2)]
+    for proc in procs:
+        proc.start()
+    for proc in procs:
+        proc.join()
+    return one / (time.perf_counter() - start)
+
+
+def children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run(adapter: Adapter, src: Path, out: Path, workers: int) -> dict[str, float]:
+    load = os.getloadavg()[0]
+    wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
+    result = convert(adapter, src, out, workers=workers, force=True)
+    wall = time.perf_counter() - wall
+    if not result.ok:
+        raise RuntimeError(f"conversion failed: {result.errors[:3]}")
+    return {
+        "samples": result.samples,
+        "wall": wall,
+        "driver_cpu": time.process_time() - cpu,
+        "worker_cpu": children_cpu() - child,
+        "load": load,
+    }
+
+
+def stage_split(adapter: Adapter, src: Path, out: Path) -> tuple[int, dict[str, float]]:
+    """CPU seconds per stage of converting every log in this process (what one worker does)."""
+    cpu: dict[str, float] = defaultdict(float)
+    count = 0
+    out.mkdir(parents=True, exist_ok=True)
+    shard = ShardFile(out / "stages-000000.tar")
+    for log in adapter.list_logs(src):
+        samples = iter(adapter.iter_samples(log))
+        while True:
+            start = time.process_time()
+            sample = next(samples, None)
+            cpu["adapter (read + build)"] += time.process_time() - start
+            if sample is None:
+                break
+            start = time.process_time()
+            validate(sample)
+            cpu["validate"] += time.process_time() - start
+            start = time.process_time()
+            encode_sample(sample)
+            encode = time.process_time() - start
+            cpu["encode fields (PNG, npy, json)"] += encode
+            start = time.process_time()
+            shard.write(sample)  # encodes again: the encode time just measured is taken off
+            manifest_row(sample, shard.path.name)
+            cpu["tar write + manifest row"] += max(time.process_time() - start - encode, 0.0)
+            count += 1
+    start = time.process_time()
+    shard.close()
+    cpu["close (fsync)"] += time.process_time() - start
+    return count, cpu
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--routes", type=int, default=6)
+    parser.add_argument("--routes", type=int, default=64)
     parser.add_argument("--frames", type=int, default=16)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--rig", default="normal", choices=["normal", "perturbated", "both"])
+    parser.add_argument("--raw", type=Path, help="reuse (or create) the generated routes here")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        src = Path(tmp) / "raw"
-        started = time.perf_counter()
-        generate(src, count=args.routes, frames=args.frames)
-        print(f"generated {args.routes} routes x {args.frames} frames in {time.perf_counter() - started:.2f} s")
-        adapter = get_adapter("carla_lead", rig=args.rig)
-        started, count = time.perf_counter(), 0
-        for log in adapter.list_logs(src):
-            count += sum(1 for _ in adapter.iter_samples(log))
-        print(f"adapter iter_samples alone (1 process): {count / (time.perf_counter() - started):.1f} samples/s")
-        for workers in args.workers:
-            out = Path(tmp) / f"out{workers}"
+        src = args.raw or Path(tmp) / "raw"
+        if not (src / "data").is_dir():
             started = time.perf_counter()
-            result = convert(adapter, src, out, workers=workers)
-            elapsed = time.perf_counter() - started
-            rate = result.samples / elapsed
+            generate(src, count=args.routes, frames=args.frames)
+            print(f"generated {args.routes} routes x {args.frames} frames in {time.perf_counter() - started:.2f} s")
+        adapter = get_adapter("carla_lead", rig=args.rig)
+        speedups: dict[int, list[float]] = defaultdict(list)
+        per_worker: dict[int, list[float]] = defaultdict(list)
+        cpu_per_sample: dict[int, list[float]] = defaultdict(list)
+        for round_index in range(args.rounds):
+            print(f"round {round_index}: machine check, 2 processes of a CPU loop: {machine_parallelism():.2f}x one")
+            base = None
+            for workers in args.workers:
+                r = run(adapter, src, Path(tmp) / f"out{workers}", workers)
+                rate = r["samples"] / r["wall"]
+                base = base or rate
+                cpu_ms = (r["driver_cpu"] + r["worker_cpu"]) / r["samples"] * 1e3
+                speedups[workers].append(rate / base)
+                per_worker[workers].append(rate / workers)
+                cpu_per_sample[workers].append(cpu_ms)
+                print(
+                    f"round {round_index} workers={workers}: {r['samples']} samples in {r['wall']:.2f} s = "
+                    f"{rate:.1f} samples/s, {rate / workers:.1f} per worker, {rate / base:.2f}x workers="
+                    f"{args.workers[0]}; CPU {r['driver_cpu']:.1f} s driver + {r['worker_cpu']:.1f} s workers = "
+                    f"{cpu_ms:.1f} ms/sample; load average {r['load']:.1f}"
+                )
+        print(f"median over {args.rounds} rounds:")
+        for workers in args.workers:
             print(
-                f"rig={args.rig} workers={workers}: {result.samples} samples in {elapsed:.2f} s = "
-                f"{rate:.1f} samples/s, {rate / workers:.1f} samples/s per worker"
+                f"  workers={workers}: {statistics.median(per_worker[workers]):.1f} samples/s per worker, "
+                f"{statistics.median(speedups[workers]):.2f}x workers={args.workers[0]} (same-round ratios), "
+                f"{statistics.median(cpu_per_sample[workers]):.1f} ms CPU/sample"
             )
+        count, cpu = stage_split(adapter, src, Path(tmp) / "stages")
+        total = sum(cpu.values())
+        print(f"CPU by stage, one process, {count} samples: {total / count * 1e3:.2f} ms/sample")
+        for stage, seconds in cpu.items():
+            print(f"  {stage}: {seconds / count * 1e3:.2f} ms/sample ({seconds / total:.0%})")
 
 
 if __name__ == "__main__":

@@ -24,12 +24,10 @@ import traceback
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import cv2
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
@@ -37,6 +35,9 @@ from lead_s2r.processes import exit_with_parent
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, validate
 from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 PROGRESS = "progress.jsonl"
 IDENTITY = "convert.json"
@@ -149,10 +150,18 @@ class _Worker:
             self.shard.abort()
 
 
+def _one_thread_per_worker() -> None:
+    """Processes are the parallelism: a native pool per worker (lazrs' rayon LAZ decoder, OpenCV) would
+    oversubscribe the cores the other workers use. Rayon reads its variable when its pool first starts."""
+    os.environ["RAYON_NUM_THREADS"] = "1"
+    cv2.setNumThreads(1)
+
+
 def _worker_main(
     adapter: Adapter, out: Path, shard_size: int, counter: Any, tasks: Any, results: Any, parent: int
 ) -> None:
     exit_with_parent(parent)
+    _one_thread_per_worker()
 
     def next_index() -> int:
         with counter.get_lock():
@@ -332,6 +341,8 @@ def convert(
 
     ``shard_size`` is the number of samples after which a worker closes its shard (at the next log boundary).
     """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # see _finish
+
     src, out = Path(src), Path(out)
     logs = _list_logs(adapter, src, limit_logs)
     records = _prepare(out, force, identity_of(adapter))
@@ -378,7 +389,13 @@ def convert(
 
 
 def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]], result: ConvertResult) -> None:
-    """Write ``manifest.parquet`` and ``info.json`` from every recorded shard (this run's and earlier ones)."""
+    """Write ``manifest.parquet`` and ``info.json`` from every recorded shard (this run's and earlier ones).
+
+    pyarrow and rich are imported in the driver's functions only: each spawned worker imports this module, and
+    they are 0.2 s of its start-up."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     rows = [row for record in records for _, log_rows in record["logs"] for row in log_rows]
     flags = sorted({name for row in rows for name in row if name.startswith("has_")})
     for row in rows:
@@ -411,7 +428,7 @@ def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return {"samples": len(rows), "logs": len({row["log"] for row in rows}), "by_split": by_split}
 
 
-def _statistics(table: pa.Table) -> dict[str, Any]:
+def _statistics(table: "pa.Table") -> dict[str, Any]:
     """Ranges a model needs for normalisation and a few sanity figures.
 
     ``target_points`` {low, high} holds the 1st/99th percentiles of the current target point's [x, y] (at least

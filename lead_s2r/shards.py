@@ -3,7 +3,8 @@
 Tar members are ``<key>.<field>.<ext>`` (``meta.json``, ``future.npy``, ``cam_front.jpg``...). Arrays are stored
 with ``np.save(allow_pickle=False)``, JPEG bytes untouched, nothing is pickled. Shards are written by our own
 small tar writer (deterministic headers, and :meth:`ShardFile.rollback` to drop a half-written log) and read
-with webdataset.
+with webdataset, which is imported where it reads: it brings torch (4 s of start-up), and conversion workers, which
+only write, are spawned processes that must not pay it.
 
 Reading trusts nothing: a tar cut at a member boundary reads as a shorter, valid stream (tarfile raises nothing),
 so :func:`shard_paths` checks that every shard ends with the two zero blocks :meth:`ShardFile.close` writes; a tar
@@ -23,7 +24,6 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-import webdataset as wds
 
 from lead_s2r.errors import UserError
 from lead_s2r.schema import field_spec
@@ -206,6 +206,8 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
     ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
     no splitting over ranks or workers (webdataset's default refuses to run under DDP), the caller decides.
     """
+    import webdataset as wds  # here, not at the top: see the module docstring
+
     fields = None if fields is None else tuple(fields)
     dataset = wds.WebDataset(
         shard_paths(path),

@@ -12,6 +12,15 @@ camera sees less), the tiles are stitched at one height, and the strip is scaled
 centred and padded (letterboxed) when its aspect differs by more than :data:`ASPECT_TOLERANCE`, with a warning. The
 layout depends only on the configuration and the source's rig, so it is computed once per rig
 (:func:`camera_layout`) and then applied to the image and its perspective labels alike (:func:`render`).
+
+Speed (the loader runs this per sample on the CPU, beside the GPU): whatever depends only on the configuration and
+a source's fixed spec is computed once per process and cached (camera layouts, the BEV label gather index, the LiDAR
+saturation table); a layout that maps an image onto itself is not resampled at all; JPEGs are decoded straight to
+RGB, and at 1/2, 1/4 or 1/8 size (libjpeg's DCT scaling, OpenCV ``IMREAD_REDUCED_*``) where the model's image is at
+least that much smaller than the camera's (:func:`jpeg_reduction`): the area-averaged result then differs from the
+full decode by the rounding of JPEG's scaled IDCT only (measured on a smooth 1920x1080 q=90 image in
+tests/test_transform_speed.py: mean <= 0.34, max 2 levels of 255 at 1/2 to 1/8; the test allows 0.5 and 4).
+Every other output is bit-identical to the straightforward definitions kept in that test.
 """
 
 import math
@@ -45,6 +54,12 @@ CENTERNET_STRIDE = 4
 #: A camera strip within this relative aspect difference of ``image_size`` is stretched to fill it (a distortion
 #: below what anyone sees); beyond it, it is letterboxed.
 ASPECT_TOLERANCE = 0.02
+#: JPEG DCT-domain scalings OpenCV exposes (1/2, 1/4, 1/8), as (factor, imdecode flag without the colour bits).
+_JPEG_REDUCTIONS = (
+    (8, cv2.IMREAD_REDUCED_COLOR_8 & ~cv2.IMREAD_COLOR),
+    (4, cv2.IMREAD_REDUCED_COLOR_4 & ~cv2.IMREAD_COLOR),
+    (2, cv2.IMREAD_REDUCED_COLOR_2 & ~cv2.IMREAD_COLOR),
+)
 
 
 @dataclass(frozen=True)
@@ -91,6 +106,14 @@ class CameraLayout:
     def letterboxed(self) -> bool:
         return self.box[2:] != self.image_size
 
+    @property
+    def identity(self) -> bool:
+        """One camera, one band that is the whole decoded image, at the model's size: nothing to resample."""
+        if len(self.sizes) != 1 or len(self.bands[0]) != 1:
+            return False
+        (h, w), band = self.sizes[0], self.bands[0][0]
+        return (band.x0, band.x1, band.top, band.bottom) == (0, w, 0, h) and (h, w) == self.image_size
+
 
 def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> tuple[Tile, ...]:
     """The tiles of camera field ``camera`` from ``meta.cameras``, scaled to the decoded image ``shape``.
@@ -99,17 +122,47 @@ def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> t
     without intrinsics.
     """
     height, width = shape
-    entries = [c for c in meta.get("cameras", []) if c.get("id") == camera]
+    entries = _calibrations(meta, camera)
     if not entries:
         return (Tile(0, width),)
-    entries.sort(key=lambda c: c["tile"][0] if "tile" in c else 0)
-    stored_width = max((c["tile"][0] + c["tile"][1]) if "tile" in c else c["width"] for c in entries)
-    sx, sy = width / stored_width, height / entries[0]["height"]
+    stored_height, stored_width = _stored_size(entries)
+    sx, sy = width / stored_width, height / stored_height
     tiles = []
     for c in entries:
         x0, w = c["tile"] if "tile" in c else (0, c["width"])
         tiles.append(Tile(round(x0 * sx), round((x0 + w) * sx), float(c["K"][1][1]) * sy, float(c["K"][1][2]) * sy))
     return tuple(tiles)
+
+
+def _calibrations(meta: dict[str, Any], camera: str) -> list[dict[str, Any]]:
+    """The ``meta.cameras`` entries of camera field ``camera``, left to right."""
+    entries = [c for c in meta.get("cameras", []) if c.get("id") == camera]
+    return sorted(entries, key=lambda c: c["tile"][0] if "tile" in c else 0)
+
+
+def _stored_size(entries: list[dict[str, Any]]) -> tuple[int, int]:
+    """(height, width) of the stored image the calibration ``entries`` describe."""
+    width = max((c["tile"][0] + c["tile"][1]) if "tile" in c else c["width"] for c in entries)
+    return int(entries[0]["height"]), int(width)
+
+
+def jpeg_reduction(layout: CameraLayout) -> tuple[int, int]:
+    """The largest JPEG scale-down (factor, imdecode flag) after which the strip still has at least as many rows and
+    columns as the model's image gives it, so the area resize only shrinks; (1, 0) when none fits."""
+    (strip_h, strip_w), (box_h, box_w) = layout.strip, layout.box[2:]
+    for factor, flag in _JPEG_REDUCTIONS:
+        if strip_h >= box_h * factor and strip_w >= box_w * factor:
+            return factor, flag
+    return 1, 0
+
+
+def channels_first(image: np.ndarray) -> np.ndarray:
+    """(H, W, C) uint8 -> contiguous (C, H, W), one plane copy each (faster than a transposed copy)."""
+    out = np.empty((image.shape[2], *image.shape[:2]), image.dtype)
+    planes = cv2.split(image, list(out))
+    if planes[0].ctypes.data != out[0].ctypes.data:  # this OpenCV did not split in place
+        return np.ascontiguousarray(image.transpose(2, 0, 1))
+    return out
 
 
 def tile_bands(height: int, tiles: Sequence[Tile], vertical_fov_deg: float | None) -> tuple[Band, ...]:
@@ -168,7 +221,11 @@ def _cut(image: np.ndarray, band: Band, scale: tuple[float, float], fill: float)
 
 
 def render(layout: CameraLayout, images: Sequence[np.ndarray], interpolation: int, fill: float) -> np.ndarray:
-    """Apply ``layout`` to one image per camera field (RGB, or a label at any resolution): (H, W[, C])."""
+    """Apply ``layout`` to one image per camera field (RGB, or a label at any resolution): (H, W[, C]).
+
+    An image the layout maps onto itself comes back as it is (not copied)."""
+    if layout.identity and images[0].shape[:2] == layout.image_size:
+        return images[0]
     pieces = []
     for size, bands, image in zip(layout.sizes, layout.bands, images, strict=True):
         scale = (image.shape[0] / size[0], image.shape[1] / size[1])
@@ -202,10 +259,24 @@ class SourceTransform:
     @property
     def fields(self) -> list[str]:
         """The sample fields this transform reads, so loaders decode nothing else (``meta`` always comes)."""
-        fields = ["past", "future", "target_points", "route", "lidar", "radar", "boxes", "bev_semantic"]
+        config, space = self.config, self.config.space(self.source)
+        radar_targets = config.use_radar and self.source in config.radar_sources
+        wanted = {
+            "future": True,
+            "target_points": True,
+            "route": True,
+            "lidar": config.bev_input == "raster",
+            "radar": config.use_radar,
+            "boxes": radar_targets or space in config.box_classes,
+            "bev_semantic": space in config.bev_semantic_classes,
+        }
+        fields = [name for name, read in wanted.items() if read]
         fields += [f"cam_{camera}" for camera in self.cameras]
         if len(self.cameras) == 1:
-            fields += [f"depth_{self.cameras[0]}", f"semantic_{self.cameras[0]}"]
+            if space in config.depth_sources:
+                fields.append(f"depth_{self.cameras[0]}")
+            if space in config.semantic_classes:
+                fields.append(f"semantic_{self.cameras[0]}")
         return fields
 
     def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
@@ -246,19 +317,51 @@ class SourceTransform:
 
     def image(self, sample: dict[str, Any]) -> tuple[torch.Tensor, CameraLayout]:
         """Cameras decoded and laid out in ``config.image_size`` (see the module docstring): uint8 (3, H, W) RGB,
-        and the layout, which perspective labels follow."""
-        images = []
+        and the layout of the full-size images, which perspective labels follow.
+
+        Where the calibration gives the stored sizes, JPEGs are decoded at the largest reduction
+        (:func:`jpeg_reduction`) that still leaves the model's image to shrink into."""
+        meta = sample["meta"]
+        stored = self._stored_shapes(meta)
+        layout = None if stored is None else self.layout(meta, stored)
+        factor, flag = (1, 0) if layout is None else jpeg_reduction(layout)
+        images = [self._decode(sample, camera, cv2.IMREAD_COLOR_RGB | flag) for camera in self.cameras]
+        decoded = self._rig_layout(meta, [image.shape[:2] for image in images])
+        if factor > 1 and decoded.box != layout.box:  # rounding moved the letterbox: labels would not line up
+            factor, images = 1, [self._decode(sample, camera, cv2.IMREAD_COLOR_RGB) for camera in self.cameras]
+        if factor == 1:
+            decoded = self.layout(meta, [image.shape[:2] for image in images])
+        image = render(decoded, images, cv2.INTER_AREA, 0)
+        return torch.from_numpy(channels_first(image)), decoded if factor == 1 else layout
+
+    def _decode(self, sample: dict[str, Any], camera: str, flags: int) -> np.ndarray:
+        data = sample.get(f"cam_{camera}")
+        if data is None:
+            raise KeyError(f"sample {sample['__key__']!r} has no camera {camera!r} (field cam_{camera})")
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+        if image is None:
+            raise ValueError(f"sample {sample['__key__']!r}: field cam_{camera} is not a decodable JPEG")
+        return image
+
+    def _stored_shapes(self, meta: dict[str, Any]) -> list[tuple[int, int]] | None:
+        """(height, width) of each camera image as stored, from ``meta.cameras``; None where one has no entry."""
+        shapes = []
         for camera in self.cameras:
-            data = sample.get(f"cam_{camera}")
-            if data is None:
-                raise KeyError(f"sample {sample['__key__']!r} has no camera {camera!r} (field cam_{camera})")
-            images.append(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
-        layout = self.layout(sample["meta"], [image.shape[:2] for image in images])
-        image = render(layout, images, cv2.INTER_AREA, 0)
-        return torch.from_numpy(np.ascontiguousarray(image[:, :, ::-1].transpose(2, 0, 1))), layout
+            entries = _calibrations(meta, camera)
+            if not entries:
+                return None
+            shapes.append(_stored_size(entries))
+        return shapes
 
     def layout(self, meta: dict[str, Any], shapes: Sequence[tuple[int, int]]) -> CameraLayout:
         """The (cached) layout of this sample's rig; warns when it does not fill the model's image."""
+        layout = self._rig_layout(meta, shapes)
+        if layout.letterboxed and layout not in self._reported:
+            self._reported.add(layout)
+            self._letterboxed(layout)
+        return layout
+
+    def _rig_layout(self, meta: dict[str, Any], shapes: Sequence[tuple[int, int]]) -> CameraLayout:
         fov = self.config.vertical_fov_deg
         cameras = []
         for camera, shape in zip(self.cameras, shapes, strict=True):
@@ -267,13 +370,9 @@ class SourceTransform:
                 tiles = tuple(Tile(t.x0, t.x1) for t in tiles)
             cameras.append((tuple(shape), tiles))
         try:
-            layout = camera_layout(tuple(cameras), tuple(self.config.image_size), fov)
+            return camera_layout(tuple(cameras), tuple(self.config.image_size), fov)
         except ValueError as err:
             raise ValueError(f"source {self.source!r}, cameras {self.cameras}: {err}") from None
-        if layout.letterboxed and layout not in self._reported:
-            self._reported.add(layout)
-            self._letterboxed(layout)
-        return layout
 
     def _letterboxed(self, layout: CameraLayout) -> None:
         (strip_h, strip_w), (h, w) = layout.strip, layout.image_size
@@ -331,8 +430,9 @@ class SourceTransform:
             out["depth"] = torch.from_numpy(render(layout, [metres], cv2.INTER_LINEAR, 0.0))
         semantic = sample.get(f"semantic_{camera}")
         if semantic is not None and space in self.config.semantic_classes:
-            ids = render(layout, [semantic.astype(np.int16)], cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
-            out["semantic"] = torch.from_numpy(ids.astype(np.int64))
+            if not (layout.identity and semantic.shape[:2] == layout.image_size):  # resampled: room for -1 padding
+                semantic = render(layout, [semantic.astype(np.int16)], cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
+            out["semantic"] = torch.from_numpy(semantic.astype(np.int64))
         return out
 
 
@@ -358,8 +458,13 @@ def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
     rows = np.floor((points[:, 0] - grid.x_min) * grid.pixels_per_meter).astype(np.int64)
     cols = np.floor((points[:, 1] - grid.y_min) * grid.pixels_per_meter).astype(np.int64)
     inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-    counts = np.bincount(rows[inside] * w + cols[inside], minlength=h * w).reshape(h, w)
-    return (np.minimum(counts, LIDAR_HITS_MAX) / LIDAR_HITS_MAX).astype(np.float32)
+    counts = np.bincount(rows[inside] * w + cols[inside], minlength=h * w)
+    np.minimum(counts, len(_LIDAR_LEVELS) - 1, out=counts)
+    return _LIDAR_LEVELS[counts].reshape(h, w)
+
+
+#: Raster value of a cell with k hits: min(k, 5) / 5 as float32, looked up instead of computed per cell.
+_LIDAR_LEVELS = (np.arange(int(LIDAR_HITS_MAX) + 1) / LIDAR_HITS_MAX).astype(np.float32)
 
 
 def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) -> dict[str, torch.Tensor]:
@@ -408,55 +513,85 @@ def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
 
 
 def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
-    """Class ids of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside the raster."""
+    """Class ids of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside the raster.
+
+    The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
+    (:func:`bev_gather_index`) and each sample is one gather."""
+    pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
+    index = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
+    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.int64)
+    values[:-1] = labels.reshape(-1)
+    values[-1] = -1  # where the index points for cells outside the raster
+    return values[index]
+
+
+@lru_cache(maxsize=64)
+def bev_gather_index(pixel_to_ego: tuple[tuple[float, ...], ...], shape: tuple[int, int], grid: BEVGrid) -> np.ndarray:
+    """(H, W) flat index into a raster of ``shape`` of every grid cell; ``shape[0] * shape[1]`` (one past the end)
+    outside it. :func:`~lead_s2r.geometry.raster_lookup` of a raster of flat indices, so both agree by construction."""
     xs, ys = bev_cell_centres(grid)
     x, y = np.meshgrid(xs, ys, indexing="ij")
-    return raster_lookup(labels, spec["pixel_to_ego"], x, y)
+    size = shape[0] * shape[1]
+    index = raster_lookup(np.arange(size).reshape(shape), np.asarray(pixel_to_ego), x, y, fill=size)
+    index.flags.writeable = False  # shared by every sample
+    return index
 
 
 def centernet_targets(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, torch.Tensor]:
     """CenterNet targets on ``grid`` at stride 4: Gaussian heatmaps per class and per-box regression targets.
 
     With a single class only vehicles are kept (NAVSIM's agent head); otherwise the class is the unified
-    :class:`~lead_s2r.schema.BoxClass` id.
+    :class:`~lead_s2r.schema.BoxClass` id. The first :data:`MAX_BOXES` boxes whose centre falls on the grid count.
+    Each Gaussian is drawn only where it is non-zero in float32 (:func:`_gaussian_radius`), which gives the same
+    heatmap as drawing it over the whole grid.
     """
-    xs, ys = bev_cell_centres(grid, CENTERNET_STRIDE)
-    h, w = len(xs), len(ys)
+    h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
     cell = CENTERNET_STRIDE / grid.pixels_per_meter
+    boxes = np.asarray(boxes, np.float32).reshape(-1, 10)
+    labels = boxes[:, 9].astype(np.int64)
+    if num_classes == 1:
+        keep, labels = labels == BoxClass.VEHICLE, np.zeros_like(labels)
+    else:
+        keep = labels < num_classes
+    row_f, col_f = (boxes[:, 0] - grid.x_min) / cell, (boxes[:, 1] - grid.y_min) / cell
+    rows, cols = np.floor(row_f).astype(np.int64), np.floor(col_f).astype(np.int64)
+    keep &= (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    chosen = np.flatnonzero(keep)[:MAX_BOXES]
+    n = len(chosen)
+    sigma = np.maximum(np.float32(0.5), np.minimum(boxes[chosen, 3], boxes[chosen, 4]) / cell / 6.0)
     heatmap = np.zeros((num_classes, h, w), np.float32)
+    for label, row, col, denominator in zip(labels[chosen], rows[chosen], cols[chosen], 2 * sigma**2, strict=True):
+        _draw_gaussian(heatmap[label], int(row), int(col), float(denominator))
     regression = {
         "box_index": np.zeros(MAX_BOXES, np.int64),
-        "box_valid": np.zeros(MAX_BOXES, bool),
+        "box_valid": np.arange(MAX_BOXES) < n,
         "box_offset": np.zeros((MAX_BOXES, 2), np.float32),
         "box_size": np.zeros((MAX_BOXES, 2), np.float32),
         "box_yaw": np.zeros(MAX_BOXES, np.float32),
         "box_velocity": np.zeros(MAX_BOXES, np.float32),
     }
-    slot = 0
-    rows_grid, cols_grid = np.arange(h)[:, None], np.arange(w)[None, :]
-    for box in boxes:
-        label = int(box[9])
-        if num_classes == 1:
-            if label != BoxClass.VEHICLE:
-                continue
-            label = 0
-        elif label >= num_classes:
-            continue
-        row_f, col_f = (box[0] - grid.x_min) / cell, (box[1] - grid.y_min) / cell
-        row, col = math.floor(row_f), math.floor(col_f)
-        if not (0 <= row < h and 0 <= col < w) or slot == MAX_BOXES:
-            continue
-        sigma = max(0.5, min(box[3], box[4]) / cell / 6.0)
-        gaussian = np.exp(-((rows_grid - row) ** 2 + (cols_grid - col) ** 2) / (2 * sigma**2)).astype(np.float32)
-        np.maximum(heatmap[label], gaussian, out=heatmap[label])
-        regression["box_index"][slot] = row * w + col
-        regression["box_valid"][slot] = True
-        regression["box_offset"][slot] = (row_f - row, col_f - col)
-        regression["box_size"][slot] = (box[3], box[4])
-        regression["box_yaw"][slot] = box[6]
-        regression["box_velocity"][slot] = math.hypot(box[7], box[8])
-        slot += 1
+    regression["box_index"][:n] = rows[chosen] * w + cols[chosen]
+    regression["box_offset"][:n, 0] = row_f[chosen] - rows[chosen].astype(np.float32)
+    regression["box_offset"][:n, 1] = col_f[chosen] - cols[chosen].astype(np.float32)
+    regression["box_size"][:n] = boxes[chosen, 3:5]
+    regression["box_yaw"][:n] = boxes[chosen, 6]
+    regression["box_velocity"][:n] = np.hypot(boxes[chosen, 7].astype(np.float64), boxes[chosen, 8].astype(np.float64))
     return {"box_heatmap": torch.from_numpy(heatmap), **{k: torch.from_numpy(v) for k, v in regression.items()}}
+
+
+#: exp(-q) rounds to 0 in float32 beyond this q (below half the smallest subnormal, 2**-150: ln 2**-150 = -103.97).
+_FLOAT32_EXP_ZERO = 104.0
+
+
+def _draw_gaussian(heatmap: np.ndarray, row: int, col: int, denominator: float) -> None:
+    """``heatmap = max(heatmap, exp(-d^2 / denominator))`` (d: cell distance from (row, col)), in float64 rounded to
+    float32, over the window outside which every value is 0 in float32."""
+    radius = math.isqrt(int(_FLOAT32_EXP_ZERO * denominator)) + 1
+    r0, r1 = max(row - radius, 0), min(row + radius + 1, heatmap.shape[0])
+    c0, c1 = max(col - radius, 0), min(col + radius + 1, heatmap.shape[1])
+    d2 = (np.arange(r0, r1)[:, None] - row) ** 2 + (np.arange(c0, c1)[None, :] - col) ** 2
+    gaussian = np.exp(-d2 / denominator).astype(np.float32)
+    np.maximum(heatmap[r0:r1, c0:c1], gaussian, out=heatmap[r0:r1, c0:c1])
 
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
@@ -472,7 +607,10 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     names = set().union(*samples)
     batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in names if name.startswith("__")}
     for key in sorted(name for name in names if not name.startswith("__")):
-        template = next(sample[key] for sample in samples if key in sample)
-        filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
-        batch[key] = torch.stack([sample.get(key, filler) for sample in samples])
+        values = [sample.get(key) for sample in samples]
+        if any(value is None for value in values):  # the filler is only built where a sample lacks the label
+            template = next(value for value in values if value is not None)
+            filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
+            values = [filler if value is None else value for value in values]
+        batch[key] = torch.stack(values)
     return batch

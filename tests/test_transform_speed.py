@@ -1,0 +1,284 @@
+"""The fast transforms against their straightforward definitions, kept here as the reference.
+
+Each reference is the plain form of what the transform computes (one Gaussian over the whole grid per box, one
+nearest-pixel lookup per cell, a full-size BGR decode resampled by the layout). Outputs must be bit-identical,
+except an image decoded at reduced JPEG size, which stays within the stated tolerance.
+"""
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from lead_s2r.data.transforms import (
+    CENTERNET_STRIDE,
+    IGNORE_VALUE,
+    LIDAR_HITS_MAX,
+    MAX_BOXES,
+    SourceTransform,
+    Tile,
+    bev_cell_centres,
+    bev_labels,
+    camera_layout,
+    centernet_targets,
+    jpeg_reduction,
+    rasterize_lidar,
+    render,
+)
+from lead_s2r.geometry import raster_lookup
+from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
+from lead_s2r.registry import get_adapter
+from lead_s2r.schema import BoxClass
+from lead_s2r.synthetic.carla_lead import generate
+
+# --------------------------------------------------------------------------- references
+
+
+def reference_centernet(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, np.ndarray]:
+    xs, ys = bev_cell_centres(grid, CENTERNET_STRIDE)
+    h, w = len(xs), len(ys)
+    cell = CENTERNET_STRIDE / grid.pixels_per_meter
+    out = {
+        "box_heatmap": np.zeros((num_classes, h, w), np.float32),
+        "box_index": np.zeros(MAX_BOXES, np.int64),
+        "box_valid": np.zeros(MAX_BOXES, bool),
+        "box_offset": np.zeros((MAX_BOXES, 2), np.float32),
+        "box_size": np.zeros((MAX_BOXES, 2), np.float32),
+        "box_yaw": np.zeros(MAX_BOXES, np.float32),
+        "box_velocity": np.zeros(MAX_BOXES, np.float32),
+    }
+    slot = 0
+    rows_grid, cols_grid = np.arange(h)[:, None], np.arange(w)[None, :]
+    for box in boxes:
+        label = int(box[9])
+        if num_classes == 1:
+            if label != BoxClass.VEHICLE:
+                continue
+            label = 0
+        elif label >= num_classes:
+            continue
+        row_f, col_f = (box[0] - grid.x_min) / cell, (box[1] - grid.y_min) / cell
+        row, col = math.floor(row_f), math.floor(col_f)
+        if not (0 <= row < h and 0 <= col < w) or slot == MAX_BOXES:
+            continue
+        sigma = max(0.5, min(box[3], box[4]) / cell / 6.0)
+        gaussian = np.exp(-((rows_grid - row) ** 2 + (cols_grid - col) ** 2) / (2 * sigma**2)).astype(np.float32)
+        np.maximum(out["box_heatmap"][label], gaussian, out=out["box_heatmap"][label])
+        out["box_index"][slot] = row * w + col
+        out["box_valid"][slot] = True
+        out["box_offset"][slot] = (row_f - row, col_f - col)
+        out["box_size"][slot] = (box[3], box[4])
+        out["box_yaw"][slot] = box[6]
+        out["box_velocity"][slot] = math.hypot(box[7], box[8])
+        slot += 1
+    return out
+
+
+def reference_bev_labels(labels: np.ndarray, pixel_to_ego: list, grid: BEVGrid) -> np.ndarray:
+    xs, ys = bev_cell_centres(grid)
+    x, y = np.meshgrid(xs, ys, indexing="ij")
+    return raster_lookup(labels, pixel_to_ego, x, y)
+
+
+def reference_lidar(points: np.ndarray, grid: BEVGrid) -> np.ndarray:
+    h, w = grid.shape
+    rows = np.floor((points[:, 0] - grid.x_min) * grid.pixels_per_meter).astype(np.int64)
+    cols = np.floor((points[:, 1] - grid.y_min) * grid.pixels_per_meter).astype(np.int64)
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    counts = np.bincount(rows[inside] * w + cols[inside], minlength=h * w).reshape(h, w)
+    return (np.minimum(counts, LIDAR_HITS_MAX) / LIDAR_HITS_MAX).astype(np.float32)
+
+
+def reference_camera(transform: SourceTransform, sample: dict) -> dict[str, np.ndarray]:
+    """Full-size BGR decode, the layout of the decoded shapes applied to image and labels, as the definition."""
+    images = [cv2.imdecode(np.frombuffer(sample[f"cam_{c}"], np.uint8), cv2.IMREAD_COLOR) for c in transform.cameras]
+    layout = transform.layout(sample["meta"], [image.shape[:2] for image in images])
+    rgb = render(layout, images, cv2.INTER_AREA, 0)
+    out = {"rgb": np.ascontiguousarray(rgb[:, :, ::-1].transpose(2, 0, 1))}
+    camera = transform.cameras[0]
+    if f"semantic_{camera}" in sample:
+        semantic = sample[f"semantic_{camera}"].astype(np.int16)
+        out["semantic"] = render(layout, [semantic], cv2.INTER_NEAREST, IGNORE_VALUE["semantic"]).astype(np.int64)
+    if f"depth_{camera}" in sample:
+        metres = sample[f"depth_{camera}"].astype(np.float32) / 255.0 * float(sample["meta"]["depth"]["max_m"])
+        out["depth"] = render(layout, [metres], cv2.INTER_LINEAR, 0.0)
+    return out
+
+
+# --------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="module")
+def carla_samples(tmp_path_factory: pytest.TempPathFactory) -> list[dict]:
+    """Two frames of a generated LEAD route, as the adapter yields them (every field, decoded)."""
+    src = tmp_path_factory.mktemp("lead")
+    generate(Path(src), count=1, seed=7, frames=2)
+    adapter = get_adapter("carla_lead")
+    return [sample for log in adapter.list_logs(src) for sample in adapter.iter_samples(log)]
+
+
+def random_boxes(rng: np.random.Generator, n: int) -> np.ndarray:
+    boxes = np.zeros((n, 10), np.float32)
+    boxes[:, 0] = rng.uniform(-40, 70, n)  # some fall off the CARLA grid (x in [-32, 64))
+    boxes[:, 1] = rng.uniform(-45, 45, n)
+    boxes[:, 2] = rng.uniform(0, 2, n)
+    boxes[:, 3] = rng.uniform(0.5, 14, n)  # up to bus-sized: sigma above the 0.5-cell floor
+    boxes[:, 4] = rng.uniform(0.5, 9, n)
+    boxes[:, 5] = rng.uniform(1, 4, n)
+    boxes[:, 6] = rng.uniform(-math.pi, math.pi, n)
+    boxes[:, 7:9] = rng.normal(0, 5, (n, 2))
+    boxes[:, 9] = rng.integers(0, 12, n)  # classes 10 and 11 are beyond a 10-class head
+    return boxes
+
+
+# --------------------------------------------------------------------------- equality
+
+
+@pytest.mark.parametrize(
+    ("n", "num_classes", "grid"),
+    [
+        (0, 10, CARLA_BEV),
+        (30, 10, CARLA_BEV),
+        (200, 10, CARLA_BEV),
+        (40, 1, NAVSIM_BEV),
+        (3, 10, BEVGrid(-8, 8, -8, 8, 8.0)),
+    ],
+)
+def test_centernet_targets_equal_the_whole_grid_definition(n: int, num_classes: int, grid: BEVGrid) -> None:
+    boxes = random_boxes(np.random.default_rng(n), n)
+    expected = reference_centernet(boxes, grid, num_classes)
+    got = centernet_targets(boxes, grid, num_classes)
+    assert set(got) == set(expected)
+    for name, value in expected.items():
+        assert got[name].dtype == torch.from_numpy(value).dtype, name
+        np.testing.assert_array_equal(got[name].numpy(), value, err_msg=name)
+    if n == 200:  # the cap binds: only the first 64 boxes on the grid are drawn, one peak each
+        assert expected["box_valid"].all() and (expected["box_heatmap"] == 1.0).sum() == MAX_BOXES
+
+
+@pytest.mark.parametrize(
+    "pixel_to_ego",
+    [
+        [[0.0, -0.5, 65.139], [-0.5, 0.0, 63.75]],  # LEAD's hdmap: 2 px/m, rows along -x, columns along -y
+        [[0.25, 0.0, -20.0], [0.0, 0.25, -31.0]],  # axis-aligned, 4 px/m, partly outside the grid
+        [[0.3, -0.4, 3.0], [0.4, 0.3, -7.0]],  # rotated and scaled
+    ],
+)
+@pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV])
+def test_bev_labels_equal_the_per_cell_lookup(pixel_to_ego: list, grid: BEVGrid) -> None:
+    labels = np.random.default_rng(1).integers(0, 11, (256, 200), dtype=np.uint8)
+    expected = reference_bev_labels(labels, pixel_to_ego, grid)
+    got = bev_labels(labels, {"pixel_to_ego": pixel_to_ego}, grid)
+    assert got.dtype == expected.dtype == np.int64
+    np.testing.assert_array_equal(got, expected)
+    assert (expected == -1).any() or grid is NAVSIM_BEV  # the raster does not cover every grid
+
+
+def test_bev_labels_follow_each_samples_raster_not_a_cached_one() -> None:
+    spec = {"pixel_to_ego": [[0.0, -0.5, 65.139], [-0.5, 0.0, 63.75]]}
+    first, second = np.zeros((256, 256), np.uint8), np.full((256, 256), 7, np.uint8)
+    bev_labels(first, spec, CARLA_BEV)
+    assert set(np.unique(bev_labels(second, spec, CARLA_BEV))) <= {-1, 7}
+
+
+def test_lidar_raster_equals_the_saturated_histogram() -> None:
+    rng = np.random.default_rng(2)
+    points = np.vstack([rng.uniform([-40, -50, -2, 0], [70, 50, 3, 1], (5000, 4)), np.tile([[3.1, 2.2, 0, 0]], (9, 1))])
+    expected = reference_lidar(points.astype(np.float32), CARLA_BEV)
+    got = rasterize_lidar(points.astype(np.float32), CARLA_BEV)
+    assert got.dtype == np.float32 and got.max() == 1.0
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples: list[dict]) -> None:
+    transform = SourceTransform("carla", tfv6_config())  # paper size: the 1152x384 mosaic is the input
+    for sample in carla_samples:
+        expected = reference_camera(transform, sample)
+        got = transform(sample)
+        assert set(expected) == {"rgb", "semantic", "depth"}
+        for name, value in expected.items():
+            assert got[name].dtype == torch.from_numpy(value).dtype and got[name].is_contiguous(), name
+            np.testing.assert_array_equal(got[name].numpy(), value, err_msg=name)
+
+
+def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> None:
+    transform = SourceTransform("carla", tfv6_config(image_size=(256, 1024)))  # 3:1 strip into 4:1: letterboxed
+    with pytest.warns(UserWarning, match="letterboxed"):
+        got = transform(carla_samples[0])
+    expected = reference_camera(transform, carla_samples[0])
+    for name, value in expected.items():
+        np.testing.assert_array_equal(got[name].numpy(), value, err_msg=name)
+
+
+def test_the_transform_reads_only_its_fields_and_gives_the_same_tensors(carla_samples: list[dict]) -> None:
+    transform = SourceTransform("carla", tfv6_config())
+    assert "past" not in transform.fields and "agents_future" not in transform.fields
+    for sample in carla_samples:
+        assert {"past", "agents_future"} <= set(sample)  # the adapter wrote them; the model reads neither
+        narrow = {k: v for k, v in sample.items() if k in {*transform.fields, "meta", "__key__"}}
+        full, fast = transform(sample), transform(narrow)
+        assert set(full) == set(fast)
+        for name, value in full.items():
+            if isinstance(value, torch.Tensor):
+                assert torch.equal(value, fast[name]), name
+
+
+def smooth_camera_sample(width: int, height: int) -> dict:
+    """One calibrated camera of ``width`` x ``height`` showing a smooth scene (gradients and soft blobs)."""
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:height, 0:width] / max(width, height)
+    image = np.stack([128 + 100 * np.sin(6 * x + 3 * y), 128 + 100 * np.cos(4 * y - 2 * x), 255 * x], axis=2)
+    image = cv2.GaussianBlur(image + rng.normal(0, 20, image.shape), (0, 0), 4).clip(0, 255).astype(np.uint8)
+    camera = {
+        "id": "front",
+        "width": width,
+        "height": height,
+        "K": [[width, 0, width / 2], [0, width, height / 2], [0, 0, 1]],
+    }
+    meta = {"cameras": [camera]}
+    return {"__key__": "k", "meta": meta, "cam_front": cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1]}
+
+
+@pytest.mark.filterwarnings("ignore:source 'navsim'.*letterboxed")
+@pytest.mark.parametrize(
+    ("image_size", "factor"),
+    [((270, 480), 4), ((540, 960), 2), ((135, 240), 8), ((720, 1280), 1), ((200, 480), 4)],  # the last letterboxed
+)
+def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int], factor: int) -> None:
+    sample = smooth_camera_sample(1920, 1080)
+    transform = SourceTransform("navsim", tfv6_config(image_size=image_size), ["front"])
+    layout = transform.layout(sample["meta"], [(1080, 1920)])
+    assert jpeg_reduction(layout)[0] == factor
+    rgb, _ = transform.image(sample)
+    expected = reference_camera(transform, sample)["rgb"]
+    assert rgb.shape == expected.shape == (3, *image_size)
+    diff = np.abs(rgb.numpy().astype(np.int16) - expected)
+    assert diff.mean() <= 0.5 and diff.max() <= 4, (diff.mean(), diff.max())
+    if factor == 1:
+        assert diff.max() == 0
+
+
+@pytest.mark.filterwarnings("ignore:source 'carla'.*letterboxed")
+@pytest.mark.parametrize("image_size", [(270, 480), (200, 480)])
+def test_labels_of_a_reduced_decode_follow_the_full_size_layout(image_size: tuple[int, int]) -> None:
+    sample = smooth_camera_sample(1920, 1080)
+    rng = np.random.default_rng(4)
+    sample["semantic_front"] = np.kron(rng.integers(0, 20, (27, 48)), np.ones((40, 40))).astype(np.uint8)
+    sample["depth_front"] = rng.integers(0, 256, (270, 480)).astype(np.uint8)  # stored at 1/4, like LEAD's
+    sample["meta"]["depth"] = {"max_m": 50.0}
+    transform = SourceTransform("carla", tfv6_config(image_size=image_size), ["front"])
+    _, layout = transform.image(sample)
+    assert jpeg_reduction(layout)[0] == 4
+    got = transform.perspective_labels(sample, "carla", layout)
+    expected = reference_camera(transform, sample)
+    for name in ("semantic", "depth"):
+        np.testing.assert_array_equal(got[name].numpy(), expected[name], err_msg=name)
+
+
+def test_ltfv6_on_four_navsim_cameras_decodes_at_a_quarter() -> None:
+    camera = ((1080, 1920), (Tile(0, 1920, 1545.0, 540.0),))
+    layout = camera_layout((camera,) * 4, (270, 1920), NAVSIM_VERTICAL_FOV_DEG)
+    assert jpeg_reduction(layout) == (4, cv2.IMREAD_REDUCED_COLOR_4 & ~cv2.IMREAD_COLOR)
