@@ -13,17 +13,19 @@ import numpy as np
 import shapely
 
 from lead_s2r.scoring.pdm.footprint import box_polygons
+from lead_s2r.scoring.pdm.map_flags import LANE_KINDS
 from lead_s2r.scoring.pdm.scene import PDMScene
 
 #: Tolerance [s] when matching step times with keyframe times.
 TIME_SLACK_S = 1e-6
 
 
-def _polygons_by_id(scene: PDMScene, ids: np.ndarray) -> dict[int, shapely.Polygon]:
-    """The map polygons of ``ids`` (their first polygon when an id repeats)."""
+def _lane_polygons(scene: PDMScene, ids: np.ndarray) -> dict[int, shapely.Polygon]:
+    """The LANE / LANE_CONNECTOR polygons of ``ids`` (the first when an id repeats; other kinds may share ids)."""
     offsets = np.asarray(scene.polygon_offsets, np.int64)
     out: dict[int, shapely.Polygon] = {}
-    for k in np.flatnonzero(np.isin(scene.polygon_id, ids)):
+    is_lane = np.isin(scene.polygon_kind, LANE_KINDS)
+    for k in np.flatnonzero(np.isin(scene.polygon_id, ids) & is_lane):
         out.setdefault(int(scene.polygon_id[k]), shapely.Polygon(scene.polygon_xy[offsets[k] : offsets[k + 1]]))
     return out
 
@@ -40,7 +42,7 @@ def red_light_polygons(scene: PDMScene, num_steps: int, interval: float = 0.1) -
             "it needs one more than red_light_t (rebuild scoring.npz)"
         )
     on_route = np.asarray(scene.light_route_lane_ids, np.int64)
-    polygons = _polygons_by_id(scene, np.intersect1d(np.asarray(scene.red_light_ids, np.int64), on_route))
+    polygons = _lane_polygons(scene, np.intersect1d(np.asarray(scene.red_light_ids, np.int64), on_route))
     keyframe = np.searchsorted(keyframe_t, np.arange(num_steps) * interval + TIME_SLACK_S, side="right") - 1
     per_keyframe = [
         [polygons[i] for i in np.unique(scene.red_light_ids[offsets[k] : offsets[k + 1]]) if int(i) in polygons]
