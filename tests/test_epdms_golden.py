@@ -127,3 +127,20 @@ def test_the_filter_acts_where_the_human_fails() -> None:
         scene, np.asarray(trajectory["poses"])[None], 0.5, reference_poses(case), metric=EPDMS_METRIC
     )
     assert unfiltered[E.NC][0] == 0.0 and unfiltered["score"][0] == 0.0
+
+
+def test_states_come_back_for_two_stage_ec() -> None:
+    """``with_states``: the proposals' simulated states, those NAVSIM's aggregation compares for EC."""
+    case = CASES["N17_ec_pairs"]
+    trajectory = case["trajectories"][0]
+    scores = score_proposals(
+        golden_scene(case),
+        np.asarray(trajectory["poses"])[None],
+        0.5,
+        reference_poses(case),
+        metric=EPDMS_METRIC,
+        with_states=True,
+    )
+    official = ego_frame(case).states(np.asarray(trajectory["official"]["simulated_states"]))
+    assert scores["simulated_states"].shape == (1, 41, 11)
+    assert np.abs(scores["simulated_states"][0] - official).max() < 2e-6

@@ -269,12 +269,15 @@ def score_proposals(
     *,
     observation: Observation | None = None,
     drivable_map: DrivableMap | None = None,
+    with_states: bool = False,
 ) -> dict[str, np.ndarray]:
     """``metric`` (PDMS v1.1 or EPDMS v2.2) of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``),
     one row each, with the columns of :data:`COLUMNS` or :data:`EPDMS_COLUMNS`. ``reference (M, 3)``: the EP
     normaliser's trajectory at 0.1 s steps from t = 0 (row 0 is the initial pose); None plans it with PDM-Closed.
-    ``previous`` (EPDMS only): per proposal the frame before it for EC, or None (EC NaN). The scene's ``t0_us`` (when
-    known) reproduces NAVSIM's microsecond truncation of the interpolation times (see ``interpolation``)."""
+    ``previous`` (EPDMS only): per proposal the frame before it for EC, or None (EC NaN). ``with_states`` adds the
+    proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``).
+    The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
+    ``interpolation``)."""
     if metric not in METRICS:
         raise ValueError(f"metric {metric!r} is not scored here; score_proposals computes {' and '.join(METRICS)}")
     if previous is not None and metric != EPDMS_METRIC:
@@ -290,18 +293,19 @@ def score_proposals(
     states = simulate_proposals(
         np.concatenate(targets), scene.ego_velocity, scene.ego_acceleration, scene.tire_steering_angle, scene.vehicle
     )
+    agents = slice(1, 1 + len(proposals))
+    extra = {"simulated_states": states[agents]} if with_states else {}
     if metric == METRIC:
         observation = log_observation(scene) if observation is None else observation
         scores = score_states(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
-        return {name: scores[name][1:] for name in COLUMNS}
+        return {name: scores[name][agents] for name in COLUMNS} | extra
     observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
     scores = score_states_v2(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
-    agents = slice(1, 1 + len(proposals))
     human_row = None if human is None else {name: scores[name][-1] for name in E.FILTERED} | {E.EP: 1.0, E.HC: 1.0}
     columns = E.human_penalty_filter({name: scores[name][agents] for name in E.FILTERED}, human_row)
     columns[E.EC] = extended_comfort(scene, states[agents], previous)
     columns["score"] = E.epdms(columns)
-    return columns | {name: scores[name][agents] for name in COLUMNS[-4:]}
+    return columns | {name: scores[name][agents] for name in COLUMNS[-4:]} | extra
 
 
 def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:
