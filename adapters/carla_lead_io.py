@@ -13,9 +13,10 @@ from typing import Any
 import numpy as np
 
 from lead_s2r import restricted_pickle
+from lead_s2r.errors import UserError
 
 
-class LeadFormatError(ValueError):
+class LeadFormatError(UserError, ValueError):
     """A LEAD file that cannot be read as LEAD writes it; the message names the file and the field."""
 
     def __init__(self, path: Path, problem: str, field: str | None = None) -> None:

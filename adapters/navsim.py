@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from lead_s2r import restricted_pickle
+from lead_s2r.errors import UserError
 from lead_s2r.geometry import rotate, to_global, to_local, wrap_angle
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key
@@ -67,7 +68,7 @@ TWO_STAGE_LOGS, TWO_STAGE_SENSORS, TWO_STAGE_SYNTHETIC = (
 )
 
 
-class NavsimFormatError(ValueError):
+class NavsimFormatError(UserError, ValueError):
     """A source file breaks the OpenScene format; the message names the file and the field."""
 
 
@@ -303,6 +304,17 @@ class NavsimAdapter(Adapter):
             raise ValueError("need num_history_frames >= 2, num_future_frames >= 1 and frame_interval >= 1")
         self.mapping = read_two_stage_mapping(Path(two_stage_mapping)) if two_stage_mapping else None
         self._roles = two_stage_roles(self.mapping or [])
+
+    def options(self) -> dict[str, Any]:
+        return {
+            "split": self.split,
+            "scene_filter": self.filter_path,
+            "maps": None if self.maps is None else str(self.maps),
+            "num_history_frames": self.history,
+            "num_future_frames": self.future,
+            "frame_interval": self.interval,
+            "map_radius": self.map_radius,
+        }
 
     # ----------------------------------------------------------------------- logs
 

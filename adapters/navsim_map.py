@@ -16,6 +16,7 @@ import numpy as np
 import pyarrow as pa
 import shapely
 
+from lead_s2r.errors import UserError
 from lead_s2r.geometry import box_corners, points_to_local
 from lead_s2r.schema import BevClassNavsim, BoxClass, MapKind
 
@@ -36,7 +37,7 @@ POLYGON_LAYERS = {
 OPTIONAL_LAYERS = {"walkways"}
 
 
-class MapError(ValueError):
+class MapError(UserError, ValueError):
     """A map file, layer or field is missing or malformed; the message names it."""
 
 

@@ -20,6 +20,9 @@ import crc32c
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from lead_s2r.errors import UserError
+from lead_s2r.processes import exit_with_parent
+
 HEADER = 12  # uint64 length + uint32 crc of the length
 FOOTER = 4  # uint32 crc of the payload
 _MASK_DELTA = 0xA282EAD8
@@ -27,7 +30,7 @@ _INDEX_COLUMNS = {"shard": pa.string(), "offset": pa.int64(), "length": pa.int64
 _STAMP_KEY = b"lead_s2r.shards"
 
 
-class TFRecordError(ValueError):
+class TFRecordError(UserError, ValueError):
     """A record that cannot be trusted; names the shard and the byte offset of the record."""
 
     def __init__(self, path: str | Path, offset: int, problem: str, framing_intact: bool = False) -> None:
@@ -169,7 +172,8 @@ def build_index(
     marks the record as skipped.
     """
     if workers > 1:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(workers, context, initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
             parts = list(pool.map(_index_shard, shards, [describe] * len(shards)))
     else:
         parts = [_index_shard(shard, describe) for shard in shards]

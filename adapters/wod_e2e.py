@@ -6,9 +6,10 @@ length, sequence, frame, has_future, n_rated``; cached as parquet under ``index_
 the byte ranges of its frames; workers read them by random access in frame order.
 
 Bad records (CRC mismatch, truncated tail, a payload that is not an ``E2EDFrame``) are found by the indexing
-pass: each is left out with a record naming shard and offset (``describe()['skipped_records']``, hence in
-info.json) and every other record converts; ``strict=True`` makes any of them fail ``list_logs`` instead. A
-record that goes bad after indexing fails its log in the worker, with the same shard/offset message.
+pass: each is left out with a record naming shard and offset (:meth:`WodE2EAdapter.bad_records`; the conversion
+reports them in errors.jsonl, its summary line and its exit status) and every other record converts;
+``strict=True`` makes any of them fail ``list_logs`` instead. A record that goes bad after indexing fails its
+log in the worker, with the same shard/offset message.
 
 WOD-E2E trajectories are already in our frame (ISO 8855, origin at the rear axle at t0): nothing is flipped.
 """
@@ -23,6 +24,7 @@ import numpy as np
 import pyarrow as pa
 from google.protobuf.message import DecodeError
 
+from lead_s2r.errors import UserError
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
 from lead_s2r_adapters.tfrecord import RecordReader, cached_index
@@ -54,7 +56,7 @@ MIN_SPEED_FOR_YAW_RATE = 0.5
 INDEX_SCHEMA = {"sequence": pa.string(), "frame": pa.int32(), "has_future": pa.bool_(), "n_rated": pa.int32()}
 
 
-class WodE2EError(ValueError):
+class WodE2EError(UserError, ValueError):
     """A record whose content breaks what the adapter expects; names the shard, offset and field."""
 
 
@@ -357,6 +359,12 @@ class WodE2EAdapter(Adapter):
             recent[frame_idx] = (front, sample["cam_front"])
         for old in [f for f in recent if f < frame_idx - self.history + 1]:
             del recent[old]
+
+    def options(self) -> dict[str, Any]:
+        return {"history": self.history}  # index_dir, index_workers and strict never change a sample
+
+    def bad_records(self) -> list[dict[str, Any]]:
+        return list(self.skipped)
 
     def describe(self) -> dict[str, Any]:
         return {

@@ -9,12 +9,17 @@ LTFv6: NAVSIM rig (4-camera 1920x270 mosaic, coordinate-grid BEV 256x256), NAVSI
 
 import argparse
 import resource
+import sys
 import time
+from pathlib import Path
 
 import torch
 
 from lead_s2r.models.config import ltfv6_config, tfv6_config
-from lead_s2r.models.inputs import random_batch
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))  # random model inputs live with the tests
+from batches import random_batch
+
 from lead_s2r.models.tfv6 import TFv6, count_parameters
 from lead_s2r.training.module import DrivingModule
 

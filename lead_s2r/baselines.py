@@ -28,3 +28,29 @@ def predict_constant_turn_rate(sample: dict[str, Any], t: np.ndarray | None = No
     return Prediction(
         sample["__key__"], sample["meta"]["dataset"], np.asarray(t, np.float32), poses[:, :2], poses[:, 2]
     )
+
+
+#: NAVSIM's agent output grid: 8 poses at 0.5 s.
+NAVSIM_GRID = 0.5 * np.arange(1, 9)
+
+
+def predict_human(sample: dict[str, Any], horizon: float = 4.0) -> Prediction:
+    """The logged future up to ``horizon`` seconds (NAVSIM's HumanAgent; the paper's "Expert" row)."""
+    if "future" not in sample:
+        raise ValueError(f"sample {sample['__key__']!r} has no future to replay")
+    future = np.asarray(sample["future"], np.float64)
+    kept = future[future[:, 0] <= horizon + 1e-3]
+    return Prediction(
+        sample["__key__"], sample["meta"]["dataset"], kept[:, 0].astype(np.float32), kept[:, 1:3], kept[:, 3]
+    )
+
+
+def predict_constant_velocity(sample: dict[str, Any], t: np.ndarray = NAVSIM_GRID) -> Prediction:
+    """NAVSIM's ConstantVelocityAgent: straight ahead at the current speed, heading kept (no turn rate)."""
+    poses = constant_turn_rate(float(np.hypot(*sample["meta"]["ego"]["velocity"])), 0.0, t)
+    key, dataset = sample["__key__"], sample["meta"]["dataset"]
+    return Prediction(key, dataset, np.asarray(t, np.float32), poses[:, :2], poses[:, 2])
+
+
+#: ``lead-s2r score --planner NAME``: model-free planners that predict from a converted sample.
+PLANNERS = {"human": predict_human, "constant-velocity": predict_constant_velocity}

@@ -1,4 +1,10 @@
-"""The ``lead-s2r`` command line."""
+"""The ``lead-s2r`` command line.
+
+Every mistake a user can fix is a :class:`~lead_s2r.errors.UserError`, raised wherever it is found; ``main()``
+prints it as one line with exit status 2 (``--debug`` anywhere on the line shows the traceback). argparse's own
+mistakes are routed through the same path, so every verb fails alike. Inputs are checked before any output folder
+is created.
+"""
 
 import argparse
 import importlib
@@ -7,12 +13,22 @@ import sys
 import types
 import typing
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from lead_s2r import __version__
+from lead_s2r.errors import UserError
 from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, names
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
+DEBUG_FLAG = "--debug"
+USER_ERROR_STATUS = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose mistakes are :class:`UserError`, so they print as one line like every other."""
+
+    def error(self, message: str) -> NoReturn:
+        raise UserError(f"{self.prog}: {message} (see {self.prog} --help)")
 
 
 def _cast(value: str, annotation: Any) -> Any:
@@ -37,14 +53,14 @@ def adapter_options(adapter_cls: type, argv: list[str]) -> dict[str, Any]:
         name = token[2:].replace("-", "_") if token.startswith("--") else None
         if name is None or name not in hints or name == "return":
             known = ", ".join(f"--{n.replace('_', '-')}" for n in hints if n != "return") or "none"
-            raise SystemExit(f"error: unknown option {token!r} for adapter {adapter_cls.name}; it takes: {known}")
+            raise UserError(f"unknown option {token!r} for adapter {adapter_cls.name}; it takes: {known}")
         value = next(tokens, None)
         if value is None:
-            raise SystemExit(f"error: option {token} needs a value")
+            raise UserError(f"option {token} of adapter {adapter_cls.name} needs a value")
         try:
             options[name] = _cast(value, hints[name])
         except ValueError as err:
-            raise SystemExit(f"error: option {token}: {err}") from None
+            raise UserError(f"option {token} of adapter {adapter_cls.name}: {err}") from None
     return options
 
 
@@ -62,7 +78,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
     try:
         module = importlib.import_module(f"lead_s2r.synthetic.{args.name}")
     except ModuleNotFoundError:
-        raise SystemExit(f"error: no synthetic generator {args.name!r}") from None
+        raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim or wod_e2e") from None
     module.generate(Path(args.out), count=args.count, seed=args.seed)
     print(f"wrote synthetic {args.name} data to {args.out}")
     return 0
@@ -70,12 +86,14 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
     from lead_s2r.convert import convert
+    from lead_s2r.shards import ERRORS
 
+    cls = load(args.adapter)
+    options = adapter_options(cls, extra)
     try:
-        cls = load(args.adapter)
-    except RegistryError as err:
-        raise SystemExit(f"error: {err}") from None
-    adapter = cls(**adapter_options(cls, extra))
+        adapter = cls(**options)
+    except (ValueError, TypeError) as err:  # an adapter's constructor validates its options
+        raise UserError(f"adapter {args.adapter}: {err}; see docs/datasets/{args.adapter}.md for its options") from None
     result = convert(
         adapter,
         args.src,
@@ -87,35 +105,44 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
         progress=not args.quiet,
     )
     done = f"{result.logs_resumed} already done, {len(result.skipped)} skipped, {len(result.errors)} failed"
-    print(f"{result.samples} samples from {result.logs_converted} logs ({done}) -> {args.out}")
+    bad = f", {len(result.bad_records)} bad records left out" if result.bad_records else ""
+    print(f"{result.samples} samples from {result.logs_converted} logs ({done}{bad}) -> {args.out}")
     for error in result.errors:
         print(f"  failed {error['log']}: {error['error']}", file=sys.stderr)
+    for record in result.bad_records:
+        print(f"  bad record: {record['error']}", file=sys.stderr)
+    if not result.ok:
+        print(f"  details: {Path(args.out) / ERRORS}", file=sys.stderr)
     return 0 if result.ok else 1
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
     from lead_s2r.inspection import inspect_dataset
 
-    try:
-        report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
-    except KeyError as err:
-        raise SystemExit(f"error: {err.args[0]}") from None
+    report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
     print(json.dumps(report, indent=2))
     return 1 if report["invalid"] else 0
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from lead_s2r.scoring.run import score_predictions
+    from lead_s2r.scoring.run import planner_predictions, score_predictions
 
-    options = {}
+    options: dict[str, Any] = {"allow_missing": not args.strict}
     for option in args.option:
-        name, _, value = option.partition("=")
+        name, equals, value = option.partition("=")
+        if not name or not equals:
+            raise UserError(f"--option {option!r}: expected KEY=VALUE, e.g. --option floor=4")
         try:
             options[name] = json.loads(value)  # numbers, booleans, lists
         except json.JSONDecodeError:
             options[name] = value
+    if args.reference_cache:
+        options["reference_cache"] = args.reference_cache
     data = [Path(folder) for folder in args.data]
-    summary = score_predictions(args.metric, Path(args.predictions), data, Path(args.out), **options)
+    predictions = Path(args.predictions) if args.predictions else None
+    if predictions is None:
+        predictions = planner_predictions(args.planner, data, Path(args.out) / f"predictions-{args.planner}.parquet")
+    summary = score_predictions(args.metric, predictions, data, Path(args.out), **options)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -231,12 +258,13 @@ def cmd_quickstart(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="lead-s2r",
-        description=__doc__,
+        description=__doc__.splitlines()[0],
         epilog="Training: lead-s2r fit|validate|test|predict --config recipes/... (LightningCLI; see --help there).",
     )
     parser.add_argument("--version", action="version", version=f"lead-s2r {__version__}")
+    parser.add_argument(DEBUG_FLAG, action="store_true", help="show the traceback of a user error (any position)")
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
 
     sub = verbs.add_parser("adapters", help="list registered adapters with their version and pip extra")
@@ -273,10 +301,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub = verbs.add_parser("score", help="score predictions open-loop")
     sub.add_argument("--metric", required=True, help=f"one of the {SCORER_GROUP} entry points")
-    sub.add_argument("--predictions", required=True)
+    source = sub.add_mutually_exclusive_group(required=True)
+    source.add_argument("--predictions", help="predictions.parquet of a model")
+    source.add_argument("--planner", choices=("human", "constant-velocity"), help="score a model-free planner instead")
     sub.add_argument("--data", required=True, nargs="+", help="converted folder(s)")
     sub.add_argument("--out", required=True)
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
+    sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
+    sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
     sub.set_defaults(run=cmd_score)
 
     _submit_parser(verbs)
@@ -304,12 +336,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one verb; a :class:`UserError` is one line on stderr and exit status 2 (its traceback with --debug)."""
     from_shell = argv is None
-    argv = sys.argv[1:] if argv is None else argv
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = DEBUG_FLAG in argv
+    argv = [arg for arg in argv if arg != DEBUG_FLAG]
+    if from_shell:  # LightningCLI reads sys.argv itself (and warns when given both)
+        sys.argv[1:] = argv
+    try:
+        return _run(argv, from_shell)
+    except UserError as err:
+        if debug:
+            raise
+        print(f"error: {err.one_line()}", file=sys.stderr)
+        return USER_ERROR_STATUS
+
+
+def _run(argv: list[str], from_shell: bool) -> int:
     if argv and argv[0] in LIGHTNING_VERBS:
         from lead_s2r.training.cli import run_lightning_cli
 
-        run_lightning_cli(None if from_shell else argv)  # None: LightningCLI reads sys.argv itself
+        run_lightning_cli(None if from_shell else argv)
         return 0
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)

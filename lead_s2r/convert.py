@@ -4,7 +4,13 @@ Worker processes take logs from a queue; each owns one open shard and only close
 log never straddles two shards. A closed shard is fsynced and renamed from ``.partial`` before the main process
 records it (with its logs and manifest rows) in ``progress.jsonl``. After a kill, a rerun deletes partial and
 unrecorded shards and converts exactly the logs no recorded shard holds: nothing is lost or duplicated.
-A log that raises is rolled back out of its shard and reported in ``errors.jsonl``; the others go on.
+A log that raises is rolled back out of its shard and reported in ``errors.jsonl``; the others go on, and so do
+records the adapter's ``list_logs`` found unreadable (``Adapter.bad_records``); both make ``ok`` False.
+
+A folder belongs to one adapter, version and set of options (``convert.json``, written before the first shard):
+resuming with others would mix two conversions in one manifest, so it is refused unless ``force``. Inputs are
+checked (``src`` exists, holds logs) before ``out`` is created. Workers end with their driver
+(:func:`lead_s2r.processes.exit_with_parent`), so a killed driver leaves no orphans converting into the folder.
 """
 
 import itertools
@@ -26,16 +32,19 @@ import pyarrow.parquet as pq
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from lead_s2r import __version__
+from lead_s2r.errors import UserError
+from lead_s2r.processes import exit_with_parent
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, validate
 from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile
 
 PROGRESS = "progress.jsonl"
+IDENTITY = "convert.json"
 
 
 @dataclass
 class ConvertResult:
-    """What a conversion did; ``ok`` is False when any log failed."""
+    """What a conversion did; ``ok`` is False when any log failed or any bad record was left out."""
 
     out: Path
     samples: int = 0
@@ -43,10 +52,11 @@ class ConvertResult:
     logs_resumed: int = 0
     errors: list[dict[str, Any]] = field(default_factory=list)
     skipped: list[dict[str, Any]] = field(default_factory=list)
+    bad_records: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
-        return not self.errors
+        return not self.errors and not self.bad_records
 
 
 def manifest_row(sample: dict[str, Any], shard: str) -> dict[str, Any]:
@@ -139,18 +149,19 @@ class _Worker:
             self.shard.abort()
 
 
-def _worker_main(adapter: Adapter, out: Path, shard_size: int, counter: Any, tasks: Any, results: Any) -> None:
+def _worker_main(
+    adapter: Adapter, out: Path, shard_size: int, counter: Any, tasks: Any, results: Any, parent: int
+) -> None:
+    exit_with_parent(parent)
+
     def next_index() -> int:
         with counter.get_lock():
             counter.value += 1
             return counter.value - 1
 
-    parent = os.getppid()
     worker = _Worker(adapter, out, shard_size, next_index, results.put)
     try:
         for log in iter(tasks.get, None):
-            if os.getppid() != parent:  # the driver was killed: stop, a rerun resumes
-                break
             worker.run(log)
         else:
             worker.flush()
@@ -176,16 +187,22 @@ def _read_progress(out: Path) -> list[dict[str, Any]]:
     return records
 
 
-def _prepare(out: Path, force: bool) -> list[dict[str, Any]]:
-    """Make ``out`` ready: wipe it with ``force``, else drop partial and unrecorded shards and keep the records."""
+def _prepare(out: Path, force: bool, identity: dict[str, Any]) -> list[dict[str, Any]]:
+    """Make ``out`` ready: wipe it with ``force``, else refuse another conversion's folder, drop partial and
+    unrecorded shards and keep the records."""
     if force and out.exists():
-        for name in (SHARD_DIR, PROGRESS, MANIFEST, INFO, ERRORS):
+        for name in (SHARD_DIR, PROGRESS, MANIFEST, INFO, ERRORS, IDENTITY):
             target = out / name
             if target.is_dir():
                 shutil.rmtree(target)
             else:
                 target.unlink(missing_ok=True)
-    (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
+    _check_identity(out, identity)
+    try:
+        (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
+        (out / IDENTITY).write_text(json.dumps(identity, indent=2) + "\n")
+    except OSError as err:
+        raise UserError(f"--out {out}: cannot write there ({err.strerror or err}); choose a writable folder") from None
     records = _read_progress(out)
     recorded = {record["shard"] for record in records}
     for path in (out / SHARD_DIR).iterdir():
@@ -194,6 +211,61 @@ def _prepare(out: Path, force: bool) -> list[dict[str, Any]]:
     with open(out / PROGRESS, "w") as file:  # rewrite without a torn tail
         file.writelines(json.dumps(record) + "\n" for record in records)
     return records
+
+
+def identity_of(adapter: Adapter) -> dict[str, Any]:
+    """What makes two conversions compatible: adapter name, version and options (JSON-ready)."""
+    options = json.loads(json.dumps(adapter.options(), default=str))
+    return {"adapter": adapter.name, "adapter_version": adapter.version, "options": options}
+
+
+def _check_identity(out: Path, identity: dict[str, Any]) -> None:
+    """Refuse to resume into a folder that another adapter, version or option set converted."""
+    if (out / IDENTITY).exists():
+        recorded = json.loads((out / IDENTITY).read_text())
+    elif (out / INFO).exists():  # converted before convert.json existed: only the adapter is known
+        recorded = {"adapter": json.loads((out / INFO).read_text()).get("adapter")}
+        identity = {"adapter": identity["adapter"]}
+    else:
+        return
+    if recorded == identity:
+        return
+    raise UserError(
+        f"--out {out} holds a conversion by {_differences(recorded, identity)}: "
+        "pass --force to start over there, or choose a new --out"
+    )
+
+
+def _differences(recorded: dict[str, Any], identity: dict[str, Any]) -> str:
+    """``"carla_lead 2 (rig='both'), but this run asks for carla_lead 2 (rig='normal')"``: only what differs."""
+
+    def describe(entry: dict[str, Any], names: list[str]) -> str:
+        options = entry.get("options") or {}
+        shown = ", ".join(f"{name}={options.get(name)!r}" for name in names)
+        return f"{entry.get('adapter')} {entry.get('adapter_version', '')}".strip() + (f" ({shown})" if shown else "")
+
+    old, new = recorded.get("options") or {}, identity.get("options") or {}
+    names = sorted(name for name in {*old, *new} if old.get(name) != new.get(name))
+    if recorded.get("adapter") != identity.get("adapter"):
+        names = []  # options of two adapters do not compare
+    return f"{describe(recorded, names)}, but this run asks for {describe(identity, names)}"
+
+
+def _list_logs(adapter: Adapter, src: Path, limit_logs: int | None) -> list[LogRef]:
+    """The logs to convert; a missing or empty ``src``, or one where the adapter finds nothing, is a UserError."""
+    if not src.exists():
+        raise UserError(f"--src {src} does not exist; give the folder of raw {adapter.name} data")
+    if src.is_dir() and not any(src.iterdir()):
+        raise UserError(f"--src {src} is an empty folder; give the folder of raw {adapter.name} data")
+    try:
+        logs = adapter.list_logs(src)
+    except (FileNotFoundError, NotADirectoryError) as err:
+        raise UserError(f"--src {src}: {err}; see docs/datasets/{adapter.name}.md for the layout") from None
+    if not logs:
+        raise UserError(
+            f"--src {src}: the {adapter.name} adapter finds no logs there; see docs/datasets/{adapter.name}.md"
+        )
+    return logs if limit_logs is None else logs[:limit_logs]
 
 
 def _next_shard_index(records: list[dict[str, Any]]) -> int:
@@ -222,7 +294,9 @@ def _messages(adapter: Adapter, logs: list[LogRef], out: Path, workers: int, sha
     for log in logs:
         tasks.put(log)
     procs = [
-        context.Process(target=_worker_main, args=(adapter, out, shard_size, counter, tasks, results), daemon=True)
+        context.Process(
+            target=_worker_main, args=(adapter, out, shard_size, counter, tasks, results, os.getpid()), daemon=True
+        )
         for _ in range(min(workers, len(logs)))
     ]
     for proc in procs:
@@ -259,13 +333,11 @@ def convert(
     ``shard_size`` is the number of samples after which a worker closes its shard (at the next log boundary).
     """
     src, out = Path(src), Path(out)
-    records = _prepare(out, force)
+    logs = _list_logs(adapter, src, limit_logs)
+    records = _prepare(out, force, identity_of(adapter))
     done = {log_id for record in records for log_id, _ in record["logs"]}
-    logs = adapter.list_logs(src)
-    if limit_logs is not None:
-        logs = logs[:limit_logs]
     todo = [log for log in logs if log.log_id not in done]
-    result = ConvertResult(out=out, logs_resumed=len(logs) - len(todo))
+    result = ConvertResult(out=out, logs_resumed=len(logs) - len(todo), bad_records=adapter.bad_records())
     started = time.perf_counter()
     with (
         open(out / PROGRESS, "a") as journal,
@@ -279,6 +351,7 @@ def convert(
             disable=not progress,
         ) as bar,
     ):
+        errors.writelines(json.dumps({**record, "adapter": adapter.name}) + "\n" for record in result.bad_records)
         task = bar.add_task(f"{adapter.name} logs", total=len(todo), samples=0, rate=0.0)
         for kind, name, payload in _messages(adapter, todo, out, workers, shard_size, _next_shard_index(records)):
             if kind == "shard":
@@ -318,12 +391,14 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         "lead_s2r_version": __version__,
         "adapter": adapter.name,
         "adapter_version": adapter.version,
+        "adapter_options": identity_of(adapter)["options"],
         "source": str(src),
         "counts": _counts(rows),
         "shards": {record["shard"]: sum(len(r) for _, r in record["logs"]) for record in records},
         "statistics": _statistics(table) if rows else {},
         "skipped_logs": result.skipped,
         "failed_logs": len(result.errors),
+        "bad_records": len(result.bad_records),
         **adapter.describe(),
     }
     (out / INFO).write_text(json.dumps(info, indent=2, allow_nan=False))

@@ -9,9 +9,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from lead_s2r.errors import UserError
 from lead_s2r.render import render_sample
 from lead_s2r.schema import SchemaError, validate
-from lead_s2r.shards import SHARD_DIR, load_info, load_manifest, read_samples
+from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples
 
 
 def _range(values: np.ndarray) -> dict[str, float] | None:
@@ -24,7 +25,7 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
 def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None, key: str | None = None) -> dict:
     """Counts per dataset/split, validation of the first ``n`` samples, statistics; draws one sample to ``png``."""
     path = Path(path)
-    manifest = load_manifest(path)
+    manifest = _manifest(path)
     info = load_info(path)
     counts: dict[str, int] = {}
     for dataset, split in zip(manifest["dataset"].to_pylist(), manifest["split"].to_pylist(), strict=True):
@@ -65,10 +66,22 @@ def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None
     return report
 
 
+def _manifest(path: Path) -> pa.Table:
+    """The manifest of a converted folder; a missing, unconverted or empty folder is a :class:`UserError`."""
+    if not path.is_dir():
+        raise UserError(f"{path} is not a folder; give a folder written by lead-s2r convert")
+    if not (path / MANIFEST).is_file():
+        raise UserError(f"{path} holds no {MANIFEST}: not a converted folder (or its conversion did not finish)")
+    manifest = load_manifest(path)
+    if not len(manifest):
+        raise UserError(f"{path}: {MANIFEST} lists no sample; convert again and check its errors.jsonl")
+    return manifest
+
+
 def find_sample(path: Path, manifest: pa.Table, key: str) -> dict[str, Any]:
     """One sample by key, reading only the shard the manifest puts it in."""
     rows = manifest.filter(pc.equal(manifest["key"], key))
     if not len(rows):
-        raise KeyError(f"no sample with key {key!r} in {path}")
+        raise UserError(f"--key {key!r}: no sample with that key in {path} (see its manifest.parquet)")
     shard = path / SHARD_DIR / rows["shard"][0].as_py()
     return next(sample for sample in read_samples(shard) if sample["__key__"] == key)

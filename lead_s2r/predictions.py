@@ -21,6 +21,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from lead_s2r.errors import UserError
+
 #: Seconds within which two time stamps are the same grid point.
 TIME_TOLERANCE = 1e-3
 
@@ -39,7 +41,7 @@ SCHEMA = pa.schema(
 REQUIRED_COLUMNS = ("key", "dataset", "t", "x", "y", "yaw")
 
 
-class PredictionError(ValueError):
+class PredictionError(UserError, ValueError):
     """A prediction is malformed; the message names the sample key (or the row when the key itself is bad)."""
 
 
@@ -103,7 +105,12 @@ def write_predictions(path: str | Path, predictions: Iterable[Prediction]) -> Pa
 
 def read_predictions(path: str | Path) -> list[Prediction]:
     """Read and check a predictions file; a single inference per key may omit ``probability``/``inference``."""
-    table = pq.read_table(path)
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException) as err:
+        raise PredictionError(
+            f"{path}: not a readable parquet file ({err}); write it with lead_s2r.predictions.write_predictions"
+        ) from None
     missing = [name for name in REQUIRED_COLUMNS if name not in table.column_names]
     if missing:
         raise PredictionError(f"{path}: missing column(s) {missing}; expected {list(REQUIRED_COLUMNS)}")

@@ -1,11 +1,14 @@
 """Adapters and scorers are found through entry points, so a third-party package adds one without touching ours."""
 
+import inspect
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, ClassVar
+
+from lead_s2r.errors import UserError
 
 ADAPTER_GROUP = "lead_s2r.adapters"
 SCORER_GROUP = "lead_s2r.scorers"
@@ -41,12 +44,24 @@ class Adapter(ABC):
         """Dataset facts written to ``info.json`` (rates, horizons, cameras...)."""
         return {}
 
+    def options(self) -> dict[str, Any]:
+        """The constructor options that shape the samples, recorded with a conversion: resuming into a folder
+        converted with other options is refused. Default: every ``__init__`` parameter the adapter keeps as a
+        same-named attribute; override it to add renamed ones or to drop those that only change speed."""
+        names = inspect.signature(type(self).__init__).parameters
+        return {name: getattr(self, name) for name in names if name != "self" and hasattr(self, name)}
+
+    def bad_records(self) -> list[dict[str, Any]]:
+        """Records :meth:`list_logs` found unreadable and left out, each with an ``error`` naming file and place;
+        a conversion reports them in ``errors.jsonl`` and its exit status."""
+        return []
+
 
 class SkipLog(Exception):
     """Raised by an adapter for a log it deliberately leaves out (e.g. a failed CARLA route); not an error."""
 
 
-class RegistryError(LookupError):
+class RegistryError(UserError, LookupError):
     """An unknown name or an entry point that cannot be loaded."""
 
 

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from lead_s2r.errors import UserError
+
 SCHEMA_VERSION = 1
 KEY_PATTERN = re.compile(r"^[A-Za-z0-9_-]+$")
 
@@ -121,7 +123,7 @@ class MapKind(IntEnum):
     WALKWAY = 6
 
 
-class SchemaError(ValueError):
+class SchemaError(UserError, ValueError):
     """A sample breaks the schema; the message names the sample key and the field."""
 
     def __init__(self, key: str, field: str, problem: str) -> None:

@@ -4,6 +4,11 @@ Tar members are ``<key>.<field>.<ext>`` (``meta.json``, ``future.npy``, ``cam_fr
 with ``np.save(allow_pickle=False)``, JPEG bytes untouched, nothing is pickled. Shards are written by our own
 small tar writer (deterministic headers, and :meth:`ShardFile.rollback` to drop a half-written log) and read
 with webdataset.
+
+Reading trusts nothing: a tar cut at a member boundary reads as a shorter, valid stream (tarfile raises nothing),
+so :func:`shard_paths` checks that every shard ends with the two zero blocks :meth:`ShardFile.close` writes; a tar
+cut inside a member, an undecodable member or an array of another dtype than the schema's is a
+:class:`ShardError` naming the tar, the sample key and the field.
 """
 
 import io
@@ -20,6 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import webdataset as wds
 
+from lead_s2r.errors import UserError
 from lead_s2r.schema import field_spec
 
 MANIFEST = "manifest.parquet"
@@ -27,6 +33,12 @@ INFO = "info.json"
 ERRORS = "errors.jsonl"
 SHARD_DIR = "shards"
 _BLOCK = 512
+_END_OF_ARCHIVE = 2 * _BLOCK
+_REDO = "re-run lead-s2r convert (with --force) to rewrite it"
+
+
+class ShardError(UserError):
+    """A converted folder or shard that cannot be read as written; names the folder or tar, key and field."""
 
 
 def encode_field(name: str, value: Any) -> bytes:
@@ -106,7 +118,7 @@ class ShardFile:
 
     def close(self) -> Path:
         """Finish the tar, make it durable, and give it its final name."""
-        self._file.write(b"\0" * (2 * _BLOCK))
+        self._file.write(b"\0" * _END_OF_ARCHIVE)
         self._file.flush()
         os.fsync(self._file.fileno())
         self._file.close()
@@ -119,19 +131,50 @@ class ShardFile:
 
 
 def shard_paths(path: str | Path) -> list[str]:
-    """Shard files of a converted folder (or a single shard, or a folder of shards), sorted."""
+    """Shard files of a converted folder (or a single shard, or a folder of shards), sorted, each checked whole."""
     path = Path(path)
+    if not path.exists():
+        raise ShardError(f"{path} does not exist; give a folder written by lead-s2r convert")
     if path.is_file():
-        return [str(path)]
-    folder = path / SHARD_DIR if (path / SHARD_DIR).is_dir() else path
-    shards = sorted(str(p) for p in folder.glob("*.tar"))
-    if not shards:
-        raise FileNotFoundError(f"no shards (*.tar) under {folder}")
+        shards = [str(path)]
+    else:
+        folder = path / SHARD_DIR if (path / SHARD_DIR).is_dir() else path
+        shards = sorted(str(p) for p in folder.glob("*.tar"))
+        if not shards:
+            raise ShardError(f"no shards (*.tar) under {folder}; give a folder written by lead-s2r convert")
+    for shard in shards:
+        check_whole(shard)
     return shards
 
 
+def check_whole(shard: str | Path) -> None:
+    """Raise :class:`ShardError` unless ``shard`` ends with the end-of-archive blocks a closed shard has."""
+    with open(shard, "rb") as file:
+        size = file.seek(0, os.SEEK_END)
+        file.seek(max(size - _END_OF_ARCHIVE, 0))
+        tail = file.read()
+    if size % _BLOCK or size < _END_OF_ARCHIVE or tail.count(0) != len(tail):
+        raise ShardError(f"{shard}: truncated tar ({size} bytes, no end-of-archive blocks); {_REDO}")
+
+
+def raise_shard_error(exn: Exception) -> bool:
+    """webdataset handler: a tar that cannot be read becomes a :class:`ShardError` naming it.
+
+    webdataset calls the handler first from inside the tar (no url yet), then again with the url appended to
+    ``exn.args``; the first call re-raises so the second can name the file.
+    """
+    url = next((arg for arg in reversed(exn.args[1:]) if isinstance(arg, str)), None)
+    if url is None:
+        raise exn
+    problem = str(exn.args[0]).split(" @ ")[0] if exn.args else type(exn).__name__
+    raise ShardError(f"{url}: cannot be read ({problem}); the tar is truncated or corrupt: {_REDO}") from exn
+
+
 def decode_sample(raw: dict[str, Any], fields: Iterable[str] | None = None) -> dict[str, Any]:
-    """Decode a webdataset raw sample (``{'meta.json': bytes, ...}``), only the requested fields."""
+    """Decode a webdataset raw sample (``{'meta.json': bytes, ...}``), only the requested fields.
+
+    Raises :class:`ShardError` naming the tar, key and field for a member that does not decode to its field's type.
+    """
     wanted = None if fields is None else set(fields) | {"meta"}
     sample: dict[str, Any] = {"__key__": raw["__key__"]}
     for member, data in raw.items():
@@ -139,17 +182,39 @@ def decode_sample(raw: dict[str, Any], fields: Iterable[str] | None = None) -> d
             continue
         name = member.rsplit(".", 1)[0]
         if wanted is None or name in wanted:
-            sample[name] = decode_field(name, data)
+            sample[name] = _decode_member(raw, name, data)
     return sample
+
+
+def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
+    where = f"{raw.get('__url__', 'shard')}: sample {raw['__key__']!r}, field {name!r}"
+    try:
+        spec = field_spec(name)
+        value = decode_field(name, data)
+    except KeyError:
+        raise ShardError(f"{where}: not a schema v1 field; {_REDO}") from None
+    except (ValueError, OSError, EOFError) as err:
+        raise ShardError(f"{where}: cannot be decoded as .{spec.ext} ({err}); {_REDO}") from None
+    if spec.ext == "npy" and spec.dtype is not None and value.dtype != np.dtype(spec.dtype):
+        raise ShardError(f"{where}: dtype {value.dtype}, but schema v1 stores {spec.dtype}; {_REDO}")
+    return value
 
 
 def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Iterator[dict[str, Any]]:
     """Yield decoded samples from a converted folder or shard(s), in shard order.
 
-    ``fields`` limits decoding to those fields (``meta`` is always decoded).
+    ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
+    no splitting over ranks or workers (webdataset's default refuses to run under DDP), the caller decides.
     """
     fields = None if fields is None else tuple(fields)
-    dataset = wds.WebDataset(shard_paths(path), shardshuffle=False, empty_check=False)
+    dataset = wds.WebDataset(
+        shard_paths(path),
+        shardshuffle=False,
+        empty_check=False,
+        nodesplitter=None,
+        workersplitter=None,
+        handler=raise_shard_error,
+    )
     for raw in dataset:
         yield decode_sample(raw, fields)
 

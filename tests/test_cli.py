@@ -1,4 +1,5 @@
 import json
+import re
 
 import cv2
 import pytest
@@ -6,6 +7,7 @@ from toy_adapter import ToyAdapter, write_toy_logs
 
 from lead_s2r import cli
 from lead_s2r.convert import convert
+from lead_s2r.errors import UserError
 
 
 @pytest.fixture
@@ -15,9 +17,9 @@ def toy_registered(monkeypatch):
 
 def test_adapter_options_are_typed_by_the_constructor():
     assert cli.adapter_options(ToyAdapter, ["--sleep", "0.5"]) == {"sleep": 0.5}
-    with pytest.raises(SystemExit, match=r"unknown option '--rig'.*--sleep"):
+    with pytest.raises(UserError, match=r"unknown option '--rig'.*--sleep"):
         cli.adapter_options(ToyAdapter, ["--rig", "both"])
-    with pytest.raises(SystemExit, match="needs a value"):
+    with pytest.raises(UserError, match="needs a value"):
         cli.adapter_options(ToyAdapter, ["--sleep"])
 
 
@@ -33,8 +35,10 @@ def test_convert_verb_exit_status_reports_failed_logs(tmp_path, toy_registered, 
 
 
 def test_unknown_adapter_is_a_clear_error(capsys):
-    with pytest.raises(SystemExit, match=r"no lead_s2r.adapters entry named 'nope'; registered: .*navsim"):
-        cli.main(["convert", "nope", "--src", "x", "--out", "y"])
+    assert cli.main(["convert", "nope", "--src", "x", "--out", "y"]) == 2
+    assert re.fullmatch(
+        r"error: no lead_s2r.adapters entry named 'nope'; registered: .*navsim.*\n", capsys.readouterr().err
+    )
 
 
 def test_inspect_reports_and_draws(tmp_path, capsys):
@@ -54,5 +58,5 @@ def test_inspect_reports_and_draws(tmp_path, capsys):
     rows = green.nonzero()[0]
     ego_row = image.shape[0] - 16 * 10  # x = 0 lies 16 m above the bottom edge at 10 px/m
     assert len(rows) and rows.max() < ego_row
-    with pytest.raises(SystemExit, match="no sample with key 'nope'"):
-        cli.main(["inspect", str(tmp_path / "out"), "--png", str(png), "--key", "nope"])
+    assert cli.main(["inspect", str(tmp_path / "out"), "--png", str(png), "--key", "nope"]) == 2
+    assert "--key 'nope': no sample with that key" in capsys.readouterr().err

@@ -6,12 +6,15 @@ import sys
 import time
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import pytest
 from toy_adapter import ToyAdapter, write_toy_logs
 
 from lead_s2r.convert import convert
+from lead_s2r.errors import UserError
 from lead_s2r.models.inputs import target_point_range
+from lead_s2r.registry import Adapter
 from lead_s2r.shards import load_info, load_manifest, read_samples
 
 
@@ -72,6 +75,8 @@ import sys
 sys.path.insert(0, {tests!r})
 from toy_adapter import ToyAdapter
 from lead_s2r.convert import convert
+from lead_s2r.errors import UserError
+from lead_s2r.registry import Adapter
 from lead_s2r.models.inputs import target_point_range
 convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers={workers}, shard_size=8)
 """
@@ -99,3 +104,73 @@ def test_resume_after_kill_loses_and_duplicates_nothing(tmp_path, workers):
     assert len(counts) == 60 and max(counts.values()) == 1
     assert sorted(load_manifest(out)["key"].to_pylist()) == sorted(keys)
     assert not list((out / "shards").glob("*.partial"))
+
+
+class RiggedToy(ToyAdapter):
+    """A toy adapter with an option that changes its samples, like ``carla_lead --rig``."""
+
+    def __init__(self, rig: str = "normal") -> None:
+        super().__init__()
+        self.rig = rig
+
+    def options(self) -> dict[str, Any]:
+        return Adapter.options(self)  # the default: the __init__ parameters kept as attributes
+
+
+class OtherToy(ToyAdapter):
+    name = "other_toy"
+
+
+def test_a_folder_holds_one_adapter_and_one_set_of_options(tmp_path):
+    write_toy_logs(tmp_path / "src", n_logs=2, frames=3)
+    convert(RiggedToy(rig="normal"), tmp_path / "src", tmp_path / "out")
+    identity = json.loads((tmp_path / "out" / "convert.json").read_text())
+    assert identity == {"adapter": "toy", "adapter_version": "1", "options": {"rig": "normal"}}
+    with pytest.raises(
+        UserError, match=r"by toy 1 \(rig='normal'\), but this run asks for toy 1 \(rig='both'\).*--force"
+    ):
+        convert(RiggedToy(rig="both"), tmp_path / "src", tmp_path / "out")
+    with pytest.raises(UserError, match=r"by toy 1, but this run asks for other_toy 1: pass --force.*new --out"):
+        convert(OtherToy(), tmp_path / "src", tmp_path / "out")
+    assert len(load_manifest(tmp_path / "out")) == 6  # nothing was touched
+    assert convert(RiggedToy(rig="normal"), tmp_path / "src", tmp_path / "out").logs_resumed == 2
+    forced = convert(RiggedToy(rig="both"), tmp_path / "src", tmp_path / "out", force=True)
+    assert forced.logs_converted == 2 and load_info(tmp_path / "out")["adapter_options"] == {"rig": "both"}
+
+
+def _children(pid: int) -> list[int]:
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(child) for child in path.read_text().split()] if path.exists() else []
+
+
+def _alive(pid: int) -> bool:
+    """Running or sleeping; a zombie nobody reaps (pid 1 of a container may not) counts as gone."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    return "\nState:\tZ" not in status
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads the process tree from /proc")
+def test_killed_driver_leaves_no_orphaned_workers(tmp_path):
+    src, out = tmp_path / "src", tmp_path / "out"
+    write_toy_logs(src, n_logs=6, frames=200)  # ~40 s of work per log at 0.2 s per frame
+    code = KILLABLE.replace("sleep=0.02", "sleep=0.2").format(
+        tests=str(Path(__file__).parent), src=str(src), out=str(out), workers=2
+    )
+    driver = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not list((out / "shards").glob("*.partial")):  # workers are converting
+        time.sleep(0.05)
+    workers = _children(driver.pid)
+    assert workers, "the driver should have started its workers"
+    os.kill(driver.pid, signal.SIGKILL)  # the driver alone, as an OOM killer would
+    driver.wait()
+    deadline = time.time() + 10
+    while time.time() < deadline and any(_alive(pid) for pid in workers):
+        time.sleep(0.1)
+    survivors = [pid for pid in workers if _alive(pid)]
+    for pid in survivors:  # do not leave them running after a failure
+        os.kill(pid, signal.SIGKILL)
+    assert not survivors

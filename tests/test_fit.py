@@ -1,15 +1,20 @@
 """A real Lightning fit over converted shards: the mixing schedule and the LR schedule act per epoch."""
 
+import csv
+import sys
+
 import lightning as L
 import pytest
 import torch
+import yaml
 from tiny_models import TINY
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import TrajectoryGrid, tfv6_config
 from lead_s2r.models.tfv6 import TFv6
-from lead_s2r.training.cli import TRAINER_DEFAULTS
+from lead_s2r.predictions import read_predictions
+from lead_s2r.training.cli import TRAINER_DEFAULTS, run_lightning_cli
 from lead_s2r.training.module import DrivingModule
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -53,3 +58,93 @@ def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
     restarts = [step for step in range(1, len(lrs)) if lrs[step] > lrs[step - 1]]
     assert restarts == [2, 6]  # warm restarts after 1 and 2 more epochs (T_0 = one epoch, T_mult = 2)
     assert lrs[0] == pytest.approx(1e-3) and lrs[2] == pytest.approx(1e-3)
+
+
+class KeyRecorder(L.Callback):
+    """The sample keys of every training batch, per epoch: ``keys[epoch][step]`` is a sorted list."""
+
+    def __init__(self) -> None:
+        self.keys: dict[int, list[list[str]]] = {}
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        keys = sorted(key for b in batch.values() for key in b["__key__"])
+        self.keys.setdefault(trainer.current_epoch, []).append(keys)
+
+
+def fit_keys(data: str, epochs: int, root=None, resume: str | None = None) -> dict[int, list[list[str]]]:
+    """Fit a tiny model and return the keys it trained on; ``root`` keeps a last.ckpt, ``resume`` restarts from one."""
+    grids = {"carla": TrajectoryGrid(4, 0.5), "navsim": TrajectoryGrid(4, 0.5)}
+    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
+    spec = SourceSpec([data], cameras=["front"])
+    datamodule = DriveDataModule(
+        train={"carla": spec, "navsim": spec},
+        schedule=MixingSchedule.constant({"carla": 1, "navsim": 1}, 4),
+        steps_per_epoch=3,
+        shuffle_buffer=8,
+    )
+    recorder = KeyRecorder()
+    callbacks: list[L.Callback] = [recorder]
+    if root is not None:
+        callbacks.append(L.pytorch.callbacks.ModelCheckpoint(dirpath=root, save_last=True))
+    trainer = L.Trainer(
+        max_epochs=epochs,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=root is not None,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=callbacks,
+        **TRAINER_DEFAULTS,
+    )
+    trainer.fit(DrivingModule(TFv6(config), lr=1e-3), datamodule=datamodule, ckpt_path=resume)
+    return recorder.keys
+
+
+def test_same_seed_same_batches_and_a_resumed_fit_goes_on_with_the_same_stream(toy_data, tmp_path, monkeypatch):
+    monkeypatch.setenv("PL_GLOBAL_SEED", "7")  # what seed_everything(7) leaves for the data module
+    whole = fit_keys(toy_data, epochs=2)
+    first = fit_keys(toy_data, epochs=1, root=tmp_path)
+    assert first[0] == whole[0]  # the same first 3 batches
+    assert whole[1] != whole[0]  # the epoch is part of the seed
+    resumed = fit_keys(toy_data, epochs=2, resume=str(tmp_path / "last.ckpt"))
+    assert list(resumed) == [1] and resumed[1] == whole[1]
+    monkeypatch.setenv("PL_GLOBAL_SEED", "8")
+    assert fit_keys(toy_data, epochs=1)[0] != whole[0]
+
+
+def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_data, tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI warns when the process has other arguments
+    spec = {"paths": [toy_data], "cameras": ["front"]}
+    config = {
+        "trainer": {
+            "accelerator": "cpu",
+            "max_epochs": 1,
+            "enable_progress_bar": False,
+            "enable_model_summary": False,
+            "default_root_dir": str(tmp_path / "elsewhere"),
+            "callbacks": [
+                {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", "init_args": {"save_last": True}},
+                {"class_path": "lead_s2r.training.prediction_writer.PredictionWriter"},
+            ],
+        },
+        "model": {
+            "model": {
+                "class_path": "lead_s2r.models.tfv6.TFv6",
+                "init_args": {"config": {**TINY, "bev": vars(TINY["bev"]), "use_radar": False}},
+            }
+        },
+        "data": {"train": {"navsim": spec}, "predict": {"navsim": spec}, "steps_per_epoch": 1, "shuffle_buffer": 4},
+    }
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text(yaml.safe_dump(config))
+    root = tmp_path / "root"
+    root_option = ["--config", str(recipe), "--trainer.default_root_dir", str(root)]
+    run_lightning_cli(["fit", *root_option])
+    last = root / "checkpoints" / "last.ckpt"
+    assert last.exists()
+    run_lightning_cli(["predict", *root_option, "--ckpt_path", str(last)])
+    assert len(read_predictions(root / "predictions.parquet")) == 24
+    with (root / "lightning_logs" / "version_0" / "metrics.csv").open() as file:
+        logged = [row["train/batch_size/navsim"] for row in csv.DictReader(file)]
+    assert [size for size in logged if size] == ["8.0"]  # the epoch's per-rank batch size of the source
+    assert not (tmp_path / "elsewhere").exists()

@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch
+from batches import random_batch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from tiny_models import TINY
@@ -12,7 +13,7 @@ from lead_s2r.models.backbone import CameraSelect, StagedEncoder
 from lead_s2r.models.config import EgoMLPConfig, ltfv6_config, tfv5_config, tfv6_config
 from lead_s2r.models.ego_mlp import EgoStatusMLP
 from lead_s2r.models.embeddings import grid_embedding, sine_embedding
-from lead_s2r.models.inputs import random_batch, target_point_range
+from lead_s2r.models.inputs import target_point_range
 from lead_s2r.models.planning_decoder import TargetPointNorm
 from lead_s2r.models.tfv6 import TFv6, parameter_table
 from lead_s2r.training.losses import focal_heatmap_loss, heading_loss, radar_loss, segmentation_loss, two_hot

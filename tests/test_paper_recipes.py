@@ -49,9 +49,11 @@ def test_wod_finetune_sees_no_carla_and_300k_frames_per_epoch():
 
 
 def checkpoint_dir(recipe: dict) -> str | None:
+    """Where the recipe's checkpoints land: the callback's dirpath, else <default_root_dir>/checkpoints."""
     for callback in recipe["trainer"]["callbacks"]:
         if callback["class_path"].endswith("ModelCheckpoint"):
-            return callback["init_args"].get("dirpath")
+            default = f"{recipe['trainer']['default_root_dir']}/checkpoints"
+            return callback.get("init_args", {}).get("dirpath", default)
     return None
 
 

@@ -149,6 +149,26 @@ def test_score_verb(wod_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixt
     assert printed["config"]["floor"] == 0 and printed["aggregates"]["frames_scored"] == 3
 
 
+def test_score_verb_takes_its_dataset_from_a_mixed_file_and_lists_the_unpredicted(
+    wod_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    navsim_t = np.arange(1, 9) * 0.5
+    predictions = [prediction(k, straight(10)) for k in ("seg_a", "seg_b", "seg_c")]  # seg_d has none
+    predictions.append(prediction("log_0", straight(8, navsim_t), t=navsim_t, dataset="navsim"))
+    path = write_predictions(tmp_path / "p.parquet", predictions)
+    argv = ["score", "--metric", "rfs@wod-e2e-2025", "--predictions", str(path), "--data", str(wod_folder)]
+    assert cli.main([*argv, "--out", str(tmp_path / "out")]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((tmp_path / "out" / "scores.json").read_text())
+    assert printed["unpredicted"] == {"count": 1, "keys": ["seg_d"]}
+    assert printed["other_datasets"] == {"navsim": 1}
+    # seg_a and seg_b drive on a rater (10 and 8), seg_c at 10 m/s against a 5 m/s rater is floored to 4
+    assert printed["aggregates"]["rfs"] == pytest.approx((10 + 8 + 4) / 3, abs=1e-12)
+    assert cli.main([*argv, "--out", str(tmp_path / "strict"), "--strict"]) == 2
+    assert "sample 'seg_d' has no prediction (1 such sample(s))" in capsys.readouterr().err
+    assert not (tmp_path / "strict").exists()
+
+
 def test_ade_scores_files_per_dataset(wod_folder: Path, tmp_path: Path) -> None:
     navsim_t = np.arange(1, 9) * 0.5
     navsim = write_converted(

@@ -8,13 +8,13 @@ from dataclasses import replace
 import lightning as L
 import pytest
 import torch
+from batches import random_batch
 from tiny_models import TINY
 from torch.utils.data import DataLoader
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import TrajectoryGrid, ltfv6_config, tfv6_config
-from lead_s2r.models.inputs import random_batch
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks

@@ -227,12 +227,15 @@ def corrupt(src: Path, dataset) -> dict[str, tuple[Path, int]]:
     return where
 
 
-def test_bad_records_are_skipped_with_a_record(tmp_path, dataset):
+def test_bad_records_are_skipped_with_a_record(tmp_path, dataset, capsys):
     write_dataset(tmp_path / "src", dataset, seed=7)
     where = corrupt(tmp_path / "src", dataset)
     result = convert(WodE2EAdapter(), tmp_path / "src", tmp_path / "out", workers=1)
-    assert result.ok
+    assert not result.ok and not result.errors and len(result.bad_records) == 3
+    errors = [json.loads(line) for line in (tmp_path / "out" / "errors.jsonl").read_text().splitlines()]
+    assert errors == [{**record, "adapter": "wod_e2e"} for record in result.bad_records]
     skipped = load_info(tmp_path / "out")["skipped_records"]
+    assert skipped == result.bad_records and load_info(tmp_path / "out")["bad_records"] == 3
     assert sorted((s["shard"], s["offset"]) for s in skipped) == sorted((str(p), o) for p, o in where.values())
     messages = {(s["shard"], s["offset"]): s["error"] for s in skipped}
     assert "payload CRC mismatch" in messages[str(where["crc"][0]), 0]
@@ -242,6 +245,11 @@ def test_bad_records_are_skipped_with_a_record(tmp_path, dataset):
     assert result.samples == len(dataset.frames) - 1  # only the CRC-broken frame is lost
     with pytest.raises(WodE2EError, match=r"strict.*record at offset"):
         WodE2EAdapter(strict=True).list_logs(tmp_path / "src")
+    argv = ["convert", "wod_e2e", "--src", str(tmp_path / "src"), "--out", str(tmp_path / "cli"), "--quiet"]
+    assert cli_main(argv) == 1  # the exit status says data was left out
+    captured = capsys.readouterr()
+    assert "0 failed, 3 bad records left out) ->" in captured.out
+    assert captured.err.count("bad record: ") == 3 and "payload CRC mismatch" in captured.err
 
 
 def damage_after_indexing(tmp_path: Path, dataset, patch) -> tuple[WodE2EAdapter, list, str, int]:

@@ -103,5 +103,8 @@ class ToyAdapter(Adapter):
             time.sleep(self.sleep)
             yield toy_sample(log.log_id, frame, spec["yaw_rate"])
 
+    def options(self) -> dict[str, Any]:
+        return {}  # sleep only slows the conversion down
+
     def describe(self) -> dict[str, Any]:
         return {"rates_hz": {"future": 2.0}}

@@ -3,11 +3,14 @@
 Training: one infinite, shard-resampled pipeline per source whose scheduled batch size is non-zero, each cut to
 ``steps_per_epoch`` batches, so every rank and every source yields the same number of steps (DDP never waits on an
 exhausted rank). Lightning's ``CombinedLoader`` zips them into ``{source: batch}``. Dataloaders are rebuilt each epoch
-(``reload_dataloaders_every_n_epochs=1``) to follow the schedule. Evaluation: one finite, ordered pipeline per
-source, split over ranks by shard, whose batches come as ``{source: batch}`` like the training ones.
+(``reload_dataloaders_every_n_epochs=1``) to follow the schedule, and seeded from (seed, epoch, rank, worker) so a
+run repeats and a resumed run goes on with the same stream. Evaluation: one finite, ordered pipeline per source,
+split over ranks and workers by sample (every sample read exactly once), whose batches come as ``{source: batch}``
+like the training ones. :mod:`lead_s2r.data.streams` says why webdataset's own splitting and seeding do not do.
 """
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,10 +19,12 @@ import lightning as L
 import webdataset as wds
 
 from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.data.streams import ResampledShards, SampleShare, SeededShuffle, StreamSeed, manifest_samples
 from lead_s2r.data.transforms import SourceTransform, collate
+from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.shards import INFO, decode_sample, load_info, shard_paths
+from lead_s2r.shards import INFO, ShardError, decode_sample, load_info, raise_shard_error, shard_paths
 
 
 @dataclass
@@ -96,6 +101,8 @@ class DriveDataModule(L.LightningDataModule):
         num_workers: dataloader workers per source.
         shuffle_buffer: samples in each source's shuffle buffer.
         config: the model configuration the transforms follow; by default the trained model's own.
+        seed: seed of shard resampling and shuffling (with the epoch, rank, worker and source); by default the
+            one ``seed_everything`` set, else 0.
     """
 
     def __init__(
@@ -109,6 +116,7 @@ class DriveDataModule(L.LightningDataModule):
         num_workers: int = 0,
         shuffle_buffer: int = 256,
         config: TFv6Config | None = None,
+        seed: int | None = None,
     ) -> None:
         super().__init__()
         self.train_sources = train or {}
@@ -123,6 +131,30 @@ class DriveDataModule(L.LightningDataModule):
         self.num_workers = num_workers
         self.shuffle_buffer = shuffle_buffer
         self._config = config
+        self._seed = seed
+        for stage, sources in self._stages().items():
+            for name, spec in sources.items():
+                try:
+                    spec.shards()
+                except ShardError as err:
+                    raise UserError(f"data.{stage}.{name}.paths: {err}") from None
+
+    def _stages(self) -> dict[str, dict[str, SourceSpec]]:
+        return {"train": self.train_sources, "val": self.val_sources, "predict": self.predict_sources}
+
+    def check_sources(self, config: TFv6Config) -> None:
+        """Raise :class:`UserError` naming ``data.<stage>.<name>`` for a source the model has no trajectory grid for."""
+        known = sorted(config.trajectory_grids)
+        for stage, sources in self._stages().items():
+            for name in sources:
+                if name not in config.trajectory_grids:
+                    raise UserError(
+                        f"data.{stage}.{name}: the model knows no source {name!r}; name it one of {known} "
+                        "(the model config's trajectory_grids)"
+                    )
+
+    def setup(self, stage: str) -> None:
+        self.check_sources(self.config)
 
     @property
     def config(self) -> TFv6Config:
@@ -136,6 +168,11 @@ class DriveDataModule(L.LightningDataModule):
                 raise ValueError("DriveDataModule needs a TFv6Config: pass config= or train a model that has one")
             self._config = config
         return self._config
+
+    @property
+    def seed(self) -> int:
+        """The seed of the training streams: given, else ``seed_everything``'s (``PL_GLOBAL_SEED``), else 0."""
+        return self._seed if self._seed is not None else int(os.environ.get("PL_GLOBAL_SEED", 0))
 
     def target_point_range(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
         """The range that holds every training folder's target points: the union of their ``info.json``
@@ -158,29 +195,43 @@ class DriveDataModule(L.LightningDataModule):
             return None
         return (min(x for x, _ in lows), min(y for _, y in lows)), (max(x for x, _ in highs), max(y for _, y in highs))
 
-    def _pipeline(self, name: str, spec: SourceSpec, batch_size: int, training: bool) -> wds.WebDataset:
-        dataset = wds.WebDataset(
-            spec.shards(),
-            resampled=training,
-            shardshuffle=False,  # training resamples shards instead
-            nodesplitter=None if training else wds.split_by_node,
-            empty_check=False,
-        )
-        if spec.splits is not None:  # peeks at meta.json; everything else is decoded once, after shuffling
-            dataset = dataset.select(_SplitFilter(spec.splits))
-        if training:
-            dataset = dataset.shuffle(self.shuffle_buffer)
-        transform = SourceTransform(name, self.config, list(spec.cameras))
-        dataset = dataset.map(_Prepare(transform)).batched(batch_size, collation_fn=collate, partial=not training)
-        return dataset if training else dataset.map(_Tag(name))
+    def _where(self) -> tuple[int, int, int]:
+        """(epoch, rank, world size) of the attached trainer; (0, 0, 1) without one."""
+        if self.trainer is None:
+            return 0, 0, 1
+        return self.trainer.current_epoch, getattr(self.trainer, "global_rank", 0), self.trainer.world_size
 
-    def _loader(self, dataset: wds.WebDataset) -> wds.WebLoader:
+    def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
+        return _Prepare(SourceTransform(name, self.config, list(spec.cameras)))
+
+    def _train_pipeline(self, name: str, spec: SourceSpec, batch_size: int) -> wds.DataPipeline:
+        epoch, rank, _ = self._where()
+        seed = StreamSeed(self.seed, epoch, rank, name)
+        stages: list[Any] = [ResampledShards(spec.shards(), seed), wds.tarfile_to_samples(handler=raise_shard_error)]
+        if spec.splits is not None:  # peeks at meta.json; everything else is decoded once, after shuffling
+            stages.append(wds.select(_SplitFilter(spec.splits)))
+        stages += [SeededShuffle(self.shuffle_buffer, seed), wds.map(self._decode(name, spec))]
+        return wds.DataPipeline(*stages, wds.batched(batch_size, collation_fn=collate, partial=False))
+
+    def _eval_pipeline(self, name: str, spec: SourceSpec) -> wds.DataPipeline:
+        _, rank, world_size = self._where()
+        samples = [sample for path in spec.paths for sample in manifest_samples(path, spec.splits)]
+        mine = SampleShare(samples, rank, world_size)
+        return wds.DataPipeline(
+            mine.shards,
+            wds.tarfile_to_samples(handler=raise_shard_error),
+            mine,
+            wds.map(self._decode(name, spec)),
+            wds.batched(self.eval_batch_size, collation_fn=collate, partial=True),
+            wds.map(_Tag(name)),
+        )
+
+    def _loader(self, dataset: wds.DataPipeline) -> wds.WebLoader:
         return wds.WebLoader(dataset, batch_size=None, num_workers=self.num_workers)
 
     def current_batch_sizes(self) -> dict[str, int]:
         """Per-rank batch size of each source in the trainer's current epoch."""
-        epoch = self.trainer.current_epoch if self.trainer else 0
-        world_size = self.trainer.world_size if self.trainer else 1
+        epoch, _, world_size = self._where()
         return self.schedule.batch_sizes(epoch, world_size)
 
     def train_dataloader(self) -> dict[str, wds.WebLoader]:
@@ -189,14 +240,14 @@ class DriveDataModule(L.LightningDataModule):
         loaders = {}
         for name, size in self.current_batch_sizes().items():
             if size > 0:
-                pipeline = self._pipeline(name, self.train_sources[name], size, training=True)
+                pipeline = self._train_pipeline(name, self.train_sources[name], size)
                 loaders[name] = self._loader(pipeline).with_epoch(self.steps_per_epoch)
         return loaders
 
     def _eval_loaders(self, sources: dict[str, SourceSpec], what: str) -> list[wds.WebLoader]:
         if not sources:
             raise ValueError(f"no {what} sources configured (data.{what})")
-        return [self._loader(self._pipeline(n, s, self.eval_batch_size, training=False)) for n, s in sources.items()]
+        return [self._loader(self._eval_pipeline(name, spec)) for name, spec in sources.items()]
 
     def val_dataloader(self) -> list[wds.WebLoader]:
         """One loader per validation source; none configured means no validation loop."""
@@ -205,7 +256,3 @@ class DriveDataModule(L.LightningDataModule):
     def predict_dataloader(self) -> list[wds.WebLoader]:
         return self._eval_loaders(self.predict_sources, "predict")
 
-    def source_of(self, dataloader_idx: int, stage: str) -> str:
-        """The source name behind an evaluation ``dataloader_idx``."""
-        sources = self.val_sources if stage == "val" else self.predict_sources
-        return list(sources)[dataloader_idx]

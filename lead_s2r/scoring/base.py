@@ -7,6 +7,7 @@ sample fields it reads (``meta`` always comes), so the data is decoded once with
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -30,14 +31,22 @@ class Scorer(ABC):
     version: ClassVar[str]
     #: sample fields read from the converted data besides ``meta``.
     fields: ClassVar[tuple[str, ...]]
+    #: datasets the metric is defined on (None: all); the validation callback skips the others.
+    datasets: ClassVar[tuple[str, ...] | None] = None
 
     def __init__(self, allow_missing: bool = False) -> None:
-        """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones."""
+        """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones (off by
+        default in Python, where a missing prediction is usually a bug; ``lead-s2r score`` turns it on unless
+        ``--strict``, and lists the unpredicted samples in scores.json)."""
         self.allow_missing = allow_missing
 
     def config(self) -> dict[str, Any]:
         """JSON-ready configuration, written next to the scores."""
         return {"allow_missing": self.allow_missing}
+
+    def write_files(self, result: ScoreResult, out: Path) -> None:
+        """Extra files beside scores.parquet / scores.json (e.g. a benchmark's own CSV); none by default."""
+        return None
 
     @abstractmethod
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
@@ -49,9 +58,12 @@ def join(
 ) -> list[tuple[dict[str, Any], list[Prediction]]]:
     """Pair each sample with its predictions, in data order.
 
-    A prediction for a key the data does not hold, or whose dataset differs from the sample's, is an error
-    naming the key; so is a sample without predictions unless ``allow_missing``.
+    Predictions of a dataset the data does not hold are left aside (one predictions file may cover several
+    datasets, scored one folder at a time). Errors naming the key: a prediction for a key the data does not hold
+    although it holds its dataset, a prediction whose dataset differs from its sample's, and, unless
+    ``allow_missing``, a sample without predictions (:func:`coverage` lists those).
     """
+    data = list(data)
     groups = group_by_key(predictions)
     pairs, unpredicted = [], []
     for sample in data:
@@ -65,15 +77,40 @@ def join(
             if p.dataset != dataset:
                 raise PredictionError(f"prediction {key!r}: dataset {p.dataset!r} but the sample is {dataset!r}")
         pairs.append((sample, frame))
-    if groups:
-        unknown = list(groups)
-        raise PredictionError(f"prediction {unknown[0]!r} has no sample in the data ({len(unknown)} such key(s))")
+    held = _datasets(data)
+    unknown = [key for key, frame in groups.items() if frame[0].dataset in held]
+    if unknown:
+        raise PredictionError(
+            f"prediction {unknown[0]!r} has no sample in the data although it holds its dataset "
+            f"{groups[unknown[0]][0].dataset!r} ({len(unknown)} such key(s)); is --data the right split?"
+        )
     if unpredicted and not allow_missing:
         raise PredictionError(
             f"sample {unpredicted[0]!r} has no prediction ({len(unpredicted)} such sample(s)); "
             "pass allow_missing=True to score only the predicted ones"
         )
     return pairs
+
+
+def coverage(predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """Which samples have no prediction, and how many predictions belong to datasets the data does not hold.
+
+    ``{"unpredicted": [key, ...] in data order, "other_datasets": {dataset: predictions}}``: what ``lead-s2r
+    score`` reports next to the scores.
+    """
+    data = list(data)
+    predictions = list(predictions)
+    predicted = {p.key for p in predictions}
+    held = _datasets(data)
+    other: dict[str, int] = {}
+    for p in predictions:
+        if p.dataset not in held:
+            other[p.dataset] = other.get(p.dataset, 0) + 1
+    return {"unpredicted": [s["__key__"] for s in data if s["__key__"] not in predicted], "other_datasets": other}
+
+
+def _datasets(data: Iterable[dict[str, Any]]) -> set[str]:
+    return {sample["meta"]["dataset"] for sample in data}
 
 
 def mean_or_none(values: np.ndarray) -> float | None:

@@ -1,9 +1,17 @@
-"""Run the open-loop scorers (RFS, ADE...) on validation predictions during training, per dataset.
+"""Run the open-loop scorers (RFS, ADE, PDMS...) on validation predictions during training, per dataset.
 
 Contract with the LightningModule: ``validation_step`` returns a dict whose ``"predictions"`` entry is a list of
 :class:`~lead_s2r.predictions.Prediction` (one per sample and inference, in the sample's ego frame). The callback
 collects them over the epoch (from every rank), joins them by key with the converted validation folders, and logs
 each scorer's float aggregates as ``<prefix>/<dataset>/<name>`` (e.g. ``val/wod_e2e/rfs``, ``val/navsim/ade``).
+
+Under DDP each rank predicts its own share of the samples (the data module splits by sample); rank 0 gathers them,
+scores every sample once and broadcasts the aggregates, so every rank logs the numbers a single process would
+(a metric monitored by a checkpoint callback must exist on every rank).
+
+A scorer runs only on the datasets it declares (``pdms@navsim-1.1``: NAVSIM, logged as ``val/navsim/pdms``). PDMS
+keeps PDM-Closed's references in memory across epochs; ``metric_config={"pdms@navsim-1.1": {"reference_cache": DIR}}``
+keeps them across runs too.
 """
 
 from collections import defaultdict
@@ -65,8 +73,10 @@ class ScoringCallback(L.Callback):
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
             return
-        for name, value in self.compute(gather_lists(self._predictions)).items():
-            pl_module.log(name, value)
+        predictions = gather_lists(self._predictions)
+        metrics = self.compute(predictions) if trainer.is_global_zero else None
+        for name, value in trainer.strategy.broadcast(metrics, src=0).items():
+            pl_module.log(name, value, sync_dist=True)  # the same value on every rank: the reduction keeps it
         self._predictions = []
 
     def compute(self, predictions: list[Prediction]) -> dict[str, float]:
@@ -80,6 +90,8 @@ class ScoringCallback(L.Callback):
             keys = dict.fromkeys(p.key for p in group)
             data = [samples[key] for key in keys if key in samples]
             for scorer in self.scorers:
+                if scorer.datasets is not None and dataset not in scorer.datasets:
+                    continue
                 aggregates = scorer.score(group, data).aggregates
                 for name, value in aggregates.items():
                     if isinstance(value, float):

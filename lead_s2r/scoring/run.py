@@ -1,5 +1,11 @@
-"""Score a predictions file against converted data: the body of ``lead-s2r score``."""
+"""Score a predictions file against converted data: the body of ``lead-s2r score``.
 
+A predictions file may hold several datasets: each folder scores the predictions of its own dataset(s), the
+others are counted in ``other_datasets``. Samples without a prediction are listed in ``unpredicted`` and, with
+``allow_missing=True`` (the CLI's default; ``--strict`` turns it off), left out of the scores.
+"""
+
+import inspect
 import json
 import time
 from pathlib import Path
@@ -9,18 +15,45 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r import __version__
-from lead_s2r.predictions import read_predictions
+from lead_s2r.errors import UserError
+from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import SCORER_GROUP, load
-from lead_s2r.scoring.base import Scorer
+from lead_s2r.scoring.base import Scorer, coverage
 from lead_s2r.shards import read_samples
 
 SCORES_TABLE = "scores.parquet"
 SCORES_JSON = "scores.json"
 
 
+def planner_predictions(planner: str, data: Path | list[Path], path: Path) -> Path:
+    """Write the predictions of a model-free planner (``lead_s2r.baselines.PLANNERS``: ``human`` replays the
+    logged future, ``constant-velocity`` is NAVSIM's baseline) on every sample of ``data`` to ``path``."""
+    from lead_s2r.baselines import PLANNERS
+
+    if planner not in PLANNERS:
+        raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
+    folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
+    predict = PLANNERS[planner]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_predictions(path, (predict(s) for folder in folders for s in read_samples(folder, fields=("future",))))
+
+
 def make_scorer(metric: str, **config: Any) -> Scorer:
-    """The scorer registered under ``metric`` (e.g. ``rfs@wod-e2e-2025``, ``ade``), configured."""
-    return load(metric, SCORER_GROUP)(**config)
+    """The scorer registered under ``metric`` (e.g. ``rfs@wod-e2e-2025``, ``ade``), configured.
+
+    An unknown metric, option or option value is a :class:`UserError` naming it.
+    """
+    cls = load(metric, SCORER_GROUP)
+    try:
+        return cls(**config)
+    except (TypeError, ValueError) as err:  # a scorer's constructor validates its options
+        parameters = inspect.signature(cls).parameters.values()
+        takes = [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+        if any(p.kind == p.VAR_KEYWORD for p in parameters):
+            takes.append("the metric's constants")
+        raise UserError(
+            f"--metric {metric}: bad --option ({err}); it takes {', '.join(takes)} (see docs/metrics.md)"
+        ) from None
 
 
 def score_predictions(
@@ -29,13 +62,23 @@ def score_predictions(
     """Score ``predictions`` (predictions.parquet) against one or more converted folders.
 
     Writes ``out/scores.parquet`` (one row per scored sample) and ``out/scores.json`` (aggregates, metric name
-    and version, config, package version, inputs) and returns the JSON content. ``config`` goes to the scorer.
+    and version, config, package version, inputs, ``unpredicted`` samples and predictions of ``other_datasets``)
+    and returns the JSON content. ``config`` goes to the scorer; without ``allow_missing=True`` an unpredicted
+    sample is an error, as in :func:`~lead_s2r.scoring.base.join`.
     """
     scorer = make_scorer(metric, **config)
     folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
     start = time.perf_counter()
     samples = [sample for folder in folders for sample in read_samples(folder, fields=scorer.fields)]
-    result = scorer.score(read_predictions(predictions), samples)
+    predicted = read_predictions(predictions)
+    covered = coverage(predicted, samples)
+    if len(covered["unpredicted"]) == len(samples):
+        datasets = sorted({sample["meta"]["dataset"] for sample in samples})
+        raise UserError(
+            f"{predictions}: no prediction for any sample of {', '.join(map(str, folders))} (datasets {datasets}); "
+            "check that --predictions and --data belong together"
+        )
+    result = scorer.score(predicted, samples)
     report = {
         "metric": scorer.name,
         "metric_version": scorer.version,
@@ -44,9 +87,14 @@ def score_predictions(
         "predictions": str(predictions),
         "data": [str(folder) for folder in folders],
         "aggregates": result.aggregates,
+        "unpredicted": {"count": len(covered["unpredicted"]), "keys": covered["unpredicted"]},
+        "other_datasets": covered["other_datasets"],
         "seconds": round(time.perf_counter() - start, 3),
     }
-    return write_scores(Path(out), result.table, report)
+    out = Path(out)
+    report = write_scores(out, result.table, report)
+    scorer.write_files(result, out)
+    return report
 
 
 def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:

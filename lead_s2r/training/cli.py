@@ -1,24 +1,63 @@
 """``lead-s2r fit|validate|test|predict``: LightningCLI over :class:`DrivingModule` and :class:`DriveDataModule`.
 
 Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overridden on the command line
-(``--trainer.max_epochs=31``) and the resolved config is saved next to each run.
+(``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
+missing config file, a value of the wrong type) become a :class:`UserError`, one line like every other verb's.
+
+A run's outputs share one root, ``trainer.default_root_dir``: checkpoints in ``<root>/checkpoints`` (a
+``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in the logger's version folder), logs and
+the resolved config in ``<root>/lightning_logs/version_N``, predictions in ``<root>/predictions.parquet`` (a
+``PredictionWriter`` without ``output``). So ``--trainer.default_root_dir`` moves all of them together.
 """
 
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from lightning.pytorch import Trainer
 from lightning.pytorch.cli import LightningCLI
 
 from lead_s2r.data.datamodule import DriveDataModule
+from lead_s2r.errors import UserError
+from lead_s2r.models.config import TFv6Config
 from lead_s2r.training.module import DrivingModule
 
 #: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
 TRAINER_DEFAULTS = {"reload_dataloaders_every_n_epochs": 1, "use_distributed_sampler": False}
+VERBS = ("fit", "validate", "test", "predict")
+#: Parsers raise instead of printing the whole usage and exiting, so the message reaches ``main()``.
+PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_error": False} for verb in VERBS}}
+
+
+class DrivingCLI(LightningCLI):
+    """LightningCLI that checks the data's source names against the model before anything is written, and roots
+    checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``."""
+
+    def instantiate_trainer(self, **kwargs: Any) -> Trainer:
+        config = getattr(getattr(self.model, "model", None), "config", None)
+        if isinstance(self.datamodule, DriveDataModule) and isinstance(config, TFv6Config):
+            self.datamodule.check_sources(config)
+        return super().instantiate_trainer(**kwargs)
+
+    def after_instantiate_classes(self) -> None:
+        super().after_instantiate_classes()
+        for callback in self.trainer.checkpoint_callbacks:
+            if callback.dirpath is None:
+                callback.dirpath = str(Path(self.trainer.default_root_dir) / "checkpoints")
 
 
 def run_lightning_cli(args: list[str] | None = None) -> None:
     """Run a LightningCLI subcommand with ``args`` (e.g. ``["fit", "--config", "recipes/..."]``; None: sys.argv)."""
-    LightningCLI(
-        DrivingModule,
-        DriveDataModule,
-        args=args,
-        trainer_defaults=TRAINER_DEFAULTS,
-        save_config_kwargs={"overwrite": True},
-    )
+    try:
+        DrivingCLI(
+            DrivingModule,
+            DriveDataModule,
+            args=args,
+            trainer_defaults=TRAINER_DEFAULTS,
+            save_config_kwargs={"overwrite": True},
+            parser_kwargs=PARSER_KWARGS,
+        )
+    except argparse.ArgumentError as err:
+        verb = next(iter(sys.argv[1:] if args is None else args), "fit")
+        raise UserError(f"{err} (see lead-s2r {verb} --help)") from None

@@ -9,6 +9,7 @@ import lightning as L
 import torch
 from lightning.pytorch.utilities import rank_zero_info, rank_zero_warn
 from torch import Tensor, nn
+from torchmetrics import MeanMetric
 
 from lead_s2r.models.inputs import Batch
 from lead_s2r.training import losses
@@ -61,6 +62,7 @@ class DrivingModule(L.LightningModule):
         unknown = set(self.loss_weights) - set(losses.TASK_TARGETS)
         if unknown:
             raise ValueError(f"loss_weights: unknown tasks {sorted(unknown)}; known: {sorted(losses.TASK_TARGETS)}")
+        self.val_means = nn.ModuleDict()  # filled by _log_val_mean; metric states stay out of checkpoints
         self.init_report: LoadReport | None = None
         if init_from is not None:
             self.init_report = load_matching(self.model, init_from)
@@ -146,6 +148,12 @@ class DrivingModule(L.LightningModule):
         )
         return total, terms
 
+    def on_train_epoch_start(self) -> None:
+        """Log this epoch's per-rank batch size of each source (``train/batch_size/<source>``), zeros included."""
+        batch_sizes = getattr(self.trainer.datamodule, "current_batch_sizes", None)
+        for source, size in (batch_sizes() if batch_sizes else {}).items():
+            self.log(f"train/batch_size/{source}", float(size), on_epoch=True, sync_dist=True)
+
     def training_step(self, batch: Mapping[str, Batch], batch_idx: int) -> Tensor | None:
         total, terms = self.compute_losses(batch)
         for name, (value, n) in terms.items():
@@ -176,12 +184,22 @@ class DrivingModule(L.LightningModule):
                 continue
             err = (output["xy"] - target).norm(dim=-1)
             last = valid.long().cumsum(1).argmax(1)
-            ade = losses.masked_mean(err, valid)
-            fde = err[torch.arange(len(err), device=err.device), last][has].mean()
-            n = int(has.sum())
-            self.log(f"val/{source}/ade", ade, batch_size=n, add_dataloader_idx=False)
-            self.log(f"val/{source}/fde", fde, batch_size=n, add_dataloader_idx=False)
+            fde = err[torch.arange(len(err), device=err.device), last]
+            self._log_val_mean(f"{source}/ade", err[valid])
+            self._log_val_mean(f"{source}/fde", fde[has])
         return {"predictions": to_predictions(outputs)}
+
+    def _log_val_mean(self, key: str, values: Tensor) -> None:
+        """Add ``values`` to the running mean logged as ``val/<key>`` (key ``<source>/<metric>``).
+
+        A metric object over every waypoint (ADE) or sample (FDE) of every rank, not a logged batch mean: Lightning's
+        batch-size-weighted mean truncates the summed batch sizes to an integer when it averages them over ranks,
+        so 18 + 17 samples would count as 34.
+        """
+        if key not in self.val_means:
+            self.val_means[key] = MeanMetric().to(self.device)
+        self.val_means[key].update(values)
+        self.log(f"val/{key}", self.val_means[key], add_dataloader_idx=False, metric_attribute=f"val_means.{key}")
 
     def predict_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         """Per source that has a planner: sample keys and datasets, time grid ``t`` (T,) in seconds, and poses in

@@ -26,12 +26,13 @@ class PredictionWriter(BasePredictionWriter):
     """Collects every rank's predictions and writes one ``predictions.parquet`` on rank 0 at the end.
 
     Args:
-        output: the parquet file to write.
+        output: the parquet file to write; by default ``<trainer.default_root_dir>/predictions.parquet``, so the
+            predictions follow the run's other outputs.
     """
 
-    def __init__(self, output: str = "predictions.parquet") -> None:
+    def __init__(self, output: str | None = None) -> None:
         super().__init__(write_interval="batch")
-        self.output = Path(output)
+        self.output = None if output is None else Path(output)
         self._predictions: list[Prediction] = []
 
     def write_on_batch_end(
@@ -49,6 +50,7 @@ class PredictionWriter(BasePredictionWriter):
     def on_predict_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         predictions = gather_lists(self._predictions)
         if trainer.is_global_zero:
-            self.output.parent.mkdir(parents=True, exist_ok=True)
-            write_predictions(self.output, drop_repeats(predictions))  # ranks may repeat samples at the end
+            output = self.output or Path(trainer.default_root_dir) / "predictions.parquet"
+            output.parent.mkdir(parents=True, exist_ok=True)
+            write_predictions(output, drop_repeats(predictions))  # a padding sampler may repeat samples
         self._predictions = []

@@ -54,6 +54,8 @@ class PDMScene:
     human_poses: np.ndarray | None = None  # (K, 3) at human_interval * (k + 1)
     human_interval: float = 0.5
     is_synthetic: bool = False
+    # PDM-Closed: speed limit of its start lane (NaN: none in the map, IDM falls back to 15 m/s)
+    speed_limit_mps: float = float("nan")
 
     @classmethod
     def from_sample(cls, sample: dict[str, Any]) -> "PDMScene":

@@ -1,0 +1,310 @@
+"""The CARLA leaderboard 2.0 agent for checkpoints of this package: ``--agent=<this file> --agent-config=<run
+folder, checkpoint, or a YAML of ClosedLoopConfig fields>``. Usage and command lines: ``docs/closed_loop.md``.
+
+Lifecycle, as leaderboard 2.0 drives it: ``get_entry_point()`` names the class; ``get_ros_version()`` (a static
+method: the evaluator calls it on the class) is 0; the evaluator builds ``Agent(host, port, debug)``, calls
+``set_global_plan(gps_route, world_route)`` (the leaderboard's base class downsamples it), then ``setup(agent_config)``,
+``sensors()``, ``run_step(input_data, timestamp)`` every 50 ms tick and ``destroy()``. Without the leaderboard
+installed, a stand-in base class with the same interface is used (it keeps the plan as given), so the package imports
+and the tests run without CARLA; the ``carla`` client (``VehicleControl``) is imported when the first control is made.
+
+Per tick: sensors -> a schema sample (:mod:`.sensors`) -> the training transform of the ``carla`` source -> the model
+-> LEAD's controllers (:mod:`.controllers`). LEAD reads ``IS_BENCH2DRIVE`` as true whenever it is set, even to 0;
+here it is a real boolean (``1/true/yes/on`` or ``0/false/no/off``, anything else is an error).
+"""
+
+import json
+import math
+import os
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+import yaml
+
+from lead_s2r.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
+from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, check_drivable, find_checkpoint, load_model, rig_for
+from lead_s2r.closed_loop.controllers import (
+    Control,
+    Creeper,
+    LateralPID,
+    StopSignSlowdown,
+    WaypointController,
+    decode_target_speed,
+    gate,
+    throttle_brake,
+)
+from lead_s2r.closed_loop.route import (
+    GeoReference,
+    PositionFilter,
+    TargetPoints,
+    compass_to_yaw,
+    estimate_geo_reference,
+    gnss_to_world,
+    road_option,
+    world_to_iso,
+)
+from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_sample, reading, sensor_specs
+from lead_s2r.data.transforms import CENTERNET_STRIDE, SourceTransform, bev_cell_centres, collate
+from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
+from lead_s2r.models.config import TFv6Config
+from lead_s2r.schema import BoxClass
+
+try:  # pragma: no cover - depends on the environment
+    from leaderboard.autoagents.autonomous_agent import AutonomousAgent, Track
+
+    SENSORS_TRACK: Any = Track.SENSORS
+except ImportError:
+    AutonomousAgent = None
+    SENSORS_TRACK = "SENSORS"
+
+#: The simulator's fixed step (leaderboard ``frame_rate = 20``), seconds.
+CARLA_DT = 0.05
+#: ``lower_target_speed`` multiplies the predicted target speed by this.
+LOWER_TARGET_SPEED_FACTOR = 0.8
+#: A stop-sign heatmap peak counts as a sign above this score (our choice; LEAD thresholds its decoded boxes).
+STOP_SIGN_SCORE = 0.3
+TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off", "")
+
+
+def get_entry_point() -> str:
+    return "LeadS2RAgent"
+
+
+def parse_bool(name: str, value: str) -> bool:
+    """A boolean environment value; anything but the usual spellings is an error naming the variable."""
+    text = value.strip().lower()
+    if text in TRUE:
+        return True
+    if text in FALSE:
+        return False
+    raise ValueError(f"environment variable {name}={value!r}: expected one of {', '.join(TRUE + FALSE[:-1])}")
+
+
+@dataclass
+class ClosedLoopConfig:
+    """How the agent drives. ``checkpoint``: a ``lead-s2r fit`` run folder or checkpoint file.
+
+    Args:
+        source: the model's source whose output grid and label space drive (the CARLA data's source name).
+        rig: LEAD camera rig name; None derives it from the model's image size.
+        controller: "route" (lateral PID on the predicted route, longitudinal model on the target speed; LEAD's
+            default) or "waypoint" (LEAD's waypoint PID).
+        use_kalman_filter: filter the GNSS position (filterpy UKF) for the route planners and target points.
+        adaptive_pop_distance, skip_distant_target_point, steer_correction: LEAD's sensor-agent defaults (on).
+        creeping, stop_sign_slowdown, lower_target_speed: LEAD's test-time heuristics (off).
+        bench2drive: Bench2Drive mode (the agent config is cut at the first ``+``; ``metric_info.json`` is written
+            when the harness offers ``get_metric_info``); the ``IS_BENCH2DRIVE`` environment variable overrides it.
+        device: torch device; None picks CUDA when available.
+    """
+
+    checkpoint: str
+    source: str = "carla"
+    rig: str | None = None
+    controller: Literal["route", "waypoint"] = "route"
+    use_kalman_filter: bool = True
+    adaptive_pop_distance: bool = True
+    skip_distant_target_point: bool = True
+    steer_correction: bool = True
+    creeping: bool = False
+    stop_sign_slowdown: bool = False
+    lower_target_speed: bool = False
+    jpeg_quality: int = 90
+    bench2drive: bool = False
+    device: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.controller not in ("route", "waypoint"):
+            raise ValueError(f"controller must be 'route' or 'waypoint', got {self.controller!r}")
+        if self.rig is not None and self.rig not in CAMERA_RIGS:
+            raise ValueError(f"rig {self.rig!r} is not a LEAD camera rig; known: {', '.join(CAMERA_RIGS)}")
+
+    @classmethod
+    def from_agent_config(cls, agent_config: str, environ: dict[str, str] | None = None) -> "ClosedLoopConfig":
+        """Parse the leaderboard's ``--agent-config``: a YAML of these fields, or a checkpoint / run folder."""
+        environ = dict(os.environ) if environ is None else environ
+        bench2drive = parse_bool("IS_BENCH2DRIVE", environ["IS_BENCH2DRIVE"]) if "IS_BENCH2DRIVE" in environ else None
+        if bench2drive:
+            agent_config = agent_config.split("+", 1)[0]  # Bench2Drive appends "+<save name>"
+        if agent_config.endswith((".yaml", ".yml")):
+            values = yaml.safe_load(Path(agent_config).read_text()) or {}
+            known = {f.name for f in fields(cls)}
+            unknown = set(values) - known
+            if unknown or "checkpoint" not in values:
+                raise ValueError(f"{agent_config}: unknown keys {sorted(unknown)} or no 'checkpoint'; known: "
+                                 f"{sorted(known)}")  # fmt: skip
+            config = cls(**values)
+        else:
+            config = cls(checkpoint=agent_config)
+        if bench2drive is not None:
+            config.bench2drive = bench2drive
+        return config
+
+
+class _StandInAgent:
+    """leaderboard 2.0's ``AutonomousAgent`` interface, for running without the leaderboard installed."""
+
+    def __init__(self, carla_host: str, carla_port: int, debug: bool = False) -> None:
+        self.track = SENSORS_TRACK
+        self._global_plan: list | None = None
+        self._global_plan_world_coord: list | None = None
+        self.wallclock_t0 = None
+
+    def set_global_plan(self, global_plan_gps: list, global_plan_world_coord: list) -> None:
+        self._global_plan, self._global_plan_world_coord = list(global_plan_gps), list(global_plan_world_coord)
+
+
+Base: Any = AutonomousAgent if AutonomousAgent is not None else _StandInAgent
+
+
+class LeadS2RAgent(Base):
+    """Drives a checkpoint of this package on the SENSORS track (see the module docstring)."""
+
+    def __init__(self, carla_host: str, carla_port: int, debug: bool = False) -> None:
+        super().__init__(carla_host, carla_port, debug)
+        self.debug = debug
+
+    @staticmethod
+    def get_ros_version() -> int:
+        return 0
+
+    def setup(self, path_to_conf_file: str) -> None:
+        self.track = SENSORS_TRACK
+        self.config = config = ClosedLoopConfig.from_agent_config(path_to_conf_file)
+        model_config = self._load_model(config)
+        self.rig = Rig(
+            config.rig or rig_for(model_config), lidar=model_config.bev_input == "raster", radar=model_config.use_radar
+        )
+        self.transform = SourceTransform(config.source, model_config, cameras=[MOSAIC_ID])
+        self.classes = tuple(model_config.target_speed_classes)
+        self.lateral = LateralPID(config.steer_correction)
+        self.waypoint_controller = WaypointController(model_config.trajectory_grids[config.source].dt)
+        self.creeper = Creeper(EGO_HALF_EXTENT[0] + CARLA_REAR_AXLE_TO_CENTER, EGO_HALF_EXTENT[1])
+        self.stop_sign = StopSignSlowdown()
+        self.position_filter = PositionFilter(CARLA_DT) if config.use_kalman_filter else None
+        self.navigator: TargetPoints | None = None
+        self.reference: GeoReference | None = None
+        self.step = 0
+        self.last_sample: dict[str, Any] | None = None
+
+    def _load_model(self, config: ClosedLoopConfig) -> TFv6Config:
+        """The network on its device; its config, once it is known to drive with every switch ``config`` sets."""
+        path = find_checkpoint(config.checkpoint)
+        device = config.device or ("cuda" if torch.cuda.is_available() else "cpu")
+        self.device = torch.device(device)
+        self.model = load_model(path, device)
+        self.model_config = model_config = check_drivable(self.model, config.source, path)
+        if config.stop_sign_slowdown and model_config.space(config.source) not in model_config.box_classes:
+            raise UnsupportedCheckpoint(f"{path}: stop_sign_slowdown needs a box head for source {config.source!r}; "
+                                        "the model has none (set stop_sign_slowdown: false)")  # fmt: skip
+        return model_config
+
+    def sensors(self) -> list[dict[str, Any]]:
+        return sensor_specs(self.rig)
+
+    # ------------------------------------------------------------------ route
+
+    def _start_route(self) -> None:
+        """Geo reference and target-point planners from the (downsampled) global plan."""
+        if not self._global_plan or not self._global_plan_world_coord:
+            raise RuntimeError("run_step before set_global_plan: the agent has no route to follow")
+        gnss = np.array([[gps["lat"], gps["lon"]] for gps, _ in self._global_plan])
+        world = np.array([[t.location.x, t.location.y] for t, _ in self._global_plan_world_coord])
+        self.reference = estimate_geo_reference(gnss, world)
+        commands = [road_option(option) for _, option in self._global_plan_world_coord]
+        self.navigator = TargetPoints(
+            world_to_iso(world), commands, self.config.adaptive_pop_distance, self.config.skip_distant_target_point
+        )
+
+    def pose(self, input_data: dict[str, Any]) -> np.ndarray:
+        """World ISO (x, y, yaw) of the vehicle centre from GNSS and compass, filtered when configured."""
+        lat, lon = np.asarray(reading(input_data, GNSS_ID), np.float64)[:2]
+        xy = world_to_iso(gnss_to_world(lat, lon, self.reference))
+        yaw = compass_to_yaw(float(np.asarray(reading(input_data, IMU_ID))[6]))
+        speed = float(reading(input_data, SPEED_ID)["speed"])
+        if self.position_filter is not None:
+            xy = self.position_filter.step(np.r_[xy, yaw, speed])[:2]
+        return np.r_[xy, yaw]
+
+    def preprocess(self, input_data: dict[str, Any], timestamp: float) -> dict[str, Any]:
+        """One tick -> the model's input batch (of one sample), stepping the route state."""
+        if self.navigator is None:
+            self._start_route()
+        navigation = self.navigator.step(self.pose(input_data))
+        sample = build_sample(input_data, self.rig, navigation, self.step, timestamp, self.config.jpeg_quality)
+        self.last_sample = sample
+        return collate([self.transform(sample)])
+
+    # ------------------------------------------------------------------ driving
+
+    @torch.inference_mode()
+    def predict(self, batch: dict[str, Any]) -> dict[str, torch.Tensor]:
+        tasks = {"waypoints", "route", "target_speed"}
+        if self.config.stop_sign_slowdown:
+            tasks.add("boxes")
+        inputs = {k: v.to(self.device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+        return {k: v[0].float().cpu() for k, v in self.model(inputs, self.config.source, tasks).items()}
+
+    def control(self, prediction: dict[str, torch.Tensor], speed: float) -> Control:
+        """LEAD's controllers and heuristics on one prediction."""
+        if self.config.controller == "waypoint":
+            control = self.waypoint_controller.step(prediction["waypoints"].numpy(), speed)
+        else:
+            target = decode_target_speed(prediction["target_speed_logits"].numpy(), self.classes)
+            if self.config.lower_target_speed:
+                target *= LOWER_TARGET_SPEED_FACTOR
+            throttle, brake = throttle_brake(target, speed)
+            control = Control(self.lateral.step(prediction["route"].numpy(), speed), throttle, brake)
+        if self.config.creeping:
+            control = self.creeper.step(control, speed, self.last_sample.get("lidar"))
+        if self.config.stop_sign_slowdown:
+            control = self.stop_sign.step(control, speed, self.stop_sign_distance(prediction))
+        return gate(control, speed)
+
+    def stop_sign_distance(self, prediction: dict[str, torch.Tensor]) -> float | None:
+        """Distance (m) from the front bumper to the strongest predicted stop sign, None when there is none."""
+        heatmap = prediction["box_heatmap"][BoxClass.STOP_SIGN].sigmoid()
+        if float(heatmap.max()) < STOP_SIGN_SCORE:
+            return None
+        row, col = np.unravel_index(int(heatmap.argmax()), tuple(heatmap.shape))
+        xs, ys = bev_cell_centres(self.model_config.bev, CENTERNET_STRIDE)
+        bumper = EGO_HALF_EXTENT[0] + CARLA_REAR_AXLE_TO_CENTER
+        return math.hypot(max(float(xs[row]) - bumper, 0.0), float(ys[col]))
+
+    def run_step(self, input_data: dict[str, Any], timestamp: float) -> Any:
+        """One tick: the route state always advances; the first tick brakes (LEAD's initial frame delay)."""
+        batch = self.preprocess(input_data, timestamp)
+        speed = float(reading(input_data, SPEED_ID)["speed"])
+        control = Control(0.0, 0.0, 1.0) if self.step == 0 else self.control(self.predict(batch), speed)
+        self.step += 1
+        if self.config.bench2drive:
+            self._write_metric_info()
+        return vehicle_control(control)
+
+    def _write_metric_info(self) -> None:
+        """Bench2Drive's per-step metric dump, where its harness provides ``get_metric_info``."""
+        get_metric_info, save_path = getattr(self, "get_metric_info", None), os.environ.get("SAVE_PATH")
+        if get_metric_info is None or not save_path:
+            return
+        path = Path(save_path) / "metric_info.json"
+        info = json.loads(path.read_text()) if path.is_file() else {}
+        info[self.step] = get_metric_info()
+        path.write_text(json.dumps(info, indent=1))
+
+    def destroy(self) -> None:
+        self.model = None
+        if torch.cuda.is_available():
+            torch.cuda.empty_cache()
+
+
+def vehicle_control(control: Control) -> Any:
+    """A ``carla.VehicleControl`` (the PyPI ``carla`` client: ``pip install 'lead-s2r[carla]'``)."""
+    try:
+        import carla
+    except ImportError as err:  # pragma: no cover - depends on the environment
+        raise ImportError("the closed-loop agent needs the CARLA client: pip install 'lead-s2r[carla]'") from err
+    return carla.VehicleControl(
+        steer=float(control.steer), throttle=float(control.throttle), brake=float(control.brake)
+    )

@@ -1,0 +1,122 @@
+"""A trained run -> the driving network, its configuration and the CARLA camera rig it was trained for.
+
+No second config format: ``lead-s2r fit`` (LightningCLI) saves the resolved run configuration as ``config.yaml`` in
+the run folder, and that is where the network's class and config come from (``DrivingModule`` leaves the network out
+of its ``hyper_parameters``, so the checkpoint alone cannot rebuild it). A checkpoint without that file, or whose
+weights do not fit it, is refused with what to do, as is a model that cannot drive a CARLA route: one without an
+output grid for the source, or one that reads no route target points (an LTFv6 NAVSIM model, ``target_points=()``:
+it would not know where to turn). LEAD's users hit exactly these silent mismatches between
+configs and weights; here they are errors at load time.
+
+The camera rig is not stored by training either; it follows from the model's input: the LEAD rig whose stitched
+strip (after the model's ``vertical_fov_deg`` crop, the same :func:`~lead_s2r.data.transforms.camera_layout`
+training used) has the aspect of ``image_size`` (3 cameras 3:1, 6 cameras 6:1, the wide camera 8:3, NAVSIM's 64:9).
+"""
+
+import math
+from pathlib import Path
+
+import torch
+import yaml
+from torch import nn
+
+from lead_s2r.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
+from lead_s2r.data.transforms import camera_layout, camera_tiles
+from lead_s2r.models.config import TFv6Config
+
+#: The file LightningCLI writes the resolved run configuration to.
+CONFIG_NAME = "config.yaml"
+
+
+class UnsupportedCheckpoint(ValueError):
+    """A checkpoint this agent cannot drive with; the message says why and what to do."""
+
+
+def find_checkpoint(path: str | Path) -> Path:
+    """``path`` itself if it is a file; in a run folder ``checkpoints/last.ckpt``, ``last.ckpt``, else the newest
+    ``*.ckpt`` below it."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise FileNotFoundError(f"agent config {path}: no such checkpoint file or run folder")
+    for candidate in (path / "checkpoints" / "last.ckpt", path / "last.ckpt"):
+        if candidate.is_file():
+            return candidate
+    found = sorted(path.rglob("*.ckpt"), key=lambda p: p.stat().st_mtime)
+    if not found:
+        raise FileNotFoundError(f"run folder {path} holds no *.ckpt; pass a checkpoint file or a run of `lead-s2r fit`")
+    return found[-1]
+
+
+def saved_config(checkpoint: Path) -> Path:
+    """LightningCLI's ``config.yaml`` of the run a checkpoint belongs to: beside it or up to two folders up (the run
+    folder of ``<run>/checkpoints/last.ckpt``), or in the newest ``lightning_logs/version_*`` there."""
+    for folder in list(checkpoint.resolve().parents)[:3]:
+        logged = sorted(folder.glob(f"lightning_logs/version_*/{CONFIG_NAME}"), key=lambda p: p.stat().st_mtime)
+        candidates = [folder / CONFIG_NAME, *logged[::-1]]
+        for candidate in candidates:
+            if candidate.is_file():
+                return candidate
+    raise UnsupportedCheckpoint(
+        f"{checkpoint}: no {CONFIG_NAME} (the configuration `lead-s2r fit` saves in its run folder) beside the "
+        "checkpoint or in its run folder, so the network cannot be rebuilt; pass the run folder of `lead-s2r fit`"
+    )
+
+
+def load_model(checkpoint: Path, device: str = "cpu") -> nn.Module:
+    """The network of a ``lead-s2r fit`` checkpoint, rebuilt from the run's saved config, in eval mode."""
+    from lightning.pytorch.cli import instantiate_module  # Lightning is only needed here
+
+    from lead_s2r.training.module import DrivingModule
+
+    config_path = saved_config(checkpoint)
+    section = (yaml.safe_load(config_path.read_text()) or {}).get("model")
+    if not isinstance(section, dict) or "model" not in section:
+        raise UnsupportedCheckpoint(f"{config_path}: no 'model.model' entry (the network's class and config)")
+    if "class_path" in section:  # a DrivingModule subclass
+        section = {"_class_path": section["class_path"], **section.get("init_args", {})}
+    module = instantiate_module(DrivingModule, {**section, "init_from": None, "compile": False})
+    state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    try:
+        module.load_state_dict(state["state_dict"])
+    except (KeyError, RuntimeError) as err:
+        raise UnsupportedCheckpoint(f"{checkpoint}: its weights do not fit the model of {config_path}: {err}") from err
+    return module.model.to(device).eval()
+
+
+def check_drivable(model: nn.Module, source: str, path: Path) -> TFv6Config:
+    """The model's config, or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route as ``source``."""
+    config = getattr(model, "config", None)
+    if not isinstance(config, TFv6Config):
+        raise UnsupportedCheckpoint(
+            f"{path}: {type(model).__name__} is not a TFv6-family model (no TFv6Config); only camera(+LiDAR) models "
+            "with a planning decoder can drive in CARLA"
+        )
+    if source not in config.trajectory_grids:
+        raise UnsupportedCheckpoint(
+            f"{path}: the model has no output grid for source {source!r} (trajectory_grids: "
+            f"{sorted(config.trajectory_grids)}); set the agent's source to one it was trained on"
+        )
+    if not getattr(model, "reads_target_points", False):
+        raise UnsupportedCheckpoint(
+            f"{path}: the model reads no route target points (target_points={config.target_points!r}, e.g. an "
+            "LTFv6 NAVSIM model), so it cannot follow a CARLA route; train a model with target_points"
+        )
+    return config
+
+
+def strip_aspect(rig: str, config: TFv6Config) -> float:
+    """Width / height of a rig's stitched strip as the training transform lays it out for ``config``."""
+    cameras = CAMERA_RIGS[rig]
+    meta = {"cameras": camera_calibration(rig)}
+    shape = (cameras[0].stored_height, sum(camera.width for camera in cameras))
+    tiles = camera_tiles(meta, MOSAIC_ID, shape)
+    layout = camera_layout(((shape, tiles),), tuple(config.image_size), config.vertical_fov_deg)
+    return layout.strip[1] / layout.strip[0]
+
+
+def rig_for(config: TFv6Config) -> str:
+    """The LEAD rig whose strip aspect is nearest (in log ratio) to the model's ``image_size``."""
+    height, width = config.image_size
+    return min(CAMERA_RIGS, key=lambda rig: abs(math.log(strip_aspect(rig, config) * height / width)))

@@ -1,0 +1,190 @@
+"""The leaderboard agent end to end on a synthetic CARLA route: a tiny model trained here by `lead-s2r fit`, driven
+through leaderboard-shaped sensor data; its preprocessing held against the adapter + training transform."""
+
+import json
+import os
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from closed_loop_scene import global_plan, sensor_data
+from tiny_models import TINY
+
+from lead_s2r.closed_loop import agent as agent_module
+from lead_s2r.closed_loop.agent import ClosedLoopConfig, LeadS2RAgent, parse_bool
+from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, find_checkpoint, rig_for, saved_config
+from lead_s2r.closed_loop.sensors import Rig, sensor_specs
+from lead_s2r.convert import convert
+from lead_s2r.data.transforms import SourceTransform
+from lead_s2r.models.config import ltfv6_config, tfv6_config
+from lead_s2r.registry import LogRef
+from lead_s2r.schema import validate
+from lead_s2r.synthetic import carla_lead as synth
+from lead_s2r.training.cli import run_lightning_cli
+from lead_s2r_adapters.carla_lead import CarlaLeadAdapter
+
+carla = pytest.importorskip("carla", reason="the CARLA client (lead-s2r[carla]) builds the leaderboard's types")
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+TFV6 = "lead_s2r.models.tfv6.TFv6"
+MODEL = {**TINY, "image_size": [32, 96], "bev": vars(TINY["bev"])}  # 3:1, LEAD's 3-camera rig
+
+
+def fit_config(root: Path, data: Path, model: dict, steps: int) -> Path:
+    """A smoke-recipe-like LightningCLI config: CARLA only, CARLA supervising planning too."""
+    config = {
+        "seed_everything": 0,
+        "trainer": {
+            "accelerator": "cpu", "max_epochs": 1, "limit_train_batches": steps, "logger": False,
+            "enable_progress_bar": False, "enable_model_summary": False, "default_root_dir": str(root),
+            "callbacks": [{"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
+                           "init_args": {"dirpath": str(root / "checkpoints"), "save_last": True}}],
+        },
+        "model": {
+            "model": {"class_path": TFV6, "init_args": {"config": json.loads(json.dumps(model))}},
+            "supervise": {"carla": ["planning", "perception"]},
+        },
+        "data": {
+            "train": {"carla": {"paths": [str(data)], "cameras": ["carla_mosaic"]}},
+            "schedule": {"anchors": {0: {"carla": 2}}, "global_batch_size": 2},
+            "steps_per_epoch": steps,
+            "shuffle_buffer": 4,
+        },
+    }  # fmt: skip
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / "fit.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """A synthetic left-turn route, converted, and a tiny TFv6 fitted on it for 2 steps (its run folder)."""
+    root = tmp_path_factory.mktemp("closed_loop")
+    synth.generate(root / "src", count=1, frames=4)
+    convert(CarlaLeadAdapter(), root / "src", root / "data", shard_size=8)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the shared CPU; restored for the other test modules
+    try:
+        run_lightning_cli(["fit", "--config", str(fit_config(root / "run", root / "data", MODEL, steps=2))])
+    finally:
+        torch.set_num_threads(threads)
+    folder = next((root / "src" / "data").glob("*/*"))
+    return {"run": root / "run", "folder": folder, "root": root}
+
+
+def make_agent(checkpoint: str | Path, folder: Path) -> LeadS2RAgent:
+    """The leaderboard's order: construct, set_global_plan, setup."""
+    agent = LeadS2RAgent("localhost", 2000, False)
+    agent.set_global_plan(*global_plan(folder))
+    agent.setup(str(checkpoint))
+    return agent
+
+
+def test_the_agent_drives_50_steps_with_controls_in_range(scene):
+    agent = make_agent(scene["run"], scene["folder"])
+    assert LeadS2RAgent.get_ros_version() == 0 and agent_module.get_entry_point() == "LeadS2RAgent"
+    assert agent.rig == Rig("CARLA_LEADERBOARD2_3CAMERAS", lidar=True, radar=True)
+    ids = {spec["id"] for spec in agent.sensors()}
+    assert ids == {"rgb_1", "rgb_2", "rgb_3", "lidar_0", "lidar_1", "radar_1", "radar_2", "radar_3", "radar_4",
+                   "imu", "gps", "speed"}  # fmt: skip
+    frames = [sensor_data(scene["folder"], f) for f in range(4)]
+    controls = [agent.run_step(frames[step * 4 // 50], step * 0.05) for step in range(50)]
+    assert all(isinstance(c, carla.VehicleControl) for c in controls)
+    first = controls[0]
+    assert (first.throttle, first.brake, first.steer) == (0.0, 1.0, 0.0)
+    for control in controls:
+        assert -1.0 <= control.steer <= 1.0 and 0.0 <= control.throttle <= 1.0 and 0.0 <= control.brake <= 1.0
+        assert not (control.throttle > 0 and control.brake > 0)
+    agent.destroy()
+
+
+def test_preprocessing_equals_the_adapter_and_training_transform(scene):
+    agent = make_agent(scene["run"], scene["folder"])
+    batch = agent.preprocess(sensor_data(scene["folder"], 0), 0.0)
+    validate(agent.last_sample)  # a valid schema sample, like the adapter's
+    folder = scene["folder"]
+    log = LogRef(f"{folder.parent.name}/{folder.name}", "train", str(folder), {})
+    recorded = next(CarlaLeadAdapter(tp_distance=3.25).iter_samples(log))
+    want = SourceTransform("carla", agent.model_config, cameras=["carla_mosaic"])(recorded)
+    got = {k: v[0] for k, v in batch.items() if isinstance(v, torch.Tensor)}
+    image_error = (got["rgb"].float() - want["rgb"].float()).abs()
+    assert image_error.mean() < 2.0 and image_error.max() < 40  # one extra JPEG round trip at quality 90
+    torch.testing.assert_close(got["lidar_bev"], want["lidar_bev"])
+    assert want["lidar_bev"].sum() > 0
+    torch.testing.assert_close(got["target_points"], want["target_points"], atol=0.02, rtol=0)
+    assert bool(got["target_points_valid"].all() and want["target_points_valid"].all())
+    torch.testing.assert_close(got["speed"], want["speed"])
+    torch.testing.assert_close(got["acceleration"], want["acceleration"])
+    assert int(got["command"]) == int(want["command"])
+    torch.testing.assert_close(got["radar"], want["radar"], atol=1e-3, rtol=0)
+    torch.testing.assert_close(got["radar_valid"], want["radar_valid"])
+
+
+def test_an_ltfv6_navsim_checkpoint_is_refused(scene):
+    ltf = {k: v for k, v in asdict(ltfv6_config(**TINY)).items() if k not in ("trajectory_grids", "label_space")}
+    root = scene["root"] / "ltf"
+    run_lightning_cli(["fit", "--config", str(fit_config(root, scene["root"] / "data", ltf, steps=1))])
+    with pytest.raises(UnsupportedCheckpoint, match="reads no route target points"):
+        make_agent(root, scene["folder"])
+
+
+def test_a_checkpoint_without_its_model_configuration_is_refused(scene, tmp_path):
+    path = tmp_path / "copied.ckpt"  # the weights without the run folder's config.yaml
+    shutil.copy(scene["run"] / "checkpoints" / "last.ckpt", path)
+    with pytest.raises(UnsupportedCheckpoint, match=r"config\.yaml"):
+        make_agent(path, scene["folder"])
+
+
+def test_rig_follows_the_model_image():
+    assert rig_for(tfv6_config(image_size=(384, 1152))) == "CARLA_LEADERBOARD2_3CAMERAS"
+    assert rig_for(tfv6_config(image_size=(384, 2304))) == "CARLA_LEADERBOARD2_6CAMERAS"
+    assert rig_for(tfv6_config(image_size=(384, 1024))) == "CARLA_PY123D_1CAMERA"
+    assert rig_for(ltfv6_config()) == "NAVSIM_4CAMERAS"
+    specs = sensor_specs(Rig("CARLA_LEADERBOARD2_6CAMERAS", lidar=False, radar=False))
+    assert [s["yaw"] for s in specs if s["type"] == "sensor.camera.rgb"] == [-57.5, 0.0, 57.5, -122.5, 180.0, 122.5]
+
+
+def test_the_benchmark_flag_is_a_real_boolean(tmp_path):
+    assert ClosedLoopConfig.from_agent_config("run", {"IS_BENCH2DRIVE": "0"}).bench2drive is False
+    config = ClosedLoopConfig.from_agent_config("run+route_42", {"IS_BENCH2DRIVE": "True"})
+    assert config.bench2drive is True and config.checkpoint == "run"
+    assert ClosedLoopConfig.from_agent_config("run+x", {}).checkpoint == "run+x"
+    assert parse_bool("X", "off") is False
+    with pytest.raises(ValueError, match="IS_BENCH2DRIVE"):
+        ClosedLoopConfig.from_agent_config("run", {"IS_BENCH2DRIVE": "maybe"})
+    path = tmp_path / "drive.yaml"
+    path.write_text("checkpoint: runs/a\ncreeping: true\ncontroller: waypoint\n")
+    config = ClosedLoopConfig.from_agent_config(str(path), {})
+    assert (config.checkpoint, config.creeping, config.controller) == ("runs/a", True, "waypoint")
+
+
+def test_the_heuristics_and_the_waypoint_controller_switch_on_by_config(scene, tmp_path):
+    path = tmp_path / "drive.yaml"
+    options = {"checkpoint": str(scene["run"]), "controller": "waypoint", "creeping": True, "stop_sign_slowdown": True}
+    path.write_text(yaml.safe_dump(options))
+    agent = make_agent(path, scene["folder"])
+    frame = sensor_data(scene["folder"], 1)
+    controls = [agent.run_step(frame, step * 0.05) for step in range(5)]
+    assert controls[0].brake == 1.0
+    for control in controls:
+        assert -1.0 <= control.steer <= 1.0 and 0.0 <= control.throttle <= 1.0 and 0.0 <= control.brake <= 1.0
+    assert agent.creeper.stuck_frames == 0  # moving at the recorded speed: never stuck
+
+
+def test_the_saved_config_is_found_beside_a_logger_run(tmp_path):
+    (tmp_path / "checkpoints").mkdir()
+    checkpoint = tmp_path / "checkpoints" / "last.ckpt"
+    checkpoint.touch()
+    for version in (0, 1):
+        (tmp_path / "lightning_logs" / f"version_{version}").mkdir(parents=True)
+        config = tmp_path / "lightning_logs" / f"version_{version}" / "config.yaml"
+        config.write_text(f"v: {version}\n")
+        os.utime(config, (1000 + version, 1000 + version))  # version 1 is the newer run
+    assert find_checkpoint(tmp_path) == checkpoint
+    assert saved_config(checkpoint) == tmp_path / "lightning_logs" / "version_1" / "config.yaml"
+    (tmp_path / "config.yaml").write_text("v: run\n")
+    assert saved_config(checkpoint) == tmp_path / "config.yaml"

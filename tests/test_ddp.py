@@ -1,0 +1,128 @@
+"""Two gloo processes on CPU (Lightning's ``ddp_fork``): validation splits by sample, the scoring callback scores
+every sample once, every rank logs what one process logs, and both ranks train the same number of steps."""
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import lightning as L
+import pytest
+import torch
+from lightning.pytorch.strategies import DDPStrategy
+from tiny_models import TINY
+from toy_adapter import ToyAdapter, write_toy_logs
+
+from lead_s2r.convert import convert
+from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
+from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.models.config import TrajectoryGrid, tfv6_config
+from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.scoring.callback import ScoringCallback
+from lead_s2r.training.cli import TRAINER_DEFAULTS
+from lead_s2r.training.module import DrivingModule
+
+pytestmark = pytest.mark.usefixtures("one_thread")  # forked ranks must not inherit a busy OpenMP pool
+
+
+@pytest.fixture(scope="module")
+def one_shard(tmp_path_factory) -> str:
+    """35 samples in a single shard: split by shard, rank 1 would get none."""
+    root = tmp_path_factory.mktemp("one_shard")
+    write_toy_logs(root / "src", n_logs=5, frames=7)
+    convert(ToyAdapter(), root / "src", root / "data", shard_size=1000)
+    assert len(list((root / "data" / "shards").glob("*.tar"))) == 1
+    return str(root / "data")
+
+
+class Recorder(L.Callback):
+    """Writes ``rank<r>.json`` at the end of the fit: train steps per epoch, validation keys, logged metrics."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.steps: Counter[int] = Counter()
+        self.val_keys: list[str] = []
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        self.steps[trainer.current_epoch] += 1
+
+    def on_validation_epoch_start(self, trainer, pl_module) -> None:
+        self.val_keys = []
+
+    def on_validation_batch_start(self, trainer, pl_module, batch, batch_idx, dataloader_idx=0) -> None:
+        self.val_keys += batch["navsim"]["__key__"]
+
+    def on_fit_end(self, trainer, pl_module) -> None:
+        record = {
+            "steps": [self.steps[epoch] for epoch in sorted(self.steps)],
+            "val_keys": self.val_keys,
+            "metrics": {name: float(value) for name, value in trainer.callback_metrics.items()},
+        }
+        (self.out / f"rank{trainer.global_rank}.json").write_text(json.dumps(record))
+
+
+class CountingScoring(ScoringCallback):
+    """Records the keys of every prediction it scores, per rank."""
+
+    def __init__(self, data: str, out: Path) -> None:
+        super().__init__(data, metrics=["ade"], prefix="score")
+        self.out = out
+
+    def compute(self, predictions):
+        with (self.out / "scored.jsonl").open("a") as file:
+            file.write(json.dumps([p.key for p in predictions]) + "\n")
+        return super().compute(predictions)
+
+
+def make_parts(data: str, out: Path) -> tuple[DrivingModule, DriveDataModule, list[L.Callback]]:
+    torch.manual_seed(0)
+    config = tfv6_config(**{**TINY, "trajectory_grids": {"navsim": TrajectoryGrid(4, 0.5)}, "use_radar": False})
+    spec = SourceSpec([data], cameras=["front"])
+    datamodule = DriveDataModule(
+        train={"navsim": spec},
+        val={"navsim": spec},
+        schedule=MixingSchedule.constant({"navsim": 1.0}, 4),
+        steps_per_epoch=2,
+        eval_batch_size=8,
+        shuffle_buffer=8,
+    )
+    module = DrivingModule(TFv6(config), lr=1e-3)
+    return module, datamodule, [Recorder(out), CountingScoring(data, out)]
+
+
+def trainer(devices: int, callbacks: list[L.Callback], **options) -> L.Trainer:
+    return L.Trainer(
+        accelerator="cpu",
+        devices=devices,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        num_sanity_val_steps=0,
+        callbacks=callbacks,
+        **TRAINER_DEFAULTS,
+        **options,
+    )
+
+
+def test_two_ranks_validate_like_one(one_shard, tmp_path):
+    module, datamodule, callbacks = make_parts(one_shard, tmp_path)
+    strategy = DDPStrategy(start_method="fork", find_unused_parameters=True)  # heads without a loss stay unused
+    trainer(2, callbacks, strategy=strategy, max_epochs=2).fit(module, datamodule=datamodule)
+    ranks = [json.loads((tmp_path / f"rank{rank}.json").read_text()) for rank in (0, 1)]
+    assert ranks[0]["steps"] == ranks[1]["steps"] == [2, 2]
+    assert [len(rank["val_keys"]) for rank in ranks] == [18, 17]  # split by sample, not by shard
+    assert not set(ranks[0]["val_keys"]) & set(ranks[1]["val_keys"])
+    scored = [json.loads(line) for line in (tmp_path / "scored.jsonl").read_text().splitlines()]
+    assert len(scored) == 2  # once per validation epoch, on rank 0 only
+    assert sorted(scored[-1]) == sorted(ranks[0]["val_keys"] + ranks[1]["val_keys"])  # each sample once
+
+    # the fit ends with a validation of its final weights, which come back to this process
+    single = trainer(1, [ScoringCallback(one_shard, metrics=["ade"], prefix="score")])
+    single.validate(module, datamodule=make_parts(one_shard, tmp_path)[1], verbose=False)
+    expected = {name: float(value) for name, value in single.callback_metrics.items()}
+    assert {"val/navsim/ade", "val/navsim/fde", "score/toy/ade", "score/toy/fde"} <= set(expected)
+    for rank in ranks:
+        logged = {name: value for name, value in rank["metrics"].items() if name.startswith(("val/", "score/"))}
+        assert logged.keys() == expected.keys()
+        for name, value in expected.items():
+            assert logged[name] == pytest.approx(value, rel=1e-5), (name, logged, expected)
