@@ -255,3 +255,4 @@ class DriveDataModule(L.LightningDataModule):
 
     def predict_dataloader(self) -> list[wds.WebLoader]:
         return self._eval_loaders(self.predict_sources, "predict")
+
