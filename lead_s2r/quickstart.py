@@ -62,6 +62,7 @@ METRICS = (
     Metric("FDE", "ade", "fde"),
     Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
     Metric("PDMS", "pdms@navsim-1.1", "pdms", ("navsim",)),
+    Metric("EPDMS", "epdms@navsim-2.2", "epdms", ("navsim",)),
 )
 
 

@@ -1,7 +1,9 @@
-"""The official NAVSIM v1.1 golden cases (``tests/data/navsim_pdms_v11_official.json.gz``) as ego-frame PDM scenes.
+"""The official NAVSIM golden cases (v1.1 ``navsim_pdms_v11_official.json.gz``, v2.2
+``navsim_epdms_v22_official.json.gz`` in ``tests/data``) as ego-frame PDM scenes.
 
-The file stores everything in a global (UTM-like) frame; a scene is moved into the ego frame at ``ego_initial``
-(rear axle at the origin, x along the initial heading), as a converted NAVSIM sample would be.
+The files store everything in a global (UTM-like) frame; a scene is moved into the ego frame at ``ego_initial``
+(rear axle at the origin, x along the initial heading), as a converted NAVSIM sample would be. v2.2 cases add the
+traffic lights, the logged past and future, previous frames for EC, and ego dynamics that NAVSIM reads as float32.
 """
 
 import gzip
@@ -13,9 +15,10 @@ from typing import Any
 import numpy as np
 
 from lead_s2r.schema import BoxClass, MapKind
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 
 GOLDEN = Path(__file__).parent / "data" / "navsim_pdms_v11_official.json.gz"
+GOLDEN_V22 = Path(__file__).parent / "data" / "navsim_epdms_v22_official.json.gz"
 BOX_CLASS = {
     "vehicle": BoxClass.VEHICLE,
     "pedestrian": BoxClass.PEDESTRIAN,
@@ -27,8 +30,8 @@ BOX_CLASS = {
 }
 
 
-def load_golden() -> dict[str, Any]:
-    with gzip.open(GOLDEN, "rt") as f:
+def load_golden(path: Path = GOLDEN) -> dict[str, Any]:
+    with gzip.open(path, "rt") as f:
         return json.load(f)
 
 
@@ -101,17 +104,74 @@ def _agent_fields(case: dict[str, Any], frame: EgoFrame) -> dict[str, np.ndarray
     }
 
 
+def _dynamics(state: dict[str, Any], float32: bool) -> dict[str, np.ndarray]:
+    dtype = np.float32 if float32 else np.float64
+    return {
+        "ego_velocity": np.array([state["vx"], state["vy"]], dtype).astype(np.float64),
+        "ego_acceleration": np.array([state["ax"], state["ay"]], dtype).astype(np.float64),
+    }
+
+
+def _red_light_fields(case: dict[str, Any]) -> dict[str, np.ndarray]:
+    """v2.2 ``traffic_lights`` (per keyframe ``[{lane_connector_id, is_red}]``) as ``scoring.npz``'s red lights."""
+    red = [
+        [int(light["lane_connector_id"]) for light in lights if light["is_red"]] for lights in case["traffic_lights"]
+    ]
+    return {
+        "red_light_t": np.asarray(case["keyframe_times_s"], np.float64)[: len(red)],
+        "red_light_ids": np.array([i for ids in red for i in ids], np.int64),
+        "red_light_offsets": np.concatenate([[0], np.cumsum([len(ids) for ids in red])]).astype(np.int64),
+    }
+
+
+def _v2_fields(case: dict[str, Any], frame: EgoFrame) -> dict[str, Any]:
+    past = case["ego_past"]
+    rows = [
+        [p["t_s"], *frame.poses(np.array([p["x"], p["y"], p["heading"]])), p["vx"], p["vy"], p["ax"], p["ay"]]
+        for p in past
+    ]
+    ego_past = np.array(rows, np.float64)
+    ego_past[:, 4:] = ego_past[:, 4:].astype(np.float32)
+    human = case.get("human_trajectory")
+    return {
+        **_red_light_fields(case),
+        "light_route_lane_ids": np.array([int(i) for i in case["map"]["traffic_light_route_lane_ids"]], np.int64),
+        "ego_past": ego_past,
+        "human_poses": None if not human else np.asarray(human["poses"], np.float64),
+        "human_interval": 0.5 if not human else float(human["interval_s"]),
+        "is_synthetic": case["scene_type"] == "SYNTHETIC",
+    }
+
+
 def golden_scene(case: dict[str, Any]) -> PDMScene:
-    """One golden case as an ego-frame :class:`PDMScene`."""
+    """One golden case as an ego-frame :class:`PDMScene` (v2.2 cases with their v2 fields and float32 dynamics)."""
     frame, ego = ego_frame(case), case["ego_initial"]
+    v2 = "ego_past" in case
     return PDMScene(
         **_map_fields(case, frame),
         **_agent_fields(case, frame),
-        ego_velocity=np.array([ego["vx"], ego["vy"]]),
-        ego_acceleration=np.array([ego["ax"], ego["ay"]]),
+        **_dynamics(ego, float32=v2),
         tire_steering_angle=float(ego["tire_steering_angle"]),
         key=case["id"],
         t0_us=int(case["t0_us"]),
+        **(_v2_fields(case, frame) if v2 else {}),
+    )
+
+
+def previous_frame(case: dict[str, Any], trajectory: dict[str, Any]) -> PreviousFrame | None:
+    """A v2.2 trajectory's ``previous_frame`` (ego 0.5 s earlier, its plan) in the current ego frame, or None."""
+    previous = trajectory.get("previous_frame")
+    if not previous:
+        return None
+    state = previous["ego_state"]
+    dynamics = _dynamics(state, float32=True)
+    return PreviousFrame(
+        ego_pose=ego_frame(case).poses(np.array([state["x"], state["y"], state["heading"]])),
+        ego_velocity=dynamics["ego_velocity"],
+        ego_acceleration=dynamics["ego_acceleration"],
+        poses=np.asarray(previous["poses"], np.float64),
+        interval=float(previous["interval_s"]),
+        frame_gap=-float(state["t_s"]),
     )
 
 

@@ -117,6 +117,12 @@ class PDMSScorer(Scorer):
     version: ClassVar[str] = "1"
     fields: ClassVar[tuple[str, ...]] = ("scoring", "boxes", "agents_future", "future")
     datasets: ClassVar[tuple[str, ...] | None] = ("navsim",)
+    #: the CSV's score columns (after ``token``, ``valid``), the aggregate naming the split score, the CSV file
+    #: and its average row's token: what ``epdms@navsim-2.2`` (``lead_s2r.scoring.epdms``) changes
+    csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
+    headline: ClassVar[str] = "pdms"
+    csv_name: ClassVar[str] = CSV_NAME
+    average_token: ClassVar[str] = "average"
 
     def __init__(self, allow_missing: bool = False, reference_cache: str | None = None) -> None:
         """``reference_cache``: folder of PDM-Closed references (``<key>.npy``), read when present, else written."""
@@ -153,12 +159,11 @@ class PDMSScorer(Scorer):
         result = score_proposals(scene, proposals[None], interval, reference=self.references.get(scene))
         return {**row, **{name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}}
 
-    @staticmethod
-    def _aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]
-        means = {name: mean_or_none(np.array([row[name] for row in valid], np.float64)) for name in NAVSIM_COLUMNS}
+        means = {name: mean_or_none(np.array([row[name] for row in valid], np.float64)) for name in self.csv_columns}
         return {
-            "pdms": means["score"],
+            self.headline: means["score"],
             **means,
             "frames": len(rows),
             "frames_valid": len(valid),
@@ -168,15 +173,15 @@ class PDMSScorer(Scorer):
     def write_files(self, result: ScoreResult, out: Path) -> None:
         """``navsim_pdms.csv``: NAVSIM v1.1's CSV layout (see the module docstring)."""
         rows = result.table.to_pylist()
-        header = ["", "token", "valid", *NAVSIM_COLUMNS]
-        with open(Path(out) / CSV_NAME, "w", newline="") as file:
+        columns = self.csv_columns
+        with open(Path(out) / self.csv_name, "w", newline="") as file:
             writer = csv.writer(file)
-            writer.writerow(header)
+            writer.writerow(["", "token", "valid", *columns])
             for index, row in enumerate(rows):
-                writer.writerow([index, row["token"], row["valid"], *(_number(row[name]) for name in NAVSIM_COLUMNS)])
-            means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in NAVSIM_COLUMNS]
+                writer.writerow([index, row["token"], row["valid"], *(_number(row[name]) for name in columns)])
+            means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in columns]
             valid = all(row["valid"] for row in rows)
-            writer.writerow([len(rows), "average", valid, *(_number(value) for value in means)])
+            writer.writerow([len(rows), self.average_token, valid, *(_number(value) for value in means)])
 
 
 def _number(value: float | None) -> str:

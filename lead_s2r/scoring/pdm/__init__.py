@@ -5,7 +5,7 @@ propagated by a kinematic bicycle, then scored against the map and the logged ag
 in ``docs/metrics.md``; the facts come from NAVSIM's own code (see the module docstrings).
 """
 
-from lead_s2r.scoring.pdm.scene import PDMScene
-from lead_s2r.scoring.pdm.score import score_proposals, score_states
+from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
+from lead_s2r.scoring.pdm.score import score_proposals, score_states, score_states_v2
 
-__all__ = ["PDMScene", "score_proposals", "score_states"]
+__all__ = ["PDMScene", "PreviousFrame", "score_proposals", "score_states", "score_states_v2"]

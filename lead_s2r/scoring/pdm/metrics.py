@@ -1,4 +1,4 @@
-"""DAC, DDC, EP and the v1.1 aggregation of NAVSIM's ``PDMScorer``: small functions over ``(N, T)`` arrays.
+"""DAC, DDC, EP, LK and the v1.1 aggregation of NAVSIM's ``PDMScorer``: small functions over ``(N, T)`` arrays.
 
 Constants and official behaviours reproduced on purpose:
 
@@ -10,6 +10,11 @@ Constants and official behaviours reproduced on purpose:
 * EP: raw progress = projection of the last box centre onto the centreline minus that of the first, clipped at 0.
   v1.1 masks it with NC * DAC and divides by the largest masked progress of the normalisation group when that
   exceeds 5 m; otherwise EP is 1, or 0 where NC * DAC is 0. So EP is 0 whenever NC or DAC is 0.
+  v2 (``ego_progress_v2``) masks only the normaliser: ``max`` over the group of raw * NC * DAC * DDC * TLC; above
+  5 m EP = clip(raw / normaliser, 0, 1) with the *unmasked* raw progress, otherwise 1 for every row. So an agent
+  with NC = 0 can have EP = 1.
+* LK (v2): the distance from the box centre to the whole centreline linestring, > 0.5 m for ceil(2.0 / 0.1) = 20
+  consecutive steps fails. Steps with the centre inside an INTERSECTION are skipped and do not reset the count.
 * PDMS = NC * DAC * (5 * EP + 5 * TTC + 2 * C + 0 * DDC) / 12, in NAVSIM's order of operations.
 """
 
@@ -20,6 +25,8 @@ DDC_HORIZON_S = 1.0
 DDC_COMPLIANT_M = 2.0
 DDC_VIOLATION_M = 6.0
 PROGRESS_THRESHOLD_M = 5.0
+LANE_KEEPING_LIMIT_M = 0.5
+LANE_KEEPING_WINDOW_S = 2.0
 #: v1.1 ``PDMScorerConfig`` weights in ``WeightedMetricIndex`` order: progress, TTC, comfort, driving direction.
 V11_WEIGHTS = np.array([5.0, 5.0, 2.0, 0.0])
 
@@ -60,6 +67,34 @@ def ego_progress(raw: np.ndarray, multiplier: np.ndarray, reference: int | None)
     with np.errstate(invalid="ignore", divide="ignore"):
         ep = np.where(above, masked / np.where(above, normaliser, 1.0), np.where(multiplier == 0.0, 0.0, 1.0))
     return ep, normaliser
+
+
+def ego_progress_v2(raw: np.ndarray, multiplier: np.ndarray, reference: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """v2 EP ``(N,)`` and each row's normaliser [m]: the same groups as :func:`ego_progress`, the product of the
+    multipliers masking only the normaliser."""
+    masked = raw * multiplier
+    normaliser = np.full(len(raw), np.max(masked)) if reference is None else np.maximum(masked[reference], masked)
+    above = normaliser > PROGRESS_THRESHOLD_M
+    ep = np.ones(len(raw))
+    ep[above] = np.clip(raw[above] / normaliser[above], 0.0, 1.0)
+    return ep, normaliser
+
+
+def lane_keeping(
+    centers: np.ndarray, centerline: shapely.LineString, in_intersection: np.ndarray, interval: float = 0.1
+) -> tuple[np.ndarray, np.ndarray]:
+    """LK ``(N,)`` in {0, 1} and the step it fails at ``(N,)`` (-1 if it does not) from box centres ``(N, T, 2)``;
+    ``in_intersection (N, T)`` marks the steps that are skipped."""
+    deviation = shapely.distance(shapely.points(centers), centerline)
+    exceeds = deviation > LANE_KEEPING_LIMIT_M
+    required = int(np.ceil(LANE_KEEPING_WINDOW_S / interval))
+    count = np.zeros(len(centers), np.int64)
+    failed_at = np.full(len(centers), -1)
+    for step in range(centers.shape[1]):
+        counted = ~in_intersection[:, step]
+        count[counted] = np.where(exceeds[counted, step], count[counted] + 1, 0)
+        failed_at[(failed_at < 0) & (count >= required)] = step
+    return np.where(failed_at >= 0, 0.0, 1.0), failed_at
 
 
 def pdms_v11(

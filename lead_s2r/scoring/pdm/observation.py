@@ -15,6 +15,9 @@ behaviours reproduced on purpose:
 * Red-light pseudo-objects (EPDMS, PDM-Closed) live in the same per-step trees and are skipped by NC and TTC.
 
 Constants: v1.1 keyframes every 0.5 s up to 5 s, 51 steps of 0.1 s (TTC looks 0.9 s past the 4 s horizon).
+v2.2 reads the 9 keyframes up to 4 s and builds 41 steps (``extend_observation_for_ttc=False``), and its log replay
+(``LogReplayTrafficAgents.simulate_environment``) drops from every step each track whose box intersects the ego box
+at t0 (its step-0 box, so a track seen once at a later keyframe counts with that box). v1.1 removes nothing.
 
 NAVSIM keeps one STRtree per step; NC and TTC here find candidate pairs by enclosing circles instead (see
 ``collisions``), and :meth:`Observation.tree` builds a step's STRtree on demand for other searches.
@@ -29,11 +32,13 @@ from shapely import STRtree
 from lead_s2r.schema import BoxClass
 from lead_s2r.scoring.pdm.footprint import box_coords, box_polygons
 from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.vehicle import VehicleParameters
 
 #: nuPlan ``AGENT_TYPES`` (a nuPlan ``Agent`` rather than a ``StaticObject``); an emergency vehicle is a vehicle.
 AGENT_CLASSES = (BoxClass.VEHICLE, BoxClass.PEDESTRIAN, BoxClass.BICYCLE, BoxClass.EMERGENCY_VEHICLE)
-#: Observation steps of NAVSIM v1.1 (0..5 s at 10 Hz).
+#: Observation steps of NAVSIM v1.1 (0..5 s at 10 Hz) and v2.2 (0..4 s).
 V11_STEPS = 51
+V2_STEPS = 41
 STEP_S = 0.1
 #: Tolerance [s] when comparing keyframe times with the horizon.
 KEYFRAME_SLACK_S = 1e-6
@@ -128,10 +133,11 @@ def _enclosing_radius(polygons: np.ndarray, centroids: np.ndarray) -> np.ndarray
     return radius
 
 
-def log_observation(scene: PDMScene, num_steps: int = V11_STEPS) -> Observation:
+def log_observation(scene: PDMScene, num_steps: int = V11_STEPS, replay: bool = False) -> Observation:
     """The logged agents of ``scene`` at 10 Hz, as NAVSIM's metric cache builds them (v1.1: 51 steps). Only
     keyframes up to the last step's time are read, as NAVSIM samples keyframes up to its horizon (v1.1 5 s, v2 4 s
-    with ``num_steps=41``): "seen once" and the first/last sighting are counted within that horizon."""
+    with ``num_steps=41``): "seen once" and the first/last sighting are counted within that horizon. ``replay``:
+    v2.2's log replay, without the tracks that overlap the ego at t0 (:func:`overlapping_ego_at_t0`)."""
     keyframe_t = np.asarray(scene.agent_t, np.float64)
     within = keyframe_t <= (num_steps - 1) * STEP_S + KEYFRAME_SLACK_S
     is_agent = np.isin(scene.agent_class, AGENT_CLASSES)
@@ -143,7 +149,20 @@ def log_observation(scene: PDMScene, num_steps: int = V11_STEPS) -> Observation:
         is_agent,
         num_steps,
     )
+    if replay:
+        valid = valid & ~overlapping_ego_at_t0(poses[:, 0], valid[:, 0], scene.agent_size, scene.vehicle)[:, None]
     return dense_observation(poses, velocity, valid, scene.agent_size, scene.agent_class)
+
+
+def overlapping_ego_at_t0(
+    poses: np.ndarray, present: np.ndarray, size: np.ndarray, vehicle: VehicleParameters
+) -> np.ndarray:
+    """``(M,)``: tracks present at step 0 whose box (centre poses ``(M, 3)``, size ``(M, 3)``) intersects the ego box
+    at t0 (rear axle at the origin, heading 0)."""
+    size = np.asarray(size, np.float64).reshape(-1, 3)
+    ego = box_coords(np.array([vehicle.rear_axle_to_center, 0.0]), np.zeros(()), vehicle.length, vehicle.width)
+    boxes = box_coords(poses[:, :2], poses[:, 2], size[:, 0], size[:, 1])
+    return present & shapely.intersects(box_polygons(boxes), box_polygons(ego))
 
 
 def dense_observation(

@@ -63,3 +63,17 @@ class PDMScene:
         from lead_s2r.scoring.pdm.sample import scene_from_sample
 
         return scene_from_sample(sample)
+
+
+@dataclass
+class PreviousFrame:
+    """What EC needs of the frame ``frame_gap`` seconds before a scene (NAVSIM v2 pairs frames 0.5 s apart): the ego
+    there (rear-axle pose in the *current* ego frame, body-frame velocity and acceleration) and the plan made there,
+    ``poses (K, 3)`` in the *previous* ego frame at ``interval * (k + 1)``."""
+
+    ego_pose: np.ndarray  # (3,)
+    ego_velocity: np.ndarray  # (2,)
+    ego_acceleration: np.ndarray  # (2,)
+    poses: np.ndarray  # (K, 3)
+    interval: float
+    frame_gap: float = 0.5

@@ -1,33 +1,54 @@
-"""NAVSIM v1.1 PDMS of simulated ego states (``score_states``) and of planner proposals (``score_proposals``).
+"""NAVSIM's PDM score of simulated ego states (``score_states``: PDMS v1.1, ``score_states_v2``: EPDMS v2.2 before
+the human filter) and of planner proposals (``score_proposals``, either metric).
 
 ``score_states`` is ``PDMScorer.score_proposals`` over any number of rows at once; ``score_proposals`` is
 ``navsim.evaluate.pdm_score`` for a whole candidate set: the reference (PDM-Closed) and every proposal are
 interpolated to 41 states, simulated together and scored in one pass, and each proposal's EP is normalised over
 ``[reference, proposal]`` exactly as one ``pdm_score`` call per proposal would. Map and observation are built once
 per scene (pass them in to reuse them across calls). The rules and constants are in the sub-metric modules.
+
+v2.2 (``epdms@navsim-2.2``) shares simulation, footprints, map flags, NC, DAC and the collision walk with v1.1 and
+differs in: the log-replay observation (41 steps, tracks overlapping the ego at t0 removed), TTC over steps 0..31,
+DDC as a multiplier with intersection steps zeroed, TLC, LK, HC instead of C, the unmasked EP, then the human
+penalty filter and EC (``epdms.py``). The human trajectory is simulated in the same batch as the proposals (every
+row is simulated and scored independently) and scored as NAVSIM scores it, alone and without a past: its EP and HC
+are 1 by construction, so only its NC, DAC, DDC, TLC, TTC and LK can filter. EC compares each proposal's simulation
+with that of the plan made ``frame_gap`` earlier (``PreviousFrame``), simulated from the ego state there; without a
+previous frame EC is NaN and the final score drops its weight.
 """
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import shapely
 
+from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, enclosing_radius, no_at_fault_collisions, time_to_collision
-from lead_s2r.scoring.pdm.comfort import comfort
+from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
+from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
 from lead_s2r.scoring.pdm.footprint import Corner, ego_coords
-from lead_s2r.scoring.pdm.map_flags import DrivableMap, ego_areas
+from lead_s2r.scoring.pdm.interpolation import interpolate_proposals, interpolate_reference
+from lead_s2r.scoring.pdm.map_flags import DrivableMap, EgoAreas, ego_areas
 from lead_s2r.scoring.pdm.metrics import (
     drivable_area_compliance,
     driving_direction_compliance,
     ego_progress,
+    ego_progress_v2,
+    lane_keeping,
     pdms_v11,
     progress_along,
 )
-from lead_s2r.scoring.pdm.observation import Observation, log_observation
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.observation import V2_STEPS, Observation, log_observation
+from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
+from lead_s2r.scoring.pdm.simulation import simulate_proposals
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
+from lead_s2r.scoring.pdm.traffic_lights import on_red_light, red_light_polygons, traffic_light_compliance
 
 METRIC = "pdms@navsim-1.1"
+EPDMS_METRIC = "epdms@navsim-2.2"
+METRICS = (METRIC, EPDMS_METRIC)
 INTERVAL_S = 0.1
 REFERENCE_INTERVAL_S = 0.1
 COLUMNS = (
@@ -43,6 +64,8 @@ COLUMNS = (
     "collision_time_idx",
     "ttc_time_idx",
 )
+#: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's extras
+EPDMS_COLUMNS = (*E.SUB_SCORES, "score", *COLUMNS[-4:])
 
 
 def _centerline(scene: PDMScene) -> shapely.LineString:
@@ -55,17 +78,42 @@ def _centerline(scene: PDMScene) -> shapely.LineString:
     return shapely.linestrings(centerline[:, :2])
 
 
-def _check_states(scene: PDMScene, states: np.ndarray, observation: Observation) -> None:
+def _check_states(scene: PDMScene, states: np.ndarray, observation: Observation, lookahead: int) -> None:
     if states.ndim != 3 or states.shape[-1] != STATE_SIZE or states.shape[1] < 2:
         raise ValueError(f"scene {scene.key!r}: states must be (N, T, {STATE_SIZE}), got {states.shape}")
     if not np.isfinite(states).all():
         raise ValueError(f"scene {scene.key!r}: simulated states hold NaN or inf")
-    needed = states.shape[1] + max(TTC_OFFSETS)
+    needed = states.shape[1] + lookahead
     if observation.num_steps < needed:
         raise ValueError(
             f"scene {scene.key!r}: the observation has {observation.num_steps} steps, TTC over {states.shape[1]} "
             f"states needs {needed} (build it with log_observation(scene, num_steps={needed}))"
         )
+
+
+@dataclass
+class _Footprints:
+    """The ego boxes of states ``(N, T, 11)`` and where they are on the map: shared by every sub-metric."""
+
+    coords: np.ndarray  # (N, T, 5, 2)
+    radius: float
+    areas: EgoAreas
+
+    @property
+    def centers(self) -> np.ndarray:
+        return self.coords[:, :, Corner.CENTER]
+
+    @property
+    def lanes_or_off_road(self) -> np.ndarray:
+        return self.areas.multiple_lanes | self.areas.non_drivable_area
+
+
+def _footprints(scene: PDMScene, states: np.ndarray, drivable_map: DrivableMap | None) -> _Footprints:
+    drivable_map = DrivableMap.from_scene(scene) if drivable_map is None else drivable_map
+    coords = ego_coords(states, scene.vehicle)
+    rear_axles = states[..., StateIndex.X : StateIndex.Y + 1]
+    areas = ego_areas(drivable_map, coords, rear_axles, np.asarray(scene.route_lane_ids, np.int64))
+    return _Footprints(coords, enclosing_radius(scene.vehicle.length, scene.vehicle.width), areas)
 
 
 def score_states(
@@ -81,22 +129,21 @@ def score_states(
     ``non_drivable_area`` and ``oncoming_traffic``. ``ep_reference`` picks EP's normalisation (see
     :func:`~lead_s2r.scoring.pdm.metrics.ego_progress`)."""
     states = np.asarray(states, np.float64)
-    _check_states(scene, states, observation)
-    drivable_map = DrivableMap.from_scene(scene) if drivable_map is None else drivable_map
-    coords = ego_coords(states, scene.vehicle)
-    radius = enclosing_radius(scene.vehicle.length, scene.vehicle.width)
-    rear_axles = states[..., StateIndex.X : StateIndex.Y + 1]
-    areas = ego_areas(drivable_map, coords, rear_axles, np.asarray(scene.route_lane_ids, np.int64))
-    lanes_or_off_road = areas.multiple_lanes | areas.non_drivable_area
-
-    nc, collision_idx = no_at_fault_collisions(states, coords, radius, observation, lanes_or_off_road)
-    dac = drivable_area_compliance(areas.non_drivable_area)
-    centers = coords[:, :, Corner.CENTER]
-    ddc = driving_direction_compliance(centers, areas.oncoming_traffic, INTERVAL_S)
-    progress = progress_along(_centerline(scene), centers[:, 0], centers[:, -1])
+    _check_states(scene, states, observation, max(TTC_OFFSETS))
+    fp = _footprints(scene, states, drivable_map)
+    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
+    dac = drivable_area_compliance(fp.areas.non_drivable_area)
+    ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S)
+    progress = progress_along(_centerline(scene), fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
     ttc, ttc_idx = time_to_collision(
-        states, coords, radius, observation, lanes_or_off_road, areas.rear_axle_in_intersection, INTERVAL_S
+        states,
+        fp.coords,
+        fp.radius,
+        observation,
+        fp.lanes_or_off_road,
+        fp.areas.rear_axle_in_intersection,
+        INTERVAL_S,
     )
     c = comfort(states, INTERVAL_S)
     return {
@@ -111,9 +158,76 @@ def score_states(
         "ep_normaliser_m": normaliser,
         "collision_time_idx": collision_idx,
         "ttc_time_idx": ttc_idx,
+        **_flags(fp.areas),
+    }
+
+
+def _flags(areas: EgoAreas) -> dict[str, np.ndarray]:
+    return {
         "multiple_lanes": areas.multiple_lanes,
         "non_drivable_area": areas.non_drivable_area,
         "oncoming_traffic": areas.oncoming_traffic,
+    }
+
+
+def score_states_v2(
+    scene: PDMScene,
+    states: np.ndarray,
+    observation: Observation,
+    ep_reference: int | None,
+    *,
+    drivable_map: DrivableMap | None = None,
+    red_lights: list[list[shapely.Polygon]] | None = None,
+) -> dict[str, np.ndarray]:
+    """v2.2 sub-scores of simulated states ``(N, 41, 11)`` *before* the human filter, as ``PDMScorer.score_proposals``
+    of v2.2 leaves them: NC, DAC, DDC, TLC, EP, TTC, LK, HC under their NAVSIM names, ``multiplicative_metrics_prod``,
+    the v1.1 extras, ``lane_keeping_fail_idx`` and the ``(N, 41)`` flags (v1.1's, ``in_intersection`` of the centre
+    and ``on_red_light``). HC reads the scene's ``ego_past`` for every row. ``observation``: v2's log replay
+    (``log_observation(scene, 41, replay=True)``); ``red_lights``: per step (``red_light_polygons``)."""
+    states = np.asarray(states, np.float64)
+    _check_states(scene, states, observation, 0)
+    fp = _footprints(scene, states, drivable_map)
+    num_steps = states.shape[1]
+    red_lights = red_light_polygons(scene, num_steps, INTERVAL_S) if red_lights is None else red_lights
+    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
+    dac = drivable_area_compliance(fp.areas.non_drivable_area)
+    in_intersection = fp.areas.center_in_intersection
+    ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S, exclude=in_intersection)
+    touching = on_red_light(fp.coords, red_lights)
+    tlc = traffic_light_compliance(touching)
+    product = np.stack([nc, dac, ddc, tlc]).prod(axis=0)
+    centerline = _centerline(scene)
+    progress = progress_along(centerline, fp.centers[:, 0], fp.centers[:, -1])
+    ep, normaliser = ego_progress_v2(progress, product, ep_reference)
+    ttc, ttc_idx = time_to_collision(
+        states,
+        fp.coords,
+        fp.radius,
+        observation,
+        fp.lanes_or_off_road,
+        fp.areas.rear_axle_in_intersection,
+        INTERVAL_S,
+        num_steps=num_steps - max(TTC_OFFSETS),
+    )
+    lk, lk_idx = lane_keeping(fp.centers, centerline, in_intersection, INTERVAL_S)
+    return {
+        E.NC: nc,
+        E.DAC: dac,
+        E.DDC: ddc,
+        E.TLC: tlc,
+        E.EP: ep,
+        E.TTC: ttc,
+        E.LK: lk,
+        E.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
+        "multiplicative_metrics_prod": product,
+        "progress_m": progress,
+        "ep_normaliser_m": normaliser,
+        "collision_time_idx": collision_idx,
+        "ttc_time_idx": ttc_idx,
+        "lane_keeping_fail_idx": lk_idx,
+        **_flags(fp.areas),
+        "in_intersection": in_intersection,
+        "on_red_light": touching,
     }
 
 
@@ -127,23 +241,7 @@ def _poses(scene: PDMScene, poses: Any, name: str, dims: str) -> np.ndarray:
     return array
 
 
-def score_proposals(
-    scene: PDMScene,
-    proposals: np.ndarray,
-    interval: float,
-    reference: np.ndarray | None = None,
-    metric: str = METRIC,
-    *,
-    observation: Observation | None = None,
-    drivable_map: DrivableMap | None = None,
-) -> dict[str, np.ndarray]:
-    """PDMS v1.1 of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``), one row each, with the
-    columns of :data:`COLUMNS`. ``reference (M, 3)``: the EP normaliser's trajectory at 0.1 s steps from t = 0 (row 0
-    is the initial pose); None plans it with PDM-Closed. The scene's ``t0_us`` (when known) reproduces NAVSIM's
-    microsecond truncation of the interpolation times (see ``interpolation``)."""
-    if metric != METRIC:
-        raise ValueError(f"metric {metric!r} is not scored here; score_proposals computes {METRIC!r}")
-    proposals = _poses(scene, proposals, "proposals", "N, K, 3")
+def _reference(scene: PDMScene, reference: np.ndarray | None) -> np.ndarray:
     if reference is None:
         from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 
@@ -151,18 +249,94 @@ def score_proposals(
     reference = _poses(scene, reference, "reference", "M, 3")
     if len(reference) < 2:
         raise ValueError(f"scene {scene.key!r}: reference needs poses after t = 0, got shape {reference.shape}")
-    from lead_s2r.scoring.pdm.interpolation import interpolate_proposals, interpolate_reference
-    from lead_s2r.scoring.pdm.simulation import simulate_proposals
+    return reference
 
-    targets = np.concatenate(
-        [
-            interpolate_reference(reference, REFERENCE_INTERVAL_S, scene.t0_us)[None],
-            interpolate_proposals(proposals, interval, scene.t0_us),
-        ]
-    )
+
+def _human(scene: PDMScene) -> np.ndarray | None:
+    """The logged future the human filter scores, or None where there is none (synthetic scenes)."""
+    if scene.is_synthetic or scene.human_poses is None:
+        return None
+    return _poses(scene, scene.human_poses, "human_poses", "K, 3")
+
+
+def score_proposals(
+    scene: PDMScene,
+    proposals: np.ndarray,
+    interval: float,
+    reference: np.ndarray | None = None,
+    metric: str = METRIC,
+    previous: Sequence[PreviousFrame | None] | None = None,
+    *,
+    observation: Observation | None = None,
+    drivable_map: DrivableMap | None = None,
+    with_states: bool = False,
+) -> dict[str, np.ndarray]:
+    """``metric`` (PDMS v1.1 or EPDMS v2.2) of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``),
+    one row each, with the columns of :data:`COLUMNS` or :data:`EPDMS_COLUMNS`. ``reference (M, 3)``: the EP
+    normaliser's trajectory at 0.1 s steps from t = 0 (row 0 is the initial pose); None plans it with PDM-Closed.
+    ``previous`` (EPDMS only): per proposal the frame before it for EC, or None (EC NaN). ``with_states`` adds the
+    proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``).
+    The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
+    ``interpolation``)."""
+    if metric not in METRICS:
+        raise ValueError(f"metric {metric!r} is not scored here; score_proposals computes {' and '.join(METRICS)}")
+    if previous is not None and metric != EPDMS_METRIC:
+        raise ValueError(f"previous frames feed EC, which {metric!r} does not have; pass previous=None")
+    proposals = _poses(scene, proposals, "proposals", "N, K, 3")
+    targets = [
+        interpolate_reference(_reference(scene, reference), REFERENCE_INTERVAL_S, scene.t0_us)[None],
+        interpolate_proposals(proposals, interval, scene.t0_us),
+    ]
+    human = _human(scene) if metric == EPDMS_METRIC else None
+    if human is not None:
+        targets.append(interpolate_proposals(human[None], scene.human_interval, scene.t0_us))
     states = simulate_proposals(
-        targets, scene.ego_velocity, scene.ego_acceleration, scene.tire_steering_angle, scene.vehicle
+        np.concatenate(targets), scene.ego_velocity, scene.ego_acceleration, scene.tire_steering_angle, scene.vehicle
     )
-    observation = log_observation(scene) if observation is None else observation
-    scores = score_states(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
-    return {name: scores[name][1:] for name in COLUMNS}
+    agents = slice(1, 1 + len(proposals))
+    extra = {"simulated_states": states[agents]} if with_states else {}
+    if metric == METRIC:
+        observation = log_observation(scene) if observation is None else observation
+        scores = score_states(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
+        return {name: scores[name][agents] for name in COLUMNS} | extra
+    observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
+    scores = score_states_v2(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
+    human_row = None if human is None else {name: scores[name][-1] for name in E.FILTERED} | {E.EP: 1.0, E.HC: 1.0}
+    columns = E.human_penalty_filter({name: scores[name][agents] for name in E.FILTERED}, human_row)
+    columns[E.EC] = extended_comfort(scene, states[agents], previous)
+    columns["score"] = E.epdms(columns)
+    return columns | {name: scores[name][agents] for name in COLUMNS[-4:]} | extra
+
+
+def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:
+    """The ``(41, 11)`` simulation of the previous frame's plan from its ego state, moved into the current ego frame."""
+    poses = _poses(scene, np.asarray(previous.poses)[None], "previous frame poses", "1, K, 3")
+    t0_us = None if scene.t0_us is None else scene.t0_us - round(previous.frame_gap * 1e6)
+    targets = interpolate_proposals(poses, previous.interval, t0_us)
+    states = simulate_proposals(targets, previous.ego_velocity, previous.ego_acceleration, 0.0, scene.vehicle)[0]
+    x, y, heading = np.asarray(previous.ego_pose, np.float64)
+    cos, sin = np.cos(heading), np.sin(heading)
+    out = states.copy()
+    out[:, StateIndex.X] = x + cos * states[:, StateIndex.X] - sin * states[:, StateIndex.Y]
+    out[:, StateIndex.Y] = y + sin * states[:, StateIndex.X] + cos * states[:, StateIndex.Y]
+    out[:, StateIndex.HEADING] = states[:, StateIndex.HEADING] + heading
+    return out
+
+
+def extended_comfort(
+    scene: PDMScene, states: np.ndarray, previous: Sequence[PreviousFrame | None] | None
+) -> np.ndarray:
+    """EC ``(N,)`` of simulated states ``(N, 41, 11)`` against their previous frames (NaN where there is none)."""
+    ec = np.full(len(states), np.nan)
+    if previous is None:
+        return ec
+    if len(previous) != len(states):
+        raise ValueError(
+            f"scene {scene.key!r}: {len(previous)} previous frames for {len(states)} proposals; give one per "
+            "proposal (None where a proposal has none)"
+        )
+    for row, frame in enumerate(previous):
+        if frame is not None:
+            before = _previous_states(scene, frame)
+            ec[row] = two_frame_extended_comfort(states[row], before, frame.frame_gap, extended_comfort_features)
+    return ec

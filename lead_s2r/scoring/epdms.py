@@ -1,0 +1,159 @@
+"""``epdms@navsim-2.2``: NAVSIM v2.2's extended PDM score of predictions on converted NAVSIM samples, one stage.
+
+Everything per sample is :mod:`lead_s2r.scoring.pdms`'s (input grid, scene from the sample, PDM-Closed reference
+and its cache, invalid rows for scenes without a followable route); the sub-scores, the human penalty filter and
+the final score are ``score_proposals(..., metric="epdms@navsim-2.2")``'s. What one stage adds is EC: as
+``run_pdm_score_one_stage.infer_start_adjacent_mapping`` does, the valid original (non-synthetic) frames of a log
+are sorted by time and each frame is paired with the one before it when they are at most 0.55 s apart; the later
+frame's EC compares its simulation with that of the earlier frame's plan (ego state there: the earlier sample's
+velocity and acceleration, its pose read from the later sample's ``past``). A frame without such a predecessor has
+EC NaN and its score drops EC's weight (denominator 14).
+
+Besides scores.parquet / scores.json, :meth:`EPDMSScorer.write_files` writes ``navsim_epdms.csv`` in the layout of
+``run_pdm_score_one_stage.py``'s output (index column, ``token``, ``valid``, the v2 sub-scores in ``PDMResults``
+order, ``two_frame_extended_comfort``, ``score``, then the ``average_all_frames`` row, NaN-skipping means). The
+navhard two-stage aggregation is :func:`lead_s2r.scoring.pdm.two_stage.two_stage_aggregate`.
+"""
+
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from itertools import pairwise
+from typing import Any, ClassVar
+
+import numpy as np
+import pyarrow as pa
+
+from lead_s2r.geometry import resample
+from lead_s2r.predictions import Prediction
+from lead_s2r.scoring.base import ScoreResult, join
+from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
+from lead_s2r.scoring.pdm.route import RouteError
+from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
+from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
+from lead_s2r.scoring.pdms import PDMSScorer, navsim_token, proposal_of, top_inference
+
+#: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
+NAVSIM_COLUMNS = (*E.SUB_SCORES, "score")
+EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
+CSV_NAME = "navsim_epdms.csv"
+AVERAGE_TOKEN = "average_all_frames"
+SCHEMA = pa.schema(
+    [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
+    + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
+    + [("previous_key", pa.string()), ("error", pa.string())]
+)
+
+
+@dataclass
+class Frame:
+    """One predicted sample on its way to a row: the scene (None if it cannot be built) and the plan."""
+
+    sample: dict[str, Any]
+    scene: PDMScene | None
+    poses: np.ndarray
+    interval: float
+    error: str | None
+
+    @property
+    def time_s(self) -> float:
+        return int(self.sample["meta"]["timestamp_us"]) * 1e-6
+
+    @property
+    def log(self) -> str:
+        return str(self.sample["meta"]["log_id"])
+
+
+def adjacent_frames(frames: Sequence[Frame]) -> dict[int, int]:
+    """``{later: earlier}`` indices of frames paired for EC: valid, not synthetic, same log, consecutive in time and
+    at most 0.55 s apart (``infer_start_adjacent_mapping``)."""
+    by_log: dict[str, list[int]] = defaultdict(list)
+    for index, frame in enumerate(frames):
+        if frame.scene is not None and not frame.scene.is_synthetic:
+            by_log[frame.log].append(index)
+    pairs = {}
+    for indices in by_log.values():
+        ordered = sorted(indices, key=lambda i: frames[i].time_s)
+        for earlier, later in pairwise(ordered):
+            if abs(frames[later].time_s - frames[earlier].time_s) <= MAX_INTERVAL_S:
+                pairs[later] = earlier
+    return pairs
+
+
+def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:
+    """The earlier frame as seen from the current one: its rear-axle pose from the current sample's ``past``."""
+    gap = current.time_s - earlier.time_s
+    past = np.asarray(current.sample["past"], np.float64)
+    pose, inside = resample(past[:, 0], past[:, 1:4], np.array([-gap]), angle_columns=(2,))
+    if not inside.all():
+        raise ValueError(
+            f"sample {current.sample['__key__']!r}: field 'past' does not reach {-gap:.2f} s, where the frame "
+            f"{earlier.sample['__key__']!r} paired with it for EC was; re-convert with a longer history"
+        )
+    ego = earlier.sample["meta"]["ego"]
+    return PreviousFrame(
+        ego_pose=pose[0],
+        ego_velocity=np.asarray(ego["velocity"], np.float64),
+        ego_acceleration=np.asarray(ego["acceleration"], np.float64),
+        poses=earlier.poses,
+        interval=earlier.interval,
+        frame_gap=gap,
+    )
+
+
+class EPDMSScorer(PDMSScorer):
+    """``epdms@navsim-2.2``: per-sample NAVSIM v2.2 sub-scores, EC from adjacent frames and the final EPDMS."""
+
+    name: ClassVar[str] = EPDMS_METRIC
+    version: ClassVar[str] = "1"
+    fields: ClassVar[tuple[str, ...]] = (*PDMSScorer.fields, "past")
+    csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
+    headline: ClassVar[str] = "epdms"
+    csv_name: ClassVar[str] = CSV_NAME
+    average_token: ClassVar[str] = AVERAGE_TOKEN
+
+    def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
+        """Samples of other datasets are skipped and counted, as :class:`PDMSScorer` does."""
+        pairs = join(predictions, data, self.allow_missing)
+        frames = [self.frame(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
+        earlier = adjacent_frames(frames)
+        rows = [self.row(frame, frames[earlier[i]] if i in earlier else None) for i, frame in enumerate(frames)]
+        table = pa.Table.from_pylist(rows, schema=SCHEMA)
+        skipped = len(pairs) - len(frames)
+        return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": skipped})
+
+    def frame(self, sample: dict[str, Any], predictions: list[Prediction]) -> Frame:
+        poses, interval = proposal_of(top_inference(predictions))
+        try:
+            return Frame(sample, PDMScene.from_sample(sample), poses, interval, None)
+        except RouteError as err:
+            return Frame(sample, None, poses, interval, str(err))
+
+    def row(self, frame: Frame, earlier: Frame | None) -> dict[str, Any]:
+        """One row of the table: the frame's EPDMS columns (EC against ``earlier``), or an invalid row."""
+        sample = frame.sample
+        row: dict[str, Any] = {
+            "key": sample["__key__"],
+            "dataset": sample["meta"]["dataset"],
+            "token": navsim_token(sample),
+            "valid": frame.scene is not None,
+            "previous_key": None if earlier is None else earlier.sample["__key__"],
+            "error": frame.error,
+        }
+        if frame.scene is None:
+            return row | dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan"))
+        previous = None if earlier is None else [previous_frame(frame, earlier)]
+        result = score_proposals(
+            frame.scene,
+            frame.poses[None],
+            frame.interval,
+            reference=self.references.get(frame.scene),
+            metric=EPDMS_METRIC,
+            previous=previous,
+        )
+        return row | {name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}
+
+    def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
+        with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[E.EC]))
+        return {**super()._aggregate(rows), "frames_with_ec": with_ec}
