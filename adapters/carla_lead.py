@@ -25,8 +25,7 @@ from PIL import Image
 from lead_s2r.carla_rig import (
     CAMERA_RIGS,
     DEFAULT_TARGET_DATASET,
-    EGO_HALF_EXTENT,
-    EGO_WHEEL_BASE,
+    EGO_VEHICLE,
     MOSAIC_ID,
     ROAD_OPTION,
     camera_calibration,
@@ -447,13 +446,7 @@ class CarlaLeadAdapter(Adapter):
                 "command": int(ROAD_OPTION.get(command_raw, Command.UNKNOWN)),
                 "command_raw": command_raw,
             },
-            "vehicle": {
-                "length": 2 * EGO_HALF_EXTENT[0],
-                "width": 2 * EGO_HALF_EXTENT[1],
-                "height": 2 * EGO_HALF_EXTENT[2],
-                "wheel_base": EGO_WHEEL_BASE,
-                "rear_axle_to_center": CARLA_REAR_AXLE_TO_CENTER,
-            },
+            "vehicle": dict(EGO_VEHICLE),
             "has": {name: True for name in sample if name != "__key__"},
             "extras": extras,
         }

@@ -170,6 +170,31 @@ def homogeneous(rotation: Any, translation: Any) -> np.ndarray:
     return matrix
 
 
+def read_camera(
+    cam: dict, native: str, cam_id: str, sensors: Path, lidar2ego: np.ndarray, where: str
+) -> tuple[bytes, dict[str, Any]]:
+    """One camera's JPEG bytes as stored and its ``meta.cameras`` entry (OpenScene calibrates cameras to the LiDAR,
+    so ``cam_to_ego`` goes through ``lidar2ego``)."""
+    path = sensors / str(_field(cam, "data_path", where))
+    if not path.is_file():
+        raise FileNotFoundError(f"{where}: sensor blob {path} is missing")
+    data = path.read_bytes()
+    width, height = jpeg_size(data, str(path))
+    sensor2lidar = homogeneous(
+        _field(cam, "sensor2lidar_rotation", where), _field(cam, "sensor2lidar_translation", where)
+    )
+    entry = {
+        "id": cam_id,
+        "native_name": native,
+        "width": width,
+        "height": height,
+        "K": np.asarray(_field(cam, "cam_intrinsic", where), np.float64).tolist(),
+        "distortion": np.asarray(_field(cam, "distortion", where), np.float64).tolist(),
+        "cam_to_ego": (lidar2ego @ sensor2lidar).tolist(),
+    }
+    return data, entry
+
+
 # --------------------------------------------------------------------------- scene filters
 
 
@@ -569,27 +594,10 @@ class _LogContext:
         cameras = []
         for native, cam_id in CAMERAS.items():
             cam = _field(_field(frame, "cams", where), native, where)
-            cam_where = f"{where} cams.{native}"
-            path = self.sensors / str(_field(cam, "data_path", cam_where))
-            if not path.is_file():
-                raise FileNotFoundError(f"{cam_where}: sensor blob {path} is missing")
-            data = path.read_bytes()
-            width, height = jpeg_size(data, str(path))
-            sensor2lidar = homogeneous(
-                _field(cam, "sensor2lidar_rotation", cam_where), _field(cam, "sensor2lidar_translation", cam_where)
+            sample[f"cam_{cam_id}"], entry = read_camera(
+                cam, native, cam_id, self.sensors, lidar2ego, f"{where} cams.{native}"
             )
-            sample[f"cam_{cam_id}"] = data
-            cameras.append(
-                {
-                    "id": cam_id,
-                    "native_name": native,
-                    "width": width,
-                    "height": height,
-                    "K": np.asarray(_field(cam, "cam_intrinsic", cam_where), np.float64).tolist(),
-                    "distortion": np.asarray(_field(cam, "distortion", cam_where), np.float64).tolist(),
-                    "cam_to_ego": (lidar2ego @ sensor2lidar).tolist(),
-                }
-            )
+            cameras.append(entry)
         return cameras
 
     def annotations(self, index: int) -> dict[str, Any]:

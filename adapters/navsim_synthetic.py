@@ -222,27 +222,8 @@ class _SyntheticScene:
             if not cam.get("data_path"):
                 continue
             where = f"{self.where} camera_dict.{native.lower()}"
-            path = sensors / str(cam["data_path"])
-            if not path.is_file():
-                raise FileNotFoundError(f"{where}: sensor blob {path} is missing")
-            data = path.read_bytes()
-            width, height = navsim.jpeg_size(data, str(path))
-            sensor2lidar = navsim.homogeneous(
-                navsim._field(cam, "sensor2lidar_rotation", where),
-                navsim._field(cam, "sensor2lidar_translation", where),
-            )
-            sample[f"cam_{cam_id}"] = data
-            cameras.append(
-                {
-                    "id": cam_id,
-                    "native_name": native,
-                    "width": width,
-                    "height": height,
-                    "K": np.asarray(navsim._field(cam, "cam_intrinsic", where), np.float64).tolist(),
-                    "distortion": np.asarray(navsim._field(cam, "distortion", where), np.float64).tolist(),
-                    "cam_to_ego": (lidar2ego @ sensor2lidar).tolist(),
-                }
-            )
+            sample[f"cam_{cam_id}"], entry = navsim.read_camera(cam, native, cam_id, sensors, lidar2ego, where)
+            cameras.append(entry)
         return cameras
 
     def annotations(self, frame: dict, lidar2ego: np.ndarray) -> dict[str, Any]:

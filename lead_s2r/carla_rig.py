@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import carla_points_to_iso, rotate
+from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, carla_points_to_iso, rotate
 from lead_s2r.schema import Command
 
 MOSAIC_ID = "carla_mosaic"
@@ -72,6 +72,14 @@ DEFAULT_TARGET_DATASET = "CARLA_LEADERBOARD2_3CAMERAS"
 #: CARLA's Lincoln MKZ 2020 ego: half extents from LEAD's config, wheel base of the real car.
 EGO_HALF_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
 EGO_WHEEL_BASE = 2.85
+#: ``meta.vehicle`` of every CARLA sample, converted or driven.
+EGO_VEHICLE = {
+    "length": 2 * EGO_HALF_EXTENT[0],
+    "width": 2 * EGO_HALF_EXTENT[1],
+    "height": 2 * EGO_HALF_EXTENT[2],
+    "wheel_base": EGO_WHEEL_BASE,
+    "rear_axle_to_center": CARLA_REAR_AXLE_TO_CENTER,
+}
 #: CARLA RoadOption -> unified command (VOID = -1 and anything unknown -> UNKNOWN).
 ROAD_OPTION = {
     1: Command.LEFT,

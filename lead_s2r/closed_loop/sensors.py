@@ -19,8 +19,7 @@ import numpy as np
 
 from lead_s2r.carla_rig import (
     CAMERA_RIGS,
-    EGO_HALF_EXTENT,
-    EGO_WHEEL_BASE,
+    EGO_VEHICLE,
     MOSAIC_ID,
     ROAD_OPTION,
     camera_calibration,
@@ -28,7 +27,7 @@ from lead_s2r.carla_rig import (
     sensor_to_carla_ego,
 )
 from lead_s2r.closed_loop.route import Navigation
-from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, carla_points_to_iso
+from lead_s2r.geometry import carla_points_to_iso
 from lead_s2r.schema import SCHEMA_VERSION, Command
 
 #: LEAD's two LiDARs (``use_two_lidars``): both at the roof centre, facing opposite sides; each delivers a half sweep.
@@ -172,13 +171,7 @@ def build_sample(
         "adapter": "closed_loop",
         "adapter_version": "1",
         "ego": ego_state(input_data, navigation),
-        "vehicle": {
-            "length": 2 * EGO_HALF_EXTENT[0],
-            "width": 2 * EGO_HALF_EXTENT[1],
-            "height": 2 * EGO_HALF_EXTENT[2],
-            "wheel_base": EGO_WHEEL_BASE,
-            "rear_axle_to_center": CARLA_REAR_AXLE_TO_CENTER,
-        },
+        "vehicle": dict(EGO_VEHICLE),
         "cameras": camera_calibration(rig.cameras),
         "has": {name: True for name in sample if name != "__key__"} | {"future": False, "route": False},
         "extras": {DATASET: {"target_dataset": rig.cameras}},
