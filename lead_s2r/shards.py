@@ -175,10 +175,15 @@ def raise_shard_error(exn: Exception) -> bool:
 def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
     """Keys the manifest lists per shard (see :func:`keys_by_shard`); None without a manifest.
 
-    ``path`` is a converted folder or one of its shards; a plain folder of tars has no manifest to check against.
+    ``path`` is a converted folder, its shard folder or one of its shards; a plain folder of tars has no manifest to
+    check against.
     """
     path = Path(path)
-    folder = path.parent.parent if path.is_file() and path.parent.name == SHARD_DIR else path
+    folder = path
+    if path.is_file() and path.parent.name == SHARD_DIR:
+        folder = path.parent.parent
+    elif path.name == SHARD_DIR:
+        folder = path.parent
     if not (folder / MANIFEST).is_file():
         return None
     return keys_by_shard(folder, load_manifest(folder).select(["shard", "key"]).to_pylist())
