@@ -9,14 +9,16 @@ only write, are spawned processes that must not pay it.
 Reading trusts nothing: a tar cut at a member boundary reads as a shorter, valid stream (tarfile raises nothing),
 so :func:`shard_paths` checks that every shard ends with the two zero blocks :meth:`ShardFile.close` writes; a tar
 cut inside a member, an undecodable member or an array of another dtype than the schema's is a
-:class:`ShardError` naming the tar, the sample key and the field.
+:class:`ShardError` naming the tar, the sample key and the field. A corrupt header in the middle of a tar ends
+tarfile's stream there, silently too (it raises only at offset 0), so the reader of a converted folder holds every
+tar against the keys the manifest lists for it (:class:`ManifestCheck`): one parquet column, read once.
 """
 
 import io
 import json
 import os
 import tarfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -170,6 +172,66 @@ def raise_shard_error(exn: Exception) -> bool:
     raise ShardError(f"{url}: cannot be read ({problem}); the tar is truncated or corrupt: {_REDO}") from exn
 
 
+def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
+    """Keys the manifest lists per shard (see :func:`keys_by_shard`); None without a manifest.
+
+    ``path`` is a converted folder, its shard folder or one of its shards; a plain folder of tars has no manifest to
+    check against.
+    """
+    path = Path(path)
+    folder = path
+    if path.is_file() and path.parent.name == SHARD_DIR:
+        folder = path.parent.parent
+    elif path.name == SHARD_DIR:
+        folder = path.parent
+    if not (folder / MANIFEST).is_file():
+        return None
+    return keys_by_shard(folder, load_manifest(folder).select(["shard", "key"]).to_pylist())
+
+
+def keys_by_shard(folder: Path, rows: Iterable[dict[str, Any]]) -> dict[str, list[str]]:
+    """Manifest rows (``shard``, ``key``) -> keys per shard path, spelt as :func:`shard_paths` spells it."""
+    listed: dict[str, list[str]] = {}
+    for row in rows:
+        listed.setdefault(str(folder / SHARD_DIR / row["shard"]), []).append(row["key"])
+    return listed
+
+
+class ManifestCheck:
+    """A webdataset stage over raw samples: passes them on, and raises :class:`ShardError` naming the tar when a
+    tar yields a key its manifest rows do not list, or fewer samples than they list.
+
+    Each tar's count is checked when the next tar starts or the stream ends, so the stream must open every tar once
+    (evaluation, :func:`read_samples`; not the resampled training stream). A tar that yields nothing cannot slip
+    through: a bad first header is a ``ReadError`` that :func:`raise_shard_error` names.
+    """
+
+    def __init__(self, listed: Mapping[str, Sequence[str]]) -> None:
+        self.listed = {shard: frozenset(keys) for shard, keys in listed.items()}
+
+    def __call__(self, raws: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        shard, count = None, 0
+        for raw in raws:
+            if raw["__url__"] != shard:
+                self._check_count(shard, count)
+                shard, count = raw["__url__"], 0
+            if raw["__key__"] not in self.listed.get(shard, ()):
+                raise ShardError(
+                    f"{shard}: sample {raw['__key__']!r} is not in the manifest (a corrupt tar header, or a tar "
+                    f"from another conversion); {_REDO}"
+                )
+            count += 1
+            yield raw
+        self._check_count(shard, count)
+
+    def _check_count(self, shard: str | None, count: int) -> None:
+        if shard is not None and count < len(self.listed[shard]):
+            raise ShardError(
+                f"{shard}: read {count} of the {len(self.listed[shard])} samples the manifest lists (a corrupt tar "
+                f"header ends the tar there); {_REDO}"
+            )
+
+
 def decode_sample(raw: dict[str, Any], fields: Iterable[str] | None = None) -> dict[str, Any]:
     """Decode a webdataset raw sample (``{'meta.json': bytes, ...}``), only the requested fields.
 
@@ -204,11 +266,13 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
     """Yield decoded samples from a converted folder or shard(s), in shard order.
 
     ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
-    no splitting over ranks or workers (webdataset's default refuses to run under DDP), the caller decides.
+    no splitting over ranks or workers (webdataset's default refuses to run under DDP), the caller decides. In a
+    converted folder every tar must yield the samples the manifest lists for it (:class:`ManifestCheck`).
     """
     import webdataset as wds  # here, not at the top: see the module docstring
 
     fields = None if fields is None else tuple(fields)
+    listed = listed_keys(path)
     dataset = wds.WebDataset(
         shard_paths(path),
         shardshuffle=False,
@@ -217,7 +281,7 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
         workersplitter=None,
         handler=raise_shard_error,
     )
-    for raw in dataset:
+    for raw in dataset if listed is None else ManifestCheck(listed)(dataset):
         yield decode_sample(raw, fields)
 
 

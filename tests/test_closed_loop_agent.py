@@ -132,11 +132,23 @@ def test_an_ltfv6_navsim_checkpoint_is_refused(scene):
         make_agent(root, scene["folder"])
 
 
-def test_a_checkpoint_without_its_model_configuration_is_refused(scene, tmp_path):
+def test_a_copied_checkpoint_drives_alone(scene, tmp_path):
     path = tmp_path / "copied.ckpt"  # the weights without the run folder's config.yaml
     shutil.copy(scene["run"] / "checkpoints" / "last.ckpt", path)
-    with pytest.raises(UnsupportedCheckpoint, match=r"config\.yaml"):
-        make_agent(path, scene["folder"])
+    copied, in_run = make_agent(path, scene["folder"]), make_agent(scene["run"], scene["folder"])
+    assert copied.model_config == in_run.model_config
+    for key, value in in_run.model.state_dict().items():
+        torch.testing.assert_close(copied.model.state_dict()[key], value, rtol=0, atol=0)
+
+
+def test_an_older_checkpoint_needs_its_run_config(scene, tmp_path):
+    saved = torch.load(scene["run"] / "checkpoints" / "last.ckpt", weights_only=True)
+    del saved["hyper_parameters"]["model"]  # as written before checkpoints described their network
+    torch.save(saved, tmp_path / "old.ckpt")
+    with pytest.raises(UnsupportedCheckpoint, match=r"describe no network .* config\.yaml"):
+        make_agent(tmp_path / "old.ckpt", scene["folder"])
+    shutil.copy(scene["run"] / "config.yaml", tmp_path / "config.yaml")  # now it sits in its run folder
+    assert make_agent(tmp_path / "old.ckpt", scene["folder"]).model_config.image_size == (32, 96)
 
 
 def test_rig_follows_the_model_image():

@@ -144,6 +144,8 @@ def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_da
     assert last.exists()
     run_lightning_cli(["predict", *root_option, "--ckpt_path", str(last)])
     assert len(read_predictions(root / "predictions.parquet")) == 24
+    loaded = DrivingModule.load_from_checkpoint(last, map_location="cpu")  # no recipe needed
+    assert loaded.model.config == tfv6_config(**TINY, use_radar=False)
     with (root / "lightning_logs" / "version_0" / "metrics.csv").open() as file:
         logged = [row["train/batch_size/navsim"] for row in csv.DictReader(file)]
     assert [size for size in logged if size] == ["8.0"]  # the epoch's per-rank batch size of the source

@@ -12,9 +12,10 @@ from tiny_models import TINY
 
 from lead_s2r.cli import main
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.models.config import BEVGrid, TFv6Config
+from lead_s2r.models.config import BEVGrid, EgoMLPConfig, TFv6Config
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.tables import SEED_FOLDER, load_spec
+from lead_s2r.training.module import DrivingModule
 
 RECIPES = Path(__file__).parents[1] / "recipes"
 FULL_SCALE = sorted(p for folder in ("carla", "navsim", "wod") for p in (RECIPES / folder).glob("*.yaml"))
@@ -130,6 +131,7 @@ def test_ego_mlp_trains_and_predicts_through_the_cli(toy_data, tmp_path, monkeyp
     main(["predict", "--config", str(recipe), "--ckpt_path", str(checkpoint)])
     table = pq.read_table(predictions)
     assert table.num_rows > 0 and set(table.column("dataset").to_pylist()) == {"toy"}
+    assert DrivingModule.load_from_checkpoint(checkpoint).model.config == EgoMLPConfig(hidden=16, layers=1)
 
 
 def tfv6_config_of(recipe: dict) -> TFv6Config:

@@ -1,10 +1,16 @@
 import tarfile
+from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
+import pytest
 import webdataset as wds
-from toy_adapter import toy_sample
+from toy_adapter import ToyAdapter, corrupt_header, toy_sample, write_toy_logs
 
-from lead_s2r.shards import ShardFile, decode_field, encode_field, read_samples
+from lead_s2r.convert import convert
+from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
+from lead_s2r.models.config import TrajectoryGrid, tfv6_config
+from lead_s2r.shards import MANIFEST, SHARD_DIR, ShardError, ShardFile, decode_field, encode_field, read_samples
 
 
 def assert_same_sample(a: dict, b: dict) -> None:
@@ -114,3 +120,36 @@ def test_read_samples_reads_everything_under_ddp(toy_data, monkeypatch):
     monkeypatch.setenv("RANK", "1")  # what webdataset sees on rank 1 of 2; its default splitter refuses to run
     monkeypatch.setenv("WORLD_SIZE", "2")
     assert len(list(read_samples(toy_data, fields=()))) == 24
+
+
+@pytest.fixture
+def one_log(tmp_path) -> Path:
+    """A converted folder of one log: 3 samples in one shard."""
+    write_toy_logs(tmp_path / "src", n_logs=1, frames=3)
+    convert(ToyAdapter(), tmp_path / "src", tmp_path / "data")
+    return tmp_path / "data"
+
+
+def test_a_corrupt_header_mid_shard_is_an_error_not_a_short_read(one_log):
+    (shard,) = (one_log / SHARD_DIR).glob("*.tar")
+    assert len(list(read_samples(one_log, fields=()))) == 3
+    corrupt_header(shard, "toy_log000_000001.meta.json")  # tarfile now yields sample 0 and stops
+    message = f"{shard}: read 1 of the 3 samples the manifest lists"
+    with pytest.raises(ShardError, match=message):
+        list(read_samples(one_log, fields=()))
+    for part in (shard, one_log / SHARD_DIR):  # a shard of a converted folder is held to its manifest too
+        with pytest.raises(ShardError, match=message):
+            list(read_samples(part, fields=()))
+    config = tfv6_config(image_size=(32, 64), trajectory_grids={"toy": TrajectoryGrid(4, 0.5)}, use_radar=False)
+    spec = SourceSpec([str(one_log)], cameras=["front"])
+    datamodule = DriveDataModule(train={"toy": spec}, predict={"toy": spec}, config=config)
+    (loader,) = datamodule.predict_dataloader()
+    with pytest.raises(ShardError, match=message):
+        list(loader)
+
+
+def test_a_sample_the_manifest_does_not_list_is_an_error(one_log):
+    manifest = pq.read_table(one_log / MANIFEST)
+    pq.write_table(manifest.slice(0, 2), one_log / MANIFEST)  # as if the third sample came from elsewhere
+    with pytest.raises(ShardError, match="sample 'toy_log000_000002' is not in the manifest"):
+        list(read_samples(one_log, fields=()))

@@ -21,8 +21,9 @@ def test_share_splits_contiguously_with_the_longer_runs_first():
 
 
 def test_every_sample_once_over_ranks_and_workers(toy_data, monkeypatch):
-    samples = manifest_samples(toy_data, splits=None)
+    samples, listed = manifest_samples(toy_data, splits=None)
     assert len(samples) == 24 and len({shard for shard, _ in samples}) == 4
+    assert {shard: len(keys) for shard, keys in listed.items()} == {shard: 6 for shard, _ in samples}
     seen = Counter()
     for rank in range(2):
         mine = SampleShare(samples, rank, world_size=2)
@@ -36,7 +37,9 @@ def test_every_sample_once_over_ranks_and_workers(toy_data, monkeypatch):
 
 
 def test_manifest_split_filter_and_missing_manifest(toy_data, tmp_path):
-    assert manifest_samples(toy_data, splits=["val"]) == []  # toy data is all "train"
+    samples, listed = manifest_samples(toy_data, splits=["val"])
+    assert samples == []  # toy data is all "train"
+    assert sum(len(keys) for keys in listed.values()) == 24  # what each tar holds, whatever the split
     with pytest.raises(FileNotFoundError, match=r"manifest\.parquet"):
         manifest_samples(tmp_path, splits=None)
 

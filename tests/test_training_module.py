@@ -18,7 +18,7 @@ from lead_s2r.models.config import TrajectoryGrid, ltfv6_config, tfv6_config
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
-from lead_s2r.training.module import DrivingModule
+from lead_s2r.training.module import DrivingModule, model_spec
 
 PERCEPTION_MODULES = ("bev_semantic", "boxes", "perspective", "radar.out")
 EVERYTHING = {"carla": ["planning", "perception"], "navsim": ["planning", "perception"], "wod": ["planning"]}
@@ -150,7 +150,8 @@ def test_bf16_fit_init_from_round_trip_validate_predict(tmp_path):
 
     # validation ADE / FDE per dataset equals a hand computation
     val_batch = {"wod": random_batch(fine_config, 3, "wod")}
-    metrics = trainer().validate(fine, loader([val_batch]), verbose=False)[0]
+    evaluation = trainer()
+    metrics = evaluation.validate(fine, loader([val_batch]), verbose=False)[0]
     fine.eval()
     with torch.no_grad():
         pred = fine.model(val_batch["wod"], "wod", {"waypoints"})["waypoints"]
@@ -164,6 +165,22 @@ def test_bf16_fit_init_from_round_trip_validate_predict(tmp_path):
     assert out["xy"].shape == (3, 10, 2) and out["yaw"].shape == (3, 10)
     assert out["key"] == val_batch["wod"]["__key__"]
     torch.testing.assert_close(out["xy"], pred)
+
+    # the fine-tuned checkpoint rebuilds its module alone, without init_from's file (gone by now)
+    evaluation.save_checkpoint(tmp_path / "fine.ckpt")
+    ckpt.unlink()
+    loaded = DrivingModule.load_from_checkpoint(tmp_path / "fine.ckpt", map_location="cpu")
+    assert type(loaded.model) is TFv6 and loaded.model.config == fine_config
+    assert loaded.hparams.init_from is None and loaded.supervise == fine.supervise
+    for key, value in fine.state_dict().items():
+        torch.testing.assert_close(loaded.state_dict()[key], value, rtol=0, atol=0)
+
+
+def test_a_network_without_a_dataclass_config_is_not_described():
+    assert model_spec(torch.nn.Linear(2, 2)) is None
+    spec = model_spec(TFv6(ltfv6_config(**TINY)))
+    assert spec["class_path"] == "lead_s2r.models.tfv6.TFv6"
+    assert spec["init_args"]["config"]["trajectory_grids"]["navsim"] == [8, 0.5]  # JSON types: a weights_only load
 
 
 def test_init_from_rejects_missing_and_foreign_files(tmp_path):

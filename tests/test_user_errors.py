@@ -13,9 +13,10 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 from tiny_models import TINY
-from toy_adapter import ToyAdapter, toy_sample, write_toy_logs
+from toy_adapter import ToyAdapter, corrupt_header, toy_sample, write_toy_logs
 
 from lead_s2r import cli
+from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import Prediction, write_predictions
 from lead_s2r.shards import SHARD_DIR, ShardFile
@@ -148,6 +149,17 @@ def test_wrong_dtype_member_names_key_and_field(tmp_path, capsys):
     line = user_error(["score", "--metric", "ade", "--predictions", "p", "--data", str(folder), "--out", "o"], capsys)
     assert "sample 'toy_log000_000000', field 'future': dtype float64, but schema v1 stores float32" in line
     assert "toy-000000.tar" in line
+
+
+def test_corrupt_header_mid_shard_names_the_tar(tmp_path, capsys):
+    write_toy_logs(tmp_path / "src", n_logs=1, frames=3)
+    convert(ToyAdapter(), tmp_path / "src", tmp_path / "data")
+    (shard,) = (tmp_path / "data" / SHARD_DIR).glob("*.tar")
+    corrupt_header(shard, "toy_log000_000002.meta.json")
+    argv = ["score", "--metric", "ade", "--predictions", "p", "--data", str(tmp_path / "data"), "--out", "o"]
+    line = user_error(argv, capsys)
+    assert f"{shard}: read 2 of the 3 samples the manifest lists" in line
+    assert not Path("o").exists()
 
 
 # --------------------------------------------------------------------------- score

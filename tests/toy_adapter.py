@@ -108,3 +108,12 @@ class ToyAdapter(Adapter):
 
     def describe(self) -> dict[str, Any]:
         return {"rates_hz": {"future": 2.0}}
+
+
+def corrupt_header(tar: Path, member: str) -> None:
+    """Break the checksum of ``member``'s tar header (bit rot mid-file): tarfile ends the stream there, silently."""
+    data = bytearray(tar.read_bytes())
+    header = data.index(member.encode())
+    assert header % 512 == 0, "a name that needs a pax header: corrupt that one"
+    data[header + 148 : header + 156] = b"0000000\0"  # the checksum field
+    tar.write_bytes(bytes(data))

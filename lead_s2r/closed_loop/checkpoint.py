@@ -1,11 +1,12 @@
 """A trained run -> the driving network, its configuration and the CARLA camera rig it was trained for.
 
-No second config format: ``lead-s2r fit`` (LightningCLI) saves the resolved run configuration as ``config.yaml`` in
-the run folder, and that is where the network's class and config come from (``DrivingModule`` leaves the network out
-of its ``hyper_parameters``, so the checkpoint alone cannot rebuild it). A checkpoint without that file, or whose
-weights do not fit it, is refused with what to do, as is a model that cannot drive a CARLA route: one without an
-output grid for the source, or one that reads no route target points (an LTFv6 NAVSIM model, ``target_points=()``:
-it would not know where to turn). LEAD's users hit exactly these silent mismatches between
+No second config format: a checkpoint of ``DrivingModule`` describes its network in its ``hyper_parameters`` (class
+path and typed config, see :mod:`lead_s2r.training.module`), so a ``.ckpt`` copied anywhere drives alone. Checkpoints
+written before that describe no network; for them the resolved run configuration that ``lead-s2r fit``
+(LightningCLI) saves as ``config.yaml`` in the run folder is read instead. A checkpoint with neither, or whose weights
+do not fit its description, is refused with what to do, as is a model that cannot drive a CARLA route: one without
+an output grid for the source, or one that reads no route target points (an LTFv6 NAVSIM model,
+``target_points=()``: it would not know where to turn). LEAD's users hit exactly these silent mismatches between
 configs and weights; here they are errors at load time.
 
 The camera rig is not stored by training either; it follows from the model's input: the LEAD rig whose stitched
@@ -15,6 +16,7 @@ training used) has the aspect of ``image_size`` (3 cameras 3:1, 6 cameras 6:1, t
 
 import math
 from pathlib import Path
+from typing import Any
 
 import torch
 import yaml
@@ -59,29 +61,41 @@ def saved_config(checkpoint: Path) -> Path:
             if candidate.is_file():
                 return candidate
     raise UnsupportedCheckpoint(
-        f"{checkpoint}: no {CONFIG_NAME} (the configuration `lead-s2r fit` saves in its run folder) beside the "
-        "checkpoint or in its run folder, so the network cannot be rebuilt; pass the run folder of `lead-s2r fit`"
+        f"{checkpoint}: its hyper_parameters describe no network (a checkpoint written before they did) and no "
+        f"{CONFIG_NAME} (the configuration `lead-s2r fit` saves in its run folder) is beside it or in its run "
+        "folder, so the network cannot be rebuilt; pass the run folder of `lead-s2r fit`"
     )
 
 
-def load_model(checkpoint: Path, device: str = "cpu") -> nn.Module:
-    """The network of a ``lead-s2r fit`` checkpoint, rebuilt from the run's saved config, in eval mode."""
-    from lightning.pytorch.cli import instantiate_module  # Lightning is only needed here
-
-    from lead_s2r.training.module import DrivingModule
-
+def module_arguments(checkpoint: Path, saved: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    """``DrivingModule`` arguments (``_class_path`` for a subclass) of a loaded checkpoint and where they come from:
+    its own ``hyper_parameters`` when they describe the network, else the run's ``config.yaml`` (older checkpoints)."""
+    hparams = saved.get("hyper_parameters") or {}
+    if isinstance(hparams.get("model"), dict):
+        return {k: v for k, v in hparams.items() if k != "_instantiator"}, str(checkpoint)
     config_path = saved_config(checkpoint)
     section = (yaml.safe_load(config_path.read_text()) or {}).get("model")
     if not isinstance(section, dict) or "model" not in section:
         raise UnsupportedCheckpoint(f"{config_path}: no 'model.model' entry (the network's class and config)")
     if "class_path" in section:  # a DrivingModule subclass
         section = {"_class_path": section["class_path"], **section.get("init_args", {})}
-    module = instantiate_module(DrivingModule, {**section, "init_from": None, "compile": False})
-    state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    return section, str(config_path)
+
+
+def load_model(checkpoint: Path, device: str = "cpu") -> nn.Module:
+    """The network of a ``DrivingModule`` checkpoint, rebuilt from its own description (or its run's saved config),
+    in eval mode."""
+    from lightning.pytorch.cli import instantiate_module  # Lightning is only needed here
+
+    from lead_s2r.training.module import DrivingModule
+
+    saved = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    arguments, described_by = module_arguments(checkpoint, saved)
+    module = instantiate_module(DrivingModule, {**arguments, "init_from": None, "compile": False})
     try:
-        module.load_state_dict(state["state_dict"])
+        module.load_state_dict(saved["state_dict"])
     except (KeyError, RuntimeError) as err:
-        raise UnsupportedCheckpoint(f"{checkpoint}: its weights do not fit the model of {config_path}: {err}") from err
+        raise UnsupportedCheckpoint(f"{checkpoint}: its weights do not fit the model of {described_by}: {err}") from err
     return module.model.to(device).eval()
 
 

@@ -24,7 +24,15 @@ from lead_s2r.data.transforms import SourceTransform, collate
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.shards import INFO, ShardError, decode_sample, load_info, raise_shard_error, shard_paths
+from lead_s2r.shards import (
+    INFO,
+    ManifestCheck,
+    ShardError,
+    decode_sample,
+    load_info,
+    raise_shard_error,
+    shard_paths,
+)
 
 
 @dataclass
@@ -215,11 +223,17 @@ class DriveDataModule(L.LightningDataModule):
 
     def _eval_pipeline(self, name: str, spec: SourceSpec) -> wds.DataPipeline:
         _, rank, world_size = self._where()
-        samples = [sample for path in spec.paths for sample in manifest_samples(path, spec.splits)]
+        samples: list[tuple[str, str]] = []
+        listed: dict[str, list[str]] = {}
+        for path in spec.paths:
+            selected, keys = manifest_samples(path, spec.splits)
+            samples += selected
+            listed |= keys
         mine = SampleShare(samples, rank, world_size)
         return wds.DataPipeline(
             mine.shards,
             wds.tarfile_to_samples(handler=raise_shard_error),
+            ManifestCheck(listed),
             mine,
             wds.map(self._decode(name, spec)),
             wds.batched(self.eval_batch_size, collation_fn=collate, partial=True),
@@ -255,4 +269,3 @@ class DriveDataModule(L.LightningDataModule):
 
     def predict_dataloader(self) -> list[wds.WebLoader]:
         return self._eval_loaders(self.predict_sources, "predict")
-

@@ -12,7 +12,8 @@ The rank is passed in from the trainer because dataloader workers do not always 
 Evaluation splits by sample, not by shard: webdataset's ``split_by_node`` hands out whole shards (two ranks of a
 one-shard split get 35 and 0 samples) and its default ``single_node_only`` refuses to run under DDP. The manifest
 lists every sample with its shard and split, so each rank, and each worker within it, gets a contiguous run of the
-selected samples (35 -> 18 + 17) and opens only the shards that hold it.
+selected samples (35 -> 18 + 17) and opens only the shards that hold it. The same manifest read lists every key
+of every shard, which each opened tar is held to (a corrupt header mid-tar would otherwise end it silently).
 """
 
 import random
@@ -26,7 +27,7 @@ import numpy as np
 import torch.utils.data
 import webdataset as wds
 
-from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest
+from lead_s2r.shards import MANIFEST, SHARD_DIR, keys_by_shard, load_manifest
 
 
 def worker_info() -> tuple[int, int]:
@@ -87,8 +88,11 @@ def share(items: Sequence[Any], part: int, parts: int) -> list[Any]:
     return list(items[-(-part * n // parts) : -(-(part + 1) * n // parts)])
 
 
-def manifest_samples(path: str | Path, splits: Sequence[str] | None) -> list[tuple[str, str]]:
-    """(shard path, key) of every sample of a converted folder in the wanted splits, in shard order."""
+def manifest_samples(
+    path: str | Path, splits: Sequence[str] | None
+) -> tuple[list[tuple[str, str]], dict[str, list[str]]]:
+    """(shard path, key) of every sample of a converted folder in the wanted splits, in shard order; and every key
+    the manifest lists per shard, all splits (what a tar must yield, :class:`~lead_s2r.shards.ManifestCheck`)."""
     folder = Path(path)
     if not (folder / MANIFEST).is_file():
         raise FileNotFoundError(
@@ -99,7 +103,7 @@ def manifest_samples(path: str | Path, splits: Sequence[str] | None) -> list[tup
     wanted = None if splits is None else set(splits)
     kept = [row for row in rows if wanted is None or row["split"] in wanted]
     kept.sort(key=lambda row: row["shard"])  # stable: manifest order within a shard
-    return [(str(folder / SHARD_DIR / row["shard"]), row["key"]) for row in kept]
+    return [(str(folder / SHARD_DIR / row["shard"]), row["key"]) for row in kept], keys_by_shard(folder, rows)
 
 
 class SampleShare:

@@ -1,8 +1,18 @@
 """The LightningModule: per-source forward passes, loss masking by what each source supervises, ADE/FDE validation,
-ISO-frame predictions."""
+ISO-frame predictions.
 
+A checkpoint rebuilds its module alone (``DrivingModule.load_from_checkpoint(path)``, the CARLA agent): the network is
+left out of ``save_hyperparameters`` (an ``nn.Module`` there would be pickled whole, and its weights are in the state
+dict anyway), and :meth:`DrivingModule.on_save_checkpoint` writes it back into the checkpoint's hyper-parameters as
+plain data, its class path and typed config (:func:`model_spec`), with LightningCLI's trusted instantiator, which
+rebuilds a class path the way ``lead-s2r fit`` did from the YAML.
+"""
+
+import inspect
+import json
 import math
 from collections.abc import Mapping
+from dataclasses import asdict, is_dataclass
 from typing import Any, Literal
 
 import lightning as L
@@ -19,6 +29,22 @@ from lead_s2r.training.weights import LoadReport, load_matching
 
 #: LEAD's weights (``detailed_loss_weights``): all 1 except depth.
 DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in losses.TASK_TARGETS} | {"depth": 1e-5}
+
+#: Lightning's allow-listed instantiator (LightningCLI's); ``load_from_checkpoint`` builds the module with it.
+INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
+
+
+def model_spec(model: nn.Module) -> dict[str, Any] | None:
+    """``{"class_path", "init_args": {"config"}}`` that rebuilds ``model``, in JSON types (a ``weights_only`` load
+    reads them); None for a network not built from one dataclass ``config`` argument, like the TFv6 family's."""
+    config = getattr(model, "config", None)
+    if not is_dataclass(config) or "config" not in inspect.signature(type(model)).parameters:
+        return None
+    cls = type(model)
+    return {
+        "class_path": f"{cls.__module__}.{cls.__qualname__}",
+        "init_args": {"config": json.loads(json.dumps(asdict(config)))},
+    }
 
 
 class DrivingModule(L.LightningModule):
@@ -39,6 +65,8 @@ class DrivingModule(L.LightningModule):
             "cosine" decays once over the whole run (LEAD's WOD-E2E schedule).
         compile: wrap the model with ``torch.compile`` (parameter names stay the same).
         init_from: checkpoint whose matching tensors initialise the model (fine-tuning); new heads are reported.
+
+    A checkpoint of it rebuilds the module alone: ``DrivingModule.load_from_checkpoint(path)``.
     """
 
     def __init__(
@@ -69,6 +97,19 @@ class DrivingModule(L.LightningModule):
             rank_zero_info(self.init_report.summary())
         if compile:
             self.model.compile()
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Describe the network in the checkpoint's hyper-parameters (see the module docstring).
+
+        ``init_from`` is dropped there: the weights it loaded are in the state dict, and a rebuilt module must not read
+        a file that may be gone. A network :func:`model_spec` cannot describe needs ``model=`` when loaded.
+        """
+        spec = model_spec(self.model)
+        if spec is None:
+            return
+        hparams = checkpoint.setdefault(self.CHECKPOINT_HYPER_PARAMS_KEY, {})
+        hparams.update(model=spec, init_from=None)
+        hparams.setdefault("_instantiator", INSTANTIATOR)
 
     # --- setup
     def setup(self, stage: str) -> None:
