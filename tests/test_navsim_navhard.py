@@ -1,5 +1,7 @@
-"""navhard two-stage: the synthetic split (nuPlan-object pickles) -> NAVSIM adapter -> samples -> two-stage math."""
+"""navhard two-stage: the synthetic split (nuPlan-object pickles) -> NAVSIM adapter -> samples -> two-stage math,
+and end to end through ``lead-s2r score --metric epdms@navsim-2.2``."""
 
+import csv
 import importlib.util
 import json
 import pickle
@@ -7,13 +9,18 @@ import pickletools
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 import yaml
 
+from lead_s2r.baselines import predict_constant_velocity
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.foreign_pickle import ForeignClass, ForeignObject, dumps
 from lead_s2r.geometry import to_global, to_local
+from lead_s2r.predictions import write_predictions
+from lead_s2r.scoring.epdms_two_stage import CSV_NAME
+from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm import two_stage as T
 from lead_s2r.scoring.pdm.epdms import FILTERED
 from lead_s2r.scoring.pdm.state import STATE_SIZE
@@ -196,3 +203,107 @@ def test_a_filter_token_without_a_synthetic_pickle_is_reported(raw: Path, tmp_pa
     ref = next(r for r in checker.list_logs(raw) if r.log_id.startswith("scene-filter"))
     with pytest.raises(LookupError, match="0123456789abcdef0"):
         list(checker.iter_samples(ref))
+
+
+# --------------------------------------------------------------------------- scored end to end
+
+
+@pytest.fixture(scope="module")
+def scored(converted: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``lead-s2r score`` of NAVSIM's constant-velocity agent on every stage-1 and stage-2 token."""
+    out = tmp_path_factory.mktemp("navhard_scores")
+    args = ["score", "--metric", "epdms@navsim-2.2", "--planner", "constant-velocity", "--data", str(converted)]
+    assert cli_main([*args, "--out", str(out), "--reference-cache", str(out.parent / "navhard_references")]) == 0
+    return out
+
+
+def scored_rows(scored: Path) -> dict[str, dict]:
+    return {row["token"]: row for row in pq.read_table(scored / "scores.parquet").to_pylist()}
+
+
+def test_scored_split_reports_navsim_two_stage_summaries_and_log_replay(scored: Path) -> None:
+    report = json.loads((scored / "scores.json").read_text())
+    aggregates, config = report["aggregates"], report["config"]
+    assert (aggregates["groups"], aggregates["frames_stage_one"], aggregates["frames_stage_two"]) == (3, 6, 18)
+    assert aggregates["epdms"] == aggregates["extended_pdm_score_combined"]
+    assert config["scored_two_stage"] and config["traffic_agents"] == "log_replay"
+    assert "reactive" in config["known_difference"]
+    rows = scored_rows(scored)
+    assert all(np.isfinite(row[E.EC]) for row in rows.values())  # every frame has its pair
+    # the stage-1 frames of a straight drive score 1 with CV; 4 s later CV runs into the slower lead car or off
+    # the road in the turn: stage two is 0 and so is the combined score, whose sub-scores are not
+    assert aggregates["extended_pdm_score_stage_one"] == pytest.approx(1.0)
+    assert aggregates["extended_pdm_score_stage_two_columns"][E.NC] == pytest.approx(1 / 3)
+
+
+def test_stage_two_weights_measure_from_the_planned_endpoint(scored: Path, samples: dict, mapping: list) -> None:
+    rows, fallbacks = scored_rows(scored), 0
+    for group in mapping:
+        for side, first in enumerate((group.original, group.previous)):
+            plan = predict_constant_velocity(samples[first])
+            endpoint = to_global(np.r_[plan.xy[-1], plan.yaw[-1]], samples[first]["scoring"]["origin"])[:2]
+            variants = [pair[side] for pair in group.pairs]
+            starts = np.array([samples[t]["scoring"]["origin"][:2] for t in variants])
+            raw = np.exp(-np.sum((starts - endpoint) ** 2, axis=1) / 0.2)
+            expected = raw / raw.sum() if raw.sum() > 1e-8 else np.full(len(raw), 1 / len(raw))
+            fallbacks += raw.sum() <= 1e-8
+            assert [rows[t]["weight"] for t in variants] == pytest.approx(expected, abs=1e-9)
+    assert 0 < fallbacks < 2 * len(mapping)  # CV goes straight on through the turn: far from every start there
+
+
+def test_combined_is_the_group_mean_of_weighted_stage_products(scored: Path, mapping: list) -> None:
+    rows = scored_rows(scored)
+    aggregates = json.loads((scored / "scores.json").read_text())["aggregates"]
+    for column in (*T.SCORE_COLUMNS[:-1], "score"):
+        groups = []
+        for group in mapping:
+            sides = []
+            for side, first in enumerate((group.original, group.previous)):
+                variants = [rows[pair[side]] for pair in group.pairs]
+                stage_two = sum(v["weight"] * v[column] for v in variants) / sum(v["weight"] for v in variants)
+                sides.append(rows[first][column] * stage_two)
+            groups.append(sum(sides) / 2)
+        assert aggregates["extended_pdm_score_combined_columns"][column] == pytest.approx(np.mean(groups), abs=1e-12)
+
+
+def test_two_stage_csv_has_navsims_layout(scored: Path, mapping: list) -> None:
+    with open(scored / CSV_NAME) as file:
+        rows = list(csv.reader(file))
+    header = rows[0]
+    assert header[:3] == ["", "token", "valid"] and header[-1] == "score"
+    assert header[3:5] == ["no_at_fault_collisions_stage_one", "drivable_area_compliance_stage_one"]
+    assert "two_frame_extended_comfort_stage_two" in header
+    assert [row[1] for row in rows[-3:]] == list(T.SUMMARY_TOKENS)
+    assert len(rows) == 1 + 24 + 3 and [row[0] for row in rows[1:]] == [str(i) for i in range(27)]
+    original = next(row for row in rows if row[1] == mapping[0].original)
+    assert original[header.index("ego_progress_stage_two")] == "" and original[header.index("ego_progress_stage_one")]
+    aggregates = json.loads((scored / "scores.json").read_text())["aggregates"]
+    assert float(rows[-1][-1]) == aggregates["extended_pdm_score_combined"]
+    assert float(rows[-3][-1]) == pytest.approx(aggregates["extended_pdm_score_stage_one"])
+
+
+def test_predictions_missing_a_stage_two_token_fail_naming_it(
+    converted: Path, scored: Path, mapping: list, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    dropped = mapping[1].pairs[2][0]
+    predictions = [
+        predict_constant_velocity(s)
+        for s in read_samples(converted, fields=())
+        if s["meta"]["extras"]["navsim"]["scene_token"] != dropped
+    ]
+    path = write_predictions(tmp_path / "predictions.parquet", predictions)
+    args = ["score", "--metric", "epdms@navsim-2.2", "--predictions", str(path), "--data", str(converted)]
+    references = ["--reference-cache", str(scored.parent / "navhard_references")]
+    assert cli_main([*args, "--out", str(tmp_path / "scores"), *references]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error and f"stage-2 token {dropped}" in error and "no prediction" in error
+    assert not (tmp_path / "scores" / "scores.json").exists()
+
+
+def test_two_stage_false_scores_every_frame_as_one_stage(converted: Path, scored: Path, tmp_path: Path) -> None:
+    args = ["score", "--metric", "epdms@navsim-2.2", "--planner", "constant-velocity", "--data", str(converted)]
+    references = ["--reference-cache", str(scored.parent / "navhard_references")]
+    assert cli_main([*args, "--out", str(tmp_path), *references, "--option", "two_stage=false"]) == 0
+    aggregates = json.loads((tmp_path / "scores.json").read_text())["aggregates"]
+    assert "extended_pdm_score_combined" not in aggregates and aggregates["frames"] == 24
+    assert (tmp_path / "navsim_epdms.csv").exists() and not (tmp_path / CSV_NAME).exists()

@@ -11,34 +11,55 @@ EC NaN and its score drops EC's weight (denominator 14).
 
 Besides scores.parquet / scores.json, :meth:`EPDMSScorer.write_files` writes ``navsim_epdms.csv`` in the layout of
 ``run_pdm_score_one_stage.py``'s output (index column, ``token``, ``valid``, the v2 sub-scores in ``PDMResults``
-order, ``two_frame_extended_comfort``, ``score``, then the ``average_all_frames`` row, NaN-skipping means). The
-navhard two-stage aggregation is :func:`lead_s2r.scoring.pdm.two_stage.two_stage_aggregate`.
+order, ``two_frame_extended_comfort``, ``score``, then the ``average_all_frames`` row, NaN-skipping means).
+
+A navhard two-stage split (samples carrying the adapter's ``two_stage_group``) is scored as NAVSIM's
+``run_pdm_score.py`` scores it: every stage-1 and stage-2 frame alone, then EC per mapped pair, the pseudo
+closed-loop weights and the ``extended_pdm_score_stage_one`` / ``_stage_two`` / ``_combined`` summaries
+(:mod:`lead_s2r.scoring.epdms_two_stage`), written to ``navsim_epdms_two_stage.csv``. One known difference:
+NAVSIM's two-stage run simulates reactive IDM traffic, this scorer replays the log (``config.known_difference``).
 """
 
+import csv
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from itertools import pairwise
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
 
+from lead_s2r.errors import UserError
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
+from lead_s2r.scoring import epdms_two_stage as TS
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
-from lead_s2r.scoring.pdms import PDMSScorer, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.pdm.two_stage import TwoStageGroup, TwoStageResult
+from lead_s2r.scoring.pdms import PDMSScorer, ReferenceCache, navsim_token, proposal_of, top_inference
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
 NAVSIM_COLUMNS = (*E.SUB_SCORES, "score")
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
 CSV_NAME = "navsim_epdms.csv"
 AVERAGE_TOKEN = "average_all_frames"
+#: the background traffic, in scores.json's config: NAVSIM's two-stage runner uses the reactive IDM policy for both
+#: stages, this scorer (and the one-stage runner) replays the log (docs/metrics.md, "Known differences")
+TRAFFIC_AGENTS = {
+    False: {"traffic_agents": "log_replay"},
+    True: {
+        "traffic_agents": "log_replay",
+        "known_difference": "NAVSIM's two-stage run_pdm_score.py simulates reactive (IDM) traffic in both stages; "
+        "this score replays the logged traffic (docs/metrics.md)",
+    },
+}
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
@@ -103,7 +124,8 @@ def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:
 
 
 class EPDMSScorer(PDMSScorer):
-    """``epdms@navsim-2.2``: per-sample NAVSIM v2.2 sub-scores, EC from adjacent frames and the final EPDMS."""
+    """``epdms@navsim-2.2``: per-sample NAVSIM v2.2 sub-scores, EC from adjacent frames and the final EPDMS; on a
+    navhard two-stage split, NAVSIM's two-stage aggregation (:mod:`lead_s2r.scoring.epdms_two_stage`)."""
 
     name: ClassVar[str] = EPDMS_METRIC
     version: ClassVar[str] = "1"
@@ -113,15 +135,72 @@ class EPDMSScorer(PDMSScorer):
     csv_name: ClassVar[str] = CSV_NAME
     average_token: ClassVar[str] = AVERAGE_TOKEN
 
+    def __init__(
+        self,
+        allow_missing: bool = False,
+        reference_cache: str | ReferenceCache | None = None,
+        two_stage: bool | None = None,
+    ) -> None:
+        """``two_stage``: None scores navhard's two stages when the samples carry a two-stage mapping
+        (``meta.extras.navsim.two_stage_group``, written by the adapter's ``two_stage_mapping``) and one stage
+        otherwise; True requires the mapping; False scores every frame as one stage."""
+        super().__init__(allow_missing, reference_cache)
+        self.two_stage = two_stage
+        #: the last two-stage result, laid out as NAVSIM's two-stage CSV by :meth:`write_files`
+        self.two_stage_result: TwoStageResult | None = None
+
+    def config(self) -> dict[str, Any]:
+        scored = self.two_stage_result is not None
+        return {**super().config(), "two_stage": self.two_stage, "scored_two_stage": scored} | TRAFFIC_AGENTS[scored]
+
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
         """Samples of other datasets are skipped and counted, as :class:`PDMSScorer` does."""
+        data = list(data)
+        ours = [sample for sample in data if sample["meta"]["dataset"] in self.datasets]
+        mapping = [] if self.two_stage is False else TS.mapping_of(ours)
+        if self.two_stage and not mapping:
+            raise UserError(
+                "--option two_stage=true: no sample carries meta.extras.navsim.two_stage_group; convert the split "
+                "with the adapter's two_stage_mapping (docs/datasets/navsim.md)"
+            )
         pairs = join(predictions, data, self.allow_missing)
         frames = [self.frame(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
+        skipped = {"frames_skipped_other_dataset": len(pairs) - len(frames)}
+        self.two_stage_result = None
+        if mapping:
+            table, aggregates = self.score_two_stage(frames, mapping, ours)
+            return ScoreResult(table, aggregates | skipped)
         earlier = adjacent_frames(frames)
         rows = [self.row(frame, frames[earlier[i]] if i in earlier else None) for i, frame in enumerate(frames)]
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
-        skipped = len(pairs) - len(frames)
-        return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": skipped})
+        return ScoreResult(table, {**self._aggregate(rows), **skipped})
+
+    def score_two_stage(
+        self, frames: list[Frame], mapping: list[TwoStageGroup], samples: list[dict[str, Any]]
+    ) -> tuple[pa.Table, dict[str, Any]]:
+        """Every frame of the mapping scored alone, then NAVSIM's two-stage weights, EC and summaries."""
+        TS.check_complete(mapping, samples, {navsim_token(frame.sample): frame.error for frame in frames})
+        results = [self.proposal_scores(frame, None, with_states=True) for frame in frames]
+        tokens = [navsim_token(frame.sample) for frame in frames]
+        rows = [
+            TS.token_row(token, frame.sample, frame.poses, result)
+            for token, frame, result in zip(tokens, frames, results, strict=True)
+        ]
+        self.two_stage_result = TS.aggregate(rows, mapping, extended_comfort_features)
+        table = []
+        for token, frame, result in zip(tokens, frames, results, strict=True):
+            per = self.two_stage_result.per_token[token]
+            table.append(
+                {"key": frame.sample["__key__"], "dataset": frame.sample["meta"]["dataset"], "token": token}
+                | {"valid": True, "stage": int(per["stage"]), "weight": per["weight"], "error": None}
+                | {"two_stage_role": TS.navsim_extras(frame.sample).get("two_stage_role")}
+                | {name: per[name] for name in TS.TABLE_COLUMNS}
+                | {name: float(np.asarray(result[name])[0]) for name in EXTRA_COLUMNS}
+            )
+        stage_one = sum(1 for row in table if row["stage"] == 1)
+        counts = {"frames": len(table), "frames_valid": len(table), "frames_failed": 0, "groups": len(mapping)}
+        counts |= {"frames_stage_one": stage_one, "frames_stage_two": len(table) - stage_one}
+        return pa.Table.from_pylist(table, schema=TS.SCHEMA), TS.summaries(self.two_stage_result) | counts
 
     def frame(self, sample: dict[str, Any], predictions: list[Prediction]) -> Frame:
         poses, interval = proposal_of(top_inference(predictions))
@@ -143,17 +222,31 @@ class EPDMSScorer(PDMSScorer):
         }
         if frame.scene is None:
             return row | dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan"))
-        previous = None if earlier is None else [previous_frame(frame, earlier)]
-        result = score_proposals(
+        result = self.proposal_scores(frame, earlier)
+        return row | {name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}
+
+    def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
+        """``score_proposals`` of the frame's plan (EC against ``earlier``'s plan, NaN without one)."""
+        assert frame.scene is not None, "invalid frames have no scores"
+        return score_proposals(
             frame.scene,
             frame.poses[None],
             frame.interval,
             reference=self.references.get(frame.scene),
             metric=EPDMS_METRIC,
-            previous=previous,
+            previous=None if earlier is None else [previous_frame(frame, earlier)],
+            with_states=with_states,
         )
-        return row | {name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[E.EC]))
         return {**super()._aggregate(rows), "frames_with_ec": with_ec}
+
+    def write_files(self, result: ScoreResult, out: Path) -> None:
+        """``navsim_epdms.csv`` (one stage) or ``navsim_epdms_two_stage.csv`` (NAVSIM's two-stage layout)."""
+        if self.two_stage_result is None:
+            return super().write_files(result, out)
+        header, rows = TS.csv_table(self.two_stage_result)
+        with open(Path(out) / TS.CSV_NAME, "w", newline="") as file:
+            csv.writer(file).writerows([header, *rows])
+        return None

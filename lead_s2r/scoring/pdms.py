@@ -124,11 +124,14 @@ class PDMSScorer(Scorer):
     csv_name: ClassVar[str] = CSV_NAME
     average_token: ClassVar[str] = "average"
 
-    def __init__(self, allow_missing: bool = False, reference_cache: str | None = None) -> None:
-        """``reference_cache``: folder of PDM-Closed references (``<key>.npy``), read when present, else written."""
+    def __init__(self, allow_missing: bool = False, reference_cache: str | ReferenceCache | None = None) -> None:
+        """``reference_cache``: folder of PDM-Closed references (``<key>.npy``), read when present, else written;
+        or a :class:`ReferenceCache` shared with other scorers of the same data in this process (the quickstart
+        plans each reference once for PDMS and EPDMS, baseline and model)."""
         super().__init__(allow_missing)
-        self.reference_cache = reference_cache
-        self.references = ReferenceCache(reference_cache)
+        shared = isinstance(reference_cache, ReferenceCache)
+        self.references = reference_cache if shared else ReferenceCache(reference_cache)
+        self.reference_cache = None if self.references.folder is None else str(self.references.folder)
 
     def config(self) -> dict[str, Any]:
         return {**super().config(), "reference_cache": self.reference_cache}
