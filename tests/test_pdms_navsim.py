@@ -14,11 +14,14 @@ from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, PredictionError
 from lead_s2r.schema import SchemaError
+from lead_s2r.scoring import pdms as pdms_module
 from lead_s2r.scoring.callback import ScoringCallback
+from lead_s2r.scoring.epdms import EPDMSScorer
 from lead_s2r.scoring.pdm import score_proposals
+from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.route import LaneGraph, correct_route
 from lead_s2r.scoring.pdm.scene import PDMScene
-from lead_s2r.scoring.pdms import NAVSIM_COLUMNS, proposal_of
+from lead_s2r.scoring.pdms import NAVSIM_COLUMNS, PDMSScorer, ReferenceCache, proposal_of
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
@@ -172,6 +175,28 @@ def test_score_cli_writes_navsim_csv_and_reuses_the_reference_cache(converted: P
     assert rows[-1][1] == "average" and len(rows) == len(keys) + 2
     assert float(rows[-1][-1]) == pytest.approx(aggregates["pdms"])
     assert all(len(row[1]) == 16 for row in rows[1:-1])  # NAVSIM scene tokens, not our keys
+
+
+def test_pdms_and_epdms_plan_each_reference_once_with_a_shared_cache(
+    converted: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    planned: list[str] = []
+
+    def counting(scene: PDMScene) -> np.ndarray:
+        planned.append(scene.key)
+        return plan_reference(scene)
+
+    monkeypatch.setattr(pdms_module, "plan_reference", counting)
+    samples = list(read_samples(converted, fields=EPDMSScorer.fields))
+    predictions = [predict_human(sample) for sample in samples]
+    cache = ReferenceCache()
+    pdms = PDMSScorer(reference_cache=cache).score(predictions, samples).aggregates
+    epdms = EPDMSScorer(reference_cache=cache).score(predictions, samples).aggregates
+    assert sorted(planned) == sorted(sample["__key__"] for sample in samples)  # once per sample, not twice
+    assert pdms["frames_valid"] == epdms["frames_valid"] == len(samples)
+    assert PDMSScorer(reference_cache=cache).config()["reference_cache"] is None  # in memory: no folder to report
+    alone = PDMSScorer().score(predictions, samples).aggregates
+    assert alone["pdms"] == pdms["pdms"] and len(planned) == 2 * len(samples)  # an unshared scorer plans its own
 
 
 def test_validation_callback_logs_pdms_for_navsim_only(converted: Path) -> None:
