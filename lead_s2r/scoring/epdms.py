@@ -144,6 +144,8 @@ class EPDMSScorer(PDMSScorer):
         """``two_stage``: None scores navhard's two stages when the samples carry a two-stage mapping
         (``meta.extras.navsim.two_stage_group``, written by the adapter's ``two_stage_mapping``) and one stage
         otherwise; True requires the mapping; False scores every frame as one stage."""
+        if two_stage not in (None, True, False):
+            raise ValueError(f"two_stage must be true, false or null (automatic), got {two_stage!r}")
         super().__init__(allow_missing, reference_cache)
         self.two_stage = two_stage
         #: the last two-stage result, laid out as NAVSIM's two-stage CSV by :meth:`write_files`

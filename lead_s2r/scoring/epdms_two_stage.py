@@ -30,6 +30,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.geometry import to_global
 from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm import two_stage as T
+from lead_s2r.scoring.pdms import navsim_token
 
 #: per-token table of a two-stage run: the one-stage columns, the token's stage, role and pseudo closed-loop weight.
 TABLE_COLUMNS = (*E.SUB_SCORES, "score")
@@ -69,7 +70,7 @@ def check_complete(
             f"navhard two-stage: token {stray[0]} ({len(stray)} such) is in no group of the two-stage mapping; "
             "leave it out of --data or score one stage with --option two_stage=false"
         )
-    converted = {navsim_extras(s).get("scene_token", s["__key__"]) for s in samples}
+    converted = {navsim_token(sample) for sample in samples}
     for group in mapping:
         for stage, tokens in ((1, (group.original, group.previous)), (2, [t for p in group.pairs for t in p])):
             for token in tokens:
