@@ -109,10 +109,15 @@ class CameraLayout:
     @property
     def identity(self) -> bool:
         """One camera, one band that is the whole decoded image, at the model's size: nothing to resample."""
-        if len(self.sizes) != 1 or len(self.bands[0]) != 1:
+        return self.whole and self.sizes[0] == self.image_size
+
+    @property
+    def whole(self) -> bool:
+        """One camera, one band that is the whole decoded image, filling the model's image: a plain resize."""
+        if len(self.sizes) != 1 or len(self.bands[0]) != 1 or self.letterboxed:
             return False
         (h, w), band = self.sizes[0], self.bands[0][0]
-        return (band.x0, band.x1, band.top, band.bottom) == (0, w, 0, h) and (h, w) == self.image_size
+        return (band.x0, band.x1, band.top, band.bottom) == (0, w, 0, h)
 
 
 def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> tuple[Tile, ...]:
@@ -419,21 +424,32 @@ class SourceTransform:
         return out
 
     def perspective_labels(self, sample: dict[str, Any], space: str, layout: CameraLayout) -> dict[str, torch.Tensor]:
-        """Depth (metres, 0 = no label) and semantic ids (-1 = ignore) of the single input camera, laid out on the
-        input image's pixel grid exactly as the image is."""
+        """Depth (float32 metres, 0 = no label) and semantic ids (int16, -1 = ignore) of the single input camera,
+        laid out on the input image's pixel grid exactly as the image is, except that a label smaller than the image
+        under a plain resize (:attr:`CameraLayout.whole`) stays at its own resolution: the loss resizes it on the
+        device (:func:`~lead_s2r.training.losses.on_image_grid`), as :func:`render` would have."""
         camera = self.cameras[0]
         out = {}
         depth = sample.get(f"depth_{camera}")
         if depth is not None and space in self.config.depth_sources:
             encoding = sample["meta"].get("depth", {})
             metres = depth.astype(np.float32) / 255.0 * float(encoding.get("max_m", self.config.max_depth))
-            out["depth"] = torch.from_numpy(render(layout, [metres], cv2.INTER_LINEAR, 0.0))
+            out["depth"] = torch.from_numpy(_label_on_layout(layout, metres, cv2.INTER_LINEAR, 0.0))
         semantic = sample.get(f"semantic_{camera}")
         if semantic is not None and space in self.config.semantic_classes:
-            if not (layout.identity and semantic.shape[:2] == layout.image_size):  # resampled: room for -1 padding
-                semantic = render(layout, [semantic.astype(np.int16)], cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
-            out["semantic"] = torch.from_numpy(semantic.astype(np.int64))
+            ids = semantic.astype(np.int16)  # signed, for the -1 of padding and of collation's filler
+            out["semantic"] = torch.from_numpy(
+                _label_on_layout(layout, ids, cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
+            )
         return out
+
+
+def _label_on_layout(layout: CameraLayout, label: np.ndarray, interpolation: int, fill: float) -> np.ndarray:
+    """``label`` as it is where the loss can resize it on the device (a plain resize up to the model's image),
+    else rendered by ``layout`` on the CPU."""
+    if layout.whole and label.shape[0] <= layout.image_size[0] and label.shape[1] <= layout.image_size[1]:
+        return label
+    return render(layout, [label], interpolation, fill)
 
 
 def _resize_height(image: np.ndarray, height: int, interpolation: int) -> np.ndarray:
@@ -513,13 +529,13 @@ def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
 
 
 def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
-    """Class ids of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside the raster.
+    """Class ids (int16) of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside it.
 
     The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
     (:func:`bev_gather_index`) and each sample is one gather."""
     pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
     index = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
-    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.int64)
+    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.int16)
     values[:-1] = labels.reshape(-1)
     values[-1] = -1  # where the index points for cells outside the raster
     return values[index]
