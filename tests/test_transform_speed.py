@@ -30,10 +30,10 @@ from lead_s2r.data.transforms import (
 )
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
+from lead_s2r.models.inputs import on_image_grid
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import BoxClass
 from lead_s2r.synthetic.carla_lead import generate
-from lead_s2r.training.losses import on_image_grid
 
 # --------------------------------------------------------------------------- references
 

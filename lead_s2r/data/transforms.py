@@ -36,6 +36,7 @@ import torch
 
 from lead_s2r.geometry import raster_lookup, resample, rotate
 from lead_s2r.models.config import BEVGrid, TFv6Config
+from lead_s2r.models.inputs import on_image_grid
 from lead_s2r.schema import BoxClass, command4
 
 #: Radar points kept per sample (LEAD: 4 sensors x 75).
@@ -427,7 +428,7 @@ class SourceTransform:
         """Depth (float32 metres, 0 = no label) and semantic ids (int16, -1 = ignore) of the single input camera,
         laid out on the input image's pixel grid exactly as the image is, except that a label smaller than the image
         under a plain resize (:attr:`CameraLayout.whole`) stays at its own resolution: the loss resizes it on the
-        device (:func:`~lead_s2r.training.losses.on_image_grid`), as :func:`render` would have."""
+        device (:func:`~lead_s2r.models.inputs.on_image_grid`), as :func:`render` would have."""
         camera = self.cameras[0]
         out = {}
         depth = sample.get(f"depth_{camera}")
@@ -612,13 +613,16 @@ def _draw_gaussian(heatmap: np.ndarray, row: int, col: int, denominator: float) 
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
 IGNORE_VALUE = {"bev_semantic": -1, "semantic": -1, "box_heatmap": -1}
+#: Labels on the input image's pixel grid, possibly left at their stored (smaller) size: see :func:`on_image_grid`.
+IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
 
     Identity entries (``__key__``, ``__dataset__``) become lists. The filler is masked out by construction:
-    validity masks are False, class maps -1, depth 0.
+    validity masks are False, class maps -1, depth 0. Perspective labels left at their stored size by rigs of
+    different sizes (one source, several camera rigs) are brought onto the image's grid here, as the loss would.
     """
     names = set().union(*samples)
     batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in names if name.startswith("__")}
@@ -628,5 +632,16 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
             template = next(value for value in values if value is not None)
             filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
             values = [filler if value is None else value for value in values]
+        if key in IMAGE_ALIGNED and len({value.shape for value in values}) > 1:  # rigs whose labels differ in size
+            size = tuple(batch_image_size(samples))
+            values = [on_image_grid(value[None], size)[0] for value in values]
         batch[key] = torch.stack(values)
     return batch
+
+
+def batch_image_size(samples: list[dict[str, Any]]) -> tuple[int, int]:
+    """The (H, W) of the input image of a batch's samples (they share the model's ``image_size``)."""
+    image = next((sample["rgb"] for sample in samples if "rgb" in sample), None)
+    if image is None:
+        raise KeyError("perspective labels (depth, semantic) need the samples' 'rgb' to know the image grid")
+    return tuple(image.shape[-2:])

@@ -8,13 +8,14 @@ Every ``*_valid`` mask is bool and marks entries that carry a label; invalid ent
 The contract is lean because the loader builds and stacks every byte of it on the CPU, per sample, beside the GPU:
 images stay uint8 (normalised in the model), class maps are int16 (widened to int64 by the losses, on the device),
 and ``depth``/``semantic`` may stay smaller than the image when the image is a plain resize of one camera: the
-loss resizes them onto the image's grid on the device (``training.losses.on_image_grid``) exactly as the loader
+loss resizes them onto the image's grid on the device (:func:`on_image_grid`) exactly as the loader
 would have (bilinear / nearest, pixel centres aligned), so a depth stored at 1/4 size is not shipped 16x larger.
 """
 
 from collections.abc import Mapping
 from typing import Any, TypedDict
 
+import torch.nn.functional as F
 from torch import Tensor
 
 
@@ -74,3 +75,14 @@ def target_point_range(info: Mapping[str, Any]) -> tuple[tuple[float, float], tu
     if not all(h > lo for lo, h in zip(low, high, strict=True)):
         raise ValueError(f"info.json statistics.target_points: high {high} must exceed low {low}")
     return (float(low[0]), float(low[1])), (float(high[0]), float(high[1]))
+
+
+def on_image_grid(label: Tensor, size: tuple[int, int]) -> Tensor:
+    """A (B, h, w) perspective label the loader left at its own resolution, on the input image's ``size`` as the
+    loader's ``cv2.resize`` would have put it: bilinear with pixel centres aligned for depth (float), nearest for
+    class ids (both take the floor of the scaled index, as OpenCV's INTER_NEAREST does). Equal to float32 rounding."""
+    if tuple(label.shape[-2:]) == tuple(size):
+        return label
+    if label.is_floating_point():
+        return F.interpolate(label[:, None], size=size, mode="bilinear", align_corners=False)[:, 0]
+    return F.interpolate(label[:, None].float(), size=size, mode="nearest")[:, 0].to(label.dtype)

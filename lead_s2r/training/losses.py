@@ -90,17 +90,6 @@ def _resize_logits(logits: Tensor, size: tuple[int, int]) -> Tensor:
     return F.interpolate(logits.float(), size=size, mode="bilinear", align_corners=False)
 
 
-def on_image_grid(label: Tensor, size: tuple[int, int]) -> Tensor:
-    """A (B, h, w) perspective label the loader left at its own resolution, on the input image's ``size`` as the
-    loader's ``cv2.resize`` would have put it: bilinear with pixel centres aligned for depth (float), nearest for
-    class ids (both take the floor of the scaled index, as OpenCV's INTER_NEAREST does). Equal to float32 rounding."""
-    if tuple(label.shape[-2:]) == tuple(size):
-        return label
-    if label.is_floating_point():
-        return F.interpolate(label[:, None], size=size, mode="bilinear", align_corners=False)[:, 0]
-    return F.interpolate(label[:, None].float(), size=size, mode="nearest")[:, 0].to(label.dtype)
-
-
 def segmentation_loss(logits: Tensor, labels: Tensor) -> Tensor:
     """Cross-entropy with logits resized to the label raster, mean over labelled pixels; label -1 is ignored.
 

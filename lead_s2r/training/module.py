@@ -21,7 +21,7 @@ from lightning.pytorch.utilities import rank_zero_info, rank_zero_warn
 from torch import Tensor, nn
 from torchmetrics import MeanMetric
 
-from lead_s2r.models.inputs import Batch
+from lead_s2r.models.inputs import Batch, on_image_grid
 from lead_s2r.training import losses
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.prediction_writer import to_predictions
@@ -168,7 +168,7 @@ class DrivingModule(L.LightningModule):
         """Depth or semantic loss on the input image's grid (the label brought there on the device), cropped as the
         camera ablations crop the image."""
         crop = getattr(self.model, "camera_select", nn.Identity())
-        label = crop(losses.on_image_grid(batch[task], tuple(batch["rgb"].shape[-2:])))
+        label = crop(on_image_grid(batch[task], tuple(batch["rgb"].shape[-2:])))
         if task == "semantic":
             return losses.segmentation_loss(pred["semantic"], label)
         return losses.depth_loss(pred["depth"], label)
