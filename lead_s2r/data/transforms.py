@@ -20,7 +20,13 @@ RGB, and at 1/2, 1/4 or 1/8 size (libjpeg's DCT scaling, OpenCV ``IMREAD_REDUCED
 least that much smaller than the camera's (:func:`jpeg_reduction`): the area-averaged result then differs from the
 full decode by the rounding of JPEG's scaled IDCT only (measured on a smooth 1920x1080 q=90 image in
 tests/test_transform_speed.py: mean <= 0.34, max 2 levels of 255 at 1/2 to 1/8; the test allows 0.5 and 4).
-Every other output is bit-identical to the straightforward definitions kept in that test.
+Every other output is bit-identical to the straightforward definitions kept in that test, or (a perspective label
+left at its stored size, see below) equal to float32 rounding once :func:`~lead_s2r.models.inputs.on_image_grid`
+has put it on the image's grid.
+
+Tensors are lean (the loader builds and stacks every byte on the CPU): class maps int16, the image uint8, and a
+depth or semantic label smaller than the image under a plain resize (:attr:`CameraLayout.whole`) is not upsampled
+here; the loss does it on the device.
 """
 
 import math
