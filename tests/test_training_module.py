@@ -243,3 +243,42 @@ def test_fit_normalises_target_points_by_training_statistics_and_predict_keeps_t
     fixed = DrivingModule(TFv6(replace(config, target_point_normalisation="fixed")), supervise={"carla": ["waypoints"]})
     trainer(max_steps=1, **TRAINER_DEFAULTS).fit(fixed, datamodule=fit_data)
     assert fixed.model.target_point_range == ((-200.0, -50.0), (200.0, 50.0))
+
+
+@pytest.mark.parametrize(
+    ("image_size", "camera"),
+    [((384, 1152), {}), ((128, 384), {}), ((128, 384), {"camera_tiles": 3, "fov_fraction": 0.5})],
+)
+def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tmp_path, image_size, camera):
+    """The loader's int16 labels and 1/4-size depth give the losses of the old contract (int64 labels, depth
+    resampled to the image on the CPU: the reference definition in test_transform_speed) on generated frames."""
+    from test_transform_speed import reference_camera
+
+    from lead_s2r.data.transforms import SourceTransform, collate
+    from lead_s2r.registry import get_adapter
+    from lead_s2r.synthetic.carla_lead import generate
+
+    generate(tmp_path, count=1, seed=7, frames=2)
+    adapter = get_adapter("carla_lead")
+    samples = [s for log in adapter.list_logs(tmp_path) for s in adapter.iter_samples(log)]
+    config = tfv6_config(**{**TINY, "image_size": image_size, **camera})
+    transform = SourceTransform("carla", config)
+    lean = collate([transform(s) for s in samples])
+    old = dict(lean, bev_semantic=lean["bev_semantic"].long())
+    for name in ("semantic", "depth"):
+        old[name] = torch.stack([torch.from_numpy(reference_camera(transform, s)[name]) for s in samples])
+    assert lean["depth"].shape[-2:] == (96, 288) and old["depth"].shape[-2:] == image_size
+    assert lean["semantic"].dtype == lean["bev_semantic"].dtype == torch.int16 and old["semantic"].dtype == torch.int64
+
+    module = DrivingModule(TFv6(config))
+    torch.manual_seed(0)
+    h, w = image_size[0] // 8, module.model.backbone.cameras.output_width(image_size[1]) // 8
+    pred = {
+        "semantic": torch.randn(2, config.semantic_classes["carla"], h, w),
+        "depth": torch.rand(2, h, w) * config.max_depth,
+        "bev_semantic": torch.randn(2, config.bev_semantic_classes["carla"], *lean["bev_semantic"].shape[-2:]),
+    }
+    for task in ("semantic", "depth", "bev_semantic"):
+        before, after = module.task_loss(task, pred, old), module.task_loss(task, pred, lean)
+        assert before > 0
+        torch.testing.assert_close(after, before, rtol=1e-6, atol=0.0, msg=task)

@@ -30,6 +30,7 @@ from lead_s2r.data.transforms import (
 )
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
+from lead_s2r.models.inputs import on_image_grid
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import BoxClass
 from lead_s2r.synthetic.carla_lead import generate
@@ -172,7 +173,7 @@ def test_bev_labels_equal_the_per_cell_lookup(pixel_to_ego: list, grid: BEVGrid)
     labels = np.random.default_rng(1).integers(0, 11, (256, 200), dtype=np.uint8)
     expected = reference_bev_labels(labels, pixel_to_ego, grid)
     got = bev_labels(labels, {"pixel_to_ego": pixel_to_ego}, grid)
-    assert got.dtype == expected.dtype == np.int64
+    assert expected.dtype == np.int64 and got.dtype == np.int16  # widened by the loss, on the device
     np.testing.assert_array_equal(got, expected)
     assert (expected == -1).any() or grid is NAVSIM_BEV  # the raster does not cover every grid
 
@@ -199,9 +200,14 @@ def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples
         expected = reference_camera(transform, sample)
         got = transform(sample)
         assert set(expected) == {"rgb", "semantic", "depth"}
+        assert got["rgb"].dtype == torch.uint8 and got["semantic"].dtype == torch.int16
+        assert got["depth"].shape == (96, 288)  # as stored (1/4): the loss resizes it on the device
+        got["depth"] = on_image_grid(got["depth"][None], (384, 1152))[0]
         for name, value in expected.items():
-            assert got[name].dtype == torch.from_numpy(value).dtype and got[name].is_contiguous(), name
-            np.testing.assert_array_equal(got[name].numpy(), value, err_msg=name)
+            assert got[name].is_contiguous(), name
+            np.testing.assert_allclose(got[name].numpy(), value, rtol=1e-6, atol=1e-5, err_msg=name)
+            if name != "depth":
+                np.testing.assert_array_equal(got[name].numpy(), value, err_msg=name)
 
 
 def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> None:

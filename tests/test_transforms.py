@@ -101,6 +101,26 @@ def test_collate_masks_labels_a_sample_lacks():
     assert batch["__key__"] == ["toy_log000_000000", "toy_log000_000001"]
 
 
+def test_collate_brings_labels_of_rigs_of_different_sizes_onto_the_image_grid():
+    rng = np.random.default_rng(0)
+    small_depth = rng.uniform(0, 50, (2, 3)).astype(np.float32)  # a rig whose labels are stored at half size
+    small_ids = np.array([[0, 1, 2], [3, -1, 5]], np.int16)
+    full_depth, full_ids = rng.uniform(0, 50, (4, 6)).astype(np.float32), np.full((4, 6), 7, np.int16)
+    rgb = torch.zeros(3, 4, 6, dtype=torch.uint8)
+    batch = collate(
+        [
+            {"rgb": rgb, "depth": torch.from_numpy(small_depth), "semantic": torch.from_numpy(small_ids)},
+            {"rgb": rgb, "depth": torch.from_numpy(full_depth), "semantic": torch.from_numpy(full_ids)},
+        ]
+    )
+    assert batch["depth"].shape == batch["semantic"].shape == (2, 4, 6) and batch["semantic"].dtype == torch.int16
+    expected = cv2.resize(small_depth, (6, 4), interpolation=cv2.INTER_LINEAR)  # what the loader's render does
+    np.testing.assert_allclose(batch["depth"][0].numpy(), expected, rtol=1e-6)
+    np.testing.assert_array_equal(batch["semantic"][0].numpy(), small_ids.repeat(2, 0).repeat(2, 1))
+    np.testing.assert_array_equal(batch["depth"][1].numpy(), full_depth)
+    np.testing.assert_array_equal(batch["semantic"][1].numpy(), full_ids)
+
+
 def test_a_future_without_yaw_gives_no_heading_target():
     sample = toy_sample("log000", 0)
     sample["future"][:, 3] = np.nan  # WOD-E2E stores no heading

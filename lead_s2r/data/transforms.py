@@ -20,7 +20,13 @@ RGB, and at 1/2, 1/4 or 1/8 size (libjpeg's DCT scaling, OpenCV ``IMREAD_REDUCED
 least that much smaller than the camera's (:func:`jpeg_reduction`): the area-averaged result then differs from the
 full decode by the rounding of JPEG's scaled IDCT only (measured on a smooth 1920x1080 q=90 image in
 tests/test_transform_speed.py: mean <= 0.34, max 2 levels of 255 at 1/2 to 1/8; the test allows 0.5 and 4).
-Every other output is bit-identical to the straightforward definitions kept in that test.
+Every other output is bit-identical to the straightforward definitions kept in that test, or (a perspective label
+left at its stored size, see below) equal to float32 rounding once :func:`~lead_s2r.models.inputs.on_image_grid`
+has put it on the image's grid.
+
+Tensors are lean (the loader builds and stacks every byte on the CPU): class maps int16, the image uint8, and a
+depth or semantic label smaller than the image under a plain resize (:attr:`CameraLayout.whole`) is not upsampled
+here; the loss does it on the device.
 """
 
 import math
@@ -36,6 +42,7 @@ import torch
 
 from lead_s2r.geometry import raster_lookup, resample, rotate
 from lead_s2r.models.config import BEVGrid, TFv6Config
+from lead_s2r.models.inputs import on_image_grid
 from lead_s2r.schema import BoxClass, command4
 
 #: Radar points kept per sample (LEAD: 4 sensors x 75).
@@ -109,10 +116,15 @@ class CameraLayout:
     @property
     def identity(self) -> bool:
         """One camera, one band that is the whole decoded image, at the model's size: nothing to resample."""
-        if len(self.sizes) != 1 or len(self.bands[0]) != 1:
+        return self.whole and self.sizes[0] == self.image_size
+
+    @property
+    def whole(self) -> bool:
+        """One camera, one band that is the whole decoded image, filling the model's image: a plain resize."""
+        if len(self.sizes) != 1 or len(self.bands[0]) != 1 or self.letterboxed:
             return False
         (h, w), band = self.sizes[0], self.bands[0][0]
-        return (band.x0, band.x1, band.top, band.bottom) == (0, w, 0, h) and (h, w) == self.image_size
+        return (band.x0, band.x1, band.top, band.bottom) == (0, w, 0, h)
 
 
 def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> tuple[Tile, ...]:
@@ -419,21 +431,32 @@ class SourceTransform:
         return out
 
     def perspective_labels(self, sample: dict[str, Any], space: str, layout: CameraLayout) -> dict[str, torch.Tensor]:
-        """Depth (metres, 0 = no label) and semantic ids (-1 = ignore) of the single input camera, laid out on the
-        input image's pixel grid exactly as the image is."""
+        """Depth (float32 metres, 0 = no label) and semantic ids (int16, -1 = ignore) of the single input camera,
+        laid out on the input image's pixel grid exactly as the image is, except that a label smaller than the image
+        under a plain resize (:attr:`CameraLayout.whole`) stays at its own resolution: the loss resizes it on the
+        device (:func:`~lead_s2r.models.inputs.on_image_grid`), as :func:`render` would have."""
         camera = self.cameras[0]
         out = {}
         depth = sample.get(f"depth_{camera}")
         if depth is not None and space in self.config.depth_sources:
             encoding = sample["meta"].get("depth", {})
             metres = depth.astype(np.float32) / 255.0 * float(encoding.get("max_m", self.config.max_depth))
-            out["depth"] = torch.from_numpy(render(layout, [metres], cv2.INTER_LINEAR, 0.0))
+            out["depth"] = torch.from_numpy(_label_on_layout(layout, metres, cv2.INTER_LINEAR, 0.0))
         semantic = sample.get(f"semantic_{camera}")
         if semantic is not None and space in self.config.semantic_classes:
-            if not (layout.identity and semantic.shape[:2] == layout.image_size):  # resampled: room for -1 padding
-                semantic = render(layout, [semantic.astype(np.int16)], cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
-            out["semantic"] = torch.from_numpy(semantic.astype(np.int64))
+            ids = semantic.astype(np.int16)  # signed, for the -1 of padding and of collation's filler
+            out["semantic"] = torch.from_numpy(
+                _label_on_layout(layout, ids, cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
+            )
         return out
+
+
+def _label_on_layout(layout: CameraLayout, label: np.ndarray, interpolation: int, fill: float) -> np.ndarray:
+    """``label`` as it is where the loss can resize it on the device (a plain resize up to the model's image),
+    else rendered by ``layout`` on the CPU."""
+    if layout.whole and label.shape[0] <= layout.image_size[0] and label.shape[1] <= layout.image_size[1]:
+        return label
+    return render(layout, [label], interpolation, fill)
 
 
 def _resize_height(image: np.ndarray, height: int, interpolation: int) -> np.ndarray:
@@ -513,13 +536,13 @@ def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
 
 
 def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
-    """Class ids of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside the raster.
+    """Class ids (int16) of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside it.
 
     The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
     (:func:`bev_gather_index`) and each sample is one gather."""
     pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
     index = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
-    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.int64)
+    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.int16)
     values[:-1] = labels.reshape(-1)
     values[-1] = -1  # where the index points for cells outside the raster
     return values[index]
@@ -596,13 +619,16 @@ def _draw_gaussian(heatmap: np.ndarray, row: int, col: int, denominator: float) 
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
 IGNORE_VALUE = {"bev_semantic": -1, "semantic": -1, "box_heatmap": -1}
+#: Labels on the input image's pixel grid, possibly left at their stored (smaller) size: see :func:`on_image_grid`.
+IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
 
     Identity entries (``__key__``, ``__dataset__``) become lists. The filler is masked out by construction:
-    validity masks are False, class maps -1, depth 0.
+    validity masks are False, class maps -1, depth 0. Perspective labels left at their stored size by rigs of
+    different sizes (one source, several camera rigs) are brought onto the image's grid here, as the loss would.
     """
     names = set().union(*samples)
     batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in names if name.startswith("__")}
@@ -612,5 +638,16 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
             template = next(value for value in values if value is not None)
             filler = torch.full_like(template, IGNORE_VALUE.get(key, 0))
             values = [filler if value is None else value for value in values]
+        if key in IMAGE_ALIGNED and len({value.shape for value in values}) > 1:  # rigs whose labels differ in size
+            size = tuple(batch_image_size(samples))
+            values = [on_image_grid(value[None], size)[0] for value in values]
         batch[key] = torch.stack(values)
     return batch
+
+
+def batch_image_size(samples: list[dict[str, Any]]) -> tuple[int, int]:
+    """The (H, W) of the input image of a batch's samples (they share the model's ``image_size``)."""
+    image = next((sample["rgb"] for sample in samples if "rgb" in sample), None)
+    if image is None:
+        raise KeyError("perspective labels (depth, semantic) need the samples' 'rgb' to know the image grid")
+    return tuple(image.shape[-2:])

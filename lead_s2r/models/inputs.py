@@ -4,11 +4,18 @@ One batch holds samples of one source (dataset), so shapes and grids are homogen
 ``{source: Batch}``. Geometry is in the ISO 8855 ego frame (x forward, y left, metres, radians) with the origin at
 the rear axle; BEV arrays follow :class:`~lead_s2r.models.config.BEVGrid` (H along +x, W along +y).
 Every ``*_valid`` mask is bool and marks entries that carry a label; invalid entries may hold any finite value.
+
+The contract is lean because the loader builds and stacks every byte of it on the CPU, per sample, beside the GPU:
+images stay uint8 (normalised in the model), class maps are int16 (widened to int64 by the losses, on the device),
+and ``depth``/``semantic`` may stay smaller than the image when the image is a plain resize of one camera: the
+loss resizes them onto the image's grid on the device (:func:`on_image_grid`) exactly as the loader
+would have (bilinear / nearest, pixel centres aligned), so a depth stored at 1/4 size is not shipped 16x larger.
 """
 
 from collections.abc import Mapping
 from typing import Any, TypedDict
 
+import torch.nn.functional as F
 from torch import Tensor
 
 
@@ -17,7 +24,7 @@ class Batch(TypedDict, total=False):
 
     __key__: list[str]  # sample keys, for predictions
     # --- inputs
-    rgb: Tensor  # (B, 3, H, W) float in [0, 255] (or uint8), RGB order; normalised inside the model
+    rgb: Tensor  # (B, 3, H, W) uint8 (or float in [0, 255]), RGB order; normalised inside the model
     lidar_bev: Tensor  # (B, C, Hb, Wb) float in [0, 1]: LiDAR point histogram (TFv6 only)
     speed: Tensor  # (B,) m/s
     acceleration: Tensor  # (B, 2) m/s^2, [ax, ay] in the ego frame
@@ -36,7 +43,7 @@ class Batch(TypedDict, total=False):
     target_speed: Tensor  # (B,) expert target speed, m/s (two-hot encoded over the speed classes by the loss)
     target_speed_valid: Tensor  # (B,)
     # --- perception targets
-    bev_semantic: Tensor  # (B, Hs, Ws) int64 class ids over the BEV grid's extent, -1 = ignore
+    bev_semantic: Tensor  # (B, Hs, Ws) int16 (any integer type) class ids over the BEV grid, -1 = ignore
     box_heatmap: Tensor  # (B, C, h, w) float CenterNet Gaussian heatmap on the head's grid (stride 4)
     box_index: Tensor  # (B, M) int64 flat index of each box centre cell into h * w
     box_valid: Tensor  # (B, M)
@@ -44,8 +51,8 @@ class Batch(TypedDict, total=False):
     box_size: Tensor  # (B, M, 2) length, width, metres
     box_yaw: Tensor  # (B, M) radians
     box_velocity: Tensor  # (B, M) m/s
-    depth: Tensor  # (B, Hd, Wd) metres, 0 = no label
-    semantic: Tensor  # (B, Hd, Wd) int64 perspective class ids, -1 = ignore
+    depth: Tensor  # (B, Hd, Wd) float32 metres, 0 = no label; (Hd, Wd) = (H, W) or smaller (see below)
+    semantic: Tensor  # (B, Hd, Wd) int16 (any integer type) perspective class ids, -1 = ignore
     radar_targets: Tensor  # (B, R, 3) x, y, speed of objects seen by radar
     radar_targets_valid: Tensor  # (B, R)
 
@@ -68,3 +75,14 @@ def target_point_range(info: Mapping[str, Any]) -> tuple[tuple[float, float], tu
     if not all(h > lo for lo, h in zip(low, high, strict=True)):
         raise ValueError(f"info.json statistics.target_points: high {high} must exceed low {low}")
     return (float(low[0]), float(low[1])), (float(high[0]), float(high[1]))
+
+
+def on_image_grid(label: Tensor, size: tuple[int, int]) -> Tensor:
+    """A (B, h, w) perspective label the loader left at its own resolution, on the input image's ``size`` as the
+    loader's ``cv2.resize`` would have put it: bilinear with pixel centres aligned for depth (float), nearest for
+    class ids (both take the floor of the scaled index, as OpenCV's INTER_NEAREST does). Equal to float32 rounding."""
+    if tuple(label.shape[-2:]) == tuple(size):
+        return label
+    if label.is_floating_point():
+        return F.interpolate(label[:, None], size=size, mode="bilinear", align_corners=False)[:, 0]
+    return F.interpolate(label[:, None].float(), size=size, mode="nearest")[:, 0].to(label.dtype)

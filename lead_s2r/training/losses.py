@@ -91,7 +91,9 @@ def _resize_logits(logits: Tensor, size: tuple[int, int]) -> Tensor:
 
 
 def segmentation_loss(logits: Tensor, labels: Tensor) -> Tensor:
-    """Cross-entropy with logits resized to the label raster, mean over labelled pixels; label -1 is ignored."""
+    """Cross-entropy with logits resized to the label raster, mean over labelled pixels; label -1 is ignored.
+
+    Labels come in a narrow integer type (int16) from the loader and are widened here, on the device."""
     logits = _resize_logits(logits, tuple(labels.shape[-2:]))
     ce = F.cross_entropy(logits, labels.long(), ignore_index=-1, reduction="none")
     return masked_mean(ce, labels >= 0)

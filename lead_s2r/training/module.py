@@ -21,7 +21,7 @@ from lightning.pytorch.utilities import rank_zero_info, rank_zero_warn
 from torch import Tensor, nn
 from torchmetrics import MeanMetric
 
-from lead_s2r.models.inputs import Batch
+from lead_s2r.models.inputs import Batch, on_image_grid
 from lead_s2r.training import losses
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.prediction_writer import to_predictions
@@ -156,16 +156,22 @@ class DrivingModule(L.LightningModule):
             return losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
         if task == "boxes":
             return losses.box_loss(pred, batch, config.box_yaw_bins)
-        crop = getattr(self.model, "camera_select", nn.Identity())
-        if task == "semantic":
-            return losses.segmentation_loss(pred["semantic"], crop(batch["semantic"]))
-        if task == "depth":
-            return losses.depth_loss(pred["depth"], crop(batch["depth"]))
+        if task in ("semantic", "depth"):
+            return self._perspective_loss(task, pred, batch)
         if task == "radar":
             bev = config.bev
             scale = ((bev.x_max - bev.x_min) / 2, (bev.y_max - bev.y_min) / 2, config.max_speed)
             return losses.radar_loss(pred, batch, scale)
         raise ValueError(f"unknown task {task!r}")
+
+    def _perspective_loss(self, task: str, pred: dict[str, Tensor], batch: Batch) -> Tensor:
+        """Depth or semantic loss on the input image's grid (the label brought there on the device), cropped as the
+        camera ablations crop the image."""
+        crop = getattr(self.model, "camera_select", nn.Identity())
+        label = crop(on_image_grid(batch[task], tuple(batch["rgb"].shape[-2:])))
+        if task == "semantic":
+            return losses.segmentation_loss(pred["semantic"], label)
+        return losses.depth_loss(pred["depth"], label)
 
     def compute_losses(self, batch: Mapping[str, Batch]) -> tuple[Tensor | None, dict[str, tuple[Tensor, int]]]:
         """Weighted total (None when nothing is supervised) and every per-source term with its batch size."""
