@@ -14,20 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.schema import BoxClass, MapKind
+from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
+from lead_s2r_adapters.navsim import BOX_CLASSES
 
 GOLDEN = Path(__file__).parent / "data" / "navsim_pdms_v11_official.json.gz"
 GOLDEN_V22 = Path(__file__).parent / "data" / "navsim_epdms_v22_official.json.gz"
-BOX_CLASS = {
-    "vehicle": BoxClass.VEHICLE,
-    "pedestrian": BoxClass.PEDESTRIAN,
-    "bicycle": BoxClass.BICYCLE,
-    "traffic_cone": BoxClass.TRAFFIC_CONE,
-    "barrier": BoxClass.BARRIER,
-    "czone_sign": BoxClass.CZONE_SIGN,
-    "generic_object": BoxClass.GENERIC_OBJECT,
-}
 
 
 def load_golden(path: Path = GOLDEN) -> dict[str, Any]:
@@ -100,7 +92,7 @@ def _agent_fields(case: dict[str, Any], frame: EgoFrame) -> dict[str, np.ndarray
         "agent_velocity": velocity,
         "agent_valid": np.isfinite(poses[..., 0]),
         "agent_size": np.array([[a["length"], a["width"], a["height"]] for a in agents], np.float64).reshape(-1, 3),
-        "agent_class": np.array([BOX_CLASS[a["type"]] for a in agents], np.int64),
+        "agent_class": np.array([BOX_CLASSES[a["type"]] for a in agents], np.int64),
     }
 
 

@@ -305,22 +305,29 @@ def write_log(
     return frames
 
 
-def write_scene_filter(path: Path, logs: dict[str, list[dict]]) -> None:
-    """A NAVSIM SceneFilter yaml listing every scene with a full history and future."""
-    tokens = [frames[i]["token"] for frames in logs.values() for i in range(HISTORY - 1, FRAMES - FUTURE)]
-    config = {
+def scene_filter(
+    logs: dict[str, list[dict]], tokens: list[str], history: int = HISTORY, future: int = FUTURE, **extra: object
+) -> dict[str, object]:
+    """A NAVSIM ``SceneFilter`` config over ``logs`` selecting ``tokens`` (``extra`` keys appended)."""
+    return {
         "_target_": "navsim.common.dataclasses.SceneFilter",
         "_convert_": "all",
-        "num_history_frames": HISTORY,
-        "num_future_frames": FUTURE,
+        "num_history_frames": history,
+        "num_future_frames": future,
         "frame_interval": 1,
         "has_route": True,
         "max_scenes": None,
+        **extra,
         "log_names": list(logs),
         "tokens": tokens,
     }
+
+
+def write_scene_filter(path: Path, logs: dict[str, list[dict]]) -> None:
+    """A NAVSIM SceneFilter yaml listing every scene with a full history and future."""
+    tokens = [frames[i]["token"] for frames in logs.values() for i in range(HISTORY - 1, FRAMES - FUTURE)]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    path.write_text(yaml.safe_dump(scene_filter(logs, tokens), sort_keys=False))
 
 
 def log_specs(count: int | None) -> list[LogSpec]:

@@ -200,19 +200,8 @@ def write_configs(out: Path, logs: dict[str, list[dict]], mapping: list) -> None
     """The split's scene filter and train/test-split yamls, as NAVSIM's config folders lay them out."""
     stage_one = [token for original, previous, _ in mapping for token in (original, previous)]
     synthetic = [token for *_, pairs in mapping for pair in pairs for token in pair]
-    scene_filter = {
-        "_target_": "navsim.common.dataclasses.SceneFilter",
-        "_convert_": "all",
-        "num_history_frames": HISTORY,
-        "num_future_frames": FUTURE,
-        "frame_interval": 1,
-        "has_route": True,
-        "max_scenes": None,
-        "include_synthetic_scenes": True,
-        "log_names": list(logs),
-        "tokens": stage_one,
-        "reactive_synthetic_initial_tokens": synthetic,
-    }
+    scene_filter = navsim.scene_filter(logs, stage_one, HISTORY, FUTURE, include_synthetic_scenes=True)
+    scene_filter["reactive_synthetic_initial_tokens"] = synthetic
     split = {"defaults": [{"scene_filter": SPLIT}], "data_split": SPLIT, "reactive_all_mapping": mapping}
     for folder, config in (("scene_filters", scene_filter), ("train_test_split", split)):
         path = out / folder / f"{SPLIT}.yaml"
