@@ -2,6 +2,7 @@
 
 import io
 import json
+import sys
 
 import pytest
 import yaml
@@ -82,6 +83,7 @@ def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
 
 @pytest.mark.slow
 def test_quickstart_scores_every_model_before_and_after_training_on_held_out_logs(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI reads it beside its args
     monkeypatch.setattr(qs, "STEPS", (1, 2))
     small = {"navsim": ({"trainval": 2, "test": 1}, {"maps": "maps"}), "wod_e2e": ({"train": 2, "val": 2}, {})}
     monkeypatch.setattr(qs, "PLAN", {**qs.PLAN, **small, "carla_lead": (None, {})})
