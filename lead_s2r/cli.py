@@ -328,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
     sub.set_defaults(run=cmd_table)
 
-    sub = verbs.add_parser("quickstart", help="synthetic data -> conversion -> baseline predictions -> scores")
+    sub = verbs.add_parser("quickstart", help="synthetic data -> smoke runs -> held-out scores -> Table 4")
     sub.add_argument("--out", default="quickstart")
     sub.add_argument("--workers", type=int, default=2)
     sub.set_defaults(run=cmd_quickstart)

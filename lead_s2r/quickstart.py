@@ -1,16 +1,26 @@
-"""The main job, end to end on synthetic data: raw data in all three source formats -> adapters -> shards ->
-sim-to-real training of a tiny TFv6 -> predictions -> open-loop scores beside a model-free baseline -> a table.
-Minutes on a laptop CPU; every stage writes real files, and the training stage is the smoke recipe run through
-the same LightningCLI as ``lead-s2r fit``.
+"""The main job, end to end on synthetic data: raw data in all three source formats -> adapters -> shards -> the
+real-data experiments of the paper's Table 4 as smoke runs (Ego MLP, LTFv6, LTFv6 + LEAD on NAVSIM and WOD-E2E) ->
+predictions on held-out logs -> open-loop scores -> the table in the paper's layout, with the logged human ("Expert")
+and every model before and after training. Minutes on a laptop CPU; every stage writes real files, and each training
+is a smoke twin of a paper recipe run through the same LightningCLI as ``lead-s2r fit``.
 
-Lightning talks a lot on the console (model summary, tips, deprecation warnings from its dependencies); the
-quickstart sends all of it to ``<out>/lightning.log`` so the console shows the stages and the table. The table has
-one row per planner x dataset and one column per entry of :data:`METRICS`, so a new metric is one line there.
+The traps: a model judged on the logs it trained on looks better than it is, so the models train on NAVSIM
+``trainval`` / WOD-E2E ``train`` and are scored on NAVSIM ``test`` / WOD-E2E ``val`` logs only, which the generators
+draw from the same distribution as the training logs. And a few optimizer steps teach a model nothing, so the
+quickstart trains the smoke twins for :data:`STEPS` steps (they run a handful in the test suite) and reports every
+model before training too: the two rows show what training changed.
+
+The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken out (no CARLA source, no
+``init_from`` of a CARLA pre-training), so the two rows differ in nothing else. Lightning talks a lot on the console
+(model summary, tips, deprecation warnings from its dependencies); the quickstart sends all of it to
+``<out>/lightning.log`` so the console shows the stages and the table. Columns are :data:`METRICS`, one per metric and
+dataset, so a new metric is one line there.
 """
 
 import importlib
 import json
 import logging
+import shutil
 import time
 import warnings
 from collections.abc import Iterator
@@ -19,51 +29,103 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
 from rich.console import Console
 from rich.table import Table
 
-from lead_s2r.baselines import predict_constant_turn_rate
+from lead_s2r.baselines import predict_human
 from lead_s2r.convert import convert
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.scoring.pdms import ReferenceCache
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import read_samples
+from lead_s2r.tables import (
+    Cell,
+    Column,
+    Row,
+    Run,
+    TableSpec,
+    collect,
+    layout,
+    load_spec,
+    to_csv,
+    to_latex,
+    to_markdown,
+)
 from lead_s2r.training.cli import run_lightning_cli
 
-RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "smoke" / "sim2real.yaml"
-#: The trained model predicts on the real datasets' validation data (the smoke recipe's ``data.predict``).
-MODEL_DATASETS = ("navsim", "wod_e2e")
-#: dataset -> (synthetic log count, adapter options relative to the raw folder)
-PLAN: dict[str, tuple[int, dict[str, str]]] = {
-    "carla_lead": (3, {}),
-    "navsim": (2, {"maps": "maps"}),
-    "wod_e2e": (3, {}),
+SMOKE = Path(__file__).resolve().parents[1] / "recipes" / "smoke"
+#: dataset -> (synthetic logs per split, adapter options relative to the raw folder). One distribution per dataset;
+#: enough logs that a model learns something that carries over to the held-out split.
+PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
+    "carla_lead": (None, {}),
+    "navsim": ({"trainval": 12, "test": 4}, {"maps": "maps"}),
+    "wod_e2e": ({"train": 16, "val": 6}, {}),
 }
-BASELINE = "constant turn rate"
-MODEL = "TFv6 (smoke run)"
+#: dataset -> the held-out split every row is scored on, and its name in the table.
+EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
+LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
+#: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
+HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
+#: The quickstart's training length for every smoke twin: (epochs, optimizer steps per epoch).
+STEPS = (4, 15)
+#: What :func:`lead_s2r.tables.layout` writes where the paper has no number.
+PAPER_BLANK = "–"
 LIGHTNING_LOG = "lightning.log"
 
 
 @dataclass(frozen=True)
+class Training:
+    """One smoke run: the twin it is made from and whether LEAD's synthetic CARLA data is taken out of it."""
+
+    name: str
+    recipe: str
+    without_lead: bool = False
+    predicts: bool = True
+
+
+#: In init_from order.
+TRAININGS = (
+    Training("ego_mlp", "ego_mlp"),
+    Training("navsim_ltfv6", "navsim_ltfv6_lead", without_lead=True),
+    Training("navsim_ltfv6_lead", "navsim_ltfv6_lead"),
+    Training("wod_ltfv6_pretrain", "wod_ltfv6_pretrain", predicts=False),
+    Training("wod_ltfv6", "wod_ltfv6_lead", without_lead=True),
+    Training("wod_ltfv6_lead", "wod_ltfv6_lead"),
+)
+#: Table row -> the run that makes it on each dataset (the paper's Table 4 trains one model per benchmark).
+MODELS: dict[str, dict[str, str]] = {
+    "Ego MLP": {"navsim": "ego_mlp", "wod_e2e": "ego_mlp"},
+    "LTFv6": {"navsim": "navsim_ltfv6", "wod_e2e": "wod_ltfv6"},
+    "LTFv6 + LEAD": {"navsim": "navsim_ltfv6_lead", "wod_e2e": "wod_ltfv6_lead"},
+}
+EXPERT = "Expert (logged)"
+UNTRAINED = "untrained"
+TRAINED = "trained"
+
+
+@dataclass(frozen=True)
 class Metric:
-    """One column of the table: the aggregate ``aggregate`` of scorer ``scorer``, on ``datasets`` (None: all)."""
+    """One metric of the table: the aggregate ``aggregate`` of scorer ``scorer`` times ``scale``, on ``datasets``
+    (None: every evaluated dataset); one column per dataset."""
 
     column: str
     scorer: str
     aggregate: str
     datasets: tuple[str, ...] | None = None
+    scale: float = 1.0
 
     def applies(self, dataset: str) -> bool:
         return self.datasets is None or dataset in self.datasets
 
 
 METRICS = (
+    Metric("PDMS", "pdms@navsim-1.1", "pdms", ("navsim",), scale=100.0),
+    Metric("EPDMS", "epdms@navsim-2.2", "epdms", ("navsim",), scale=100.0),
+    Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
     Metric("ADE", "ade", "ade"),
     Metric("FDE", "ade", "fde"),
-    Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
-    Metric("PDMS", "pdms@navsim-1.1", "pdms", ("navsim",)),
-    Metric("EPDMS", "epdms@navsim-2.2", "epdms", ("navsim",)),
 )
 
 
@@ -81,64 +143,99 @@ def _stage(console: Console, name: str, started: float) -> None:
 
 
 def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> dict[str, Any]:
-    """Run every stage into ``out``; return ``{planner: {dataset: {scorer: aggregates}}}`` (also in summary.json)."""
+    """Run every stage into ``out``; return ``{run id: {dataset: {scorer: aggregates}}}`` (also in summary.json),
+    where a run id is ``<training>/trained``, ``<training>/untrained`` or ``expert``."""
     console = console or Console()
     started = time.perf_counter()
-    results: dict[str, Any] = {BASELINE: {}}
+    for dataset in PLAN:
+        prepare(dataset, out, workers, console, started)
     references = {dataset: ReferenceCache() for dataset in PLAN}
-    for dataset, (count, options) in PLAN.items():
-        raw, data = out / "raw" / dataset, out / "data" / dataset
-        importlib.import_module(f"lead_s2r.synthetic.{dataset}").generate(raw, count=count, seed=0)
-        _stage(console, f"{dataset}: synthetic raw data -> {raw}", started)
-        adapter = get_adapter(dataset, **{name: str(raw / value) for name, value in options.items()})
-        converted = convert(adapter, raw, data, workers=workers, force=True)
-        if not converted.ok:
-            raise RuntimeError(f"{dataset}: conversion failed: {converted.errors}")
-        _stage(console, f"{dataset}: {converted.samples} samples converted -> {data}", started)
-        predictions = [
-            predict_constant_turn_rate(sample) for sample in read_samples(data, fields=["future"]) if "future" in sample
-        ]
-        (out / "predictions").mkdir(parents=True, exist_ok=True)
-        path = write_predictions(out / "predictions" / f"{dataset}.parquet", predictions)
-        baseline = out / "scores" / "baseline" / dataset
-        results[BASELINE][dataset] = score(path, data, dataset, baseline, references[dataset])
-        _stage(console, f"{dataset}: {BASELINE} baseline scored ({', '.join(scorers_for(dataset))})", started)
-    run = out / "runs" / "sim2real"
-    train_and_predict(out, run, console, started)
-    results[MODEL] = score_by_dataset(run, out, references)
-    _stage(console, f"{MODEL}: predictions scored", started)
+    results = {"expert": score_expert(out, references)}
+    _stage(console, f"{EXPERT}: logged futures scored on the held-out logs", started)
+    for training in TRAININGS:
+        results.update(train_and_score(training, out, console, started, references))
     (out / "summary.json").write_text(json.dumps(results, indent=2))
-    console.print(table(results))
+    spec = table_spec()
+    cells = collect(spec, table_runs(results, out))
+    (out / "table").mkdir(exist_ok=True)
+    for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
+        (out / "table" / f"table4.{suffix}").write_text(render(spec, cells))
+    console.print(table(spec, cells))
     console.print(
-        f"The {MODEL} rows come from a seconds-long run on a few dozen synthetic samples: they show that every "
-        "stage works end to end, not what TFv6 can do.\n"
-        f"Data and scores: {out}; summary: {out / 'summary.json'}; training config: {out / 'sim2real.yaml'}\n"
-        f"Checkpoints: {run / 'checkpoints'}; predictions: {run / 'predictions.parquet'}; "
-        f"metrics: {run / 'lightning_logs'}; Lightning's console output: {out / LIGHTNING_LOG}"
+        f"Trained {STEPS[0]} x {STEPS[1]} steps on NAVSIM trainval / WOD-E2E train logs, scored on the held-out NAVSIM "
+        f"{EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; the paper's numbers are on real data.\n"
+        f"Table (markdown, LaTeX, CSV): {out / 'table'}; summary: {out / 'summary.json'}; runs (configs, checkpoints, "
+        f"predictions, scores): {out / 'runs'}; Lightning's console output: {out / LIGHTNING_LOG}"
     )
+    return results
+
+
+def prepare(dataset: str, out: Path, workers: int, console: Console, started: float) -> None:
+    """Synthetic raw data of ``dataset`` -> ``out/raw/<dataset>`` -> converted ``out/data/<dataset>``."""
+    splits, options = PLAN[dataset]
+    raw, data = out / "raw" / dataset, out / "data" / dataset
+    generator = importlib.import_module(f"lead_s2r.synthetic.{dataset}")
+    generator.generate(raw, seed=0, **({} if splits is None else {"splits": splits}))
+    _stage(console, f"{dataset}: synthetic raw data -> {raw}", started)
+    adapter = get_adapter(dataset, **{name: str(raw / value) for name, value in options.items()})
+    converted = convert(adapter, raw, data, workers=workers, force=True)
+    if not converted.ok:
+        raise RuntimeError(f"{dataset}: conversion failed: {converted.errors}")
+    _stage(console, f"{dataset}: {converted.samples} samples converted -> {data}", started)
+
+
+def score_expert(out: Path, references: dict[str, ReferenceCache]) -> dict[str, Any]:
+    """The logged human trajectory (NAVSIM's HumanAgent) on every held-out sample, scored like a model."""
+    results = {}
+    (out / "runs" / "expert").mkdir(parents=True, exist_ok=True)
+    for dataset, split in EVAL_SPLITS.items():
+        data = out / "data" / dataset
+        held_out = (s for s in read_samples(data, fields=["future"]) if s["meta"]["split"] == split)
+        path = write_predictions(
+            out / "runs" / "expert" / f"{dataset}.parquet", [predict_human(s, HORIZONS[dataset]) for s in held_out]
+        )
+        results[dataset] = score(path, data, dataset, out / "runs" / "expert" / "scores" / dataset, references[dataset])
     return results
 
 
 def score(predictions: Path, data: Path, dataset: str, out: Path, references: ReferenceCache) -> dict[str, Any]:
     """Every scorer the table needs on ``dataset`` (converted in ``data``): ``{scorer: aggregates}``; files under
     ``out/<scorer>``. ``references``: the PDM-Closed references planned on ``data``; a reference depends on the
-    scene only, so PDMS and EPDMS, baseline and model, plan each sample's once (the quickstart's slowest step)."""
+    scene only, so PDMS and EPDMS, the expert and every model plan each sample's once (the slowest scoring step)."""
     results = {}
     for scorer in scorers_for(dataset):
         options = {"reference_cache": references} if scorer in REFERENCE_SCORERS else {}
-        # allow_missing: test samples have no future
+        # allow_missing: only the held-out samples are predicted
         report = score_predictions(scorer, predictions, [data], out / scorer, allow_missing=True, **options)
         results[scorer] = report["aggregates"]
     return results
 
 
-def rooted_recipe(out: Path) -> Path:
-    """The smoke recipe with its ``quickstart/`` paths moved under ``out``, written to ``out/sim2real.yaml``."""
-    if not RECIPE.exists():
-        raise FileNotFoundError(f"{RECIPE} not found: run the quickstart from a source checkout (pip install -e .)")
-    config = out / "sim2real.yaml"
-    config.write_text(RECIPE.read_text().replace("quickstart/", f"{out.as_posix()}/"))
-    return config
+def smoke_config(training: Training, out: Path) -> Path:
+    """The training's smoke twin with its ``quickstart/`` paths moved under ``out``, its run folder named after the
+    training, :data:`STEPS` long and, for a run without LEAD, no CARLA data; written to ``out/<name>.yaml``."""
+    recipe = SMOKE / f"{training.recipe}.yaml"
+    if not recipe.exists():
+        raise FileNotFoundError(f"{recipe} not found: run the quickstart from a source checkout (pip install -e .)")
+    config = yaml.safe_load(recipe.read_text().replace("quickstart/", f"{out.as_posix()}/"))
+    config["trainer"]["default_root_dir"] = str(out / "runs" / training.name)
+    config["trainer"]["max_epochs"], config["data"]["steps_per_epoch"] = STEPS
+    if training.without_lead:
+        drop_carla(config)
+    path = out / f"{training.name}.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+def drop_carla(config: dict[str, Any]) -> None:
+    """Take LEAD's synthetic data out of a LightningCLI config: the CARLA source, its supervision, its share of the
+    batch and a CARLA pre-training to start from."""
+    config["data"]["train"].pop("carla", None)
+    config["model"].get("supervise", {}).pop("carla", None)
+    config["model"].pop("init_from", None)
+    anchors = config["data"]["schedule"]["anchors"]
+    for shares in anchors.values():
+        shares.pop("carla", None)
 
 
 @contextmanager
@@ -157,45 +254,114 @@ def lightning_output_to(log: Path) -> Iterator[None]:
                 logger.handlers = saved
 
 
-def train_and_predict(out: Path, run: Path, console: Console, started: float) -> None:
-    """Fit the smoke recipe (CARLA perception, NAVSIM + WOD-E2E driving) into ``run``, then predict with it."""
-    config = rooted_recipe(out)
+def train_and_score(
+    training: Training, out: Path, console: Console, started: float, references: dict[str, ReferenceCache]
+) -> dict[str, Any]:
+    """Fit the training's config; predict and score the held-out logs with the weights before and after training."""
+    config = smoke_config(training, out)
+    run = out / "runs" / training.name
+    shutil.rmtree(run, ignore_errors=True)  # a checkpoint left by an earlier quickstart would be predicted with
+    results = {}
+    if training.predicts:
+        results[f"{training.name}/{UNTRAINED}"] = predict_and_score(config, run / UNTRAINED, out, None, references)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
-    _stage(console, f"{MODEL} trained -> {run / 'checkpoints'}", started)
-    with lightning_output_to(out / LIGHTNING_LOG):
-        run_lightning_cli(["predict", "--config", str(config), "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
-    _stage(console, f"{MODEL} predicted -> {run / 'predictions.parquet'}", started)
-
-
-def score_by_dataset(run: Path, out: Path, references: dict[str, ReferenceCache]) -> dict[str, Any]:
-    """Split the model's predictions by dataset and score each part against that dataset alone."""
-    predictions = read_predictions(run / "predictions.parquet")
-    (run / "predictions").mkdir(exist_ok=True)
-    results = {}
-    for dataset in MODEL_DATASETS:
-        path = write_predictions(
-            run / "predictions" / f"{dataset}.parquet", [p for p in predictions if p.dataset == dataset]
-        )
-        results[dataset] = score(path, out / "data" / dataset, dataset, run / "scores" / dataset, references[dataset])
+    if training.predicts:
+        checkpoint = run / "checkpoints" / "last.ckpt"
+        results[f"{training.name}/{TRAINED}"] = predict_and_score(config, run / TRAINED, out, checkpoint, references)
+    scored = ", scored before and after" if training.predicts else ""
+    _stage(console, f"{training.name}: trained -> {run}{scored}", started)
     return results
 
 
-def table(results: dict[str, Any]) -> Table:
-    """One row per planner x dataset, one right-aligned column per :data:`METRICS` entry ("-": not scored)."""
-    grid = Table(title="open-loop scores on synthetic data")
-    grid.add_column("planner")
-    grid.add_column("dataset")
-    grid.add_column("samples", justify="right")
-    for metric in METRICS:
-        grid.add_column(metric.column, justify="right")
-    for planner, datasets in results.items():
-        for dataset, scores in datasets.items():
-            frames = next(iter(scores.values()), {}).get("frames", "")
-            cells = [_cell(scores.get(metric.scorer, {}).get(metric.aggregate)) for metric in METRICS]
-            grid.add_row(planner, dataset, str(frames), *cells)
+def predict_and_score(
+    config: Path, folder: Path, out: Path, checkpoint: Path | None, references: dict[str, ReferenceCache]
+) -> dict[str, Any]:
+    """Predict with ``config``'s model (``checkpoint``; None: its initial weights) into ``folder`` and score each
+    dataset's predictions against that dataset alone."""
+    args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(folder)]
+    with lightning_output_to(out / LIGHTNING_LOG):
+        run_lightning_cli(args + ([] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
+    predictions = read_predictions(folder / "predictions.parquet")
+    results = {}
+    for dataset in EVAL_SPLITS:
+        mine = [p for p in predictions if p.dataset == dataset]
+        if mine:
+            path = write_predictions(folder / f"{dataset}.parquet", mine)
+            results[dataset] = score(
+                path, out / "data" / dataset, dataset, folder / "scores" / dataset, references[dataset]
+            )
+    return results
+
+
+def by_scorer(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """``{dataset: {scorer: aggregates}}`` -> ``{scorer: {dataset: aggregates}}``, the shape a table column reads
+    with the key ``<dataset>.<aggregate>``."""
+    scores: dict[str, dict[str, Any]] = {}
+    for dataset, by_metric in results.items():
+        for scorer, aggregates in by_metric.items():
+            scores.setdefault(scorer, {})[dataset] = aggregates
+    return scores
+
+
+def table_rows() -> dict[str, dict[str, str]]:
+    """Row name -> {dataset: the run id whose scores fill that dataset's columns}: the Expert, then every model before
+    and after training (the paper's Table 4 trains one model per benchmark; a row here joins the two)."""
+    rows = {EXPERT: dict.fromkeys(EVAL_SPLITS, "expert")}
+    for model, runs in MODELS.items():
+        for stage, name in ((UNTRAINED, f"{model}, before training"), (TRAINED, model)):
+            rows[name] = {dataset: f"{run}/{stage}" for dataset, run in runs.items()}
+    return rows
+
+
+def table_spec() -> TableSpec:
+    """Table 4's layout over the quickstart's rows: a column per metric and dataset, the paper's numbers from
+    ``recipes/paper/table4.yaml`` beside the trained models and the Expert where it has them."""
+    columns = tuple(
+        Column(f"{LABELS[dataset]} {metric.column}", metric.scorer, f"{dataset}.{metric.aggregate}", metric.scale)
+        for metric in METRICS
+        for dataset in EVAL_SPLITS
+        if metric.applies(dataset)
+    )
+    paper = load_spec("table4")
+    rows = tuple(Row(name, name, paper_numbers(paper, name, columns)) for name in table_rows())
+    notes = (
+        "One seed, toy models, synthetic data: numbers show that training moves the scores, not what the models can "
+        "do. Before training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS in percent."
+    )
+    return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=(0,), digits=2, notes=notes)
+
+
+def paper_numbers(paper: TableSpec, name: str, columns: tuple[Column, ...]) -> tuple[float | None, ...]:
+    """The paper's number for row ``name`` in each column: Table 4's row ``<name> (<dataset>)`` or ``<name>``,
+    its column of the same metric."""
+    numbers = []
+    for column in columns:
+        dataset = column.key.split(".")[0]
+        row = next((r for r in paper.rows if r.name in (f"{name} ({LABELS[dataset]})", name)), None)
+        index = next((i for i, c in enumerate(paper.columns) if c.metric == column.metric), None)
+        numbers.append(None if row is None or index is None else row.paper[index])
+    return tuple(numbers)
+
+
+def table_runs(results: dict[str, Any], out: Path) -> list[Run]:
+    """One run per table row, its scores gathered from the quickstart's runs as :func:`table_rows` says."""
+    runs = []
+    for name, sources in table_rows().items():
+        scores = {dataset: results.get(run_id, {}).get(dataset, {}) for dataset, run_id in sources.items()}
+        runs.append(Run(out / "runs", name, 0, by_scorer(scores)))
+    return runs
+
+
+def table(spec: TableSpec, cells: list[list[Cell]]) -> Table:
+    """The rows and columns of :func:`lead_s2r.tables.layout` on the console, numbers right-aligned, less the paper
+    columns without a number (the files keep them) so that the table fits a terminal."""
+    header, body = layout(spec, cells)
+    kept = [i for i, name in enumerate(header) if i == 0 or any(row[i] != PAPER_BLANK for row in body)]
+    grid = Table(title=spec.title, caption=spec.notes)
+    grid.add_column(header[0])
+    for i in kept[1:]:
+        grid.add_column(header[i], justify="right")
+    for row in body:
+        grid.add_row(*(row[i] for i in kept))
     return grid
-
-
-def _cell(value: Any) -> str:
-    return f"{value:.3f}" if isinstance(value, int | float) else "-"

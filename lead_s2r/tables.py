@@ -253,7 +253,8 @@ def _paper(value: float | None, digits: int) -> str:
     return "–" if value is None else f"{value:.{digits}f}"
 
 
-def _grid(spec: TableSpec, cells: list[list[Cell]]) -> tuple[list[str], list[list[str]]]:
+def layout(spec: TableSpec, cells: list[list[Cell]]) -> tuple[list[str], list[list[str]]]:
+    """The header and the rows of text every format renders: a model column, then ours and the paper's per column."""
     header = ["model"] + [f"{c.name} {who}" for c in spec.columns for who in ("(ours)", "(paper)")]
     body = [
         [row.name]
@@ -277,7 +278,7 @@ def _footnotes(spec: TableSpec, cells: list[list[Cell]]) -> list[str]:
 
 
 def to_markdown(spec: TableSpec, cells: list[list[Cell]]) -> str:
-    header, body = _grid(spec, cells)
+    header, body = layout(spec, cells)
     lines = [f"**{spec.title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(row) + " |" for row in body]
     extra = _footnotes(spec, cells) + ([spec.notes.strip()] if spec.notes.strip() else [])
@@ -291,7 +292,7 @@ def _latex_escape(text: str) -> str:
 
 
 def to_latex(spec: TableSpec, cells: list[list[Cell]]) -> str:
-    header, body = _grid(spec, cells)
+    header, body = layout(spec, cells)
     lines = [
         r"\begin{table}[t]",
         r"\centering",

@@ -312,3 +312,30 @@ def test_jpeg_size_and_yaw_properties(width: int, height: int, yaw: float) -> No
     ok, data = cv2.imencode(".jpg", np.zeros((height, width, 3), np.uint8))
     assert ok and jpeg_size(data.tobytes(), "x") == (width, height)
     assert quaternion_yaw(synth.yaw_quaternion(yaw)) == pytest.approx(yaw, abs=1e-9)
+
+
+def test_splits_deal_one_sequence_of_logs_into_split_folders(tmp_path: Path) -> None:
+    synth.generate(tmp_path, seed=0, splits={"trainval": 2, "test": 2})
+    specs = synth.log_specs(4)
+    folders = {
+        split: sorted(p.stem for p in (tmp_path / "navsim_logs" / split).glob("*.pkl"))
+        for split in ("trainval", "test")
+    }
+    assert folders == {"trainval": sorted(s.name for s in specs[:2]), "test": sorted(s.name for s in specs[2:])}
+    assert all(
+        (tmp_path / "sensor_blobs" / split / name).is_dir() for split, names in folders.items() for name in names
+    )
+    assert not (tmp_path / "navsim_logs" / synth.DATA_SPLIT).exists()
+    assert len(yaml.safe_load((tmp_path / "scene_filters" / "navmini.yaml").read_text())["log_names"]) == 4
+
+
+def test_logs_past_the_first_three_are_drawn_from_their_ranges_and_stay_on_the_route() -> None:
+    specs = synth.log_specs(30, seed=1)
+    assert specs[:3] == list(synth.LOGS) and len({s.name for s in specs}) == 30
+    drawn = specs[3:]
+    assert all(3.0 <= s.speed <= 9.0 and -0.2 <= s.accel <= 0.4 for s in drawn)
+    assert min(s.speed for s in drawn) < 4.0 and max(s.speed for s in drawn) > 8.0  # spans the range, not copies
+    assert synth.log_specs(30, seed=1) == specs and synth.log_specs(30, seed=2)[3:] != drawn
+    t_end = (synth.FRAMES - 1) * synth.DT_US / 1e6
+    for spec in specs:
+        assert spec.start + spec.speed * t_end + 0.5 * spec.accel * t_end**2 < synth.route_line(spec.lanes).length

@@ -1,58 +1,119 @@
-"""The README's main job, end to end: every stage must leave real, consistent files behind."""
+"""The README's main job: the real-data table (Table 4's layout) from smoke runs scored on held-out logs only."""
 
 import io
 import json
+import sys
 
-import pyarrow.parquet as pq
+import pytest
+import yaml
 from rich.console import Console
 
+from lead_s2r import quickstart as qs
 from lead_s2r.predictions import read_predictions
-from lead_s2r.quickstart import BASELINE, METRICS, MODEL, quickstart
 from lead_s2r.shards import load_manifest
+from lead_s2r.tables import MISSING, collect, to_markdown
+
+COLUMNS = ["NAVSIM PDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE", "NAVSIM FDE", "WOD-E2E FDE"]
+ROWS = [
+    qs.EXPERT,
+    "Ego MLP, before training",
+    "Ego MLP",
+    "LTFv6, before training",
+    "LTFv6",
+    "LTFv6 + LEAD, before training",
+    "LTFv6 + LEAD",
+]
 
 
-def test_quickstart_runs_every_stage(tmp_path, capsys):
-    console = Console(file=io.StringIO(), width=200)
-    results = quickstart(tmp_path, workers=1, console=console)
-    for dataset in ("carla_lead", "navsim", "wod_e2e"):
-        manifest = load_manifest(tmp_path / "data" / dataset)
-        assert len(manifest) > 0 and set(manifest["dataset"].to_pylist()) == {dataset}
-        assert (tmp_path / "data" / dataset / "errors.jsonl").read_text() == ""
-    predictions = read_predictions(tmp_path / "runs" / "sim2real" / "predictions.parquet")
-    val_keys = set()
-    for dataset, split in (("navsim", None), ("wod_e2e", "val")):
-        manifest = load_manifest(tmp_path / "data" / dataset).to_pydict()
-        val_keys |= {k for k, s in zip(manifest["key"], manifest["split"], strict=True) if split in (None, s)}
-    assert {p.key for p in predictions} == val_keys  # the model predicted every validation sample once
-    assert (tmp_path / "runs" / "sim2real" / "checkpoints" / "last.ckpt").exists()
-    scores = pq.read_table(tmp_path / "runs/sim2real/scores/wod_e2e/rfs@wod-e2e-2025/scores.parquet")
-    assert scores.num_rows > 0 and all(4.0 <= s <= 10.0 for s in scores["rfs"].to_pylist())
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary == results
-    assert {planner: list(datasets) for planner, datasets in summary.items()} == {
-        BASELINE: ["carla_lead", "navsim", "wod_e2e"],
-        MODEL: ["navsim", "wod_e2e"],
+def test_without_lead_is_the_lead_twin_minus_its_carla_data(tmp_path):
+    for name, twin in (("navsim_ltfv6", "navsim_ltfv6_lead"), ("wod_ltfv6", "wod_ltfv6_lead")):
+        without = yaml.safe_load(qs.smoke_config(qs.Training(name, twin, without_lead=True), tmp_path).read_text())
+        lead = yaml.safe_load(qs.smoke_config(qs.Training(twin, twin), tmp_path).read_text())
+        assert "carla" not in json.dumps(without) and "init_from" not in without["model"]
+        assert "carla" in json.dumps(lead["data"]["train"]) or lead["model"]["init_from"].startswith(str(tmp_path))
+        qs.drop_carla(lead)
+        lead["trainer"]["default_root_dir"] = without["trainer"]["default_root_dir"]
+        assert lead == without  # nothing else differs
+        assert without["trainer"]["default_root_dir"] == str(tmp_path / "runs" / name)
+        assert (without["trainer"]["max_epochs"], without["data"]["steps_per_epoch"]) == qs.STEPS
+        assert "quickstart/" not in (tmp_path / f"{name}.yaml").read_text()
+
+
+def test_twins_train_and_predict_on_disjoint_splits(tmp_path):
+    held_out = {"navsim": qs.EVAL_SPLITS["navsim"], "wod": qs.EVAL_SPLITS["wod_e2e"]}
+    for training in qs.TRAININGS:
+        data = yaml.safe_load(qs.smoke_config(training, tmp_path).read_text())["data"]
+        for source, spec in data.get("predict", {}).items():
+            assert spec["splits"] == [held_out[source]], training.name
+            assert held_out[source] not in data["train"][source]["splits"], training.name
+
+
+def test_table_spec_is_table4_over_the_quickstart_rows():
+    spec = qs.table_spec()
+    assert [c.name for c in spec.columns] == COLUMNS
+    assert [r.name for r in spec.rows] == ROWS
+    rfs = COLUMNS.index("WOD-E2E RFS")
+    paper = {row.name: row.paper[rfs] for row in spec.rows}
+    assert paper == dict(
+        zip(ROWS, [8.10, None, 7.31, None, 7.51, None, 7.76], strict=True)
+    )  # recipes/paper/table4.yaml
+    assert all(value is None for row in spec.rows for i, value in enumerate(row.paper) if i != rfs)
+
+
+def _scores(pdms: float, ade: float) -> dict:
+    return {"navsim": {"pdms@navsim-1.1": {"pdms": pdms}, "ade": {"ade": ade, "fde": 2 * ade}}}
+
+
+def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
+    wod = {"wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 6.5}, "ade": {"ade": 1.25, "fde": 3.0}}}
+    results = {
+        "expert": {**_scores(0.9375, 0.0), "wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 8.0}, "ade": {"ade": 0, "fde": 0}}},
+        "navsim_ltfv6/trained": _scores(0.5, 1.5),
+        "wod_ltfv6/trained": wod,
+        "navsim_ltfv6/untrained": _scores(0.0, 9.0),  # its WOD-E2E run is missing
     }
-    assert sum(summary[MODEL][d]["ade"]["frames"] for d in ("navsim", "wod_e2e")) == len(val_keys)
+    spec = qs.table_spec()
+    lines = to_markdown(spec, collect(spec, qs.table_runs(results, tmp_path))).splitlines()
+    assert "| Expert (logged) | 93.75 | – | 8.00 | 8.10 | 0.00 | – | 0.00 | – | 0.00 | – | 0.00 | – |" in lines
+    assert "| LTFv6 | 50.00 | – | 6.50 | 7.51 | 1.50 | – | 1.25 | – | 3.00 | – | 3.00 | – |" in lines
+    m = MISSING
+    assert f"| LTFv6, before training | 0.00 | – | {m} | – | 9.00 | – | {m} | – | 18.00 | – | {m} | – |" in lines
+    assert f"| Ego MLP | {m} | – | {m} | 7.31 |" in "\n".join(lines)
 
-    # the console: stages and the table, Lightning's chatter only in the log file
+
+@pytest.mark.slow
+def test_quickstart_scores_every_model_before_and_after_training_on_held_out_logs(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI reads it beside its args
+    monkeypatch.setattr(qs, "STEPS", (1, 2))
+    small = {"navsim": ({"trainval": 2, "test": 1}, {"maps": "maps"}), "wod_e2e": ({"train": 2, "val": 2}, {})}
+    monkeypatch.setattr(qs, "PLAN", {**qs.PLAN, **small, "carla_lead": (None, {})})
+    console = Console(file=io.StringIO(), width=250)
+    results = qs.quickstart(tmp_path, workers=1, console=console)
+
+    held_out = set()
+    for dataset, split in qs.EVAL_SPLITS.items():
+        manifest = load_manifest(tmp_path / "data" / dataset).to_pydict()
+        assert set(manifest["split"]) == {split, {"navsim": "trainval", "wod_e2e": "train"}[dataset]}
+        held_out |= {k for k, s in zip(manifest["key"], manifest["split"], strict=True) if s == split}
+    for training in (t for t in qs.TRAININGS if t.predicts):
+        for stage in (qs.UNTRAINED, qs.TRAINED):
+            predicted = {
+                p.key for p in read_predictions(tmp_path / "runs" / training.name / stage / "predictions.parquet")
+            }
+            assert predicted <= held_out and predicted, (training.name, stage)
+        assert (tmp_path / "runs" / training.name / "checkpoints" / "last.ckpt").exists()
+    assert set(results) == {"expert"} | {
+        f"{t.name}/{s}" for t in qs.TRAININGS if t.predicts for s in ("untrained", "trained")
+    }
+    assert results["expert"]["wod_e2e"]["ade"]["ade"] == 0.0  # the logged future replayed
+    assert json.loads((tmp_path / "summary.json").read_text()) == results
+
     text = console.file.getvalue()
     captured = capsys.readouterr()
     assert "Total params" not in text + captured.out + captured.err
     assert "Total params" in (tmp_path / "lightning.log").read_text()  # the model summary, kept
-    header = next(line for line in text.splitlines() if "planner" in line)
-    columns = [m.column for m in METRICS]
-    assert {"ADE", "FDE", "RFS"} <= set(columns)
-    assert [cell.strip() for cell in header.strip("┃").split("┃")] == ["planner", "dataset", "samples", *columns]
-    rows = [line.strip("│").split("│") for line in text.splitlines() if line.startswith("│")]
-    table = {(planner.strip(), dataset.strip()): numbers for planner, dataset, *numbers in rows}
-    assert list(table) == [(BASELINE, d) for d in ("carla_lead", "navsim", "wod_e2e")] + [
-        (MODEL, d) for d in ("navsim", "wod_e2e")
-    ]
-    assert all(cell[:-1] == cell[:-1].rstrip() for numbers in table.values() for cell in numbers)  # right-aligned
-    model_wod = [cell.strip() for cell in table[MODEL, "wod_e2e"]]
-    aggregates = summary[MODEL]["wod_e2e"]
-    expected = [f"{aggregates[m.scorer][m.aggregate]:.3f}" if m.applies("wod_e2e") else "-" for m in METRICS]
-    assert model_wod == [str(aggregates["ade"]["frames"]), *expected]
-    assert table[BASELINE, "navsim"][1 + columns.index("RFS")].strip() == "-"  # NAVSIM has no raters
-    assert str(tmp_path / "runs" / "sim2real" / "checkpoints") in text and "lightning.log" in text
+    markdown = (tmp_path / "table" / "table4.md").read_text()
+    for row in ROWS:
+        assert f"| {row} |" in markdown and row in text
+    assert MISSING not in markdown  # every row scored on both datasets
+    assert str(tmp_path / "table") in text and "lightning.log" in text

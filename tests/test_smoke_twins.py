@@ -32,11 +32,16 @@ TWINS = {
 
 @pytest.fixture(scope="module")
 def quickstart_data(tmp_path_factory) -> Path:
-    """``<root>/data/{carla_lead,navsim,wod_e2e}`` as the quickstart writes them, smaller."""
+    """``<root>/data/{carla_lead,navsim,wod_e2e}`` as the quickstart writes them (training and held-out splits),
+    smaller."""
     root = tmp_path_factory.mktemp("twins")
-    for dataset, count, options in (("carla_lead", 2, {}), ("navsim", 2, {"maps": "maps"}), ("wod_e2e", 2, {})):
+    for dataset, size, options in (
+        ("carla_lead", {"count": 2}, {}),
+        ("navsim", {"splits": {"trainval": 2, "test": 1}}, {"maps": "maps"}),
+        ("wod_e2e", {"splits": {"train": 2, "val": 2}}, {}),
+    ):
         raw = root / "raw" / dataset
-        importlib.import_module(f"lead_s2r.synthetic.{dataset}").generate(raw, count=count, seed=0)
+        importlib.import_module(f"lead_s2r.synthetic.{dataset}").generate(raw, seed=0, **size)
         adapter = get_adapter(dataset, **{name: str(raw / value) for name, value in options.items()})
         assert convert(adapter, raw, root / "data" / dataset, workers=1, progress=False).ok
     return root

@@ -328,3 +328,15 @@ def test_unknown_split_prefix_is_a_clear_error(tmp_path):
     (tmp_path / "mystery_0001.tfrecord-00000-of-00001").write_bytes(b"")
     with pytest.raises(WodE2EError, match=r"mystery_0001\.tfrecord.*cannot tell its split"):
         WodE2EAdapter().list_logs(tmp_path)
+
+
+def test_splits_draw_their_segments_from_one_distribution(tmp_path: Path) -> None:
+    dataset = make_dataset(seed=5, splits={"train": 12, "val": 12})
+    frames = {split: [f for f in dataset.frames if f.split == split] for split in ("train", "val", "test")}
+    assert [len({f.sequence for f in frames[split]}) for split in frames] == [12, 12, 0]
+    for split in ("train", "val"):
+        speeds = [math.hypot(*f.past[-1, 2:4]) for f in frames[split]]
+        assert min(speeds) < 6.0 and max(speeds) > 11.0, split  # both splits span slow and fast driving
+        assert Counter(f.intent for f in frames[split]).keys() == {1, 2, 3}
+    paths = write_dataset(tmp_path, dataset, seed=5)
+    assert {p.name.split("_")[0] for p in paths} == {"training", "val"}  # no empty test shards

@@ -330,20 +330,37 @@ def write_scene_filter(path: Path, logs: dict[str, list[dict]]) -> None:
     path.write_text(yaml.safe_dump(scene_filter(logs, tokens), sort_keys=False))
 
 
-def log_specs(count: int | None) -> list[LogSpec]:
-    """``count`` logs (default 3), cycling through :data:`LOGS` with fresh names past the third."""
+def log_specs(count: int | None, seed: int = 0) -> list[LogSpec]:
+    """``count`` logs (default 3): :data:`LOGS`, then fresh logs on the same three routes whose start, speed and
+    acceleration are drawn from the ranges the first three span (so held-out logs look like training logs)."""
     count = len(LOGS) if count is None else count
-    specs = []
-    for i in range(count):
-        base = LOGS[i % len(LOGS)]
-        specs.append(base if i < len(LOGS) else replace(base, name=f"{base.name[:-11]}{i:05d}_{i + 1:05d}"))
+    specs = list(LOGS[:count])
+    for i in range(len(LOGS), count):
+        base, rng = LOGS[i % len(LOGS)], np.random.default_rng([seed, i])
+        specs.append(
+            replace(
+                base,
+                name=f"{base.name[:-11]}{i:05d}_{i + 1:05d}",
+                start=base.start + float(rng.uniform(-10.0, 10.0)),
+                speed=float(rng.uniform(3.0, 9.0)),
+                accel=float(rng.uniform(-0.2, 0.4)),
+            )
+        )
     return specs
 
 
-def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
-    """Write the dataset described in the module docstring with ``count`` logs (default 3)."""
+def generate(out: Path, count: int | None = None, seed: int = 0, splits: dict[str, int] | None = None) -> None:
+    """Write the dataset described in the module docstring with ``count`` logs (default 3) in the ``mini`` split, or
+    with ``splits`` (split folder -> logs, e.g. ``{"trainval": 12, "test": 4}``) the logs of :func:`log_specs` dealt
+    out to those folders in order, so every split holds logs of one distribution."""
     out = Path(out)
     rng = np.random.default_rng(seed)
     navsim_map.write_map(out / "maps")
-    logs = {spec.name: write_log(out, spec, rng) for spec in log_specs(count)}
+    splits = splits or {DATA_SPLIT: len(LOGS) if count is None else count}
+    specs = iter(log_specs(sum(splits.values()), seed))
+    logs = {}
+    for split, logs_in_split in splits.items():
+        for spec in (next(specs) for _ in range(logs_in_split)):
+            folders = {"logs": out / "navsim_logs" / split, "blobs": out / "sensor_blobs" / split}
+            logs[spec.name] = write_log(out, spec, rng, **folders)
     write_scene_filter(out / "scene_filters" / "navmini.yaml", logs)

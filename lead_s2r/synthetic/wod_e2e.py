@@ -156,13 +156,18 @@ def _segment(split: str, index: int, rng: np.random.Generator, scale: float) -> 
     return out
 
 
-def make_dataset(count: int | None = None, seed: int = 0, image_scale: float = IMAGE_SCALE) -> SynthDataset:
-    """Ground truth: ``count`` segments (default 3) in each of train, val and test; images at ``image_scale``."""
+def make_dataset(
+    count: int | None = None, seed: int = 0, image_scale: float = IMAGE_SCALE, splits: dict[str, int] | None = None
+) -> SynthDataset:
+    """Ground truth: ``count`` segments (default 3) in each of train, val and test, or ``splits`` (split -> segments;
+    splits left out get none); images at ``image_scale``. Every split draws its segments from one distribution
+    (speeds, accelerations, turn kinds), so a model trained on train can be judged on val."""
     rng = np.random.default_rng(seed)
+    splits = splits or dict.fromkeys(SHARD_STEMS, 3 if count is None else count)
     frames: list[SynthFrame] = []
     clusters: dict[str, str] = {}
     for split in SHARD_STEMS:
-        for index in range(3 if count is None else count):
+        for index in range(splits.get(split, 0)):
             segment = _segment(split, index, rng, image_scale)
             frames.extend(segment)
             if split == "val":
@@ -201,13 +206,16 @@ def shard_path(out: Path, split: str, shard: int) -> Path:
 
 
 def write_dataset(out: Path, dataset: SynthDataset, seed: int = 0) -> list[Path]:
-    """Write every split's records shuffled across :data:`SHARDS` shards, plus the cluster JSON."""
+    """Write every split's records shuffled across :data:`SHARDS` shards (none for a split without frames), plus
+    the cluster JSON."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     paths = []
     for split in SHARD_STEMS:
         frames = [f for f in dataset.frames if f.split == split]
+        if not frames:
+            continue
         order = rng.permutation(len(frames))
         for shard in range(SHARDS):
             path = shard_path(out, split, shard)
@@ -218,6 +226,6 @@ def write_dataset(out: Path, dataset: SynthDataset, seed: int = 0) -> list[Path]
     return paths
 
 
-def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
-    """``lead-s2r synth wod_e2e --out DIR [--segments N]``: N segments per split (default 3)."""
-    write_dataset(out, make_dataset(count, seed), seed)
+def generate(out: Path, count: int | None = None, seed: int = 0, splits: dict[str, int] | None = None) -> None:
+    """``lead-s2r synth wod_e2e --out DIR [--segments N]``: N segments per split (default 3), or ``splits``."""
+    write_dataset(out, make_dataset(count, seed, splits=splits), seed)
