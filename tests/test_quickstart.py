@@ -13,7 +13,7 @@ from lead_s2r.predictions import read_predictions
 from lead_s2r.shards import load_manifest
 from lead_s2r.tables import MISSING, collect, to_markdown
 
-COLUMNS = ["NAVSIM PDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE", "NAVSIM FDE", "WOD-E2E FDE"]
+COLUMNS = ["NAVSIM PDMS", "NAVSIM EPDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE", "NAVSIM FDE", "WOD-E2E FDE"]
 ROWS = [
     qs.EXPERT,
     "Ego MLP, before training",
@@ -61,7 +61,8 @@ def test_table_spec_is_table4_over_the_quickstart_rows():
 
 
 def _scores(pdms: float, ade: float) -> dict:
-    return {"navsim": {"pdms@navsim-1.1": {"pdms": pdms}, "ade": {"ade": ade, "fde": 2 * ade}}}
+    navsim = {"pdms@navsim-1.1": {"pdms": pdms}, "epdms@navsim-2.2": {"epdms": pdms / 2}}
+    return {"navsim": {**navsim, "ade": {"ade": ade, "fde": 2 * ade}}}
 
 
 def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
@@ -74,11 +75,11 @@ def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
     }
     spec = qs.table_spec()
     lines = to_markdown(spec, collect(spec, qs.table_runs(results, tmp_path))).splitlines()
-    assert "| Expert (logged) | 93.75 | – | 8.00 | 8.10 | 0.00 | – | 0.00 | – | 0.00 | – | 0.00 | – |" in lines
-    assert "| LTFv6 | 50.00 | – | 6.50 | 7.51 | 1.50 | – | 1.25 | – | 3.00 | – | 3.00 | – |" in lines
+    assert "| Expert (logged) | 93.75 | – | 46.88 | – | 8.00 | 8.10 | 0.00 | – | 0.00 | – | 0.00 | – | 0.00 | – |" in lines
+    assert "| LTFv6 | 50.00 | – | 25.00 | – | 6.50 | 7.51 | 1.50 | – | 1.25 | – | 3.00 | – | 3.00 | – |" in lines
     m = MISSING
-    assert f"| LTFv6, before training | 0.00 | – | {m} | – | 9.00 | – | {m} | – | 18.00 | – | {m} | – |" in lines
-    assert f"| Ego MLP | {m} | – | {m} | 7.31 |" in "\n".join(lines)
+    assert f"| LTFv6, before training | 0.00 | – | 0.00 | – | {m} | – | 9.00 | – | {m} | – | 18.00 | – | {m} | – |" in lines
+    assert f"| Ego MLP | {m} | – | {m} | – | {m} | 7.31 |" in "\n".join(lines)
 
 
 @pytest.mark.slow
