@@ -170,6 +170,41 @@ def homogeneous(rotation: Any, translation: Any) -> np.ndarray:
     return matrix
 
 
+def ego_meta(velocity: list[float], acceleration: list[float], one_hot: np.ndarray, previous: np.ndarray) -> dict:
+    """``meta.ego`` from a NAVSIM ego status; the yaw rate comes from the previous past pose ``[t < 0, x, y, yaw]``
+    (the status has none), 0 without one. A command that is not one-hot is UNKNOWN's raw code 3."""
+    raw = int(np.argmax(one_hot)) if one_hot.sum() == 1 else 3
+    yaw_rate = float(wrap_angle(0.0 - previous[3]) / (0.0 - previous[0])) if previous[0] < 0 else 0.0
+    return {
+        "speed": math.hypot(*velocity),
+        "velocity": list(velocity),
+        "acceleration": list(acceleration),
+        "yaw_rate": yaw_rate,
+        "command": int(COMMANDS[raw]),
+        "command_raw": raw,
+    }
+
+
+def sample_meta(
+    adapter: Any, split: str, log_id: str, frame_idx: int, timestamp_us: int, is_synthetic: bool, extras: dict
+) -> dict[str, Any]:
+    """The ``meta`` entries every NAVSIM sample shares, logged or synthetic."""
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "dataset": "navsim",
+        "split": split,
+        "log_id": log_id,
+        "frame_idx": frame_idx,
+        "timestamp_us": timestamp_us,
+        "is_synthetic": is_synthetic,
+        "location": extras["map_name"],
+        "adapter": adapter.name,
+        "adapter_version": adapter.version,
+        "vehicle": dict(PACIFICA),
+        "extras": {"navsim": extras},
+    }
+
+
 def read_camera(
     cam: dict, native: str, cam_id: str, sensors: Path, lidar2ego: np.ndarray, where: str
 ) -> tuple[bytes, dict[str, Any]]:
@@ -558,33 +593,14 @@ class _LogContext:
         one_hot = np.asarray(_field(frame, "driving_command", where)).ravel()
         if one_hot.shape != (4,):
             raise NavsimFormatError(f"{where}: field 'driving_command' must be a (4,) one-hot, got {one_hot!r}")
-        raw = int(np.argmax(one_hot)) if one_hot.sum() == 1 else 3
         previous = trajectory[adapter.history - 2]  # [t < 0, x, y, yaw] relative to the current pose
-        yaw_rate = float(wrap_angle(0.0 - previous[3]) / (0.0 - previous[0]))
-        meta = {
-            "schema_version": SCHEMA_VERSION,
-            "dataset": "navsim",
-            "split": adapter.filter.name if adapter.filter else self.log.split,
-            "log_id": self.log.log_id,
-            "frame_idx": current,
-            "timestamp_us": int(self.stamps[current]),
-            "is_synthetic": False,
-            "location": extras["map_name"],
-            "adapter": adapter.name,
-            "adapter_version": adapter.version,
-            "ego": {
-                "speed": math.hypot(state[0], state[1]),
-                "velocity": state[:2],
-                "acceleration": state[2:],
-                "yaw_rate": yaw_rate,
-                "command": int(COMMANDS[raw]),
-                "command_raw": raw,
-            },
-            "vehicle": dict(PACIFICA),
+        split = adapter.filter.name if adapter.filter else self.log.split
+        meta = sample_meta(adapter, split, self.log.log_id, current, int(self.stamps[current]), False, extras)
+        meta |= {
+            "ego": ego_meta(state[:2], state[2:], one_hot, previous),
             "cameras": cameras,
             "lidar_columns": columns,
             "has": {name: True for name in sample if name not in ("__key__", "meta")},
-            "extras": {"navsim": extras},
         }
         if bev is not None:
             meta["bev"] = bev

@@ -14,7 +14,6 @@ as in the logs, and ``cam_to_ego`` uses the ``lidar2ego`` of the scene's origina
 and sensor rig.
 """
 
-import math
 from collections.abc import Iterator
 from functools import lru_cache
 from pathlib import Path
@@ -26,7 +25,7 @@ from lead_s2r import restricted_pickle
 from lead_s2r.geometry import rotate, to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.restricted_pickle import Record
-from lead_s2r.schema import SCHEMA_VERSION, make_key
+from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim, navsim_map
 
 _ACTOR = "nuplan.common.actor_state"
@@ -315,33 +314,14 @@ class _SyntheticScene:
     ) -> dict[str, Any]:
         status = self._status(self.current)
         velocity, acceleration = status["ego_velocity"].tolist(), status["ego_acceleration"].tolist()
-        one_hot = status["driving_command"]
-        raw = int(np.argmax(one_hot)) if one_hot.sum() == 1 else 3
         previous = past[-2] if len(past) > 1 else past[-1]
-        yaw_rate = float(wrap_angle(0.0 - previous[3]) / (0.0 - previous[0])) if previous[0] < 0 else 0.0
-        meta = {
-            "schema_version": SCHEMA_VERSION,
-            "dataset": "navsim",
-            "split": self.adapter.filter.name if self.adapter.filter else self.log.split,
-            "log_id": log_name,
-            "frame_idx": self.current,
-            "timestamp_us": int(self.stamps[self.current]),
-            "is_synthetic": True,
-            "location": extras["map_name"],
-            "adapter": self.adapter.name,
-            "adapter_version": self.adapter.version,
-            "ego": {
-                "speed": math.hypot(*velocity),
-                "velocity": velocity,
-                "acceleration": acceleration,
-                "yaw_rate": yaw_rate,
-                "command": int(navsim.COMMANDS[raw]),
-                "command_raw": raw,
-            },
-            "vehicle": dict(navsim.PACIFICA),
+        split = self.adapter.filter.name if self.adapter.filter else self.log.split
+        stamp = int(self.stamps[self.current])
+        meta = navsim.sample_meta(self.adapter, split, log_name, self.current, stamp, True, extras)
+        meta |= {
+            "ego": navsim.ego_meta(velocity, acceleration, status["driving_command"], previous),
             "cameras": cameras,
             "has": {name: True for name in sample if name not in ("__key__", "meta")},
-            "extras": {"navsim": extras},
         }
         if bev is not None:
             meta["bev"] = bev
