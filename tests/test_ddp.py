@@ -1,9 +1,11 @@
 """Two gloo processes on CPU (Lightning's ``ddp_fork``): validation splits by sample, the scoring callback scores
 every sample once, every rank logs what one process logs, and both ranks train the same number of steps."""
 
+import faulthandler
 import json
 from collections import Counter
 from pathlib import Path
+from types import SimpleNamespace
 
 import lightning as L
 import pytest
@@ -49,7 +51,7 @@ class Recorder(L.Callback):
         self.val_keys = []
 
     def on_validation_batch_start(self, trainer, pl_module, batch, batch_idx, dataloader_idx=0) -> None:
-        self.val_keys += batch["navsim"]["__key__"]
+        self.val_keys += [key for name, part in batch.items() if not name.startswith("__") for key in part["__key__"]]
 
     def on_fit_end(self, trainer, pl_module) -> None:
         record = {
@@ -73,13 +75,18 @@ class CountingScoring(ScoringCallback):
         return super().compute(predictions)
 
 
-def make_parts(data: str, out: Path) -> tuple[DrivingModule, DriveDataModule, list[L.Callback]]:
+def make_parts(
+    data: str, out: Path, more_val: dict[str, str] | None = None
+) -> tuple[DrivingModule, DriveDataModule, list[L.Callback]]:
+    """A tiny TFv6 trained on ``data`` as source navsim, validated on it and on ``more_val`` (source -> folder)."""
     torch.manual_seed(0)
-    config = tfv6_config(**{**TINY, "trajectory_grids": {"navsim": TrajectoryGrid(4, 0.5)}, "use_radar": False})
+    val = {"navsim": data} | (more_val or {})
+    grids = {source: TrajectoryGrid(4, 0.5) for source in val}
+    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
     spec = SourceSpec([data], cameras=["front"])
     datamodule = DriveDataModule(
         train={"navsim": spec},
-        val={"navsim": spec},
+        val={source: SourceSpec([folder], cameras=["front"]) for source, folder in val.items()},
         schedule=MixingSchedule.constant({"navsim": 1.0}, 4),
         steps_per_epoch=2,
         eval_batch_size=8,
@@ -126,3 +133,40 @@ def test_two_ranks_validate_like_one(one_shard, tmp_path):
         assert logged.keys() == expected.keys()
         for name, value in expected.items():
             assert logged[name] == pytest.approx(value, rel=1e-5), (name, logged, expected)
+
+
+
+@pytest.fixture(scope="module")
+def one_sample(tmp_path_factory) -> str:
+    root = tmp_path_factory.mktemp("one_sample")
+    write_toy_logs(root / "src", n_logs=1, frames=1)
+    convert(ToyAdapter(), root / "src", root / "data")
+    return str(root / "data")
+
+
+def test_a_rank_without_samples_of_a_source_still_syncs_its_metrics(one_shard, one_sample, tmp_path):
+    """Source "lone" has one validation sample: rank 1 sees none of it, yet must compute (and so sync) its metrics,
+    which it used to make only on its first batch of that source: rank 0 then waited forever (here: a hang turns
+    into a failed run after 5 minutes)."""
+    module, datamodule, callbacks = make_parts(one_shard, tmp_path, more_val={"lone": one_sample})
+    strategy = DDPStrategy(start_method="fork", find_unused_parameters=True)
+    faulthandler.dump_traceback_later(300, exit=True)
+    try:
+        trainer(2, callbacks, strategy=strategy, max_epochs=1).fit(module, datamodule=datamodule)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+    ranks = [json.loads((tmp_path / f"rank{rank}.json").read_text()) for rank in (0, 1)]
+    assert [len(rank["val_keys"]) for rank in ranks] == [18 + 1, 17]
+    assert ranks[0]["metrics"]["val/lone/ade"] == ranks[1]["metrics"]["val/lone/ade"] > 0
+
+
+def test_too_few_evaluation_samples_for_the_ranks_is_an_error_on_every_rank(one_sample):
+    """With fewer samples than ranks the last rank would never run DDP's first forward (a buffer sync) and the
+    others would wait for it: every rank refuses at once instead."""
+    module, datamodule, _ = make_parts(one_sample, Path("."))
+    for rank in (0, 1):
+        datamodule.trainer = SimpleNamespace(current_epoch=0, global_rank=rank, world_size=2, lightning_module=module)
+        with pytest.raises(ValueError, match=r"data.val: \{'navsim': 1\} samples cannot give each of 2 ranks one"):
+            datamodule.val_dataloader()
+    datamodule.trainer = SimpleNamespace(current_epoch=0, global_rank=0, world_size=1, lightning_module=module)
+    assert len(datamodule.val_dataloader()) == 1

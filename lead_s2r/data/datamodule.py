@@ -221,14 +221,21 @@ class DriveDataModule(L.LightningDataModule):
         stages += [SeededShuffle(self.shuffle_buffer, seed), wds.map(self._decode(name, spec))]
         return wds.DataPipeline(*stages, wds.batched(batch_size, collation_fn=collate, partial=False))
 
-    def _eval_pipeline(self, name: str, spec: SourceSpec) -> wds.DataPipeline:
-        _, rank, world_size = self._where()
+    @staticmethod
+    def _eval_samples(spec: SourceSpec) -> tuple[list[tuple[str, str]], dict[str, list[str]]]:
+        """(shard, key) of every sample the source evaluates, and every key its manifests list per shard."""
         samples: list[tuple[str, str]] = []
         listed: dict[str, list[str]] = {}
         for path in spec.paths:
             selected, keys = manifest_samples(path, spec.splits)
             samples += selected
             listed |= keys
+        return samples, listed
+
+    def _eval_pipeline(
+        self, name: str, spec: SourceSpec, samples: list[tuple[str, str]], listed: dict[str, list[str]]
+    ) -> wds.DataPipeline:
+        _, rank, world_size = self._where()
         mine = SampleShare(samples, rank, world_size)
         return wds.DataPipeline(
             mine.shards,
@@ -261,7 +268,16 @@ class DriveDataModule(L.LightningDataModule):
     def _eval_loaders(self, sources: dict[str, SourceSpec], what: str) -> list[wds.WebLoader]:
         if not sources:
             raise ValueError(f"no {what} sources configured (data.{what})")
-        return [self._loader(self._eval_pipeline(name, spec)) for name, spec in sources.items()]
+        found = {name: self._eval_samples(spec) for name, spec in sources.items()}
+        world_size = self._where()[2]
+        if world_size > 1 and all(len(samples) < world_size for samples, _ in found.values()):
+            # the last rank's share would be empty: its DDP never runs the first forward, which syncs buffers
+            counts = {name: len(samples) for name, (samples, _) in found.items()}
+            raise ValueError(
+                f"data.{what}: {counts} samples cannot give each of {world_size} ranks one; every rank must run a "
+                "batch (DDP syncs on the first forward). Use fewer devices or more samples."
+            )
+        return [self._loader(self._eval_pipeline(name, spec, *found[name])) for name, spec in sources.items()]
 
     def val_dataloader(self) -> list[wds.WebLoader]:
         """One loader per validation source; none configured means no validation loop."""

@@ -11,6 +11,7 @@ rebuilds a class path the way ``lead-s2r fit`` did from the YAML.
 import inspect
 import json
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import asdict, is_dataclass
 from typing import Any, Literal
@@ -90,7 +91,7 @@ class DrivingModule(L.LightningModule):
         unknown = set(self.loss_weights) - set(losses.TASK_TARGETS)
         if unknown:
             raise ValueError(f"loss_weights: unknown tasks {sorted(unknown)}; known: {sorted(losses.TASK_TARGETS)}")
-        self.val_means = nn.ModuleDict()  # filled by _log_val_mean; metric states stay out of checkpoints
+        self.val_means = nn.ModuleDict()  # per "<source>/<metric>"; metric states stay out of checkpoints
         self.init_report: LoadReport | None = None
         if init_from is not None:
             self.init_report = load_matching(self.model, init_from)
@@ -212,6 +213,18 @@ class DrivingModule(L.LightningModule):
         return total
 
     # --- evaluation
+    def on_validation_epoch_start(self) -> None:
+        """One running mean per (validation source with a planner, ADE/FDE), made on every rank before any batch.
+
+        Under DDP a rank may hold no sample of a source; its metric must still exist and be computed at the epoch's
+        end, since computing syncs the ranks and one rank missing from that sync would hang the others.
+        """
+        sources = getattr(self.trainer.datamodule, "val_sources", None) or {}
+        for source in sources:
+            if "waypoints" in self.model.tasks(source):
+                for metric in ("ade", "fde"):
+                    self._val_mean(f"{source}/{metric}")
+
     def validation_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         """ADE / FDE per source on its own grid (``val/<source>/ade``, ``.../fde``).
 
@@ -237,16 +250,28 @@ class DrivingModule(L.LightningModule):
         return {"predictions": to_predictions(outputs)}
 
     def _log_val_mean(self, key: str, values: Tensor) -> None:
-        """Add ``values`` to the running mean logged as ``val/<key>`` (key ``<source>/<metric>``).
+        """Add ``values`` to the running mean logged as ``val/<key>`` (key ``<source>/<metric>``) at the epoch's end.
 
         A metric object over every waypoint (ADE) or sample (FDE) of every rank, not a logged batch mean: Lightning's
         batch-size-weighted mean truncates the summed batch sizes to an integer when it averages them over ranks,
         so 18 + 17 samples would count as 34.
         """
+        self._val_mean(key).update(values)
+
+    def _val_mean(self, key: str) -> MeanMetric:
         if key not in self.val_means:
             self.val_means[key] = MeanMetric().to(self.device)
-        self.val_means[key].update(values)
-        self.log(f"val/{key}", self.val_means[key], add_dataloader_idx=False, metric_attribute=f"val_means.{key}")
+        return self.val_means[key]
+
+    def on_validation_epoch_end(self) -> None:
+        """Compute every running mean on every rank (each computation syncs the ranks); log those that saw data."""
+        for key, mean in self.val_means.items():
+            with warnings.catch_warnings():  # a rank without a sample of this source has not updated it
+                warnings.filterwarnings("ignore", message=".*was called before the ``update`` method.*")
+                value = mean.compute()
+            mean.reset()
+            if torch.isfinite(value):
+                self.log(f"val/{key}", value, add_dataloader_idx=False, sync_dist=True)  # equal on every rank
 
     def predict_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         """Per source that has a planner: sample keys and datasets, time grid ``t`` (T,) in seconds, and poses in
