@@ -1,19 +1,18 @@
 """Every full-scale recipe's smoke twin fits, predicts and scores on CPU over small synthetic data.
 
 A twin is the recipe itself plus the overlays ``recipes/smoke/twin.yaml`` and ``twin_<model>.yaml`` (toy sizes, CPU),
-run in a folder whose ``data/`` holds synthetic data converted under the paths the recipes read. So this test also
-checks the real recipes: their data paths and splits, callbacks, switches and ``init_from`` chains (a post-training
-recipe loads the checkpoint its pre-training twin wrote where the recipe says). The predict and score stages run the
-way the recipe headers do: a ``PredictionWriter`` added on the command line, then the recipe's metric (CARLA: ADE on
-the training routes, standing in for the closed loop; NAVSIM: PDMS on navtest and EPDMS on navhard two-stage).
+run in a folder whose ``data/`` holds synthetic data converted under the paths the recipes read (``lead-s2r
+twin-data``). So this test also checks the real recipes: their data paths and splits, callbacks, switches and
+``init_from`` chains (a post-training recipe loads the checkpoint its pre-training twin wrote where the recipe
+says). The predict and score stages run the way the recipe headers do: a ``PredictionWriter`` added on the command
+line, then the recipe's metric (CARLA: ADE on the training routes, standing in for the closed loop; NAVSIM: PDMS on
+navtest and EPDMS on navhard two-stage; WOD-E2E: RFS on val).
 
-Slow (a few minutes on two CPU cores): the data are generated and converted once, then the twins run in their
-init_from order. Deselect with ``-m "not slow"``.
+Slow (about three minutes on two busy CPU cores): the data are generated and converted once, then the twins run
+in their init_from order. Deselect with ``-m "not slow"``.
 """
 
-import importlib
 import math
-import shutil
 import sys
 import warnings
 from pathlib import Path
@@ -23,11 +22,9 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
-from lead_s2r.convert import convert
-from lead_s2r.registry import get_adapter
+from lead_s2r.cli import main
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import load_manifest
-from lead_s2r.synthetic import carla_lead, navsim_navhard
 from lead_s2r.training.cli import run_lightning_cli
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("one_thread")]
@@ -67,56 +64,11 @@ def twin_args(recipe: Path) -> list[str]:
     return ["--config", str(recipe), "--config", str(TWIN), "--config", str(overlay)]
 
 
-def convert_into(dataset: str, raw: Path, out: Path, **options: str) -> None:
-    result = convert(get_adapter(dataset, **options), raw, out, workers=1, progress=False)
-    assert result.ok and result.samples > 0, (out, result.errors)
-
-
-def write_carla(root: Path) -> None:
-    """LEAD routes (3-camera rig), PDM-Lite-style routes (the same format) and lead360 routes (6-camera rig)."""
-    for name, rig, seed in (
-        ("carla_lead", carla_lead.DEFAULT_RIG, 0),
-        ("carla_pdm_lite", carla_lead.DEFAULT_RIG, 1),
-        ("carla_lead360", "CARLA_LEADERBOARD2_6CAMERAS", 2),
-    ):
-        raw = root / "raw" / name
-        carla_lead.generate(raw, count=1, seed=seed, frames=8, rigs=(rig,))
-        convert_into("carla_lead", raw, root / "data" / name, rig="both")
-
-
-def write_navsim(root: Path) -> None:
-    """navtrain and navtest as the recipe headers convert them (a split folder and a scene filter whose name becomes
-    the samples' split), and navhard two-stage."""
-    for name, split, seed in (("navtrain", "trainval", 0), ("navtest", "test", 1)):
-        raw = root / "raw" / f"navsim_{name}"
-        importlib.import_module("lead_s2r.synthetic.navsim").generate(raw, seed=seed, splits={split: 1})
-        scene_filter = raw / "scene_filters" / f"{name}.yaml"
-        shutil.copy(raw / "scene_filters" / "navmini.yaml", scene_filter)
-        options = {"split": split, "scene_filter": str(scene_filter), "maps": str(raw / "maps")}
-        convert_into("navsim", raw, root / "data" / f"navsim_{name}", **options)
-    raw, split = root / "raw" / "navsim_navhard", navsim_navhard.SPLIT
-    navsim_navhard.generate(raw, count=1)
-    options = {
-        "split": split,
-        "scene_filter": str(raw / "scene_filters" / f"{split}.yaml"),
-        "maps": str(raw / "maps"),
-        "two_stage_mapping": str(raw / "train_test_split" / f"{split}.yaml"),
-    }
-    convert_into("navsim", raw, root / "data" / "navsim_navhard", **options)
-
-
-def write_wod(root: Path) -> None:
-    raw = root / "raw" / "wod_e2e"
-    importlib.import_module("lead_s2r.synthetic.wod_e2e").generate(raw, seed=0, splits={"train": 1, "val": 1})
-    convert_into("wod_e2e", raw, root / "data" / "wod_e2e")
-
-
 @pytest.fixture(scope="module")
 def recipe_data(tmp_path_factory) -> Path:
     """A working folder whose ``data/`` holds every converted folder the full-scale recipes read."""
     root = tmp_path_factory.mktemp("twins")
-    for write in (write_carla, write_navsim, write_wod):
-        write(root)
+    assert main(["twin-data", "--out", str(root)]) == 0
     return root
 
 
