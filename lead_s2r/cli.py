@@ -257,6 +257,14 @@ def cmd_quickstart(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_twin_data(args: argparse.Namespace) -> int:
+    from lead_s2r.twin_data import write_twin_data
+
+    names = write_twin_data(Path(args.out), workers=args.workers)
+    print(f"wrote {', '.join(names)} under {Path(args.out) / 'data'}; run smoke twins in {args.out} (docs/recipes.md)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lead-s2r",
@@ -332,6 +340,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", default="quickstart")
     sub.add_argument("--workers", type=int, default=2)
     sub.set_defaults(run=cmd_quickstart)
+
+    sub = verbs.add_parser("twin-data", help="small synthetic data under every data/ path the paper recipes read")
+    sub.add_argument("--out", default=".", help="the folder to run smoke twins in (data/ and raw/ go here)")
+    sub.add_argument("--workers", type=int, default=1)
+    sub.set_defaults(run=cmd_twin_data)
     return parser
 
 

@@ -5,10 +5,11 @@ import pytest
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.errors import UserError
 from lead_s2r.models.config import TrajectoryGrid, tfv6_config
 
 
-def make_datamodule(path: str, epoch: int = 0) -> DriveDataModule:
+def make_datamodule(path: str, epoch: int = 0, steps_per_epoch: int | None = 3) -> DriveDataModule:
     grids = {"sim": TrajectoryGrid(4, 0.5), "real": TrajectoryGrid(4, 0.5)}
     config = tfv6_config(image_size=(32, 96), trajectory_grids=grids, use_radar=False)
     spec = SourceSpec([path], cameras=["front"])
@@ -16,7 +17,7 @@ def make_datamodule(path: str, epoch: int = 0) -> DriveDataModule:
         train={"sim": spec, "real": spec},
         val={"real": spec},
         schedule=MixingSchedule.lead_sim2real("sim", "real", global_batch_size=8),
-        steps_per_epoch=3,
+        steps_per_epoch=steps_per_epoch,
         eval_batch_size=5,
         config=config,
     )
@@ -48,3 +49,16 @@ def test_split_filter_and_schedule_mismatch(toy_data):
     assert list(loader) == []  # toy data is all "train"
     with pytest.raises(ValueError, match="mixes"):
         DriveDataModule(train={"sim": SourceSpec([toy_data])}, schedule=MixingSchedule.constant({"sim": 1, "x": 1}))
+
+
+def test_without_steps_per_epoch_an_epoch_is_one_pass_over_the_training_samples(toy_data):
+    one = DriveDataModule(
+        train={"sim": SourceSpec([toy_data])}, schedule=MixingSchedule.constant({"sim": 1}, 5), steps_per_epoch=None
+    )
+    assert one.steps_per_epoch == 5  # 24 toy samples at batch 5: 4.8 steps, rounded up
+    dm = make_datamodule(toy_data, steps_per_epoch=None)
+    assert dm.steps_per_epoch == 6  # both sources read the 24 samples: 48 at the global batch of 8
+    assert {name: len(list(loader)) for name, loader in dm.train_dataloader().items()} == {"sim": 6, "real": 6}
+    empty = DriveDataModule(train={"sim": SourceSpec([toy_data], splits=["val"])}, steps_per_epoch=None)
+    with pytest.raises(UserError, match=r"data\.train: no training samples"):
+        _ = empty.steps_per_epoch

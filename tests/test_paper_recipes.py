@@ -65,6 +65,7 @@ def test_stages_chain_and_seeds_have_their_own_folders(recipe):
     init_from = config["model"].get("init_from")
     header = recipe.read_text().split("\nseed_everything")[0]
     assert "GPU-days" in header and "lead-s2r fit --config recipes/" in header
+    assert f"lead-s2r fit --config {recipe.relative_to(RECIPES.parent)} --config recipes/smoke/twin.yaml" in header
     if recipe.stem.endswith("pretrain"):
         assert checkpoint_dir(config) == f"{root}/checkpoints"  # a fixed path the next stage reads
         return

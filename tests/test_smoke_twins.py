@@ -1,78 +1,151 @@
-"""Every smoke twin of a paper recipe fits, predicts and scores on CPU over the quickstart's synthetic data.
+"""Every full-scale recipe's smoke twin fits, predicts and scores on CPU over small synthetic data.
 
-Slow (a few minutes on two CPU cores): synthetic data in three formats is generated and converted once, then the twins
-run in their init_from order. Deselect with ``-m "not slow"``.
+A twin is the recipe itself plus the overlays ``recipes/smoke/twin.yaml`` and ``twin_<model>.yaml`` (toy sizes, CPU),
+run in a folder whose ``data/`` holds synthetic data converted under the paths the recipes read (``lead-s2r
+twin-data``). So this test also checks the real recipes: their data paths and splits, callbacks, switches and
+``init_from`` chains (a post-training recipe loads the checkpoint its pre-training twin wrote where the recipe
+says). The predict and score stages run the way the recipe headers do: a ``PredictionWriter`` added on the command
+line, then the recipe's metric (CARLA: ADE on the training routes, standing in for the closed loop; NAVSIM: PDMS on
+navtest and EPDMS on navhard two-stage; WOD-E2E: RFS on val).
+
+Slow (about three minutes on two busy CPU cores): the data are generated and converted once, then the twins run
+in their init_from order. Deselect with ``-m "not slow"``.
 """
 
-import importlib
+import math
 import sys
 import warnings
 from pathlib import Path
+from typing import Any
 
+import pyarrow.parquet as pq
 import pytest
+import yaml
 
-from lead_s2r.convert import convert
-from lead_s2r.registry import get_adapter
+from lead_s2r.cli import main
 from lead_s2r.scoring.run import score_predictions
+from lead_s2r.shards import load_manifest
 from lead_s2r.training.cli import run_lightning_cli
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("one_thread")]
 
-SMOKE = Path(__file__).parents[1] / "recipes" / "smoke"
-#: twins in init_from order -> (metric, dataset) their predictions are scored with; None: no predict stage.
-TWINS = {
-    "carla_tfv6_pretrain": None,
-    "carla_tfv6": ("ade", "carla_lead"),
-    "navsim_ltfv6_lead": ("ade", "navsim"),
-    "wod_ltfv6_pretrain": None,
-    "wod_ltfv6_lead": ("rfs@wod-e2e-2025", "wod_e2e"),
-    "ego_mlp": ("rfs@wod-e2e-2025", "wod_e2e"),
+RECIPES = Path(__file__).parents[1] / "recipes"
+FAMILIES = ("carla", "navsim", "wod")
+FULL_SCALE = sorted(p for family in FAMILIES for p in (RECIPES / family).glob("*.yaml"))
+TWIN = RECIPES / "smoke" / "twin.yaml"
+#: model class -> the overlay that shrinks it
+MODEL_OVERLAYS = {
+    "lead_s2r.models.tfv6.TFv6": RECIPES / "smoke" / "twin_tfv6.yaml",
+    "lead_s2r.models.ego_mlp.EgoStatusMLP": RECIPES / "smoke" / "twin_ego_mlp.yaml",
+}
+PREDICTION_WRITER = "lead_s2r.training.prediction_writer.PredictionWriter"
+#: family -> (metric, aggregate, predict folder or None for the recipe's own data.predict, output subfolder)
+SCORING: dict[str, list[tuple[str, str, str | None, str]]] = {
+    "carla": [("ade", "ade", None, "train")],
+    "navsim": [
+        ("pdms@navsim-1.1", "pdms", None, "navtest"),
+        ("epdms@navsim-2.2", "epdms", "data/navsim_navhard", "navhard"),
+    ],
+    "wod": [("rfs@wod-e2e-2025", "rfs", None, "val")],
 }
 
 
+def recipe_config(recipe: Path) -> dict[str, Any]:
+    return yaml.safe_load(recipe.read_text())
+
+
+def init_order(recipes: list[Path]) -> list[Path]:
+    """Pre-training recipes first (an ``init_from`` reads their checkpoints), otherwise sorted."""
+    return sorted(recipes, key=lambda p: ("init_from" in recipe_config(p)["model"], str(p)))
+
+
+def twin_args(recipe: Path) -> list[str]:
+    overlay = MODEL_OVERLAYS[recipe_config(recipe)["model"]["model"]["class_path"]]
+    return ["--config", str(recipe), "--config", str(TWIN), "--config", str(overlay)]
+
+
 @pytest.fixture(scope="module")
-def quickstart_data(tmp_path_factory) -> Path:
-    """``<root>/data/{carla_lead,navsim,wod_e2e}`` as the quickstart writes them (training and held-out splits),
-    smaller."""
+def recipe_data(tmp_path_factory) -> Path:
+    """A working folder whose ``data/`` holds every converted folder the full-scale recipes read."""
     root = tmp_path_factory.mktemp("twins")
-    for dataset, size, options in (
-        ("carla_lead", {"count": 2}, {}),
-        ("navsim", {"splits": {"trainval": 2, "test": 1}}, {"maps": "maps"}),
-        ("wod_e2e", {"splits": {"train": 2, "val": 2}}, {}),
-    ):
-        raw = root / "raw" / dataset
-        importlib.import_module(f"lead_s2r.synthetic.{dataset}").generate(raw, seed=0, **size)
-        adapter = get_adapter(dataset, **{name: str(raw / value) for name, value in options.items()})
-        assert convert(adapter, raw, root / "data" / dataset, workers=1, progress=False).ok
+    assert main(["twin-data", "--out", str(root)]) == 0
     return root
 
 
-def test_every_twin_is_tested():
-    assert {p.stem for p in SMOKE.glob("*.yaml")} - {"sim2real"} == set(TWINS)
+def test_every_full_scale_recipe_has_a_twin():
+    """A new recipe is twinned by the overlays or fails here (a model class without an overlay)."""
+    assert len(FULL_SCALE) >= 26
+    classes = {recipe_config(p)["model"]["model"]["class_path"] for p in FULL_SCALE}
+    assert classes <= set(MODEL_OVERLAYS), classes - set(MODEL_OVERLAYS)
+    assert {p.parent.name for p in FULL_SCALE} == set(SCORING)
 
 
-def test_twins_fit_predict_and_score(quickstart_data, monkeypatch):
+def test_recipe_data_holds_every_folder_the_recipes_read(recipe_data):
+    wanted = {
+        path.split("/")[1]
+        for recipe in FULL_SCALE
+        for stage in ("train", "val", "predict")
+        for spec in recipe_config(recipe)["data"].get(stage, {}).values()
+        for path in spec["paths"]
+    }
+    wanted |= {folder.split("/")[1] for scorings in SCORING.values() for _, _, folder, _ in scorings if folder}
+    assert wanted == {p.name for p in (recipe_data / "data").iterdir()}
+    splits = {name: set(load_manifest(recipe_data / "data" / name).column("split").to_pylist()) for name in wanted}
+    assert splits["navsim_navtrain"] == {"navtrain"} and splits["wod_e2e"] == {"train", "val"}
+
+
+def predict_args(recipe: Path, root: Path, folder: str | None, output: Path) -> list[str]:
+    """The header's predict command: the recipe's checkpoint, a PredictionWriter added on the command line and, for
+    another folder (navhard) or a recipe without data.predict (CARLA: its training data), the predict source."""
+    config = recipe_config(recipe)
+    checkpoint = root / config["trainer"]["default_root_dir"] / "checkpoints" / "last.ckpt"
+    args = ["predict", *twin_args(recipe), "--ckpt_path", str(checkpoint)]
+    args += [f"--trainer.callbacks+={PREDICTION_WRITER}", f"--trainer.callbacks.output={output}"]
+    data = config["data"]
+    if "predict" not in data:
+        args.append(f"--data.predict={yaml.safe_dump(data['train'], default_flow_style=True).strip()}")
+    elif folder is not None:
+        (source,) = data["predict"]
+        args.append(f"--data.predict.{source}.paths=[{folder}]")
+    return args
+
+
+def predict_specs(recipe: Path, folder: str | None) -> list[tuple[list[str], list[str] | None]]:
+    """(paths, splits) of every source the twin predicts on."""
+    data = recipe_config(recipe)["data"]
+    specs = data.get("predict", data["train"]).values()
+    return [([folder] if folder else spec["paths"], spec.get("splits")) for spec in specs]
+
+
+def predicted_keys(specs: list[tuple[list[str], list[str] | None]]) -> set[str]:
+    """Every sample key of those folders and splits."""
+    keys = set()
+    for paths, splits in specs:
+        for path in paths:
+            rows = load_manifest(path).select(["key", "split"]).to_pylist()
+            keys |= {row["key"] for row in rows if splits is None or row["split"] in splits}
+    return keys
+
+
+def test_twins_fit_predict_and_score(recipe_data, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])
-    for name, scoring in TWINS.items():
-        recipe = quickstart_data / f"{name}.yaml"
-        recipe.write_text((SMOKE / f"{name}.yaml").read_text().replace("quickstart/", f"{quickstart_data}/"))
-        run = quickstart_data / "runs" / name
+    monkeypatch.chdir(recipe_data)  # the recipes' data/ and runs/ paths are relative to the working directory
+    for recipe in init_order(FULL_SCALE):
+        name = f"{recipe.parent.name}/{recipe.stem}"
+        run = recipe_data / recipe_config(recipe)["trainer"]["default_root_dir"]
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter")
-            run_lightning_cli(["fit", "--config", str(recipe)])
-            assert (run / "checkpoints" / "last.ckpt").exists(), name
-            if scoring is None:
+            run_lightning_cli(["fit", *twin_args(recipe)])
+            assert (run / "checkpoints" / "last.ckpt").is_file(), name
+            if recipe.stem.endswith("pretrain"):
                 continue
-            run_lightning_cli(
-                ["predict", "--config", str(recipe), "--ckpt_path", str(run / "checkpoints" / "last.ckpt")]
-            )
-        metric, dataset = scoring
-        report = score_predictions(
-            metric,
-            run / "predictions.parquet",
-            [quickstart_data / "data" / dataset],
-            run / "scores",
-            allow_missing=True,
-        )
-        value = report["aggregates"]["rfs" if metric.startswith("rfs") else "ade"]
-        assert value is not None and value > 0, (name, report["aggregates"])
+            for metric, aggregate, folder, subfolder in SCORING[recipe.parent.name]:
+                predictions = run / subfolder / "predictions.parquet"
+                run_lightning_cli(predict_args(recipe, recipe_data, folder, predictions))
+                specs = predict_specs(recipe, folder)
+                keys = set(pq.read_table(predictions, columns=["key"]).column("key").to_pylist())
+                assert keys == predicted_keys(specs), (name, subfolder)
+                data = [Path(path) for paths, _ in specs for path in paths]
+                report = score_predictions(metric, predictions, data, run / subfolder, allow_missing=True)
+                value = report["aggregates"][aggregate]
+                assert isinstance(value, float) and math.isfinite(value) and value >= 0, (name, report["aggregates"])

@@ -2,7 +2,9 @@
 
 Training: one infinite, shard-resampled pipeline per source whose scheduled batch size is non-zero, each cut to
 ``steps_per_epoch`` batches, so every rank and every source yields the same number of steps (DDP never waits on an
-exhausted rank). Lightning's ``CombinedLoader`` zips them into ``{source: batch}``. Dataloaders are rebuilt each epoch
+exhausted rank). Without ``steps_per_epoch`` an epoch is one pass over the training samples at the global batch
+(ceil(samples / global batch)), counted from the manifests, so it is the same on every rank. Lightning's
+``CombinedLoader`` zips them into ``{source: batch}``. Dataloaders are rebuilt each epoch
 (``reload_dataloaders_every_n_epochs=1``) to follow the schedule, and seeded from (seed, epoch, rank, worker) so a
 run repeats and a resumed run goes on with the same stream. Evaluation: one finite, ordered pipeline per source,
 split over ranks and workers by sample (every sample read exactly once), whose batches come as ``{source: batch}``
@@ -10,6 +12,7 @@ like the training ones. :mod:`lead_s2r.data.streams` says why webdataset's own s
 """
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,7 +107,8 @@ class DriveDataModule(L.LightningDataModule):
         val: source name -> spec of its validation data.
         predict: source name -> spec of the data to predict on.
         schedule: per-epoch source composition of each global batch (default: equal shares of 8 samples).
-        steps_per_epoch: optimizer steps per epoch (every source yields exactly this many batches per rank).
+        steps_per_epoch: optimizer steps per epoch (every source yields exactly this many batches per rank); None:
+            one pass over the training samples (every source's, in its splits) at the global batch, rounded up.
         eval_batch_size: batch size of validation and prediction loaders.
         num_workers: dataloader workers per source.
         shuffle_buffer: samples in each source's shuffle buffer.
@@ -119,7 +123,7 @@ class DriveDataModule(L.LightningDataModule):
         val: dict[str, SourceSpec] | None = None,
         predict: dict[str, SourceSpec] | None = None,
         schedule: MixingSchedule | None = None,
-        steps_per_epoch: int = 100,
+        steps_per_epoch: int | None = 100,
         eval_batch_size: int = 8,
         num_workers: int = 0,
         shuffle_buffer: int = 256,
@@ -134,7 +138,7 @@ class DriveDataModule(L.LightningDataModule):
         unknown = set(self.schedule.sources) - set(self.train_sources)
         if self.train_sources and unknown:
             raise ValueError(f"the schedule mixes {sorted(unknown)} but train lists only {sorted(self.train_sources)}")
-        self.steps_per_epoch = steps_per_epoch
+        self._steps_per_epoch = steps_per_epoch
         self.eval_batch_size = eval_batch_size
         self.num_workers = num_workers
         self.shuffle_buffer = shuffle_buffer
@@ -176,6 +180,22 @@ class DriveDataModule(L.LightningDataModule):
                 raise ValueError("DriveDataModule needs a TFv6Config: pass config= or train a model that has one")
             self._config = config
         return self._config
+
+    @property
+    def steps_per_epoch(self) -> int:
+        """Optimizer steps per epoch: as given, else one pass over the training samples (read once, on first use)."""
+        if self._steps_per_epoch is None:
+            samples = self.train_samples()
+            if samples == 0:
+                raise UserError("data.train: no training samples in the given paths and splits; check data.train")
+            self._steps_per_epoch = math.ceil(samples / self.schedule.global_batch_size)
+        return self._steps_per_epoch
+
+    def train_samples(self) -> int:
+        """Samples of every training source in its splits, counted from the folders' manifests."""
+        return sum(
+            len(manifest_samples(path, spec.splits)[0]) for spec in self.train_sources.values() for path in spec.paths
+        )
 
     @property
     def seed(self) -> int:

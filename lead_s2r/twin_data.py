@@ -1,0 +1,87 @@
+"""``lead-s2r twin-data``: small synthetic data under every ``data/<name>`` path the full-scale recipes read, so a
+recipe's smoke twin (the recipe plus ``recipes/smoke/twin.yaml`` and a model overlay) runs unchanged.
+
+The folders are converted the way the recipe headers convert the real data, because the recipes select by what
+conversion writes: NAVSIM's navtrain / navtest samples carry the *scene filter's* name as their split (``splits:
+[navtrain]``), so each is converted from a split folder with a filter of that name; CARLA folders use ``--rig
+both``; the lead360 folder holds LEAD's 6-camera rig, which the 360-degree and front-camera rows cut into tiles;
+navhard is the two-stage layout. PDM-Lite data has LEAD's on-disk format, so its folder is LEAD data of another
+seed. One log or route each keeps a full set of folders to seconds of conversion.
+"""
+
+import importlib
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+from lead_s2r.convert import convert
+from lead_s2r.registry import get_adapter
+from lead_s2r.synthetic import carla_lead, navsim_navhard
+
+RAW = "raw"
+DATA = "data"
+#: data/<name> -> (camera rig, seed) of the LEAD routes written for it.
+CARLA_FOLDERS = {
+    "carla_lead": (carla_lead.DEFAULT_RIG, 0),
+    "carla_pdm_lite": (carla_lead.DEFAULT_RIG, 1),
+    "carla_lead360": ("CARLA_LEADERBOARD2_6CAMERAS", 2),
+}
+#: data/navsim_<filter> -> (OpenScene split folder, seed); the filter's name becomes the samples' split.
+NAVSIM_FOLDERS = {"navtrain": ("trainval", 0), "navtest": ("test", 1)}
+#: WOD-E2E segments per split.
+WOD_SPLITS = {"train": 1, "val": 1}
+#: LEAD frames per route (4 Hz).
+CARLA_FRAMES = 8
+
+
+def _convert(dataset: str, raw: Path, out: Path, workers: int, **options: str) -> None:
+    result = convert(get_adapter(dataset, **options), raw, out, workers=workers, force=True, progress=False)
+    if not result.ok or result.samples == 0:
+        raise RuntimeError(f"{out}: converting synthetic {dataset} data failed: {result.errors}")
+
+
+def write_carla(root: Path, workers: int) -> None:
+    for name, (rig, seed) in CARLA_FOLDERS.items():
+        raw = root / RAW / name
+        carla_lead.generate(raw, count=1, seed=seed, frames=CARLA_FRAMES, rigs=(rig,))
+        _convert("carla_lead", raw, root / DATA / name, workers, rig="both")
+
+
+def write_navsim(root: Path, workers: int) -> None:
+    generator = importlib.import_module("lead_s2r.synthetic.navsim")
+    for name, (split, seed) in NAVSIM_FOLDERS.items():
+        raw = root / RAW / f"navsim_{name}"
+        generator.generate(raw, seed=seed, splits={split: 1})
+        scene_filter = raw / "scene_filters" / f"{name}.yaml"
+        shutil.copy(raw / "scene_filters" / "navmini.yaml", scene_filter)
+        options = {"split": split, "scene_filter": str(scene_filter), "maps": str(raw / "maps")}
+        _convert("navsim", raw, root / DATA / f"navsim_{name}", workers, **options)
+
+
+def write_navhard(root: Path, workers: int) -> None:
+    raw, split = root / RAW / "navsim_navhard", navsim_navhard.SPLIT
+    navsim_navhard.generate(raw, count=1)
+    options = {
+        "split": split,
+        "scene_filter": str(raw / "scene_filters" / f"{split}.yaml"),
+        "maps": str(raw / "maps"),
+        "two_stage_mapping": str(raw / "train_test_split" / f"{split}.yaml"),
+    }
+    _convert("navsim", raw, root / DATA / "navsim_navhard", workers, **options)
+
+
+def write_wod(root: Path, workers: int) -> None:
+    raw = root / RAW / "wod_e2e"
+    importlib.import_module("lead_s2r.synthetic.wod_e2e").generate(raw, seed=0, splits=WOD_SPLITS)
+    _convert("wod_e2e", raw, root / DATA / "wod_e2e", workers)
+
+
+WRITERS: tuple[Callable[[Path, int], None], ...] = (write_carla, write_navsim, write_navhard, write_wod)
+
+
+def write_twin_data(root: Path, workers: int = 1) -> list[str]:
+    """Write raw synthetic data under ``root/raw`` and the converted folders under ``root/data``; return their names."""
+    root = Path(root)
+    for write in WRITERS:
+        write(root, workers)
+    return sorted(path.name for path in (root / DATA).iterdir())
