@@ -13,7 +13,6 @@ out the aggregation that computes EC.
 
 import argparse
 import sys
-import time
 from functools import partial
 from pathlib import Path
 from statistics import median
@@ -21,6 +20,7 @@ from statistics import median
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from cpu_time import cpu_times_ms
 from pdm_golden import GOLDEN, GOLDEN_V22, golden_scene, load_golden, reference_poses
 
 from lead_s2r.scoring.pdm.map_flags import DrivableMap
@@ -32,13 +32,7 @@ GOLDEN_FILES = {METRIC: GOLDEN, EPDMS_METRIC: GOLDEN_V22}
 
 def cpu_ms(function, repeats: int) -> float:
     """Median CPU time in ms after one warm-up call."""
-    function()
-    times = []
-    for _ in range(repeats):
-        started = time.process_time()
-        function()
-        times.append(time.process_time() - started)
-    return 1e3 * float(np.median(times))
+    return float(np.median(cpu_times_ms(function, repeats)))
 
 
 def main() -> None:

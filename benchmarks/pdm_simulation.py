@@ -8,10 +8,10 @@ Proposals are 8 poses at 0.5 s on arcs of mixed speed and curvature, some brakin
 """
 
 import argparse
-import time
 from functools import partial
 
 import numpy as np
+from cpu_time import cpu_times_ms
 
 from lead_s2r.scoring.pdm.interpolation import interpolate_proposals
 from lead_s2r.scoring.pdm.simulation import SCALAR_PROPOSALS, simulate_proposals
@@ -33,13 +33,8 @@ def proposals(count: int, seed: int = 0) -> np.ndarray:
 
 def timed(function, repeats: int) -> tuple[float, float]:
     """Median and minimum CPU time of this process in ms after one warm-up call (less skewed by other load)."""
-    function()
-    times = []
-    for _ in range(repeats):
-        started = time.process_time()
-        function()
-        times.append(time.process_time() - started)
-    return 1e3 * float(np.median(times)), 1e3 * float(np.min(times))
+    times = cpu_times_ms(function, repeats)
+    return float(np.median(times)), float(np.min(times))
 
 
 def main() -> None:
