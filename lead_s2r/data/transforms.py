@@ -479,10 +479,11 @@ def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
     h, w = grid.shape
     if points is None or not len(points):
         return np.zeros((h, w), np.uint8)
-    rows = np.floor((points[:, 0] - grid.x_min) * grid.pixels_per_meter).astype(np.int64)
-    cols = np.floor((points[:, 1] - grid.y_min) * grid.pixels_per_meter).astype(np.int64)
-    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-    counts = np.bincount(rows[inside] * w + cols[inside], minlength=h * w)
+    u = (points[:, 0] - grid.x_min) * grid.pixels_per_meter  # fractional row, column
+    v = (points[:, 1] - grid.y_min) * grid.pixels_per_meter
+    inside = (u >= 0) & (u < h) & (v >= 0) & (v < w)  # NaN is outside; inside, truncation is the floor
+    cells = u[inside].astype(np.int64) * w + v[inside].astype(np.int64)
+    counts = np.bincount(cells, minlength=h * w)
     return np.minimum(counts, LIDAR_HITS_MAX).astype(np.uint8).reshape(h, w)
 
 
