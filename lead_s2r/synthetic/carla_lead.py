@@ -400,11 +400,13 @@ def write_laz(path: Path, points: np.ndarray, time: np.ndarray) -> None:
 
 def _radar(boxes: list[dict], rng: np.random.Generator, realistic: bool = False) -> dict[str, np.ndarray]:
     """Four float16 (n, 4) radar clouds: x, y, z, radial velocity of hits on the moving boxes, ego frame; one hit
-    per box, or (``realistic``) :data:`RADAR_POINTS_PER_SENSOR` per sensor spread over the boxes it faces."""
+    per box, or (``realistic``) :data:`RADAR_POINTS_PER_SENSOR` per sensor, spread over the boxes it faces or, where
+    it faces none, static clutter (kerbs, poles) in its half of the scene."""
     hits = [box for box in boxes[1:] if "num_radar_points" in box]
     out = {}
     for sensor in range(1, 5):
-        facing = [box for box in hits if (box["position"][0] >= 0) == (sensor <= 2)]
+        ahead = sensor <= 2
+        facing = [box for box in hits if (box["position"][0] >= 0) == ahead]
         if realistic and facing:
             facing = [facing[i] for i in rng.integers(0, len(facing), RADAR_POINTS_PER_SENSOR)]
         rows = []
@@ -412,6 +414,10 @@ def _radar(boxes: list[dict], rng: np.random.Generator, realistic: bool = False)
             x, y, z = box["position"]
             radial = box["speed"] * np.cos(box["yaw"] - np.arctan2(y, x))
             rows.append([x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z, radial])
+        if realistic and not facing:
+            n = RADAR_POINTS_PER_SENSOR
+            x = rng.uniform(2.0, 60.0, n) * (1 if ahead else -1)
+            rows = np.column_stack([x, rng.uniform(-30.0, 30.0, n), rng.uniform(0.0, 2.0, n), np.zeros(n)])
         out[f"radar{sensor}"] = np.asarray(rows, np.float16).reshape(-1, 4)
     return out
 
