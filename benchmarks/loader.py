@@ -65,7 +65,7 @@ PLAIN, PIXELS, OURS, LEAD_BOTH, LEAD_ONE = (
 
 @dataclass
 class Timing:
-    """One loader's pass: samples, wall and CPU seconds; ``steady_*`` leave out the first batch (buffer fill)."""
+    """One loader's pass: samples, wall and CPU seconds; ``steady_*`` leave out its first batch."""
 
     samples: int
     wall: float
