@@ -1,27 +1,33 @@
-"""Training-loader throughput at TFv6 paper sizes, three loaders side by side in one process, on generated routes.
+"""Training-loader throughput at TFv6 paper sizes, side by side in one process, on generated LEAD routes.
 
 .venv/bin/python benchmarks/loader.py --routes 6 --frames 16 --steps 40 --rounds 3
+
+Two kinds of generated frames (``--kinds``): light ones (five actors, about 700 LiDAR points: the tests' frames) and
+realistic ones (``generate(realistic=True)``: about 60 actors, about 60,000 LiDAR + radar points in the LAZ, metas
+with every target-point planner LEAD saves). Per kind, each converted with our adapter:
 
 - plain decoding: ``read_samples`` over the converted shards, every field decoded (JPEG bytes stay bytes): the
   floor any shard loader pays; shown also with the JPEGs decoded to pixels, for reference;
 - ours: ``DriveDataModule``'s training loader (shard resampling, shuffle buffer, decoding the fields the transform
   reads, ``SourceTransform`` at paper sizes: 1152x384 mosaic, 384x320 LiDAR BEV, CenterNet at stride 4, BEV labels,
-  depth and semantics; collation into batches);
-- LEAD-style: a map-style dataset over the raw LEAD route folders of the same frames, shuffled by a torch
-  ``DataLoader``; each item opens its frame's files as LEAD's loader does when it builds a sample (LZMA pickles of
-  the meta and the boxes, the LAZ point cloud, the JPEG, semantic/depth/hdmap PNGs, the radar npz), turns them into a
-  schema sample with the adapter's own code and applies the same transform, so the tensors are the same (checked on
-  one frame). LEAD's optional persistent cache of compressed samples is not modelled.
+  depth and semantics; collation into batches); the shards hold the LiDAR as points, so ours rasterises them too.
+  One epoch's stream serves every round, as in training: the shuffle buffer fills once (timed and printed apart),
+  not once per 40-batch pass, which would read 256 samples more than it yields each time;
+- LEAD-style: ``lead_style.LeadStyleFrames`` over the raw route folders of the same frames, shuffled by a torch
+  ``DataLoader`` with its default collation: LEAD's per-frame steps and LEAD's tensor contract (see that module),
+  building both rigs per item as LEAD does without a cache, and (for a conservative bound) only the rig it returns.
+  Its camera and perspective labels are checked against ours on one frame.
 
-Torch runs one intra-op thread (``--threads``), as in a dataloader worker: with the default two on this shared
-2-core machine, collation's ``torch.stack`` spun and took 4x longer. "After the first batch" leaves out the shuffle
-buffer's fill, which a long epoch amortises.
+"After the first batch" leaves out each pass's first batch. Torch runs one intra-op thread (``--threads``), as in a
+dataloader worker: with the default two on this shared 2-core machine, collation's ``torch.stack`` spun and took 4x
+longer.
 
-The loaders run in turn within each round (interleaved), so a busy machine slows all three alike; the ratios are
-per round and the summary gives their median. CPU time is this process's (user + system).
+The loaders run in turn within each round (interleaved), so a busy machine slows all alike; the ratios are per round
+and the summary gives their median. CPU time is this process's (user + system).
 """
 
 import argparse
+import os
 import statistics
 import tempfile
 import time
@@ -34,53 +40,32 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset
+from lead_style import LeadStyleFrames
+from torch.utils.data import DataLoader
 
 from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.transforms import SourceTransform, collate
-from lead_s2r.models.config import tfv6_config
-from lead_s2r.registry import LogRef, get_adapter
+from lead_s2r.data.transforms import SourceTransform
+from lead_s2r.models.config import TFv6Config, tfv6_config
+from lead_s2r.models.inputs import on_image_grid
+from lead_s2r.registry import get_adapter
+from lead_s2r.schema import make_key
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic.carla_lead import generate
-from lead_s2r_adapters.carla_lead import CarlaLeadAdapter
-from lead_s2r_adapters.carla_lead_io import read_laz, read_pickle
 
-
-class LeadFrames(Dataset):
-    """One item per frame of the raw route folders under ``src``: read from its files, then transformed."""
-
-    def __init__(self, src: Path, transform: SourceTransform) -> None:
-        self.adapter = get_adapter("carla_lead")
-        assert isinstance(self.adapter, CarlaLeadAdapter)
-        self.transform = transform
-        self.items: list[tuple[LogRef, str]] = [
-            (log, path.stem)
-            for log in self.adapter.list_logs(src)
-            for path in sorted((Path(log.path) / "bboxes").glob("*.pkl"))
-        ]
-
-    def __len__(self) -> int:
-        return len(self.items)
-
-    def sample(self, index: int) -> dict[str, Any]:
-        """The schema sample of one frame, built from its own files (what LEAD's ``__getitem__`` reads)."""
-        log, name = self.items[index]
-        folder = Path(log.path)
-        meta_path = folder / "metas" / f"{name}.pkl"
-        meta = read_pickle(meta_path)
-        others = [box for box in read_pickle(folder / "bboxes" / f"{name}.pkl") if box.get("class") != "ego_car"]
-        lidar = read_laz(folder / "lidar" / f"{name}.laz")
-        return self.adapter._sample(log, folder, name, meta, meta_path, others, lidar, "normal")
-
-    def __getitem__(self, index: int) -> dict[str, Any]:
-        return self.transform(self.sample(index))
+PLAIN, PIXELS, OURS, LEAD_BOTH, LEAD_ONE = (
+    "plain decoding (read_samples, every field)",
+    "plain decoding + JPEG to pixels",
+    "ours (DriveDataModule)",
+    "LEAD-style per-file, both rigs (LEAD uncached)",
+    "LEAD-style per-file, one rig",
+)
 
 
 @dataclass
 class Timing:
-    """One loader's pass: samples, wall and CPU seconds; ``steady_*`` leave out the first batch (buffer fill)."""
+    """One loader's pass: samples, wall and CPU seconds; ``steady_*`` leave out its first batch."""
 
     samples: int
     wall: float
@@ -107,16 +92,57 @@ def timed(batches: Iterator[int]) -> Timing:
     return Timing(first + rest, end - wall, time.process_time() - cpu, rest, end - after_first)
 
 
-def check_same_tensors(data: Path, lead: LeadFrames) -> None:
-    """The LEAD-style loader and ours give equal tensors for one frame (else the comparison is meaningless)."""
-    transform = lead.transform
-    ours = transform(next(iter(read_samples(data, transform.fields))))
-    index = next(i for i, (log, name) in enumerate(lead.items) if ours["__key__"].endswith(name))
+def check_agreement(data: Path, lead: LeadStyleFrames, transform: SourceTransform) -> None:
+    """The LEAD-style loader reads the same frames as ours: equal RGB and semantics, depth equal to float32 rounding
+    once ours is on the image grid (the LiDAR raster and BEV labels differ in frame and orientation by design)."""
+    keys = {make_key(*lead.key(i).rsplit("/", 1)): i for i in range(len(lead))}  # the adapter's keys, normal rig
+    sample = next(sample for sample in read_samples(data, transform.fields) if sample["__key__"] in keys)
+    ours, index = transform(sample), keys[sample["__key__"]]
     theirs = lead[index]
-    assert theirs["__key__"] == ours["__key__"], (theirs["__key__"], ours["__key__"])
-    for name, value in ours.items():
-        if isinstance(value, torch.Tensor) and not torch.equal(value, theirs[name]):
-            raise AssertionError(f"LEAD-style loader differs from ours in {name!r}")
+    assert np.array_equal(ours["rgb"].numpy(), theirs["rgb"]), "rgb"
+    assert np.array_equal(ours["semantic"].long().numpy(), theirs["semantic"]), "semantic"
+    depth = on_image_grid(ours["depth"][None], tuple(ours["rgb"].shape[-2:]))[0].numpy()
+    np.testing.assert_allclose(depth, theirs["depth"], rtol=1e-5, atol=1e-4, err_msg="depth")
+
+
+def loaders(
+    kind: str, tmp: Path, args: argparse.Namespace, config: TFv6Config
+) -> dict[str, Callable[[], Iterator[int]]]:
+    """The loaders over one kind of generated frames, as callables that start a pass and yield batch sizes."""
+    raw, data = tmp / kind / "raw", tmp / kind / "data"
+    generate(raw, count=args.routes, frames=args.frames, realistic=kind == "realistic")
+    convert(get_adapter("carla_lead"), raw, data)
+    check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
+    dm = DriveDataModule(
+        train={"carla": SourceSpec([str(data)])},
+        schedule=MixingSchedule.constant({"carla": 1.0}, args.batch_size),
+        steps_per_epoch=args.steps * args.rounds + 1,
+        num_workers=args.workers,
+        config=config,
+    )
+    dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
+    wall, cpu = time.perf_counter(), time.process_time()
+    stream = iter(dm.train_dataloader()["carla"])  # one epoch's stream, as in training: every round goes on with it
+    first = next(stream)
+    print(
+        f"{kind}: ours, the shuffle buffer's fill and the first batch (once per epoch and worker): "
+        f"{time.perf_counter() - wall:.2f} s wall, {time.process_time() - cpu:.2f} s CPU for {len(first['__key__'])}"
+    )
+    lead = {
+        views: DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=args.workers)
+        for views in (1, 2)
+    }
+
+    def lead_run(views: int) -> Iterator[int]:
+        return (len(batch["key"]) for _, batch in zip(range(args.steps), _forever(lead[views]), strict=False))
+
+    return {
+        PLAIN: lambda: (1 for _ in read_samples(data)),
+        PIXELS: lambda: (_decode_jpegs(sample) for sample in read_samples(data)),
+        OURS: lambda: (len(next(stream)["__key__"]) for _ in range(args.steps)),
+        LEAD_BOTH: lambda: lead_run(2),
+        LEAD_ONE: lambda: lead_run(1),
+    }
 
 
 def main() -> None:
@@ -128,57 +154,42 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--workers", type=int, default=0, help="loader workers for ours and the LEAD-style loader")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (collation)")
+    parser.add_argument("--kinds", nargs="+", default=["light", "realistic"], choices=["light", "realistic"])
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     config = tfv6_config()  # paper sizes
+    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     with tempfile.TemporaryDirectory() as tmp:
-        raw, data = Path(tmp) / "raw", Path(tmp) / "data"
-        generate(raw, count=args.routes, frames=args.frames)
-        convert(get_adapter("carla_lead"), raw, data)
-        lead = LeadFrames(raw, SourceTransform("carla", config))
-        check_same_tensors(data, lead)
-        dm = DriveDataModule(
-            train={"carla": SourceSpec([str(data)])},
-            schedule=MixingSchedule.constant({"carla": 1.0}, args.batch_size),
-            steps_per_epoch=args.steps,
-            num_workers=args.workers,
-            config=config,
-        )
-        dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
-        lead_loader = DataLoader(
-            lead, batch_size=args.batch_size, shuffle=True, num_workers=args.workers, collate_fn=collate
-        )
-        runs: dict[str, Callable[[], Iterator[int]]] = {
-            "plain decoding (read_samples, every field)": lambda: (1 for _ in read_samples(data)),
-            "plain decoding + JPEG to pixels": lambda: (_decode_jpegs(sample) for sample in read_samples(data)),
-            f"ours (DriveDataModule, workers={args.workers})": lambda: (
-                len(batch["__key__"]) for batch in dm.train_dataloader()["carla"]
-            ),
-            f"LEAD-style per-file (workers={args.workers})": lambda: (
-                len(batch["__key__"]) for _, batch in zip(range(args.steps), _forever(lead_loader), strict=False)
-            ),
-        }
-        timings: dict[str, list[Timing]] = {name: [] for name in runs}
-        plain, _, ours, per_file = list(runs)
+        runs = {kind: loaders(kind, Path(tmp), args, config) for kind in args.kinds}
+        timings: dict[tuple[str, str], list[Timing]] = {(k, n): [] for k, per in runs.items() for n in per}
         for round_index in range(args.rounds):
-            for name, run in runs.items():
-                timing = timed(run())
-                timings[name].append(timing)
-                print(
-                    f"round {round_index}: {name}: {timing.samples} samples, {timing.rate:.1f} samples/s "
-                    f"({timing.steady_rate:.1f} after the first batch), {timing.cpu / timing.samples * 1e3:.2f} ms "
-                    "CPU/sample"
-                )
+            for kind, per_kind in runs.items():
+                for name, run in per_kind.items():
+                    timing = timed(run())
+                    timings[kind, name].append(timing)
+                    print(
+                        f"round {round_index}, {kind}: {name}: {timing.samples} samples, {timing.rate:.1f} samples/s "
+                        f"({timing.steady_rate:.1f} after the first batch), "
+                        f"{timing.cpu / timing.samples * 1e3:.2f} ms CPU/sample"
+                    )
+        print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
         print(f"median over {args.rounds} rounds (ratios: median of the per-round ratios):")
-        for name, runs_of in timings.items():
-            rate = statistics.median(t.rate for t in runs_of)
-            steady = statistics.median(t.steady_rate for t in runs_of)
-            cpu = statistics.median(t.cpu / t.samples * 1e3 for t in runs_of)
-            print(f"  {name}: {rate:.1f} samples/s ({steady:.1f} after the first batch), {cpu:.2f} ms CPU/sample")
-        for label, attribute in (("start-up included", "rate"), ("after the first batch", "steady_rate")):
-            over_plain = _median_ratio(timings[ours], timings[plain], attribute, "rate")
-            over_lead = _median_ratio(timings[ours], timings[per_file], attribute, attribute)
-            print(f"  ours, {label}: {over_plain:.2f}x plain decoding, {over_lead:.2f}x LEAD-style")
+        for kind in runs:
+            for name in runs[kind]:
+                runs_of = timings[kind, name]
+                rate = statistics.median(t.rate for t in runs_of)
+                steady = statistics.median(t.steady_rate for t in runs_of)
+                cpu = statistics.median(t.cpu / t.samples * 1e3 for t in runs_of)
+                print(f"  {kind}: {name}: {rate:.1f} samples/s ({steady:.1f} after the first batch), {cpu:.2f} ms CPU")
+            ours = timings[kind, OURS]
+            for label, attribute in (("every batch", "rate"), ("after the first batch", "steady_rate")):
+                over_plain = _median_ratio(ours, timings[kind, PLAIN], attribute, "rate")
+                both = _median_ratio(ours, timings[kind, LEAD_BOTH], attribute, attribute)
+                one = _median_ratio(ours, timings[kind, LEAD_ONE], attribute, attribute)
+                print(
+                    f"  {kind}, ours, {label}: {over_plain:.2f}x plain decoding, {both:.2f}x LEAD-style (both rigs), "
+                    f"{one:.2f}x LEAD-style (one rig)"
+                )
 
 
 def _decode_jpegs(sample: dict[str, Any]) -> int:

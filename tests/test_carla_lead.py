@@ -475,3 +475,27 @@ def test_a_mosaic_stored_uncropped_keeps_its_principal_row(tmp_path: Path) -> No
     assert cameras[0]["height"] == 280 and cameras[0]["K"][1][2] == 140.0
     with pytest.raises(LeadFormatError, match=r"0000\.jpg.*1920x280.*CARLA_LEADERBOARD2_3CAMERAS .*stores 1152x384"):
         mosaic_height(full, "CARLA_LEADERBOARD2_3CAMERAS", tmp_path / "0000.jpg")
+
+
+def test_realistic_frames_are_as_heavy_as_leads_and_convert(tmp_path: Path) -> None:
+    """``realistic=True``: 5 sweeps x 10,000 points plus 10 steps x 300 radar returns (duplicated 5x within 32 m),
+    65 actors with futures, every planner LEAD saves with its GNSS twin; the adapter converts it like a light frame."""
+    synth.generate(tmp_path, count=1, frames=1, realistic=True)
+    folder = next((tmp_path / "data").glob("*/*"))
+    las = laspy.read(str(folder / "lidar" / "0000.laz"))
+    per_step = np.bincount(np.asarray(las["time"]), minlength=10)  # LiDAR sweeps 0..4 and radar steps 0..9 share it
+    radar = per_step[5:]  # steps 5..9 hold radar returns only: 300 each, plus up to 4 duplicates within 32 m
+    assert len(per_step) == 10 and ((radar >= 300) & (radar <= 1_500)).all()
+    assert ((per_step[:5] >= 9_500 + 300) & (per_step[:5] <= 10_000 + 1_500)).all()  # a sweep + a radar step each
+    assert 55_000 < len(las.x) < 70_000
+    boxes = read_pickle(folder / "bboxes" / "0000.pkl")
+    assert len(boxes) == 1 + 5 + sum(count for *_, count in synth.STREET)
+    assert sum(box.get("future_positions") is not None for box in boxes) >= 40
+    meta = read_pickle(folder / "metas" / "0000.pkl")
+    for distance in (3.0, 3.25, 7.0, 10.0):
+        assert f"next_target_points_{distance}" in meta and f"next_gps_target_points_{distance}" in meta
+    with np.load(folder / "radar" / "0000.npz") as radar:
+        assert sum(len(radar[f"radar{i}"]) for i in range(1, 5)) == 4 * synth.RADAR_POINTS_PER_SENSOR
+    convert(CarlaLeadAdapter(), tmp_path, tmp_path / "out")
+    samples = list(read_samples(tmp_path / "out"))
+    assert len(samples) == 1 and len(samples[0]["lidar"]) == len(las.x)  # every point kept

@@ -76,6 +76,22 @@ def test_raster_model_needs_lidar():
         TFv6(config)(batch, "carla")
 
 
+def test_uint8_lidar_counts_give_the_outputs_of_the_float_raster():
+    """The loader ships hit counts (uint8, 0..5); the backbone divides by 5 and must see LEAD's float32 raster."""
+    config = tfv6_config(**TINY)
+    model = TFv6(config).eval()
+    batch = random_batch(config, 2, "carla")
+    counts = torch.randint(0, 6, batch["lidar_bev"].shape, generator=torch.Generator().manual_seed(0))
+    counts = counts.to(torch.uint8)
+    floats = torch.from_numpy(counts.numpy().astype("float64") / 5.0).float()  # LEAD: float32(min(k, 5) / 5)
+    with torch.no_grad():
+        out_counts = model(dict(batch, lidar_bev=counts), "carla")
+        out_floats = model(dict(batch, lidar_bev=floats), "carla")
+    assert counts.max() == 5 and set(out_counts) == set(out_floats)
+    for name, value in out_floats.items():
+        assert torch.equal(out_counts[name], value), name
+
+
 def test_ltfv6_reads_no_lidar_and_latent_option_learns_its_input():
     config = ltfv6_config(**TINY)
     assert "lidar_bev" not in random_batch(config, 1, "navsim")

@@ -6,6 +6,7 @@ import shutil
 from dataclasses import replace
 
 import lightning as L
+import numpy as np
 import pytest
 import torch
 from batches import random_batch
@@ -250,9 +251,10 @@ def test_fit_normalises_target_points_by_training_statistics_and_predict_keeps_t
     [((384, 1152), {}), ((128, 384), {}), ((128, 384), {"camera_tiles": 3, "fov_fraction": 0.5})],
 )
 def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tmp_path, image_size, camera):
-    """The loader's int16 labels and 1/4-size depth give the losses of the old contract (int64 labels, depth
-    resampled to the image on the CPU: the reference definition in test_transform_speed) on generated frames."""
-    from test_transform_speed import reference_camera
+    """The loader's uint8 labels (255 = ignore) and 1/4-size depth give the losses of the old contract (int64 labels
+    with -1 = ignore, depth resampled to the image on the CPU: the reference definitions in test_transform_speed) on
+    generated frames, one of them without labels (collation's filler)."""
+    from test_transform_speed import reference_bev_labels, reference_camera
 
     from lead_s2r.data.transforms import SourceTransform, collate
     from lead_s2r.registry import get_adapter
@@ -263,12 +265,19 @@ def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tm
     samples = [s for log in adapter.list_logs(tmp_path) for s in adapter.iter_samples(log)]
     config = tfv6_config(**{**TINY, "image_size": image_size, **camera})
     transform = SourceTransform("carla", config)
-    lean = collate([transform(s) for s in samples])
-    old = dict(lean, bev_semantic=lean["bev_semantic"].long())
-    for name in ("semantic", "depth"):
-        old[name] = torch.stack([torch.from_numpy(reference_camera(transform, s)[name]) for s in samples])
+    unlabelled = {k: v for k, v in samples[1].items() if k not in ("bev_semantic", "semantic_carla_mosaic")}
+    lean = collate([transform(samples[0]), transform(unlabelled)])
+    bev = reference_bev_labels(samples[0]["bev_semantic"], samples[0]["meta"]["bev"]["pixel_to_ego"], config.bev)
+    semantic = reference_camera(transform, samples[0])["semantic"]
+    old = dict(
+        lean,
+        bev_semantic=torch.from_numpy(np.stack([bev, np.full_like(bev, -1)])),
+        semantic=torch.from_numpy(np.stack([semantic, np.full_like(semantic, -1)])),
+        depth=torch.stack([torch.from_numpy(reference_camera(transform, s)["depth"]) for s in samples]),
+    )
     assert lean["depth"].shape[-2:] == (96, 288) and old["depth"].shape[-2:] == image_size
-    assert lean["semantic"].dtype == lean["bev_semantic"].dtype == torch.int16 and old["semantic"].dtype == torch.int64
+    assert lean["semantic"].dtype == lean["bev_semantic"].dtype == torch.uint8 and old["semantic"].dtype == torch.int64
+    assert (lean["semantic"][1] == 255).all() and (lean["bev_semantic"][1] == 255).all()
 
     module = DrivingModule(TFv6(config))
     torch.manual_seed(0)

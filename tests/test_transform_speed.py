@@ -2,7 +2,9 @@
 
 Each reference is the plain form of what the transform computes (one Gaussian over the whole grid per box, one
 nearest-pixel lookup per cell, a full-size BGR decode resampled by the layout). Outputs must be bit-identical,
-except an image decoded at reduced JPEG size, which stays within the stated tolerance.
+except an image decoded at reduced JPEG size, which stays within the stated tolerance. Where the batch contract is
+leaner than the reference (uint8 LiDAR counts, uint8 class maps with 255 = ignore), the comparison goes through the
+functions the model and the losses apply on the device (``lidar_input``, ``class_ids``).
 """
 
 import math
@@ -15,8 +17,6 @@ import torch
 
 from lead_s2r.data.transforms import (
     CENTERNET_STRIDE,
-    IGNORE_VALUE,
-    LIDAR_HITS_MAX,
     MAX_BOXES,
     SourceTransform,
     Tile,
@@ -30,7 +30,7 @@ from lead_s2r.data.transforms import (
 )
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
-from lead_s2r.models.inputs import on_image_grid
+from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import BoxClass
 from lead_s2r.synthetic.carla_lead import generate
@@ -102,7 +102,7 @@ def reference_camera(transform: SourceTransform, sample: dict) -> dict[str, np.n
     camera = transform.cameras[0]
     if f"semantic_{camera}" in sample:
         semantic = sample[f"semantic_{camera}"].astype(np.int16)
-        out["semantic"] = render(layout, [semantic], cv2.INTER_NEAREST, IGNORE_VALUE["semantic"]).astype(np.int64)
+        out["semantic"] = render(layout, [semantic], cv2.INTER_NEAREST, -1).astype(np.int64)
     if f"depth_{camera}" in sample:
         metres = sample[f"depth_{camera}"].astype(np.float32) / 255.0 * float(sample["meta"]["depth"]["max_m"])
         out["depth"] = render(layout, [metres], cv2.INTER_LINEAR, 0.0)
@@ -173,8 +173,8 @@ def test_bev_labels_equal_the_per_cell_lookup(pixel_to_ego: list, grid: BEVGrid)
     labels = np.random.default_rng(1).integers(0, 11, (256, 200), dtype=np.uint8)
     expected = reference_bev_labels(labels, pixel_to_ego, grid)
     got = bev_labels(labels, {"pixel_to_ego": pixel_to_ego}, grid)
-    assert expected.dtype == np.int64 and got.dtype == np.int16  # widened by the loss, on the device
-    np.testing.assert_array_equal(got, expected)
+    assert expected.dtype == np.int64 and got.dtype == np.uint8  # widened by the loss, on the device
+    np.testing.assert_array_equal(class_ids(torch.from_numpy(got)).numpy(), expected)
     assert (expected == -1).any() or grid is NAVSIM_BEV  # the raster does not cover every grid
 
 
@@ -182,7 +182,7 @@ def test_bev_labels_follow_each_samples_raster_not_a_cached_one() -> None:
     spec = {"pixel_to_ego": [[0.0, -0.5, 65.139], [-0.5, 0.0, 63.75]]}
     first, second = np.zeros((256, 256), np.uint8), np.full((256, 256), 7, np.uint8)
     bev_labels(first, spec, CARLA_BEV)
-    assert set(np.unique(bev_labels(second, spec, CARLA_BEV))) <= {-1, 7}
+    assert set(np.unique(bev_labels(second, spec, CARLA_BEV))) <= {IGNORE_CLASS, 7}
 
 
 def test_lidar_raster_equals_the_saturated_histogram() -> None:
@@ -190,8 +190,18 @@ def test_lidar_raster_equals_the_saturated_histogram() -> None:
     points = np.vstack([rng.uniform([-40, -50, -2, 0], [70, 50, 3, 1], (5000, 4)), np.tile([[3.1, 2.2, 0, 0]], (9, 1))])
     expected = reference_lidar(points.astype(np.float32), CARLA_BEV)
     got = rasterize_lidar(points.astype(np.float32), CARLA_BEV)
-    assert got.dtype == np.float32 and got.max() == 1.0
-    np.testing.assert_array_equal(got, expected)
+    assert got.dtype == np.uint8 and got.max() == LIDAR_HITS_MAX  # hit counts, scaled by the backbone
+    scaled = lidar_input(torch.from_numpy(got), torch.float32)
+    assert expected.dtype == np.float32 and expected.max() == 1.0
+    np.testing.assert_array_equal(scaled.numpy(), expected)  # bit-identical to LEAD's float32 min(k, 5) / 5
+
+
+def test_lidar_counts_scale_to_the_float32_levels_of_the_old_raster() -> None:
+    counts = torch.arange(LIDAR_HITS_MAX + 1, dtype=torch.uint8)
+    old = (np.minimum(np.arange(9), 5) / 5.0).astype(np.float32)[: LIDAR_HITS_MAX + 1]
+    np.testing.assert_array_equal(lidar_input(counts, torch.float32).numpy(), old)
+    np.testing.assert_array_equal(old, np.float32([0.0, 0.2, 0.4, 0.6, 0.8, 1.0]))
+    assert lidar_input(torch.from_numpy(old), torch.float32).equal(torch.from_numpy(old))  # floats pass as they are
 
 
 def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples: list[dict]) -> None:
@@ -200,9 +210,10 @@ def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples
         expected = reference_camera(transform, sample)
         got = transform(sample)
         assert set(expected) == {"rgb", "semantic", "depth"}
-        assert got["rgb"].dtype == torch.uint8 and got["semantic"].dtype == torch.int16
+        assert got["rgb"].dtype == got["semantic"].dtype == got["lidar_bev"].dtype == torch.uint8
         assert got["depth"].shape == (96, 288)  # as stored (1/4): the loss resizes it on the device
         got["depth"] = on_image_grid(got["depth"][None], (384, 1152))[0]
+        got["semantic"] = class_ids(got["semantic"])
         for name, value in expected.items():
             assert got[name].is_contiguous(), name
             np.testing.assert_allclose(got[name].numpy(), value, rtol=1e-6, atol=1e-5, err_msg=name)
@@ -215,6 +226,8 @@ def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> 
     with pytest.warns(UserWarning, match="letterboxed"):
         got = transform(carla_samples[0])
     expected = reference_camera(transform, carla_samples[0])
+    got["semantic"] = class_ids(got["semantic"])
+    assert (expected["semantic"] == -1).any()  # the letterbox's padding carries no label
     for name, value in expected.items():
         np.testing.assert_array_equal(got[name].numpy(), value, err_msg=name)
 
@@ -280,6 +293,8 @@ def test_labels_of_a_reduced_decode_follow_the_full_size_layout(image_size: tupl
     assert jpeg_reduction(layout)[0] == 4
     got = transform.perspective_labels(sample, "carla", layout)
     expected = reference_camera(transform, sample)
+    got["semantic"] = class_ids(got["semantic"])
+    assert (expected["semantic"] == -1).any() == (image_size == (200, 480))  # letterbox padding: no label
     for name in ("semantic", "depth"):
         np.testing.assert_array_equal(got[name].numpy(), expected[name], err_msg=name)
 

@@ -52,8 +52,8 @@ def test_image_is_rgb_at_the_configured_size():
 def test_lidar_cells_follow_x_along_rows_and_y_along_columns():
     raster = rasterize_lidar(np.array([[10.0, 5.0, 0, 0]] * 7 + [[-31.9, -39.9, 0, 0], [100.0, 0, 0, 0]]), GRID)
     assert raster.shape == (384, 320)
-    assert raster[(10 + 32) * 4, (5 + 40) * 4] == 1.0  # saturated at 5 hits
-    assert raster[0, 0] == 0.2 and raster.sum() == 1.2  # the out-of-range point is dropped
+    assert raster.dtype == np.uint8 and raster[(10 + 32) * 4, (5 + 40) * 4] == 5  # 7 hits, saturated at 5
+    assert raster[0, 0] == 1 and raster.sum() == 6  # the out-of-range point is dropped
 
 
 def test_bev_labels_follow_the_pixel_to_ego_map():
@@ -67,7 +67,7 @@ def test_bev_labels_follow_the_pixel_to_ego_map():
     x = GRID.x_min + (hits[:, 0] + 0.5) / 4
     y = GRID.y_min + (hits[:, 1] + 0.5) / 4
     assert np.all(np.abs(x - 10) <= 0.25) and np.all(np.abs(y - 5) <= 0.25)
-    assert out[-1, 0] == -1 and out[0, 0] == -1  # x = 64 m and x = -32 m lie outside the raster
+    assert out[-1, 0] == 255 and out[0, 0] == 255  # x = 64 m and x = -32 m lie outside the raster: no label
     assert out[32 * 4, 40 * 4] == 0  # the ego cell is inside
 
 
@@ -101,11 +101,31 @@ def test_collate_masks_labels_a_sample_lacks():
     assert batch["__key__"] == ["toy_log000_000000", "toy_log000_000001"]
 
 
+class _CollatedInWorker(torch.utils.data.Dataset):
+    """Each item is a batch collated inside the dataloader worker, with whether its tensors were born shared."""
+
+    def __len__(self) -> int:
+        return 1
+
+    def __getitem__(self, index: int) -> dict:
+        samples = [{"__key__": f"k{i}", "x": torch.full((2, 3), i, dtype=torch.uint8)} for i in range(4)]
+        batch = collate(samples)
+        return {"x": batch["x"], "born_shared": batch["x"].is_shared(), "keys": batch["__key__"]}
+
+
+def test_collate_stacks_into_shared_memory_in_a_worker_and_not_in_the_main_process():
+    loader = torch.utils.data.DataLoader(_CollatedInWorker(), batch_size=None, num_workers=1)
+    (got,) = list(loader)
+    assert got["born_shared"] is True  # no second copy into shared memory to send it
+    assert got["keys"] == ["k0", "k1", "k2", "k3"] and got["x"][:, 0, 0].tolist() == [0, 1, 2, 3]
+    assert not collate([{"x": torch.zeros(2)}, {"x": torch.ones(2)}])["x"].is_shared()
+
+
 def test_collate_brings_labels_of_rigs_of_different_sizes_onto_the_image_grid():
     rng = np.random.default_rng(0)
     small_depth = rng.uniform(0, 50, (2, 3)).astype(np.float32)  # a rig whose labels are stored at half size
-    small_ids = np.array([[0, 1, 2], [3, -1, 5]], np.int16)
-    full_depth, full_ids = rng.uniform(0, 50, (4, 6)).astype(np.float32), np.full((4, 6), 7, np.int16)
+    small_ids = np.array([[0, 1, 2], [3, 255, 5]], np.uint8)  # 255: no label
+    full_depth, full_ids = rng.uniform(0, 50, (4, 6)).astype(np.float32), np.full((4, 6), 7, np.uint8)
     rgb = torch.zeros(3, 4, 6, dtype=torch.uint8)
     batch = collate(
         [
@@ -113,7 +133,7 @@ def test_collate_brings_labels_of_rigs_of_different_sizes_onto_the_image_grid():
             {"rgb": rgb, "depth": torch.from_numpy(full_depth), "semantic": torch.from_numpy(full_ids)},
         ]
     )
-    assert batch["depth"].shape == batch["semantic"].shape == (2, 4, 6) and batch["semantic"].dtype == torch.int16
+    assert batch["depth"].shape == batch["semantic"].shape == (2, 4, 6) and batch["semantic"].dtype == torch.uint8
     expected = cv2.resize(small_depth, (6, 4), interpolation=cv2.INTER_LINEAR)  # what the loader's render does
     np.testing.assert_allclose(batch["depth"][0].numpy(), expected, rtol=1e-6)
     np.testing.assert_array_equal(batch["semantic"][0].numpy(), small_ids.repeat(2, 0).repeat(2, 1))
@@ -210,7 +230,7 @@ def test_a_strip_of_another_aspect_is_letterboxed_with_a_warning_and_labels_foll
     white = (rgb > 200).all(axis=0)
     assert square_extent(white) == (8, 8)  # a square stays a square (squashed: 8 high, 16 wide)
     semantic = out["semantic"].numpy()
-    assert (semantic[:, :48] == -1).all() and (semantic[:, 144:] == -1).all()
+    assert (semantic[:, :48] == 255).all() and (semantic[:, 144:] == 255).all()  # no label on the pillars
     np.testing.assert_array_equal(semantic == 3, white)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -238,7 +258,7 @@ def test_a_band_beyond_the_camera_is_padded():
     layout = camera_layout((((32, 96), (Tile(0, 96, 16.0, 16.0),)),), (48, 96), 2 * math.degrees(math.atan(1.5)))
     assert layout.bands == ((Band(0, 96, -8, 40),),) and not layout.letterboxed
     out = mosaic_transform(image_size=(48, 96), vertical_fov_deg=2 * math.degrees(math.atan(1.5)))(mosaic_sample())
-    assert (out["rgb"].numpy()[:, :8] == 0).all() and (out["semantic"].numpy()[:8] == -1).all()
+    assert (out["rgb"].numpy()[:, :8] == 0).all() and (out["semantic"].numpy()[:8] == 255).all()
     assert (out["rgb"].numpy()[:, 8 + 2] > 200).any()  # the red marker row moved down by the padding
 
 

@@ -24,9 +24,10 @@ Every other output is bit-identical to the straightforward definitions kept in t
 left at its stored size, see below) equal to float32 rounding once :func:`~lead_s2r.models.inputs.on_image_grid`
 has put it on the image's grid.
 
-Tensors are lean (the loader builds and stacks every byte on the CPU): class maps int16, the image uint8, and a
-depth or semantic label smaller than the image under a plain resize (:attr:`CameraLayout.whole`) is not upsampled
-here; the loss does it on the device.
+Tensors are lean (the loader builds and stacks every byte on the CPU): the image uint8, the LiDAR raster uint8 hit
+counts, class maps the stored uint8 ids (:data:`~lead_s2r.models.inputs.IGNORE_CLASS` where there is no label), and
+a depth or semantic label smaller than the image under a plain resize (:attr:`CameraLayout.whole`) is not upsampled
+here; the model and the losses scale, widen and resize them on the device.
 """
 
 import math
@@ -39,10 +40,11 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
+from torch.utils.data import default_collate
 
 from lead_s2r.geometry import raster_lookup, resample, rotate
 from lead_s2r.models.config import BEVGrid, TFv6Config
-from lead_s2r.models.inputs import on_image_grid
+from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, on_image_grid
 from lead_s2r.schema import BoxClass, command4
 
 #: Radar points kept per sample (LEAD: 4 sensors x 75).
@@ -53,8 +55,6 @@ MAX_BOXES = 64
 MAX_RADAR_TARGETS = 20
 #: A radar point counts as a hit on a box up to this far outside its footprint, metres.
 RADAR_HIT_MARGIN_M = 0.5
-#: LiDAR histogram saturation (LEAD's ``rasterize_lidar``: clip at 5 hits per cell, scale to [0, 1]).
-LIDAR_HITS_MAX = 5.0
 #: Route checkpoints start this far ahead, then come every metre (LEAD's ``smooth_path``).
 ROUTE_START_M = 2.5
 CENTERNET_STRIDE = 4
@@ -431,7 +431,8 @@ class SourceTransform:
         return out
 
     def perspective_labels(self, sample: dict[str, Any], space: str, layout: CameraLayout) -> dict[str, torch.Tensor]:
-        """Depth (float32 metres, 0 = no label) and semantic ids (int16, -1 = ignore) of the single input camera,
+        """Depth (float32 metres, 0 = no label) and semantic ids (the stored uint8, :data:`IGNORE_CLASS` = ignore) of
+        the single input camera,
         laid out on the input image's pixel grid exactly as the image is, except that a label smaller than the image
         under a plain resize (:attr:`CameraLayout.whole`) stays at its own resolution: the loss resizes it on the
         device (:func:`~lead_s2r.models.inputs.on_image_grid`), as :func:`render` would have."""
@@ -444,9 +445,8 @@ class SourceTransform:
             out["depth"] = torch.from_numpy(_label_on_layout(layout, metres, cv2.INTER_LINEAR, 0.0))
         semantic = sample.get(f"semantic_{camera}")
         if semantic is not None and space in self.config.semantic_classes:
-            ids = semantic.astype(np.int16)  # signed, for the -1 of padding and of collation's filler
             out["semantic"] = torch.from_numpy(
-                _label_on_layout(layout, ids, cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
+                _label_on_layout(layout, semantic, cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
             )
         return out
 
@@ -474,20 +474,17 @@ def bev_cell_centres(grid: BEVGrid, stride: int = 1) -> tuple[np.ndarray, np.nda
 
 
 def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
-    """Point histogram on ``grid`` (H along +x, W along +y), saturated at 5 hits: float32 (H, W) in [0, 1]."""
+    """Point histogram on ``grid`` (H along +x, W along +y), saturated at :data:`LIDAR_HITS_MAX` hits: uint8 (H, W)
+    counts, which the backbone scales to LEAD's [0, 1] (:func:`~lead_s2r.models.inputs.lidar_input`)."""
     h, w = grid.shape
     if points is None or not len(points):
-        return np.zeros((h, w), np.float32)
-    rows = np.floor((points[:, 0] - grid.x_min) * grid.pixels_per_meter).astype(np.int64)
-    cols = np.floor((points[:, 1] - grid.y_min) * grid.pixels_per_meter).astype(np.int64)
-    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-    counts = np.bincount(rows[inside] * w + cols[inside], minlength=h * w)
-    np.minimum(counts, len(_LIDAR_LEVELS) - 1, out=counts)
-    return _LIDAR_LEVELS[counts].reshape(h, w)
-
-
-#: Raster value of a cell with k hits: min(k, 5) / 5 as float32, looked up instead of computed per cell.
-_LIDAR_LEVELS = (np.arange(int(LIDAR_HITS_MAX) + 1) / LIDAR_HITS_MAX).astype(np.float32)
+        return np.zeros((h, w), np.uint8)
+    u = (points[:, 0] - grid.x_min) * grid.pixels_per_meter  # fractional row, column
+    v = (points[:, 1] - grid.y_min) * grid.pixels_per_meter
+    inside = (u >= 0) & (u < h) & (v >= 0) & (v < w)  # NaN is outside; inside, truncation is the floor
+    cells = u[inside].astype(np.int64) * w + v[inside].astype(np.int64)
+    counts = np.bincount(cells, minlength=h * w)
+    return np.minimum(counts, LIDAR_HITS_MAX).astype(np.uint8).reshape(h, w)
 
 
 def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) -> dict[str, torch.Tensor]:
@@ -536,15 +533,16 @@ def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
 
 
 def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
-    """Class ids (int16) of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; -1 outside it.
+    """Class ids (uint8) of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; :data:`IGNORE_CLASS`
+    outside it.
 
     The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
     (:func:`bev_gather_index`) and each sample is one gather."""
     pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
     index = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
-    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.int16)
+    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.uint8)
     values[:-1] = labels.reshape(-1)
-    values[-1] = -1  # where the index points for cells outside the raster
+    values[-1] = IGNORE_CLASS  # where the index points for cells outside the raster
     return values[index]
 
 
@@ -618,7 +616,7 @@ def _draw_gaussian(heatmap: np.ndarray, row: int, col: int, denominator: float) 
 
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
-IGNORE_VALUE = {"bev_semantic": -1, "semantic": -1, "box_heatmap": -1}
+IGNORE_VALUE = {"bev_semantic": IGNORE_CLASS, "semantic": IGNORE_CLASS, "box_heatmap": -1}
 #: Labels on the input image's pixel grid, possibly left at their stored (smaller) size: see :func:`on_image_grid`.
 IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 
@@ -627,8 +625,10 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
 
     Identity entries (``__key__``, ``__dataset__``) become lists. The filler is masked out by construction:
-    validity masks are False, class maps -1, depth 0. Perspective labels left at their stored size by rigs of
-    different sizes (one source, several camera rigs) are brought onto the image's grid here, as the loss would.
+    validity masks are False, class maps :data:`IGNORE_CLASS`, depth 0. Perspective labels left at their stored size
+    by rigs of different sizes (one source, several camera rigs) are brought onto the image's grid here, as the loss
+    would. In a dataloader worker each tensor is stacked straight into shared memory (torch's ``default_collate``),
+    not into private memory that the worker then copies into shared memory to send the batch.
     """
     names = set().union(*samples)
     batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in names if name.startswith("__")}
@@ -641,7 +641,7 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
         if key in IMAGE_ALIGNED and len({value.shape for value in values}) > 1:  # rigs whose labels differ in size
             size = tuple(batch_image_size(samples))
             values = [on_image_grid(value[None], size)[0] for value in values]
-        batch[key] = torch.stack(values)
+        batch[key] = default_collate(values)  # in a loader worker, stacked straight into shared memory
     return batch
 
 

@@ -10,6 +10,7 @@ from torch import Tensor, nn
 
 from lead_s2r.models.config import TFv6Config
 from lead_s2r.models.fusion import FusionBlock
+from lead_s2r.models.inputs import lidar_input
 
 NUM_STAGES = 4
 
@@ -131,7 +132,7 @@ class TransfuserBackbone(nn.Module):
         if self.config.bev_input == "raster":
             if lidar_bev is None:
                 raise KeyError("TFv6 with bev_input='raster' needs 'lidar_bev' (B, C, Hb, Wb) in the batch")
-            return lidar_bev.to(like.dtype)
+            return lidar_input(lidar_bev, like.dtype)
         constant = self.bev_constant if self.config.bev_input == "coordinates" else self.bev_latent
         return constant.to(like.dtype).expand(batch_size, -1, -1, -1)
 

@@ -6,17 +6,26 @@ the rear axle; BEV arrays follow :class:`~lead_s2r.models.config.BEVGrid` (H alo
 Every ``*_valid`` mask is bool and marks entries that carry a label; invalid entries may hold any finite value.
 
 The contract is lean because the loader builds and stacks every byte of it on the CPU, per sample, beside the GPU:
-images stay uint8 (normalised in the model), class maps are int16 (widened to int64 by the losses, on the device),
+images stay uint8 (normalised in the model); the LiDAR raster is uint8 hit counts saturated at
+:data:`LIDAR_HITS_MAX` (scaled to [0, 1] by the backbone, :func:`lidar_input`); class maps are the stored uint8 ids
+with :data:`IGNORE_CLASS` for "no label" (no widened copy: the losses widen them on the device, :func:`class_ids`);
 and ``depth``/``semantic`` may stay smaller than the image when the image is a plain resize of one camera: the
 loss resizes them onto the image's grid on the device (:func:`on_image_grid`) exactly as the loader
 would have (bilinear / nearest, pixel centres aligned), so a depth stored at 1/4 size is not shipped 16x larger.
+Float rasters and signed class maps (-1 = ignore) are accepted too, so a batch built by hand needs no uint8 coding.
 """
 
 from collections.abc import Mapping
 from typing import Any, TypedDict
 
+import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+#: LiDAR hits per BEV cell at which the raster saturates (LEAD's ``rasterize_lidar``: clip at 5, scale to [0, 1]).
+LIDAR_HITS_MAX = 5
+#: Class id of "no label" in a uint8 class map (no class table uses it: they stop far below 255).
+IGNORE_CLASS = 255
 
 
 class Batch(TypedDict, total=False):
@@ -25,7 +34,7 @@ class Batch(TypedDict, total=False):
     __key__: list[str]  # sample keys, for predictions
     # --- inputs
     rgb: Tensor  # (B, 3, H, W) uint8 (or float in [0, 255]), RGB order; normalised inside the model
-    lidar_bev: Tensor  # (B, C, Hb, Wb) float in [0, 1]: LiDAR point histogram (TFv6 only)
+    lidar_bev: Tensor  # (B, C, Hb, Wb) uint8 hits per cell, 0..LIDAR_HITS_MAX (or float in [0, 1]) (TFv6 only)
     speed: Tensor  # (B,) m/s
     acceleration: Tensor  # (B, 2) m/s^2, [ax, ay] in the ego frame
     command: Tensor  # (B,) int64 in the 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} (schema.command4)
@@ -43,7 +52,7 @@ class Batch(TypedDict, total=False):
     target_speed: Tensor  # (B,) expert target speed, m/s (two-hot encoded over the speed classes by the loss)
     target_speed_valid: Tensor  # (B,)
     # --- perception targets
-    bev_semantic: Tensor  # (B, Hs, Ws) int16 (any integer type) class ids over the BEV grid, -1 = ignore
+    bev_semantic: Tensor  # (B, Hs, Ws) uint8 class ids over the BEV grid, IGNORE_CLASS = ignore (or signed, -1)
     box_heatmap: Tensor  # (B, C, h, w) float CenterNet Gaussian heatmap on the head's grid (stride 4)
     box_index: Tensor  # (B, M) int64 flat index of each box centre cell into h * w
     box_valid: Tensor  # (B, M)
@@ -52,7 +61,7 @@ class Batch(TypedDict, total=False):
     box_yaw: Tensor  # (B, M) radians
     box_velocity: Tensor  # (B, M) m/s
     depth: Tensor  # (B, Hd, Wd) float32 metres, 0 = no label; (Hd, Wd) = (H, W) or smaller (see below)
-    semantic: Tensor  # (B, Hd, Wd) int16 (any integer type) perspective class ids, -1 = ignore
+    semantic: Tensor  # (B, Hd, Wd) uint8 perspective class ids, IGNORE_CLASS = ignore (or signed, -1)
     radar_targets: Tensor  # (B, R, 3) x, y, speed of objects seen by radar
     radar_targets_valid: Tensor  # (B, R)
 
@@ -86,3 +95,20 @@ def on_image_grid(label: Tensor, size: tuple[int, int]) -> Tensor:
     if label.is_floating_point():
         return F.interpolate(label[:, None], size=size, mode="bilinear", align_corners=False)[:, 0]
     return F.interpolate(label[:, None].float(), size=size, mode="nearest")[:, 0].to(label.dtype)
+
+
+def lidar_input(lidar_bev: Tensor, dtype: torch.dtype) -> Tensor:
+    """The LiDAR raster as the network reads it: hit counts / :data:`LIDAR_HITS_MAX` in ``dtype`` (a float raster
+    is taken as already scaled). In float32 this is bit-identical to LEAD's float32 ``min(k, 5) / 5``."""
+    if lidar_bev.is_floating_point():
+        return lidar_bev.to(dtype)
+    return (lidar_bev.float() / LIDAR_HITS_MAX).to(dtype)
+
+
+def class_ids(labels: Tensor) -> Tensor:
+    """A class map as int64 ids with -1 where there is no label: a uint8 map marks it :data:`IGNORE_CLASS`, a
+    signed one -1."""
+    ids = labels.long()
+    if labels.dtype == torch.uint8:
+        ids = ids.masked_fill(labels == IGNORE_CLASS, -1)
+    return ids

@@ -9,6 +9,13 @@ frame, y right), a JPEG camera mosaic at q=30 plus a perturbated-rig twin, 1/4-r
 The mosaic follows the route's camera rig (``dataset_information.target_dataset``, :data:`RIG_MOSAICS`): LEAD's
 3-camera (1152x384, the default), 6-camera (2304x384), single wide camera (1024x384, the top 384 of 512 rows) and
 NAVSIM-matched (1920x270, the top 270 of 280 rows) rigs.
+
+Frames are light by default (five actors, about 700 LiDAR points, two target-point planners), which keeps tests
+fast. ``realistic=True`` writes frames as heavy as LEAD's (for loader benchmarks): a street of about 60 actors
+within the 96 m box radius, each mover with its 2 s future; the LiDAR file holding 5 motion-compensated sweeps of
+non-ground points plus 10 steps of radar returns duplicated 5x within 32 m, as LEAD's expert stacks them (about
+60,000 points, :data:`REALISTIC_LIDAR`); full 75-point radar clouds per sensor; and metas with every planner LEAD
+saves (pop distances 3.00..10.00 m by 0.25, GNSS twins). Where the counts come from: docs/benchmarks.md.
 """
 
 import json
@@ -30,6 +37,8 @@ EGO_FUTURE_STEPS = 60
 OTHER_FUTURE_STEPS = 40
 PAST_STEPS = 60
 TP_DISTANCES = (3.0, 3.25)
+#: LEAD's ``tp_distances``: one route planner per pop distance, each saved with a GNSS twin (realistic frames).
+REALISTIC_TP_DISTANCES = tuple(3.0 + 0.25 * k for k in range(29))
 DEFAULT_TP_DISTANCE = 7.5
 ROUTE_POINTS = 50
 TURN_RADIUS = 10.0
@@ -140,13 +149,14 @@ class _Planner:
         while len(self.points) > 1 and np.hypot(*(self.points[1][:2] - position[:2])) < self.distance:
             self.popped.append((self.points.pop(0), self.commands.pop(0)))
 
-    def state(self, suffix: str) -> dict[str, list]:
+    def state(self, suffix: str, source: str = "") -> dict[str, list]:
+        """The planner's meta keys, e.g. ``next_target_points_3.25``; ``source="_gps"`` names its GNSS twin."""
         last = self.popped[-1:]
         return {
-            f"next_target_points{suffix}": [p.tolist() for p in self.points],
-            f"next_commands{suffix}": list(self.commands),
-            f"previous_target_points{suffix}": [p.tolist() for p, _ in last],
-            f"previous_commands{suffix}": [c for _, c in last],
+            f"next{source}_target_points{suffix}": [p.tolist() for p in self.points],
+            f"next{source}_commands{suffix}": list(self.commands),
+            f"previous{source}_target_points{suffix}": [p.tolist() for p, _ in last],
+            f"previous{source}_commands{suffix}": [c for _, c in last],
         }
 
 
@@ -185,6 +195,32 @@ def make_actors(drive: Drive, rng: np.random.Generator) -> list[Actor]:
         Actor("static", 301, "static.prop.trafficcone01", (0.2, 0.2, 0.4), at(6.0, 2.5), 0.0),
         Actor("traffic_light", 401, "traffic.traffic_light", (0.3, 0.3, 1.5), at(19.0, 3.0), 0.0),
     ]
+
+
+#: Realistic frames: the actors of a busy street, as (class, type_id, extent, lateral offsets from the route in m,
+#: speed range m/s, count). Moving cars use both lanes, parked cars and walkers the kerbs.
+STREET = (
+    ("car", "vehicle.tesla.model3", (2.4, 1.05, 0.75), (-5.25, -1.75, 1.75), (3.0, 10.0), 22),
+    ("car", "vehicle.audi.a2", (1.85, 0.9, 0.77), (-8.0, 8.0), (0.0, 0.0), 12),
+    ("walker", "walker.pedestrian.0001", (0.3, 0.3, 0.9), (-11.0, 11.0), (0.8, 1.6), 12),
+    ("traffic_light", "traffic.traffic_light", (0.3, 0.3, 1.5), (-7.0, 7.0), (0.0, 0.0), 6),
+    ("static", "static.prop.trafficcone01", (0.2, 0.2, 0.4), (-7.5, 7.5), (0.0, 0.0), 8),
+)
+
+
+def make_street(drive: Drive, rng: np.random.Generator) -> list[Actor]:
+    """:data:`STREET`'s actors scattered along the route (realistic frames); ids from 1000."""
+    actors = []
+    for cls, type_id, extent, laterals, (v0, v1), count in STREET:
+        for _ in range(count):
+            pose = drive.path[rng.integers(len(drive.path))]
+            lateral = float(rng.choice(laterals))
+            start = pose + np.array([-np.sin(pose[2]) * lateral, np.cos(pose[2]) * lateral, 0.0])
+            if lateral < 0:  # the oncoming lane and the far kerb face the other way
+                start[2] += np.pi
+            speed = float(rng.uniform(v0, v1))
+            actors.append(Actor(cls, 1000 + len(actors), type_id, extent, start, speed))
+    return actors
 
 
 def _matrix(pose: np.ndarray) -> list[list[float]]:
@@ -309,6 +345,45 @@ def _lidar_points(boxes: list[dict], rng: np.random.Generator) -> tuple[np.ndarr
     return points[keep], np.concatenate(times)[keep].astype(np.uint8)
 
 
+#: Realistic LiDAR files (LEAD's expert: sweeps of the last 5 steps, radar of the last 10 appended as points and
+#: duplicated within 32 m): non-ground returns per sweep, radar returns per step (4 sensors x 1500 points/s / 20 Hz),
+#: duplicates per radar return within the radius.
+REALISTIC_LIDAR = {"sweeps": 5, "per_sweep": 10_000, "radar_steps": 10, "radar_per_step": 300, "duplicates": 5}
+RADAR_DUPLICATE_RADIUS_M = 32.0
+#: Returns per radar sensor and step (1500 points/s at 20 Hz), the size of LEAD's padded radar input per sensor.
+RADAR_POINTS_PER_SENSOR = 75
+
+
+def _dense_lidar_points(boxes: list[dict], speed: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Realistic LiDAR file content (:data:`REALISTIC_LIDAR`): per sweep, a third of the returns on the actors'
+    boxes and the rest on roadside structures 12-38 m either side, shifted by the ego's motion between sweeps; then
+    the radar returns, with their duplicates. Ego frame, inside LEAD's BEV box."""
+    spec, clouds, times = REALISTIC_LIDAR, [], []
+    actors = [box for box in boxes[1:] if abs(box["position"][0]) < 64 and abs(box["position"][1]) < 40]
+    on_boxes = spec["per_sweep"] // 3 // max(len(actors), 1)
+    rest = spec["per_sweep"] - on_boxes * len(actors)
+    for sweep in range(spec["sweeps"]):
+        parts = [
+            rotate(rng.uniform(-1, 1, (on_boxes, 3)) * box["extent"], box["yaw"]) + box["position"] for box in actors
+        ]
+        side = rng.choice([-1.0, 1.0], rest) * rng.uniform(12.0, 38.0, rest)
+        parts.append(np.column_stack([rng.uniform(-31.9, 63.9, rest), side, rng.uniform(0.3, 9.5, rest)]))
+        clouds.append(np.concatenate(parts) + np.array([speed * sweep / FPS, 0.0, 0.0]))  # the ego moved on since
+        times.append(np.full(len(clouds[-1]), sweep))
+    movers = [box for box in actors if box.get("speed", 0.0) > 0] or actors
+    for step in range(spec["radar_steps"]):
+        picks = rng.integers(0, len(movers), spec["radar_per_step"])
+        radar = np.asarray([movers[i]["position"] for i in picks]) + rng.normal(0, 0.3, (len(picks), 3))
+        near = np.hypot(radar[:, 0], radar[:, 1]) < RADAR_DUPLICATE_RADIUS_M
+        radar = np.concatenate([radar, *[radar[near]] * (spec["duplicates"] - 1)])
+        clouds.append(radar)
+        times.append(np.full(len(radar), step))
+    points, time = np.concatenate(clouds), np.concatenate(times)
+    keep = (points[:, 0] > -32) & (points[:, 0] < 64) & (np.abs(points[:, 1]) < 40)
+    keep &= (points[:, 2] > -4) & (points[:, 2] < 10)
+    return points[keep], time[keep].astype(np.uint8)
+
+
 def write_laz(path: Path, points: np.ndarray, time: np.ndarray) -> None:
     """LAS 1.2, point format 0, 0.1 m scale, offset at the minimum, extra uint8 ``time``, LAZ via lazrs."""
     import laspy
@@ -323,17 +398,26 @@ def write_laz(path: Path, points: np.ndarray, time: np.ndarray) -> None:
     las.write(str(path), laz_backend=laspy.LazBackend.Lazrs)
 
 
-def _radar(boxes: list[dict], rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Four float16 (n, 4) radar clouds: x, y, z, radial velocity of hits on the moving boxes, ego frame."""
+def _radar(boxes: list[dict], rng: np.random.Generator, realistic: bool = False) -> dict[str, np.ndarray]:
+    """Four float16 (n, 4) radar clouds: x, y, z, radial velocity of hits on the moving boxes, ego frame; one hit
+    per box, or (``realistic``) :data:`RADAR_POINTS_PER_SENSOR` per sensor, spread over the boxes it faces or, where
+    it faces none, static clutter (kerbs, poles) in its half of the scene."""
     hits = [box for box in boxes[1:] if "num_radar_points" in box]
     out = {}
     for sensor in range(1, 5):
+        ahead = sensor <= 2
+        facing = [box for box in hits if (box["position"][0] >= 0) == ahead]
+        if realistic and facing:
+            facing = [facing[i] for i in rng.integers(0, len(facing), RADAR_POINTS_PER_SENSOR)]
         rows = []
-        for box in hits:
+        for box in facing:
             x, y, z = box["position"]
-            if (x >= 0) == (sensor <= 2):
-                radial = box["speed"] * np.cos(box["yaw"] - np.arctan2(y, x))
-                rows.append([x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z, radial])
+            radial = box["speed"] * np.cos(box["yaw"] - np.arctan2(y, x))
+            rows.append([x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z, radial])
+        if realistic and not facing:
+            n = RADAR_POINTS_PER_SENSOR
+            x = rng.uniform(2.0, 60.0, n) * (1 if ahead else -1)
+            rows = np.column_stack([x, rng.uniform(-30.0, 30.0, n), rng.uniform(0.0, 2.0, n), np.zeros(n)])
         out[f"radar{sensor}"] = np.asarray(rows, np.float16).reshape(-1, 4)
     return out
 
@@ -389,11 +473,16 @@ def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict, 
     }
     for distance, planner in planners.items():
         meta.update(planner.state("" if distance == DEFAULT_TP_DISTANCE else f"_{distance}"))
+        if len(planners) > len(TP_DISTANCES) + 1:  # realistic frames: LEAD saves a GNSS twin of every planner
+            meta.update(planner.state("" if distance == DEFAULT_TP_DISTANCE else f"_{distance}", "_gps"))
     return meta
 
 
-def write_route(root: Path, index: int, frames: int, rng: np.random.Generator, rig: str = DEFAULT_RIG) -> Path:
-    """One route folder with ``frames`` 4 Hz frames and every LEAD sensor folder, cameras of camera rig ``rig``."""
+def write_route(
+    root: Path, index: int, frames: int, rng: np.random.Generator, rig: str = DEFAULT_RIG, realistic: bool = False
+) -> Path:
+    """One route folder with ``frames`` 4 Hz frames and every LEAD sensor folder, cameras of camera rig ``rig``;
+    ``realistic``: frames as heavy as LEAD's (module docstring)."""
     kind = KINDS[index % len(KINDS)]
     town = TOWNS[index % len(TOWNS)]
     route_id = 1000 + index
@@ -416,14 +505,15 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator, r
         (folder / name).mkdir(parents=True, exist_ok=True)
     steps = (frames - 1) * SAVE_FREQ + EGO_FUTURE_STEPS + 1
     drive = make_drive(kind, steps, rng)
-    actors = make_actors(drive, rng)
+    actors = make_actors(drive, rng) + (make_street(drive, rng) if realistic else [])
     translation = float(rng.choice([-1, 1]) * rng.uniform(0.1, 1.0))
     rotation = float(-np.sign(translation) * (5.0 + (abs(translation) - 0.1) / 0.9 * 7.5))
     view = np.array([0.0, translation, np.deg2rad(rotation)])  # the perturbated rig's pose in the ego frame
     plan_s = np.array([s for s, _ in drive.plan])
     plan_points = np.column_stack([drive.path[(plan_s / 0.1).round().astype(int), :2], np.zeros(len(plan_s))])
     commands = [c for _, c in drive.plan]
-    planners = {d: _Planner(plan_points, commands, d) for d in (*TP_DISTANCES, DEFAULT_TP_DISTANCE)}
+    distances = REALISTIC_TP_DISTANCES if realistic else TP_DISTANCES
+    planners = {d: _Planner(plan_points, commands, d) for d in (*distances, DEFAULT_TP_DISTANCE)}
     extras = {
         "town": town,
         "scenario": SCENARIOS[kind],
@@ -452,9 +542,12 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator, r
             cv2.imwrite(str(folder / f"depth{suffix}" / f"{name}.png"), _depth(rig, frame))
         cv2.imwrite(str(folder / "hdmap" / f"{name}.png"), _hdmap(drive, ego))
         cv2.imwrite(str(folder / "hdmap_perturbated" / f"{name}.png"), _hdmap(drive, to_global(view, ego)))
-        points, times = _lidar_points(boxes, rng)
+        if realistic:
+            points, times = _dense_lidar_points(boxes, float(drive.speed[step]), rng)
+        else:
+            points, times = _lidar_points(boxes, rng)
         write_laz(folder / "lidar" / f"{name}.laz", points, times)
-        radar = _radar(boxes, rng)
+        radar = _radar(boxes, rng, realistic)
         np.savez_compressed(folder / "radar" / f"{name}.npz", **radar)
         view_radar = {}
         for key, cloud in radar.items():
@@ -476,13 +569,18 @@ def write_route(root: Path, index: int, frames: int, rng: np.random.Generator, r
 
 
 def generate(
-    out: Path, count: int | None = None, seed: int = 0, frames: int = 16, rigs: tuple[str, ...] = (DEFAULT_RIG,)
+    out: Path,
+    count: int | None = None,
+    seed: int = 0,
+    frames: int = 16,
+    rigs: tuple[str, ...] = (DEFAULT_RIG,),
+    realistic: bool = False,
 ) -> None:
     """Write ``count`` routes (default 3: left turn, right turn, stop) under ``out/data/<Scenario>/<route>/``,
-    cycling through the camera ``rigs`` (names of :data:`RIG_MOSAICS`)."""
+    cycling through the camera ``rigs`` (names of :data:`RIG_MOSAICS`); ``realistic``: frames as heavy as LEAD's."""
     unknown = set(rigs) - set(RIG_MOSAICS)
     if unknown:
         raise ValueError(f"unknown camera rigs {sorted(unknown)}; known: {', '.join(RIG_MOSAICS)}")
     rng = np.random.default_rng(seed)
     for index in range(3 if count is None else count):
-        write_route(Path(out), index, frames, rng, rigs[index % len(rigs)])
+        write_route(Path(out), index, frames, rng, rigs[index % len(rigs)], realistic)

@@ -11,7 +11,7 @@ import torch.nn.functional as F
 from scipy.optimize import linear_sum_assignment
 from torch import Tensor
 
-from lead_s2r.models.inputs import Batch
+from lead_s2r.models.inputs import Batch, class_ids
 
 #: Each task's target key in the batch; a term is computed only where that key is present.
 TASK_TARGETS = {
@@ -91,12 +91,14 @@ def _resize_logits(logits: Tensor, size: tuple[int, int]) -> Tensor:
 
 
 def segmentation_loss(logits: Tensor, labels: Tensor) -> Tensor:
-    """Cross-entropy with logits resized to the label raster, mean over labelled pixels; label -1 is ignored.
+    """Cross-entropy with logits resized to the label raster, mean over labelled pixels; unlabelled ones are ignored.
 
-    Labels come in a narrow integer type (int16) from the loader and are widened here, on the device."""
+    Labels come as the loader's uint8 (255 = ignore, :func:`~lead_s2r.models.inputs.class_ids`) and are widened
+    here, on the device."""
     logits = _resize_logits(logits, tuple(labels.shape[-2:]))
-    ce = F.cross_entropy(logits, labels.long(), ignore_index=-1, reduction="none")
-    return masked_mean(ce, labels >= 0)
+    ids = class_ids(labels)
+    ce = F.cross_entropy(logits, ids, ignore_index=-1, reduction="none")
+    return masked_mean(ce, ids >= 0)
 
 
 def depth_loss(pred: Tensor, depth: Tensor) -> Tensor:
