@@ -47,7 +47,7 @@ from lead_s2r.tables import (
     Run,
     TableSpec,
     collect,
-    layout,
+    format_cell,
     load_spec,
     to_csv,
     to_latex,
@@ -61,7 +61,7 @@ SMOKE = Path(__file__).resolve().parents[1] / "recipes" / "smoke"
 PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
     "carla_lead": (None, {}),
     "navsim": ({"trainval": 12, "test": 4}, {"maps": "maps"}),
-    "wod_e2e": ({"train": 16, "val": 6}, {}),
+    "wod_e2e": ({"train": 48, "val": 24}, {}),
 }
 #: dataset -> the held-out split every row is scored on, and its name in the table.
 EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
@@ -70,7 +70,7 @@ LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
 HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: The quickstart's training length for every smoke twin: (epochs, optimizer steps per epoch).
 STEPS = (4, 15)
-#: What :func:`lead_s2r.tables.layout` writes where the paper has no number.
+#: Where the paper has no number (the blank :func:`lead_s2r.tables.layout` writes too).
 PAPER_BLANK = "–"
 LIGHTNING_LOG = "lightning.log"
 
@@ -102,6 +102,7 @@ MODELS: dict[str, dict[str, str]] = {
 }
 EXPERT = "Expert (logged)"
 UNTRAINED = "untrained"
+BEFORE_TRAINING = "before training"
 TRAINED = "trained"
 
 
@@ -160,7 +161,9 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
     (out / "table").mkdir(exist_ok=True)
     for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
         (out / "table" / f"table4.{suffix}").write_text(render(spec, cells))
-    console.print(table(spec, cells))
+    for grid in tables(spec, cells):
+        console.print(grid)
+    console.print(spec.notes)
     console.print(
         f"Trained {STEPS[0]} x {STEPS[1]} steps on NAVSIM trainval / WOD-E2E train logs, scored on the held-out NAVSIM "
         f"{EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; the paper's numbers are on real data.\n"
@@ -305,11 +308,11 @@ def by_scorer(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def table_rows() -> dict[str, dict[str, str]]:
-    """Row name -> {dataset: the run id whose scores fill that dataset's columns}: the Expert, then every model before
-    and after training (the paper's Table 4 trains one model per benchmark; a row here joins the two)."""
+    """Row name -> {dataset: the run id whose scores fill that dataset's columns}: the Expert, then every model after
+    and before training (the paper's Table 4 trains one model per benchmark; a row here joins the two)."""
     rows = {EXPERT: dict.fromkeys(EVAL_SPLITS, "expert")}
     for model, runs in MODELS.items():
-        for stage, name in ((UNTRAINED, f"{model}, before training"), (TRAINED, model)):
+        for stage, name in ((TRAINED, model), (UNTRAINED, f"{model}, {BEFORE_TRAINING}")):
             rows[name] = {dataset: f"{run}/{stage}" for dataset, run in runs.items()}
     return rows
 
@@ -353,15 +356,32 @@ def table_runs(results: dict[str, Any], out: Path) -> list[Run]:
     return runs
 
 
-def table(spec: TableSpec, cells: list[list[Cell]]) -> Table:
-    """The rows and columns of :func:`lead_s2r.tables.layout` on the console, numbers right-aligned, less the paper
-    columns without a number (the files keep them) so that the table fits a terminal."""
-    header, body = layout(spec, cells)
-    kept = [i for i, name in enumerate(header) if i == 0 or any(row[i] != PAPER_BLANK for row in body)]
-    grid = Table(title=spec.title, caption=spec.notes)
-    grid.add_column(header[0])
-    for i in kept[1:]:
-        grid.add_column(header[i], justify="right")
-    for row in body:
-        grid.add_row(*(row[i] for i in kept))
-    return grid
+def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
+    """The console's view of :func:`table_spec`: one table per dataset with its metrics (the paper's number beside
+    a metric where the paper has one) and short row names, so each fits an 80-column terminal; the files keep
+    Table 4's single layout."""
+    grids = []
+    for dataset, split in EVAL_SPLITS.items():
+        label = LABELS[dataset]
+        columns = [i for i, column in enumerate(spec.columns) if column.key.startswith(f"{dataset}.")]
+        papers = {i for i in columns if any(row.paper[i] is not None for row in spec.rows)}
+        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left")
+        grid.add_column("model")
+        for i in columns:
+            grid.add_column(spec.columns[i].name.removeprefix(f"{label} "), justify="right")
+            if i in papers:
+                grid.add_column("paper", justify="right", style="dim")
+        for row, row_cells in zip(spec.rows, cells, strict=True):
+            numbers = []
+            for i in columns:
+                numbers.append(format_cell(row_cells[i], spec.digits))
+                if i in papers:
+                    numbers.append(PAPER_BLANK if row.paper[i] is None else f"{row.paper[i]:.{spec.digits}f}")
+            grid.add_row(console_name(row.name), *numbers)
+        grids.append(grid)
+    return grids
+
+
+def console_name(row: str) -> str:
+    """A row's name on the console: a model's untrained row sits under its trained one as "before training"."""
+    return f"  {BEFORE_TRAINING}" if row.endswith(f", {BEFORE_TRAINING}") else row
