@@ -6,6 +6,13 @@ JPEGs and calibration, past 16 @ 4 Hz ending at (0, 0) with velocity and acceler
 (absent in test), intents, validation frames with up to 3 rated trajectories (scores 0-10, some -1 or unset,
 some shorter than 20 points), ``timestamp_micros`` = 0 as in the real data, and the scenario-cluster JSON.
 :func:`make_dataset` returns the ground truth that :func:`write_dataset` encodes, so tests can compare.
+
+The quickstart trains and scores on it, which sets two more constraints. The future must follow from what a model
+sees (speed, acceleration and intent; the images are noise), so each segment keeps its acceleration and yaw rate.
+And RFS only means something if the raters behave like Waymo's: one rated frame per validation segment, and among
+its candidates one close to what was driven and mostly rated high, so the logged future scores about 8 (the paper's
+Expert: 8.10) and a model that learned the driving lands in that candidate's trust region. With random labels on
+random offsets, the Expert scored 5.7 and every model sat on the floor of 4.
 """
 
 import json
