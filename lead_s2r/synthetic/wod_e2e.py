@@ -160,10 +160,10 @@ def _candidates(future: np.ndarray, rng: np.random.Generator) -> list[tuple[np.n
 def _preferences(future: np.ndarray, rng: np.random.Generator, variant: int) -> list[tuple[np.ndarray, float | None]]:
     """Rated candidates (:func:`_candidates`) in a random order; ``variant`` puts the awkward cases of the real
     data on the alternatives: a -1 label and a short (11-point) trajectory (issue #985), or a score never set."""
-    (near, near_label), (slower, slower_label), (aside, aside_label) = _candidates(future, rng)
-    rated: list[tuple[np.ndarray, float | None]] = [(near, near_label), (slower, slower_label), (aside, aside_label)]
+    rated: list[tuple[np.ndarray, float | None]] = list(_candidates(future, rng))
+    (slower, slower_label), (aside, _) = rated[1:]
     if variant == 0:
-        rated[1], rated[2] = (slower[:11], slower_label), (aside, -1.0)
+        rated[1:] = [(slower[:11], slower_label), (aside, -1.0)]
     elif variant == 1:
         rated[2] = (aside, None)  # preference_score never set: must not read as the default 0
     return [rated[i] for i in rng.permutation(len(rated))]
