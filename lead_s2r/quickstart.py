@@ -59,7 +59,8 @@ from lead_s2r.training.cli import run_lightning_cli
 
 SMOKE = Path(__file__).resolve().parents[1] / "recipes" / "smoke"
 #: dataset -> (synthetic logs per split, adapter options relative to the raw folder). One distribution per dataset;
-#: enough logs that a model learns something that carries over to the held-out split.
+#: enough logs that a model learns something that carries over to the held-out split. WOD-E2E rates one frame per
+#: validation segment, as the real data does, so RFS is a mean over about as many frames as there are val segments.
 PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
     "carla_lead": (None, {}),
     "navsim": ({"trainval": 12, "test": 4}, {"maps": "maps"}),
