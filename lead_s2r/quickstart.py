@@ -14,7 +14,9 @@ The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken o
 ``init_from`` of a CARLA pre-training), so the two rows differ in nothing else. Lightning talks a lot on the console
 (model summary, tips, deprecation warnings from its dependencies); the quickstart sends all of it to
 ``<out>/lightning.log`` so the console shows the stages and the table. Columns are :data:`METRICS`, one per metric and
-dataset, so a new metric is one line there.
+dataset, so a new metric is one line there. The files under ``<out>/table`` hold Table 4's single layout (every
+column, ours and the paper's); the console splits it into one table per dataset with short row names, because nine
+columns squeezed into an 80-column terminal cut every header and wrap every model name over four lines.
 """
 
 import importlib
@@ -47,7 +49,7 @@ from lead_s2r.tables import (
     Run,
     TableSpec,
     collect,
-    layout,
+    format_cell,
     load_spec,
     to_csv,
     to_latex,
@@ -57,20 +59,29 @@ from lead_s2r.training.cli import run_lightning_cli
 
 SMOKE = Path(__file__).resolve().parents[1] / "recipes" / "smoke"
 #: dataset -> (synthetic logs per split, adapter options relative to the raw folder). One distribution per dataset;
-#: enough logs that a model learns something that carries over to the held-out split.
+#: enough logs that a model learns something that carries over to the held-out split. WOD-E2E rates one frame per
+#: validation segment, as the real data does, so RFS is a mean over about as many frames as there are val segments.
 PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
     "carla_lead": (None, {}),
     "navsim": ({"trainval": 12, "test": 4}, {"maps": "maps"}),
-    "wod_e2e": ({"train": 16, "val": 6}, {}),
+    "wod_e2e": ({"train": 48, "val": 24}, {}),
 }
 #: dataset -> the held-out split every row is scored on, and its name in the table.
 EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
 LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
 #: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
 HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
-#: The quickstart's training length for every smoke twin: (epochs, optimizer steps per epoch).
-STEPS = (4, 15)
-#: What :func:`lead_s2r.tables.layout` writes where the paper has no number.
+#: Training name -> its length in the quickstart: (epochs, optimizer steps per epoch). The Ego MLP's steps cost
+#: next to nothing and it needs a few hundred to fit the WOD-E2E futures; the LTFv6 twins cost most of the run.
+STEPS: dict[str, tuple[int, int]] = {
+    "ego_mlp": (8, 50),
+    "navsim_ltfv6": (4, 15),
+    "navsim_ltfv6_lead": (4, 15),
+    "wod_ltfv6_pretrain": (4, 15),
+    "wod_ltfv6": (6, 25),
+    "wod_ltfv6_lead": (6, 25),
+}
+#: Where the paper has no number (the blank :func:`lead_s2r.tables.layout` writes too).
 PAPER_BLANK = "–"
 LIGHTNING_LOG = "lightning.log"
 
@@ -102,6 +113,7 @@ MODELS: dict[str, dict[str, str]] = {
 }
 EXPERT = "Expert (logged)"
 UNTRAINED = "untrained"
+BEFORE_TRAINING = "before training"
 TRAINED = "trained"
 
 
@@ -160,14 +172,23 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
     (out / "table").mkdir(exist_ok=True)
     for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
         (out / "table" / f"table4.{suffix}").write_text(render(spec, cells))
-    console.print(table(spec, cells))
+    for grid in tables(spec, cells):
+        console.print(grid)
+    console.print(spec.notes)
     console.print(
-        f"Trained {STEPS[0]} x {STEPS[1]} steps on NAVSIM trainval / WOD-E2E train logs, scored on the held-out NAVSIM "
-        f"{EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; the paper's numbers are on real data.\n"
+        f"Trained {steps_range()} optimizer steps on NAVSIM trainval / WOD-E2E train logs, scored on the held-out "
+        f"NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; the paper's numbers are on real "
+        "data.\n"
         f"Table (markdown, LaTeX, CSV): {out / 'table'}; summary: {out / 'summary.json'}; runs (configs, checkpoints, "
         f"predictions, scores): {out / 'runs'}; Lightning's console output: {out / LIGHTNING_LOG}"
     )
     return results
+
+
+def steps_range() -> str:
+    """The fewest to the most optimizer steps a quickstart training takes, as ``60-400``."""
+    totals = sorted(epochs * steps for epochs, steps in STEPS.values())
+    return f"{totals[0]}-{totals[-1]}" if totals[0] != totals[-1] else str(totals[0])
 
 
 def prepare(dataset: str, out: Path, workers: int, console: Console, started: float) -> None:
@@ -213,13 +234,14 @@ def score(predictions: Path, data: Path, dataset: str, out: Path, references: Re
 
 def smoke_config(training: Training, out: Path) -> Path:
     """The training's smoke twin with its ``quickstart/`` paths moved under ``out``, its run folder named after the
-    training, :data:`STEPS` long and, for a run without LEAD, no CARLA data; written to ``out/<name>.yaml``."""
+    training, as long as :data:`STEPS` says and, for a run without LEAD, no CARLA data; written to
+    ``out/<name>.yaml``."""
     recipe = SMOKE / f"{training.recipe}.yaml"
     if not recipe.exists():
         raise FileNotFoundError(f"{recipe} not found: run the quickstart from a source checkout (pip install -e .)")
     config = yaml.safe_load(recipe.read_text().replace("quickstart/", f"{out.as_posix()}/"))
     config["trainer"]["default_root_dir"] = str(out / "runs" / training.name)
-    config["trainer"]["max_epochs"], config["data"]["steps_per_epoch"] = STEPS
+    config["trainer"]["max_epochs"], config["data"]["steps_per_epoch"] = STEPS[training.name]
     if training.without_lead:
         drop_carla(config)
     path = out / f"{training.name}.yaml"
@@ -305,11 +327,11 @@ def by_scorer(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def table_rows() -> dict[str, dict[str, str]]:
-    """Row name -> {dataset: the run id whose scores fill that dataset's columns}: the Expert, then every model before
-    and after training (the paper's Table 4 trains one model per benchmark; a row here joins the two)."""
+    """Row name -> {dataset: the run id whose scores fill that dataset's columns}: the Expert, then every model after
+    and before training (the paper's Table 4 trains one model per benchmark; a row here joins the two)."""
     rows = {EXPERT: dict.fromkeys(EVAL_SPLITS, "expert")}
     for model, runs in MODELS.items():
-        for stage, name in ((UNTRAINED, f"{model}, before training"), (TRAINED, model)):
+        for stage, name in ((TRAINED, model), (UNTRAINED, f"{model}, {BEFORE_TRAINING}")):
             rows[name] = {dataset: f"{run}/{stage}" for dataset, run in runs.items()}
     return rows
 
@@ -327,7 +349,8 @@ def table_spec() -> TableSpec:
     rows = tuple(Row(name, name, paper_numbers(paper, name, columns)) for name in table_rows())
     notes = (
         "One seed, toy models, synthetic data: numbers show that training moves the scores, not what the models can "
-        "do. Before training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS in percent."
+        "do. Before training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS "
+        "in percent, ADE and FDE in metres; paper: the paper's Table 4 (real data)."
     )
     return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=(0,), digits=2, notes=notes)
 
@@ -353,15 +376,32 @@ def table_runs(results: dict[str, Any], out: Path) -> list[Run]:
     return runs
 
 
-def table(spec: TableSpec, cells: list[list[Cell]]) -> Table:
-    """The rows and columns of :func:`lead_s2r.tables.layout` on the console, numbers right-aligned, less the paper
-    columns without a number (the files keep them) so that the table fits a terminal."""
-    header, body = layout(spec, cells)
-    kept = [i for i, name in enumerate(header) if i == 0 or any(row[i] != PAPER_BLANK for row in body)]
-    grid = Table(title=spec.title, caption=spec.notes)
-    grid.add_column(header[0])
-    for i in kept[1:]:
-        grid.add_column(header[i], justify="right")
-    for row in body:
-        grid.add_row(*(row[i] for i in kept))
-    return grid
+def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
+    """The console's view of :func:`table_spec`: one table per dataset with its metrics (the paper's number beside
+    a metric where the paper has one) and short row names, so each fits an 80-column terminal; the files keep
+    Table 4's single layout."""
+    grids = []
+    for dataset, split in EVAL_SPLITS.items():
+        label = LABELS[dataset]
+        columns = [i for i, column in enumerate(spec.columns) if column.key.startswith(f"{dataset}.")]
+        papers = {i for i in columns if any(row.paper[i] is not None for row in spec.rows)}
+        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left")
+        grid.add_column("model")
+        for i in columns:
+            grid.add_column(spec.columns[i].name.removeprefix(f"{label} "), justify="right")
+            if i in papers:
+                grid.add_column("paper", justify="right", style="dim")
+        for row, row_cells in zip(spec.rows, cells, strict=True):
+            numbers = []
+            for i in columns:
+                numbers.append(format_cell(row_cells[i], spec.digits))
+                if i in papers:
+                    numbers.append(PAPER_BLANK if row.paper[i] is None else f"{row.paper[i]:.{spec.digits}f}")
+            grid.add_row(console_name(row.name), *numbers)
+        grids.append(grid)
+    return grids
+
+
+def console_name(row: str) -> str:
+    """A row's name on the console: a model's untrained row sits under its trained one as "before training"."""
+    return f"  {BEFORE_TRAINING}" if row.endswith(f", {BEFORE_TRAINING}") else row

@@ -16,12 +16,12 @@ from lead_s2r.tables import MISSING, collect, to_markdown
 COLUMNS = ["NAVSIM PDMS", "NAVSIM EPDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE", "NAVSIM FDE", "WOD-E2E FDE"]
 ROWS = [
     qs.EXPERT,
-    "Ego MLP, before training",
     "Ego MLP",
-    "LTFv6, before training",
+    "Ego MLP, before training",
     "LTFv6",
-    "LTFv6 + LEAD, before training",
+    "LTFv6, before training",
     "LTFv6 + LEAD",
+    "LTFv6 + LEAD, before training",
 ]
 
 
@@ -35,7 +35,7 @@ def test_without_lead_is_the_lead_twin_minus_its_carla_data(tmp_path):
         lead["trainer"]["default_root_dir"] = without["trainer"]["default_root_dir"]
         assert lead == without  # nothing else differs
         assert without["trainer"]["default_root_dir"] == str(tmp_path / "runs" / name)
-        assert (without["trainer"]["max_epochs"], without["data"]["steps_per_epoch"]) == qs.STEPS
+        assert (without["trainer"]["max_epochs"], without["data"]["steps_per_epoch"]) == qs.STEPS[name]
         assert "quickstart/" not in (tmp_path / f"{name}.yaml").read_text()
 
 
@@ -55,7 +55,7 @@ def test_table_spec_is_table4_over_the_quickstart_rows():
     rfs = COLUMNS.index("WOD-E2E RFS")
     paper = {row.name: row.paper[rfs] for row in spec.rows}
     assert paper == dict(
-        zip(ROWS, [8.10, None, 7.31, None, 7.51, None, 7.76], strict=True)
+        zip(ROWS, [8.10, 7.31, None, 7.51, None, 7.76, None], strict=True)
     )  # recipes/paper/table4.yaml
     assert all(value is None for row in spec.rows for i, value in enumerate(row.paper) if i != rfs)
 
@@ -65,16 +65,17 @@ def _scores(pdms: float, ade: float) -> dict:
     return {"navsim": {**navsim, "ade": {"ade": ade, "fde": 2 * ade}}}
 
 
+RESULTS = {
+    "expert": {**_scores(0.9375, 0.0), "wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 8.0}, "ade": {"ade": 0, "fde": 0}}},
+    "navsim_ltfv6/trained": _scores(0.5, 1.5),
+    "wod_ltfv6/trained": {"wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 6.5}, "ade": {"ade": 1.25, "fde": 3.0}}},
+    "navsim_ltfv6/untrained": _scores(0.0, 9.0),  # its WOD-E2E run is missing
+}
+
+
 def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
-    wod = {"wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 6.5}, "ade": {"ade": 1.25, "fde": 3.0}}}
-    results = {
-        "expert": {**_scores(0.9375, 0.0), "wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 8.0}, "ade": {"ade": 0, "fde": 0}}},
-        "navsim_ltfv6/trained": _scores(0.5, 1.5),
-        "wod_ltfv6/trained": wod,
-        "navsim_ltfv6/untrained": _scores(0.0, 9.0),  # its WOD-E2E run is missing
-    }
     spec = qs.table_spec()
-    lines = to_markdown(spec, collect(spec, qs.table_runs(results, tmp_path))).splitlines()
+    lines = to_markdown(spec, collect(spec, qs.table_runs(RESULTS, tmp_path))).splitlines()
     expert = "| Expert (logged) | 93.75 | – | 46.88 | – | 8.00 | 8.10 | 0.00 | – | 0.00 | – | 0.00 | – | 0.00 | – |"
     assert expert in lines
     assert "| LTFv6 | 50.00 | – | 25.00 | – | 6.50 | 7.51 | 1.50 | – | 1.25 | – | 3.00 | – | 3.00 | – |" in lines
@@ -84,13 +85,35 @@ def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
     assert f"| Ego MLP | {m} | – | {m} | – | {m} | 7.31 |" in "\n".join(lines)
 
 
+def test_console_shows_one_table_per_dataset_within_80_columns(tmp_path):
+    spec = qs.table_spec()
+    console = Console(file=io.StringIO(), width=80)
+    for grid in qs.tables(spec, collect(spec, qs.table_runs(RESULTS, tmp_path))):
+        console.print(grid)
+    lines = console.file.getvalue().splitlines()
+    assert max(len(line) for line in lines) <= 80 and "…" not in console.file.getvalue()
+    rows = [" ".join(line.strip("│┃ ").replace("│", " ").replace("┃", " ").split()) for line in lines]
+    assert "NAVSIM: held-out test logs" in rows and "WOD-E2E: held-out val logs" in rows
+    assert "model PDMS EPDMS ADE FDE" in rows  # the paper has no NAVSIM numbers in recipes/paper/table4.yaml
+    assert "model RFS paper ADE FDE" in rows
+    m = MISSING
+    navsim = ["Expert (logged) 93.75 46.88 0.00 0.00", f"Ego MLP {m} {m} {m} {m}", "LTFv6 50.00 25.00 1.50 3.00"]
+    wod = ["Expert (logged) 8.00 8.10 0.00 0.00", f"Ego MLP {m} 7.31 {m} {m}", "LTFv6 6.50 7.51 1.25 3.00"]
+    before = ["before training 0.00 0.00 9.00 18.00", f"before training {m} – {m} {m}"]
+    for row in navsim + wod + before:
+        assert row in rows
+    assert rows[rows.index(navsim[2]) + 1] == before[0]  # a model's untrained row sits under it
+    assert rows[rows.index(wod[2]) + 1] == before[1]
+    assert all(line.startswith("│   before training ") for line in lines if "before training" in line)
+
+
 @pytest.mark.slow
 def test_quickstart_scores_every_model_before_and_after_training_on_held_out_logs(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI reads it beside its args
-    monkeypatch.setattr(qs, "STEPS", (1, 2))
+    monkeypatch.setattr(qs, "STEPS", dict.fromkeys(qs.STEPS, (1, 2)))
     small = {"navsim": ({"trainval": 2, "test": 1}, {"maps": "maps"}), "wod_e2e": ({"train": 2, "val": 2}, {})}
     monkeypatch.setattr(qs, "PLAN", {**qs.PLAN, **small, "carla_lead": (None, {})})
-    console = Console(file=io.StringIO(), width=250)
+    console = Console(file=io.StringIO(), width=80)
     results = qs.quickstart(tmp_path, workers=1, console=console)
 
     held_out = set()
@@ -117,6 +140,7 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     assert "Total params" in (tmp_path / "lightning.log").read_text()  # the model summary, kept
     markdown = (tmp_path / "table" / "table4.md").read_text()
     for row in ROWS:
-        assert f"| {row} |" in markdown and row in text
+        assert f"| {row} |" in markdown and qs.console_name(row) in text
+    assert max(len(line) for line in text.splitlines()) <= 80
     assert MISSING not in markdown  # every row scored on both datasets
     assert str(tmp_path / "table") in text and "lightning.log" in text
