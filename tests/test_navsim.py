@@ -116,7 +116,7 @@ def test_boxes_and_agent_futures_round_trip(raw: Path, samples: dict) -> None:
     for log_name, frames in raw_frames(raw).items():
         spec = spec_of(log_name)
         poses = synth.ego_states(spec)["poses"]
-        agents = synth.agents_for(poses[0], spec.speed)
+        agents = synth.agents_for(poses[0], spec.speed, spec.accel)
         for current in range(synth.HISTORY - 1, synth.FRAMES - synth.FUTURE):
             sample = samples[frames[current]["token"]]
             tracks = sample["meta"]["extras"]["navsim"]["track_tokens"]
@@ -128,11 +128,11 @@ def test_boxes_and_agent_futures_round_trip(raw: Path, samples: dict) -> None:
                 assert (token in tracks) == seen_now
                 if seen_now:
                     box = sample["boxes"][tracks.index(token)]
-                    centre = np.array(agent.xy) + current * 0.5 * np.array(agent.velocity)
-                    local = to_local(np.r_[centre, agent.yaw], poses[current])
+                    t = current * 0.5
+                    local = to_local(np.r_[agent.centre(t), agent.yaw], poses[current])
                     np.testing.assert_allclose(box[[0, 1, 6]], local, atol=1e-4)
                     np.testing.assert_allclose(box[3:6], agent.size, atol=1e-6)
-                    velocity = to_local(np.r_[agent.velocity, 0.0], np.r_[0.0, 0.0, poses[current, 2]])[:2]
+                    velocity = to_local(np.r_[agent.velocity_at(t), 0.0], np.r_[0.0, 0.0, poses[current, 2]])[:2]
                     np.testing.assert_allclose(box[7:9], velocity, atol=1e-4)
                     assert box[9] == classes[agent.name]
                 row = tracks.index(token) if seen_now else _later_row(future, agent)
@@ -140,8 +140,7 @@ def test_boxes_and_agent_futures_round_trip(raw: Path, samples: dict) -> None:
                     frame = current + 1 + k
                     assert future["valid"][row, k] == (agent.first <= frame <= agent.last)
                     if future["valid"][row, k]:
-                        centre = np.array(agent.xy) + frame * 0.5 * np.array(agent.velocity)
-                        expected = to_local(np.r_[centre, agent.yaw], poses[current])
+                        expected = to_local(np.r_[agent.centre(frame * 0.5), agent.yaw], poses[current])
                         np.testing.assert_allclose(future["poses"][row, k], expected, atol=1e-3)
             np.testing.assert_allclose(future["t"], np.arange(1, synth.FUTURE + 1) * 0.5)
             assert int(future["num_boxes"]) == len(tracks)
@@ -203,7 +202,7 @@ def test_red_light_polygon_only_while_red(samples: dict) -> None:
         for k in range(len(offsets) - 1):
             red = set(scoring["red_light_ids"][offsets[k] : offsets[k + 1]].tolist())
             frame = sample["meta"]["frame_idx"] + k
-            assert (left_turn in red) == (frame < 10)
+            assert (left_turn in red) == (frame < synth.GREEN_FRAME)
 
 
 def test_lane_connectivity_and_attributes_round_trip(samples: dict) -> None:
@@ -332,10 +331,17 @@ def test_splits_deal_one_sequence_of_logs_into_split_folders(tmp_path: Path) -> 
 def test_logs_past_the_first_three_are_drawn_from_their_ranges_and_stay_on_the_route() -> None:
     specs = synth.log_specs(30, seed=1)
     assert specs[:3] == list(synth.LOGS) and len({s.name for s in specs}) == 30
-    drawn = specs[3:]
-    assert all(3.0 <= s.speed <= 9.0 and -0.2 <= s.accel <= 0.4 for s in drawn)
-    assert min(s.speed for s in drawn) < 4.0 and max(s.speed for s in drawn) > 8.0  # spans the range, not copies
-    assert synth.log_specs(30, seed=1) == specs and synth.log_specs(30, seed=2)[3:] != drawn
     t_end = (synth.FRAMES - 1) * synth.DT_US / 1e6
+    for i, spec in enumerate(specs[3:], start=3):
+        ranges, base = synth.RANGES[i % 3], synth.LOGS[i % 3]
+        assert spec.lanes == base.lanes and spec.command == base.command
+        assert ranges.speed[0] <= spec.speed <= ranges.speed[1] and ranges.accel[0] <= spec.accel <= ranges.accel[1]
+    speeds = [s.speed for s in specs[3::3]]
+    assert min(speeds) < 7.0 and max(speeds) > 9.5  # spans the cruise range, not copies
+    assert synth.log_specs(30, seed=1) == specs and synth.log_specs(30, seed=2)[3:] != specs[3:]
     for spec in specs:
         assert spec.start + spec.speed * t_end + 0.5 * spec.accel * t_end**2 < synth.route_line(spec.lanes).length
+        assert spec.speed + spec.accel * t_end <= 13.4  # the roads' speed limit
+        if synth.LEFT_TURN in spec.lanes:  # the front bumper reaches the left-turn connector once it is green
+            entry = (synth_map.JUNCTION_X - synth.EGO_FRONT - spec.start) / spec.speed
+            assert synth.GREEN_FRAME * synth.DT_US / 1e6 < entry < 7.5 and spec.speed <= 6.5
