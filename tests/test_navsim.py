@@ -19,6 +19,7 @@ from lead_s2r.geometry import to_local
 from lead_s2r.schema import BevClassNavsim, BoxClass, Command, MapKind
 from lead_s2r.shards import load_manifest, read_samples
 from lead_s2r.synthetic import navsim as synth
+from lead_s2r.synthetic import navsim_camera as synth_camera
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r_adapters.navsim import NavsimAdapter, NavsimFormatError, jpeg_size, load_log, quaternion_yaw, read_pcd
 
@@ -173,6 +174,21 @@ def test_cam_to_ego_projects_object_on_the_right_into_the_right_half(raw: Path, 
     in_camera = np.linalg.inv(camera["cam_to_ego"]) @ corner
     u, v, w = np.asarray(camera["K"]) @ in_camera[:3]
     assert w > 0 and camera["width"] / 2 < u / w < camera["width"] and 0 < v / w < camera["height"]
+
+
+def test_front_camera_shows_the_lead_car_where_its_calibration_projects_it(raw: Path, samples: dict) -> None:
+    sample = samples[raw_frames(raw)[synth.LOGS[0].name][3]["token"]]
+    camera = next(c for c in sample["meta"]["cameras"] if c["native_name"] == "CAM_F0")
+    image = cv2.imdecode(np.frombuffer(sample["cam_front"], np.uint8), cv2.IMREAD_COLOR).astype(int)
+    lead = sample["boxes"][0]  # the car the ego follows, in its lane
+    assert lead[9] == BoxClass.VEHICLE and abs(lead[1]) < 0.1 and 10.0 < lead[0] < 40.0
+    rear_centre = np.r_[lead[0] - lead[3] / 2, lead[1], lead[2], 1.0]  # the face the camera sees
+    u, v, w = np.asarray(camera["K"]) @ (np.linalg.inv(camera["cam_to_ego"]) @ rear_centre)[:3]
+    colour = image[int(v / w), int(u / w)]
+    assert np.abs(colour - synth_camera.BOX_COLOURS["vehicle"]).max() < 30, colour
+    road = synth_camera.AREAS[-1][1]
+    assert np.abs(image[-1, camera["width"] // 2 + 10] - road).max() < 30  # the lane just ahead: road
+    assert np.abs(image[0].mean(axis=0) - synth_camera.SKY).max() < 30
 
 
 def _polygons(scoring: dict, kinds: set[int]) -> list[np.ndarray]:

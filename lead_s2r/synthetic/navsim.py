@@ -4,7 +4,7 @@ Writes, under ``out``::
 
     navsim_logs/mini/<log>.pkl                       plain pickle: list of 28-key frame dicts at 2 Hz
     sensor_blobs/mini/<log>/CAM_*/<16hex>.jpg        8 cameras, 192x108 JPEGs (nuPlan's 1920x1080 / 10,
-                                                     intrinsics scaled to match)
+                                                     intrinsics scaled to match) rendered by :mod:`navsim_camera`
     sensor_blobs/mini/<log>/MergedPointCloud/<16hex>.pcd   binary PCD, fields x y z intensity ring lidar_info
     maps/us-nv-las-vegas-strip/9.15.1915/map.gpkg    the road network of :mod:`navsim_map`
     scene_filters/navmini.yaml                       NAVSIM SceneFilter yaml (log_names + tokens)
@@ -24,6 +24,7 @@ in the ego frame of their frame, velocities rotated into the lidar frame.
 import math
 import pickle
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
@@ -32,7 +33,7 @@ import shapely
 import yaml
 
 from lead_s2r.geometry import rotate, to_local
-from lead_s2r.synthetic import navsim_map
+from lead_s2r.synthetic import navsim_camera, navsim_map
 
 DATA_SPLIT = "mini"
 FRAMES = 20
@@ -198,9 +199,22 @@ def camera_calibration(name: str) -> dict[str, np.ndarray]:
     }
 
 
-def write_jpeg(path: Path, rng: np.random.Generator) -> None:
-    width, height = IMAGE_SIZE
-    image = cv2.GaussianBlur(rng.integers(0, 256, (height, width, 3), dtype=np.uint8), (5, 5), 0)
+@lru_cache(maxsize=len(CAMERAS))
+def camera(name: str) -> navsim_camera.Camera:
+    """Camera ``name`` as :mod:`navsim_camera` renders through it (its calibration, on the ego)."""
+    calib = camera_calibration(name)
+    origin = LIDAR2EGO_TRANSLATION + calib["sensor2lidar_translation"]  # the lidar frame is not rotated here
+    return navsim_camera.Camera(
+        calib["cam_intrinsic"], calib["distortion"], calib["sensor2lidar_rotation"], origin, IMAGE_SIZE
+    )
+
+
+def render_camera(name: str, pose: np.ndarray, anns: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+    """Camera ``name``'s image of an ego at the local map pose ``pose`` among the boxes of ``anns``."""
+    return navsim_camera.render(camera(name), pose, anns["gt_boxes"], list(anns["gt_names"]), rng)
+
+
+def write_jpeg(path: Path, image: np.ndarray) -> None:
     ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
     assert ok, path
     path.write_bytes(data.tobytes())
@@ -290,10 +304,10 @@ def write_log(
         vx, vy, ax, ay = dynamics[i]
         can_bus = np.zeros(18)
         can_bus[0:3], can_bus[3:7], can_bus[7:9], can_bus[13:15] = translation, quaternion, (ax, ay), (vx, vy)
-        cams = {}
+        anns, cams = annotations(agents, i, poses[i], track_tokens), {}
         for name in CAMERAS:
             blob = f"{spec.name}/{name}/{_hex(rng)}.jpg"
-            write_jpeg(blobs / blob, rng)
+            write_jpeg(blobs / blob, render_camera(name, poses[i], anns, rng))
             cams[name] = {"data_path": blob, **camera_calibration(name)}
         lidar_path = f"{spec.name}/MergedPointCloud/{_hex(rng)}.pcd"
         write_pcd(blobs / lidar_path, lidar_points(rng))
@@ -325,7 +339,7 @@ def write_log(
                 "cams": cams,
                 "sample_prev": tokens[i - 1] if i > 0 else None,
                 "sample_next": tokens[i + 1] if i + 1 < FRAMES else None,
-                "anns": annotations(agents, i, poses[i], track_tokens),
+                "anns": anns,
                 "occ_gt_final_path": None,
                 "flow_gt_final_path": None,
             }

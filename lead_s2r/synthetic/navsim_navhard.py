@@ -147,7 +147,8 @@ def synthetic_scene(
                 continue
             blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
             (out / SPLIT / "sensor_blobs" / blob).parent.mkdir(parents=True, exist_ok=True)
-            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, rng)
+            image = navsim.render_camera(name, pose, navsim.annotations(agents, frame, pose, tokens), rng)
+            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, image)
             cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
         anns = navsim.annotations(agents, frame, pose, tokens)
         frames.append(
