@@ -19,6 +19,7 @@ from lead_s2r.geometry import to_local
 from lead_s2r.schema import BevClassNavsim, BoxClass, Command, MapKind
 from lead_s2r.shards import load_manifest, read_samples
 from lead_s2r.synthetic import navsim as synth
+from lead_s2r.synthetic import navsim_camera as synth_camera
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r_adapters.navsim import NavsimAdapter, NavsimFormatError, jpeg_size, load_log, quaternion_yaw, read_pcd
 
@@ -116,7 +117,7 @@ def test_boxes_and_agent_futures_round_trip(raw: Path, samples: dict) -> None:
     for log_name, frames in raw_frames(raw).items():
         spec = spec_of(log_name)
         poses = synth.ego_states(spec)["poses"]
-        agents = synth.agents_for(poses[0], spec.speed)
+        agents = synth.agents_for(poses[0], spec.speed, spec.accel)
         for current in range(synth.HISTORY - 1, synth.FRAMES - synth.FUTURE):
             sample = samples[frames[current]["token"]]
             tracks = sample["meta"]["extras"]["navsim"]["track_tokens"]
@@ -128,11 +129,11 @@ def test_boxes_and_agent_futures_round_trip(raw: Path, samples: dict) -> None:
                 assert (token in tracks) == seen_now
                 if seen_now:
                     box = sample["boxes"][tracks.index(token)]
-                    centre = np.array(agent.xy) + current * 0.5 * np.array(agent.velocity)
-                    local = to_local(np.r_[centre, agent.yaw], poses[current])
+                    t = current * 0.5
+                    local = to_local(np.r_[agent.centre(t), agent.yaw], poses[current])
                     np.testing.assert_allclose(box[[0, 1, 6]], local, atol=1e-4)
                     np.testing.assert_allclose(box[3:6], agent.size, atol=1e-6)
-                    velocity = to_local(np.r_[agent.velocity, 0.0], np.r_[0.0, 0.0, poses[current, 2]])[:2]
+                    velocity = to_local(np.r_[agent.velocity_at(t), 0.0], np.r_[0.0, 0.0, poses[current, 2]])[:2]
                     np.testing.assert_allclose(box[7:9], velocity, atol=1e-4)
                     assert box[9] == classes[agent.name]
                 row = tracks.index(token) if seen_now else _later_row(future, agent)
@@ -140,8 +141,7 @@ def test_boxes_and_agent_futures_round_trip(raw: Path, samples: dict) -> None:
                     frame = current + 1 + k
                     assert future["valid"][row, k] == (agent.first <= frame <= agent.last)
                     if future["valid"][row, k]:
-                        centre = np.array(agent.xy) + frame * 0.5 * np.array(agent.velocity)
-                        expected = to_local(np.r_[centre, agent.yaw], poses[current])
+                        expected = to_local(np.r_[agent.centre(frame * 0.5), agent.yaw], poses[current])
                         np.testing.assert_allclose(future["poses"][row, k], expected, atol=1e-3)
             np.testing.assert_allclose(future["t"], np.arange(1, synth.FUTURE + 1) * 0.5)
             assert int(future["num_boxes"]) == len(tracks)
@@ -176,6 +176,21 @@ def test_cam_to_ego_projects_object_on_the_right_into_the_right_half(raw: Path, 
     assert w > 0 and camera["width"] / 2 < u / w < camera["width"] and 0 < v / w < camera["height"]
 
 
+def test_front_camera_shows_the_lead_car_where_its_calibration_projects_it(raw: Path, samples: dict) -> None:
+    sample = samples[raw_frames(raw)[synth.LOGS[0].name][3]["token"]]
+    camera = next(c for c in sample["meta"]["cameras"] if c["native_name"] == "CAM_F0")
+    image = cv2.imdecode(np.frombuffer(sample["cam_front"], np.uint8), cv2.IMREAD_COLOR).astype(int)
+    lead = sample["boxes"][0]  # the car the ego follows, in its lane
+    assert lead[9] == BoxClass.VEHICLE and abs(lead[1]) < 0.1 and 10.0 < lead[0] < 40.0
+    rear_centre = np.r_[lead[0] - lead[3] / 2, lead[1], lead[2], 1.0]  # the face the camera sees
+    u, v, w = np.asarray(camera["K"]) @ (np.linalg.inv(camera["cam_to_ego"]) @ rear_centre)[:3]
+    colour = image[int(v / w), int(u / w)]
+    assert np.abs(colour - synth_camera.BOX_COLOURS["vehicle"]).max() < 30, colour
+    road = synth_camera.AREAS[-1][1]
+    assert np.abs(image[-1, camera["width"] // 2 + 10] - road).max() < 30  # the lane just ahead: road
+    assert np.abs(image[0].mean(axis=0) - synth_camera.SKY).max() < 30
+
+
 def _polygons(scoring: dict, kinds: set[int]) -> list[np.ndarray]:
     xy, offsets = scoring["polygon_xy"], scoring["polygon_offsets"]
     return [xy[offsets[i] : offsets[i + 1]] for i, kind in enumerate(scoring["polygon_kind"]) if kind in kinds]
@@ -203,7 +218,7 @@ def test_red_light_polygon_only_while_red(samples: dict) -> None:
         for k in range(len(offsets) - 1):
             red = set(scoring["red_light_ids"][offsets[k] : offsets[k + 1]].tolist())
             frame = sample["meta"]["frame_idx"] + k
-            assert (left_turn in red) == (frame < 10)
+            assert (left_turn in red) == (frame < synth.GREEN_FRAME)
 
 
 def test_lane_connectivity_and_attributes_round_trip(samples: dict) -> None:
@@ -332,10 +347,17 @@ def test_splits_deal_one_sequence_of_logs_into_split_folders(tmp_path: Path) -> 
 def test_logs_past_the_first_three_are_drawn_from_their_ranges_and_stay_on_the_route() -> None:
     specs = synth.log_specs(30, seed=1)
     assert specs[:3] == list(synth.LOGS) and len({s.name for s in specs}) == 30
-    drawn = specs[3:]
-    assert all(3.0 <= s.speed <= 9.0 and -0.2 <= s.accel <= 0.4 for s in drawn)
-    assert min(s.speed for s in drawn) < 4.0 and max(s.speed for s in drawn) > 8.0  # spans the range, not copies
-    assert synth.log_specs(30, seed=1) == specs and synth.log_specs(30, seed=2)[3:] != drawn
     t_end = (synth.FRAMES - 1) * synth.DT_US / 1e6
+    for i, spec in enumerate(specs[3:], start=3):
+        ranges, base = synth.RANGES[i % 3], synth.LOGS[i % 3]
+        assert spec.lanes == base.lanes and spec.command == base.command
+        assert ranges.speed[0] <= spec.speed <= ranges.speed[1] and ranges.accel[0] <= spec.accel <= ranges.accel[1]
+    speeds = [s.speed for s in specs[3::3]]
+    assert min(speeds) < 7.0 and max(speeds) > 9.5  # spans the cruise range, not copies
+    assert synth.log_specs(30, seed=1) == specs and synth.log_specs(30, seed=2)[3:] != specs[3:]
     for spec in specs:
         assert spec.start + spec.speed * t_end + 0.5 * spec.accel * t_end**2 < synth.route_line(spec.lanes).length
+        assert spec.speed + spec.accel * t_end <= 13.4  # the roads' speed limit
+        if synth.LEFT_TURN in spec.lanes:  # the front bumper reaches the left-turn connector once it is green
+            entry = (synth_map.JUNCTION_X - synth.EGO_FRONT - spec.start) / spec.speed
+            assert synth.GREEN_FRAME * synth.DT_US / 1e6 < entry < 7.5 and spec.speed <= 6.5

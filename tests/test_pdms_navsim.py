@@ -34,7 +34,7 @@ MID_TURN = replace(
     BASE,
     name="2021.06.07.18.53.26_veh-26_00003_00004",
     lanes=(1012, 2021, 1032),
-    start=95.1,  # s = 104.1 m at the first scene's current frame: mid-arc, heading ~45 degrees
+    start=100.6,  # s = 109.6 m at the first scene's current frame: mid-arc, heading ~45 degrees
     speed=6.0,
     accel=0.0,
     command=(1, 0, 0, 0),

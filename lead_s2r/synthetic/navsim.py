@@ -4,22 +4,27 @@ Writes, under ``out``::
 
     navsim_logs/mini/<log>.pkl                       plain pickle: list of 28-key frame dicts at 2 Hz
     sensor_blobs/mini/<log>/CAM_*/<16hex>.jpg        8 cameras, 192x108 JPEGs (nuPlan's 1920x1080 / 10,
-                                                     intrinsics scaled to match)
+                                                     intrinsics scaled to match) rendered by :mod:`navsim_camera`
     sensor_blobs/mini/<log>/MergedPointCloud/<16hex>.pcd   binary PCD, fields x y z intensity ring lidar_info
     maps/us-nv-las-vegas-strip/9.15.1915/map.gpkg    the road network of :mod:`navsim_map`
     scene_filters/navmini.yaml                       NAVSIM SceneFilter yaml (log_names + tokens)
 
-Logs (2 Hz, 20 frames): a straight drive in the right lane, a left turn through the traffic-lit connector
-2021 (whose light is red for frames 0-9, green after; connector 2012 has the opposite phase), and a slow drive
-with an unknown command whose ``map_location`` is the legacy alias ``las_vegas``. Every log carries a lead
-vehicle, a pedestrian on the walkway to the right, a car parked in the car park, a traffic cone and a bicycle
-seen only in frames 8-15. Boxes are written the way OpenScene does: centres and yaw in the ego frame of their
-frame, velocities rotated into the lidar frame.
+Logs (2 Hz, 20 frames) are a competent driver's, so the logged human scores near the top of the PDM score, as
+NAVSIM's human agent does on real logs: a straight drive in the right lane, a left turn through the traffic-lit
+connector 2021 (red for frames 0-9, green after; connector 2012 has the opposite phase) taken at a turning speed
+(yaw rate and lateral acceleration inside NAVSIM's comfort bounds) and entered only once it is green, and a slow
+drive with an unknown command whose ``map_location`` is the legacy alias ``las_vegas``. Every log carries a lead
+vehicle that the ego follows at a steady headway (it mirrors the ego's speed profile, :data:`TIME_GAP`), a
+pedestrian and a traffic cone on the walkway to the right, a car parked in the car park, and a bicycle overtaking
+in the other lane, seen only in frames 8-15: nothing overlaps the ego's path, so the logged trajectory has no
+collision and a time to collision above NAVSIM's bound. Boxes are written the way OpenScene does: centres and yaw
+in the ego frame of their frame, velocities rotated into the lidar frame.
 """
 
 import math
 import pickle
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
@@ -28,7 +33,7 @@ import shapely
 import yaml
 
 from lead_s2r.geometry import rotate, to_local
-from lead_s2r.synthetic import navsim_map
+from lead_s2r.synthetic import navsim_camera, navsim_map
 
 DATA_SPLIT = "mini"
 FRAMES = 20
@@ -59,6 +64,20 @@ class LogSpec:
     roadblocks: tuple[str, ...]
 
 
+#: Rear axle to front bumper of nuPlan's Pacifica, the ego NAVSIM's scorer simulates (m).
+EGO_FRONT = 1.461 + 5.176 / 2
+#: The lead vehicle's bumper-to-bumper gap at t = 0: STANDSTILL_GAP + TIME_GAP * speed (a two-second rule, longer
+#: than PDM-Closed's IDM headway of 1.5 s, as a careful human keeps).
+STANDSTILL_GAP = 2.0
+TIME_GAP = 1.8
+LEAD_SIZE = (4.6, 1.9, 1.6)
+#: A left turn's speed (m/s): on the 12.25 m arc of connector 2021 a yaw rate of at most 0.53 rad/s and a lateral
+#: acceleration of at most 3.5 m/s^2, inside NAVSIM's comfort bounds (0.95 rad/s, 4.89 m/s^2).
+TURN_SPEED = (5.0, 6.5)
+#: The left-turn connector, and the frame its light turns green (t = 5 s); a turning ego enters the connector after it.
+LEFT_TURN = navsim_map.TRAFFIC_LIGHT_CONNECTORS[1]
+GREEN_FRAME = 10
+
 LOGS = (
     LogSpec(
         "2021.05.12.22.00.38_veh-35_01008_01518", (1011, 2011, 1021), 10.0, 8.0, 0.2, (0, 1, 0, 0),
@@ -77,7 +96,7 @@ LOGS = (
 
 @dataclass(frozen=True)
 class Agent:
-    """A constant-velocity object in local map coordinates, seen in frames ``first..last``."""
+    """An object in local map coordinates moving at constant acceleration, seen in frames ``first..last``."""
 
     name: str
     xy: tuple[float, float]
@@ -86,16 +105,30 @@ class Agent:
     size: tuple[float, float, float]
     first: int = 0
     last: int = FRAMES - 1
+    accel: tuple[float, float] = (0.0, 0.0)
+
+    def centre(self, t: float) -> np.ndarray:
+        """(2,) centre at ``t`` seconds after frame 0."""
+        return np.array(self.xy) + t * np.array(self.velocity) + 0.5 * t**2 * np.array(self.accel)
+
+    def velocity_at(self, t: float) -> np.ndarray:
+        return np.array(self.velocity) + t * np.array(self.accel)
 
 
-def agents_for(start: np.ndarray, speed: float) -> list[Agent]:
-    """The objects around a log whose ego starts at ``start`` heading east."""
+def lead_offset(speed: float) -> float:
+    """How far the lead vehicle's centre is ahead of the ego's rear axle at t = 0 (m)."""
+    return EGO_FRONT + STANDSTILL_GAP + TIME_GAP * speed + LEAD_SIZE[0] / 2
+
+
+def agents_for(start: np.ndarray, speed: float, accel: float) -> list[Agent]:
+    """The objects around a log whose ego starts at ``start`` heading east with ``speed`` and ``accel``: the lead
+    vehicle keeps its gap by driving the ego's speed profile (a turning ego leaves it going straight on)."""
     x0, y0 = float(start[0]), float(start[1])
     return [
-        Agent("vehicle", (x0 + 15.0, y0), (0.9 * speed, 0.0), 0.0, (4.6, 1.9, 1.6)),
+        Agent("vehicle", (x0 + lead_offset(speed), y0), (speed, 0.0), 0.0, LEAD_SIZE, accel=(accel, 0.0)),
         Agent("pedestrian", (x0 + 20.0, -4.5), (1.0, 0.0), 0.0, (0.6, 0.6, 1.8)),
         Agent("vehicle", (40.0, -10.0), (0.0, 0.0), math.pi / 2, (4.8, 2.0, 1.5)),
-        Agent("traffic_cone", (x0 + 40.0, -3.2), (0.0, 0.0), 0.0, (0.4, 0.4, 0.7)),
+        Agent("traffic_cone", (x0 + 40.0, -3.9), (0.0, 0.0), 0.0, (0.4, 0.4, 0.7)),
         Agent("bicycle", (x0 - 10.0, -y0), (speed + 2.0, 0.0), 0.0, (1.8, 0.6, 1.5), first=8, last=15),
     ]
 
@@ -166,9 +199,22 @@ def camera_calibration(name: str) -> dict[str, np.ndarray]:
     }
 
 
-def write_jpeg(path: Path, rng: np.random.Generator) -> None:
-    width, height = IMAGE_SIZE
-    image = cv2.GaussianBlur(rng.integers(0, 256, (height, width, 3), dtype=np.uint8), (5, 5), 0)
+@lru_cache(maxsize=len(CAMERAS))
+def camera(name: str) -> navsim_camera.Camera:
+    """Camera ``name`` as :mod:`navsim_camera` renders through it (its calibration, on the ego)."""
+    calib = camera_calibration(name)
+    origin = LIDAR2EGO_TRANSLATION + calib["sensor2lidar_translation"]  # the lidar frame is not rotated here
+    return navsim_camera.Camera(
+        calib["cam_intrinsic"], calib["distortion"], calib["sensor2lidar_rotation"], origin, IMAGE_SIZE
+    )
+
+
+def render_camera(name: str, pose: np.ndarray, anns: dict[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
+    """Camera ``name``'s image of an ego at the local map pose ``pose`` among the boxes of ``anns``."""
+    return navsim_camera.render(camera(name), pose, anns["gt_boxes"], list(anns["gt_names"]), rng)
+
+
+def write_jpeg(path: Path, image: np.ndarray) -> None:
     ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
     assert ok, path
     path.write_bytes(data.tobytes())
@@ -207,11 +253,10 @@ def annotations(agents: list[Agent], frame: int, pose: np.ndarray, tokens: list[
     for agent, token in zip(agents, tokens, strict=True):
         if not agent.first <= frame <= agent.last:
             continue
-        centre = np.array(agent.xy) + t * np.array(agent.velocity)
-        x, y, yaw = to_local(np.r_[centre, agent.yaw], pose)
+        x, y, yaw = to_local(np.r_[agent.centre(t), agent.yaw], pose)
         length, width, height = agent.size
         boxes.append([x, y, height / 2, length, width, height, yaw])
-        velocity = rotate(np.array(agent.velocity), -pose[2])  # the lidar frame is not rotated against the ego's here
+        velocity = rotate(agent.velocity_at(t), -pose[2])  # the lidar frame is not rotated against the ego's here
         velocities.append([velocity[0], velocity[1], 0.0])
         names.append(agent.name)
         tracks.append(token)
@@ -225,9 +270,9 @@ def annotations(agents: list[Agent], frame: int, pose: np.ndarray, tokens: list[
 
 
 def traffic_lights(frame: int) -> list[tuple[int, bool]]:
-    """Connector 2021 (left turn) is red before frame 10, connector 2012 from frame 10 on."""
-    left, straight = navsim_map.TRAFFIC_LIGHT_CONNECTORS[1], navsim_map.TRAFFIC_LIGHT_CONNECTORS[0]
-    return [(straight, frame >= 10), (left, frame < 10)]
+    """Connector 2021 (left turn) is red before :data:`GREEN_FRAME`, connector 2012 from it on."""
+    straight = navsim_map.TRAFFIC_LIGHT_CONNECTORS[0]
+    return [(straight, frame >= GREEN_FRAME), (LEFT_TURN, frame < GREEN_FRAME)]
 
 
 def _hex(rng: np.random.Generator) -> str:
@@ -246,7 +291,7 @@ def write_log(
         (sensors / folder).mkdir(parents=True, exist_ok=True)
     states = ego_states(spec)
     poses, dynamics = states["poses"], states["dynamics"]
-    agents = agents_for(poses[0], spec.speed)
+    agents = agents_for(poses[0], spec.speed, spec.accel)
     track_tokens = [_hex(rng) for _ in agents]
     tokens = [_hex(rng) for _ in range(FRAMES)]
     lidar2ego = homogeneous(np.eye(3), LIDAR2EGO_TRANSLATION)
@@ -259,10 +304,10 @@ def write_log(
         vx, vy, ax, ay = dynamics[i]
         can_bus = np.zeros(18)
         can_bus[0:3], can_bus[3:7], can_bus[7:9], can_bus[13:15] = translation, quaternion, (ax, ay), (vx, vy)
-        cams = {}
+        anns, cams = annotations(agents, i, poses[i], track_tokens), {}
         for name in CAMERAS:
             blob = f"{spec.name}/{name}/{_hex(rng)}.jpg"
-            write_jpeg(blobs / blob, rng)
+            write_jpeg(blobs / blob, render_camera(name, poses[i], anns, rng))
             cams[name] = {"data_path": blob, **camera_calibration(name)}
         lidar_path = f"{spec.name}/MergedPointCloud/{_hex(rng)}.pcd"
         write_pcd(blobs / lidar_path, lidar_points(rng))
@@ -294,7 +339,7 @@ def write_log(
                 "cams": cams,
                 "sample_prev": tokens[i - 1] if i > 0 else None,
                 "sample_next": tokens[i + 1] if i + 1 < FRAMES else None,
-                "anns": annotations(agents, i, poses[i], track_tokens),
+                "anns": anns,
                 "occ_gt_final_path": None,
                 "flow_gt_final_path": None,
             }
@@ -330,22 +375,40 @@ def write_scene_filter(path: Path, logs: dict[str, list[dict]]) -> None:
     path.write_text(yaml.safe_dump(scene_filter(logs, tokens), sort_keys=False))
 
 
+@dataclass(frozen=True)
+class Ranges:
+    """What a fresh log on a base log's route draws uniformly: speed (m/s), acceleration (m/s^2) and, on a straight
+    route, its start as an offset from the base log's (m); a turning log's start follows from its speed."""
+
+    speed: tuple[float, float]
+    accel: tuple[float, float]
+    start: tuple[float, float] = (-10.0, 10.0)
+
+
+#: Per base log of :data:`LOGS`: a cruise below the 13.4 m/s limit, a turn at turning speed, a slow drive.
+RANGES = (Ranges((6.0, 10.5), (-0.3, 0.3)), Ranges(TURN_SPEED, (0.0, 0.0)), Ranges((2.0, 5.0), (0.0, 0.4)))
+#: When a turning log's front bumper reaches connector 2021 (s after frame 0): after the light turns green, and
+#: soon enough that the turn falls in the scenes' futures.
+TURN_ENTRY = (GREEN_FRAME * DT_US / 1e6 + 0.2, 7.0)
+
+
+def turn_start(speed: float, entry: float) -> float:
+    """Where on the route (m) an ego at constant ``speed`` starts so that its front bumper reaches the end of lane
+    1012 (x = 100), where connector 2021 begins, ``entry`` seconds later."""
+    return navsim_map.JUNCTION_X - EGO_FRONT - speed * entry
+
+
 def log_specs(count: int | None, seed: int = 0) -> list[LogSpec]:
-    """``count`` logs (default 3): :data:`LOGS`, then fresh logs on the same three routes whose start, speed and
-    acceleration are drawn from the ranges the first three span (so held-out logs look like training logs)."""
+    """``count`` logs (default 3): :data:`LOGS`, then fresh logs cycling over their routes, each drawing its speed,
+    acceleration and start from its route's :data:`RANGES` (so held-out logs look like training logs)."""
     count = len(LOGS) if count is None else count
     specs = list(LOGS[:count])
     for i in range(len(LOGS), count):
-        base, rng = LOGS[i % len(LOGS)], np.random.default_rng([seed, i])
-        specs.append(
-            replace(
-                base,
-                name=f"{base.name[:-11]}{i:05d}_{i + 1:05d}",
-                start=base.start + float(rng.uniform(-10.0, 10.0)),
-                speed=float(rng.uniform(3.0, 9.0)),
-                accel=float(rng.uniform(-0.2, 0.4)),
-            )
-        )
+        base, ranges, rng = LOGS[i % len(LOGS)], RANGES[i % len(LOGS)], np.random.default_rng([seed, i])
+        speed, accel = float(rng.uniform(*ranges.speed)), float(rng.uniform(*ranges.accel))
+        offset = float(rng.uniform(*ranges.start))
+        start = turn_start(speed, float(rng.uniform(*TURN_ENTRY))) if LEFT_TURN in base.lanes else base.start + offset
+        specs.append(replace(base, name=f"{base.name[:-11]}{i:05d}_{i + 1:05d}", start=start, speed=speed, accel=accel))
     return specs
 
 

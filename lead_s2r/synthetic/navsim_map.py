@@ -3,11 +3,16 @@
 The network, in local metres before :data:`ORIGIN` is added (nuPlan maps are in UTM, so coordinates are large):
 
 * roadblock 101: eastbound, x 0..100, lanes 1011 (y = -1.75, the right lane) and 1012 (y = +1.75);
-* intersection 301: x 100..107, y -3.5..7, crossed by lane connectors 2011 (1011 -> 1021, straight),
-  2012 (1012 -> 1022, straight) and 2021 (1012 -> 1032, a left turn of radius 5.25 m under a traffic light);
-* roadblock 102: eastbound, x 107..200, lanes 1021, 1022; roadblock 103: northbound, x 100..107, y 7..100,
-  lanes 1031 (x = 101.75) and 1032 (x = 105.25); roadblock connectors 201 (101 -> 102) and 202 (101 -> 103);
+* intersection 301: x 100..115, y -3.5..14, crossed by lane connectors 2011 (1011 -> 1021, straight),
+  2012 (1012 -> 1022, straight) and 2021 (1012 -> 1032, a left turn of radius 12.25 m under a traffic light);
+* roadblock 102: eastbound, x 115..200, lanes 1021, 1022; roadblock 103: northbound, x 107..114, y 14..100,
+  lanes 1031 (x = 108.75) and 1032 (x = 112.25); roadblock connectors 201 (101 -> 102) and 202 (101 -> 103);
 * car park 401 south of roadblock 101 and walkway 501 along its southern edge.
+
+The intersection is 15 m across, as a junction of two-lane roads is, and reaches 1 m east of the northbound road:
+the front corner of a car whose rear axle follows a turn's centreline sweeps outside the lane (more so as NAVSIM's
+tracker lags the logged heading), and on a tighter arc its yaw rate leaves NAVSIM's comfort bounds at any usable
+speed, so a logged human could not keep the PDM score's rules.
 
 Geometry is written with pyogrio (GDAL's GPKG driver) so the file is a real GeoPackage any GIS tool opens.
 """
@@ -26,7 +31,14 @@ LOCATION = "us-nv-las-vegas-strip"
 MAP_VERSION = "9.15.1915"
 CRS = "EPSG:32611"
 HALF_LANE = 1.75
-TURN_RADIUS = 5.25
+#: Where the junction starts (end of roadblock 101), where roadblock 102 starts and where roadblock 103 starts.
+JUNCTION_X, EAST_X, NORTH_Y = 100.0, 115.0, 14.0
+#: The west and east edges of roadblock 103.
+NORTH_ROAD_X = (107.0, 114.0)
+#: The left turn's centreline: from lane 1012 (y = 1.75) to lane 1032 (1.75 m inside 103's east edge), a quarter
+#: circle.
+TURN_RADIUS = NORTH_Y - HALF_LANE
+TURN_CENTRE = (JUNCTION_X, NORTH_Y)
 
 
 @dataclass(frozen=True)
@@ -42,28 +54,34 @@ class Lane:
     to_lane: int | None = None
 
 
-def _arc(n: int = 24) -> tuple[tuple[float, float], ...]:
-    """Left turn from (100, 1.75) heading east to (105.25, 7) heading north, centre (100, 7)."""
+def _arc(n: int = 32) -> tuple[tuple[float, float], ...]:
+    """Left turn from (100, 1.75) heading east to (112.25, 14) heading north, around :data:`TURN_CENTRE`."""
     angles = np.linspace(-math.pi / 2, 0.0, n)
-    return tuple((100.0 + TURN_RADIUS * math.cos(a), 7.0 + TURN_RADIUS * math.sin(a)) for a in angles)
+    cx, cy = TURN_CENTRE
+    return tuple((cx + TURN_RADIUS * math.cos(a), cy + TURN_RADIUS * math.sin(a)) for a in angles)
 
 
+WEST_LANE, EAST_LANE = NORTH_ROAD_X[0] + HALF_LANE, NORTH_ROAD_X[1] - HALF_LANE
 LANES = (
-    Lane(1011, 101, ((0.0, -1.75), (100.0, -1.75)), 13.4, index=0),
-    Lane(1012, 101, ((0.0, 1.75), (100.0, 1.75)), 13.4, index=1),
-    Lane(1021, 102, ((107.0, -1.75), (200.0, -1.75)), 13.4, index=0),
-    Lane(1022, 102, ((107.0, 1.75), (200.0, 1.75)), 13.4, index=1),
-    Lane(1031, 103, ((101.75, 7.0), (101.75, 100.0)), 11.2, index=1),
-    Lane(1032, 103, ((105.25, 7.0), (105.25, 100.0)), 11.2, index=0),
+    Lane(1011, 101, ((0.0, -1.75), (JUNCTION_X, -1.75)), 13.4, index=0),
+    Lane(1012, 101, ((0.0, 1.75), (JUNCTION_X, 1.75)), 13.4, index=1),
+    Lane(1021, 102, ((EAST_X, -1.75), (200.0, -1.75)), 13.4, index=0),
+    Lane(1022, 102, ((EAST_X, 1.75), (200.0, 1.75)), 13.4, index=1),
+    Lane(1031, 103, ((WEST_LANE, NORTH_Y), (WEST_LANE, 100.0)), 11.2, index=1),
+    Lane(1032, 103, ((EAST_LANE, NORTH_Y), (EAST_LANE, 100.0)), 11.2, index=0),
 )
 LANE_CONNECTORS = (
-    Lane(2011, 201, ((100.0, -1.75), (107.0, -1.75)), 13.4, from_lane=1011, to_lane=1021),
-    Lane(2012, 201, ((100.0, 1.75), (107.0, 1.75)), 13.4, from_lane=1012, to_lane=1022),
+    Lane(2011, 201, ((JUNCTION_X, -1.75), (EAST_X, -1.75)), 13.4, from_lane=1011, to_lane=1021),
+    Lane(2012, 201, ((JUNCTION_X, 1.75), (EAST_X, 1.75)), 13.4, from_lane=1012, to_lane=1022),
     Lane(2021, 202, _arc(), 8.0, from_lane=1012, to_lane=1032),
 )
-ROADBLOCKS = {101: (0.0, -3.5, 100.0, 3.5), 102: (107.0, -3.5, 200.0, 3.5), 103: (100.0, 7.0, 107.0, 100.0)}
+ROADBLOCKS = {
+    101: (0.0, -3.5, JUNCTION_X, 3.5),
+    102: (EAST_X, -3.5, 200.0, 3.5),
+    103: (NORTH_ROAD_X[0], NORTH_Y, NORTH_ROAD_X[1], 100.0),
+}
 ROADBLOCK_CONNECTORS = {201: (101, 102), 202: (101, 103)}
-INTERSECTIONS = {301: (100.0, -3.5, 107.0, 7.0)}
+INTERSECTIONS = {301: (JUNCTION_X, -3.5, EAST_X, NORTH_Y)}
 CARPARKS = {401: (20.0, -25.0, 60.0, -5.5)}
 WALKWAYS = {501: (0.0, -5.5, 200.0, -3.5)}
 #: Lane connectors controlled by a traffic light.

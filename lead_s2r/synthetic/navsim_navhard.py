@@ -75,7 +75,7 @@ def _global_xy(xy: np.ndarray) -> np.ndarray:
 
 def tracked_object(agent: navsim.Agent, token: str, t: float, timestamp_us: int) -> ForeignObject:
     """The nuPlan ``Agent`` (moving classes) or ``StaticObject`` of ``agent`` at time ``t``, global frame."""
-    centre = _global_xy(np.array(agent.xy) + t * np.array(agent.velocity))
+    centre = _global_xy(agent.centre(t))
     length, width, height = agent.size
     pose = ForeignObject(STATE_SE2, (float(centre[0]), float(centre[1]), float(agent.yaw)), reduce=True)
     box = ForeignObject(ORIENTED_BOX, (), {"_center": pose, "_length": length, "_width": width, "_height": height})
@@ -89,7 +89,7 @@ def tracked_object(agent: navsim.Agent, token: str, t: float, timestamp_us: int)
     state = {"_box": box, "_metadata": metadata, "_tracked_object_type": kind}
     if agent.name not in MOVING:
         return ForeignObject(STATIC_OBJECT, (), state)
-    velocity = ForeignObject(STATE_VECTOR_2D, tuple(float(v) for v in agent.velocity), reduce=True)
+    velocity = ForeignObject(STATE_VECTOR_2D, tuple(float(v) for v in agent.velocity_at(t)), reduce=True)
     state |= {"_velocity": velocity, "_angular_velocity": 0.0, "_predictions": [], "_past_trajectory": None}
     return ForeignObject(AGENT, (), state)
 
@@ -132,7 +132,7 @@ def synthetic_scene(
 ) -> tuple[str, dict]:
     """One synthetic scene whose current frame is log frame ``start`` with the ego shifted by ``offset``."""
     states = navsim.ego_states(spec)
-    agents = navsim.agents_for(states["poses"][0], spec.speed)
+    agents = navsim.agents_for(states["poses"][0], spec.speed, spec.accel)
     tokens = next(list(f["anns"]["track_tokens"]) for f in log_frames if len(f["anns"]["track_tokens"]) == len(agents))
     initial = _token17(rng)
     t0_us = int(log_frames[0]["timestamp"])
@@ -147,7 +147,8 @@ def synthetic_scene(
                 continue
             blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
             (out / SPLIT / "sensor_blobs" / blob).parent.mkdir(parents=True, exist_ok=True)
-            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, rng)
+            image = navsim.render_camera(name, pose, navsim.annotations(agents, frame, pose, tokens), rng)
+            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, image)
             cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
         anns = navsim.annotations(agents, frame, pose, tokens)
         frames.append(
