@@ -214,10 +214,16 @@ def test_two_hot_decodes_to_the_clamped_value(speed):
     assert (encoded * classes).sum().item() == pytest.approx(min(max(speed, 0.0), 20.0), abs=1e-4)
 
 
-def test_heading_loss_wraps_around_pi():
-    pred = {"headings": torch.tensor([[math.pi - 0.01]])}
-    batch = {"headings": torch.tensor([[-math.pi + 0.01]])}
-    assert heading_loss(pred, batch).item() == pytest.approx(0.02, abs=1e-5)
+def test_heading_loss_follows_targets_through_pi_and_charges_a_full_turn():
+    """A U-turn whose target crosses +-pi (stored wrapped) is matched by continuous headings; a prediction a full
+    turn off is not free (with a wrapped error it was, and cumulative headings spun through 2 pi)."""
+    batch = {"headings": torch.tensor([[1.5, 3.0, -3.1, -2.9]])}
+    continuous = torch.tensor([[1.5, 3.0, 2 * math.pi - 3.1, 2 * math.pi - 2.9]])
+    assert heading_loss({"headings": continuous}, batch).item() == pytest.approx(0.0, abs=1e-6)
+    assert heading_loss({"headings": batch["headings"]}, batch).item() == pytest.approx(math.pi, abs=1e-5)
+    straight = {"headings": torch.zeros(1, 4)}
+    spun = {"headings": torch.tensor([[0.0, 0.0, 2 * math.pi, 2 * math.pi]])}
+    assert heading_loss(spun, straight).item() == pytest.approx(math.pi, abs=1e-5)
 
 
 def test_radar_loss_is_permutation_invariant_and_zero_l1_on_perfect_match():

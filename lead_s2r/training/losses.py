@@ -48,10 +48,18 @@ def waypoint_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
 
 
 def heading_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
-    """L1 of the wrapped heading error, so +pi and -pi are the same heading."""
-    diff = pred["headings"].float() - batch["headings"]
-    wrapped = torch.remainder(diff + math.pi, 2 * math.pi) - math.pi
-    return masked_mean(wrapped.abs(), _valid(batch, "headings", batch["headings"]))
+    """L1 against the target headings unwrapped along the horizon (LEAD's plain L1, continuous through +-pi).
+
+    The decoders' headings are cumulative sums, continuous from the current heading 0, so the target is made
+    continuous too. A wrapped error instead lets each pose settle on either side of +-pi: trained on synthetic NAVSIM,
+    the cumulative outputs then spun through 2 pi within one trajectory (0.3, 1.7, 4.2, 5.8, 6.5 rad on a straight
+    road) at no cost in the loss, and the scorer's tracker followed the spin. Padded poses come last, so they do
+    not shift the valid ones.
+    """
+    target = batch["headings"].float()
+    steps = torch.diff(target, dim=1, prepend=torch.zeros_like(target[:, :1]))
+    unwrapped = torch.cumsum(torch.remainder(steps + math.pi, 2 * math.pi) - math.pi, dim=1)
+    return masked_mean((pred["headings"].float() - unwrapped).abs(), _valid(batch, "headings", target))
 
 
 def route_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
