@@ -16,6 +16,7 @@ from functools import cached_property, lru_cache
 import cv2
 import numpy as np
 
+from lead_s2r.geometry import box_corners
 from lead_s2r.synthetic import navsim_map
 
 #: BGR colours.
@@ -103,13 +104,12 @@ def map_colours() -> tuple[np.ndarray, np.ndarray]:
     return raster, corner
 
 
-def box_corners(box: np.ndarray) -> np.ndarray:
-    """(8, 3) corners of an OpenScene box [x, y, z (centre), length, width, height, yaw]."""
-    x, y, z, length, width, height, yaw = box
-    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
-    cos, sin = np.cos(yaw), np.sin(yaw)
-    rotated = (signs * np.array([length, width, height]) / 2) @ np.array([[cos, sin, 0], [-sin, cos, 0], [0, 0, 1]])
-    return rotated + np.array([x, y, z])
+def box_corners_3d(box: np.ndarray) -> np.ndarray:
+    """(8, 3) corners of an OpenScene box [x, y, z (centre), length, width, height, yaw]: its footprint
+    (:func:`~lead_s2r.geometry.box_corners`) at the bottom and at the top."""
+    footprint = box_corners(box[None])[0]
+    heights = box[2] + box[5] / 2 * np.array([-1.0, 1.0])
+    return np.concatenate([np.column_stack([footprint, np.full(4, z)]) for z in heights])
 
 
 def render(
@@ -126,7 +126,7 @@ def render(
     width, height = camera.size
     image.reshape(-1, 3)[sky] = SKY
     for i in np.argsort(-np.hypot(boxes[:, 0], boxes[:, 1])):
-        pixels = camera.project(box_corners(boxes[i]))
+        pixels = camera.project(box_corners_3d(boxes[i]))
         if pixels is not None and np.isfinite(pixels).all() and np.abs(pixels).max() < 10 * width:
             hull = cv2.convexHull(np.round(pixels).astype(np.int32))
             cv2.fillConvexPoly(image, hull, BOX_COLOURS.get(names[i], OTHER_BOX))
