@@ -9,14 +9,13 @@ navhard is the two-stage layout. PDM-Lite data has LEAD's on-disk format, so its
 seed. One log or route each keeps a full set of folders to seconds of conversion.
 """
 
-import importlib
 import shutil
 from collections.abc import Callable
 from pathlib import Path
 
 from lead_s2r.convert import convert
 from lead_s2r.registry import get_adapter
-from lead_s2r.synthetic import carla_lead, navsim_navhard
+from lead_s2r.synthetic import carla_lead, navsim, navsim_navhard, wod_e2e
 
 RAW = "raw"
 DATA = "data"
@@ -48,10 +47,9 @@ def write_carla(root: Path, workers: int) -> None:
 
 
 def write_navsim(root: Path, workers: int) -> None:
-    generator = importlib.import_module("lead_s2r.synthetic.navsim")
     for name, (split, seed) in NAVSIM_FOLDERS.items():
         raw = root / RAW / f"navsim_{name}"
-        generator.generate(raw, seed=seed, splits={split: 1})
+        navsim.generate(raw, seed=seed, splits={split: 1})
         scene_filter = raw / "scene_filters" / f"{name}.yaml"
         shutil.copy(raw / "scene_filters" / "navmini.yaml", scene_filter)
         options = {"split": split, "scene_filter": str(scene_filter), "maps": str(raw / "maps")}
@@ -72,7 +70,7 @@ def write_navhard(root: Path, workers: int) -> None:
 
 def write_wod(root: Path, workers: int) -> None:
     raw = root / RAW / "wod_e2e"
-    importlib.import_module("lead_s2r.synthetic.wod_e2e").generate(raw, seed=0, splits=WOD_SPLITS)
+    wod_e2e.generate(raw, seed=0, splits=WOD_SPLITS)
     _convert("wod_e2e", raw, root / DATA / "wod_e2e", workers)
 
 
