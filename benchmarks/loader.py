@@ -54,10 +54,11 @@ from lead_s2r.schema import make_key
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic.carla_lead import generate
 
-PLAIN, PIXELS, OURS, LEAD_BOTH, LEAD_ONE = (
+PLAIN, PIXELS, OURS, OURS_DEVICE, LEAD_BOTH, LEAD_ONE = (
     "plain decoding (read_samples, every field)",
     "plain decoding + JPEG to pixels",
     "ours (DriveDataModule)",
+    "ours, JPEG left for the GPU (jpeg_to_device)",
     "LEAD-style per-file, both rigs (LEAD uncached)",
     "LEAD-style per-file, one rig",
 )
@@ -113,21 +114,7 @@ def loaders(
     generate(raw, count=args.routes, frames=args.frames, realistic=kind == "realistic")
     convert(get_adapter("carla_lead"), raw, data)
     check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
-    dm = DriveDataModule(
-        train={"carla": SourceSpec([str(data)])},
-        schedule=MixingSchedule.constant({"carla": 1.0}, args.batch_size),
-        steps_per_epoch=args.steps * args.rounds + 1,
-        num_workers=args.workers,
-        config=config,
-    )
-    dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
-    wall, cpu = time.perf_counter(), time.process_time()
-    stream = iter(dm.train_dataloader()["carla"])  # one epoch's stream, as in training: every round goes on with it
-    first = next(stream)
-    print(
-        f"{kind}: ours, the shuffle buffer's fill and the first batch (once per epoch and worker): "
-        f"{time.perf_counter() - wall:.2f} s wall, {time.process_time() - cpu:.2f} s CPU for {len(first['__key__'])}"
-    )
+    streams = {to_device: training_stream(kind, data, args, config, to_device) for to_device in (False, True)}
     lead = {
         views: DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=args.workers)
         for views in (1, 2)
@@ -139,10 +126,35 @@ def loaders(
     return {
         PLAIN: lambda: (1 for _ in read_samples(data)),
         PIXELS: lambda: (_decode_jpegs(sample) for sample in read_samples(data)),
-        OURS: lambda: (len(next(stream)["__key__"]) for _ in range(args.steps)),
+        OURS: lambda: (len(next(streams[False])["__key__"]) for _ in range(args.steps)),
+        OURS_DEVICE: lambda: (len(next(streams[True])["__key__"]) for _ in range(args.steps)),
         LEAD_BOTH: lambda: lead_run(2),
         LEAD_ONE: lambda: lead_run(1),
     }
+
+
+def training_stream(
+    kind: str, data: Path, args: argparse.Namespace, config: TFv6Config, jpeg_to_device: bool
+) -> Iterator[dict[str, Any]]:
+    """One epoch's stream of our training loader, as in training: every round goes on with it."""
+    dm = DriveDataModule(
+        train={"carla": SourceSpec([str(data)])},
+        schedule=MixingSchedule.constant({"carla": 1.0}, args.batch_size),
+        steps_per_epoch=args.steps * args.rounds + 1,
+        num_workers=args.workers,
+        config=config,
+        jpeg_to_device=jpeg_to_device,
+    )
+    dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
+    wall, cpu = time.perf_counter(), time.process_time()
+    stream = iter(dm.train_dataloader()["carla"])
+    first = next(stream)
+    print(
+        f"{kind}: ours (jpeg_to_device={jpeg_to_device}), the shuffle buffer's fill and the first batch (once per "
+        f"epoch and worker): {time.perf_counter() - wall:.2f} s wall, {time.process_time() - cpu:.2f} s CPU for "
+        f"{len(first['__key__'])}"
+    )
+    return stream
 
 
 def main() -> None:
@@ -181,15 +193,16 @@ def main() -> None:
                 steady = statistics.median(t.steady_rate for t in runs_of)
                 cpu = statistics.median(t.cpu / t.samples * 1e3 for t in runs_of)
                 print(f"  {kind}: {name}: {rate:.1f} samples/s ({steady:.1f} after the first batch), {cpu:.2f} ms CPU")
-            ours = timings[kind, OURS]
-            for label, attribute in (("every batch", "rate"), ("after the first batch", "steady_rate")):
-                over_plain = _median_ratio(ours, timings[kind, PLAIN], attribute, "rate")
-                both = _median_ratio(ours, timings[kind, LEAD_BOTH], attribute, attribute)
-                one = _median_ratio(ours, timings[kind, LEAD_ONE], attribute, attribute)
-                print(
-                    f"  {kind}, ours, {label}: {over_plain:.2f}x plain decoding, {both:.2f}x LEAD-style (both rigs), "
-                    f"{one:.2f}x LEAD-style (one rig)"
-                )
+            for name in (OURS, OURS_DEVICE):
+                ours = timings[kind, name]
+                for label, attribute in (("every batch", "rate"), ("after the first batch", "steady_rate")):
+                    over_plain = _median_ratio(ours, timings[kind, PLAIN], attribute, "rate")
+                    both = _median_ratio(ours, timings[kind, LEAD_BOTH], attribute, attribute)
+                    one = _median_ratio(ours, timings[kind, LEAD_ONE], attribute, attribute)
+                    print(
+                        f"  {kind}, {name}, {label}: {over_plain:.2f}x plain decoding, {both:.2f}x LEAD-style "
+                        f"(both rigs), {one:.2f}x LEAD-style (one rig)"
+                    )
 
 
 def _decode_jpegs(sample: dict[str, Any]) -> int:

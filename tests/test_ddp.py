@@ -135,7 +135,6 @@ def test_two_ranks_validate_like_one(one_shard, tmp_path):
             assert logged[name] == pytest.approx(value, rel=1e-5), (name, logged, expected)
 
 
-
 @pytest.fixture(scope="module")
 def one_sample(tmp_path_factory) -> str:
     root = tmp_path_factory.mktemp("one_sample")

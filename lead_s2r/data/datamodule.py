@@ -115,6 +115,9 @@ class DriveDataModule(L.LightningDataModule):
         config: the model configuration the transforms follow; by default the trained model's own.
         seed: seed of shard resampling and shuffling (with the epoch, rank, worker and source); by default the
             one ``seed_everything`` set, else 0.
+        jpeg_to_device: send a camera JPEG that is the model's image as stored (CARLA's mosaic at TFv6's size) to the
+            training device encoded, to be decoded there (nvJPEG on a GPU) instead of in the loader; other rigs are
+            decoded in the loader. None (default): when the trainer runs on a GPU.
     """
 
     def __init__(
@@ -129,6 +132,7 @@ class DriveDataModule(L.LightningDataModule):
         shuffle_buffer: int = 256,
         config: TFv6Config | None = None,
         seed: int | None = None,
+        jpeg_to_device: bool | None = None,
     ) -> None:
         super().__init__()
         self.train_sources = train or {}
@@ -144,6 +148,7 @@ class DriveDataModule(L.LightningDataModule):
         self.shuffle_buffer = shuffle_buffer
         self._config = config
         self._seed = seed
+        self._jpeg_to_device = jpeg_to_device
         for stage, sources in self._stages().items():
             for name, spec in sources.items():
                 try:
@@ -229,8 +234,16 @@ class DriveDataModule(L.LightningDataModule):
             return 0, 0, 1
         return self.trainer.current_epoch, getattr(self.trainer, "global_rank", 0), self.trainer.world_size
 
+    @property
+    def jpeg_to_device(self) -> bool:
+        """Whether loaders leave the model's camera JPEG for the device: as given, else when training on a GPU."""
+        if self._jpeg_to_device is not None:
+            return self._jpeg_to_device
+        strategy = getattr(self.trainer, "strategy", None)
+        return strategy is not None and strategy.root_device.type == "cuda"
+
     def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
-        return _Prepare(SourceTransform(name, self.config, list(spec.cameras)))
+        return _Prepare(SourceTransform(name, self.config, list(spec.cameras), self.jpeg_to_device))
 
     def _train_pipeline(self, name: str, spec: SourceSpec, batch_size: int) -> wds.DataPipeline:
         epoch, rank, _ = self._where()

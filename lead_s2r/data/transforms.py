@@ -27,7 +27,11 @@ has put it on the image's grid.
 Tensors are lean (the loader builds and stacks every byte on the CPU): the image uint8, the LiDAR raster uint8 hit
 counts, class maps the stored uint8 ids (:data:`~lead_s2r.models.inputs.IGNORE_CLASS` where there is no label), and
 a depth or semantic label smaller than the image under a plain resize (:attr:`CameraLayout.whole`) is not upsampled
-here; the model and the losses scale, widen and resize them on the device.
+here; the model and the losses scale, widen and resize them on the device. Images stay in the (H, W, 3) order decoders
+write: a sample's ``rgb`` is a (3, H, W) view of it and a batch's a channels-last (B, 3, H, W) tensor, which is
+also the memory format convolutions run fastest in on the GPU. A camera JPEG that is the model's image as stored
+(one camera at ``image_size``) is decoded by libjpeg-turbo without OpenCV's conversions, or, with
+``jpeg_to_device``, not at all: the bytes go to the training device (:func:`~lead_s2r.models.inputs.decode_images`).
 """
 
 import math
@@ -44,7 +48,7 @@ from torch.utils.data import default_collate
 
 from lead_s2r.geometry import raster_lookup, resample, rotate
 from lead_s2r.models.config import BEVGrid, TFv6Config
-from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, on_image_grid
+from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, RGB_JPEG, decode_rgb, jpeg_tensor, on_image_grid
 from lead_s2r.schema import BoxClass, command4
 
 #: Radar points kept per sample (LEAD: 4 sensors x 75).
@@ -168,15 +172,6 @@ def jpeg_reduction(layout: CameraLayout) -> tuple[int, int]:
     return 1, 0
 
 
-def channels_first(image: np.ndarray) -> np.ndarray:
-    """(H, W, C) uint8 -> contiguous (C, H, W), one plane copy each (faster than a transposed copy)."""
-    out = np.empty((image.shape[2], *image.shape[:2]), image.dtype)
-    planes = cv2.split(image, list(out))
-    if planes[0].ctypes.data != out[0].ctypes.data:  # this OpenCV did not split in place
-        return np.ascontiguousarray(image.transpose(2, 0, 1))
-    return out
-
-
 def tile_bands(height: int, tiles: Sequence[Tile], vertical_fov_deg: float | None) -> tuple[Band, ...]:
     """Rows of each tile covering ``vertical_fov_deg`` around its principal point (all rows when None);
     neighbouring tiles with the same rows merge into one band."""
@@ -261,11 +256,14 @@ class SourceTransform:
         source: the source name the model knows (its trajectory grid and label space), e.g. "carla".
         config: the model configuration (image size, BEV grid, trajectory grids, head sizes).
         cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
+        jpeg_to_device: leave a camera JPEG that is the model's image as stored encoded (``rgb_jpeg``), for
+            :func:`~lead_s2r.models.inputs.decode_images` on the training device; other rigs are decoded here.
     """
 
     source: str
     config: TFv6Config
     cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
+    jpeg_to_device: bool = False
     _reported: set[CameraLayout] = field(default_factory=set, init=False, repr=False)  # letterboxed layouts warned of
 
     @property
@@ -302,7 +300,11 @@ class SourceTransform:
             "command": torch.tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
-            out["rgb"], layout = self.image(sample)
+            shipped = self.stored_layout(meta) if self.jpeg_to_device else None
+            if shipped is not None and shipped.identity:
+                out[RGB_JPEG], layout = jpeg_tensor(self._jpeg(sample, self.cameras[0])), shipped
+            else:
+                out["rgb"], layout = self.image(sample)
         out.update(self.target_points(sample))
         if self.config.bev_input == "raster":
             out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), self.config.bev))[None]
@@ -331,11 +333,20 @@ class SourceTransform:
         """Cameras decoded and laid out in ``config.image_size`` (see the module docstring): uint8 (3, H, W) RGB,
         and the layout of the full-size images, which perspective labels follow.
 
-        Where the calibration gives the stored sizes, JPEGs are decoded at the largest reduction
-        (:func:`jpeg_reduction`) that still leaves the model's image to shrink into."""
+        A JPEG that is the model's image as stored is decoded as it is; otherwise, where the calibration gives the
+        stored sizes, JPEGs are decoded at the largest reduction (:func:`jpeg_reduction`) that still leaves the
+        model's image to shrink into."""
         meta = sample["meta"]
-        stored = self._stored_shapes(meta)
-        layout = None if stored is None else self.layout(meta, stored)
+        layout = self.stored_layout(meta)
+        if layout is not None and layout.identity:
+            try:
+                image = decode_rgb([jpeg_tensor(self._jpeg(sample, self.cameras[0]))], "cpu")[0]
+            except RuntimeError as err:
+                raise ValueError(
+                    f"sample {sample['__key__']!r}: field cam_{self.cameras[0]} is not a decodable JPEG ({err})"
+                ) from None
+            if tuple(image.shape[1:]) == layout.image_size:
+                return image, layout
         factor, flag = (1, 0) if layout is None else jpeg_reduction(layout)
         images = [self._decode(sample, camera, cv2.IMREAD_COLOR_RGB | flag) for camera in self.cameras]
         decoded = self._rig_layout(meta, [image.shape[:2] for image in images])
@@ -344,13 +355,21 @@ class SourceTransform:
         if factor == 1:
             decoded = self.layout(meta, [image.shape[:2] for image in images])
         image = render(decoded, images, cv2.INTER_AREA, 0)
-        return torch.from_numpy(channels_first(image)), decoded if factor == 1 else layout
+        return torch.from_numpy(image).permute(2, 0, 1), decoded if factor == 1 else layout
 
-    def _decode(self, sample: dict[str, Any], camera: str, flags: int) -> np.ndarray:
+    def stored_layout(self, meta: dict[str, Any]) -> CameraLayout | None:
+        """The layout of this sample's rig at the sizes its calibration (``meta.cameras``) gives; None without one."""
+        stored = self._stored_shapes(meta)
+        return None if stored is None else self.layout(meta, stored)
+
+    def _jpeg(self, sample: dict[str, Any], camera: str) -> bytes:
         data = sample.get(f"cam_{camera}")
         if data is None:
             raise KeyError(f"sample {sample['__key__']!r} has no camera {camera!r} (field cam_{camera})")
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+        return data
+
+    def _decode(self, sample: dict[str, Any], camera: str, flags: int) -> np.ndarray:
+        image = cv2.imdecode(np.frombuffer(self._jpeg(sample, camera), np.uint8), flags)
         if image is None:
             raise ValueError(f"sample {sample['__key__']!r}: field cam_{camera} is not a decodable JPEG")
         return image
@@ -624,15 +643,19 @@ IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
 
-    Identity entries (``__key__``, ``__dataset__``) become lists. The filler is masked out by construction:
-    validity masks are False, class maps :data:`IGNORE_CLASS`, depth 0. Perspective labels left at their stored size
-    by rigs of different sizes (one source, several camera rigs) are brought onto the image's grid here, as the loss
-    would. In a dataloader worker each tensor is stacked straight into shared memory (torch's ``default_collate``),
-    not into private memory that the worker then copies into shared memory to send the batch.
+    Identity entries (``__key__``, ``__dataset__``) and JPEGs left for the device (:data:`RGB_JPEG`) become lists;
+    where only some samples' rigs let their JPEG go encoded, those are decoded here. The filler is masked out by
+    construction: validity masks are False, class maps :data:`IGNORE_CLASS`, depth 0. Perspective labels left at
+    their stored size by rigs of different sizes (one source, several camera rigs) are brought onto the image's grid
+    here, as the loss would. In a dataloader worker each tensor is stacked straight into shared memory (torch's
+    ``default_collate``), not into private memory that the worker then copies into shared memory to send the batch.
     """
+    if any(RGB_JPEG in sample for sample in samples) and not all(RGB_JPEG in sample for sample in samples):
+        samples = [_decoded(sample) for sample in samples]
     names = set().union(*samples)
-    batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in names if name.startswith("__")}
-    for key in sorted(name for name in names if not name.startswith("__")):
+    listed = {name for name in names if name.startswith("__")} | ({RGB_JPEG} & names)
+    batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in listed}
+    for key in sorted(names - listed):
         values = [sample.get(key) for sample in samples]
         if any(value is None for value in values):  # the filler is only built where a sample lacks the label
             template = next(value for value in values if value is not None)
@@ -641,13 +664,32 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
         if key in IMAGE_ALIGNED and len({value.shape for value in values}) > 1:  # rigs whose labels differ in size
             size = tuple(batch_image_size(samples))
             values = [on_image_grid(value[None], size)[0] for value in values]
-        batch[key] = default_collate(values)  # in a loader worker, stacked straight into shared memory
+        batch[key] = _stack(key, values)
     return batch
+
+
+def _stack(key: str, values: list[torch.Tensor]) -> torch.Tensor:
+    """One batch tensor; in a loader worker stacked straight into shared memory (torch's ``default_collate``).
+
+    Images are (3, H, W) views of (H, W, 3) pixels, as decoders write them: stacked as (B, H, W, 3), one plain copy,
+    and handed on as a channels-last (B, 3, H, W) view (a per-sample planar copy would cost a third of a decode)."""
+    if key == "rgb":
+        return default_collate([value.permute(1, 2, 0) for value in values]).permute(0, 3, 1, 2)
+    return default_collate(values)
+
+
+def _decoded(sample: dict[str, Any]) -> dict[str, Any]:
+    """``sample`` with a JPEG left for the device decoded into ``rgb`` here."""
+    if RGB_JPEG not in sample:
+        return sample
+    sample = dict(sample)
+    sample["rgb"] = decode_rgb([sample.pop(RGB_JPEG)], "cpu")[0]
+    return sample
 
 
 def batch_image_size(samples: list[dict[str, Any]]) -> tuple[int, int]:
     """The (H, W) of the input image of a batch's samples (they share the model's ``image_size``)."""
-    image = next((sample["rgb"] for sample in samples if "rgb" in sample), None)
-    if image is None:
+    sample = next((sample for sample in samples if "rgb" in sample or RGB_JPEG in sample), None)
+    if sample is None:
         raise KeyError("perspective labels (depth, semantic) need the samples' 'rgb' to know the image grid")
-    return tuple(image.shape[-2:])
+    return tuple(_decoded(sample)["rgb"].shape[-2:])

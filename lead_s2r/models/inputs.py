@@ -13,19 +13,30 @@ and ``depth``/``semantic`` may stay smaller than the image when the image is a p
 loss resizes them onto the image's grid on the device (:func:`on_image_grid`) exactly as the loader
 would have (bilinear / nearest, pixel centres aligned), so a depth stored at 1/4 size is not shipped 16x larger.
 Float rasters and signed class maps (-1 = ignore) are accepted too, so a batch built by hand needs no uint8 coding.
+
+Where a camera's stored JPEG already is the model's image (one camera at ``image_size``, nothing to crop or scale),
+the loader may leave it encoded: ``rgb_jpeg`` (:data:`RGB_JPEG`) carries each sample's JPEG bytes, and
+:func:`decode_images` turns them into ``rgb`` on the training device before the forward, with nvJPEG on a GPU.
+That takes the largest decode of a CARLA sample off the loader's CPU and sends 12-200 KB to the device instead of
+1.3 MB. nvJPEG's pixels may differ from libjpeg-turbo's by a level or two (its IDCT and chroma upsampling are its
+own); on the CPU the decode is libjpeg-turbo's, equal to the loader's.
 """
 
+import warnings
 from collections.abc import Mapping
 from typing import Any, TypedDict
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from torchvision.io import ImageReadMode, decode_jpeg
 
 #: LiDAR hits per BEV cell at which the raster saturates (LEAD's ``rasterize_lidar``: clip at 5, scale to [0, 1]).
 LIDAR_HITS_MAX = 5
 #: Class id of "no label" in a uint8 class map (no class table uses it: they stop far below 255).
 IGNORE_CLASS = 255
+#: Batch key of input images left JPEG-encoded by the loader: a list of 1-D uint8 CPU tensors (:func:`decode_images`).
+RGB_JPEG = "rgb_jpeg"
 
 
 class Batch(TypedDict, total=False):
@@ -34,6 +45,7 @@ class Batch(TypedDict, total=False):
     __key__: list[str]  # sample keys, for predictions
     # --- inputs
     rgb: Tensor  # (B, 3, H, W) uint8 (or float in [0, 255]), RGB order; normalised inside the model
+    rgb_jpeg: list[Tensor]  # instead of rgb: each sample's JPEG bytes (1-D uint8, CPU), see decode_images
     lidar_bev: Tensor  # (B, C, Hb, Wb) uint8 hits per cell, 0..LIDAR_HITS_MAX (or float in [0, 1]) (TFv6 only)
     speed: Tensor  # (B,) m/s
     acceleration: Tensor  # (B, 2) m/s^2, [ax, ay] in the ego frame
@@ -112,3 +124,36 @@ def class_ids(labels: Tensor) -> Tensor:
     if labels.dtype == torch.uint8:
         ids = ids.masked_fill(labels == IGNORE_CLASS, -1)
     return ids
+
+
+def jpeg_tensor(data: bytes) -> Tensor:
+    """JPEG bytes as the 1-D uint8 tensor the decoders take (a copy: torch refuses to wrap read-only bytes)."""
+    return torch.frombuffer(bytearray(data), dtype=torch.uint8)
+
+
+def decode_rgb(encoded: list[Tensor], device: torch.device | str) -> list[Tensor]:
+    """JPEGs (1-D uint8 CPU tensors) as (3, H, W) uint8 RGB on ``device``: nvJPEG on CUDA, one call for them all;
+    libjpeg-turbo on the CPU, pixel for pixel what OpenCV's decode gives."""
+    with warnings.catch_warnings():  # torchvision 0.29 deprecates its codecs for torchcodec, whose wheels each fit
+        warnings.simplefilter("ignore", DeprecationWarning)  # one torch release only; ours follow torchvision's range
+        return decode_jpeg(list(encoded), mode=ImageReadMode.RGB, device=device)
+
+
+def decode_images(batch: Batch, device: torch.device | str) -> Batch:
+    """``batch`` with its :data:`RGB_JPEG` images decoded into ``rgb`` on ``device`` (nvJPEG on CUDA, one call for the
+    batch; libjpeg-turbo on the CPU); a batch without them is returned as it is. Every image must decode to the same
+    size (the model's ``image_size``, which the loader checked against the cameras' calibration)."""
+    if RGB_JPEG not in batch:
+        return batch
+    batch = dict(batch)
+    images = decode_rgb(batch.pop(RGB_JPEG), device)
+    sizes = {tuple(image.shape[-2:]) for image in images}
+    if len(sizes) > 1:
+        keys = batch.get("__key__", [str(i) for i in range(len(images))])
+        found = ", ".join(f"{key}: {tuple(image.shape[-2:])}" for key, image in zip(keys, images, strict=True))
+        raise ValueError(
+            f"the batch's camera JPEGs decode to different sizes ({found}); each should be the model's image_size, as "
+            "its meta.cameras calibration says: re-convert the samples whose JPEG and calibration disagree"
+        )
+    batch["rgb"] = torch.stack(images)
+    return batch

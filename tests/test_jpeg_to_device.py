@@ -1,0 +1,106 @@
+"""Camera JPEGs left encoded by the loader and decoded on the training device give the loader's own pixels.
+
+On the CPU both decodes are libjpeg-turbo's, so everything downstream must be bit-identical; only rigs whose JPEG is
+the model's image as stored (one camera at ``image_size``) may go encoded.
+"""
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
+from lead_s2r.data.transforms import SourceTransform, collate
+from lead_s2r.models.config import tfv6_config
+from lead_s2r.models.ego_mlp import EgoStatusMLP
+from lead_s2r.models.inputs import RGB_JPEG, decode_images, decode_rgb, jpeg_tensor
+from lead_s2r.registry import get_adapter
+from lead_s2r.synthetic.carla_lead import generate
+from lead_s2r.training.module import DrivingModule
+
+
+@pytest.fixture(scope="module")
+def carla_samples(tmp_path_factory: pytest.TempPathFactory) -> list[dict]:
+    src = tmp_path_factory.mktemp("lead")
+    generate(Path(src), count=1, seed=11, frames=3)
+    adapter = get_adapter("carla_lead")
+    return [sample for log in adapter.list_logs(src) for sample in adapter.iter_samples(log)]
+
+
+def assert_batches_equal(a: dict, b: dict) -> None:
+    assert set(a) == set(b)
+    for name, value in a.items():
+        if isinstance(value, torch.Tensor):
+            assert value.dtype == b[name].dtype and torch.equal(value, b[name]), name
+        else:
+            assert value == b[name], name
+
+
+@pytest.mark.parametrize("quality", [75, 95])
+@pytest.mark.parametrize("gray", [False, True])
+def test_libjpeg_turbo_through_torch_decodes_what_opencv_decodes(quality: int, gray: bool) -> None:
+    rng = np.random.default_rng(quality)
+    image = rng.integers(0, 256, (96, 160) if gray else (96, 160, 3), dtype=np.uint8)  # noise: every coefficient
+    data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
+    ours = decode_rgb([jpeg_tensor(data)], "cpu")[0]
+    opencv = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR_RGB)
+    assert ours.shape == (3, 96, 160)
+    np.testing.assert_array_equal(ours.permute(1, 2, 0).numpy(), opencv)
+
+
+def test_a_jpeg_sent_encoded_decodes_to_the_loaders_batch(carla_samples: list[dict]) -> None:
+    config = tfv6_config()  # paper size: the 1152x384 mosaic is the model's image as stored
+    in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
+    encoded = collate([SourceTransform("carla", config, jpeg_to_device=True)(sample) for sample in carla_samples])
+    assert "rgb" not in encoded and len(encoded[RGB_JPEG]) == len(carla_samples)
+    assert bytes(encoded[RGB_JPEG][0].numpy()) == bytes(carla_samples[0]["cam_carla_mosaic"])
+    assert in_loader["rgb"].is_contiguous(memory_format=torch.channels_last)
+    assert_batches_equal(decode_images(encoded, "cpu"), in_loader)
+
+
+def test_a_rig_the_loader_must_lay_out_is_decoded_there(carla_samples: list[dict]) -> None:
+    config = tfv6_config(image_size=(192, 576))  # the mosaic is scaled: not the model's image as stored
+    out = SourceTransform("carla", config, jpeg_to_device=True)(carla_samples[0])
+    assert RGB_JPEG not in out and out["rgb"].shape == (3, 192, 576)
+    assert torch.equal(out["rgb"], SourceTransform("carla", config)(carla_samples[0])["rgb"])
+
+
+def test_a_batch_mixing_encoded_and_decoded_images_is_decoded_in_the_loader(carla_samples: list[dict]) -> None:
+    config = tfv6_config()
+    loader, device = SourceTransform("carla", config), SourceTransform("carla", config, jpeg_to_device=True)
+    mixed = collate([loader(carla_samples[0]), device(carla_samples[1]), device(carla_samples[2])])
+    assert RGB_JPEG not in mixed
+    assert_batches_equal(mixed, collate([loader(sample) for sample in carla_samples]))
+
+
+def test_jpegs_of_different_sizes_name_their_samples() -> None:
+    jpegs = [cv2.imencode(".jpg", np.zeros((h, 32, 3), np.uint8))[1].tobytes() for h in (16, 24)]
+    batch = {"__key__": ["a/1", "b/2"], RGB_JPEG: [jpeg_tensor(data) for data in jpegs]}
+    with pytest.raises(ValueError, match=r"a/1: \(16, 32\), b/2: \(24, 32\)"):
+        decode_images(batch, "cpu")
+
+
+def test_the_module_decodes_before_the_batch_moves(carla_samples: list[dict]) -> None:
+    config = tfv6_config()
+    encoded = collate([SourceTransform("carla", config, jpeg_to_device=True)(sample) for sample in carla_samples])
+    module = DrivingModule(EgoStatusMLP())
+    batch = module.on_before_batch_transfer({"carla": encoded}, 0)
+    assert RGB_JPEG not in batch["carla"] and batch["carla"]["rgb"].device == module.device
+    in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
+    assert torch.equal(batch["carla"]["rgb"], in_loader["rgb"])
+
+
+def test_the_datamodule_sends_jpegs_encoded_only_when_training_on_a_gpu(toy_data: str) -> None:
+    def transform(dm: DriveDataModule, device: str) -> SourceTransform:
+        dm.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device(device)))
+        return dm._decode("carla", dm.train_sources["carla"]).transform
+
+    config = tfv6_config(image_size=(64, 192))
+    auto = DriveDataModule(train={"carla": SourceSpec([toy_data])}, config=config)
+    assert not transform(auto, "cpu").jpeg_to_device
+    assert transform(auto, "cuda").jpeg_to_device
+    forced = DriveDataModule(train={"carla": SourceSpec([toy_data])}, config=config, jpeg_to_device=True)
+    assert transform(forced, "cpu").jpeg_to_device
