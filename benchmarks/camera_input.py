@@ -18,10 +18,10 @@ from lead_s2r.models.config import ltfv6_config
 CAMERAS = ("front", "left", "right", "back")
 
 
-def scene_jpeg(height: int = 1080, width: int = 1920) -> bytes:
+def scene_jpeg(height: int = 1080, width: int = 1920, seed: int = 0) -> bytes:
     y, x = np.mgrid[0:height, 0:width] / width
     image = np.stack([128 + 100 * np.sin(6 * x + 3 * y), 128 + 100 * np.cos(4 * y - 2 * x), 255 * x], axis=2)
-    image += np.random.default_rng(0).normal(0, 20, image.shape)
+    image += np.random.default_rng(seed).normal(0, 20, image.shape)
     image = cv2.GaussianBlur(image, (0, 0), 2).clip(0, 255).astype(np.uint8)
     return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
 
