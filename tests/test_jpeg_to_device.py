@@ -83,6 +83,13 @@ def test_jpegs_of_different_sizes_name_their_samples() -> None:
         decode_images(batch, "cpu")
 
 
+def test_an_undecodable_jpeg_names_the_batchs_samples() -> None:
+    good = cv2.imencode(".jpg", np.zeros((16, 32, 3), np.uint8))[1].tobytes()
+    batch = {"__key__": ["a/1", "b/2"], RGB_JPEG: [jpeg_tensor(good), jpeg_tensor(good[: len(good) // 3])]}
+    with pytest.raises(ValueError, match=r"samples \['a/1', 'b/2'\] is not decodable"):
+        decode_images(batch, "cpu")
+
+
 def test_the_module_decodes_before_the_batch_moves(carla_samples: list[dict]) -> None:
     config = tfv6_config()
     encoded = collate([SourceTransform("carla", config, jpeg_to_device=True)(sample) for sample in carla_samples])

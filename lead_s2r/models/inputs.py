@@ -146,10 +146,14 @@ def decode_images(batch: Batch, device: torch.device | str) -> Batch:
     if RGB_JPEG not in batch:
         return batch
     batch = dict(batch)
-    images = decode_rgb(batch.pop(RGB_JPEG), device)
+    encoded = batch.pop(RGB_JPEG)
+    keys = batch.get("__key__", [str(i) for i in range(len(encoded))])
+    try:
+        images = decode_rgb(encoded, device)
+    except RuntimeError as err:
+        raise ValueError(f"a camera JPEG of the samples {keys} is not decodable: {err}") from None
     sizes = {tuple(image.shape[-2:]) for image in images}
     if len(sizes) > 1:
-        keys = batch.get("__key__", [str(i) for i in range(len(images))])
         found = ", ".join(f"{key}: {tuple(image.shape[-2:])}" for key, image in zip(keys, images, strict=True))
         raise ValueError(
             f"the batch's camera JPEGs decode to different sizes ({found}); each should be the model's image_size, as "
