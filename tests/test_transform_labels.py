@@ -29,6 +29,7 @@ from lead_s2r.data.transforms import (
 from lead_s2r.geometry import resample, rotate
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, BEVGrid, tfv6_config
 from lead_s2r.models.inputs import lidar_input
+from lead_s2r.schema import command4
 
 # --------------------------------------------------------------------------- references
 
@@ -74,7 +75,8 @@ def assert_bit_identical(got: dict[str, torch.Tensor], expected: dict[str, np.nd
         tensor = got[name]
         assert tensor.is_contiguous(), name
         assert tensor.dtype == torch.from_numpy(value).dtype and tuple(tensor.shape) == value.shape, name
-        np.testing.assert_array_equal(tensor.numpy().view(np.uint8), value.view(np.uint8), err_msg=name)
+        bits = tensor.numpy().reshape(-1).view(np.uint8)
+        np.testing.assert_array_equal(bits, value.reshape(-1).view(np.uint8), err_msg=name)
 
 
 # --------------------------------------------------------------------------- radar
@@ -241,3 +243,24 @@ def test_trajectory_equals_the_nan_to_num_definition(knots: np.ndarray, source: 
     transform = SourceTransform(source, tfv6_config(), [])
     expected = reference_trajectory(knots, transform.config.trajectory_grids[source].times)
     assert_bit_identical(transform.trajectory(knots), expected)
+
+
+# --------------------------------------------------------------------------- ego scalars
+
+
+@pytest.mark.parametrize(("speed", "acceleration", "command"), [(6.1, [0.3, -0.0], 4), (0, [1, 2], 1)])
+def test_ego_scalars_equal_torch_tensor_of_the_meta(speed: float, acceleration: list, command: int) -> None:
+    meta = {
+        "dataset": "carla_lead",
+        "ego": {"speed": speed, "acceleration": acceleration, "command": command},
+        "extras": {"carla_lead": {"target_speed": 8.3}},
+    }
+    out = SourceTransform("carla", tfv6_config(), [])({"__key__": "k", "meta": meta})
+    expected = {
+        "speed": torch.tensor(float(speed)),
+        "acceleration": torch.tensor(acceleration, dtype=torch.float32),
+        "command": torch.tensor(int(command4(command)), dtype=torch.int64),
+        "target_speed": torch.tensor(8.3),
+        "target_speed_valid": torch.tensor(True),
+    }
+    assert_bit_identical({name: out[name] for name in expected}, {k: v.numpy() for k, v in expected.items()})

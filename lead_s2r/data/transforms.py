@@ -297,9 +297,9 @@ class SourceTransform:
         out: dict[str, Any] = {
             "__key__": sample["__key__"],
             "__dataset__": meta["dataset"],
-            "speed": torch.tensor(float(ego["speed"])),
-            "acceleration": torch.tensor(ego["acceleration"], dtype=torch.float32),
-            "command": torch.tensor(int(command4(ego["command"])), dtype=torch.int64),
+            "speed": torch.scalar_tensor(float(ego["speed"])),  # a third of torch.tensor's cost, same tensor
+            "acceleration": torch.from_numpy(np.array(ego["acceleration"], np.float32)),
+            "command": torch.scalar_tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
             out["rgb"], layout = self.image(sample)
@@ -316,8 +316,8 @@ class SourceTransform:
             out.update(route_checkpoints(sample["route"], self.config.num_route_points))
         target_speed = meta["extras"].get(meta["dataset"], {}).get("target_speed")
         if target_speed is not None:
-            out["target_speed"] = torch.tensor(float(target_speed))
-            out["target_speed_valid"] = torch.tensor(True)
+            out["target_speed"] = torch.scalar_tensor(float(target_speed))
+            out["target_speed_valid"] = torch.scalar_tensor(True, dtype=torch.bool)
         space = self.config.space(self.source)
         if "bev_semantic" in sample and space in self.config.bev_semantic_classes:
             out["bev_semantic"] = torch.from_numpy(bev_labels(sample["bev_semantic"], meta["bev"], self.config.bev))
