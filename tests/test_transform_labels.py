@@ -205,10 +205,12 @@ def test_lidar_points_just_below_cell_edges_and_past_mid_cell_equal_the_histogra
         np.testing.assert_array_equal(got.numpy(), reference_lidar(points, CARLA_BEV))
 
 
-def test_a_lidar_grid_too_large_for_float32_cell_indices_says_so() -> None:
+def test_lidar_inputs_the_float_cell_index_would_miscount_are_refused() -> None:
     grid = BEVGrid(0.0, 4097.0, 0.0, 4096.0, 1.0)  # 4097 * 4096 > 2**24
     with pytest.raises(ValueError, match="2\\*\\*24"):
         rasterize_lidar(np.zeros((1, 4), np.float32), grid)
+    with pytest.raises(TypeError, match=r"'lidar'.*float16"):  # 11 bits of mantissa: cell 2049 would round
+        rasterize_lidar(np.zeros((1, 4), np.float16), CARLA_BEV)
 
 
 # --------------------------------------------------------------------------- route and trajectory

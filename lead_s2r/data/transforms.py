@@ -494,6 +494,8 @@ def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
 def _lidar_cells(points: np.ndarray, grid: BEVGrid) -> np.ndarray:
     """Flat cell index (row * W + column) of each point of ``points`` on ``grid``; points off the grid dropped."""
     h, w = grid.shape
+    if points.dtype not in (np.float32, np.float64):  # the index below is exact in these only
+        raise TypeError(f"lidar points must be float32 (the schema's 'lidar' field) or float64, got {points.dtype}")
     if h * w > 2**24:
         raise ValueError(f"BEV grid {h}x{w} has more cells than float32 counts exactly (2**24); use a coarser grid")
     rows = points[:, 0] - grid.x_min  # fractional row and column, in place: one temporary each
