@@ -46,7 +46,7 @@ import numpy as np
 import torch
 from torch.utils.data import default_collate
 
-from lead_s2r.geometry import raster_lookup, resample, rotate
+from lead_s2r.geometry import raster_lookup, resample
 from lead_s2r.models.config import BEVGrid, TFv6Config
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, RGB_JPEG, decode_rgb, jpeg_tensor, on_image_grid
 from lead_s2r.schema import BoxClass, command4
@@ -295,9 +295,9 @@ class SourceTransform:
         out: dict[str, Any] = {
             "__key__": sample["__key__"],
             "__dataset__": meta["dataset"],
-            "speed": torch.tensor(float(ego["speed"])),
-            "acceleration": torch.tensor(ego["acceleration"], dtype=torch.float32),
-            "command": torch.tensor(int(command4(ego["command"])), dtype=torch.int64),
+            "speed": torch.scalar_tensor(float(ego["speed"])),  # a third of torch.tensor's cost, same tensor
+            "acceleration": torch.from_numpy(np.array(ego["acceleration"], np.float32)),
+            "command": torch.scalar_tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
             shipped = self.stored_layout(meta) if self.jpeg_to_device else None
@@ -318,8 +318,8 @@ class SourceTransform:
             out.update(route_checkpoints(sample["route"], self.config.num_route_points))
         target_speed = meta["extras"].get(meta["dataset"], {}).get("target_speed")
         if target_speed is not None:
-            out["target_speed"] = torch.tensor(float(target_speed))
-            out["target_speed_valid"] = torch.tensor(True)
+            out["target_speed"] = torch.scalar_tensor(float(target_speed))
+            out["target_speed_valid"] = torch.scalar_tensor(True, dtype=torch.bool)
         space = self.config.space(self.source)
         if "bev_semantic" in sample and space in self.config.bev_semantic_classes:
             out["bev_semantic"] = torch.from_numpy(bev_labels(sample["bev_semantic"], meta["bev"], self.config.bev))
@@ -440,12 +440,12 @@ class SourceTransform:
         knots = np.vstack([np.zeros((1, 4), np.float32), future])  # the ego sits at the origin at t = 0
         poses, valid = resample(knots[:, 0], knots[:, 1:], times, angle_columns=(2,))
         out = {
-            "waypoints": torch.from_numpy(np.nan_to_num(poses[:, :2]).astype(np.float32)),
+            "waypoints": torch.from_numpy(_nan_to_zero(poses[:, :2])),
             "waypoints_valid": torch.from_numpy(valid),
         }
         heading_valid = valid & np.isfinite(poses[:, 2])
         if heading_valid.any():  # a source without headings (WOD-E2E) must not dilute the heading loss of others
-            out["headings"] = torch.from_numpy(np.nan_to_num(poses[:, 2]).astype(np.float32))
+            out["headings"] = torch.from_numpy(_nan_to_zero(poses[:, 2]))
             out["headings_valid"] = torch.from_numpy(heading_valid)
         return out
 
@@ -494,16 +494,42 @@ def bev_cell_centres(grid: BEVGrid, stride: int = 1) -> tuple[np.ndarray, np.nda
 
 def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
     """Point histogram on ``grid`` (H along +x, W along +y), saturated at :data:`LIDAR_HITS_MAX` hits: uint8 (H, W)
-    counts, which the backbone scales to LEAD's [0, 1] (:func:`~lead_s2r.models.inputs.lidar_input`)."""
+    counts, which the backbone scales to LEAD's [0, 1] (:func:`~lead_s2r.models.inputs.lidar_input`).
+
+    A LEAD frame has about 60,000 points, so every pass over them and every large temporary shows: the fractional
+    row and column stay in the points' dtype (float32: a point lands in the cell it always did), the in-grid points
+    are picked once and their cell index is formed in that dtype (exact: every index is below 2**24, which
+    :func:`_lidar_cells` checks), and the int64 histogram is saturated straight into the uint8 raster.
+    """
     h, w = grid.shape
+    raster = np.zeros((h, w), np.uint8)
     if points is None or not len(points):
-        return np.zeros((h, w), np.uint8)
-    u = (points[:, 0] - grid.x_min) * grid.pixels_per_meter  # fractional row, column
-    v = (points[:, 1] - grid.y_min) * grid.pixels_per_meter
-    inside = (u >= 0) & (u < h) & (v >= 0) & (v < w)  # NaN is outside; inside, truncation is the floor
-    cells = u[inside].astype(np.int64) * w + v[inside].astype(np.int64)
-    counts = np.bincount(cells, minlength=h * w)
-    return np.minimum(counts, LIDAR_HITS_MAX).astype(np.uint8).reshape(h, w)
+        return raster
+    counts = np.bincount(_lidar_cells(points, grid), minlength=h * w).reshape(h, w)
+    np.minimum(counts, LIDAR_HITS_MAX, out=raster, casting="unsafe")  # <= LIDAR_HITS_MAX: the cast is exact
+    return raster
+
+
+def _lidar_cells(points: np.ndarray, grid: BEVGrid) -> np.ndarray:
+    """Flat cell index (row * W + column) of each point of ``points`` on ``grid``; points off the grid dropped."""
+    h, w = grid.shape
+    if points.dtype not in (np.float32, np.float64):  # the index below is exact in these only
+        raise TypeError(f"lidar points must be float32 (the schema's 'lidar' field) or float64, got {points.dtype}")
+    if h * w > 2**24:
+        raise ValueError(f"BEV grid {h}x{w} has more cells than float32 counts exactly (2**24); use a coarser grid")
+    rows = points[:, 0] - grid.x_min  # fractional row and column, in place: one temporary each
+    rows *= grid.pixels_per_meter
+    cols = points[:, 1] - grid.y_min
+    cols *= grid.pixels_per_meter
+    inside = rows >= 0  # NaN is outside; inside, truncation is the floor
+    inside &= rows < h
+    inside &= cols >= 0
+    inside &= cols < w
+    rows, cols = rows[inside], cols[inside]
+    cells = np.trunc(rows, out=rows)
+    cells *= w
+    cells += np.trunc(cols, out=cols)
+    return cells.astype(np.intp)
 
 
 def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) -> dict[str, torch.Tensor]:
@@ -525,14 +551,32 @@ def radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, torch.Tenso
     targets = np.zeros((MAX_RADAR_TARGETS, 3), np.float32)
     valid = np.zeros(MAX_RADAR_TARGETS, bool)
     if len(radar) and len(boxes):
-        local = rotate(radar[None, :, :2] - boxes[:, None, :2], -boxes[:, None, 6])  # (N boxes, P points, 2)
-        half = boxes[:, None, 3:5] / 2 + RADAR_HIT_MARGIN_M
-        hit = (np.abs(local) <= half).all(axis=-1).any(axis=1)
+        hit = _radar_hits(radar, boxes)
         speed = np.hypot(boxes[:, 7], boxes[:, 8])
         chosen = np.flatnonzero(hit)[np.argsort(-speed[hit], kind="stable")][:MAX_RADAR_TARGETS]
         targets[: len(chosen)] = np.stack([boxes[chosen, 0], boxes[chosen, 1], speed[chosen]], axis=1)
         valid[: len(chosen)] = True
     return {"radar_targets": torch.from_numpy(targets), "radar_targets_valid": torch.from_numpy(valid)}
+
+
+def _radar_hits(radar: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(N boxes,) bool: whether any radar point lies inside the box's footprint grown by
+    :data:`RADAR_HIT_MARGIN_M`.
+
+    Every (box, point) pair is tested on (boxes, points) planes, x and y apart: a frame has about 60 boxes and 300
+    points, and :func:`~lead_s2r.geometry.rotate` of one (boxes, points, 2) array, tested by ``.all`` over its
+    2-long last axis, cost six times as much. The arithmetic is rotate's, element for element (same dtype, same
+    operations in the same order), so every pair decides as it did. A prefilter (points sorted by x, only pairs
+    within reach rotated) saved nothing at these sizes and would need its own rounding argument.
+    """
+    dx = radar[None, :, 0] - boxes[:, 0, None]
+    dy = radar[None, :, 1] - boxes[:, 1, None]
+    yaw = -boxes[:, 6, None]
+    cos, sin = np.cos(yaw), np.sin(yaw)
+    half = boxes[:, 3:5] / 2 + RADAR_HIT_MARGIN_M
+    inside = np.abs(cos * dx - sin * dy) <= half[:, 0, None]
+    inside &= np.abs(sin * dx + cos * dy) <= half[:, 1, None]
+    return inside.any(axis=1)
 
 
 def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
@@ -546,9 +590,20 @@ def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
     else:
         points, valid = resample(arc[keep], route[keep], targets)
     return {
-        "route": torch.from_numpy(np.nan_to_num(points).astype(np.float32)),
+        "route": torch.from_numpy(_nan_to_zero(points)),
         "route_valid": torch.from_numpy(valid),
     }
+
+
+def _nan_to_zero(values: np.ndarray) -> np.ndarray:
+    """float64 ``values`` (resampled, NaN where masked) as float32 with NaN as 0.
+
+    Equal to ``np.nan_to_num(values).astype(np.float32)`` (whose +-float64 max for +-inf round to +-inf in float32)
+    in three numpy calls, where ``nan_to_num`` makes a dozen: this runs three times per sample on arrays of a few
+    dozen numbers."""
+    out = values.astype(np.float32)
+    out[np.isnan(out)] = 0.0
+    return out
 
 
 def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
@@ -582,7 +637,7 @@ def centernet_targets(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dic
 
     With a single class only vehicles are kept (NAVSIM's agent head); otherwise the class is the unified
     :class:`~lead_s2r.schema.BoxClass` id. The first :data:`MAX_BOXES` boxes whose centre falls on the grid count.
-    Each Gaussian is drawn only where it is non-zero in float32 (:func:`_gaussian_radius`), which gives the same
+    Each Gaussian is drawn only where it is non-zero in float32 (:func:`gaussian_window`), which gives the same
     heatmap as drawing it over the whole grid.
     """
     h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
@@ -597,26 +652,30 @@ def centernet_targets(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dic
     rows, cols = np.floor(row_f).astype(np.int64), np.floor(col_f).astype(np.int64)
     keep &= (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
     chosen = np.flatnonzero(keep)[:MAX_BOXES]
-    n = len(chosen)
-    sigma = np.maximum(np.float32(0.5), np.minimum(boxes[chosen, 3], boxes[chosen, 4]) / cell / 6.0)
+    picked, rows, cols = boxes[chosen], rows[chosen], cols[chosen]
+    sigma = np.maximum(np.float32(0.5), np.minimum(picked[:, 3], picked[:, 4]) / cell / 6.0)
     heatmap = np.zeros((num_classes, h, w), np.float32)
-    for label, row, col, denominator in zip(labels[chosen], rows[chosen], cols[chosen], 2 * sigma**2, strict=True):
-        _draw_gaussian(heatmap[label], int(row), int(col), float(denominator))
+    draws = zip(labels[chosen].tolist(), rows.tolist(), cols.tolist(), (2 * sigma**2).tolist(), strict=True)
+    for label, row, col, denominator in draws:  # Python numbers: a numpy scalar per box costs more than the draw
+        _draw_gaussian(heatmap[label], row, col, denominator)
+    offset = np.stack([row_f[chosen] - rows.astype(np.float32), col_f[chosen] - cols.astype(np.float32)], axis=1)
+    speed = np.hypot(picked[:, 7].astype(np.float64), picked[:, 8].astype(np.float64))
     regression = {
-        "box_index": np.zeros(MAX_BOXES, np.int64),
-        "box_valid": np.arange(MAX_BOXES) < n,
-        "box_offset": np.zeros((MAX_BOXES, 2), np.float32),
-        "box_size": np.zeros((MAX_BOXES, 2), np.float32),
-        "box_yaw": np.zeros(MAX_BOXES, np.float32),
-        "box_velocity": np.zeros(MAX_BOXES, np.float32),
+        "box_index": _first_rows(rows * w + cols, np.int64),
+        "box_valid": np.arange(MAX_BOXES) < len(chosen),
+        "box_offset": _first_rows(offset, np.float32),
+        "box_size": _first_rows(picked[:, 3:5], np.float32),
+        "box_yaw": _first_rows(picked[:, 6], np.float32),
+        "box_velocity": _first_rows(speed, np.float32),
     }
-    regression["box_index"][:n] = rows[chosen] * w + cols[chosen]
-    regression["box_offset"][:n, 0] = row_f[chosen] - rows[chosen].astype(np.float32)
-    regression["box_offset"][:n, 1] = col_f[chosen] - cols[chosen].astype(np.float32)
-    regression["box_size"][:n] = boxes[chosen, 3:5]
-    regression["box_yaw"][:n] = boxes[chosen, 6]
-    regression["box_velocity"][:n] = np.hypot(boxes[chosen, 7].astype(np.float64), boxes[chosen, 8].astype(np.float64))
     return {"box_heatmap": torch.from_numpy(heatmap), **{k: torch.from_numpy(v) for k, v in regression.items()}}
+
+
+def _first_rows(values: np.ndarray, dtype: type) -> np.ndarray:
+    """``values`` (at most :data:`MAX_BOXES` rows) cast to ``dtype`` and zero-padded to :data:`MAX_BOXES` rows."""
+    out = np.zeros((MAX_BOXES, *values.shape[1:]), dtype)
+    out[: len(values)] = values
+    return out
 
 
 #: exp(-q) rounds to 0 in float32 beyond this q (below half the smallest subnormal, 2**-150: ln 2**-150 = -103.97).
@@ -625,13 +684,29 @@ _FLOAT32_EXP_ZERO = 104.0
 
 def _draw_gaussian(heatmap: np.ndarray, row: int, col: int, denominator: float) -> None:
     """``heatmap = max(heatmap, exp(-d^2 / denominator))`` (d: cell distance from (row, col)), in float64 rounded to
-    float32, over the window outside which every value is 0 in float32."""
-    radius = math.isqrt(int(_FLOAT32_EXP_ZERO * denominator)) + 1
+    float32, over the window outside which every value is 0 in float32 (:func:`gaussian_window`), cut at the
+    heatmap's edges."""
+    radius, window = gaussian_window(denominator)
     r0, r1 = max(row - radius, 0), min(row + radius + 1, heatmap.shape[0])
     c0, c1 = max(col - radius, 0), min(col + radius + 1, heatmap.shape[1])
-    d2 = (np.arange(r0, r1)[:, None] - row) ** 2 + (np.arange(c0, c1)[None, :] - col) ** 2
-    gaussian = np.exp(-d2 / denominator).astype(np.float32)
-    np.maximum(heatmap[r0:r1, c0:c1], gaussian, out=heatmap[r0:r1, c0:c1])
+    target = heatmap[r0:r1, c0:c1]
+    cut = window[r0 - row + radius : r1 - row + radius, c0 - col + radius : c1 - col + radius]
+    np.maximum(target, cut, out=target)
+
+
+@lru_cache(maxsize=256)
+def gaussian_window(denominator: float) -> tuple[int, np.ndarray]:
+    """(radius, the (2 radius + 1)^2 float32 window ``exp(-d^2 / denominator)`` around its centre cell), zero in
+    float32 beyond ``radius``.
+
+    Cached per denominator: most boxes sit at the 0.5-cell sigma floor (cars, pedestrians), and a dataset's vehicle
+    models repeat their sizes, so a few windows serve nearly every box; each value is the same float64 ``exp`` of
+    the same integer ``d^2`` whichever box it serves, rounded to float32."""
+    radius = math.isqrt(int(_FLOAT32_EXP_ZERO * denominator)) + 1
+    offsets = np.arange(-radius, radius + 1)
+    window = np.exp(-(offsets[:, None] ** 2 + offsets[None, :] ** 2) / denominator).astype(np.float32)
+    window.flags.writeable = False  # shared by every box with this denominator
+    return radius, window
 
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").

@@ -1,0 +1,268 @@
+"""The per-sample label functions of the training transform against their plain definitions, bit for bit.
+
+The references here are the straightforward forms the fast code replaced (one rotation of every (box, point) pair,
+``nan_to_num`` and a float32 cast, ``np.linalg.norm`` of the route's steps); the CenterNet and LiDAR references live
+in test_transform_speed.py. The inputs aim at the paths the fast code adds: a cached Gaussian window cut at every
+edge of the grid and shared by boxes and calls, LiDAR points on cell edges and off the grid (NaN, inf, overflow),
+radar points on the grown footprint's edge.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from test_transform_speed import random_boxes, reference_centernet, reference_lidar
+
+from lead_s2r.data.transforms import (
+    CENTERNET_STRIDE,
+    MAX_RADAR_TARGETS,
+    RADAR_HIT_MARGIN_M,
+    ROUTE_START_M,
+    SourceTransform,
+    centernet_targets,
+    gaussian_window,
+    radar_targets,
+    rasterize_lidar,
+    route_checkpoints,
+)
+from lead_s2r.geometry import resample, rotate
+from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, BEVGrid, tfv6_config
+from lead_s2r.models.inputs import lidar_input
+from lead_s2r.schema import command4
+
+# --------------------------------------------------------------------------- references
+
+
+def reference_radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, np.ndarray]:
+    targets, valid = np.zeros((MAX_RADAR_TARGETS, 3), np.float32), np.zeros(MAX_RADAR_TARGETS, bool)
+    if len(radar) and len(boxes):
+        local = rotate(radar[None, :, :2] - boxes[:, None, :2], -boxes[:, None, 6])  # (boxes, points, 2)
+        half = boxes[:, None, 3:5] / 2 + RADAR_HIT_MARGIN_M
+        hit = (np.abs(local) <= half).all(axis=-1).any(axis=1)
+        speed = np.hypot(boxes[:, 7], boxes[:, 8])
+        chosen = np.flatnonzero(hit)[np.argsort(-speed[hit], kind="stable")][:MAX_RADAR_TARGETS]
+        targets[: len(chosen)] = np.stack([boxes[chosen, 0], boxes[chosen, 1], speed[chosen]], axis=1)
+        valid[: len(chosen)] = True
+    return {"radar_targets": targets, "radar_targets_valid": valid}
+
+
+def reference_route(route: np.ndarray, count: int) -> dict[str, np.ndarray]:
+    route = np.vstack([np.zeros((1, 2)), np.asarray(route, np.float64)])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
+    keep = np.concatenate([[True], np.diff(arc) > 1e-6])
+    if keep.sum() < 2:
+        return {"route": np.zeros((count, 2), np.float32), "route_valid": np.zeros(count, bool)}
+    points, valid = resample(arc[keep], route[keep], ROUTE_START_M + np.arange(count, dtype=np.float64))
+    return {"route": np.nan_to_num(points).astype(np.float32), "route_valid": valid}
+
+
+def reference_trajectory(future: np.ndarray, times: tuple[float, ...]) -> dict[str, np.ndarray]:
+    knots = np.vstack([np.zeros((1, 4), np.float32), future])
+    poses, valid = resample(knots[:, 0], knots[:, 1:], np.asarray(times), angle_columns=(2,))
+    out = {"waypoints": np.nan_to_num(poses[:, :2]).astype(np.float32), "waypoints_valid": valid}
+    heading_valid = valid & np.isfinite(poses[:, 2])
+    if heading_valid.any():
+        out["headings"] = np.nan_to_num(poses[:, 2]).astype(np.float32)
+        out["headings_valid"] = heading_valid
+    return out
+
+
+def assert_bit_identical(got: dict[str, torch.Tensor], expected: dict[str, np.ndarray]) -> None:
+    """Same names, dtypes, shapes and bits (a NaN equals a NaN, -0.0 differs from 0.0), contiguous tensors."""
+    assert set(got) == set(expected)
+    for name, value in expected.items():
+        tensor = got[name]
+        assert tensor.is_contiguous(), name
+        assert tensor.dtype == torch.from_numpy(value).dtype and tuple(tensor.shape) == value.shape, name
+        bits = tensor.numpy().reshape(-1).view(np.uint8)
+        np.testing.assert_array_equal(bits, value.reshape(-1).view(np.uint8), err_msg=name)
+
+
+# --------------------------------------------------------------------------- radar
+
+
+def random_radar(rng: np.random.Generator, boxes: np.ndarray, n: int) -> np.ndarray:
+    """Radar points, about half scattered around the boxes (hits and near misses), the rest anywhere."""
+    radar = np.zeros((n, 5), np.float32)
+    radar[:, :2] = rng.uniform([-40, -45], [70, 45], (n, 2))
+    if len(boxes):
+        near = rng.random(n) < 0.5
+        around = boxes[rng.integers(0, len(boxes), near.sum()), :2]
+        radar[near, :2] = around + rng.normal(0, 3, (near.sum(), 2))
+    radar[:, 2:] = rng.normal(0, 3, (n, 3))
+    return radar
+
+
+@pytest.mark.parametrize(("boxes", "points"), [(0, 10), (6, 0), (1, 1), (65, 300), (200, 300)])
+def test_radar_targets_equal_the_rotated_footprint_definition(boxes: int, points: int) -> None:
+    rng = np.random.default_rng(boxes * 1000 + points)
+    box_array = random_boxes(rng, boxes)
+    radar = random_radar(rng, box_array, points)
+    if points > 10:
+        radar[:3, 0] = [np.nan, np.inf, -np.inf]  # never a hit
+    expected = reference_radar_targets(radar, box_array)
+    assert_bit_identical(radar_targets(radar, box_array), expected)
+    assert_bit_identical(
+        radar_targets(radar.astype(np.float64), box_array), reference_radar_targets(radar.astype(np.float64), box_array)
+    )
+    if boxes == 200:
+        assert expected["radar_targets_valid"].all()  # the 20-target cap binds
+
+
+def test_radar_points_on_the_grown_footprint_edge_hit_and_one_ulp_beyond_miss() -> None:
+    boxes = np.zeros((4, 10), np.float32)
+    boxes[:, :2] = [[10.0, 5.0], [30.0, 5.0], [50.0, 5.0], [70.0, 5.0]]
+    boxes[:, 3:5] = [4.0, 2.0]  # grown by 0.5 m: half extents 2.5 and 1.5, exact in float32
+    boxes[:, 7] = [1.0, 2.0, 3.0, 4.0]  # speeds, so the order of the targets is known
+    beyond = np.nextafter(np.float32(52.5), np.float32(np.inf))
+    radar = np.zeros((4, 5), np.float32)
+    radar[:, :2] = [[12.5, 5.0], [27.5, 6.5], [beyond, 5.0], [70.0, np.nextafter(np.float32(3.5), np.float32(0))]]
+    out = radar_targets(radar, boxes)
+    assert out["radar_targets_valid"].tolist()[:3] == [True, True, False]
+    assert out["radar_targets"][:2].tolist() == [[30.0, 5.0, 2.0], [10.0, 5.0, 1.0]]  # edge and corner hit
+    assert_bit_identical(out, reference_radar_targets(radar, boxes))
+
+
+# --------------------------------------------------------------------------- CenterNet
+
+
+def corner_boxes(grid: BEVGrid, widths: list[float]) -> np.ndarray:
+    """Vehicles (class 0) centred in the four corner cells and the middle cell of ``grid``'s CenterNet map,
+    one per width in ``widths`` (a width up to 2 cells keeps the 0.5-cell sigma floor)."""
+    cell = CENTERNET_STRIDE / grid.pixels_per_meter
+    h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
+    cells = [(0, 0), (0, w - 1), (h - 1, 0), (h - 1, w - 1), (h // 2, w // 2)]
+    boxes = np.zeros((len(cells) * len(widths), 10), np.float32)
+    for i, ((row, col), width) in enumerate((c, wd) for wd in widths for c in cells):
+        boxes[i, :2] = grid.x_min + (row + 0.5) * cell, grid.y_min + (col + 0.5) * cell
+        boxes[i, 3:5] = 5.0, width
+    return boxes
+
+
+@pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV, BEVGrid(-8, 8, -8, 8, 8.0)])
+def test_gaussian_windows_shared_by_boxes_and_calls_equal_the_whole_grid_definition(grid: BEVGrid) -> None:
+    boxes = corner_boxes(grid, [1.0, 9.0, 2.0, 13.5])  # sigma floor, 1.5 cells, floor again, 2.25 cells
+    for _ in range(2):  # the second call draws from the windows the first one cached
+        expected = reference_centernet(boxes, grid, 10)
+        assert_bit_identical(centernet_targets(boxes, grid, 10), expected)
+    assert expected["box_heatmap"][0].max() == 1.0 and expected["box_heatmap"][0, 0, 0] == 1.0
+    rng = np.random.default_rng(5)
+    mixed = np.vstack([boxes, random_boxes(rng, 40)])[rng.permutation(len(boxes) + 40)]
+    assert_bit_identical(centernet_targets(mixed, grid, 10), reference_centernet(mixed, grid, 10))
+
+
+@pytest.mark.parametrize("denominator", [0.5, 4.5, 10.125, 0.3])
+def test_a_gaussian_window_holds_every_cell_that_is_non_zero_in_float32(denominator: float) -> None:
+    radius, window = gaussian_window(denominator)
+    assert window.shape == (2 * radius + 1, 2 * radius + 1) and window[radius, radius] == 1.0
+    assert np.float32(math.exp(-((radius + 1) ** 2) / denominator)) == 0.0  # the first cell left out
+    assert not window.flags.writeable  # shared by every box with this denominator
+
+
+# --------------------------------------------------------------------------- LiDAR
+
+
+def edge_points(grid: BEVGrid) -> np.ndarray:
+    """Points on every cell edge along x and y (both grid borders included), and NaN, inf and overflowing ones."""
+    h, w = grid.shape
+    xs = grid.x_min + np.arange(h + 1) / grid.pixels_per_meter  # x_max itself is off the grid
+    ys = grid.y_min + np.arange(w + 1) / grid.pixels_per_meter
+    on_edges = np.concatenate([np.stack([xs, np.full_like(xs, 1.0)], 1), np.stack([np.full_like(ys, 1.0), ys], 1)])
+    odd = [[np.nan, 0], [0, np.nan], [np.inf, 0], [0, -np.inf], [3e38, 0], [0, -3e38], [-0.0, -0.0]]
+    points = np.zeros((len(on_edges) + len(odd), 4))
+    points[:, :2] = np.concatenate([on_edges, odd])
+    return points
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("grid", [CARLA_BEV, BEVGrid(-8, 8, -6, 6, 8.0)])
+def test_lidar_points_on_cell_edges_and_off_the_grid_equal_the_histogram(dtype: type, grid: BEVGrid) -> None:
+    points = edge_points(grid).astype(dtype)
+    got = rasterize_lidar(points, grid)
+    np.testing.assert_array_equal(
+        lidar_input(torch.from_numpy(got), torch.float32).numpy(), reference_lidar(points, grid)
+    )
+    h, w = grid.shape
+    row_one = round((1.0 - grid.x_min) * grid.pixels_per_meter)
+    col_one = round((1.0 - grid.y_min) * grid.pixels_per_meter)
+    assert got[:, col_one].sum() == h + 1 and got[row_one, :].sum() == w + 1  # x_max, y_max dropped; (1, 1) twice
+    assert got[0, col_one] == got[h - 1, col_one] == 1  # the lower border lands in row 0, the last edge in row h-1
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_lidar_points_just_below_cell_edges_and_past_mid_cell_equal_the_histogram(dtype: type) -> None:
+    edges = edge_points(CARLA_BEV).astype(dtype)
+    below, past_mid = edges.copy(), edges.copy()
+    below[:, :2] = np.nextafter(edges[:, :2], dtype(-np.inf))  # the previous cell, unless the scaling rounds up
+    past_mid[:, :2] += dtype(0.6 / CARLA_BEV.pixels_per_meter)  # truncation, not rounding, picks the cell
+    for points in (below, past_mid):
+        got = lidar_input(torch.from_numpy(rasterize_lidar(points, CARLA_BEV)), torch.float32)
+        np.testing.assert_array_equal(got.numpy(), reference_lidar(points, CARLA_BEV))
+
+
+def test_lidar_inputs_the_float_cell_index_would_miscount_are_refused() -> None:
+    grid = BEVGrid(0.0, 4097.0, 0.0, 4096.0, 1.0)  # 4097 * 4096 > 2**24
+    with pytest.raises(ValueError, match="2\\*\\*24"):
+        rasterize_lidar(np.zeros((1, 4), np.float32), grid)
+    with pytest.raises(TypeError, match=r"'lidar'.*float16"):  # 11 bits of mantissa: cell 2049 would round
+        rasterize_lidar(np.zeros((1, 4), np.float16), CARLA_BEV)
+
+
+# --------------------------------------------------------------------------- route and trajectory
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.parametrize(
+    "route",
+    [
+        np.stack([np.linspace(0.5, 40, 50), np.sin(np.linspace(0, 3, 50)) * 4], 1).astype(np.float32),
+        np.array([[3.0, 0.0], [3.0, 0.0], [5.0, 1.0], [5.0, 1.0], [9.0, 4.0]], np.float32),  # repeated points
+        np.array([[0.0, 0.0], [4.0, 0.0]]),  # shorter than the checkpoints: masked past its end
+        np.array([[0.0, 0.0]]),  # the ego's own position only: nothing to interpolate
+        np.array([[2.0, 0.0], [np.nan, 1.0], [8.0, 0.0]]),
+        np.array([[2.0, 0.0], [1e300, 0.0]]),  # overflows float32
+    ],
+)
+def test_route_checkpoints_equal_the_norm_and_nan_to_num_definition(route: np.ndarray) -> None:
+    assert_bit_identical(route_checkpoints(route, 10), reference_route(route, 10))
+
+
+def future(steps: int, headings: bool = True) -> np.ndarray:
+    """(t, x, y, heading) at 20 Hz along a curve whose heading passes through +-pi (unwrapped by resample)."""
+    t = np.arange(1, steps + 1) / 20.0
+    heading = 2.8 + 0.3 * t if headings else np.full_like(t, np.nan)
+    return np.stack([t, 6.0 * t, 0.4 * t**2, heading], 1).astype(np.float32)
+
+
+@pytest.mark.parametrize("knots", [future(60), future(7), future(60, headings=False), future(0)])
+@pytest.mark.parametrize("source", ["carla", "navsim", "wod"])
+def test_trajectory_equals_the_nan_to_num_definition(knots: np.ndarray, source: str) -> None:
+    transform = SourceTransform(source, tfv6_config(), [])
+    expected = reference_trajectory(knots, transform.config.trajectory_grids[source].times)
+    assert_bit_identical(transform.trajectory(knots), expected)
+
+
+# --------------------------------------------------------------------------- ego scalars
+
+
+@pytest.mark.parametrize(("speed", "acceleration", "command"), [(6.1, [0.3, -0.0], 4), (0, [1, 2], 1)])
+def test_ego_scalars_equal_torch_tensor_of_the_meta(speed: float, acceleration: list, command: int) -> None:
+    meta = {
+        "dataset": "carla_lead",
+        "ego": {"speed": speed, "acceleration": acceleration, "command": command},
+        "extras": {"carla_lead": {"target_speed": 8.3}},
+    }
+    out = SourceTransform("carla", tfv6_config(), [])({"__key__": "k", "meta": meta})
+    expected = {
+        "speed": torch.tensor(float(speed)),
+        "acceleration": torch.tensor(acceleration, dtype=torch.float32),
+        "command": torch.tensor(int(command4(command)), dtype=torch.int64),
+        "target_speed": torch.tensor(8.3),
+        "target_speed_valid": torch.tensor(True),
+    }
+    assert_bit_identical({name: out[name] for name in expected}, {k: v.numpy() for k, v in expected.items()})
