@@ -133,7 +133,15 @@ def jpeg_tensor(data: bytes) -> Tensor:
 
 def decode_rgb(encoded: list[Tensor], device: torch.device | str) -> list[Tensor]:
     """JPEGs (1-D uint8 CPU tensors) as (3, H, W) uint8 RGB on ``device``: nvJPEG on CUDA, one call for them all;
-    libjpeg-turbo on the CPU, pixel for pixel what OpenCV's decode gives."""
+    libjpeg-turbo on the CPU, pixel for pixel what OpenCV's decode gives.
+
+    On CUDA the caller's stream is drained first: torchvision's decoder writes on a stream of its own that does not
+    wait for the caller's, into memory the caching allocator may just have taken back from kernels still queued there
+    (pytorch/vision#9606: corrupted pixels on an H100). Training syncs once a step anyway (the progress bar reads the
+    loss), so this costs little overlap."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        torch.cuda.current_stream(device).synchronize()
     with warnings.catch_warnings():  # torchvision 0.29 deprecates its codecs for torchcodec, whose wheels each fit
         warnings.simplefilter("ignore", DeprecationWarning)  # one torch release only; ours follow torchvision's range
         return decode_jpeg(list(encoded), mode=ImageReadMode.RGB, device=device)
