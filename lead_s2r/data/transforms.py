@@ -14,12 +14,12 @@ layout depends only on the configuration and the source's rig, so it is computed
 (:func:`camera_layout`) and then applied to the image and its perspective labels alike (:func:`render`).
 
 Speed (the loader runs this per sample on the CPU, beside the GPU): whatever depends only on the configuration and
-a source's fixed spec is computed once per process and cached (camera layouts, the BEV label gather index, the LiDAR
-saturation table); a layout that maps an image onto itself is not resampled at all; JPEGs are decoded straight to
-RGB, and at 1/2, 1/4 or 1/8 size (libjpeg's DCT scaling, OpenCV ``IMREAD_REDUCED_*``) where the model's image is at
-least that much smaller than the camera's (:func:`jpeg_reduction`): the area-averaged result then differs from the
-full decode by the rounding of JPEG's scaled IDCT only (measured on a smooth 1920x1080 q=90 image in
-tests/test_transform_speed.py: mean <= 0.34, max 2 levels of 255 at 1/2 to 1/8; the test allows 0.5 and 4).
+a source's fixed spec is computed once per process and cached (camera layouts, the BEV label gather index, the
+CenterNet Gaussian windows); a layout that maps an image onto itself is not resampled at all; JPEGs are decoded
+straight to RGB, and at 1/2, 1/4 or 1/8 size (libjpeg's DCT scaling, OpenCV ``IMREAD_REDUCED_*``) where the
+model's image is at least that much smaller than the camera's (:func:`jpeg_reduction`): the area-averaged result
+then differs from the full decode by the rounding of JPEG's scaled IDCT only (measured on a smooth 1920x1080 q=90
+image in tests/test_transform_speed.py: mean <= 0.34, max 2 levels of 255 at 1/2 to 1/8; the test allows 0.5 and 4).
 Every other output is bit-identical to the straightforward definitions kept in that test, or (a perspective label
 left at its stored size, see below) equal to float32 rounding once :func:`~lead_s2r.models.inputs.on_image_grid`
 has put it on the image's grid.
