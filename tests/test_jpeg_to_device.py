@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 import torch
 
+from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
+from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform, collate
 from lead_s2r.models.config import tfv6_config
 from lead_s2r.models.ego_mlp import EgoStatusMLP
@@ -98,6 +100,21 @@ def test_the_module_decodes_before_the_batch_moves(carla_samples: list[dict]) ->
     assert RGB_JPEG not in batch["carla"] and batch["carla"]["rgb"].device == module.device
     in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
     assert torch.equal(batch["carla"]["rgb"], in_loader["rgb"])
+
+
+def test_a_loader_worker_sends_the_jpegs_to_the_main_process(tmp_path: Path) -> None:
+    generate(tmp_path / "raw", count=1, seed=5, frames=4)
+    convert(get_adapter("carla_lead"), tmp_path / "raw", tmp_path / "data")
+    kwargs = {"schedule": MixingSchedule.constant({"carla": 1.0}, 2), "steps_per_epoch": 2, "config": tfv6_config()}
+    spec = SourceSpec([str(tmp_path / "data")])
+    batches = {}
+    for workers, to_device in ((1, True), (0, False)):
+        dm = DriveDataModule(train={"carla": spec}, num_workers=workers, jpeg_to_device=to_device, **kwargs)
+        dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
+        batches[to_device] = list(dm.train_dataloader()["carla"])  # seeded: the same samples in the same order
+    for encoded, decoded in zip(batches[True], batches[False], strict=True):
+        assert [len(jpeg) for jpeg in encoded[RGB_JPEG]] and encoded["__key__"] == decoded["__key__"]
+        assert torch.equal(decode_images(encoded, "cpu")["rgb"], decoded["rgb"])
 
 
 def test_the_datamodule_sends_jpegs_encoded_only_when_training_on_a_gpu(toy_data: str) -> None:
