@@ -118,13 +118,13 @@ def test_a_loader_worker_sends_the_jpegs_to_the_main_process(tmp_path: Path) -> 
 
 
 def test_the_datamodule_sends_jpegs_encoded_only_when_training_on_a_gpu(toy_data: str) -> None:
-    def transform(dm: DriveDataModule, device: str) -> SourceTransform:
+    def on(dm: DriveDataModule, device: str) -> bool:
         dm.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device(device)))
-        return dm._decode("carla", dm.train_sources["carla"]).transform
+        return dm.jpeg_to_device
 
-    config = tfv6_config(image_size=(64, 192))
-    auto = DriveDataModule(train={"carla": SourceSpec([toy_data])}, config=config)
-    assert not transform(auto, "cpu").jpeg_to_device
-    assert transform(auto, "cuda").jpeg_to_device
-    forced = DriveDataModule(train={"carla": SourceSpec([toy_data])}, config=config, jpeg_to_device=True)
-    assert transform(forced, "cpu").jpeg_to_device
+    train = {"carla": SourceSpec([toy_data])}
+    auto = DriveDataModule(train=train, config=tfv6_config())
+    assert not auto.jpeg_to_device  # no trainer yet
+    assert not on(auto, "cpu") and on(auto, "cuda")
+    assert on(DriveDataModule(train=train, config=tfv6_config(), jpeg_to_device=True), "cpu")
+    assert not on(DriveDataModule(train=train, config=tfv6_config(), jpeg_to_device=False), "cuda")
