@@ -27,3 +27,15 @@ def toy_data(tmp_path_factory) -> str:
     write_toy_logs(root / "src", n_logs=4, frames=6)
     convert(ToyAdapter(), root / "src", root / "data", shard_size=6)
     return str(root / "data")
+
+
+@pytest.fixture(scope="session")
+def carla_samples(tmp_path_factory) -> list[dict]:
+    """Three frames of a generated LEAD route, as the adapter yields them (every field, decoded)."""
+    from lead_s2r.registry import get_adapter
+    from lead_s2r.synthetic.carla_lead import generate
+
+    src = tmp_path_factory.mktemp("lead")
+    generate(src, count=1, seed=7, frames=3)
+    adapter = get_adapter("carla_lead")
+    return [sample for log in adapter.list_logs(src) for sample in adapter.iter_samples(log)]

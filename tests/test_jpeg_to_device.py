@@ -24,14 +24,6 @@ from lead_s2r.synthetic.carla_lead import generate
 from lead_s2r.training.module import DrivingModule
 
 
-@pytest.fixture(scope="module")
-def carla_samples(tmp_path_factory: pytest.TempPathFactory) -> list[dict]:
-    src = tmp_path_factory.mktemp("lead")
-    generate(Path(src), count=1, seed=11, frames=3)
-    adapter = get_adapter("carla_lead")
-    return [sample for log in adapter.list_logs(src) for sample in adapter.iter_samples(log)]
-
-
 def assert_batches_equal(a: dict, b: dict) -> None:
     assert set(a) == set(b)
     for name, value in a.items():

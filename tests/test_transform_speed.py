@@ -8,7 +8,6 @@ functions the model and the losses apply on the device (``lidar_input``, ``class
 """
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -31,9 +30,7 @@ from lead_s2r.data.transforms import (
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
-from lead_s2r.registry import get_adapter
 from lead_s2r.schema import BoxClass
-from lead_s2r.synthetic.carla_lead import generate
 
 # --------------------------------------------------------------------------- references
 
@@ -109,16 +106,7 @@ def reference_camera(transform: SourceTransform, sample: dict) -> dict[str, np.n
     return out
 
 
-# --------------------------------------------------------------------------- fixtures
-
-
-@pytest.fixture(scope="module")
-def carla_samples(tmp_path_factory: pytest.TempPathFactory) -> list[dict]:
-    """Two frames of a generated LEAD route, as the adapter yields them (every field, decoded)."""
-    src = tmp_path_factory.mktemp("lead")
-    generate(Path(src), count=1, seed=7, frames=2)
-    adapter = get_adapter("carla_lead")
-    return [sample for log in adapter.list_logs(src) for sample in adapter.iter_samples(log)]
+# --------------------------------------------------------------------------- data
 
 
 def random_boxes(rng: np.random.Generator, n: int) -> np.ndarray:
