@@ -4,21 +4,24 @@ On the CPU both decodes are libjpeg-turbo's, so everything downstream must be bi
 the model's image as stored (one camera at ``image_size``) may go encoded.
 """
 
-from pathlib import Path
+import math
 from types import SimpleNamespace
+from typing import Any
 
 import cv2
+import lightning as L
 import numpy as np
 import pytest
 import torch
+from tiny_models import TINY
 
 from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform, collate
-from lead_s2r.models.config import tfv6_config
-from lead_s2r.models.ego_mlp import EgoStatusMLP
+from lead_s2r.models.config import TFv6Config, tfv6_config
 from lead_s2r.models.inputs import RGB_JPEG, decode_images, decode_rgb, jpeg_tensor
+from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic.carla_lead import generate
 from lead_s2r.training.module import DrivingModule
@@ -84,29 +87,54 @@ def test_an_undecodable_jpeg_names_the_batchs_samples() -> None:
         decode_images(batch, "cpu")
 
 
-def test_the_module_decodes_before_the_batch_moves(carla_samples: list[dict]) -> None:
+def test_the_data_module_decodes_before_the_batch_moves(carla_samples: list[dict], toy_data: str) -> None:
     config = tfv6_config()
     encoded = collate([SourceTransform("carla", config, jpeg_to_device=True)(sample) for sample in carla_samples])
-    module = DrivingModule(EgoStatusMLP())
-    batch = module.on_before_batch_transfer({"carla": encoded}, 0)
-    assert RGB_JPEG not in batch["carla"] and batch["carla"]["rgb"].device == module.device
+    dm = DriveDataModule(train={"carla": SourceSpec([toy_data])}, config=config)
+    dm.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device("cpu")))
+    batch = dm.on_before_batch_transfer({"carla": encoded}, 0)
+    assert RGB_JPEG not in batch["carla"]
     in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
     assert torch.equal(batch["carla"]["rgb"], in_loader["rgb"])
 
 
-def test_a_loader_worker_sends_the_jpegs_to_the_main_process(tmp_path: Path) -> None:
-    generate(tmp_path / "raw", count=1, seed=5, frames=4)
-    convert(get_adapter("carla_lead"), tmp_path / "raw", tmp_path / "data")
-    kwargs = {"schedule": MixingSchedule.constant({"carla": 1.0}, 2), "steps_per_epoch": 2, "config": tfv6_config()}
-    spec = SourceSpec([str(tmp_path / "data")])
+@pytest.fixture(scope="module")
+def converted_route(tmp_path_factory: pytest.TempPathFactory) -> str:
+    root = tmp_path_factory.mktemp("route")
+    generate(root / "raw", count=1, seed=5, frames=4)
+    convert(get_adapter("carla_lead"), root / "raw", root / "data")
+    return str(root / "data")
+
+
+def carla_data(path: str, config: TFv6Config, **kwargs: Any) -> DriveDataModule:
+    schedule = MixingSchedule.constant({"carla": 1.0}, 2)
+    dm = DriveDataModule(train={"carla": SourceSpec([path])}, schedule=schedule, config=config, **kwargs)
+    dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
+    return dm
+
+
+def test_a_loader_worker_sends_the_jpegs_to_the_main_process(converted_route: str) -> None:
     batches = {}
     for workers, to_device in ((1, True), (0, False)):
-        dm = DriveDataModule(train={"carla": spec}, num_workers=workers, jpeg_to_device=to_device, **kwargs)
-        dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
+        dm = carla_data(
+            converted_route, tfv6_config(), steps_per_epoch=2, num_workers=workers, jpeg_to_device=to_device
+        )
         batches[to_device] = list(dm.train_dataloader()["carla"])  # seeded: the same samples in the same order
     for encoded, decoded in zip(batches[True], batches[False], strict=True):
-        assert [len(jpeg) for jpeg in encoded[RGB_JPEG]] and encoded["__key__"] == decoded["__key__"]
+        assert len(encoded[RGB_JPEG]) == 2 and encoded["__key__"] == decoded["__key__"]
         assert torch.equal(decode_images(encoded, "cpu")["rgb"], decoded["rgb"])
+
+
+def test_lightning_decodes_them_before_the_forward(converted_route: str) -> None:
+    config = tfv6_config(**{**TINY, "image_size": (384, 1152)})  # the generated mosaic's size: sent encoded
+    dm = carla_data(converted_route, config, steps_per_epoch=1, jpeg_to_device=True)
+    module = DrivingModule(TFv6(config))
+    seen: list[tuple[int, ...]] = []
+    module.model.register_forward_pre_hook(lambda _, args: seen.append(tuple(args[0]["rgb"].shape)))
+    options = {"logger": False, "enable_checkpointing": False, "enable_progress_bar": False, "limit_val_batches": 0}
+    fit = L.Trainer(accelerator="cpu", max_steps=1, **options)
+    fit.fit(module, datamodule=dm)
+    assert seen == [(2, 3, 384, 1152)] and math.isfinite(fit.callback_metrics["train/loss"])
 
 
 def test_the_datamodule_sends_jpegs_encoded_only_when_training_on_a_gpu(toy_data: str) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
+import torch
 import webdataset as wds
 
 from lead_s2r.data.mixing import MixingSchedule
@@ -26,7 +27,7 @@ from lead_s2r.data.streams import ResampledShards, SampleShare, SeededShuffle, S
 from lead_s2r.data.transforms import SourceTransform, collate
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
-from lead_s2r.models.inputs import target_point_range
+from lead_s2r.models.inputs import Batch, decode_images, target_point_range
 from lead_s2r.shards import (
     INFO,
     ManifestCheck,
@@ -241,6 +242,12 @@ class DriveDataModule(L.LightningDataModule):
             return self._jpeg_to_device
         strategy = getattr(self.trainer, "strategy", None)
         return strategy is not None and strategy.root_device.type == "cuda"
+
+    def on_before_batch_transfer(self, batch: dict[str, Batch], dataloader_idx: int) -> dict[str, Batch]:
+        """Decode the camera JPEGs the loaders left encoded (``rgb_jpeg``) straight onto the trainer's device, in one
+        nvJPEG call per source on a GPU, before the rest of the batch moves."""
+        device = self.trainer.strategy.root_device if self.trainer is not None else torch.device("cpu")
+        return {source: decode_images(source_batch, device) for source, source_batch in batch.items()}
 
     def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
         return _Prepare(SourceTransform(name, self.config, list(spec.cameras), self.jpeg_to_device))

@@ -22,7 +22,7 @@ from lightning.pytorch.utilities import rank_zero_info, rank_zero_warn
 from torch import Tensor, nn
 from torchmetrics import MeanMetric
 
-from lead_s2r.models.inputs import Batch, decode_images, on_image_grid
+from lead_s2r.models.inputs import Batch, on_image_grid
 from lead_s2r.training import losses
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.prediction_writer import to_predictions
@@ -140,12 +140,6 @@ class DrivingModule(L.LightningModule):
         model.set_target_point_range(*resolved)
         (x0, y0), (x1, y1) = resolved
         rank_zero_info(f"target points normalised over x [{x0:.1f}, {x1:.1f}] m, y [{y0:.1f}, {y1:.1f}] m")
-
-    def on_before_batch_transfer(self, batch: Any, dataloader_idx: int) -> Any:
-        """Decode the camera JPEGs a loader left encoded (``rgb_jpeg``) straight onto this module's device."""
-        if not isinstance(batch, Mapping):
-            return batch
-        return {source: decode_images(b, self.device) if isinstance(b, Mapping) else b for source, b in batch.items()}
 
     # --- losses
     def task_loss(self, task: str, pred: dict[str, Tensor], batch: Batch) -> Tensor:
