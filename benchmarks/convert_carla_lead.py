@@ -94,7 +94,7 @@ def stage_split(adapter: Adapter, src: Path, out: Path) -> tuple[int, dict[str, 
             cpu["encode fields (PNG, npy, json)"] += encode
             start = time.process_time()
             shard.write(sample)  # encodes again: the encode time just measured is taken off
-            manifest_row(sample, shard.path.name)
+            manifest_row(sample)
             cpu["tar write + manifest row"] += max(time.process_time() - start - encode, 0.0)
             count += 1
     start = time.process_time()
