@@ -1,11 +1,13 @@
 import hashlib
 import json
+import multiprocessing as mp
 import os
 import signal
 import subprocess
 import sys
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +17,7 @@ from toy_adapter import ToyAdapter, write_toy_logs
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.registry import Adapter
+from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.shards import load_info, load_manifest, read_samples
 
 
@@ -103,6 +105,25 @@ def test_any_number_of_workers_writes_the_same_bytes(tmp_path, broken, skipped, 
     )
 
 
+class InterruptedToy(ToyAdapter):
+    """Ctrl-C while converting log000, in whichever process converts it."""
+
+    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
+        if log.log_id == "log000":
+            raise KeyboardInterrupt
+        yield from super().iter_samples(log)
+
+
+def test_an_interrupted_conversion_stops_its_workers(tmp_path):
+    write_toy_logs(tmp_path / "src", n_logs=8, frames=40)  # 2 s per log: 14 s of work after log000
+    started = time.perf_counter()
+    with pytest.raises((KeyboardInterrupt, RuntimeError)):  # the driver's own log, or a worker's that then dies
+        convert(InterruptedToy(sleep=0.05), tmp_path / "src", tmp_path / "out", workers=2)
+    assert time.perf_counter() - started < 8.0, "the worker should be stopped, not left to finish the logs"
+    assert mp.active_children() == []
+    assert not (tmp_path / "out" / "manifest.parquet").exists()
+
+
 def test_rerun_skips_finished_logs_and_force_redoes(tmp_path):
     write_toy_logs(tmp_path / "src", n_logs=3, frames=4)
     convert(ToyAdapter(), tmp_path / "src", tmp_path / "out", shard_size=1)
@@ -119,7 +140,7 @@ sys.path.insert(0, {tests!r})
 from toy_adapter import ToyAdapter
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
-from lead_s2r.registry import Adapter
+from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.models.inputs import target_point_range
 convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers={workers}, shard_size=8)
 """
