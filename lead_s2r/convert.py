@@ -288,19 +288,27 @@ class _Helpers:
         self.running = count
 
     def messages(self, logs: list[LogRef]) -> Iterator[tuple[str, int, Any]]:
-        """Every log's message; the workers are stopped if the driver fails (what they wrote, a rerun deletes)."""
+        """Every log's message. Once every log is reported the workers hold no work and are stopped, not waited for
+        (a small run ends before they have started); so are they if the driver fails (a rerun deletes what they
+        wrote)."""
         for proc in self.procs:
             proc.start()
         for task in enumerate(logs):
             self.tasks.put(task)
         for _ in range(len(self.procs) + 1):  # one end mark for each process taking tasks, the driver included
             self.tasks.put(None)
+        reported = 0
         try:
             for position, log in iter(self.tasks.get, None):
-                yield _run_log(self.adapter, self.out, position, log)
-                yield from self._received(wait=0.0)
-            while self.running:
-                yield from self._received(wait=1.0)
+                for message in (_run_log(self.adapter, self.out, position, log), *self._received(wait=0.0)):
+                    reported += 1
+                    yield message
+            while reported < len(logs):
+                if not self.running:  # every worker ended, one without reporting a log it took
+                    raise RuntimeError(_DIED)
+                for message in self._received(wait=1.0):
+                    reported += 1
+                    yield message
         finally:
             for proc in self.procs:
                 if proc.is_alive():
@@ -317,12 +325,12 @@ class _Helpers:
                     raise RuntimeError(_DIED) from None
                 return
             wait = 0.0
-            if message[0] == "exit" and not message[2]:
-                raise RuntimeError(_DIED)  # a BaseException (Ctrl-C) past _run_log: that worker's log is lost
-            if message[0] == "exit":
-                self.running -= 1
-            else:
+            if message[0] != "exit":
                 yield message
+            elif message[2]:
+                self.running -= 1
+            else:  # a BaseException (Ctrl-C) past _run_log: that worker's log is lost
+                raise RuntimeError(_DIED)
 
 
 def _in_list_order(messages: Iterator[tuple[str, int, Any]]) -> Iterator[tuple[bool, tuple[str, int, Any]]]:
