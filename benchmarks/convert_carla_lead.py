@@ -6,11 +6,13 @@ Runs ``convert`` with each worker count in turn, ``--rounds`` times (interleaved
 jobs slows every count alike), and reports per round: wall time, samples/s in total and per worker, the CPU
 seconds of the driver and of its worker processes, and the speed-up over the first worker count measured in the
 same round, beside a machine check (how much faster two processes run a plain CPU loop than one at that
-moment). Then one process converts the routes again stage by stage and splits its CPU time: the adapter (reading
-LZMA pickles, LAZ, PNGs and building the sample), schema validation, encoding the fields, writing the tar.
+moment), and whether every worker count wrote the same bytes (every file of the converted folder). Then one
+process converts the routes again stage by stage and splits its CPU time: the adapter (reading LZMA pickles, LAZ,
+PNGs and building the sample), schema validation, encoding the fields, writing the tar.
 """
 
 import argparse
+import hashlib
 import multiprocessing as mp
 import os
 import resource
@@ -55,6 +57,15 @@ def children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+def digests(out: Path) -> dict[str, str]:
+    """sha256 of every file of a converted folder, by its path in the folder."""
+    return {
+        str(path.relative_to(out)): hashlib.sha256(path.read_bytes()).hexdigest()
+        for path in sorted(out.rglob("*"))
+        if path.is_file()
+    }
+
+
 def run(adapter: Adapter, src: Path, out: Path, workers: int) -> dict[str, float]:
     load = os.getloadavg()[0]
     wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
@@ -94,7 +105,7 @@ def stage_split(adapter: Adapter, src: Path, out: Path) -> tuple[int, dict[str, 
             cpu["encode fields (PNG, npy, json)"] += encode
             start = time.process_time()
             shard.write(sample)  # encodes again: the encode time just measured is taken off
-            manifest_row(sample, shard.path.name)
+            manifest_row(sample)
             cpu["tar write + manifest row"] += max(time.process_time() - start - encode, 0.0)
             count += 1
     start = time.process_time()
@@ -125,8 +136,10 @@ def main() -> None:
         for round_index in range(args.rounds):
             print(f"round {round_index}: machine check, 2 processes of a CPU loop: {machine_parallelism():.2f}x one")
             base = None
+            written = []
             for workers in args.workers:
                 r = run(adapter, src, Path(tmp) / f"out{workers}", workers)
+                written.append(digests(Path(tmp) / f"out{workers}"))
                 rate = r["samples"] / r["wall"]
                 base = base or rate
                 cpu_ms = (r["driver_cpu"] + r["worker_cpu"]) / r["samples"] * 1e3
@@ -139,6 +152,8 @@ def main() -> None:
                     f"{args.workers[0]}; CPU {r['driver_cpu']:.1f} s driver + {r['worker_cpu']:.1f} s workers = "
                     f"{cpu_ms:.1f} ms/sample; load average {r['load']:.1f}"
                 )
+            same = all(files == written[0] for files in written)
+            print(f"round {round_index}: {len(written[0])} files, the same bytes for every worker count: {same}")
         print(f"median over {args.rounds} rounds:")
         for workers in args.workers:
             print(

@@ -1,11 +1,25 @@
-"""Conversion driver: raw logs -> validated schema v1 samples in webdataset shards, resumable and fault-isolated.
+"""Conversion driver: raw logs -> validated schema v1 samples in webdataset shards, resumable, fault-isolated and
+deterministic.
 
-Worker processes take logs from a queue; each owns one open shard and only closes it at a log boundary, so a
-log never straddles two shards. A closed shard is fsynced and renamed from ``.partial`` before the main process
-records it (with its logs and manifest rows) in ``progress.jsonl``. After a kill, a rerun deletes partial and
-unrecorded shards and converts exactly the logs no recorded shard holds: nothing is lost or duplicated.
-A log that raises is rolled back out of its shard and reported in ``errors.jsonl``; the others go on, and so do
-records the adapter's ``list_logs`` found unreadable (``Adapter.bad_records``); both make ``ok`` False.
+The same raw data and options give the same bytes in every file of the folder, whatever the number of workers:
+seeded training draws shards by name, so shards whose contents hung on which worker finished first would make two
+identical runs train on different data. Logs are converted in any order and assembled in the order of the log list.
+``workers`` processes (the driver and ``workers - 1`` spawned ones; the driver alone for ``workers <= 1``) take logs
+from a queue, so a long log holds up no other, and write each log to a fragment of its own
+(``shards/log-<position>.partial``: its tar members, no end-of-archive blocks). The driver appends the fragments to
+shards in list order, skipping failed and skipped logs, and closes a shard at the first log boundary after
+``shard_size`` samples: a log never straddles two shards, and names and contents are those one process converting
+the logs in turn writes. The driver converts logs too: it is up while the others start (0.4 s of imports each), and
+appending is ``copy_file_range`` in the kernel (45 MB, 1000 CARLA samples, in 15 ms). A slow log holds back
+assembly, not conversion: the logs after it wait on disk as fragments.
+
+A closed shard is fsynced and renamed from ``.partial`` before the driver records it (with its logs and manifest
+rows) in ``progress.jsonl``; a fragment is deleted once appended. After a kill, a rerun deletes fragments, partial
+and unrecorded shards and converts exactly the logs no recorded shard holds: nothing is lost or duplicated, and as
+recorded shards hold a prefix of the list (less failed and skipped logs, which the rerun tries again), the rerun
+ends with the folder an uninterrupted run writes. A log that raises loses its fragment and is reported in
+``errors.jsonl``; the others go on, and so do records the adapter's ``list_logs`` found unreadable
+(``Adapter.bad_records``); both make ``ok`` False. Errors and skipped logs are reported in list order too.
 
 A folder belongs to one adapter, version and set of options (``convert.json``, written before the first shard):
 resuming with others would mix two conversions in one manifest, so it is refused unless ``force``. Inputs are
@@ -13,7 +27,6 @@ checked (``src`` exists, holds logs) before ``out`` is created. Workers end with
 (:func:`lead_s2r.processes.exit_with_parent`), so a killed driver leaves no orphans converting into the folder.
 """
 
-import itertools
 import json
 import multiprocessing as mp
 import os
@@ -34,13 +47,14 @@ from lead_s2r.errors import UserError
 from lead_s2r.processes import exit_with_parent
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, validate
-from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile
+from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
 PROGRESS = "progress.jsonl"
 IDENTITY = "convert.json"
+_DIED = "a conversion worker died; rerun the same command to resume"
 
 
 @dataclass
@@ -60,14 +74,14 @@ class ConvertResult:
         return not self.errors and not self.bad_records
 
 
-def manifest_row(sample: dict[str, Any], shard: str) -> dict[str, Any]:
-    """The manifest row of one sample: identity, a few scalars for filtering and statistics, has_* flags."""
+def manifest_row(sample: dict[str, Any]) -> dict[str, Any]:
+    """The manifest row of one sample but its shard (:func:`_in_shard`): identity, a few scalars for filtering and
+    statistics, has_* flags."""
     meta = sample["meta"]
     tp = sample.get("target_points")
     current_tp = tp[1] if tp is not None else (np.nan, np.nan)
     row = {
         "key": sample["__key__"],
-        "shard": shard,
         "dataset": meta["dataset"],
         "split": meta["split"],
         "log": meta["log_id"],
@@ -83,71 +97,45 @@ def manifest_row(sample: dict[str, Any], shard: str) -> dict[str, Any]:
     return row
 
 
+def _in_shard(row: dict[str, Any], shard: str) -> dict[str, Any]:
+    """A manifest row with its shard, second after the key: a log's rows are made before its shard is known."""
+    return {"key": row["key"], "shard": shard, **row}
+
+
 # --------------------------------------------------------------------------- worker side
 
 
-def _convert_log(adapter: Adapter, log: LogRef, shard: ShardFile) -> list[dict[str, Any]]:
-    """Write every sample of ``log`` to ``shard``; on any exception the log is rolled back out of the shard."""
-    mark = shard.mark()
+def _fragment_path(out: Path, position: int) -> Path:
+    """Where the log at ``position`` of this run's list is written before it joins a shard; a ``.partial`` name that
+    no recorded shard has, so the cleanup of a rerun deletes it."""
+    return out / SHARD_DIR / f"log-{position:06d}.partial"
+
+
+def _convert_log(adapter: Adapter, log: LogRef, fragment: Path) -> list[dict[str, Any]]:
+    """Write every sample of ``log`` to ``fragment``; on any exception the fragment is deleted."""
     rows = []
     try:
-        for sample in adapter.iter_samples(log):
-            validate(sample)
-            shard.write(sample)
-            rows.append(manifest_row(sample, shard.path.name))
+        with open(fragment, "wb") as file:
+            for sample in adapter.iter_samples(log):
+                validate(sample)
+                write_sample(file, sample)
+                rows.append(manifest_row(sample))
     except BaseException:
-        shard.rollback(mark)
+        fragment.unlink(missing_ok=True)
         raise
     return rows
 
 
-class _Worker:
-    """Converts logs into shards numbered by ``next_index``; reports through ``emit``.
-
-    Messages: ``("log", log_id, n_samples)``, ``("shard", name, [(log_id, rows), ...])`` once a shard is durable,
-    ``("error", log_id, message)`` and ``("skipped", log_id, reason)``.
-    """
-
-    def __init__(
-        self, adapter: Adapter, out: Path, shard_size: int, next_index: Callable[[], int], emit: Callable[[tuple], None]
-    ) -> None:
-        self.adapter, self.out, self.shard_size = adapter, out, shard_size
-        self.next_index, self.emit = next_index, emit
-        self.shard: ShardFile | None = None
-        self.pending: list[tuple[str, list[dict[str, Any]]]] = []
-
-    def run(self, log: LogRef) -> None:
-        if self.shard is None:
-            self.shard = ShardFile(self.out / SHARD_DIR / f"{self.adapter.name}-{self.next_index():06d}.tar")
-        try:
-            rows = _convert_log(self.adapter, log, self.shard)
-        except SkipLog as reason:
-            self.emit(("skipped", log.log_id, str(reason)))
-            return
-        except Exception as err:  # every failure of one log is isolated and reported
-            where = traceback.extract_tb(err.__traceback__)[-1]
-            message = f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"
-            self.emit(("error", log.log_id, message))
-            return
-        self.pending.append((log.log_id, rows))
-        self.emit(("log", log.log_id, len(rows)))
-        if self.shard.count >= self.shard_size:
-            self.flush()
-
-    def flush(self) -> None:
-        """Close the open shard (dropping it if empty) and report it with its logs."""
-        if self.shard is None:
-            return
-        if self.shard.count == 0:
-            self.shard.abort()
-        else:
-            path = self.shard.close()
-            self.emit(("shard", path.name, self.pending))
-        self.shard, self.pending = None, []
-
-    def abort(self) -> None:
-        if self.shard is not None:
-            self.shard.abort()
+def _run_log(adapter: Adapter, out: Path, position: int, log: LogRef) -> tuple[str, int, Any]:
+    """Convert one log into its fragment: ``("done", position, rows)``, ``("skipped", position, reason)`` or
+    ``("error", position, message)``."""
+    try:
+        return "done", position, _convert_log(adapter, log, _fragment_path(out, position))
+    except SkipLog as reason:
+        return "skipped", position, str(reason)
+    except Exception as err:  # every failure of one log is isolated and reported
+        where = traceback.extract_tb(err.__traceback__)[-1]
+        return "error", position, f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"
 
 
 def _one_thread_per_worker() -> None:
@@ -157,26 +145,16 @@ def _one_thread_per_worker() -> None:
     cv2.setNumThreads(1)
 
 
-def _worker_main(
-    adapter: Adapter, out: Path, shard_size: int, counter: Any, tasks: Any, results: Any, parent: int
-) -> None:
+def _worker_main(adapter: Adapter, out: Path, tasks: Any, results: Any, parent: int) -> None:
     exit_with_parent(parent)
     _one_thread_per_worker()
-
-    def next_index() -> int:
-        with counter.get_lock():
-            counter.value += 1
-            return counter.value - 1
-
-    worker = _Worker(adapter, out, shard_size, next_index, results.put)
+    finished = False
     try:
-        for log in iter(tasks.get, None):
-            worker.run(log)
-        else:
-            worker.flush()
+        for position, log in iter(tasks.get, None):
+            results.put(_run_log(adapter, out, position, log))
+        finished = True
     finally:
-        worker.abort()
-        results.put(("exit", os.getpid(), None))
+        results.put(("exit", os.getpid(), finished))
 
 
 # --------------------------------------------------------------------------- main side
@@ -282,49 +260,129 @@ def _next_shard_index(records: list[dict[str, Any]]) -> int:
     return max(indices, default=-1) + 1
 
 
-def _messages(adapter: Adapter, logs: list[LogRef], out: Path, workers: int, shard_size: int, start: int) -> Iterator:
-    """Run the workers (or convert inline for ``workers <= 1``) and yield their messages."""
-    if workers <= 1:
-        inbox: list[tuple] = []
-        worker = _Worker(adapter, out, shard_size, itertools.count(start).__next__, inbox.append)
-        try:
-            for log in logs:
-                worker.run(log)
-                yield from inbox
-                inbox.clear()
-            worker.flush()
-            yield from inbox
-        finally:
-            worker.abort()
+def _messages(adapter: Adapter, logs: list[LogRef], out: Path, workers: int) -> Iterator[tuple[str, int, Any]]:
+    """Convert ``logs`` into fragments with ``workers`` processes, the driver one of them, and yield
+    :func:`_run_log`'s messages in the order the logs finish."""
+    helpers = min(workers, len(logs)) - 1
+    if helpers <= 0:
+        for position, log in enumerate(logs):
+            yield _run_log(adapter, out, position, log)
         return
-    context = mp.get_context("spawn")
-    counter = context.Value("q", start)
-    tasks, results = context.Queue(), context.Queue()
-    for log in logs:
-        tasks.put(log)
-    procs = [
-        context.Process(
-            target=_worker_main, args=(adapter, out, shard_size, counter, tasks, results, os.getpid()), daemon=True
-        )
-        for _ in range(min(workers, len(logs)))
-    ]
-    for proc in procs:
-        proc.start()
-        tasks.put(None)
-    running = len(procs)
-    while running:
+    yield from _Helpers(adapter, out, helpers).messages(logs)
+
+
+class _Helpers:
+    """Spawned worker processes taking logs from a queue beside the driver, which takes them too (see the module
+    docstring) and reads the workers' messages between its own logs."""
+
+    def __init__(self, adapter: Adapter, out: Path, count: int) -> None:
+        self.adapter, self.out = adapter, out
+        context = mp.get_context("spawn")
+        self.tasks, self.results = context.Queue(), context.Queue()
+        self.procs = [
+            context.Process(
+                target=_worker_main, args=(adapter, out, self.tasks, self.results, os.getpid()), daemon=True
+            )
+            for _ in range(count)
+        ]
+        self.running = count
+
+    def messages(self, logs: list[LogRef]) -> Iterator[tuple[str, int, Any]]:
+        """Every log's message. Once every log is reported the workers hold no work and are stopped, not waited for
+        (a small run ends before they have started); so are they if the driver fails (a rerun deletes what they
+        wrote)."""
+        for proc in self.procs:
+            proc.start()
+        for task in enumerate(logs):
+            self.tasks.put(task)
+        for _ in range(len(self.procs) + 1):  # one end mark for each process taking tasks, the driver included
+            self.tasks.put(None)
+        reported = 0
         try:
-            message = results.get(timeout=1.0)
-        except queue.Empty:
-            if any(proc.exitcode not in (None, 0) for proc in procs):
-                raise RuntimeError("a conversion worker died; rerun the same command to resume") from None
-            continue
-        if message[0] == "exit":
-            running -= 1
+            for position, log in iter(self.tasks.get, None):
+                for message in (_run_log(self.adapter, self.out, position, log), *self._received(wait=0.0)):
+                    reported += 1
+                    yield message
+            while reported < len(logs):
+                if not self.running:  # every worker ended, one without reporting a log it took
+                    raise RuntimeError(_DIED)
+                for message in self._received(wait=1.0):
+                    reported += 1
+                    yield message
+        finally:
+            for proc in self.procs:
+                if proc.is_alive():
+                    proc.terminate()
+                proc.join()
+
+    def _received(self, wait: float) -> Iterator[tuple[str, int, Any]]:
+        """The workers' messages already sent, after waiting up to ``wait`` seconds for the first."""
+        while self.running:
+            try:
+                message = self.results.get(timeout=wait) if wait else self.results.get_nowait()
+            except queue.Empty:
+                if any(proc.exitcode not in (None, 0) for proc in self.procs):
+                    raise RuntimeError(_DIED) from None
+                return
+            wait = 0.0
+            if message[0] != "exit":
+                yield message
+            elif message[2]:
+                self.running -= 1
+            else:  # a BaseException (Ctrl-C) past _run_log: that worker's log is lost
+                raise RuntimeError(_DIED)
+
+
+def _in_list_order(messages: Iterator[tuple[str, int, Any]]) -> Iterator[tuple[bool, tuple[str, int, Any]]]:
+    """``(True, message)`` for each message as it comes (progress), then ``(False, message)`` for each in the order
+    of positions as soon as every earlier position has come (assembly)."""
+    waiting: dict[int, tuple[str, int, Any]] = {}
+    next_position = 0
+    for message in messages:
+        yield True, message
+        waiting[message[1]] = message
+        while next_position in waiting:
+            yield False, waiting.pop(next_position)
+            next_position += 1
+
+
+class _Assembler:
+    """Appends converted logs' fragments, in the order of the log list, to shards named from ``index`` on, closing a
+    shard once it holds ``shard_size`` samples: the shards one process converting the logs in turn would write."""
+
+    def __init__(
+        self, out: Path, prefix: str, shard_size: int, index: int, record: Callable[[dict[str, Any]], None]
+    ) -> None:
+        self.out, self.prefix, self.shard_size, self.index, self.record = out, prefix, shard_size, index, record
+        self.shard: ShardFile | None = None
+        self.logs: list[tuple[str, list[dict[str, Any]]]] = []
+
+    def add(self, fragment: Path, log_id: str, rows: list[dict[str, Any]]) -> None:
+        """Append a log's fragment and delete it: until its shard is recorded, a rerun converts the log again."""
+        if self.shard is None:
+            self.shard = ShardFile(self.out / SHARD_DIR / f"{self.prefix}-{self.index:06d}.tar")
+            self.index += 1
+        self.shard.append(fragment, len(rows))
+        fragment.unlink()
+        self.logs.append((log_id, rows))
+        if self.shard.count >= self.shard_size:
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the open shard (dropping it if empty), then record it with its logs and their manifest rows."""
+        if self.shard is None:
+            return
+        if self.shard.count == 0:
+            self.shard.abort()
         else:
-            yield message
-    for proc in procs:
-        proc.join()
+            name = self.shard.close().name
+            logs = [(log_id, [_in_shard(row, name) for row in rows]) for log_id, rows in self.logs]
+            self.record({"shard": name, "logs": logs})
+        self.shard, self.logs = None, []
+
+    def abort(self) -> None:
+        if self.shard is not None:
+            self.shard.abort()
 
 
 def convert(
@@ -339,7 +397,8 @@ def convert(
 ) -> ConvertResult:
     """Convert every log of ``src`` with ``adapter`` into ``out`` (see the module docstring for the guarantees).
 
-    ``shard_size`` is the number of samples after which a worker closes its shard (at the next log boundary).
+    ``workers`` counts the processes converting, the driver included. ``shard_size`` is the number of samples after
+    which a shard is closed (at the next log boundary).
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # see _finish
 
@@ -364,26 +423,35 @@ def convert(
     ):
         errors.writelines(json.dumps({**record, "adapter": adapter.name}) + "\n" for record in result.bad_records)
         task = bar.add_task(f"{adapter.name} logs", total=len(todo), samples=0, rate=0.0)
-        for kind, name, payload in _messages(adapter, todo, out, workers, shard_size, _next_shard_index(records)):
-            if kind == "shard":
-                record = {"shard": name, "logs": payload}
-                journal.write(json.dumps(record) + "\n")
-                journal.flush()
-                os.fsync(journal.fileno())
-                records.append(record)
-                continue
-            if kind == "log":
-                result.logs_converted += 1
-                result.samples += payload
-            elif kind == "skipped":
-                result.skipped.append({"log": name, "reason": payload})
-            elif kind == "error":
-                entry = {"log": name, "error": payload, "adapter": adapter.name}
-                result.errors.append(entry)
-                errors.write(json.dumps(entry) + "\n")
-                errors.flush()
-            rate = result.samples / max(time.perf_counter() - started, 1e-9)
-            bar.update(task, advance=1, samples=result.samples, rate=rate)
+
+        def record(entry: dict[str, Any]) -> None:
+            journal.write(json.dumps(entry) + "\n")
+            journal.flush()
+            os.fsync(journal.fileno())
+            records.append(entry)
+
+        assembler = _Assembler(out, adapter.name, shard_size, _next_shard_index(records), record)
+        try:
+            for arrived, (kind, position, payload) in _in_list_order(_messages(adapter, todo, out, workers)):
+                if arrived:
+                    result.samples += len(payload) if kind == "done" else 0
+                    rate = result.samples / max(time.perf_counter() - started, 1e-9)
+                    bar.update(task, advance=1, samples=result.samples, rate=rate)
+                    continue
+                log_id = todo[position].log_id
+                if kind == "done":
+                    result.logs_converted += 1
+                    assembler.add(_fragment_path(out, position), log_id, payload)
+                elif kind == "skipped":
+                    result.skipped.append({"log": log_id, "reason": payload})
+                else:
+                    entry = {"log": log_id, "error": payload, "adapter": adapter.name}
+                    result.errors.append(entry)
+                    errors.write(json.dumps(entry) + "\n")
+                    errors.flush()
+            assembler.flush()
+        finally:
+            assembler.abort()
     _finish(adapter, src, out, records, result)
     return result
 

@@ -2,9 +2,11 @@
 
 Tar members are ``<key>.<field>.<ext>`` (``meta.json``, ``future.npy``, ``cam_front.jpg``...). Arrays are stored
 with ``np.save(allow_pickle=False)``, JPEG bytes untouched, nothing is pickled. Shards are written by our own
-small tar writer (deterministic headers, and :meth:`ShardFile.rollback` to drop a half-written log) and read
-with webdataset, which is imported where it reads: it brings torch (4 s of start-up), and conversion workers, which
-only write, are spawned processes that must not pay it.
+small tar writer (deterministic headers: the same samples give the same bytes) and read with webdataset, which is
+imported where it reads: it brings torch (4 s of start-up), and conversion workers, which only write, are spawned
+processes that must not pay it. A tar is a sequence of members closed by two zero blocks, so the members of one log
+written to a file of their own (:func:`write_sample`) and appended to a shard (:meth:`ShardFile.append`) give the bytes
+:meth:`ShardFile.write` gives: conversion workers write logs apart and the driver puts them in order.
 
 Reading trusts nothing: a tar cut at a member boundary reads as a shorter, valid stream (tarfile raises nothing),
 so :func:`shard_paths` checks that every shard ends with the two zero blocks :meth:`ShardFile.close` writes; a tar
@@ -14,13 +16,15 @@ tarfile's stream there, silently too (it raises only at offset 0), so the reader
 tar against the keys the manifest lists for it (:class:`ManifestCheck`): one parquet column, read once.
 """
 
+import errno
 import io
 import json
 import os
+import shutil
 import tarfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
@@ -86,11 +90,48 @@ def encode_sample(sample: dict[str, Any]) -> list[tuple[str, bytes]]:
     return [(f"{key}.{name}.{field_spec(name).ext}", encode_field(name, sample[name])) for name in names]
 
 
-class ShardFile:
-    """One tar being written to ``<path>.partial``; renamed to ``<path>`` on :meth:`close`.
+def write_sample(file: BinaryIO, sample: dict[str, Any]) -> None:
+    """Write the tar members of one sample to ``file``; headers carry mtime 0 and no owner, so the same samples give
+    the same bytes."""
+    for name, data in encode_sample(sample):
+        info = tarfile.TarInfo(name)
+        info.size = len(data)
+        info.mode = 0o444
+        file.write(info.tobuf(format=tarfile.PAX_FORMAT))
+        file.write(data)
+        file.write(b"\0" * (-len(data) % _BLOCK))
 
-    Headers carry mtime 0 and no owner, so the same samples give the same bytes.
-    """
+
+def _append_file(file: BinaryIO, path: Path) -> None:
+    """Copy the bytes of ``path`` to the end of ``file``: in the kernel where it can, with no trip through Python."""
+    file.flush()
+    with open(path, "rb") as source:
+        if not _copy_in_kernel(source.fileno(), file.fileno(), os.fstat(source.fileno()).st_size):
+            shutil.copyfileobj(source, file)
+    file.seek(0, os.SEEK_END)  # the buffered file object learns where the kernel left the end
+
+
+def _copy_in_kernel(source: int, target: int, size: int) -> bool:
+    """``copy_file_range`` of ``size`` bytes at both files' positions; False, having copied nothing, where the
+    platform (not Linux) or the file system refuses it."""
+    if not hasattr(os, "copy_file_range"):
+        return False
+    done = 0
+    while done < size:
+        try:
+            copied = os.copy_file_range(source, target, size - done)
+        except OSError as err:
+            if done or err.errno not in (errno.ENOSYS, errno.EXDEV, errno.EOPNOTSUPP, errno.EINVAL):
+                raise
+            return False
+        if copied == 0:
+            raise OSError(f"file descriptor {source} ended {size - done} bytes early while copying it")
+        done += copied
+    return True
+
+
+class ShardFile:
+    """One tar being written to ``<path>.partial``; renamed to ``<path>`` on :meth:`close`."""
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
@@ -99,24 +140,13 @@ class ShardFile:
         self.count = 0
 
     def write(self, sample: dict[str, Any]) -> None:
-        for name, data in encode_sample(sample):
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            info.mode = 0o444
-            self._file.write(info.tobuf(format=tarfile.PAX_FORMAT))
-            self._file.write(data)
-            self._file.write(b"\0" * (-len(data) % _BLOCK))
+        write_sample(self._file, sample)
         self.count += 1
 
-    def mark(self) -> tuple[int, int]:
-        """A position to :meth:`rollback` to."""
-        return self._file.tell(), self.count
-
-    def rollback(self, mark: tuple[int, int]) -> None:
-        """Drop everything written since ``mark`` (a log that failed half-way)."""
-        offset, self.count = mark
-        self._file.seek(offset)
-        self._file.truncate()
+    def append(self, fragment: Path, count: int) -> None:
+        """Append the ``count`` samples :func:`write_sample` wrote to the file ``fragment``, byte for byte."""
+        _append_file(self._file, fragment)
+        self.count += count
 
     def close(self) -> Path:
         """Finish the tar, make it durable, and give it its final name."""

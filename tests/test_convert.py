@@ -1,10 +1,13 @@
+import hashlib
 import json
+import multiprocessing as mp
 import os
 import signal
 import subprocess
 import sys
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -14,12 +17,21 @@ from toy_adapter import ToyAdapter, write_toy_logs
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.registry import Adapter
+from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.shards import load_info, load_manifest, read_samples
 
 
 def keys_in_shards(out: Path) -> list[str]:
     return [s["__key__"] for s in read_samples(out, fields=[])]
+
+
+def digests(out: Path) -> dict[str, str]:
+    """sha256 of every file of a converted folder, by its path in the folder."""
+    return {
+        str(path.relative_to(out)): hashlib.sha256(path.read_bytes()).hexdigest()
+        for path in sorted(out.rglob("*"))
+        if path.is_file()
+    }
 
 
 @pytest.mark.parametrize("workers", [1, 2])
@@ -60,6 +72,58 @@ def test_broken_log_is_isolated(tmp_path):
     assert load_info(tmp_path / "out")["skipped_logs"] == [{"log": "log004", "reason": "route failed"}]
 
 
+LENGTHS = [12, 3, 5, 3, 4, 3, 2]  # log000 is the longest: with two workers, later logs finish before it
+
+
+@pytest.mark.parametrize(
+    ("broken", "skipped", "shards"),
+    [
+        ((), (), {"toy-000000.tar": 12, "toy-000001.tar": 8, "toy-000002.tar": 7, "toy-000003.tar": 5}),
+        ((1, 3), (4,), {"toy-000000.tar": 12, "toy-000001.tar": 8, "toy-000002.tar": 2}),
+    ],
+)
+def test_any_number_of_workers_writes_the_same_bytes(tmp_path, broken, skipped, shards):
+    write_toy_logs(tmp_path / "src", n_logs=7, frames=LENGTHS, broken=broken, skipped=skipped)
+    runs = {}
+    for name, workers in (("one", 1), ("two", 2), ("two_again", 2)):
+        convert(ToyAdapter(sleep=0.01), tmp_path / "src", tmp_path / name, workers=workers, shard_size=6)
+        runs[name] = digests(tmp_path / name)
+    assert runs["two"] == runs["one"] and runs["two_again"] == runs["one"]
+    # shards close at the first log boundary after 6 samples, in the order of the log list, failed logs left out
+    assert load_info(tmp_path / "one")["shards"] == shards
+    errors = [json.loads(line)["log"] for line in (tmp_path / "one" / "errors.jsonl").read_text().splitlines()]
+    assert errors == [f"log{i:03d}" for i in broken]
+    assert sorted(runs["one"]) == sorted(
+        [
+            "convert.json",
+            "errors.jsonl",
+            "info.json",
+            "manifest.parquet",
+            "progress.jsonl",
+            *(f"shards/{shard}" for shard in shards),
+        ]
+    )
+
+
+class InterruptedToy(ToyAdapter):
+    """Ctrl-C while converting log000, in whichever process converts it."""
+
+    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
+        if log.log_id == "log000":
+            raise KeyboardInterrupt
+        yield from super().iter_samples(log)
+
+
+def test_an_interrupted_conversion_stops_its_workers(tmp_path):
+    write_toy_logs(tmp_path / "src", n_logs=8, frames=40)  # 2 s per log: 14 s of work after log000
+    started = time.perf_counter()
+    with pytest.raises((KeyboardInterrupt, RuntimeError)):  # the driver's own log, or a worker's that then dies
+        convert(InterruptedToy(sleep=0.05), tmp_path / "src", tmp_path / "out", workers=2)
+    assert time.perf_counter() - started < 8.0, "the worker should be stopped, not left to finish the logs"
+    assert mp.active_children() == []
+    assert not (tmp_path / "out" / "manifest.parquet").exists()
+
+
 def test_rerun_skips_finished_logs_and_force_redoes(tmp_path):
     write_toy_logs(tmp_path / "src", n_logs=3, frames=4)
     convert(ToyAdapter(), tmp_path / "src", tmp_path / "out", shard_size=1)
@@ -76,7 +140,7 @@ sys.path.insert(0, {tests!r})
 from toy_adapter import ToyAdapter
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
-from lead_s2r.registry import Adapter
+from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.models.inputs import target_point_range
 convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers={workers}, shard_size=8)
 """
@@ -104,6 +168,8 @@ def test_resume_after_kill_loses_and_duplicates_nothing(tmp_path, workers):
     assert len(counts) == 60 and max(counts.values()) == 1
     assert sorted(load_manifest(out)["key"].to_pylist()) == sorted(keys)
     assert not list((out / "shards").glob("*.partial"))
+    convert(ToyAdapter(), src, tmp_path / "whole", workers=1, shard_size=8)  # one process, never interrupted
+    assert digests(out) == digests(tmp_path / "whole")
 
 
 class RiggedToy(ToyAdapter):

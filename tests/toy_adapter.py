@@ -2,7 +2,7 @@
 
 import json
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -13,11 +13,19 @@ from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, Command
 
 
-def write_toy_logs(src: Path, n_logs: int, frames: int, broken: tuple[int, ...] = (), skipped: tuple[int, ...] = ()):
-    """Write toy logs; ``broken`` logs fail half-way through, ``skipped`` logs ask to be left out."""
+def write_toy_logs(
+    src: Path,
+    n_logs: int,
+    frames: int | Sequence[int],
+    broken: tuple[int, ...] = (),
+    skipped: tuple[int, ...] = (),
+):
+    """Write toy logs of ``frames`` frames each (or ``frames[i]`` for log i); ``broken`` logs fail half-way through,
+    ``skipped`` logs ask to be left out."""
     src.mkdir(parents=True, exist_ok=True)
     for i in range(n_logs):
-        spec = {"frames": frames, "yaw_rate": 0.1 * (i % 3 - 1), "fail_at": frames // 2 if i in broken else None}
+        length = frames if isinstance(frames, int) else frames[i]
+        spec = {"frames": length, "yaw_rate": 0.1 * (i % 3 - 1), "fail_at": length // 2 if i in broken else None}
         spec["skip"] = i in skipped
         (src / f"log{i:03d}.json").write_text(json.dumps(spec))
 
