@@ -20,7 +20,7 @@ from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform, collate
 from lead_s2r.models.config import TFv6Config, tfv6_config
-from lead_s2r.models.inputs import RGB_JPEG, decode_images, decode_rgb, jpeg_tensor
+from lead_s2r.models.inputs import RGB_JPEG, check_device_decode, decode_images, decode_rgb, jpeg_tensor
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic.carla_lead import generate
@@ -71,6 +71,17 @@ def test_a_batch_mixing_encoded_and_decoded_images_is_decoded_in_the_loader(carl
     mixed = collate([loader(carla_samples[0]), device(carla_samples[1]), device(carla_samples[2])])
     assert RGB_JPEG not in mixed
     assert_batches_equal(mixed, collate([loader(sample) for sample in carla_samples]))
+
+
+def test_a_device_decode_is_held_to_the_cpus(carla_samples: list[dict]) -> None:
+    encoded = jpeg_tensor(carla_samples[0]["cam_carla_mosaic"])
+    pixels = decode_rgb([encoded], "cpu")[0]
+    assert check_device_decode(encoded, pixels) == 0.0
+    nudged = pixels.clone()
+    nudged[:, ::2] ^= 1  # nvJPEG-like rounding: half the rows one level off
+    assert check_device_decode(encoded, nudged) == pytest.approx(0.5, abs=0.01)
+    with pytest.raises(RuntimeError, match="jpeg_to_device=false"):
+        check_device_decode(encoded, pixels.flip(-1))  # a decoder that mirrors the image
 
 
 def test_jpegs_of_different_sizes_name_their_samples() -> None:

@@ -27,7 +27,7 @@ from lead_s2r.data.streams import ResampledShards, SampleShare, SeededShuffle, S
 from lead_s2r.data.transforms import SourceTransform, collate
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
-from lead_s2r.models.inputs import Batch, decode_images, target_point_range
+from lead_s2r.models.inputs import RGB_JPEG, Batch, check_device_decode, decode_images, target_point_range
 from lead_s2r.shards import (
     INFO,
     ManifestCheck,
@@ -150,6 +150,7 @@ class DriveDataModule(L.LightningDataModule):
         self._config = config
         self._seed = seed
         self._jpeg_to_device = jpeg_to_device
+        self._device_decode_checked = False
         for stage, sources in self._stages().items():
             for name, spec in sources.items():
                 try:
@@ -245,9 +246,17 @@ class DriveDataModule(L.LightningDataModule):
 
     def on_before_batch_transfer(self, batch: dict[str, Batch], dataloader_idx: int) -> dict[str, Batch]:
         """Decode the camera JPEGs the loaders left encoded (``rgb_jpeg``) straight onto the trainer's device, in one
-        nvJPEG call per source on a GPU, before the rest of the batch moves."""
+        nvJPEG call per source on a GPU, before the rest of the batch moves. The first image a GPU decodes in this
+        process is held to the CPU's decode (:func:`check_device_decode`): a broken decoder fails the run at once
+        instead of training on garbage."""
         device = self.trainer.strategy.root_device if self.trainer is not None else torch.device("cpu")
-        return {source: decode_images(source_batch, device) for source, source_batch in batch.items()}
+        decoded = {source: decode_images(source_batch, device) for source, source_batch in batch.items()}
+        if device.type != "cpu" and not self._device_decode_checked:
+            source = next((source for source, source_batch in batch.items() if RGB_JPEG in source_batch), None)
+            if source is not None:
+                check_device_decode(batch[source][RGB_JPEG][0], decoded[source]["rgb"][0])
+                self._device_decode_checked = True
+        return decoded
 
     def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
         return _Prepare(SourceTransform(name, self.config, list(spec.cameras), self.jpeg_to_device))

@@ -37,6 +37,9 @@ LIDAR_HITS_MAX = 5
 IGNORE_CLASS = 255
 #: Batch key of input images left JPEG-encoded by the loader: a list of 1-D uint8 CPU tensors (:func:`decode_images`).
 RGB_JPEG = "rgb_jpeg"
+#: Mean absolute difference (levels of 255) beyond which a device's decode is not libjpeg-turbo's up to rounding
+#: (nvJPEG's IDCT and chroma upsampling move pixels by a level or two, far less on average).
+DEVICE_DECODE_TOLERANCE = 2.0
 
 
 class Batch(TypedDict, total=False):
@@ -169,3 +172,17 @@ def decode_images(batch: Batch, device: torch.device | str) -> Batch:
         )
     batch["rgb"] = torch.stack(images)
     return batch
+
+
+def check_device_decode(encoded: Tensor, decoded: Tensor) -> float:
+    """The mean absolute difference between ``decoded`` (a JPEG decoded on a device) and libjpeg-turbo's decode of
+    ``encoded`` on the CPU; raises when it exceeds :data:`DEVICE_DECODE_TOLERANCE`, a broken device decoder."""
+    reference = decode_rgb([encoded], "cpu")[0]
+    difference = (decoded.cpu().int() - reference.int()).abs().float().mean().item()
+    if difference > DEVICE_DECODE_TOLERANCE:
+        raise RuntimeError(
+            f"the {decoded.device} JPEG decoder's pixels differ from libjpeg-turbo's by {difference:.2f} levels on "
+            f"average (more than {DEVICE_DECODE_TOLERANCE}): its decode is broken on this machine; train with "
+            "--data.jpeg_to_device=false to decode in the loader"
+        )
+    return difference
