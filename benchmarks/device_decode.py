@@ -1,4 +1,4 @@
-"""A batch of CARLA mosaics decoded in the loader (libjpeg-turbo, CPU) against on the GPU (nvJPEG, ``jpeg_to_device``).
+"""A batch of CARLA mosaics decoded in the loader (libjpeg-turbo, CPU) against on the GPU (nvJPEG).
 
 .venv/bin/python benchmarks/device_decode.py --batch-size 8 --repeats 20
 

@@ -58,7 +58,7 @@ PLAIN, PIXELS, OURS, OURS_DEVICE, LEAD_BOTH, LEAD_ONE = (
     "plain decoding (read_samples, every field)",
     "plain decoding + JPEG to pixels",
     "ours (DriveDataModule)",
-    "ours, JPEG left for the GPU (jpeg_to_device)",
+    "ours, JPEG and LiDAR left for the GPU (inputs_on_device)",
     "LEAD-style per-file, both rigs (LEAD uncached)",
     "LEAD-style per-file, one rig",
 )
@@ -134,7 +134,7 @@ def loaders(
 
 
 def training_stream(
-    kind: str, data: Path, args: argparse.Namespace, config: TFv6Config, jpeg_to_device: bool
+    kind: str, data: Path, args: argparse.Namespace, config: TFv6Config, inputs_on_device: bool
 ) -> Iterator[dict[str, Any]]:
     """One epoch's stream of our training loader, as in training: every round goes on with it."""
     dm = DriveDataModule(
@@ -143,14 +143,14 @@ def training_stream(
         steps_per_epoch=args.steps * args.rounds + 1,
         num_workers=args.workers,
         config=config,
-        jpeg_to_device=jpeg_to_device,
+        inputs_on_device=inputs_on_device,
     )
     dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
     wall, cpu = time.perf_counter(), time.process_time()
     stream = iter(dm.train_dataloader()["carla"])
     first = next(stream)
     print(
-        f"{kind}: ours (jpeg_to_device={jpeg_to_device}), the shuffle buffer's fill and the first batch (once per "
+        f"{kind}: ours (inputs_on_device={inputs_on_device}), the shuffle buffer's fill and the first batch (once per "
         f"epoch and worker): {time.perf_counter() - wall:.2f} s wall, {time.process_time() - cpu:.2f} s CPU for "
         f"{len(first['__key__'])}"
     )

@@ -27,7 +27,14 @@ from lead_s2r.data.streams import ResampledShards, SampleShare, SeededShuffle, S
 from lead_s2r.data.transforms import SourceTransform, collate
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
-from lead_s2r.models.inputs import RGB_JPEG, Batch, check_device_decode, decode_images, target_point_range
+from lead_s2r.models.inputs import (
+    RGB_JPEG,
+    Batch,
+    check_device_decode,
+    decode_images,
+    rasterize_points,
+    target_point_range,
+)
 from lead_s2r.shards import (
     INFO,
     ManifestCheck,
@@ -116,9 +123,10 @@ class DriveDataModule(L.LightningDataModule):
         config: the model configuration the transforms follow; by default the trained model's own.
         seed: seed of shard resampling and shuffling (with the epoch, rank, worker and source); by default the
             one ``seed_everything`` set, else 0.
-        jpeg_to_device: send a camera JPEG that is the model's image as stored (CARLA's mosaic at TFv6's size) to the
-            training device encoded, to be decoded there (nvJPEG on a GPU) instead of in the loader; other rigs are
-            decoded in the loader. None (default): when the trainer runs on a GPU.
+        inputs_on_device: send a camera JPEG that is the model's image as stored (CARLA's mosaic at TFv6's size) to the
+            training device encoded, to be decoded there (nvJPEG on a GPU) instead of in the loader (other rigs are
+            decoded in the loader), and the LiDAR points to be rasterised there. None (default): when the trainer
+            runs on a GPU.
     """
 
     def __init__(
@@ -133,7 +141,7 @@ class DriveDataModule(L.LightningDataModule):
         shuffle_buffer: int = 256,
         config: TFv6Config | None = None,
         seed: int | None = None,
-        jpeg_to_device: bool | None = None,
+        inputs_on_device: bool | None = None,
     ) -> None:
         super().__init__()
         self.train_sources = train or {}
@@ -149,7 +157,7 @@ class DriveDataModule(L.LightningDataModule):
         self.shuffle_buffer = shuffle_buffer
         self._config = config
         self._seed = seed
-        self._jpeg_to_device = jpeg_to_device
+        self._inputs_on_device = inputs_on_device
         self._device_decode_checked = False
         for stage, sources in self._stages().items():
             for name, spec in sources.items():
@@ -237,20 +245,21 @@ class DriveDataModule(L.LightningDataModule):
         return self.trainer.current_epoch, getattr(self.trainer, "global_rank", 0), self.trainer.world_size
 
     @property
-    def jpeg_to_device(self) -> bool:
+    def inputs_on_device(self) -> bool:
         """Whether loaders leave the model's camera JPEG for the device: as given, else when training on a GPU."""
-        if self._jpeg_to_device is not None:
-            return self._jpeg_to_device
+        if self._inputs_on_device is not None:
+            return self._inputs_on_device
         strategy = getattr(self.trainer, "strategy", None)
         return strategy is not None and strategy.root_device.type == "cuda"
 
     def on_before_batch_transfer(self, batch: dict[str, Batch], dataloader_idx: int) -> dict[str, Batch]:
-        """Decode the camera JPEGs the loaders left encoded (``rgb_jpeg``) straight onto the trainer's device, in one
-        nvJPEG call per source on a GPU, before the rest of the batch moves. The first image a GPU decodes in this
-        process is held to the CPU's decode (:func:`check_device_decode`): a broken decoder fails the run at once
-        instead of training on garbage."""
+        """Build the inputs the loaders left for the device on the trainer's device, before the rest of the batch
+        moves: the camera JPEGs (``rgb_jpeg``) decoded, in one nvJPEG call per source on a GPU, and the LiDAR points
+        (``lidar_points``) rasterised. The first image a GPU decodes in this process is held to the CPU's decode
+        (:func:`check_device_decode`): a broken decoder fails the run at once instead of training on garbage."""
         device = self.trainer.strategy.root_device if self.trainer is not None else torch.device("cpu")
-        decoded = {source: decode_images(source_batch, device) for source, source_batch in batch.items()}
+        grid = self.config.bev
+        decoded = {source: rasterize_points(decode_images(b, device), grid, device) for source, b in batch.items()}
         if device.type != "cpu" and not self._device_decode_checked:
             source = next((source for source, source_batch in batch.items() if RGB_JPEG in source_batch), None)
             if source is not None:
@@ -259,7 +268,7 @@ class DriveDataModule(L.LightningDataModule):
         return decoded
 
     def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
-        return _Prepare(SourceTransform(name, self.config, list(spec.cameras), self.jpeg_to_device))
+        return _Prepare(SourceTransform(name, self.config, list(spec.cameras), self.inputs_on_device))
 
     def _train_pipeline(self, name: str, spec: SourceSpec, batch_size: int) -> wds.DataPipeline:
         epoch, rank, _ = self._where()

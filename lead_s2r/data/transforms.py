@@ -31,7 +31,8 @@ here; the model and the losses scale, widen and resize them on the device. Image
 write: a sample's ``rgb`` is a (3, H, W) view of it and a batch's a channels-last (B, 3, H, W) tensor, which is
 also the memory format convolutions run fastest in on the GPU. A camera JPEG that is the model's image as stored
 (one camera at ``image_size``) is decoded by libjpeg-turbo without OpenCV's conversions, or, with
-``jpeg_to_device``, not at all: the bytes go to the training device (:func:`~lead_s2r.models.inputs.decode_images`).
+``inputs_on_device``, not at all: the bytes go to the training device (:func:`~lead_s2r.models.inputs.decode_images`),
+and so do the LiDAR points, unrasterised (:func:`~lead_s2r.models.inputs.rasterize_points`).
 """
 
 import math
@@ -48,7 +49,15 @@ from torch.utils.data import default_collate
 
 from lead_s2r.geometry import raster_lookup, resample
 from lead_s2r.models.config import BEVGrid, TFv6Config
-from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, RGB_JPEG, decode_rgb, jpeg_tensor, on_image_grid
+from lead_s2r.models.inputs import (
+    IGNORE_CLASS,
+    LIDAR_HITS_MAX,
+    LIDAR_POINTS,
+    RGB_JPEG,
+    decode_rgb,
+    jpeg_tensor,
+    on_image_grid,
+)
 from lead_s2r.schema import BoxClass, command4
 
 #: Radar points kept per sample (LEAD: 4 sensors x 75).
@@ -256,14 +265,15 @@ class SourceTransform:
         source: the source name the model knows (its trajectory grid and label space), e.g. "carla".
         config: the model configuration (image size, BEV grid, trajectory grids, head sizes).
         cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
-        jpeg_to_device: leave a camera JPEG that is the model's image as stored encoded (``rgb_jpeg``), for
-            :func:`~lead_s2r.models.inputs.decode_images` on the training device; other rigs are decoded here.
+        inputs_on_device: leave a camera JPEG that is the model's image as stored encoded (``rgb_jpeg``), for
+            :func:`~lead_s2r.models.inputs.decode_images` on the training device (other rigs are decoded here), and
+            the LiDAR points unrasterised (``lidar_points``), for :func:`~lead_s2r.models.inputs.rasterize_points`.
     """
 
     source: str
     config: TFv6Config
     cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
-    jpeg_to_device: bool = False
+    inputs_on_device: bool = False
     _reported: set[CameraLayout] = field(default_factory=set, init=False, repr=False)  # letterboxed layouts warned of
 
     @property
@@ -300,13 +310,15 @@ class SourceTransform:
             "command": torch.scalar_tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
-            shipped = self.stored_layout(meta) if self.jpeg_to_device else None
+            shipped = self.stored_layout(meta) if self.inputs_on_device else None
             if shipped is not None and shipped.identity:
                 out[RGB_JPEG], layout = jpeg_tensor(self._jpeg(sample, self.cameras[0])), shipped
             else:
                 out["rgb"], layout = self.image(sample)
         out.update(self.target_points(sample))
-        if self.config.bev_input == "raster":
+        if self.config.bev_input == "raster" and self.inputs_on_device:
+            out[LIDAR_POINTS] = lidar_xy(sample.get("lidar"))
+        elif self.config.bev_input == "raster":
             out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), self.config.bev))[None]
         if self.config.use_radar:
             out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
@@ -508,6 +520,14 @@ def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
     counts = np.bincount(_lidar_cells(points, grid), minlength=h * w).reshape(h, w)
     np.minimum(counts, LIDAR_HITS_MAX, out=raster, casting="unsafe")  # <= LIDAR_HITS_MAX: the cast is exact
     return raster
+
+
+def lidar_xy(points: np.ndarray | None) -> torch.Tensor:
+    """The x, y of LiDAR ``points`` (N, >= 2) for :func:`~lead_s2r.models.inputs.rasterize_points` on the device, as
+    one contiguous copy (a view would send the whole cloud through a loader worker's shared memory)."""
+    if points is None:
+        return torch.zeros(0, 2)
+    return torch.from_numpy(np.ascontiguousarray(points[:, :2]))
 
 
 def _lidar_cells(points: np.ndarray, grid: BEVGrid) -> np.ndarray:
@@ -718,17 +738,18 @@ IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
 
-    Identity entries (``__key__``, ``__dataset__``) and JPEGs left for the device (:data:`RGB_JPEG`) become lists;
-    where only some samples' rigs let their JPEG go encoded, those are decoded here. The filler is masked out by
-    construction: validity masks are False, class maps :data:`IGNORE_CLASS`, depth 0. Perspective labels left at
-    their stored size by rigs of different sizes (one source, several camera rigs) are brought onto the image's grid
-    here, as the loss would. In a dataloader worker each tensor is stacked straight into shared memory (torch's
-    ``default_collate``), not into private memory that the worker then copies into shared memory to send the batch.
+    Identity entries (``__key__``, ``__dataset__``) and the inputs left for the device (:data:`RGB_JPEG`,
+    :data:`LIDAR_POINTS`) become lists; where only some samples' rigs let their JPEG go encoded, those are decoded
+    here. The filler is masked out by construction: validity masks are False, class maps :data:`IGNORE_CLASS`, depth
+    0. Perspective labels left at their stored size by rigs of different sizes (one source, several camera rigs) are
+    brought onto the image's grid here, as the loss would. In a dataloader worker each tensor is stacked straight
+    into shared memory (torch's ``default_collate``), not into private memory that the worker then copies into
+    shared memory to send the batch.
     """
     if any(RGB_JPEG in sample for sample in samples) and not all(RGB_JPEG in sample for sample in samples):
         samples = [_decoded(sample) for sample in samples]
     names = set().union(*samples)
-    listed = {name for name in names if name.startswith("__")} | ({RGB_JPEG} & names)
+    listed = {name for name in names if name.startswith("__")} | ({RGB_JPEG, LIDAR_POINTS} & names)
     batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in listed}
     for key in sorted(names - listed):
         values = [sample.get(key) for sample in samples]

@@ -1,7 +1,8 @@
-"""Camera JPEGs left encoded by the loader and decoded on the training device give the loader's own pixels.
+"""Inputs left raw by the loader (camera JPEGs, LiDAR points) and built on the training device give the loader's
+own tensors.
 
-On the CPU both decodes are libjpeg-turbo's, so everything downstream must be bit-identical; only rigs whose JPEG is
-the model's image as stored (one camera at ``image_size``) may go encoded.
+On the CPU both decodes are libjpeg-turbo's and both rasters the same float32 arithmetic, so everything downstream
+must be bit-identical; only rigs whose JPEG is the model's image as stored (one camera at ``image_size``) go encoded.
 """
 
 import math
@@ -18,9 +19,18 @@ from tiny_models import TINY
 from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.transforms import SourceTransform, collate
-from lead_s2r.models.config import TFv6Config, tfv6_config
-from lead_s2r.models.inputs import RGB_JPEG, check_device_decode, decode_images, decode_rgb, jpeg_tensor
+from lead_s2r.data.transforms import SourceTransform, collate, lidar_xy, rasterize_lidar
+from lead_s2r.models.config import BEVGrid, TFv6Config, tfv6_config
+from lead_s2r.models.inputs import (
+    LIDAR_HITS_MAX,
+    LIDAR_POINTS,
+    RGB_JPEG,
+    check_device_decode,
+    decode_images,
+    decode_rgb,
+    jpeg_tensor,
+    rasterize_points,
+)
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic.carla_lead import generate
@@ -48,29 +58,55 @@ def test_libjpeg_turbo_through_torch_decodes_what_opencv_decodes(quality: int, g
     np.testing.assert_array_equal(ours.permute(1, 2, 0).numpy(), opencv)
 
 
-def test_a_jpeg_sent_encoded_decodes_to_the_loaders_batch(carla_samples: list[dict]) -> None:
+def on_the_device(batch: dict, config: TFv6Config) -> dict:
+    """What the data module does before the batch moves, on the CPU."""
+    return rasterize_points(decode_images(batch, "cpu"), config.bev, "cpu")
+
+
+def test_inputs_sent_raw_give_the_loaders_batch(carla_samples: list[dict]) -> None:
     config = tfv6_config()  # paper size: the 1152x384 mosaic is the model's image as stored
     in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
-    encoded = collate([SourceTransform("carla", config, jpeg_to_device=True)(sample) for sample in carla_samples])
+    encoded = collate([SourceTransform("carla", config, inputs_on_device=True)(sample) for sample in carla_samples])
     assert "rgb" not in encoded and len(encoded[RGB_JPEG]) == len(carla_samples)
+    assert "lidar_bev" not in encoded and [len(p) for p in encoded[LIDAR_POINTS]] == [
+        len(sample["lidar"]) for sample in carla_samples
+    ]
     assert bytes(encoded[RGB_JPEG][0].numpy()) == bytes(carla_samples[0]["cam_carla_mosaic"])
     assert in_loader["rgb"].is_contiguous(memory_format=torch.channels_last)
-    assert_batches_equal(decode_images(encoded, "cpu"), in_loader)
+    assert_batches_equal(on_the_device(encoded, config), in_loader)
+
+
+def test_the_device_raster_is_the_loaders_on_cell_edges_and_off_the_grid() -> None:
+    grid = BEVGrid(-8.0, 8.0, -4.0, 4.0, 2.0)  # 32 x 16 cells of 0.5 m
+    rng = np.random.default_rng(0)
+    edges = np.stack(np.meshgrid(np.arange(-8.5, 8.75, 0.25), np.arange(-4.5, 4.75, 0.25)), -1).reshape(-1, 2)
+    clouds = [
+        np.concatenate([edges, rng.uniform(-9, 9, (500, 2))]).astype(np.float32),  # every edge, inside and out
+        np.float32([[np.nan, 0.0], [0.0, np.inf], [np.nextafter(np.float32(8), 0), 3.99], [8.0, 0.0]]),
+        np.zeros((0, 2), np.float32),
+        np.repeat(np.float32([[0.1, 0.1]]), 9, axis=0),  # saturates at LIDAR_HITS_MAX
+    ]
+    batch = rasterize_points({LIDAR_POINTS: [lidar_xy(c) for c in clouds]}, grid, "cpu")
+    expected = np.stack([rasterize_lidar(c, grid) for c in clouds])[:, None]
+    np.testing.assert_array_equal(batch["lidar_bev"].numpy(), expected)
+    assert batch["lidar_bev"][3].max() == LIDAR_HITS_MAX and expected.sum() > 0
 
 
 def test_a_rig_the_loader_must_lay_out_is_decoded_there(carla_samples: list[dict]) -> None:
     config = tfv6_config(image_size=(192, 576))  # the mosaic is scaled: not the model's image as stored
-    out = SourceTransform("carla", config, jpeg_to_device=True)(carla_samples[0])
+    out = SourceTransform("carla", config, inputs_on_device=True)(carla_samples[0])
     assert RGB_JPEG not in out and out["rgb"].shape == (3, 192, 576)
     assert torch.equal(out["rgb"], SourceTransform("carla", config)(carla_samples[0])["rgb"])
 
 
 def test_a_batch_mixing_encoded_and_decoded_images_is_decoded_in_the_loader(carla_samples: list[dict]) -> None:
     config = tfv6_config()
-    loader, device = SourceTransform("carla", config), SourceTransform("carla", config, jpeg_to_device=True)
-    mixed = collate([loader(carla_samples[0]), device(carla_samples[1]), device(carla_samples[2])])
+    loader, device = SourceTransform("carla", config), SourceTransform("carla", config, inputs_on_device=True)
+    laid_out = {k: v for k, v in device(carla_samples[0]).items() if k != RGB_JPEG}  # a rig the loader decodes
+    laid_out["rgb"] = loader(carla_samples[0])["rgb"]
+    mixed = collate([laid_out, device(carla_samples[1]), device(carla_samples[2])])
     assert RGB_JPEG not in mixed
-    assert_batches_equal(mixed, collate([loader(sample) for sample in carla_samples]))
+    assert_batches_equal(on_the_device(mixed, config), collate([loader(sample) for sample in carla_samples]))
 
 
 def test_a_device_decode_is_held_to_the_cpus(carla_samples: list[dict]) -> None:
@@ -80,7 +116,7 @@ def test_a_device_decode_is_held_to_the_cpus(carla_samples: list[dict]) -> None:
     nudged = pixels.clone()
     nudged[:, ::2] ^= 1  # nvJPEG-like rounding: half the rows one level off
     assert check_device_decode(encoded, nudged) == pytest.approx(0.5, abs=0.01)
-    with pytest.raises(RuntimeError, match="jpeg_to_device=false"):
+    with pytest.raises(RuntimeError, match="inputs_on_device=false"):
         check_device_decode(encoded, pixels.flip(-1))  # a decoder that mirrors the image
 
 
@@ -100,13 +136,13 @@ def test_an_undecodable_jpeg_names_the_batchs_samples() -> None:
 
 def test_the_data_module_decodes_before_the_batch_moves(carla_samples: list[dict], toy_data: str) -> None:
     config = tfv6_config()
-    encoded = collate([SourceTransform("carla", config, jpeg_to_device=True)(sample) for sample in carla_samples])
+    encoded = collate([SourceTransform("carla", config, inputs_on_device=True)(sample) for sample in carla_samples])
     dm = DriveDataModule(train={"carla": SourceSpec([toy_data])}, config=config)
     dm.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device("cpu")))
     batch = dm.on_before_batch_transfer({"carla": encoded}, 0)
-    assert RGB_JPEG not in batch["carla"]
+    assert RGB_JPEG not in batch["carla"] and LIDAR_POINTS not in batch["carla"]
     in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
-    assert torch.equal(batch["carla"]["rgb"], in_loader["rgb"])
+    assert_batches_equal(batch["carla"], in_loader)
 
 
 @pytest.fixture(scope="module")
@@ -124,38 +160,40 @@ def carla_data(path: str, config: TFv6Config, **kwargs: Any) -> DriveDataModule:
     return dm
 
 
-def test_a_loader_worker_sends_the_jpegs_to_the_main_process(converted_route: str) -> None:
+def test_a_loader_worker_sends_the_raw_inputs_to_the_main_process(converted_route: str) -> None:
     batches = {}
     for workers, to_device in ((1, True), (0, False)):
         dm = carla_data(
-            converted_route, tfv6_config(), steps_per_epoch=2, num_workers=workers, jpeg_to_device=to_device
+            converted_route, tfv6_config(), steps_per_epoch=2, num_workers=workers, inputs_on_device=to_device
         )
         batches[to_device] = list(dm.train_dataloader()["carla"])  # seeded: the same samples in the same order
     for encoded, decoded in zip(batches[True], batches[False], strict=True):
         assert len(encoded[RGB_JPEG]) == 2 and encoded["__key__"] == decoded["__key__"]
-        assert torch.equal(decode_images(encoded, "cpu")["rgb"], decoded["rgb"])
+        assert_batches_equal(on_the_device(encoded, tfv6_config()), decoded)
 
 
 def test_lightning_decodes_them_before_the_forward(converted_route: str) -> None:
     config = tfv6_config(**{**TINY, "image_size": (384, 1152)})  # the generated mosaic's size: sent encoded
-    dm = carla_data(converted_route, config, steps_per_epoch=1, jpeg_to_device=True)
+    dm = carla_data(converted_route, config, steps_per_epoch=1, inputs_on_device=True)
     module = DrivingModule(TFv6(config))
     seen: list[tuple[int, ...]] = []
-    module.model.register_forward_pre_hook(lambda _, args: seen.append(tuple(args[0]["rgb"].shape)))
+    module.model.register_forward_pre_hook(
+        lambda _, args: seen.append((*args[0]["rgb"].shape, *args[0]["lidar_bev"].shape))
+    )
     options = {"logger": False, "enable_checkpointing": False, "enable_progress_bar": False, "limit_val_batches": 0}
     fit = L.Trainer(accelerator="cpu", max_steps=1, **options)
     fit.fit(module, datamodule=dm)
-    assert seen == [(2, 3, 384, 1152)] and math.isfinite(fit.callback_metrics["train/loss"])
+    assert seen == [(2, 3, 384, 1152, 2, 1, *config.bev.shape)] and math.isfinite(fit.callback_metrics["train/loss"])
 
 
-def test_the_datamodule_sends_jpegs_encoded_only_when_training_on_a_gpu(toy_data: str) -> None:
+def test_the_datamodule_sends_raw_inputs_only_when_training_on_a_gpu(toy_data: str) -> None:
     def on(dm: DriveDataModule, device: str) -> bool:
         dm.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device(device)))
-        return dm.jpeg_to_device
+        return dm.inputs_on_device
 
     train = {"carla": SourceSpec([toy_data])}
     auto = DriveDataModule(train=train, config=tfv6_config())
-    assert not auto.jpeg_to_device  # no trainer yet
+    assert not auto.inputs_on_device  # no trainer yet
     assert not on(auto, "cpu") and on(auto, "cuda")
-    assert on(DriveDataModule(train=train, config=tfv6_config(), jpeg_to_device=True), "cpu")
-    assert not on(DriveDataModule(train=train, config=tfv6_config(), jpeg_to_device=False), "cuda")
+    assert on(DriveDataModule(train=train, config=tfv6_config(), inputs_on_device=True), "cpu")
+    assert not on(DriveDataModule(train=train, config=tfv6_config(), inputs_on_device=False), "cuda")
