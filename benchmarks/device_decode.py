@@ -15,7 +15,7 @@ import torch
 from camera_input import scene_jpeg
 from cpu_time import cpu_times_ms
 
-from lead_s2r.models.inputs import RGB_JPEG, decode_images, decode_rgb, jpeg_tensor
+from lead_s2r.data.device_inputs import RGB_JPEG, decode_images, decode_rgb, jpeg_tensor
 
 
 def main() -> None:

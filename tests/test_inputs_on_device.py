@@ -18,11 +18,7 @@ from tiny_models import TINY
 
 from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
-from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.transforms import SourceTransform, collate, lidar_xy, rasterize_lidar
-from lead_s2r.models.config import BEVGrid, TFv6Config, tfv6_config
-from lead_s2r.models.inputs import (
-    LIDAR_HITS_MAX,
+from lead_s2r.data.device_inputs import (
     LIDAR_POINTS,
     RGB_JPEG,
     check_device_decode,
@@ -31,6 +27,10 @@ from lead_s2r.models.inputs import (
     jpeg_tensor,
     rasterize_points,
 )
+from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.data.transforms import SourceTransform, collate, lidar_xy, rasterize_lidar
+from lead_s2r.models.config import BEVGrid, TFv6Config, tfv6_config
+from lead_s2r.models.inputs import LIDAR_HITS_MAX
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic.carla_lead import generate

@@ -31,8 +31,8 @@ here; the model and the losses scale, widen and resize them on the device. Image
 write: a sample's ``rgb`` is a (3, H, W) view of it and a batch's a channels-last (B, 3, H, W) tensor, which is
 also the memory format convolutions run fastest in on the GPU. A camera JPEG that is the model's image as stored
 (one camera at ``image_size``) is decoded by libjpeg-turbo without OpenCV's conversions, or, with
-``inputs_on_device``, not at all: the bytes go to the training device (:func:`~lead_s2r.models.inputs.decode_images`),
-and so do the LiDAR points, unrasterised (:func:`~lead_s2r.models.inputs.rasterize_points`).
+``inputs_on_device``, not at all: the bytes go to the training device, and so do the LiDAR points, unrasterised
+(:mod:`lead_s2r.data.device_inputs`).
 """
 
 import math
@@ -47,17 +47,10 @@ import numpy as np
 import torch
 from torch.utils.data import default_collate
 
+from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, decode_rgb, jpeg_tensor
 from lead_s2r.geometry import raster_lookup, resample
 from lead_s2r.models.config import BEVGrid, TFv6Config
-from lead_s2r.models.inputs import (
-    IGNORE_CLASS,
-    LIDAR_HITS_MAX,
-    LIDAR_POINTS,
-    RGB_JPEG,
-    decode_rgb,
-    jpeg_tensor,
-    on_image_grid,
-)
+from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, on_image_grid
 from lead_s2r.schema import BoxClass, command4
 
 #: Radar points kept per sample (LEAD: 4 sensors x 75).
@@ -266,8 +259,8 @@ class SourceTransform:
         config: the model configuration (image size, BEV grid, trajectory grids, head sizes).
         cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
         inputs_on_device: leave a camera JPEG that is the model's image as stored encoded (``rgb_jpeg``), for
-            :func:`~lead_s2r.models.inputs.decode_images` on the training device (other rigs are decoded here), and
-            the LiDAR points unrasterised (``lidar_points``), for :func:`~lead_s2r.models.inputs.rasterize_points`.
+            :func:`~lead_s2r.data.device_inputs.decode_images` on the training device (other rigs are decoded here), and
+            the LiDAR points unrasterised (``lidar_points``), for :func:`~lead_s2r.data.device_inputs.rasterize_points`.
     """
 
     source: str
@@ -523,8 +516,8 @@ def rasterize_lidar(points: np.ndarray | None, grid: BEVGrid) -> np.ndarray:
 
 
 def lidar_xy(points: np.ndarray | None) -> torch.Tensor:
-    """The x, y of LiDAR ``points`` (N, >= 2) for :func:`~lead_s2r.models.inputs.rasterize_points` on the device, as
-    one contiguous copy (a view would send the whole cloud through a loader worker's shared memory)."""
+    """The x, y of LiDAR ``points`` (N, >= 2) for :func:`~lead_s2r.data.device_inputs.rasterize_points` on the
+    device, as one contiguous copy (a view would send the whole cloud through a loader worker's shared memory)."""
     if points is None:
         return torch.zeros(0, 2)
     return torch.from_numpy(np.ascontiguousarray(points[:, :2]))
