@@ -303,11 +303,11 @@ class SourceTransform:
             "command": torch.scalar_tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
-            shipped = self.stored_layout(meta) if self.inputs_on_device else None
-            if shipped is not None and shipped.identity:
-                out[RGB_JPEG], layout = jpeg_tensor(self._jpeg(sample, self.cameras[0])), shipped
+            stored = self.stored_layout(meta)
+            if self.inputs_on_device and stored is not None and stored.identity:
+                out[RGB_JPEG], layout = jpeg_tensor(self._jpeg(sample, self.cameras[0])), stored
             else:
-                out["rgb"], layout = self.image(sample)
+                out["rgb"], layout = self._laid_out(sample, stored)
         out.update(self.target_points(sample))
         if self.config.bev_input == "raster" and self.inputs_on_device:
             out[LIDAR_POINTS] = lidar_xy(sample.get("lidar"))
@@ -341,8 +341,11 @@ class SourceTransform:
         A JPEG that is the model's image as stored is decoded as it is; otherwise, where the calibration gives the
         stored sizes, JPEGs are decoded at the largest reduction (:func:`jpeg_reduction`) that still leaves the
         model's image to shrink into."""
+        return self._laid_out(sample, self.stored_layout(sample["meta"]))
+
+    def _laid_out(self, sample: dict[str, Any], layout: CameraLayout | None) -> tuple[torch.Tensor, CameraLayout]:
+        """:meth:`image`, given the rig's layout at its stored sizes (None: no calibration)."""
         meta = sample["meta"]
-        layout = self.stored_layout(meta)
         if layout is not None and layout.identity:
             try:
                 image = decode_rgb([jpeg_tensor(self._jpeg(sample, self.cameras[0]))], "cpu")[0]
