@@ -240,7 +240,7 @@ class DriveDataModule(L.LightningDataModule):
 
     @property
     def inputs_on_device(self) -> bool:
-        """Whether loaders leave the model's camera JPEG for the device: as given, else when training on a GPU."""
+        """Whether loaders leave the camera JPEG and the LiDAR points for the device: as given, else on a GPU."""
         if self._inputs_on_device is not None:
             return self._inputs_on_device
         strategy = getattr(self.trainer, "strategy", None)
