@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 from PIL import Image
 
-from lead_s2r.carla_rig import (
+from lead_s2r.formats.carla_rig import (
     CAMERA_RIGS,
     DEFAULT_TARGET_DATASET,
     EGO_VEHICLE,

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r import restricted_pickle
 from lead_s2r.errors import UserError
+from lead_s2r.formats import restricted_pickle
 
 
 class LeadFormatError(UserError, ValueError):

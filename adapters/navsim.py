@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from lead_s2r import restricted_pickle
 from lead_s2r.errors import UserError
+from lead_s2r.formats import restricted_pickle
 from lead_s2r.geometry import rotate, to_global, to_local, wrap_angle
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key

@@ -5,8 +5,8 @@ each with ``annotations`` in the frame's ego frame and ``ego_status`` in the glo
 current frame are plain data. The future is stored as nuPlan objects: ``extended_detections_tracks``
 (``DetectionsTracks``, global boxes) and ``extended_traffic_light_data`` (``TrafficLightStatuses``), one per 2 Hz
 keyframe after the current frame. The pickle is read with the restricted unpickler, which admits exactly the nuPlan
-classes in :data:`NUPLAN_RECORDS` as plain :class:`~lead_s2r.restricted_pickle.Record` data. Nothing from nuPlan is
-imported or run, and any other class is refused by name.
+classes in :data:`NUPLAN_RECORDS` as plain :class:`~lead_s2r.formats.restricted_pickle.Record` data. Nothing from
+nuPlan is imported or run, and any other class is refused by name.
 
 Synthetic scenes have no logged future ego (NAVSIM's human trajectory is None for them), so the sample has no
 ``future`` and ``meta.is_synthetic`` is true. There is no lidar either. The camera extrinsics are ``sensor2lidar``,
@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r import restricted_pickle
+from lead_s2r.formats import restricted_pickle
+from lead_s2r.formats.restricted_pickle import Record
 from lead_s2r.geometry import rotate, to_local, wrap_angle
 from lead_s2r.registry import LogRef
-from lead_s2r.restricted_pickle import Record
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim, navsim_map
 

@@ -1,11 +1,11 @@
-"""Our own minimal protobuf schema for WOD-E2E ``E2EDFrame`` records (built by :mod:`lead_s2r.proto_schema`).
+"""Our own minimal protobuf schema for WOD-E2E ``E2EDFrame`` records (built by :mod:`lead_s2r.formats.proto_schema`).
 
 Only the fields the adapter reads are declared, with Waymo's documented field numbers (proto2, as upstream);
 everything else in a record (poses, velocities, map, labels) stays an unknown field and is ignored. Enums
 (camera name, intent) are declared as int32, so an out-of-range value is kept rather than dropped.
 """
 
-from lead_s2r.proto_schema import F, Field, message_classes
+from lead_s2r.formats.proto_schema import F, Field, message_classes
 
 _MESSAGES: dict[str, list[Field]] = {
     "Transform": [Field("transform", 1, F.TYPE_DOUBLE, repeated=True)],

@@ -24,9 +24,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lead_s2r.baselines import predict_human  # noqa: E402
 from lead_s2r.convert import convert  # noqa: E402
 from lead_s2r.registry import get_adapter  # noqa: E402
+from lead_s2r.scoring.baselines import predict_human  # noqa: E402
 from lead_s2r.scoring.pdm.map_flags import DrivableMap  # noqa: E402
 from lead_s2r.scoring.pdm.observation import log_observation  # noqa: E402
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference  # noqa: E402

@@ -117,7 +117,7 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from lead_s2r.inspection import inspect_dataset
+    from lead_s2r.report.inspection import inspect_dataset
 
     report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
     print(json.dumps(report, indent=2))
@@ -244,21 +244,21 @@ def cmd_carla_metrics(args: argparse.Namespace) -> int:
 
 
 def cmd_table(args: argparse.Namespace) -> int:
-    from lead_s2r.tables import build_table
+    from lead_s2r.report.tables import build_table
 
     print(build_table(args.spec, args.runs, args.out), end="")
     return 0
 
 
 def cmd_quickstart(args: argparse.Namespace) -> int:
-    from lead_s2r.quickstart import quickstart
+    from lead_s2r.demo.quickstart import quickstart
 
     quickstart(Path(args.out), workers=args.workers)
     return 0
 
 
 def cmd_twin_data(args: argparse.Namespace) -> int:
-    from lead_s2r.twin_data import write_twin_data
+    from lead_s2r.demo.twin_data import write_twin_data
 
     names = write_twin_data(Path(args.out), workers=args.workers)
     print(f"wrote {', '.join(names)} under {Path(args.out) / 'data'}; run smoke twins in {args.out} (docs/recipes.md)")

@@ -1,7 +1,7 @@
 import numpy as np
 from toy_adapter import toy_sample
 
-from lead_s2r.baselines import constant_turn_rate, predict_constant_turn_rate
+from lead_s2r.scoring.baselines import constant_turn_rate, predict_constant_turn_rate
 
 
 def test_straight_line_at_constant_speed():

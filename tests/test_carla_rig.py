@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 
-from lead_s2r.carla_rig import radar_to_cartesian, sensor_to_carla_ego
 from lead_s2r.closed_loop.sensors import RADARS, Rig, radar_points, sensor_specs
+from lead_s2r.formats.carla_rig import radar_to_cartesian, sensor_to_carla_ego
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 
 

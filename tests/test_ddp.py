@@ -19,9 +19,9 @@ from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import TrajectoryGrid, tfv6_config
 from lead_s2r.models.tfv6 import TFv6
-from lead_s2r.scoring.callback import ScoringCallback
 from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.module import DrivingModule
+from lead_s2r.training.scoring_callback import ScoringCallback
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # forked ranks must not inherit a busy OpenMP pool
 

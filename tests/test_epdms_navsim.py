@@ -10,16 +10,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lead_s2r.baselines import predict_human
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.scoring import epdms as S
-from lead_s2r.scoring.callback import ScoringCallback
+from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
+from lead_s2r.training.scoring_callback import ScoringCallback
 from lead_s2r_adapters.navsim import NavsimAdapter
 
 CRUISE = replace(synth.LOGS[0], name="2021.05.12.22.00.38_veh-35_00001_00002", accel=-0.4)

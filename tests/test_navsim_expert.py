@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import yaml
 
-from lead_s2r.baselines import predict_human
 from lead_s2r.convert import convert
+from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.epdms import EPDMSScorer
 from lead_s2r.scoring.pdms import PDMSScorer, ReferenceCache
 from lead_s2r.shards import read_samples

@@ -13,12 +13,12 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
-from lead_s2r.baselines import predict_constant_velocity
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
-from lead_s2r.foreign_pickle import ForeignClass, ForeignObject, dumps
+from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps
 from lead_s2r.geometry import to_global, to_local
 from lead_s2r.predictions import write_predictions
+from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.epdms_two_stage import CSV_NAME
 from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm import two_stage as T

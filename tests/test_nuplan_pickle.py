@@ -8,9 +8,9 @@ import warnings
 import numpy as np
 import pytest
 
-from lead_s2r import restricted_pickle
-from lead_s2r.foreign_pickle import ForeignClass, ForeignObject, dumps, numpy1_array
-from lead_s2r.restricted_pickle import Record
+from lead_s2r.formats import restricted_pickle
+from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps, numpy1_array
+from lead_s2r.formats.restricted_pickle import Record
 
 SE2 = ForeignClass("nuplan.common.actor_state.state_representation", "StateSE2")
 BOX = ForeignClass("nuplan.common.actor_state.oriented_box", "OrientedBox")

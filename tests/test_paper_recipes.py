@@ -14,7 +14,7 @@ from lead_s2r.cli import main
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import BEVGrid, EgoMLPConfig, TFv6Config
 from lead_s2r.models.tfv6 import TFv6
-from lead_s2r.tables import SEED_FOLDER, load_spec
+from lead_s2r.report.tables import SEED_FOLDER, load_spec
 from lead_s2r.training.module import DrivingModule
 
 RECIPES = Path(__file__).parents[1] / "recipes"

@@ -9,13 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lead_s2r.baselines import predict_constant_velocity, predict_human
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, PredictionError
 from lead_s2r.schema import SchemaError
 from lead_s2r.scoring import pdms as pdms_module
-from lead_s2r.scoring.callback import ScoringCallback
+from lead_s2r.scoring.baselines import predict_constant_velocity, predict_human
 from lead_s2r.scoring.epdms import EPDMSScorer
 from lead_s2r.scoring.pdm import score_proposals
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
@@ -25,6 +24,7 @@ from lead_s2r.scoring.pdms import NAVSIM_COLUMNS, PDMSScorer, ReferenceCache, pr
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
+from lead_s2r.training.scoring_callback import ScoringCallback
 from lead_s2r_adapters.navsim import NavsimAdapter
 
 BASE = synth.LOGS[0]

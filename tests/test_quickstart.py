@@ -8,10 +8,10 @@ import pytest
 import yaml
 from rich.console import Console
 
-from lead_s2r import quickstart as qs
+from lead_s2r.demo import quickstart as qs
 from lead_s2r.predictions import read_predictions
+from lead_s2r.report.tables import MISSING, collect, to_markdown
 from lead_s2r.shards import load_manifest
-from lead_s2r.tables import MISSING, collect, to_markdown
 
 COLUMNS = ["NAVSIM PDMS", "NAVSIM EPDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE", "NAVSIM FDE", "WOD-E2E FDE"]
 ROWS = [

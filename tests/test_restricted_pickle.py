@@ -6,7 +6,7 @@ import pickle
 import numpy as np
 import pytest
 
-from lead_s2r import restricted_pickle
+from lead_s2r.formats import restricted_pickle
 
 VALUES = {
     "arrays": [np.arange(6, dtype=t).reshape(2, 3) for t in ("float16", "float32", "float64", "int8", "uint64")],

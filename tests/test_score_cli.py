@@ -14,9 +14,9 @@ import torch
 from lead_s2r import __version__, cli
 from lead_s2r.predictions import Prediction, PredictionError, read_predictions, write_predictions
 from lead_s2r.schema import SCHEMA_VERSION, validate
-from lead_s2r.scoring.callback import ScoringCallback
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import SHARD_DIR, ShardFile
+from lead_s2r.training.scoring_callback import ScoringCallback
 
 GRID = np.arange(1, 21) * 0.25  # WOD-E2E 4 Hz x 5 s
 

@@ -12,8 +12,8 @@ import pytest
 import yaml
 
 from lead_s2r.cli import main
-from lead_s2r.figures import PALETTE, infraction_bars, nice_ceiling
-from lead_s2r.tables import MISSING, TableError, build_table, collect, find_runs, load_spec, run_identity
+from lead_s2r.report.figures import PALETTE, infraction_bars, nice_ceiling
+from lead_s2r.report.tables import MISSING, TableError, build_table, collect, find_runs, load_spec, run_identity
 
 RFS = "rfs@wod-e2e-2025"
 B2D = "carla-leaderboard-2.0/bench2drive"

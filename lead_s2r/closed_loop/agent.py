@@ -24,7 +24,6 @@ import numpy as np
 import torch
 import yaml
 
-from lead_s2r.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, check_drivable, find_checkpoint, load_model, rig_for
 from lead_s2r.closed_loop.controllers import (
     Control,
@@ -48,6 +47,7 @@ from lead_s2r.closed_loop.route import (
 )
 from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_sample, reading, sensor_specs
 from lead_s2r.data.transforms import CENTERNET_STRIDE, SourceTransform, bev_cell_centres, collate
+from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 from lead_s2r.models.config import TFv6Config
 from lead_s2r.schema import BoxClass

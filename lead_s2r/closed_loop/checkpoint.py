@@ -22,8 +22,8 @@ import torch
 import yaml
 from torch import nn
 
-from lead_s2r.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
 from lead_s2r.data.transforms import camera_layout, camera_tiles
+from lead_s2r.formats.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
 from lead_s2r.models.config import TFv6Config
 
 #: The file LightningCLI writes the resolved run configuration to.

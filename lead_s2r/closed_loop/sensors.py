@@ -17,7 +17,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lead_s2r.carla_rig import (
+from lead_s2r.closed_loop.route import Navigation
+from lead_s2r.formats.carla_rig import (
     CAMERA_RIGS,
     EGO_VEHICLE,
     MOSAIC_ID,
@@ -26,7 +27,6 @@ from lead_s2r.carla_rig import (
     radar_to_cartesian,
     sensor_to_carla_ego,
 )
-from lead_s2r.closed_loop.route import Navigation
 from lead_s2r.geometry import carla_points_to_iso
 from lead_s2r.schema import SCHEMA_VERSION, Command
 

@@ -26,9 +26,9 @@ SCORES_JSON = "scores.json"
 
 
 def planner_predictions(planner: str, data: Path | list[Path], path: Path) -> Path:
-    """Write the predictions of a model-free planner (``lead_s2r.baselines.PLANNERS``: ``human`` replays the
+    """Write the predictions of a model-free planner (``lead_s2r.scoring.baselines.PLANNERS``: ``human`` replays the
     logged future, ``constant-velocity`` is NAVSIM's baseline) on every sample of ``data`` to ``path``."""
-    from lead_s2r.baselines import PLANNERS
+    from lead_s2r.scoring.baselines import PLANNERS
 
     if planner not in PLANNERS:
         raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")

@@ -8,7 +8,7 @@ or ``first_stage_predictions`` / ``second_stage_predictions`` (v2). A ``Trajecto
 ``navsim.common.dataclasses.Trajectory(poses, trajectory_sampling)``: ``poses`` (8, 3) float32 (x, y, heading) in
 the rear-axle frame at t0, sampled by nuPlan's ``TrajectorySampling(time_horizon=4, interval_length=0.5)``
 (``num_poses`` 8). The server unpickles with both packages installed, so the file names their classes by module
-path (:mod:`lead_s2r.foreign_pickle`: written as the real dataclasses pickle, ``__post_init__`` not run on load)
+path (:mod:`lead_s2r.formats.foreign_pickle`: written as the real dataclasses pickle, ``__post_init__`` not run on load)
 and holds arrays in numpy 1.x's layout (NAVSIM pins numpy 1.23.4, which cannot import numpy 2's ``numpy._core``).
 
 Two-stage (navhard): the first stage is every original scene of the split (NAVSIM's ``tokens_stage_one``, here
@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r import restricted_pickle
-from lead_s2r.foreign_pickle import ForeignClass, ForeignObject, dumps, numpy1_array
+from lead_s2r.formats import restricted_pickle
+from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps, numpy1_array
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
 from lead_s2r.shards import load_info

@@ -1,11 +1,13 @@
-"""Our own protobuf schema for WOD-E2E's ``end_to_end_driving_submission.proto`` (via :mod:`lead_s2r.proto_schema`).
+"""Our own protobuf schema for WOD-E2E's ``end_to_end_driving_submission.proto``.
+
+Built by :mod:`lead_s2r.formats.proto_schema`.
 
 Field numbers as upstream (proto2; shared/research/wod_e2e.md §1.4). ``submission_type`` is Waymo's enum
 ``SubmissionType`` (UNKNOWN = 0, E2ED_SUBMISSION = 1), declared as int32: the same wire bytes. The message has no
 probability field: exactly one trajectory per frame.
 """
 
-from lead_s2r.proto_schema import F, Field, message_classes
+from lead_s2r.formats.proto_schema import F, Field, message_classes
 
 #: ``E2EDChallengeSubmission.SubmissionType.E2ED_SUBMISSION``.
 E2ED_SUBMISSION = 1

@@ -22,7 +22,7 @@ writes:
 * ``extended_detections_tracks``: 8 nuPlan ``DetectionsTracks`` (global boxes, t = 0.5 ... 4 s);
 * ``extended_traffic_light_data``: 8 nuPlan ``TrafficLightStatuses``.
 
-The nuPlan objects are written by :mod:`lead_s2r.foreign_pickle` with nuPlan's own class paths. Synthetic tokens
+The nuPlan objects are written by :mod:`lead_s2r.formats.foreign_pickle` with nuPlan's own class paths. Synthetic tokens
 have 17 hex digits, as in NAVSIM.
 """
 
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from lead_s2r.foreign_pickle import ForeignClass, ForeignObject, dumps
+from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps
 from lead_s2r.synthetic import navsim, navsim_map
 
 SPLIT = "navhard_two_stage"

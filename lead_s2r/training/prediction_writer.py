@@ -7,8 +7,8 @@ import lightning as L
 import numpy as np
 from lightning.pytorch.callbacks import BasePredictionWriter
 
-from lead_s2r.distributed import gather_lists
 from lead_s2r.predictions import Prediction, drop_repeats, write_predictions
+from lead_s2r.training.distributed import gather_lists
 
 
 def to_predictions(output: dict[str, dict[str, Any]]) -> list[Prediction]:

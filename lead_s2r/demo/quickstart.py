@@ -35,14 +35,10 @@ import yaml
 from rich.console import Console
 from rich.table import Table
 
-from lead_s2r.baselines import predict_human
 from lead_s2r.convert import convert
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import get_adapter
-from lead_s2r.scoring.pdms import ReferenceCache
-from lead_s2r.scoring.run import score_predictions
-from lead_s2r.shards import read_samples
-from lead_s2r.tables import (
+from lead_s2r.report.tables import (
     Cell,
     Column,
     Row,
@@ -55,9 +51,13 @@ from lead_s2r.tables import (
     to_latex,
     to_markdown,
 )
+from lead_s2r.scoring.baselines import predict_human
+from lead_s2r.scoring.pdms import ReferenceCache
+from lead_s2r.scoring.run import score_predictions
+from lead_s2r.shards import read_samples
 from lead_s2r.training.cli import run_lightning_cli
 
-SMOKE = Path(__file__).resolve().parents[1] / "recipes" / "smoke"
+SMOKE = Path(__file__).resolve().parents[2] / "recipes" / "smoke"
 #: dataset -> (synthetic logs per split, adapter options relative to the raw folder). One distribution per dataset;
 #: enough logs that a model learns something that carries over to the held-out split. WOD-E2E rates one frame per
 #: validation segment, as the real data does, so RFS is a mean over about as many frames as there are val segments.
@@ -81,7 +81,7 @@ STEPS: dict[str, tuple[int, int]] = {
     "wod_ltfv6": (6, 25),
     "wod_ltfv6_lead": (6, 25),
 }
-#: Where the paper has no number (the blank :func:`lead_s2r.tables.layout` writes too).
+#: Where the paper has no number (the blank :func:`lead_s2r.report.tables.layout` writes too).
 PAPER_BLANK = "–"
 LIGHTNING_LOG = "lightning.log"
 

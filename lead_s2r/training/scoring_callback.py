@@ -21,10 +21,10 @@ from typing import Any
 
 import lightning as L
 
-from lead_s2r.distributed import gather_lists
 from lead_s2r.predictions import Prediction, drop_repeats
 from lead_s2r.scoring.run import make_scorer
 from lead_s2r.shards import read_samples
+from lead_s2r.training.distributed import gather_lists
 
 
 class ScoringCallback(L.Callback):

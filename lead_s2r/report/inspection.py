@@ -10,7 +10,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from lead_s2r.errors import UserError
-from lead_s2r.render import render_sample
+from lead_s2r.report.render import render_sample
 from lead_s2r.schema import SchemaError, validate
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples
 

@@ -26,7 +26,7 @@ import yaml
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
 
 #: The table specs of the paper (Tables 1-5), next to the recipes they read.
-PAPER_SPECS = Path(__file__).resolve().parents[1] / "recipes" / "paper"
+PAPER_SPECS = Path(__file__).resolve().parents[2] / "recipes" / "paper"
 SEED_FOLDER = re.compile(r"^seed[_-]?(\d+)$")
 MISSING = "missing"
 
@@ -336,7 +336,7 @@ def build_table(spec_name: str | Path, run_patterns: list[str], out: str | Path 
         (out / f"{stem}.tex").write_text(to_latex(spec, cells))
         (out / f"{stem}.csv").write_text(to_csv(spec, cells))
         if spec.figure is not None:
-            from lead_s2r.figures import infraction_bars
+            from lead_s2r.report.figures import infraction_bars
 
             groups = {row.name: mean_infractions(spec, row, runs) for row in spec.rows}
             infraction_bars(groups, list(spec.figure["infractions"]), out / f"{stem}.png", spec.title)
