@@ -141,9 +141,18 @@ def cmd_score(args: argparse.Namespace) -> int:
     data = [Path(folder) for folder in args.data]
     predictions = Path(args.predictions) if args.predictions else None
     if predictions is None:
-        predictions = planner_predictions(args.planner, data, Path(args.out) / f"predictions-{args.planner}.parquet")
-    summary = score_predictions(args.metric, predictions, data, Path(args.out), **options)
-    print(json.dumps(summary, indent=2))
+        path = Path(args.out) / f"predictions-{args.planner}.parquet"
+        predictions = planner_predictions(args.planner, data, path, args.split)
+    summary = score_predictions(args.metric, predictions, data, Path(args.out), split=args.split, **options)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        from rich.console import Console
+
+        from lead_s2r.report.score_summary import score_table
+
+        Console().print(score_table(summary))
+        print(f"wrote {Path(args.out) / 'scores.json'} and scores.parquet ({summary['seconds']:.1f} s)")
     return 0
 
 
@@ -317,7 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--data", required=True, nargs="+", help="converted folder(s)")
     sub.add_argument("--out", required=True)
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
+    sub.add_argument("--split", default=None, help="score only this split of --data (e.g. val)")
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
+    sub.add_argument("--json", action="store_true", help="print scores.json instead of the summary table")
     sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
     sub.set_defaults(run=cmd_score)
 

@@ -1,7 +1,7 @@
 import numpy as np
 from toy_adapter import toy_sample
 
-from lead_s2r.scoring.baselines import constant_turn_rate, predict_constant_turn_rate
+from lead_s2r.scoring.baselines import constant_turn_rate, predict_constant_turn_rate, predict_human
 
 
 def test_straight_line_at_constant_speed():
@@ -24,3 +24,15 @@ def test_prediction_uses_the_sample_grid():
     prediction = predict_constant_turn_rate(sample)
     assert np.array_equal(prediction.t, sample["future"][:, 0])
     assert prediction.xy[-1, 1] < 0  # a right turn
+
+
+def test_human_replays_the_horizon_its_benchmark_scores():
+    """RFS scores 5 s of WOD-E2E's 4 Hz future, NAVSIM's HumanAgent 4 s; other datasets replay what was logged."""
+    t = np.arange(1, 25) * 0.25  # 6 s logged
+    future = np.c_[t, 2 * t, 0 * t, 0 * t].astype(np.float32)
+    horizons = {}
+    for dataset in ("wod_e2e", "navsim", "toy"):
+        sample = {"__key__": "k", "meta": {"dataset": dataset}, "future": future}
+        horizons[dataset] = float(predict_human(sample).t[-1])
+    assert horizons == {"wod_e2e": 5.0, "navsim": 4.0, "toy": 6.0}
+    assert len(predict_human({"__key__": "k", "meta": {"dataset": "wod_e2e"}, "future": future}).t) == 20

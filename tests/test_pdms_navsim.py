@@ -86,7 +86,7 @@ def test_route_correction_prepends_the_way_from_an_off_route_start_and_fills_gap
 
 def test_sample_without_scoring_names_the_key_and_the_fix(first: dict) -> None:
     sample = {k: v for k, v in first[CRUISE.name].items() if k != "scoring"}
-    with pytest.raises(SchemaError, match=r"sample '.*', field 'scoring'.*--option maps="):
+    with pytest.raises(SchemaError, match=r"sample '.*', field 'scoring'.*--maps"):
         PDMScene.from_sample(sample)
 
 

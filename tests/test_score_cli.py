@@ -143,7 +143,7 @@ def test_score_verb(wod_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixt
     keys = ("seg_a", "seg_b", "seg_c", "seg_d")
     path = write_predictions(tmp_path / "p.parquet", [prediction(k, straight(10, lateral=3)) for k in keys])
     argv = ["score", "--metric", "rfs@wod-e2e-2025", "--predictions", str(path), "--data", str(wod_folder)]
-    assert cli.main([*argv, "--out", str(tmp_path / "out"), "--option", "floor=0"]) == 0
+    assert cli.main([*argv, "--out", str(tmp_path / "out"), "--option", "floor=0", "--json"]) == 0
     printed = json.loads(capsys.readouterr().out)
     assert printed == json.loads((tmp_path / "out" / "scores.json").read_text())
     assert printed["config"]["floor"] == 0 and printed["aggregates"]["frames_scored"] == 3
@@ -157,7 +157,7 @@ def test_score_verb_takes_its_dataset_from_a_mixed_file_and_lists_the_unpredicte
     predictions.append(prediction("log_0", straight(8, navsim_t), t=navsim_t, dataset="navsim"))
     path = write_predictions(tmp_path / "p.parquet", predictions)
     argv = ["score", "--metric", "rfs@wod-e2e-2025", "--predictions", str(path), "--data", str(wod_folder)]
-    assert cli.main([*argv, "--out", str(tmp_path / "out")]) == 0
+    assert cli.main([*argv, "--out", str(tmp_path / "out"), "--json"]) == 0
     printed = json.loads(capsys.readouterr().out)
     assert printed == json.loads((tmp_path / "out" / "scores.json").read_text())
     assert printed["unpredicted"] == {"count": 1, "keys": ["seg_d"]}
@@ -167,6 +167,33 @@ def test_score_verb_takes_its_dataset_from_a_mixed_file_and_lists_the_unpredicte
     assert cli.main([*argv, "--out", str(tmp_path / "strict"), "--strict"]) == 2
     assert "sample 'seg_d' has no prediction (1 such sample(s))" in capsys.readouterr().err
     assert not (tmp_path / "strict").exists()
+
+
+def test_score_verb_prints_a_short_table_with_the_headline_and_frame_counts(
+    wod_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = write_predictions(tmp_path / "p.parquet", [prediction(k, straight(10)) for k in ("seg_a", "seg_b", "seg_c")])
+    argv = ["score", "--metric", "rfs@wod-e2e-2025", "--predictions", str(path), "--data", str(wod_folder)]
+    assert cli.main([*argv, "--out", str(tmp_path / "out"), "--split", "val"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) <= 30
+    rows = {cells[0]: cells[1] for cells in (line.strip("│ ").split("│") for line in lines) if len(cells) == 2}
+    rows = {label.strip(): value.strip() for label, value in rows.items()}
+    assert rows["rfs"] == f"{(10 + 8 + 4) / 3:.4f}" and rows["frames scored"] == "3"
+    assert rows["frames skipped no rating"] == "0" and rows["frames without a prediction (left out)"] == "1"
+    assert lines[-1].startswith(f"wrote {tmp_path / 'out' / 'scores.json'} and scores.parquet")
+
+
+def test_score_split_names_the_splits_held_and_the_human_planner_skips_frames_without_a_future(
+    wod_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["score", "--metric", "ade", "--planner", "human", "--data", str(wod_folder)]
+    assert cli.main([*argv, "--out", str(tmp_path / "test"), "--split", "test"]) == 2
+    assert f"--split test: {wod_folder} holds no such split; it holds ['val']" in capsys.readouterr().err
+    assert cli.main([*argv, "--out", str(tmp_path / "out"), "--split", "val", "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["split"] == "val" and printed["unpredicted"] == {"count": 2, "keys": ["seg_a", "seg_c"]}
+    assert printed["aggregates"]["ade"] == 0.0 and printed["aggregates"]["frames"] == 2
 
 
 def test_ade_scores_files_per_dataset(wod_folder: Path, tmp_path: Path) -> None:

@@ -87,7 +87,7 @@ def join(
     if unpredicted and not allow_missing:
         raise PredictionError(
             f"sample {unpredicted[0]!r} has no prediction ({len(unpredicted)} such sample(s)); "
-            "pass allow_missing=True to score only the predicted ones"
+            "leave out --strict (lead-s2r score) or pass allow_missing=True (Python) to score only the predicted ones"
         )
     return pairs
 

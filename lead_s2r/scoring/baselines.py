@@ -34,11 +34,19 @@ def predict_constant_turn_rate(sample: dict[str, Any], t: np.ndarray | None = No
 NAVSIM_GRID = 0.5 * np.arange(1, 9)
 
 
-def predict_human(sample: dict[str, Any], horizon: float = 4.0) -> Prediction:
-    """The logged future up to ``horizon`` seconds (NAVSIM's HumanAgent; the paper's "Expert" row)."""
+#: The horizon each benchmark scores (NAVSIM's HumanAgent replays 4 s, WOD-E2E's RFS scores 5 s); other datasets
+#: replay their whole logged future.
+SCORED_HORIZON_S = {"navsim": 4.0, "wod_e2e": 5.0}
+
+
+def predict_human(sample: dict[str, Any], horizon: float | None = None) -> Prediction:
+    """The logged future up to ``horizon`` seconds, by default the horizon its benchmark scores (NAVSIM's
+    HumanAgent; the paper's "Expert" row)."""
     if "future" not in sample:
         raise ValueError(f"sample {sample['__key__']!r} has no future to replay")
     future = np.asarray(sample["future"], np.float64)
+    if horizon is None:
+        horizon = SCORED_HORIZON_S.get(sample["meta"]["dataset"], float(future[-1, 0]))
     kept = future[future[:, 0] <= horizon + 1e-3]
     return Prediction(
         sample["__key__"], sample["meta"]["dataset"], kept[:, 0].astype(np.float32), kept[:, 1:3], kept[:, 3]
@@ -54,3 +62,5 @@ def predict_constant_velocity(sample: dict[str, Any], t: np.ndarray = NAVSIM_GRI
 
 #: ``lead-s2r score --planner NAME``: model-free planners that predict from a converted sample.
 PLANNERS = {"human": predict_human, "constant-velocity": predict_constant_velocity}
+#: the sample field a planner cannot predict without (a sample lacking it is left unpredicted, e.g. WOD-E2E's test).
+PLANNER_NEEDS = {"human": "future"}

@@ -25,17 +25,34 @@ SCORES_TABLE = "scores.parquet"
 SCORES_JSON = "scores.json"
 
 
-def planner_predictions(planner: str, data: Path | list[Path], path: Path) -> Path:
+def planner_predictions(planner: str, data: Path | list[Path], path: Path, split: str | None = None) -> Path:
     """Write the predictions of a model-free planner (``lead_s2r.scoring.baselines.PLANNERS``: ``human`` replays the
-    logged future, ``constant-velocity`` is NAVSIM's baseline) on every sample of ``data`` to ``path``."""
-    from lead_s2r.scoring.baselines import PLANNERS
+    logged future, ``constant-velocity`` is NAVSIM's baseline) on the samples of ``data`` (of ``split`` if given)
+    to ``path``. Samples without the field the planner needs (a test split's future) get no prediction."""
+    from lead_s2r.scoring.baselines import PLANNER_NEEDS, PLANNERS
 
     if planner not in PLANNERS:
         raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
-    folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
-    predict = PLANNERS[planner]
+    predict, needs = PLANNERS[planner], PLANNER_NEEDS.get(planner)
+    samples = select_samples(_folders(data), ("future",), split)
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_predictions(path, (predict(s) for folder in folders for s in read_samples(folder, fields=("future",))))
+    return write_predictions(path, (predict(s) for s in samples if needs is None or needs in s))
+
+
+def _folders(data: Path | list[Path]) -> list[Path]:
+    return [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
+
+
+def select_samples(folders: list[Path], fields: tuple[str, ...], split: str | None) -> list[dict[str, Any]]:
+    """The samples of ``folders`` (of ``split`` if given: a folder converted from a whole dataset holds several)."""
+    samples = [sample for folder in folders for sample in read_samples(folder, fields=fields)]
+    if split is None:
+        return samples
+    chosen = [sample for sample in samples if sample["meta"]["split"] == split]
+    if not chosen:
+        held = sorted({sample["meta"]["split"] for sample in samples})
+        raise UserError(f"--split {split}: {', '.join(map(str, folders))} holds no such split; it holds {held}")
+    return chosen
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
@@ -47,29 +64,35 @@ def make_scorer(metric: str, **config: Any) -> Scorer:
     try:
         return cls(**config)
     except (TypeError, ValueError) as err:  # a scorer's constructor validates its options
-        parameters = inspect.signature(cls).parameters.values()
-        takes = [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
-        if any(p.kind == p.VAR_KEYWORD for p in parameters):
-            takes.append("the metric's constants")
         raise UserError(
-            f"--metric {metric}: bad --option ({err}); it takes {', '.join(takes)} (see docs/metrics.md)"
+            f"--metric {metric}: bad --option ({err}); it takes {', '.join(scorer_options(cls))} (see docs/metrics.md)"
         ) from None
 
 
+def scorer_options(cls: type[Scorer]) -> list[str]:
+    """The ``--option`` names a scorer takes: its default configuration's keys (a metric's constants included),
+    or its constructor's parameters when it has no default configuration."""
+    try:
+        return [name for name in cls().config() if name != "allow_missing"]
+    except (TypeError, ValueError):
+        parameters = inspect.signature(cls).parameters.values()
+        return [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+
+
 def score_predictions(
-    metric: str, predictions: Path, data: Path | list[Path], out: Path, **config: Any
+    metric: str, predictions: Path, data: Path | list[Path], out: Path, split: str | None = None, **config: Any
 ) -> dict[str, Any]:
     """Score ``predictions`` (predictions.parquet) against one or more converted folders.
 
     Writes ``out/scores.parquet`` (one row per scored sample) and ``out/scores.json`` (aggregates, metric name
     and version, config, package version, inputs, ``unpredicted`` samples and predictions of ``other_datasets``)
     and returns the JSON content. ``config`` goes to the scorer; without ``allow_missing=True`` an unpredicted
-    sample is an error, as in :func:`~lead_s2r.scoring.base.join`.
+    sample is an error, as in :func:`~lead_s2r.scoring.base.join`. ``split`` scores only that split's samples.
     """
     scorer = make_scorer(metric, **config)
-    folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
+    folders = _folders(data)
     start = time.perf_counter()
-    samples = [sample for folder in folders for sample in read_samples(folder, fields=scorer.fields)]
+    samples = select_samples(folders, scorer.fields, split)
     predicted = read_predictions(predictions)
     covered = coverage(predicted, samples)
     if len(covered["unpredicted"]) == len(samples):
@@ -86,6 +109,7 @@ def score_predictions(
         "config": scorer.config(),
         "predictions": str(predictions),
         "data": [str(folder) for folder in folders],
+        "split": split,
         "aggregates": result.aggregates,
         "unpredicted": {"count": len(covered["unpredicted"]), "keys": covered["unpredicted"]},
         "other_datasets": covered["other_datasets"],

@@ -14,7 +14,7 @@ from lead_s2r.schema import SchemaError
 from lead_s2r.scoring.pdm.route import LaneGraph, RouteError, plan_route
 from lead_s2r.scoring.pdm.scene import PDMScene
 
-NEEDS_MAPS = "re-convert the NAVSIM data with maps (`lead-s2r convert navsim ... --option maps=<nuPlan maps root>`)"
+NEEDS_MAPS = "re-convert the NAVSIM data with maps (`lead-s2r convert navsim ... --maps <nuPlan maps root>`)"
 
 
 def _scoring(sample: dict[str, Any]) -> dict[str, np.ndarray]:
