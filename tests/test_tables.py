@@ -163,3 +163,28 @@ def test_table5_from_leaderboard_results_end_to_end(tmp_path):
     assert "| TFv6 RegNetY-032 (full) | missing | 95.2 |" in markdown
     figure = cv2.imread(str(tmp_path / "tables" / "table5.png"))
     assert figure is not None and figure.shape[1] > 6 * 160  # one bar group per row of the table
+
+
+def test_a_run_folder_named_seed_k_needs_no_config_and_predict_configs_do_not_count(tmp_path, runs):
+    expert = tmp_path / "runs" / "wod" / "ego_mlp" / "seed1"  # scores only, e.g. `score --planner human --out`
+    (expert / "scores").mkdir(parents=True)
+    (expert / "scores" / "scores.json").write_text(json.dumps({"metric": RFS, "aggregates": {"rfs": 6.5}}))
+    predict_logs = runs / "wod" / "ltfv6" / "seed1" / "lightning_logs" / "version_1"
+    predict_logs.mkdir()  # `lead-s2r predict --trainer.default_root_dir .../seed1` without --seed_everything 1
+    (predict_logs / "predict_config.yaml").write_text(yaml.safe_dump({"seed_everything": 0}))
+    cells = collect(load_spec(write_spec(tmp_path)), find_runs([str(runs / "*" / "*" / "seed*")]))
+    assert cells[0][0].mean == pytest.approx(7.7) and cells[2][0].values == (6.5,)
+    (predict_logs / "config.yaml").write_text(yaml.safe_dump({"seed_everything": 0}))  # a fit of seed 0 in seed1/
+    with pytest.raises(TableError, match=r"is 0 in the folder of seed 1; train with --seed_everything 1"):
+        find_runs([str(runs / "wod" / "ltfv6" / "seed1")])
+
+
+def test_any_subset_of_families_makes_a_table(tmp_path, runs, capsys):
+    spec = write_spec(tmp_path)
+    patterns = [str(runs / "navsim" / "*" / "seed*"), str(runs / "wod" / "*" / "seed*")]  # no navsim run yet
+    assert main(["table", "--spec", str(spec), "--runs", *patterns]) == 0
+    assert "| LTFv6 | 7.70 ± 0.20 | 7.51 |" in capsys.readouterr().out
+    assert main(["table", "--spec", str(spec), "--runs", patterns[0]]) == 2
+    assert f"--runs: no run folder matches {patterns[0]}" in capsys.readouterr().err
+    assert main(["table", "--spec", str(spec), "--runs", str(runs / "navsim")]) == 2
+    assert f"--runs: no such directory {runs / 'navsim'}" in capsys.readouterr().err

@@ -1,11 +1,13 @@
 """The paper's tables from run results: mean ± std over seeds beside the paper's numbers, in markdown, LaTeX and CSV.
 
 A table spec (``recipes/paper/*.yaml``) names columns (a scorer's metric and an aggregate key of its
-``scores.json``) and rows (a run id and the paper's numbers). Runs are found, not listed: a run directory holds the
-``config.yaml`` LightningCLI saved (its ``seed_everything`` is the seed, its ``trainer.default_root_dir`` minus a
-trailing ``seed<N>`` folder is the run id) and any number of ``scores.json`` below it (``lead-s2r score`` and
-``lead-s2r carla-metrics`` outputs), so ``--runs runs/*/seed*`` is enough. A row matches a run whose id ends with the
-row's ``run`` path.
+``scores.json``) and rows (a run id and the paper's numbers). Runs are found, not listed: a run is laid out as
+``runs/<family>/<name>/seed<k>/`` (config, checkpoints, predictions, and any number of ``scores.json`` below it from
+``lead-s2r score`` and ``lead-s2r carla-metrics``), so ``--runs 'runs/*/*/seed*'`` is enough; the folder gives the run
+id (``runs/<family>/<name>``) and the seed. A run folder named otherwise takes both from the ``config.yaml`` that
+``lead-s2r fit`` saved (``seed_everything``; ``trainer.default_root_dir`` minus a trailing ``seed<k>``). A row
+matches a run whose id ends with the row's ``run`` path. Glob patterns that match nothing are left out, so one
+command serves any subset of families.
 
 The trap: a cell averaged over fewer seeds than the spec asks for looks like a result. Such cells carry a ``*`` and
 the seeds that are missing are listed under the table; a cell with no run at all reads ``missing``.
@@ -23,6 +25,7 @@ from typing import Any
 
 import yaml
 
+from lead_s2r.errors import UserError
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
 
 #: The table specs of the paper (Tables 1-5), next to the recipes they read.
@@ -31,7 +34,7 @@ SEED_FOLDER = re.compile(r"^seed[_-]?(\d+)$")
 MISSING = "missing"
 
 
-class TableError(ValueError):
+class TableError(UserError, ValueError):
     """A spec or run directory that cannot make a table; the message names the file and field."""
 
 
@@ -130,8 +133,8 @@ class Run:
     scores: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
-def run_identity(config_path: Path) -> tuple[str, int]:
-    """(run id, seed) from a LightningCLI ``config.yaml``."""
+def _saved_config(config_path: Path) -> tuple[dict[str, Any], int]:
+    """A LightningCLI ``config.yaml`` and its seed."""
     try:
         config = yaml.safe_load(config_path.read_text()) or {}
     except (OSError, yaml.YAMLError) as err:
@@ -139,6 +142,12 @@ def run_identity(config_path: Path) -> tuple[str, int]:
     seed = config.get("seed_everything")
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise TableError(f"{config_path}: seed_everything is {seed!r}; train with a fixed integer seed")
+    return config, seed
+
+
+def run_identity(config_path: Path) -> tuple[str, int]:
+    """(run id, seed) from a LightningCLI ``config.yaml``."""
+    config, seed = _saved_config(config_path)
     root = (config.get("trainer") or {}).get("default_root_dir")
     if not root:
         raise TableError(f"{config_path}: trainer.default_root_dir is not set; recipes name the run there")
@@ -146,16 +155,35 @@ def run_identity(config_path: Path) -> tuple[str, int]:
     return str(path.parent if SEED_FOLDER.match(path.name) else path), seed
 
 
+def folder_identity(path: Path) -> tuple[str, int] | None:
+    """(run id, seed) of a run folder laid out as ``.../<family>/<name>/seed<k>``; None for another name."""
+    match = SEED_FOLDER.match(path.name)
+    return None if match is None else (str(path.parent), int(match.group(1)))
+
+
 def load_run(path: Path) -> Run:
-    """A run directory: its saved config(s) and every ``scores.json`` below it."""
-    configs = list(path.rglob("config.yaml"))  # fit and predict each save one; they must agree
-    if not configs:
-        raise TableError(f"{path}: no config.yaml below it (LightningCLI saves one in the run's log folder)")
-    identities = {run_identity(config) for config in configs}
-    if len(identities) > 1:
-        raise TableError(f"{path}: its config.yaml files disagree on (run id, seed): {sorted(identities)}")
-    run_id, seed = identities.pop()
-    run = Run(path, run_id, seed)
+    """A run directory: its identity (from its folder, else from the config ``fit`` saved) and every
+    ``scores.json`` below it. A fit config whose seed is not the folder's is an error: it trained another seed."""
+    configs = list(path.rglob("config.yaml"))  # fit saves config.yaml; predict, validate, test their own names
+    identity = folder_identity(path)
+    for config in configs if identity else []:
+        seed = _saved_config(config)[1]
+        if seed != identity[1]:
+            raise TableError(
+                f"{config}: seed_everything is {seed} in the folder of seed {identity[1]}; "
+                f"train with --seed_everything {identity[1]} or move the run to seed{seed}/"
+            )
+    if identity is None:
+        if not configs:
+            raise TableError(
+                f"{path}: not a run folder: neither named seed<k> (runs/<family>/<name>/seed<k>) nor holding the "
+                "config.yaml that lead-s2r fit saves"
+            )
+        identities = {run_identity(config) for config in configs}
+        if len(identities) > 1:
+            raise TableError(f"{path}: its config.yaml files disagree on (run id, seed): {sorted(identities)}")
+        identity = identities.pop()
+    run = Run(path, *identity)
     for scores in sorted(path.rglob("scores.json")):
         try:
             report = json.loads(scores.read_text())
@@ -169,12 +197,20 @@ def load_run(path: Path) -> Run:
 
 
 def find_runs(patterns: list[str]) -> list[Run]:
-    """Run directories from paths or glob patterns (the shell may have expanded them already)."""
-    paths = [Path(p) for pattern in patterns for p in (sorted(glob.glob(pattern)) or [pattern])]
+    """Run directories from paths or glob patterns (the shell may have expanded them already). A pattern that
+    matches nothing is left out (a family not trained yet); a plain path that does not exist is an error, and so
+    is finding no run at all."""
+    paths = [Path(p) for pattern in patterns for p in (sorted(glob.glob(pattern)) or _literal(pattern))]
     missing = [str(p) for p in paths if not p.is_dir()]
     if missing:
         raise TableError(f"--runs: no such directory {missing[0]}")
+    if not paths:
+        raise TableError(f"--runs: no run folder matches {' '.join(patterns)} (runs are laid out as runs/*/*/seed*)")
     return [load_run(path) for path in paths]
+
+
+def _literal(pattern: str) -> list[str]:
+    return [] if glob.has_magic(pattern) else [pattern]
 
 
 def _lookup(aggregates: dict[str, Any], key: str) -> float | None:

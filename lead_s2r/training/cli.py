@@ -4,9 +4,10 @@ Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overr
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
 missing config file, a value of the wrong type) become a :class:`UserError`, one line like every other verb's.
 
-A run's outputs share one root, ``trainer.default_root_dir``: checkpoints in ``<root>/checkpoints`` (a
-``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in the logger's version folder), logs and
-the resolved config in ``<root>/lightning_logs/version_N``, predictions in ``<root>/predictions.parquet`` (a
+A run's outputs share one root, ``trainer.default_root_dir`` (``runs/<family>/<name>/seed<k>`` in the recipes):
+checkpoints in ``<root>/checkpoints`` (a ``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in
+the logger's version folder), logs and the resolved config in ``<root>/lightning_logs/version_N`` (``config.yaml``
+from fit, ``predict_config.yaml`` from predict), predictions in ``<root>/predictions.parquet`` (a
 ``PredictionWriter`` without ``output``). So ``--trainer.default_root_dir`` moves all of them together.
 """
 
@@ -49,15 +50,21 @@ class DrivingCLI(LightningCLI):
 
 def run_lightning_cli(args: list[str] | None = None) -> None:
     """Run a LightningCLI subcommand with ``args`` (e.g. ``["fit", "--config", "recipes/..."]``; None: sys.argv)."""
+    verb = next(iter(sys.argv[1:] if args is None else args), "fit")
     try:
         DrivingCLI(
             DrivingModule,
             DriveDataModule,
             args=args,
             trainer_defaults=TRAINER_DEFAULTS,
-            save_config_kwargs={"overwrite": True},
+            save_config_kwargs={"overwrite": True, "config_filename": config_filename(verb)},
             parser_kwargs=PARSER_KWARGS,
         )
     except argparse.ArgumentError as err:
-        verb = next(iter(sys.argv[1:] if args is None else args), "fit")
         raise UserError(f"{err} (see lead-s2r {verb} --help)") from None
+
+
+def config_filename(verb: str) -> str:
+    """``config.yaml`` for ``fit``, ``<verb>_config.yaml`` otherwise: the table builder reads a run's seed from the
+    config fit saved, and a predict into the same run folder (with the recipe's default seed) must not contradict it."""
+    return "config.yaml" if verb == "fit" else f"{verb}_config.yaml"
