@@ -8,6 +8,7 @@ import pytest
 import yaml
 from rich.console import Console
 
+from lead_s2r.cli import main
 from lead_s2r.demo import quickstart as qs
 from lead_s2r.predictions import read_predictions
 from lead_s2r.report.tables import MISSING, collect, to_markdown
@@ -34,7 +35,8 @@ def test_without_lead_is_the_lead_twin_minus_its_carla_data(tmp_path):
         qs.drop_carla(lead)
         lead["trainer"]["default_root_dir"] = without["trainer"]["default_root_dir"]
         assert lead == without  # nothing else differs
-        assert without["trainer"]["default_root_dir"] == str(tmp_path / "runs" / name)
+        family, model = name.split("_", 1)  # the recipes' layout: runs/<family>/<name>/seed<k>
+        assert without["trainer"]["default_root_dir"] == str(tmp_path / "runs" / family / model / "seed0")
         assert (without["trainer"]["max_epochs"], without["data"]["steps_per_epoch"]) == qs.STEPS[name]
         assert "quickstart/" not in (tmp_path / f"{name}.yaml").read_text()
 
@@ -52,12 +54,13 @@ def test_table_spec_is_table4_over_the_quickstart_rows():
     spec = qs.table_spec()
     assert [c.name for c in spec.columns] == COLUMNS
     assert [r.name for r in spec.rows] == ROWS
-    rfs = COLUMNS.index("WOD-E2E RFS")
-    paper = {row.name: row.paper[rfs] for row in spec.rows}
-    assert paper == dict(
-        zip(ROWS, [8.10, 7.31, None, 7.51, None, 7.76, None], strict=True)
-    )  # recipes/paper/table4.yaml
-    assert all(value is None for row in spec.rows for i, value in enumerate(row.paper) if i != rfs)
+    papers = {  # recipes/paper/table4.yaml, as the paper prints them; none for the untrained rows
+        "WOD-E2E RFS": ["8.10", "7.31", None, "7.51", None, "7.76", None],
+        "NAVSIM PDMS": ["94.5", "65.6", None, "85.4", None, "86.4", None],
+        "NAVSIM EPDMS": ["51.3", "12.7", None, "28.3", None, "31.4", None],
+    }
+    for i, column in enumerate(COLUMNS):
+        assert [row.paper[i] for row in spec.rows] == papers.get(column, [None] * len(ROWS)), column
 
 
 def _scores(pdms: float, ade: float) -> dict:
@@ -76,13 +79,13 @@ RESULTS = {
 def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
     spec = qs.table_spec()
     lines = to_markdown(spec, collect(spec, qs.table_runs(RESULTS, tmp_path))).splitlines()
-    expert = "| Expert (logged) | 93.75 | – | 46.88 | – | 8.00 | 8.10 | 0.00 | – | 0.00 | – | 0.00 | – | 0.00 | – |"
+    expert = "| Expert (logged) | 93.75 | 94.5 | 46.88 | 51.3 | 8.00 | 8.10 | " + " | ".join(["0.00", "–"] * 4) + " |"
     assert expert in lines
-    assert "| LTFv6 | 50.00 | – | 25.00 | – | 6.50 | 7.51 | 1.50 | – | 1.25 | – | 3.00 | – | 3.00 | – |" in lines
+    assert "| LTFv6 | 50.00 | 85.4 | 25.00 | 28.3 | 6.50 | 7.51 | 1.50 | – | 1.25 | – | 3.00 | – | 3.00 | – |" in lines
     m = MISSING
     untrained = f"| LTFv6, before training | 0.00 | – | 0.00 | – | {m} | – | 9.00 | – | {m} | – | 18.00 | – | {m} | – |"
     assert untrained in lines
-    assert f"| Ego MLP | {m} | – | {m} | – | {m} | 7.31 |" in "\n".join(lines)
+    assert f"| Ego MLP | {m} | 65.6 | {m} | 12.7 | {m} | 7.31 |" in "\n".join(lines)
 
 
 def test_console_shows_one_table_per_dataset_within_80_columns(tmp_path):
@@ -94,12 +97,16 @@ def test_console_shows_one_table_per_dataset_within_80_columns(tmp_path):
     assert max(len(line) for line in lines) <= 80 and "…" not in console.file.getvalue()
     rows = [" ".join(line.strip("│┃ ").replace("│", " ").replace("┃", " ").split()) for line in lines]
     assert "NAVSIM: held-out test logs" in rows and "WOD-E2E: held-out val logs" in rows
-    assert "model PDMS EPDMS ADE FDE" in rows  # the paper has no NAVSIM numbers in recipes/paper/table4.yaml
+    assert "model PDMS paper EPDMS paper ADE FDE" in rows
     assert "model RFS paper ADE FDE" in rows
     m = MISSING
-    navsim = ["Expert (logged) 93.75 46.88 0.00 0.00", f"Ego MLP {m} {m} {m} {m}", "LTFv6 50.00 25.00 1.50 3.00"]
+    navsim = [
+        "Expert (logged) 93.75 94.5 46.88 51.3 0.00 0.00",
+        f"Ego MLP {m} 65.6 {m} 12.7 {m} {m}",
+        "LTFv6 50.00 85.4 25.00 28.3 1.50 3.00",
+    ]
     wod = ["Expert (logged) 8.00 8.10 0.00 0.00", f"Ego MLP {m} 7.31 {m} {m}", "LTFv6 6.50 7.51 1.25 3.00"]
-    before = ["before training 0.00 0.00 9.00 18.00", f"before training {m} – {m} {m}"]
+    before = ["before training 0.00 – 0.00 – 9.00 18.00", f"before training {m} – {m} {m}"]
     for row in navsim + wod + before:
         assert row in rows
     assert rows[rows.index(navsim[2]) + 1] == before[0]  # a model's untrained row sits under it
@@ -122,12 +129,12 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
         assert set(manifest["split"]) == {split, {"navsim": "trainval", "wod_e2e": "train"}[dataset]}
         held_out |= {k for k, s in zip(manifest["key"], manifest["split"], strict=True) if s == split}
     for training in (t for t in qs.TRAININGS if t.predicts):
+        dataset, name = qs.home(training)
         for stage in (qs.UNTRAINED, qs.TRAINED):
-            predicted = {
-                p.key for p in read_predictions(tmp_path / "runs" / training.name / stage / "predictions.parquet")
-            }
+            predictions = qs.stage_folder(tmp_path, training, dataset, stage) / "predictions.parquet"
+            predicted = {p.key for p in read_predictions(predictions)}
             assert predicted <= held_out and predicted, (training.name, stage)
-        assert (tmp_path / "runs" / training.name / "checkpoints" / "last.ckpt").exists()
+        assert (tmp_path / "runs" / qs.FAMILIES[dataset] / name / "seed0" / "checkpoints" / "last.ckpt").exists()
     assert set(results) == {"expert"} | {
         f"{t.name}/{s}" for t in qs.TRAININGS if t.predicts for s in ("untrained", "trained")
     }
@@ -144,3 +151,10 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     assert max(len(line) for line in text.splitlines()) <= 80
     assert MISSING not in markdown  # every row scored on both datasets
     assert str(tmp_path / "table") in text and "lightning.log" in text
+
+    # the quickstart's runs are laid out as the recipes', so the paper's Table 4 spec reads them as they are
+    assert main(["table", "--spec", "table4", "--runs", str(tmp_path / "runs" / "*" / "*" / "seed*")]) == 0
+    table4 = capsys.readouterr().out
+    assert "| LTFv6 + LEAD (WOD-E2E) | " in table4 and "| Expert (logged) | " in table4
+    expert_rfs = results["expert"]["wod_e2e"]["rfs@wod-e2e-2025"]["rfs"]
+    assert f"| {expert_rfs:.2f}* |" in next(line for line in table4.splitlines() if "Expert" in line)

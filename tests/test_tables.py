@@ -159,8 +159,9 @@ def test_table5_from_leaderboard_results_end_to_end(tmp_path):
     markdown = build_table("table5", [str(root / "carla" / "*" / "seed*")], tmp_path / "tables")
     ds = [100 - 40 * hits / 220 for hits in (0, 1, 2)]  # Bench2Drive DS per seed
     mean, std = np.mean(ds), np.std(ds, ddof=1)
-    assert f"| TFv6 ResNet-34 | {mean:.1f} ± {std:.1f} | 94.7 |" in markdown
-    assert "| TFv6 RegNetY-032 (full) | missing | 95.2 |" in markdown
+    assert f"| TFv6 ResNet-34 | {mean:.2f} ± {std:.2f} | 94.7 ± 0.7 |" in markdown
+    assert "| TFv6 RegNetY-032 (full) | missing | 95.2 ± 0.3 |" in markdown
+    assert markdown.splitlines()[4].endswith("| missing | 5.24 |")  # the paper's numbers as printed
     figure = cv2.imread(str(tmp_path / "tables" / "table5.png"))
     assert figure is not None and figure.shape[1] > 6 * 160  # one bar group per row of the table
 

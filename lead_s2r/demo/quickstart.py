@@ -46,6 +46,7 @@ from lead_s2r.report.tables import (
     TableSpec,
     collect,
     format_cell,
+    format_paper,
     load_spec,
     to_csv,
     to_latex,
@@ -69,6 +70,9 @@ PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
 #: dataset -> the held-out split every row is scored on, and its name in the table.
 EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
 LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
+#: dataset -> the family folder its runs sit in (``runs/<family>/<name>/seed<k>``, as in the recipes and Table 4).
+FAMILIES = {"navsim": "navsim", "wod_e2e": "wod"}
+SEED = 0
 #: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
 HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: Training name -> its length in the quickstart: (epochs, optimizer steps per epoch). The Ego MLP's steps cost
@@ -81,8 +85,6 @@ STEPS: dict[str, tuple[int, int]] = {
     "wod_ltfv6": (6, 25),
     "wod_ltfv6_lead": (6, 25),
 }
-#: Where the paper has no number (the blank :func:`lead_s2r.report.tables.layout` writes too).
-PAPER_BLANK = "–"
 LIGHTNING_LOG = "lightning.log"
 
 
@@ -180,7 +182,8 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
         f"NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; the paper's numbers are on real "
         "data.\n"
         f"Table (markdown, LaTeX, CSV): {out / 'table'}; summary: {out / 'summary.json'}; runs (configs, checkpoints, "
-        f"predictions, scores): {out / 'runs'}; Lightning's console output: {out / LIGHTNING_LOG}"
+        f"predictions, scores): {out / 'runs'}/<family>/<name>/seed{SEED} (lead-s2r table --spec table4 --runs "
+        f"'{out / 'runs'}/*/*/seed*'); Lightning's console output: {out / LIGHTNING_LOG}"
     )
     return results
 
@@ -208,15 +211,34 @@ def prepare(dataset: str, out: Path, workers: int, console: Console, started: fl
 def score_expert(out: Path, references: dict[str, ReferenceCache]) -> dict[str, Any]:
     """The logged human trajectory (NAVSIM's HumanAgent) on every held-out sample, scored like a model."""
     results = {}
-    (out / "runs" / "expert").mkdir(parents=True, exist_ok=True)
     for dataset, split in EVAL_SPLITS.items():
-        data = out / "data" / dataset
+        data, run = out / "data" / dataset, run_folder(out, dataset, "expert")
+        run.mkdir(parents=True, exist_ok=True)
         held_out = (s for s in read_samples(data, fields=["future"]) if s["meta"]["split"] == split)
-        path = write_predictions(
-            out / "runs" / "expert" / f"{dataset}.parquet", [predict_human(s, HORIZONS[dataset]) for s in held_out]
-        )
-        results[dataset] = score(path, data, dataset, out / "runs" / "expert" / "scores" / dataset, references[dataset])
+        path = write_predictions(run / "predictions.parquet", [predict_human(s, HORIZONS[dataset]) for s in held_out])
+        results[dataset] = score(path, data, dataset, run / "scores", references[dataset])
     return results
+
+
+def run_folder(out: Path, dataset: str, name: str) -> Path:
+    """``<out>/runs/<family>/<name>/seed0``: the layout of the recipes, which ``lead-s2r table`` reads."""
+    return out / "runs" / FAMILIES[dataset] / name / f"seed{SEED}"
+
+
+def home(training: Training) -> tuple[str, str]:
+    """(dataset, name) of the folder a training fits in: ``navsim_ltfv6`` -> (``navsim``, ``ltfv6``); a training
+    on both datasets (``ego_mlp``) fits in the first one's family and is scored in each."""
+    for dataset, family in FAMILIES.items():
+        if training.name.startswith(f"{family}_"):
+            return dataset, training.name.removeprefix(f"{family}_")
+    return next(iter(FAMILIES)), training.name
+
+
+def stage_folder(out: Path, training: Training, dataset: str, stage: str) -> Path:
+    """Where a training's predictions and scores on ``dataset`` go: its run folder once trained, ``<name>_untrained``
+    for its initial weights (a run of its own, so a table row never mixes the two)."""
+    name = home(training)[1]
+    return run_folder(out, dataset, name if stage == TRAINED else f"{name}_{UNTRAINED}")
 
 
 def score(predictions: Path, data: Path, dataset: str, out: Path, references: ReferenceCache) -> dict[str, Any]:
@@ -240,7 +262,7 @@ def smoke_config(training: Training, out: Path) -> Path:
     if not recipe.exists():
         raise FileNotFoundError(f"{recipe} not found: run the quickstart from a source checkout (pip install -e .)")
     config = yaml.safe_load(recipe.read_text().replace("quickstart/", f"{out.as_posix()}/"))
-    config["trainer"]["default_root_dir"] = str(out / "runs" / training.name)
+    config["trainer"]["default_root_dir"] = str(run_folder(out, *home(training)))
     config["trainer"]["max_epochs"], config["data"]["steps_per_epoch"] = STEPS[training.name]
     if training.without_lead:
         drop_carla(config)
@@ -281,38 +303,47 @@ def train_and_score(
 ) -> dict[str, Any]:
     """Fit the training's config; predict and score the held-out logs with the weights before and after training."""
     config = smoke_config(training, out)
-    run = out / "runs" / training.name
-    shutil.rmtree(run, ignore_errors=True)  # a checkpoint left by an earlier quickstart would be predicted with
+    run = run_folder(out, *home(training))
+    for dataset in EVAL_SPLITS:  # a checkpoint or scores left by an earlier quickstart would be taken for this one's
+        for stage in (TRAINED, UNTRAINED):
+            shutil.rmtree(stage_folder(out, training, dataset, stage), ignore_errors=True)
     results = {}
     if training.predicts:
-        results[f"{training.name}/{UNTRAINED}"] = predict_and_score(config, run / UNTRAINED, out, None, references)
+        untrained = predict_and_score(config, training, UNTRAINED, out, None, references)
+        results[f"{training.name}/{UNTRAINED}"] = untrained
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
     if training.predicts:
         checkpoint = run / "checkpoints" / "last.ckpt"
-        results[f"{training.name}/{TRAINED}"] = predict_and_score(config, run / TRAINED, out, checkpoint, references)
+        trained = predict_and_score(config, training, TRAINED, out, checkpoint, references)
+        results[f"{training.name}/{TRAINED}"] = trained
     scored = ", scored before and after" if training.predicts else ""
     _stage(console, f"{training.name}: trained -> {run}{scored}", started)
     return results
 
 
 def predict_and_score(
-    config: Path, folder: Path, out: Path, checkpoint: Path | None, references: dict[str, ReferenceCache]
+    config: Path,
+    training: Training,
+    stage: str,
+    out: Path,
+    checkpoint: Path | None,
+    references: dict[str, ReferenceCache],
 ) -> dict[str, Any]:
-    """Predict with ``config``'s model (``checkpoint``; None: its initial weights) into ``folder`` and score each
-    dataset's predictions against that dataset alone."""
-    args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(folder)]
+    """Predict with ``config``'s model (``checkpoint``; None: its initial weights) and score each dataset's
+    predictions against that dataset alone, in the stage's folder of that dataset's family."""
+    root = stage_folder(out, training, home(training)[0], stage)
+    args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(root)]
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(args + ([] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
-    predictions = read_predictions(folder / "predictions.parquet")
+    predictions = read_predictions(root / "predictions.parquet")
     results = {}
     for dataset in EVAL_SPLITS:
         mine = [p for p in predictions if p.dataset == dataset]
         if mine:
-            path = write_predictions(folder / f"{dataset}.parquet", mine)
-            results[dataset] = score(
-                path, out / "data" / dataset, dataset, folder / "scores" / dataset, references[dataset]
-            )
+            folder = stage_folder(out, training, dataset, stage)
+            path = write_predictions(folder / f"predictions-{dataset}.parquet", mine)
+            results[dataset] = score(path, out / "data" / dataset, dataset, folder / "scores", references[dataset])
     return results
 
 
@@ -355,13 +386,14 @@ def table_spec() -> TableSpec:
     return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=(0,), digits=2, notes=notes)
 
 
-def paper_numbers(paper: TableSpec, name: str, columns: tuple[Column, ...]) -> tuple[float | None, ...]:
-    """The paper's number for row ``name`` in each column: Table 4's row ``<name> (<dataset>)`` or ``<name>``,
-    its column of the same metric."""
+def paper_numbers(paper: TableSpec, name: str, columns: tuple[Column, ...]) -> tuple[float | str | None, ...]:
+    """The paper's number for row ``name`` in each column: Table 4's row ``<name> (<dataset>)`` (``Expert (logged)``
+    -> ``Expert (NAVSIM)``) or ``<name>``, its column of the same metric."""
     numbers = []
     for column in columns:
         dataset = column.key.split(".")[0]
-        row = next((r for r in paper.rows if r.name in (f"{name} ({LABELS[dataset]})", name)), None)
+        names = (f"{name} ({LABELS[dataset]})", f"{name.split(' (')[0]} ({LABELS[dataset]})", name)
+        row = next((r for r in paper.rows if r.name in names), None)
         index = next((i for i, c in enumerate(paper.columns) if c.metric == column.metric), None)
         numbers.append(None if row is None or index is None else row.paper[index])
     return tuple(numbers)
@@ -396,7 +428,7 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
             for i in columns:
                 numbers.append(format_cell(row_cells[i], spec.digits))
                 if i in papers:
-                    numbers.append(PAPER_BLANK if row.paper[i] is None else f"{row.paper[i]:.{spec.digits}f}")
+                    numbers.append(format_paper(row.paper[i], spec.digits))
             grid.add_row(console_name(row.name), *numbers)
         grids.append(grid)
     return grids

@@ -51,11 +51,14 @@ class Column:
 
 @dataclass(frozen=True)
 class Row:
-    """One model: the run id it is trained under and the paper's number per column (None: not reported)."""
+    """One model: the run id it is trained under and the paper's number per column (None: not reported; a string is
+    printed as the paper prints it, e.g. ``"5.24"`` or ``"83.56 ± 0.32"``; a float with the table's digits)."""
 
     name: str
     run: str | None
-    paper: tuple[float | None, ...]
+    paper: tuple[float | str | None, ...]
+    #: the seeds this row averages over when not the table's (the Expert: one replay, ``[0]``)
+    seeds: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -88,7 +91,13 @@ def load_spec(path: str | Path) -> TableSpec:
     try:
         columns = tuple(Column(**column) for column in raw["columns"])
         rows = tuple(
-            Row(row["name"], row.get("run"), tuple(row.get("paper") or [None] * len(columns))) for row in raw["rows"]
+            Row(
+                row["name"],
+                row.get("run"),
+                tuple(row.get("paper") or [None] * len(columns)),
+                tuple(row["seeds"]) if "seeds" in row else None,
+            )
+            for row in raw["rows"]
         )
         spec = TableSpec(
             title=raw["title"],
@@ -103,6 +112,8 @@ def load_spec(path: str | Path) -> TableSpec:
         raise TableError(f"{path}: bad table spec ({type(err).__name__}: {err}); see docs/reproducing.md") from None
     _check_figure(path, spec.figure)
     for row in spec.rows:
+        if not all(p is None or isinstance(p, int | float | str) for p in row.paper):
+            raise TableError(f"{path}: row {row.name!r}: paper numbers are numbers, strings as printed, or null")
         if len(row.paper) != len(spec.columns):
             raise TableError(
                 f"{path}: row {row.name!r} lists {len(row.paper)} paper numbers for {len(columns)} columns"
@@ -263,7 +274,7 @@ def collect(spec: TableSpec, runs: list[Run]) -> list[list[Cell]]:
         cells = []
         for column in spec.columns:
             values, missing = [], []
-            for seed in spec.seeds:
+            for seed in row.seeds or spec.seeds:
                 run = by_seed.get(seed)
                 value = None if run is None else _lookup(run.scores.get(column.metric, {}), column.key)
                 if value is None:
@@ -285,8 +296,11 @@ def format_cell(cell: Cell, digits: int) -> str:
     return text + ("*" if cell.missing_seeds else "")
 
 
-def _paper(value: float | None, digits: int) -> str:
-    return "–" if value is None else f"{value:.{digits}f}"
+def format_paper(value: float | str | None, digits: int) -> str:
+    """The paper's number: as printed when the spec gives a string, ``–`` where the paper has none."""
+    if value is None:
+        return "–"
+    return value if isinstance(value, str) else f"{value:.{digits}f}"
 
 
 def layout(spec: TableSpec, cells: list[list[Cell]]) -> tuple[list[str], list[list[str]]]:
@@ -297,7 +311,7 @@ def layout(spec: TableSpec, cells: list[list[Cell]]) -> tuple[list[str], list[li
         + [
             t
             for cell, p in zip(row_cells, row.paper, strict=True)
-            for t in (format_cell(cell, spec.digits), _paper(p, spec.digits))
+            for t in (format_cell(cell, spec.digits), format_paper(p, spec.digits))
         ]
         for row, row_cells in zip(spec.rows, cells, strict=True)
     ]
