@@ -15,6 +15,7 @@ from lead_s2r.models.config import TrajectoryGrid, tfv6_config
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.predictions import read_predictions
 from lead_s2r.training.cli import TRAINER_DEFAULTS, run_lightning_cli
+from lead_s2r.training.feedback import tensorboard_installed
 from lead_s2r.training.module import DrivingModule
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -112,7 +113,7 @@ def test_same_seed_same_batches_and_a_resumed_fit_goes_on_with_the_same_stream(t
     assert fit_keys(toy_data, epochs=1)[0] != whole[0]
 
 
-def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_data, tmp_path, monkeypatch):
+def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_data, tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI warns when the process has other arguments
     spec = {"paths": [toy_data], "cameras": ["front"]}
     config = {
@@ -142,7 +143,15 @@ def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_da
     run_lightning_cli(["fit", *root_option])
     last = root / "checkpoints" / "last.ckpt"
     assert last.exists()
+    summary = capsys.readouterr().out.split("fit done: ")[1].splitlines()  # the end-of-fit summary
+    assert summary[0] == "1 epoch(s), 1 optimizer step(s)" and summary[1] == f"  last checkpoint: {last}"
+    assert "train/loss " in next(line for line in summary if line.startswith("  final metrics: "))
+    version_0 = root / "lightning_logs" / "version_0"
+    assert f"  logs: {version_0} (metrics.csv, config.yaml)" in summary
+    assert bool(list(version_0.glob("events.out.tfevents.*"))) == tensorboard_installed()  # beside metrics.csv
     run_lightning_cli(["predict", *root_option, "--ckpt_path", str(last)])
+    assert (root / "lightning_logs" / "version_1" / "predict_config.yaml").exists()  # fit's config.yaml stays alone
+    assert not (root / "lightning_logs" / "version_1" / "config.yaml").exists()
     assert len(read_predictions(root / "predictions.parquet")) == 24
     loaded = DrivingModule.load_from_checkpoint(last, map_location="cpu")  # no recipe needed
     assert loaded.model.config == tfv6_config(**TINY, use_radar=False)

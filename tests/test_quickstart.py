@@ -155,6 +155,8 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     # the quickstart's runs are laid out as the recipes', so the paper's Table 4 spec reads them as they are
     assert main(["table", "--spec", "table4", "--runs", str(tmp_path / "runs" / "*" / "*" / "seed*")]) == 0
     table4 = capsys.readouterr().out
-    assert "| LTFv6 + LEAD (WOD-E2E) | " in table4 and "| Expert (logged) | " in table4
-    expert_rfs = results["expert"]["wod_e2e"]["rfs@wod-e2e-2025"]["rfs"]
-    assert f"| {expert_rfs:.2f}* |" in next(line for line in table4.splitlines() if "Expert" in line)
+    expert = results["expert"]
+    rfs, pdms = expert["wod_e2e"]["rfs@wod-e2e-2025"]["rfs"], expert["navsim"]["pdms@navsim-1.1"]["pdms"]
+    assert f"| Expert (WOD-E2E) | {MISSING} | – | {MISSING} | – | {rfs:.2f} | 8.10 |" in table4  # one seed asked
+    assert f"| Expert (NAVSIM) | {100 * pdms:.2f} | 94.5 |" in table4
+    assert "| LTFv6 + LEAD (WOD-E2E) | " in table4 and "| LTFv6 + LEAD (WOD-E2E) | missing" not in table4

@@ -225,13 +225,17 @@ def run_folder(out: Path, dataset: str, name: str) -> Path:
     return out / "runs" / FAMILIES[dataset] / name / f"seed{SEED}"
 
 
+def scored_on(training: Training) -> tuple[str, ...]:
+    """The datasets a training is scored on: the one its name starts with (``navsim_ltfv6``), else every one."""
+    prefixed = tuple(d for d, family in FAMILIES.items() if training.name.startswith(f"{family}_"))
+    return prefixed or tuple(EVAL_SPLITS)
+
+
 def home(training: Training) -> tuple[str, str]:
     """(dataset, name) of the folder a training fits in: ``navsim_ltfv6`` -> (``navsim``, ``ltfv6``); a training
     on both datasets (``ego_mlp``) fits in the first one's family and is scored in each."""
-    for dataset, family in FAMILIES.items():
-        if training.name.startswith(f"{family}_"):
-            return dataset, training.name.removeprefix(f"{family}_")
-    return next(iter(FAMILIES)), training.name
+    dataset = scored_on(training)[0]
+    return dataset, training.name.removeprefix(f"{FAMILIES[dataset]}_")
 
 
 def stage_folder(out: Path, training: Training, dataset: str, stage: str) -> Path:
@@ -264,6 +268,7 @@ def smoke_config(training: Training, out: Path) -> Path:
     config = yaml.safe_load(recipe.read_text().replace("quickstart/", f"{out.as_posix()}/"))
     config["trainer"]["default_root_dir"] = str(run_folder(out, *home(training)))
     config["trainer"]["max_epochs"], config["data"]["steps_per_epoch"] = STEPS[training.name]
+    config["trainer"]["enable_progress_bar"] = False  # the quickstart's console shows its stages, not every step
     if training.without_lead:
         drop_carla(config)
     path = out / f"{training.name}.yaml"
@@ -304,7 +309,7 @@ def train_and_score(
     """Fit the training's config; predict and score the held-out logs with the weights before and after training."""
     config = smoke_config(training, out)
     run = run_folder(out, *home(training))
-    for dataset in EVAL_SPLITS:  # a checkpoint or scores left by an earlier quickstart would be taken for this one's
+    for dataset in scored_on(training):  # a checkpoint or scores left by an earlier quickstart would pass for new
         for stage in (TRAINED, UNTRAINED):
             shutil.rmtree(stage_folder(out, training, dataset, stage), ignore_errors=True)
     results = {}
@@ -338,10 +343,11 @@ def predict_and_score(
         run_lightning_cli(args + ([] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
     predictions = read_predictions(root / "predictions.parquet")
     results = {}
-    for dataset in EVAL_SPLITS:
+    for dataset in scored_on(training):
         mine = [p for p in predictions if p.dataset == dataset]
         if mine:
             folder = stage_folder(out, training, dataset, stage)
+            folder.mkdir(parents=True, exist_ok=True)
             path = write_predictions(folder / f"predictions-{dataset}.parquet", mine)
             results[dataset] = score(path, out / "data" / dataset, dataset, folder / "scores", references[dataset])
     return results

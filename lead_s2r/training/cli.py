@@ -22,6 +22,7 @@ from lightning.pytorch.cli import LightningCLI
 from lead_s2r.data.datamodule import DriveDataModule
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import TFv6Config
+from lead_s2r.training.feedback import default_loggers, fit_summary
 from lead_s2r.training.module import DrivingModule
 
 #: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
@@ -32,14 +33,22 @@ PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_erro
 
 
 class DrivingCLI(LightningCLI):
-    """LightningCLI that checks the data's source names against the model before anything is written, and roots
-    checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``."""
+    """LightningCLI that checks the data's source names against the model before anything is written, roots
+    checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``, logs to CSV and (when installed)
+    TensorBoard unless the config names its own logger, and ends a fit by saying what it wrote."""
 
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
         config = getattr(getattr(self.model, "model", None), "config", None)
         if isinstance(self.datamodule, DriveDataModule) and isinstance(config, TFv6Config):
             self.datamodule.check_sources(config)
+        trainer_config = self._get(self.config_init, "trainer", default={})
+        if trainer_config.get("logger") in (None, True):  # not configured: Lightning would pick one of the two
+            kwargs.setdefault("logger", default_loggers(trainer_config.get("default_root_dir") or Path.cwd()))
         return super().instantiate_trainer(**kwargs)
+
+    def after_fit(self) -> None:
+        if self.trainer.is_global_zero:
+            print("\n".join(fit_summary(self.trainer)), flush=True)
 
     def after_instantiate_classes(self) -> None:
         super().after_instantiate_classes()

@@ -1,0 +1,55 @@
+"""What a training run tells the person who started it: where its logs go and, at the end, what it produced.
+
+Lightning logs to TensorBoard when it is installed and to CSV otherwise; we want the CSV always (the table builder
+and scripts read it without extra packages) and TensorBoard beside it when the ``[tensorboard]`` extra is installed,
+both in one ``lightning_logs/version_N`` folder. A fit that ends silently leaves the user hunting for the checkpoint;
+:func:`fit_summary` names the checkpoints, the final metrics and the log folder.
+"""
+
+import importlib.util
+from pathlib import Path
+
+from lightning import Trainer
+from lightning.pytorch.loggers import CSVLogger, Logger, TensorBoardLogger
+
+LOG_FOLDER = "lightning_logs"
+#: metrics shown at the end of a fit, at most (the full set is in metrics.csv)
+SUMMARY_METRICS = 12
+
+
+def tensorboard_installed() -> bool:
+    return importlib.util.find_spec("tensorboard") is not None
+
+
+def default_loggers(root: str | Path) -> list[Logger]:
+    """CSV logs in ``<root>/lightning_logs/version_N`` and, when tensorboard is installed, its event files in the
+    same folder (one version number for both)."""
+    csv = CSVLogger(root, name=LOG_FOLDER)
+    if not tensorboard_installed():
+        return [csv]
+    return [csv, TensorBoardLogger(root, name=LOG_FOLDER, version=csv.version, default_hp_metric=False)]
+
+
+def fit_summary(trainer: Trainer) -> list[str]:
+    """Lines that end a fit: epochs and steps done, the last and best checkpoints, the final logged metrics and
+    where the logs are (with the TensorBoard command when it logged there)."""
+    lines = [f"fit done: {trainer.current_epoch} epoch(s), {trainer.global_step} optimizer step(s)"]
+    checkpoint = trainer.checkpoint_callback
+    if checkpoint is not None:
+        if getattr(checkpoint, "last_model_path", ""):
+            lines.append(f"  last checkpoint: {checkpoint.last_model_path}")
+        if checkpoint.best_model_path:
+            monitored = (
+                f" ({checkpoint.monitor} {float(checkpoint.best_model_score):.4g})" if checkpoint.monitor else ""
+            )
+            lines.append(f"  best checkpoint: {checkpoint.best_model_path}{monitored}")
+    metrics = {name: float(value) for name, value in sorted(trainer.callback_metrics.items()) if value.numel() == 1}
+    if metrics:
+        shown = list(metrics.items())[:SUMMARY_METRICS]
+        more = f" (+{len(metrics) - len(shown)} more in metrics.csv)" if len(metrics) > len(shown) else ""
+        lines.append("  final metrics: " + ", ".join(f"{name} {value:.4g}" for name, value in shown) + more)
+    if trainer.log_dir:
+        lines.append(f"  logs: {trainer.log_dir} (metrics.csv, config.yaml)")
+        if any(isinstance(logger, TensorBoardLogger) for logger in trainer.loggers):
+            lines.append(f"  TensorBoard: tensorboard --logdir {Path(trainer.log_dir).parent}")
+    return lines
