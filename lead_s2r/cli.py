@@ -17,7 +17,7 @@ from typing import Any, NoReturn
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, names
+from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, missing_requirements, names
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
 DEBUG_FLAG = "--debug"
@@ -68,10 +68,21 @@ def cmd_adapters(args: argparse.Namespace) -> int:
     for name in names(ADAPTER_GROUP):
         try:
             cls = load(name)
-            print(f"{name:12s} {cls.version:8s} extra: {cls.extras or '-'}")
         except RegistryError as err:
             print(f"{name:12s} {'?':8s} unavailable: {err}")
+            continue
+        print(f"{name:12s} {cls.version:8s} extra: {_extra_state(cls.extras)}")
     return 0
+
+
+def _extra_state(extra: str | None) -> str:
+    """``wod (installed)``, or what is missing and the command that installs it."""
+    if not extra:
+        return "- (none needed)"
+    missing = missing_requirements(extra)
+    if not missing:
+        return f"{extra} (installed)"
+    return f"{extra} (missing {', '.join(missing)}: pip install 'lead-s2r[{extra}]')"
 
 
 def cmd_synth(args: argparse.Namespace) -> int:
@@ -80,8 +91,21 @@ def cmd_synth(args: argparse.Namespace) -> int:
     except ModuleNotFoundError:
         raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim or wod_e2e") from None
     module.generate(Path(args.out), count=args.count, seed=args.seed)
-    print(f"wrote synthetic {args.name} data to {args.out}")
+    print(f"wrote synthetic {args.name} data to {args.out}: {_written(args.name, Path(args.out))}")
     return 0
+
+
+def _written(name: str, out: Path) -> str:
+    """What a generator wrote, as its adapter will see it (logs per split), and the files and bytes on disk."""
+    files = [path for path in out.rglob("*") if path.is_file()]
+    size = f"{len(files)} files, {sum(path.stat().st_size for path in files) / 1e6:.1f} MB"
+    if name not in names(ADAPTER_GROUP):
+        return size
+    splits: dict[str, int] = {}
+    for log in load(name)().list_logs(out):
+        splits[log.split] = splits.get(log.split, 0) + 1
+    logs = ", ".join(f"{count} {split}" for split, count in sorted(splits.items()))
+    return f"logs {logs} ({size}); next: lead-s2r convert {name} --src {out} --out DATA (docs/datasets/{name}.md)"
 
 
 def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
@@ -117,8 +141,11 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from lead_s2r.report.inspection import inspect_dataset
+    from lead_s2r.report.inspection import inspect_dataset, list_keys
 
+    if args.list:
+        print("\n".join(list_keys(args.path)))
+        return 0
     report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
     print(json.dumps(report, indent=2))
     return 1 if report["invalid"] else 0
@@ -277,7 +304,7 @@ def cmd_twin_data(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lead-s2r",
-        description=__doc__.splitlines()[0],
+        description="Convert driving datasets to one schema, train, score and make the paper's tables.",
         epilog="Training: lead-s2r fit|validate|test|predict --config recipes/... (LightningCLI; see --help there).",
     )
     parser.add_argument("--version", action="version", version=f"lead-s2r {__version__}")
@@ -313,9 +340,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub = verbs.add_parser("inspect", help="counts, schema check, statistics and a picture of a converted folder")
     sub.add_argument("path")
-    sub.add_argument("--n", type=int, default=32, help="samples to validate")
+    sub.add_argument("--n", type=int, default=32, help="samples to validate (and to pick the picture's sample from)")
     sub.add_argument("--png", default=None, help="draw one sample (cameras + BEV) to this file")
-    sub.add_argument("--key", default=None, help="sample to draw (default: the first)")
+    sub.add_argument("--key", default=None, help="sample to draw (default: of the --n checked, the one turning most)")
+    sub.add_argument("--list", action="store_true", help="list every sample's key, split, log, frame and speed")
     sub.set_defaults(run=cmd_inspect)
 
     sub = verbs.add_parser("score", help="score predictions open-loop")

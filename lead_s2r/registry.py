@@ -91,3 +91,23 @@ def load(name: str, group: str = ADAPTER_GROUP) -> Any:
 def get_adapter(name: str, **options: Any) -> Adapter:
     """Instantiate the adapter registered as ``name`` with its options."""
     return load(name, ADAPTER_GROUP)(**options)
+
+
+def missing_requirements(extra: str, distribution: str = "lead-s2r") -> list[str]:
+    """The requirements of ``distribution``'s extra ``extra`` that are not installed here (those whose environment
+    marker excludes this Python count as met), so ``lead-s2r adapters`` can say which extras work."""
+    from importlib.metadata import PackageNotFoundError, requires, version
+
+    from packaging.requirements import Requirement
+
+    missing = []
+    for line in requires(distribution) or []:
+        requirement = Requirement(line)
+        marker = requirement.marker
+        if marker is None or not marker.evaluate({"extra": extra}) or marker.evaluate({"extra": ""}):
+            continue  # not part of this extra, or not for this Python
+        try:
+            version(requirement.name)
+        except PackageNotFoundError:
+            missing.append(requirement.name)
+    return missing

@@ -2,6 +2,7 @@ import json
 import re
 
 import cv2
+import numpy as np
 import pytest
 from toy_adapter import ToyAdapter, write_toy_logs
 
@@ -60,3 +61,45 @@ def test_inspect_reports_and_draws(tmp_path, capsys):
     assert len(rows) and rows.max() < ego_row
     assert cli.main(["inspect", str(tmp_path / "out"), "--png", str(png), "--key", "nope"]) == 2
     assert "--key 'nope': no sample with that key" in capsys.readouterr().err
+
+
+def test_inspect_lists_keys_and_draws_the_sample_that_turns_most_by_default(tmp_path, capsys):
+    write_toy_logs(tmp_path / "src", n_logs=2, frames=3)
+    convert(ToyAdapter(), tmp_path / "src", tmp_path / "out")
+    assert cli.main(["inspect", str(tmp_path / "out"), "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 6 and lines[4].split() == ["toy_log001_000001", "toy/train", "log001", "1", "5.00", "m/s"]
+    assert cli.main(["inspect", str(tmp_path / "out"), "--png", str(tmp_path / "a.png")]) == 0
+    assert json.loads(capsys.readouterr().out)["png_key"] == "toy_log000_000000"  # all turn alike: the first
+
+
+def test_the_default_picture_is_the_sample_whose_future_turns_most():
+    from lead_s2r.report.inspection import heading_change, most_turning
+
+    def sample(key: str, last: list[float] | None) -> dict:
+        return {"__key__": key} | ({} if last is None else {"future": np.array([[0.5, 1, 0, 0], last], np.float32)})
+
+    straight, left = sample("straight", [4, 20, 0, 0]), sample("left", [4, 15, 10, 0.9])
+    right_no_yaw, parked = sample("right", [4, 10, -10, np.nan]), sample("parked", None)
+    assert heading_change(right_no_yaw) == pytest.approx(np.pi / 4)  # the bearing of its last point
+    assert heading_change(left) == pytest.approx(0.9) and heading_change(parked) == 0.0
+    assert most_turning([straight, parked, left, right_no_yaw])["__key__"] == "left"
+
+
+def test_adapters_says_which_extras_are_installed(monkeypatch, capsys):
+    import importlib.metadata
+
+    from lead_s2r.registry import missing_requirements
+
+    listed = [
+        'pyarrow>=1; extra == "a"',
+        'surely-not-installed-xyz>=1; extra == "a"',
+        'surely-not-installed-abc; extra == "b"',
+        'surely-not-installed-old; python_version < "3.0" and extra == "a"',  # not for this Python
+        "numpy>=1",  # not part of any extra
+    ]
+    monkeypatch.setattr(importlib.metadata, "requires", lambda distribution: listed)
+    assert missing_requirements("a") == ["surely-not-installed-xyz"]
+    assert missing_requirements("b") == ["surely-not-installed-abc"] and missing_requirements("c") == []
+    assert cli._extra_state("b") == "b (missing surely-not-installed-abc: pip install 'lead-s2r[b]')"
+    assert cli._extra_state(None) == "- (none needed)" and cli._extra_state("c") == "c (installed)"

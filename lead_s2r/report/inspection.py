@@ -23,7 +23,8 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
 
 
 def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None, key: str | None = None) -> dict:
-    """Counts per dataset/split, validation of the first ``n`` samples, statistics; draws one sample to ``png``."""
+    """Counts per dataset/split, validation of the first ``n`` samples, statistics; draws one sample to ``png``:
+    ``key``, or by default the one of those ``n`` whose future turns most (:func:`most_turning`)."""
     path = Path(path)
     manifest = _manifest(path)
     info = load_info(path)
@@ -61,9 +62,34 @@ def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None
         "failed_logs": info.get("failed_logs", 0),
     }
     if png is not None:
-        cv2.imwrite(str(png), render_sample(samples[0] if key is None else find_sample(path, manifest, key)))
+        drawn = most_turning(samples) if key is None else find_sample(path, manifest, key)
+        cv2.imwrite(str(png), render_sample(drawn))
         report["png"] = str(png)
+        report["png_key"] = drawn["__key__"]
     return report
+
+
+def heading_change(sample: dict[str, Any]) -> float:
+    """How far the logged future turns (rad, absolute): its last yaw, or the bearing of its last point where the
+    source has no yaw; 0 without a future."""
+    future = sample.get("future")
+    if future is None or not len(future):
+        return 0.0
+    x, y, yaw = (float(v) for v in future[-1, 1:])
+    return abs(yaw) if np.isfinite(yaw) else abs(float(np.arctan2(y, x)))
+
+
+def most_turning(samples: list[dict[str, Any]]) -> dict[str, Any]:
+    """The sample whose future turns most: a turn shows at a glance whether y is left (a straight frame does not)."""
+    return max(samples, key=heading_change)
+
+
+def list_keys(path: str | Path) -> list[str]:
+    """One line per sample: key, dataset/split, log, frame, speed (from the manifest; no shard is read)."""
+    manifest = _manifest(Path(path)).to_pydict()
+    columns = ("key", "dataset", "split", "log", "frame", "speed")
+    rows = zip(*(manifest[c] for c in columns), strict=True)
+    return [f"{key}  {data}/{split}  {log}  {frame}  {speed:.2f} m/s" for key, data, split, log, frame, speed in rows]
 
 
 def _manifest(path: Path) -> pa.Table:

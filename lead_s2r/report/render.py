@@ -97,13 +97,18 @@ def _camera_strip(sample: dict[str, Any], width: int) -> np.ndarray | None:
     return cv2.copyMakeBorder(strip, 0, 0, 0, width - strip.shape[1], cv2.BORDER_CONSTANT)
 
 
+#: characters of the sample key per line of the legend (keys run to 70 characters: NAVSIM log name + token)
+KEY_CHARS_PER_LINE = 40
+
+
 def render_sample(sample: dict[str, Any]) -> np.ndarray:
     """Cameras above the BEV, with the sample key and ego state written in the corner (BGR image)."""
     bev = render_bev(sample)
     bev = cv2.copyMakeBorder(bev, 0, 0, 0, CANVAS_WIDTH - bev.shape[1], cv2.BORDER_CONSTANT, value=(20, 20, 20))
     ego = sample["meta"]["ego"]
+    key = sample["__key__"]
     lines = [
-        sample["__key__"][-40:],
+        *(key[i : i + KEY_CHARS_PER_LINE] for i in range(0, len(key), KEY_CHARS_PER_LINE)),  # whole, over lines
         f"speed {ego['speed']:.2f} m/s",
         f"command {ego['command']} (raw {ego['command_raw']})",
         "",
