@@ -20,7 +20,7 @@ from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global, to_local
 from lead_s2r.predictions import write_predictions
 from lead_s2r.scoring.baselines import predict_constant_velocity
-from lead_s2r.scoring.epdms_two_stage import CSV_NAME
+from lead_s2r.scoring.navsim.two_stage_samples import CSV_NAME
 from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm import two_stage as T
 from lead_s2r.scoring.pdm.epdms import FILTERED

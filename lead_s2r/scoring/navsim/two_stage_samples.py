@@ -29,9 +29,9 @@ import pyarrow as pa
 from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
+from lead_s2r.scoring.navsim.proposals import navsim_token
 from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm import two_stage as T
-from lead_s2r.scoring.pdms import navsim_token
 
 #: per-token table of a two-stage run: the one-stage columns, the token's stage, role and pseudo closed-loop weight.
 TABLE_COLUMNS = (*E.SUB_SCORES, "score")
