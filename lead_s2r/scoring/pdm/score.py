@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import shapely
 
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, enclosing_radius, no_at_fault_collisions, time_to_collision
 from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
 from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
@@ -65,7 +65,7 @@ COLUMNS = (
     "ttc_time_idx",
 )
 #: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's extras
-EPDMS_COLUMNS = (*E.SUB_SCORES, "score", *COLUMNS[-4:])
+EPDMS_COLUMNS = (*epdms.SUB_SCORES, "score", *COLUMNS[-4:])
 
 
 def _centerline(scene: PDMScene) -> shapely.LineString:
@@ -226,14 +226,14 @@ def score_states_v2(
     )
     lk, lk_idx = lane_keeping(fp.centers, centerline, in_intersection, INTERVAL_S)
     return {
-        E.NC: nc,
-        E.DAC: dac,
-        E.DDC: ddc,
-        E.TLC: tlc,
-        E.EP: ep,
-        E.TTC: ttc,
-        E.LK: lk,
-        E.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
+        epdms.NC: nc,
+        epdms.DAC: dac,
+        epdms.DDC: ddc,
+        epdms.TLC: tlc,
+        epdms.EP: ep,
+        epdms.TTC: ttc,
+        epdms.LK: lk,
+        epdms.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
         "multiplicative_metrics_prod": product,
         "progress_m": progress,
         "ep_normaliser_m": normaliser,
@@ -313,10 +313,12 @@ def score_proposals(
         return {name: scores[name][agents] for name in COLUMNS} | extra
     observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
     scores = score_states_v2(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
-    human_row = None if human is None else {name: scores[name][-1] for name in E.FILTERED} | {E.EP: 1.0, E.HC: 1.0}
-    columns = E.human_penalty_filter({name: scores[name][agents] for name in E.FILTERED}, human_row)
-    columns[E.EC] = extended_comfort(scene, states[agents], previous)
-    columns["score"] = E.epdms(columns)
+    human_row = (
+        None if human is None else {name: scores[name][-1] for name in epdms.FILTERED} | {epdms.EP: 1.0, epdms.HC: 1.0}
+    )
+    columns = epdms.human_penalty_filter({name: scores[name][agents] for name in epdms.FILTERED}, human_row)
+    columns[epdms.EC] = extended_comfort(scene, states[agents], previous)
+    columns["score"] = epdms.epdms(columns)
     return columns | {name: scores[name][agents] for name in COLUMNS[-4:]} | extra
 
 
