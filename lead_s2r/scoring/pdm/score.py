@@ -126,6 +126,17 @@ class _Prelude:
     collision_idx: np.ndarray
     dac: np.ndarray
 
+    def time_to_collision(
+        self, observation: Observation, num_steps: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """TTC and its first violating step over the first ``num_steps`` states (all: None)."""
+        fp = self.fp
+        areas = fp.areas
+        return time_to_collision(
+            self.states, fp.coords, fp.radius, observation, fp.lanes_or_off_road, areas.rear_axle_in_intersection,
+            INTERVAL_S, num_steps=num_steps,
+        )  # fmt: skip
+
 
 def _prelude(
     scene: PDMScene, states: np.ndarray, observation: Observation, lookahead: int, drivable_map: DrivableMap | None
@@ -154,15 +165,7 @@ def score_states(
     ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S)
     progress = progress_along(_centerline(scene), fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
-    ttc, ttc_idx = time_to_collision(
-        states,
-        fp.coords,
-        fp.radius,
-        observation,
-        fp.lanes_or_off_road,
-        fp.areas.rear_axle_in_intersection,
-        INTERVAL_S,
-    )
+    ttc, ttc_idx = base.time_to_collision(observation)
     c = comfort(states, INTERVAL_S)
     return {
         "no_at_fault_collisions": nc,
@@ -214,16 +217,7 @@ def score_states_v2(
     centerline = _centerline(scene)
     progress = progress_along(centerline, fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress_v2(progress, product, ep_reference)
-    ttc, ttc_idx = time_to_collision(
-        states,
-        fp.coords,
-        fp.radius,
-        observation,
-        fp.lanes_or_off_road,
-        fp.areas.rear_axle_in_intersection,
-        INTERVAL_S,
-        num_steps=num_steps - max(TTC_OFFSETS),
-    )
+    ttc, ttc_idx = base.time_to_collision(observation, num_steps - max(TTC_OFFSETS))
     lk, lk_idx = lane_keeping(fp.centers, centerline, in_intersection, INTERVAL_S)
     return {
         epdms.NC: nc,
