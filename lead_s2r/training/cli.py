@@ -21,7 +21,6 @@ from lightning.pytorch.cli import LightningCLI
 
 from lead_s2r.data.datamodule import DriveDataModule
 from lead_s2r.errors import UserError
-from lead_s2r.models.config import TFv6Config
 from lead_s2r.training.feedback import default_loggers, fit_summary
 from lead_s2r.training.module import DrivingModule
 
@@ -38,9 +37,8 @@ class DrivingCLI(LightningCLI):
     TensorBoard unless the config names its own logger, and ends a fit by saying what it wrote."""
 
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
-        config = getattr(getattr(self.model, "model", None), "config", None)
-        if isinstance(self.datamodule, DriveDataModule) and isinstance(config, TFv6Config):
-            self.datamodule.check_sources(config)
+        if isinstance(self.datamodule, DriveDataModule) and isinstance(self.model, DrivingModule):
+            self.datamodule.check_sources(self.model.input_spec())
         trainer_config = self._get(self.config_init, "trainer", default={})
         if trainer_config.get("logger") in (None, True):  # not configured: Lightning would pick one of the two
             kwargs.setdefault("logger", default_loggers(trainer_config.get("default_root_dir") or Path.cwd()))
