@@ -279,6 +279,18 @@ def cmd_carla_metrics(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_closed_loop_check(args: argparse.Namespace) -> int:
+    from lead_s2r.closed_loop.check import check_run
+    from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint
+
+    try:
+        result = check_run(args.path, ticks=args.ticks)
+    except (UnsupportedCheckpoint, FileNotFoundError) as err:
+        raise UserError(f"closed-loop check: {err}") from None
+    print("\n".join(result.lines()))
+    return 0
+
+
 def cmd_table(args: argparse.Namespace) -> int:
     from lead_s2r.report.tables import build_table
 
@@ -368,6 +380,15 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", required=True)
     sub.add_argument("--routes", default=None, help="the benchmark's routes XML, to name the missing routes")
     sub.set_defaults(run=cmd_carla_metrics)
+
+    sub = verbs.add_parser("closed-loop", help="offline checks of a run before a CARLA evaluation (docs/closed_loop.md)")
+    checks = sub.add_subparsers(dest="check", required=True, metavar="CHECK")
+    sub = checks.add_parser(
+        "check", help="the agent's setup, sensors and a few ticks on synthetic sensor data, no CARLA server"
+    )
+    sub.add_argument("path", metavar="RUN", help="run folder (runs/carla/<name>/seed<k>), checkpoint, or agent YAML")
+    sub.add_argument("--ticks", type=int, default=5, help="ticks to drive (the first brakes, as in a real route)")
+    sub.set_defaults(run=cmd_closed_loop_check)
 
     sub = verbs.add_parser("table", help="a paper table from runs: mean ± std over seeds beside the paper's numbers")
     sub.add_argument(

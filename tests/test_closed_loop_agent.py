@@ -201,3 +201,19 @@ def test_the_saved_config_is_found_beside_a_logger_run(tmp_path):
     assert saved_config(checkpoint) == tmp_path / "lightning_logs" / "version_1" / "config.yaml"
     (tmp_path / "config.yaml").write_text("v: run\n")
     assert saved_config(checkpoint) == tmp_path / "config.yaml"
+
+
+def test_closed_loop_check_drives_a_carla_run_offline_and_refuses_a_navsim_model(scene, capsys):
+    from lead_s2r.cli import main
+
+    assert main(["closed-loop", "check", str(scene["run"]), "--ticks", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"closed-loop check passed: {scene['run']}"
+    assert lines[1].startswith("  rig CARLA_LEADERBOARD2_3CAMERAS, 12 sensors: rgb_1, rgb_2, rgb_3, lidar_0")
+    assert lines[2].startswith("  3 ticks on synthetic sensor data: steer ")
+    ltf = scene["root"] / "ltf_check"
+    model = {k: v for k, v in asdict(ltfv6_config(**TINY)).items() if k not in ("trajectory_grids", "label_space")}
+    run_lightning_cli(["fit", "--config", str(fit_config(ltf, scene["root"] / "data", model, steps=1))])
+    assert main(["closed-loop", "check", str(ltf)]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "reads no route target points" in error and error.startswith("error: ")
