@@ -381,7 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--routes", default=None, help="the benchmark's routes XML, to name the missing routes")
     sub.set_defaults(run=cmd_carla_metrics)
 
-    sub = verbs.add_parser("closed-loop", help="offline checks of a run before a CARLA evaluation (docs/closed_loop.md)")
+    sub = verbs.add_parser("closed-loop", help="offline checks of a run before a CARLA evaluation")
     checks = sub.add_subparsers(dest="check", required=True, metavar="CHECK")
     sub = checks.add_parser(
         "check", help="the agent's setup, sensors and a few ticks on synthetic sensor data, no CARLA server"
