@@ -145,7 +145,8 @@ def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_da
     assert last.exists()
     summary = capsys.readouterr().out.split("fit done: ")[1].splitlines()  # the end-of-fit summary
     assert summary[0] == "1 epoch(s), 1 optimizer step(s)" and summary[1] == f"  last checkpoint: {last}"
-    assert "train/loss " in next(line for line in summary if line.startswith("  final metrics: "))
+    at = summary.index("  final metrics:")
+    assert summary[at + 1].split()[0] == "train/loss"  # the loss first
     version_0 = root / "lightning_logs" / "version_0"
     assert f"  logs: {version_0} (metrics.csv, config.yaml)" in summary
     assert bool(list(version_0.glob("events.out.tfevents.*"))) == tensorboard_installed()  # beside metrics.csv

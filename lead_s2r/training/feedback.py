@@ -30,6 +30,14 @@ def default_loggers(root: str | Path) -> list[Logger]:
     return [csv, TensorBoardLogger(root, name=LOG_FOLDER, version=csv.version, default_hp_metric=False)]
 
 
+def _metric_order(name: str) -> tuple[int, str]:
+    """The loss first, then validation and scores; bookkeeping (batch sizes, learning rates) last."""
+    for rank, prefix in enumerate(("train/loss", "val/", "score/", "train/")):
+        if name.startswith(prefix) and "batch_size" not in name:
+            return rank, name
+    return 4, name
+
+
 def fit_summary(trainer: Trainer) -> list[str]:
     """Lines that end a fit: epochs and steps done, the last and best checkpoints, the final logged metrics and
     where the logs are (with the TensorBoard command when it logged there)."""
@@ -43,11 +51,12 @@ def fit_summary(trainer: Trainer) -> list[str]:
                 f" ({checkpoint.monitor} {float(checkpoint.best_model_score):.4g})" if checkpoint.monitor else ""
             )
             lines.append(f"  best checkpoint: {checkpoint.best_model_path}{monitored}")
-    metrics = {name: float(value) for name, value in sorted(trainer.callback_metrics.items()) if value.numel() == 1}
+    metrics = {name: float(value) for name, value in trainer.callback_metrics.items() if value.numel() == 1}
     if metrics:
-        shown = list(metrics.items())[:SUMMARY_METRICS]
-        more = f" (+{len(metrics) - len(shown)} more in metrics.csv)" if len(metrics) > len(shown) else ""
-        lines.append("  final metrics: " + ", ".join(f"{name} {value:.4g}" for name, value in shown) + more)
+        shown = sorted(metrics, key=_metric_order)[:SUMMARY_METRICS]
+        more = f" ({len(metrics) - len(shown)} more in metrics.csv)" if len(metrics) > len(shown) else ""
+        lines.append(f"  final metrics{more}:")
+        lines += [f"    {name:32s} {metrics[name]:.4g}" for name in shown]
     if trainer.log_dir:
         lines.append(f"  logs: {trainer.log_dir} (metrics.csv, config.yaml)")
         if any(isinstance(logger, TensorBoardLogger) for logger in trainer.loggers):
