@@ -160,3 +160,18 @@ def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_da
         logged = [row["train/batch_size/navsim"] for row in csv.DictReader(file)]
     assert [size for size in logged if size] == ["8.0"]  # the epoch's per-rank batch size of the source
     assert not (tmp_path / "elsewhere").exists()
+
+
+def test_a_configured_logger_comes_after_the_csv_logs_and_false_keeps_logging_off(tmp_path):
+    from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
+
+    from lead_s2r.training.feedback import run_loggers
+
+    assert run_loggers(False, tmp_path) is False
+    defaults = run_loggers(True, tmp_path)
+    assert [type(logger) for logger in defaults] == [CSVLogger] + [TensorBoardLogger] * tensorboard_installed()
+    board = TensorBoardLogger(tmp_path / "elsewhere")  # as an overlay would add W&B's
+    added = run_loggers(board, tmp_path)
+    assert isinstance(added[0], CSVLogger) and added[-1] is board and len(added) == 2
+    own = CSVLogger(tmp_path / "own")
+    assert run_loggers([own], tmp_path) == [own]

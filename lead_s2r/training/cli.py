@@ -21,7 +21,7 @@ from lightning.pytorch.cli import LightningCLI
 
 from lead_s2r.data.datamodule import DriveDataModule
 from lead_s2r.errors import UserError
-from lead_s2r.training.feedback import default_loggers, fit_summary
+from lead_s2r.training.feedback import fit_summary, run_loggers
 from lead_s2r.training.module import DrivingModule
 
 #: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
@@ -40,8 +40,8 @@ class DrivingCLI(LightningCLI):
         if isinstance(self.datamodule, DriveDataModule) and isinstance(self.model, DrivingModule):
             self.datamodule.check_sources(self.model.input_spec())
         trainer_config = self._get(self.config_init, "trainer", default={})
-        if trainer_config.get("logger") in (None, True):  # not configured: Lightning would pick one of the two
-            kwargs.setdefault("logger", default_loggers(trainer_config.get("default_root_dir") or Path.cwd()))
+        root = trainer_config.get("default_root_dir") or Path.cwd()
+        kwargs.setdefault("logger", run_loggers(trainer_config.get("logger"), root))
         return super().instantiate_trainer(**kwargs)
 
     def after_fit(self) -> None:

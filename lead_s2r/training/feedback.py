@@ -8,6 +8,7 @@ both in one ``lightning_logs/version_N`` folder. A fit that ends silently leaves
 
 import importlib.util
 from pathlib import Path
+from typing import Any
 
 from lightning import Trainer
 from lightning.pytorch.loggers import CSVLogger, Logger, TensorBoardLogger
@@ -28,6 +29,19 @@ def default_loggers(root: str | Path) -> list[Logger]:
     if not tensorboard_installed():
         return [csv]
     return [csv, TensorBoardLogger(root, name=LOG_FOLDER, version=csv.version, default_hp_metric=False)]
+
+
+def run_loggers(configured: Any, root: str | Path) -> Any:
+    """The trainer's ``logger``: the CSV (and TensorBoard) logs of :func:`default_loggers` first, then any logger a
+    config adds (the W&B overlay, ``recipes/logging/wandb.yaml``); ``False`` keeps logging off, and a config that
+    names a CSV logger itself is taken as it is."""
+    if configured is False:
+        return False
+    added = [] if configured in (None, True) else list(configured) if isinstance(configured, list) else [configured]
+    if any(isinstance(logger, CSVLogger) for logger in added):
+        return added
+    defaults = [d for d in default_loggers(root) if not any(type(a) is type(d) for a in added)]
+    return defaults + added
 
 
 def _metric_order(name: str) -> tuple[int, str]:
