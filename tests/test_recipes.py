@@ -10,10 +10,13 @@ from lead_s2r.cli import main
 from lead_s2r.data.mixing import MixingSchedule
 
 ROOT = Path(__file__).parents[1] / "recipes"
-#: Training recipes; recipes/paper holds table specs for `lead-s2r table`, and recipes/smoke/twin*.yaml are overlays
-#: that only parse on top of a full-scale recipe (tests/test_smoke_twins.py runs them), not LightningCLI configs.
+#: Training recipes; recipes/paper holds table specs for `lead-s2r table`, and recipes/smoke/twin*.yaml and
+#: recipes/logging/*.yaml are overlays that only parse on top of a full-scale recipe (tests/test_smoke_twins.py runs
+#: the twins), not LightningCLI configs.
 RECIPES = sorted(
-    p for p in ROOT.rglob("*.yaml") if p.parent.name != "paper" and p not in set(ROOT.glob("smoke/twin*.yaml"))
+    p
+    for p in ROOT.rglob("*.yaml")
+    if p.parent.name not in ("paper", "logging") and p not in set(ROOT.glob("smoke/twin*.yaml"))
 )
 
 
@@ -30,3 +33,14 @@ def test_recipe_parses(recipe, capsys, monkeypatch):
 
 def test_there_are_recipes():
     assert len(RECIPES) >= 3
+
+
+def test_the_wandb_overlay_adds_its_logger_to_a_recipe(capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])
+    overlay = ROOT / "logging" / "wandb.yaml"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fit", "--config", str(ROOT / "wod" / "ego_mlp.yaml"), "--config", str(overlay), "--print_config"])
+    assert exit_info.value.code in (0, None)
+    logger = yaml.safe_load(capsys.readouterr().out)["trainer"]["logger"]
+    assert logger["class_path"] == "lightning.pytorch.loggers.WandbLogger"
+    assert logger["init_args"]["project"] == "lead_s2r"
