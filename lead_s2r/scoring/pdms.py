@@ -41,6 +41,9 @@ NAVSIM_COLUMNS = (
     "score",
 )
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
+#: the 0.1 s simulation step where NC, TTC and DAC failed (-1: they did not; null in an invalid row), so a report can
+#: say when a sub-score was lost
+STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx")
 #: NAVSIM's agent output: 8 poses at 0.5 s (``TrajectorySampling(time_horizon=4, interval_length=0.5)``).
 NAVSIM_INTERVAL = 0.5
 NAVSIM_POSES = 8
@@ -50,6 +53,7 @@ CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
+    + [(name, pa.int64()) for name in STEP_COLUMNS]
     + [("error", pa.string())]
 )
 
@@ -71,6 +75,13 @@ def proposal_of(prediction: Prediction) -> tuple[np.ndarray, float]:
             "(predictions are never extrapolated)"
         )
     return values, NAVSIM_INTERVAL
+
+
+def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tuple[str, ...]) -> dict[str, Any]:
+    """Row 0 of ``score_proposals``' columns: ``scores`` as floats, ``steps`` as ints."""
+    return {name: float(np.asarray(result[name])[0]) for name in scores} | {
+        name: int(np.asarray(result[name])[0]) for name in steps
+    }
 
 
 def top_inference(frame: list[Prediction]) -> Prediction:
@@ -160,7 +171,7 @@ class PDMSScorer(Scorer):
             return {**row, **dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan")), "valid": False,
                     "error": str(err)}  # fmt: skip
         result = score_proposals(scene, proposals[None], interval, reference=self.references.get(scene))
-        return {**row, **{name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}}
+        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]

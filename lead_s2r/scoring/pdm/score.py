@@ -36,6 +36,7 @@ from lead_s2r.scoring.pdm.metrics import (
     driving_direction_compliance,
     ego_progress,
     ego_progress_v2,
+    first_step,
     lane_keeping,
     pdms_v11,
     progress_along,
@@ -63,9 +64,13 @@ COLUMNS = (
     "ep_normaliser_m",
     "collision_time_idx",
     "ttc_time_idx",
+    "dac_time_idx",
 )
-#: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's extras
-EPDMS_COLUMNS = (*E.SUB_SCORES, "score", *COLUMNS[-4:])
+#: the columns after the sub-scores: EP's metres and the 0.1 s step where NC, TTC and DAC failed (-1: they did not)
+DIAGNOSTICS = COLUMNS[-5:]
+#: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's
+#: diagnostics and the step where LK failed
+EPDMS_COLUMNS = (*E.SUB_SCORES, "score", *DIAGNOSTICS, "lane_keeping_fail_idx")
 
 
 def _centerline(scene: PDMScene) -> shapely.LineString:
@@ -158,6 +163,7 @@ def score_states(
         "ep_normaliser_m": normaliser,
         "collision_time_idx": collision_idx,
         "ttc_time_idx": ttc_idx,
+        "dac_time_idx": first_step(fp.areas.non_drivable_area),
         **_flags(fp.areas),
     }
 
@@ -224,6 +230,7 @@ def score_states_v2(
         "ep_normaliser_m": normaliser,
         "collision_time_idx": collision_idx,
         "ttc_time_idx": ttc_idx,
+        "dac_time_idx": first_step(fp.areas.non_drivable_area),
         "lane_keeping_fail_idx": lk_idx,
         **_flags(fp.areas),
         "in_intersection": in_intersection,
@@ -305,7 +312,7 @@ def score_proposals(
     columns = E.human_penalty_filter({name: scores[name][agents] for name in E.FILTERED}, human_row)
     columns[E.EC] = extended_comfort(scene, states[agents], previous)
     columns["score"] = E.epdms(columns)
-    return columns | {name: scores[name][agents] for name in COLUMNS[-4:]} | extra
+    return columns | {name: scores[name][agents] for name in EPDMS_COLUMNS[len(E.SUB_SCORES) + 1 :]} | extra
 
 
 def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:
