@@ -20,7 +20,7 @@ from matplotlib.patches import Polygon
 
 from lead_s2r.geometry import box_corners
 from lead_s2r.schema import MapKind
-from lead_s2r.scoring.rfs import RFSConfig
+from lead_s2r.scoring.rfs import RFSConfig, speed_scale
 
 LOGGED = "#00a651"
 PREDICTED = "#e4007c"
@@ -94,9 +94,7 @@ def trust_region(rater: np.ndarray, index: int, checkpoint: int, speed: float, c
     """The corners ``(4, 2)`` of RFS's trust region around waypoint ``index`` of a rater ``(T, 2)`` at checkpoint
     ``checkpoint``: half-lengths are the speed-scaled lateral and longitudinal thresholds, along the rater's
     direction of travel there (backward difference, as the metric takes it)."""
-    low, high = config.speed_range
-    scale = np.interp(speed, (low, high), config.scale_range)
-    base = config.base_thresholds[checkpoint] * scale
+    base = config.base_thresholds[checkpoint] * float(speed_scale(np.asarray(speed), config))
     lateral, longitudinal = base * config.lat_lng_multipliers[0], base * config.lat_lng_multipliers[1]
     step = rater[index] - rater[index - 1] if index > 0 else rater[index]
     along = step / max(float(np.linalg.norm(step)), 1e-9)
