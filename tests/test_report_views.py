@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lead_s2r.report.bev import LOGGED, PREDICTED, bev_figure, save_figure, trust_region
-from lead_s2r.report.camera import camera_figure, forward_cameras, project_points
+from lead_s2r.report.camera import camera_figure, forward_cameras, monotonic_radius, project_points
 from lead_s2r.report.run_outputs import MetricScores
 from lead_s2r.report.sample_page import failures
 from lead_s2r.scoring.rfs import RFSConfig, speed_scale
@@ -47,6 +47,19 @@ def test_point_10_m_ahead_on_the_logged_path_projects_to_the_hand_worked_pixel()
     assert inside[0] and pixels[0, 1] > FRONT["K"][1][2]  # in the picture, below the horizon row cy
     behind, in_view = project_points(FRONT, np.array([[-5.0, 0.0, 0.0]]))
     assert not in_view[0] and np.isnan(behind).all()
+
+
+def test_points_beyond_the_distortion_fold_are_not_drawn() -> None:
+    # slope of r (1 - 0.35 r^2 + 0.15 r^4 - 0.03 r^6): 1 - 1.05 r^2 + 0.75 r^4 - 0.21 r^6, 0.042 at 1.5, -0.296 at 1.6
+    assert 1.5 < monotonic_radius(np.array(FRONT["distortion"])) < 1.6
+    assert monotonic_radius(np.zeros(5)) == np.inf
+    # 3 m ahead of the lens and 6 m to the right: r = 2, folded back into the picture by the polynomial
+    folded = np.array([[4.5, -6.0, 1.5]])
+    raw, _ = cv2.projectPoints(np.array([[6.0, 0.0, 3.0]]), np.zeros(3), np.zeros(3), np.array(FRONT["K"]),
+                               np.array(FRONT["distortion"]))  # fmt: skip
+    assert 0 <= raw[0, 0, 0] < FRONT["width"]  # the trap: OpenCV puts it inside the image
+    pixels, inside = project_points(FRONT, folded)
+    assert not inside[0] and np.isnan(pixels).all()
 
 
 def test_camera_picture_marks_the_logged_path_where_the_calibration_puts_it(tmp_path: Path) -> None:

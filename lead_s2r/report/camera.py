@@ -4,7 +4,9 @@
 a ground point of the ego frame goes to the camera by the inverse transform and to the pixel by OpenCV's pinhole +
 Brown-Conrady model (``cv2.projectPoints``, the same five coefficients the adapters store). Trajectory points lie on
 the ground (z = 0 at the rear axle). Points less than :data:`NEAR_M` in front of the lens are dropped: behind the
-camera a pinhole projection flips the picture over.
+camera a pinhole projection flips the picture over. So are points beyond the radius where the distortion polynomial
+stops growing (:func:`monotonic_radius`): far outside the field of view it folds back and would put a point that
+the camera cannot see inside its picture.
 """
 
 from typing import Any
@@ -16,8 +18,20 @@ from matplotlib.figure import Figure
 from lead_s2r.report.bev import save_figure, trajectory_colors
 
 NEAR_M = 0.5
+#: the largest normalised radius (tan of the angle off the optical axis) searched for the distortion's fold
+MAX_RADIUS = 10.0
 #: a camera counts as forward when its optical axis is within 60 degrees of the ego's x axis
 FORWARD_COSINE = 0.5
+
+
+def monotonic_radius(distortion: np.ndarray) -> float:
+    """The normalised radius up to which Brown-Conrady's radial term ``r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` grows
+    (inf when it always does): the part of the model that is a projection."""
+    k1, k2, k3 = (float(distortion[i]) if len(distortion) > i else 0.0 for i in (0, 1, 4))
+    r = np.linspace(0.0, MAX_RADIUS, 4001)
+    slope = 1 + 3 * k1 * r**2 + 5 * k2 * r**4 + 7 * k3 * r**6
+    falling = np.flatnonzero(slope <= 0)
+    return float(r[falling[0]]) if len(falling) else np.inf
 
 
 def project_points(camera: dict[str, Any], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -26,11 +40,13 @@ def project_points(camera: dict[str, Any], points: np.ndarray) -> tuple[np.ndarr
     points = np.asarray(points, np.float64).reshape(-1, 3)
     ego_to_cam = np.linalg.inv(np.asarray(camera["cam_to_ego"], np.float64))
     optical = points @ ego_to_cam[:3, :3].T + ego_to_cam[:3, 3]
+    distortion = np.asarray(camera["distortion"], np.float64)
     in_front = optical[:, 2] > NEAR_M
+    radius = np.hypot(optical[:, 0], optical[:, 1]) / np.where(in_front, optical[:, 2], 1.0)
+    in_front &= radius < monotonic_radius(distortion)
     pixels = np.full((len(points), 2), np.nan)
     if in_front.any():
         K = np.asarray(camera["K"], np.float64)
-        distortion = np.asarray(camera["distortion"], np.float64)
         projected, _ = cv2.projectPoints(optical[in_front], np.zeros(3), np.zeros(3), K, distortion)
         pixels[in_front] = projected.reshape(-1, 2)
     x0, width = camera.get("tile", (0, camera["width"]))
