@@ -9,7 +9,7 @@ import pytest
 
 from lead_s2r.report.bev import LOGGED, PREDICTED, bev_figure, save_figure, trust_region
 from lead_s2r.report.camera import camera_figure, forward_cameras, monotonic_radius, project_points
-from lead_s2r.report.run_outputs import MetricScores
+from lead_s2r.report.run_outputs import MetricScores, training_curves
 from lead_s2r.report.sample_page import failures
 from lead_s2r.scoring.rfs import RFSConfig, speed_scale
 
@@ -128,3 +128,13 @@ def test_trust_region_half_sizes_follow_the_metric(speed: float) -> None:
     corners = trust_region(rater, 11, 0, speed, config)
     scale = float(speed_scale(np.asarray(speed), config))  # 0.5 up to 1.4 m/s, 1.0 from 11 m/s
     np.testing.assert_allclose(corners.max(axis=0) - rater[11], [4.0 * scale, 1.0 * scale])  # 3 s: lng 4, lat 1
+
+
+def test_training_curves_of_a_prediction_folder_come_from_its_training_root(tmp_path: Path) -> None:
+    logs = tmp_path / "run" / "lightning_logs" / "version_0"
+    logs.mkdir(parents=True)
+    (logs / "metrics.csv").write_text("step,epoch,train/loss,val/loss\n9,0,2.5,\n19,0,1.75,\n19,0,,1.9\n")
+    (tmp_path / "run" / "trained").mkdir()
+    expected = {"train/loss": [(9.0, 2.5), (19.0, 1.75)], "val/loss": [(19.0, 1.9)]}
+    assert training_curves(tmp_path / "run" / "trained") == expected
+    assert training_curves(tmp_path / "run") == expected

@@ -128,10 +128,12 @@ def _config(path: Path) -> str | None:
 
 
 def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
-    """``{column: [(step, value), ...]}`` of every loss / validation column in the Lightning CSV logs below ``path``
-    (``metrics.csv``; the x axis is the optimizer step)."""
+    """``{column: [(step, value), ...]}`` of every loss / validation column in the Lightning CSV logs
+    (``metrics.csv``; the x axis is the optimizer step) below ``path``, else in ``path/../lightning_logs``: a
+    prediction folder inside its training's root (``<default_root_dir>/trained``) shows the training's curves."""
     curves: dict[str, list[tuple[float, float]]] = defaultdict(list)
-    for log in sorted(path.rglob("metrics.csv")):
+    logs = sorted(path.rglob("metrics.csv")) or sorted((path.parent / "lightning_logs").rglob("metrics.csv"))
+    for log in logs:
         with log.open(newline="") as file:
             for row in csv.DictReader(file):
                 step = row.get("step")

@@ -19,7 +19,7 @@ import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from lead_s2r.errors import UserError
-from lead_s2r.report.comparison import differences, pair_view, unmatched
+from lead_s2r.report.comparison import Difference, differences, pair_view, unmatched
 from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run, load_samples
 from lead_s2r.report.sample_page import sample_view
 from lead_s2r.report.summary import curves_figure, flat_numbers, histograms
@@ -142,7 +142,9 @@ class Pages:
         self.write("index.html", "index.html", title=f"Report {run.name}", run=run.name, path=str(run.path),
                    metrics=metrics, curves=curves, samples=listed, config=run.config, comparison=baseline)  # fmt: skip
 
-    def comparison(self, a: RunOutputs, b: RunOutputs, changed: list, loaded: dict[str, Any], threshold: float) -> None:
+    def comparison(
+        self, a: RunOutputs, b: RunOutputs, changed: list[Difference], loaded: dict[str, Any], threshold: float
+    ) -> None:
         """``comparison.html`` and one side-by-side page per sample that differs."""
         for key in dict.fromkeys(d.key for d in changed):
             pair = pair_view(loaded[key], a, b, self.site)
