@@ -77,7 +77,7 @@ class RunOutputs:
 
     @property
     def name(self) -> str:
-        return self.path.name
+        return self.path.resolve().name  # "." is a run too
 
     def data_folders(self) -> list[Path]:
         """The converted folders the scores.json files record, in first-seen order."""

@@ -55,15 +55,17 @@ def failures(scores: MetricScores, row: dict[str, Any]) -> list[str]:
     return named
 
 
+def is_score(name: str, value: object) -> bool:
+    """Whether a scores-table cell is a sub-score or a number worth showing (bookkeeping and step indices are not;
+    None is a score that is missing, e.g. EC without a previous frame)."""
+    if name in NOT_SCORES or name.endswith("_idx") or isinstance(value, bool):
+        return False
+    return value is None or isinstance(value, int | float)
+
+
 def score_cells(row: dict[str, Any]) -> list[tuple[str, str]]:
     """``(column, value)`` of every sub-score and number of a row, for the page's table."""
-    cells = []
-    for name, value in row.items():
-        if name in NOT_SCORES or name.endswith("_idx") or isinstance(value, bool) or value is None:
-            continue
-        if isinstance(value, int | float):
-            cells.append((name, f"{value:.4g}"))
-    return cells
+    return [(name, f"{value:.4g}") for name, value in row.items() if is_score(name, value) and value is not None]
 
 
 def top_xy(frame: list[Prediction]) -> np.ndarray:

@@ -72,6 +72,8 @@ def build_report(
     threshold: float = 1e-9,
 ) -> Path:
     """Write the report of ``run`` (compared with ``baseline``) to ``out``; return ``out/index.html``."""
+    if worst < 0:
+        raise UserError(f"--worst {worst}: give the number of samples to show per metric (0 or more)")
     out = Path(out)
     a = load_run(run)
     b = None if baseline is None else load_run(baseline)

@@ -13,7 +13,7 @@ from matplotlib.figure import Figure
 
 from lead_s2r.report.bev import save_figure
 from lead_s2r.report.run_outputs import MetricScores
-from lead_s2r.report.sample_page import NOT_SCORES
+from lead_s2r.report.sample_page import is_score
 
 HISTOGRAM_COLUMNS = 4
 #: at most this many training curves are drawn (the first ones of the logs, losses before the rest)
@@ -37,9 +37,7 @@ def score_columns(scores: MetricScores) -> dict[str, np.ndarray]:
     columns: dict[str, list[float]] = {}
     for row in scores.rows.values():
         for name, value in row.items():
-            if name in NOT_SCORES or name.endswith("_idx") or isinstance(value, bool):
-                continue
-            if isinstance(value, int | float) or value is None:
+            if is_score(name, value):
                 columns.setdefault(name, []).append(np.nan if value is None else float(value))
     return {name: np.asarray(values) for name, values in columns.items()}
 
