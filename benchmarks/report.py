@@ -1,5 +1,5 @@
 """``lead-s2r report`` on quickstart-sized held-out data: NAVSIM ``test`` (4 logs) and WOD-E2E ``val`` (24 segments),
-converted, predicted by the constant-turn-rate planner and scored with every metric the quickstart uses; then the
+converted, predicted by the constant-velocity planner and scored with every metric the quickstart uses; then the
 report of 20 sample pages (10 NAVSIM, 10 WOD-E2E) is timed. The acceptance bound is 60 s.
 
 Command: ``.venv/bin/python benchmarks/report.py --out /tmp/report_bench`` (re-runs reuse the converted data).
@@ -16,7 +16,7 @@ from lead_s2r.convert import convert
 from lead_s2r.predictions import write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.report.site import build_report
-from lead_s2r.scoring.baselines import predict_constant_turn_rate
+from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim, wod_e2e
@@ -37,7 +37,7 @@ def prepare(out: Path) -> Path:
         convert(get_adapter("wod_e2e"), raw / "wod_e2e", data / "wod_e2e", workers=2, force=True)
     run.mkdir(parents=True, exist_ok=True)
     for dataset, grid in GRIDS.items():
-        plans = [predict_constant_turn_rate(s, grid) for s in read_samples(data / dataset, fields=("future",))]
+        plans = [predict_constant_velocity(s, grid) for s in read_samples(data / dataset, fields=("future",))]
         predictions = write_predictions(run / f"{dataset}.parquet", plans)
         for metric in METRICS[dataset]:
             folder = run / "scores" / dataset / metric.split("@")[0]

@@ -19,7 +19,7 @@ from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.report.site import build_report
-from lead_s2r.scoring.baselines import predict_constant_turn_rate
+from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim, wod_e2e
@@ -49,7 +49,7 @@ def swerve(prediction: Prediction) -> Prediction:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """Converted NAVSIM (1 log) and WOD-E2E (1 segment) data; run A (constant turn rate, the first NAVSIM sample
+    """Converted NAVSIM (1 log) and WOD-E2E (1 segment) data; run A (constant velocity, the first NAVSIM sample
     swerving off the road, a Lightning log and config) and run B (A with two other NAVSIM samples moved 3 m)."""
     root = tmp_path_factory.mktemp("report")
     navsim.generate(root / "raw" / "navsim", count=1, seed=0)
@@ -63,14 +63,14 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         assert convert(adapter, root / "raw" / dataset, data / dataset, workers=1).ok
     samples = {d: list(read_samples(data / d, fields=("future",))) for d in adapters}
     grids = {"navsim": NAVSIM_T, "wod_e2e": WOD_T}
-    plans = {s["__key__"]: predict_constant_turn_rate(s, grids[d]) for d in samples for s in samples[d]}
+    plans = {s["__key__"]: predict_constant_velocity(s, grids[d]) for d in samples for s in samples[d]}
     keys = [s["__key__"] for s in samples["navsim"]]
     off_road, moved = keys[0], keys[2:4]
     plans[off_road] = swerve(plans[off_road])
     _score(root / "A", list(plans.values()), data, METRICS_A)
     (root / "A" / "logs").mkdir()
     (root / "A" / "logs" / "metrics.csv").write_text(TRAINING_LOG)
-    (root / "A" / "config.yaml").write_text("seed_everything: 0\nmodel:\n  name: constant-turn-rate\n")
+    (root / "A" / "config.yaml").write_text("seed_everything: 0\nmodel:\n  name: constant-velocity\n")
     for key in moved:
         p = plans[key]
         plans[key] = Prediction(key, p.dataset, p.t, p.xy + np.array([0.0, 3.0]), p.yaw)

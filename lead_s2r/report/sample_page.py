@@ -2,7 +2,8 @@
 with the failing ones named and timed (``DAC 0: leaves the drivable area at t = 2.5 s``).
 
 The PDMS / EPDMS scorers record the 0.1 s simulation step where NC, TTC, DAC and LK failed
-(``lead_s2r.scoring.navsim.pdms_scorer.STEP_COLUMNS``); a sub-score without a step (DDC, TLC, comfort) is named without a time.
+(``lead_s2r.scoring.navsim.pdms_scorer.STEP_COLUMNS``); a sub-score without a step (DDC, TLC, comfort) is named
+without a time.
 """
 
 from dataclasses import dataclass, field
