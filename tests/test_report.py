@@ -128,16 +128,22 @@ def _check_images(site: Path, page: Path) -> int:
     return len(images)
 
 
-def test_report_pages_images_and_summary_numbers(runs: dict[str, Any], tmp_path: Path) -> None:
-    site = tmp_path / "site"
+@pytest.fixture(scope="module")
+def site(runs: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The report of run A against run B, two worst samples per metric: built once, read by several tests."""
+    site = tmp_path_factory.mktemp("site") / "report"
     started = time.perf_counter()
-    index = build_report(runs["root"] / "A", site, worst=3)
-    seconds = time.perf_counter() - started
-    assert index == site / "index.html"
-    summary = Page(index)
+    assert build_report(runs["root"] / "A", site, baseline=runs["root"] / "B", worst=2) == site / "index.html"
+    pages = len(list((site / "samples").glob("*.html")))
+    print(f"report of {pages} sample pages in {time.perf_counter() - started:.1f} s")
+    return site
+
+
+def test_report_pages_images_and_summary_numbers(runs: dict[str, Any], site: Path) -> None:
+    summary = Page(site / "index.html")
     pages = [link for link in summary.links if link.startswith("samples/")]
     assert len(pages) >= 5 and all((site / link).is_file() for link in pages)
-    assert _check_images(site, index) >= 4  # histograms per metric and the training curves
+    assert _check_images(site, site / "index.html") >= 4  # histograms per metric and the training curves
     for link in pages:
         assert _check_images(site, site / link) >= 2  # a BEV and at least one camera
     for scores_json in sorted((runs["root"] / "A").rglob("scores.json")):
@@ -151,7 +157,6 @@ def test_report_pages_images_and_summary_numbers(runs: dict[str, Any], tmp_path:
             assert text == f"{_aggregate(report, key):.4g}"
     assert "Report: A" in summary.headings and "pdms@navsim-1.1 on navsim" in summary.headings
     assert "rfs@wod-e2e-2025 on wod_e2e" in summary.headings
-    print(f"report of {len(pages)} sample pages in {seconds:.1f} s")
 
 
 def test_failing_sub_score_is_named_with_the_scorers_step(runs: dict[str, Any], tmp_path: Path) -> None:
@@ -167,9 +172,7 @@ def test_failing_sub_score_is_named_with_the_scorers_step(runs: dict[str, Any], 
     ]
 
 
-def test_comparison_lists_exactly_the_two_samples_that_differ(runs: dict[str, Any], tmp_path: Path) -> None:
-    site = tmp_path / "site"
-    build_report(runs["root"] / "A", site, baseline=runs["root"] / "B", worst=1)
+def test_comparison_lists_exactly_the_two_samples_that_differ(runs: dict[str, Any], site: Path) -> None:
     listed = set(re.findall(r'<tr data-key="([^"]+)">', (site / "comparison.html").read_text()))
     assert listed == set(runs["moved"])
     assert sorted(path.stem for path in (site / "compare").glob("*.html")) == sorted(runs["moved"])
@@ -201,12 +204,10 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(
     assert (out / "index.html").read_text() == "an older report"  # a failed report leaves the old one as it was
 
 
-def test_report_in_headless_chromium(runs: dict[str, Any], tmp_path: Path) -> None:
+def test_report_in_headless_chromium(site: Path, tmp_path: Path) -> None:
     binary = find_chromium()
     if binary is None:
         pytest.skip("no chromium binary on PATH: `apt-get install -y chromium` (Debian) runs this test")
-    site = tmp_path / "site"
-    build_report(runs["root"] / "A", site, baseline=runs["root"] / "B", worst=2)
     sample = sorted((site / "samples").glob("*.html"))[0]
     pair = sorted((site / "compare").glob("*.html"))[0]
     expected = {  # page: (headings, fewest images)
