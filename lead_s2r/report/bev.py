@@ -109,12 +109,12 @@ def _raters(axes: Any, sample: dict[str, Any]) -> None:
     speed = float(sample["meta"]["ego"]["speed"])
     for trajectory, score, length in zip(raters["trajectories"], raters["scores"], raters["lengths"], strict=True):
         points = np.asarray(trajectory, np.float64)[: int(length)]
-        plot_xy(axes, points, "-", color="#8a5cc7", linewidth=1.2, alpha=0.8)
+        plot_xy(axes, points, "-", color="#8a5cc7", linewidth=1.5, alpha=0.9, label="raters (score at the end)")
         axes.annotate(f"{float(score):g}", (points[-1, 1], points[-1, 0]), color="#5b2d9e", fontsize=8)
         for checkpoint, index in enumerate(config.checkpoint_indices.tolist()):
             if index < len(points):
                 corners = trust_region(points, index, checkpoint, speed, config)
-                _fill(axes, corners, facecolor="#8a5cc7", alpha=0.12, edgecolor="#8a5cc7", linewidth=0.6)
+                _fill(axes, corners, facecolor="#8a5cc780", edgecolor="#5b2d9e", linewidth=0.8)
 
 
 def _limits(axes: Any, trajectories: dict[str, np.ndarray]) -> None:

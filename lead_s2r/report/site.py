@@ -84,7 +84,7 @@ def build_report(
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
     try:
-        for folder in ("img", "samples", "compare"):
+        for folder in ("img", "samples", *(() if b is None else ("compare",))):
             (staging / folder).mkdir()
         pages = Pages(staging)
         pages.summary(a, shown, loaded, None if b is None else b.name)
