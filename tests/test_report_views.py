@@ -6,11 +6,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from pdm_scenes import TIMES, agent, drive, road_scene
 
 from lead_s2r.report.bev import LOGGED, PREDICTED, bev_figure, save_figure, trust_region
 from lead_s2r.report.camera import camera_figure, forward_cameras, monotonic_radius, project_points
 from lead_s2r.report.run_outputs import MetricScores, training_curves
 from lead_s2r.report.sample_page import failures
+from lead_s2r.schema import BoxClass
+from lead_s2r.scoring.pdm.observation import log_observation
+from lead_s2r.scoring.pdm.score import score_states
 from lead_s2r.scoring.rfs import RFSConfig, speed_scale
 
 #: NAVSIM's synthetic front camera: 1.5 m ahead of the rear axle, 1.5 m up, level, OpenCV axes
@@ -102,11 +106,12 @@ def _scores(family: str) -> MetricScores:
 
 
 def test_failing_sub_scores_are_named_with_their_time() -> None:
-    row = {"valid": True, "no_at_fault_collisions": 0.0, "collision_time_idx": 15, "drivable_area_compliance": 0.0,
+    row = {"valid": True, "no_at_fault_collisions": 0.0, "collision_time_idx": 15, "collision_object_idx": 3,
+           "drivable_area_compliance": 0.0,
            "dac_time_idx": 25, "time_to_collision_within_bound": 1.0, "ttc_time_idx": -1, "comfort": 0.0,
            "ego_progress": 0.3}  # fmt: skip
     assert failures(_scores("pdms"), row) == [
-        "NC 0: at-fault collision at t = 1.5 s",
+        "NC 0: at-fault collision with agent 3 at t = 1.5 s",
         "DAC 0: leaves the drivable area at t = 2.5 s",
         "C 0: acceleration or jerk beyond the comfort bounds",
     ]
@@ -138,3 +143,12 @@ def test_training_curves_of_a_prediction_folder_come_from_its_training_root(tmp_
     expected = {"train/loss": [(9.0, 2.5), (19.0, 1.75)], "val/loss": [(19.0, 1.9)]}
     assert training_curves(tmp_path / "run" / "trained") == expected
     assert training_curves(tmp_path / "run") == expected
+
+
+def test_nc_names_the_agent_row_it_hit() -> None:
+    """Two stopped cars, the second in the ego's lane 20 m ahead: a row driving 10 m/s hits agent 1 at step 14 (see
+    test_pdm_score's rear-end case); a standing row hits nothing."""
+    scene = road_scene([agent(BoxClass.VEHICLE, 20.0, 30.0), agent(BoxClass.VEHICLE, 20.0, 0.0)])
+    scores = score_states(scene, np.concatenate([drive(10.0 * TIMES), drive(0.0 * TIMES)]), log_observation(scene), 0)
+    assert scores["collision_time_idx"].tolist() == [14, -1]
+    assert scores["collision_object_idx"].tolist() == [1, -1]

@@ -5,9 +5,10 @@ The trap is the y flip: ISO 8855 has y to the left, a plot has its first axis to
 of the picture (``tests/test_report_views.py`` checks it on the PNG's pixels).
 
 Drawn when the sample holds them: drivable-area polygons and lane centrelines of the ``scoring`` context, lanes
-with a red light at t0, agent boxes at t0 with their future tracks, the ego box, the logged future, the prediction(s),
-the PDM-Closed reference, and WOD-E2E's rater trajectories with their scores and the RFS trust regions at the
-checkpoints (the box inside which a prediction keeps the rater's score, :mod:`lead_s2r.scoring.rfs`).
+with a red light at t0, agent boxes at t0 with their future tracks (numbered by agent row, the number NC's failure
+names), the ego box, the logged future, the prediction(s), the PDM-Closed reference, and WOD-E2E's rater trajectories
+with their scores and the RFS trust regions at the checkpoints (the box inside which a prediction keeps the rater's
+score, :mod:`lead_s2r.scoring.rfs`).
 """
 
 from itertools import pairwise
@@ -75,13 +76,17 @@ def _map(axes: Any, scoring: dict[str, np.ndarray]) -> None:
 
 def _agents(axes: Any, sample: dict[str, Any]) -> None:
     boxes = np.asarray(sample.get("boxes", np.zeros((0, 10))), np.float64).reshape(-1, 10)
-    for corners in box_corners(boxes):
+    for index, corners in enumerate(box_corners(boxes)):
         _fill(axes, corners, facecolor="none", edgecolor="#3b3b3b", linewidth=1.2)
+        axes.annotate(str(index), (boxes[index, 1], boxes[index, 0]), fontsize=6, color="#3b3b3b", clip_on=True)
     future = sample.get("agents_future")
     if future is not None:
         poses, valid = np.asarray(future["poses"]), np.asarray(future["valid"], bool)
-        for track, ok in zip(poses, valid, strict=True):
+        for index, (track, ok) in enumerate(zip(poses, valid, strict=True)):
             plot_xy(axes, track[ok, :2], ":", color="#6b6b6b", linewidth=1)
+            if index >= len(boxes) and ok.any():  # an agent that appears later: numbered where it appears
+                first = track[ok][0]
+                axes.annotate(str(index), (first[1], first[0]), fontsize=6, color="#6b6b6b", clip_on=True)
 
 
 def _ego(axes: Any, sample: dict[str, Any]) -> None:

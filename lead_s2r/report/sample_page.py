@@ -1,9 +1,9 @@
 """One sample's page: its BEV, its forward camera(s) with the trajectories projected, and every metric's sub-scores
 with the failing ones named and timed (``DAC 0: leaves the drivable area at t = 2.5 s``).
 
-The PDMS / EPDMS scorers record the 0.1 s simulation step where NC, TTC, DAC and LK failed
-(``lead_s2r.scoring.navsim.pdms_scorer.STEP_COLUMNS``); a sub-score without a step (DDC, TLC, comfort) is named
-without a time.
+The PDMS / EPDMS scorers record the 0.1 s simulation step where NC, TTC, DAC and LK failed and the agent NC hit
+(``lead_s2r.scoring.navsim.pdms_scorer.STEP_COLUMNS``; the agent is its row of ``boxes`` / ``agents_future``, the
+number the BEV writes beside it); a sub-score without a step (DDC, TLC, comfort) is named without a time.
 """
 
 from dataclasses import dataclass, field
@@ -47,7 +47,9 @@ def failures(scores: MetricScores, row: dict[str, Any]) -> list[str]:
                 continue
             step = row.get(step_column) if step_column else None
             when = f" at t = {step * STEP_S:.1f} s" if step is not None and step >= 0 else ""
-            named.append(f"{short} {value:g}: {what}{when}")
+            hit = row.get("collision_object_idx") if column == "no_at_fault_collisions" else None
+            whom = f" with agent {hit}" if hit is not None and hit >= 0 else ""
+            named.append(f"{short} {value:g}: {what}{whom}{when}")
     elif scores.family == "rfs" and row.get("rfs") is not None:
         if not row.get("fully_within"):
             named.append(f"RFS {row['rfs']:.2f}: outside every rater's trust region (raised to the floor)")

@@ -40,9 +40,9 @@ NAVSIM_COLUMNS = (
     "score",
 )
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
-#: the 0.1 s simulation step where NC, TTC and DAC failed (-1: they did not; null in an invalid row), so a report can
-#: say when a sub-score was lost
-STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx")
+#: the 0.1 s simulation step where NC, TTC and DAC failed and the agent row NC hit (-1: none; null in an invalid row),
+#: so a report can say when a sub-score was lost and to whom
+STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx", "collision_object_idx")
 CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]

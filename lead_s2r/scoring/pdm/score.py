@@ -65,9 +65,11 @@ COLUMNS = (
     "collision_time_idx",
     "ttc_time_idx",
     "dac_time_idx",
+    "collision_object_idx",
 )
-#: the columns after the sub-scores: EP's metres and the 0.1 s step where NC, TTC and DAC failed (-1: they did not)
-DIAGNOSTICS = COLUMNS[-5:]
+#: the columns after the sub-scores: EP's metres, the 0.1 s step where NC, TTC and DAC failed and the agent row NC hit
+#: (-1: they did not)
+DIAGNOSTICS = COLUMNS[-6:]
 #: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's
 #: diagnostics and the step where LK failed
 EPDMS_COLUMNS = (*epdms.SUB_SCORES, "score", *DIAGNOSTICS, "lane_keeping_fail_idx")
@@ -129,6 +131,7 @@ class _Prelude:
     fp: _Footprints
     nc: np.ndarray
     collision_idx: np.ndarray
+    collision_object: np.ndarray
     dac: np.ndarray
 
     def time_to_collision(
@@ -149,8 +152,8 @@ def _prelude(
     states = np.asarray(states, np.float64)
     _check_states(scene, states, observation, lookahead)
     fp = _footprints(scene, states, drivable_map)
-    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
-    return _Prelude(states, fp, nc, collision_idx, drivable_area_compliance(fp.areas.non_drivable_area))
+    nc, step, hit = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
+    return _Prelude(states, fp, nc, step, hit, drivable_area_compliance(fp.areas.non_drivable_area))
 
 
 def score_states(
@@ -185,6 +188,7 @@ def score_states(
         "collision_time_idx": collision_idx,
         "ttc_time_idx": ttc_idx,
         "dac_time_idx": first_step(fp.areas.non_drivable_area),
+        "collision_object_idx": base.collision_object,
         **_flags(fp.areas),
     }
 
@@ -240,6 +244,7 @@ def score_states_v2(
         "collision_time_idx": collision_idx,
         "ttc_time_idx": ttc_idx,
         "dac_time_idx": first_step(fp.areas.non_drivable_area),
+        "collision_object_idx": base.collision_object,
         "lane_keeping_fail_idx": lk_idx,
         **_flags(fp.areas),
         "in_intersection": in_intersection,
