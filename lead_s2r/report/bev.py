@@ -78,7 +78,7 @@ def _agents(axes: Any, sample: dict[str, Any]) -> None:
     boxes = np.asarray(sample.get("boxes", np.zeros((0, 10))), np.float64).reshape(-1, 10)
     for index, corners in enumerate(box_corners(boxes)):
         _fill(axes, corners, facecolor="none", edgecolor="#3b3b3b", linewidth=1.2)
-        axes.annotate(str(index), (boxes[index, 1], boxes[index, 0]), fontsize=6, color="#3b3b3b", clip_on=True)
+        axes.annotate(str(index), (boxes[index, 1], boxes[index, 0]), fontsize=8, color="#3b3b3b", clip_on=True)
     future = sample.get("agents_future")
     if future is not None:
         poses, valid = np.asarray(future["poses"]), np.asarray(future["valid"], bool)
@@ -86,7 +86,7 @@ def _agents(axes: Any, sample: dict[str, Any]) -> None:
             plot_xy(axes, track[ok, :2], ":", color="#6b6b6b", linewidth=1)
             if index >= len(boxes) and ok.any():  # an agent that appears later: numbered where it appears
                 first = track[ok][0]
-                axes.annotate(str(index), (first[1], first[0]), fontsize=6, color="#6b6b6b", clip_on=True)
+                axes.annotate(str(index), (first[1], first[0]), fontsize=8, color="#6b6b6b", clip_on=True)
 
 
 def _ego(axes: Any, sample: dict[str, Any]) -> None:
