@@ -7,6 +7,8 @@ world (y and yaw negated) and written every second tick (10 Hz):
 - :func:`write_log`: a log as py123d's dataset parsers write one (nuPlan labels, body-frame ego dynamics, a rear
   axle 0.4 m behind the IMU, one JPEG front camera, IPC- or LAZ-coded LiDAR in the IMU frame, traffic lights on
   map lane ids) with a map whose lanes follow the drive (approach lane, a turn connector in an intersection, exit).
+  The CARLA scene's oncoming car (:data:`ONCOMING`) and walker cross the left turn's exit, so this log leaves the
+  car out and keeps the walker standing on the kerb: its logged future is a collision-free plan to score.
 - :func:`write_lead_log`: the route folder :func:`lead_s2r.synthetic.carla_lead.write_route` writes for the same
   ``index``/``frames``/seed, as LEAD's ``expert_py123d.py`` would have logged it, with its three departures
   (world-frame velocity in the body field and deg/s yaw rate, CARLA lane indices for traffic lights, LiDAR raised
@@ -17,6 +19,7 @@ world (y and yaw negated) and written every second tick (10 Hz):
 Needs py123d installed (``pip install --no-deps "py123d>=0.7,<0.8"`` plus the ``py123d-writers`` extra).
 """
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -56,7 +59,7 @@ from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, points_to_local, rotate
 from lead_s2r.synthetic import carla_lead as lead
 
 STEP = 2  # 20 Hz ticks per 123D iteration: 10 Hz, LEAD's py123d_save_interval
-LANE_HALF_WIDTH = 1.75
+LANE_HALF_WIDTH = 3.0  # wide enough for a 5 m car's front corner on the 10 m turn radius
 REAR_AXLE_TO_IMU = (-0.4, 0.0, -0.3)  # write_log's rear axle in the IMU frame
 LIDAR_HEIGHT = 2.5
 CAMERA = {"width": 64, "height": 48, "f": 40.0}
@@ -66,6 +69,7 @@ STATIC_LABEL = {"nuplan": NuPlanBoxDetectionLabel.TRAFFIC_CONE, "lead": DefaultB
 #: map object ids of write_log's map: approach lane / group, turn connector / group, exit lane / group, intersection
 LANES = {"approach": (1, 11), "turn": (2, 12), "exit": (3, 13)}
 INTERSECTION_ID = 20
+ONCOMING = 102  # carla_lead.make_actors' oncoming ambulance
 
 
 def _pose(x: float, y: float, yaw: float, z: float = 0.0) -> PoseSE3:
@@ -77,7 +81,7 @@ def iso(pose: np.ndarray) -> np.ndarray:
     return np.asarray(pose, np.float64) * np.array([1.0, -1.0, -1.0])
 
 
-def _drive(index: int, frames: int, seed: int) -> tuple[lead.Drive, list[lead.Actor]]:
+def drive_and_actors(index: int, frames: int, seed: int) -> tuple[lead.Drive, list[lead.Actor]]:
     """The drive and actors ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes."""
     rng = np.random.default_rng(seed)
     kind = lead.KINDS[index % len(lead.KINDS)]
@@ -86,7 +90,12 @@ def _drive(index: int, frames: int, seed: int) -> tuple[lead.Drive, list[lead.Ac
     return drive, lead.make_actors(drive, rng)
 
 
-def _jpeg(iteration: int) -> bytes:
+def log_actors(actors: list[lead.Actor]) -> list[lead.Actor]:
+    """write_log's actors: the CARLA scene's without the oncoming car, the walker standing (module docstring)."""
+    return [replace(a, speed=0.0) if a.cls == "walker" else a for a in actors if a.actor_id != ONCOMING]
+
+
+def jpeg(iteration: int) -> bytes:
     image = np.full((CAMERA["height"], CAMERA["width"], 3), 90, np.uint8)
     cv2.putText(image, str(iteration), (4, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2)
     return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 80])[1].tobytes()
@@ -99,6 +108,7 @@ def lidar_points(iteration: int) -> np.ndarray:
 
 
 def _boxes(actors: list[lead.Actor], step: int, labels: dict, static: object, meta: BoxDetectionsSE3Metadata, ts):
+    """The actors' boxes at a 20 Hz tick, in py123d's ISO world with world-frame velocities."""
     detections = []
     for actor in actors:
         if actor.cls == "traffic_light":
@@ -128,7 +138,8 @@ def write_log(
 ) -> Path:
     """A nuPlan-style 123D log of the drive ``index`` (0 left turn, 1 right turn, 2 stop) and its map; returns the
     log folder (``root/logs/nuplan_test/<name>``). ``codec``: ipc | laz, the LiDAR payload."""
-    drive, actors = _drive(index, frames, seed)
+    drive, actors = drive_and_actors(index, frames, seed)
+    actors = log_actors(actors)
     ego_meta = EgoStateSE3Metadata(
         vehicle_name="synthetic_suv",
         width=2.0,
@@ -162,12 +173,12 @@ def write_log(
             Vector3D(0.0, 0.0, float(yaw_rate)),
         )
         ego = EgoStateSE3.from_rear_axle(_pose(*rear), ego_meta, ts, dynamics)
-        red = drive.kind == "stop" or step < 40  # the turn's light is red for its first two seconds
+        red = drive.kind == "stop" or step < 10  # the turn's light turns green before the ego reaches it
         light = TrafficLightStatus.RED if red else TrafficLightStatus.GREEN
         modalities = [
             ego,
             _boxes(actors, step, NUPLAN_LABEL, STATIC_LABEL["nuplan"], box_meta, ts),
-            ParsedCamera(camera, ts, None, byte_string=_jpeg(step // STEP)),
+            ParsedCamera(camera, ts, None, byte_string=jpeg(step // STEP)),
             Lidar(ts, ts, lidar, lidar_points(step // STEP).astype(np.float32), _intensity(24)),
             TrafficLightDetections([TrafficLightDetection(LANES["turn"][0], light)], ts),
         ]
@@ -199,7 +210,11 @@ def _write_map(root: Path, meta: MapMetadata, drive: lead.Drive) -> None:
     for k, name in enumerate(order):
         lane_id, group_id = LANES[name]
         start, end = cuts[name]
-        part = path[int(start / 0.1) : None if end is None else int(end / 0.1) + 1 : 5]
+        first, last = int(round(start / 0.1)), len(path) - 1 if end is None else int(round(end / 0.1))
+        part = path[np.r_[np.arange(first, last, 5), last]]  # a point every 0.5 m; lanes meet end to start
+        if name == "approach":  # begin 10 m behind the drive's start, so the ego's rear is on the map too
+            back = part[0] - np.array([np.cos(part[0, 2]), np.sin(part[0, 2]), 0.0]) * 10.0
+            part = np.vstack([back, part])
         left, right, centre = _lane_geometry(part)
         before = [LANES[order[k - 1]][0]] if k else []
         after = [LANES[order[k + 1]][0]] if k + 1 < len(order) else []
@@ -234,7 +249,7 @@ def lead_ego_metadata() -> EgoStateSE3Metadata:
 def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) -> Path:
     """The route ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes, as LEAD's 123D exporter
     logs it (module docstring); returns the log folder (``root/logs/carla_train/<name>``)."""
-    drive, actors = _drive(index, frames, seed)
+    drive, actors = drive_and_actors(index, frames, seed)
     ego_meta = lead_ego_metadata()
     lidar = LidarMetadata("LIDAR_TOP", LidarID.LIDAR_TOP, PoseSE3(0.0, 0.0, LIDAR_HEIGHT, 1.0, 0.0, 0.0, 0.0))
     box_meta = BoxDetectionsSE3Metadata(box_detection_label_class=DefaultBoxDetectionLabel)
