@@ -104,13 +104,13 @@ class _Builder:
         step_s = float(np.median(np.diff(stamps))) / 1e6 if len(stamps) > 1 else 0.1
         if step_s <= 0:
             raise Py123dFormatError(data.files.path("sync"), "timestamps do not increase", "sync.timestamp_us")
-        self.past_n = int(round(adapter.past_s / step_s))
-        self.future_n = int(round(adapter.future_s / step_s))
+        self.past_n = round(adapter.past_s / step_s)
+        self.future_n = round(adapter.future_s / step_s)
         self.route = self._route()
         maps = log.extra.get("maps")
         path = py123d_map.find_map(data.files.folder, Path(maps) if maps else None, data.files.log)
         self.map = py123d_map.load_map(path) if path is not None else None
-        self.targets = self._plan() if lead and self.route is not None else None
+        self.targets = self._plan() if lead else None
 
     def frames(self) -> np.ndarray:
         count = len(self.data.t_us)
@@ -128,15 +128,16 @@ class _Builder:
         return np.column_stack([meta["polyline_x"], meta["polyline_y"]]).astype(np.float64)
 
     def _plan(self) -> list[tuple[np.ndarray, int]]:
-        """LEAD's route planner stepped over every iteration from the log's start: (target points, RoadOption)."""
-        assert self.route is not None
-        points, options = py123d_lead.sparse_plan(
-            self.route, py123d_lead.road_options(self.route), self.adapter.plan_spacing
-        )
+        """LEAD's route planner stepped over every iteration from the log's start, on the centre's driven path:
+        (target points in the rear-axle frame, RoadOption)."""
+        offset = self.data.vehicle["rear_axle_to_center"]
+        poses = self.data.pose2d[self.data.valid]
+        route = py123d_lead.centre_path(poses, offset)
+        points, options = py123d_lead.sparse_plan(route, py123d_lead.road_options(route), self.adapter.plan_spacing)
         planner = py123d_lead.RoutePlanner(points, options, self.adapter.tp_distance)
         out = []
         for pose in self.data.pose2d:
-            planner.step(pose[:2])
+            planner.step(pose[:2] + offset * np.array([np.cos(pose[2]), np.sin(pose[2])]))
             out.append(planner.targets(pose))
         return out
 

@@ -66,7 +66,9 @@ def read_table(path: Path) -> pa.Table:
         with pa.memory_map(str(path), "r") as source:
             return pa.ipc.open_file(source).read_all()
     except (pa.ArrowInvalid, OSError) as err:
-        raise Py123dFormatError(path, f"not a readable Arrow IPC file ({err}); copy or convert this log again") from None
+        raise Py123dFormatError(
+            path, f"not a readable Arrow IPC file ({err}); copy or convert this log again"
+        ) from None
 
 
 def table_metadata(table: pa.Table, path: Path) -> dict[str, Any]:

@@ -14,10 +14,11 @@ LEAD's expert (``lead/expert/expert_py123d.py``) writes logs of dataset ``carla`
    but raises z by half the sensor height, and its ``lidar_to_imu_se3`` is the sensor pose relative to the vehicle
    centre. We lower z by that half height, which gives LEAD's own LiDAR frame (the one its route folders store).
 
-LEAD's logs carry no target points and no command; the route is the one py123d derives from the driven path.
-:func:`road_options` and :func:`sparse_plan` rebuild a global plan from it the way CARLA's planner and the
-leaderboard's ``downsample_route`` label and thin it, and :class:`RoutePlanner` pops it the way LEAD's
-``RoutePlanner.run_step`` does (facts: closed_loop_and_submissions.md §2.4).
+LEAD's logs carry no target points and no command, and their route is py123d's driven path of the IMU (rear
+axle). LEAD's planner tracks the vehicle *centre* along a plan of centre positions, so :func:`centre_path` rebuilds
+the driven path of the centre (one point a metre); :func:`road_options` and :func:`sparse_plan` label and thin it
+the way CARLA's planner and the leaderboard's ``downsample_route`` do, and :class:`RoutePlanner` pops it the way
+LEAD's ``RoutePlanner.run_step`` does (facts: closed_loop_and_submissions.md §2.4).
 """
 
 from typing import Any
@@ -30,9 +31,10 @@ LEAD_DATASETS = ("carla", "lead123d")
 LEAD_VEHICLE = "carla_lincoln_mkz_2020"
 #: CARLA RoadOption codes, as LEAD stores ``command_raw``.
 LEFT, RIGHT, LANEFOLLOW = 1, 2, 4
-#: a route point turns when the heading changes by more than this over :data:`TURN_WINDOW_M` either side of it.
-TURN_ANGLE = np.deg2rad(10.0)
-TURN_WINDOW_M = 3.0
+#: a route point turns when the path's mean curvature over :data:`TURN_WINDOW_M` either side of it is tighter
+#: than a :data:`TURN_RADIUS_M` circle (a 10 m junction turn is then labelled from its first metre to its last).
+TURN_RADIUS_M = 25.0
+TURN_WINDOW_M = 1.5
 
 
 def is_lead_log(log: dict[str, Any], ego_meta: dict[str, Any]) -> bool:
@@ -61,10 +63,18 @@ def lidar_z_offset(lidar_meta: dict[str, Any]) -> float:
     return float(np.asarray(lidar_meta.get("lidar_to_imu_se3", [0.0] * 7), np.float64)[2]) / 2
 
 
+def centre_path(poses: np.ndarray, rear_axle_to_center: float, spacing: float = 1.0) -> np.ndarray:
+    """The driven path (M, 2) of the vehicle centre, resampled every ``spacing`` metres, from rear-axle poses."""
+    centre = poses[:, :2] + rear_axle_to_center * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
+    arc = np.r_[0.0, np.cumsum(np.hypot(*np.diff(centre, axis=0).T))]
+    moving = np.r_[True, np.diff(arc) > 1e-6]  # a standstill repeats points
+    at = np.arange(0.0, arc[-1], spacing) if arc[-1] > 0 else np.zeros(1)
+    return np.column_stack([np.interp(at, arc[moving], centre[moving, k]) for k in (0, 1)])
+
+
 def road_options(route: np.ndarray) -> np.ndarray:
-    """CARLA RoadOption of each point of a dense route (M, 2): LEFT / RIGHT where the heading turns by more than
-    :data:`TURN_ANGLE` across a window of :data:`TURN_WINDOW_M` each side (ISO: left is counter-clockwise),
-    LANEFOLLOW elsewhere."""
+    """CARLA RoadOption of each point of a dense route (M, 2): LEFT / RIGHT where the route curves tighter than
+    :data:`TURN_RADIUS_M` (ISO: left is counter-clockwise), LANEFOLLOW elsewhere."""
     if len(route) < 2:
         return np.full(len(route), LANEFOLLOW)
     step = np.diff(route, axis=0)
@@ -73,18 +83,18 @@ def road_options(route: np.ndarray) -> np.ndarray:
     arc = np.r_[0.0, np.cumsum(np.hypot(step[:, 0], step[:, 1]))]
     ahead = np.interp(np.minimum(arc + TURN_WINDOW_M, arc[-1]), arc, heading)
     behind = np.interp(np.maximum(arc - TURN_WINDOW_M, 0.0), arc, heading)
-    turn = ahead - behind
-    return np.where(turn > TURN_ANGLE, LEFT, np.where(turn < -TURN_ANGLE, RIGHT, LANEFOLLOW))
+    curvature = (ahead - behind) / (2 * TURN_WINDOW_M)
+    return np.where(curvature > 1 / TURN_RADIUS_M, LEFT, np.where(curvature < -1 / TURN_RADIUS_M, RIGHT, LANEFOLLOW))
 
 
 def sparse_plan(route: np.ndarray, options: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """The leaderboard's ``downsample_route``: keep the first and last point, every point where the option
-    changes and the one before it, and a lane-follow point every ``spacing`` metres."""
+    changes, and a lane-follow point every ``spacing`` metres."""
     keep = [0]
     travelled = 0.0
     for k in range(1, len(route)):
         travelled += float(np.hypot(*(route[k] - route[k - 1])))
-        change = options[k] != options[k - 1] or (k + 1 < len(route) and options[k + 1] != options[k])
+        change = options[k] != options[k - 1]
         if change or (options[k] == LANEFOLLOW and travelled >= spacing) or k == len(route) - 1:
             keep.append(k)
             travelled = 0.0

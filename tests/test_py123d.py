@@ -11,14 +11,14 @@ import pytest
 
 pytest.importorskip("py123d", reason="py123d is installed with --no-deps in CI (docs/datasets/py123d.md)")
 
-from lead_s2r.convert import convert  # noqa: E402
-from lead_s2r.geometry import rotate, to_local, wrap_angle  # noqa: E402
-from lead_s2r.report.inspection import inspect_dataset  # noqa: E402
-from lead_s2r.schema import BevClassNavsim, BoxClass, MapKind  # noqa: E402
-from lead_s2r.shards import read_samples  # noqa: E402
-from lead_s2r.synthetic import carla_lead as lead  # noqa: E402
-from lead_s2r.synthetic import py123d as synth  # noqa: E402
-from lead_s2r_adapters.py123d import Py123dAdapter  # noqa: E402
+from lead_s2r.convert import convert
+from lead_s2r.geometry import rotate, to_local, wrap_angle
+from lead_s2r.report.inspection import inspect_dataset
+from lead_s2r.schema import BevClassNavsim, BoxClass, MapKind
+from lead_s2r.shards import read_samples
+from lead_s2r.synthetic import carla_lead as lead
+from lead_s2r.synthetic import py123d as synth
+from lead_s2r_adapters.py123d import Py123dAdapter
 
 FRAMES = 8  # route-folder frames of the drive; the 123D log holds its whole 10 Hz drive
 

@@ -210,7 +210,7 @@ def _write_map(root: Path, meta: MapMetadata, drive: lead.Drive) -> None:
     for k, name in enumerate(order):
         lane_id, group_id = LANES[name]
         start, end = cuts[name]
-        first, last = int(round(start / 0.1)), len(path) - 1 if end is None else int(round(end / 0.1))
+        first, last = round(start / 0.1), len(path) - 1 if end is None else round(end / 0.1)
         part = path[np.r_[np.arange(first, last, 5), last]]  # a point every 0.5 m; lanes meet end to start
         if name == "approach":  # begin 10 m behind the drive's start, so the ego's rear is on the map too
             back = part[0] - np.array([np.cos(part[0, 2]), np.sin(part[0, 2]), 0.0]) * 10.0
@@ -228,7 +228,7 @@ def _write_map(root: Path, meta: MapMetadata, drive: lead.Drive) -> None:
         if name == "turn":
             ring = np.vstack([left.array, right.array[::-1], left.array[:1]])
             writer.write_map_object(
-                Intersection(INTERSECTION_ID, list(IntersectionType)[0], [group_id], Polyline2D.from_array(ring))
+                Intersection(INTERSECTION_ID, IntersectionType.TRAFFIC_LIGHT, [group_id], Polyline2D.from_array(ring))
             )
     writer.close()
 
@@ -257,7 +257,6 @@ def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) 
     maps = MapMetadata(dataset="carla", location="town12", map_has_z=True, map_is_per_log=False)
     writer = _writer(root, "laz")
     writer.reset(LogMetadata("carla", "carla_train", name, "town12", maps))
-    rng = np.random.default_rng(seed + 1)
     for step in range(0, len(drive.pose), STEP):
         ts = Timestamp.from_us(step * 50_000)
         theta = drive.pose[step, 2]
@@ -269,7 +268,7 @@ def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) 
             Vector3D(0.0, 0.0, float(np.rad2deg(drive.yaw_rate[step]))),
         )
         ego = EgoStateSE3.from_center(_pose(*iso(drive.pose[step])), ego_meta, ts, dynamics)
-        points = lead_lidar(actors, drive.pose[step], step, rng)
+        points = lead_exported(lead_lidar(actors, drive.pose[step], step))
         modalities = [
             ego,
             _boxes(actors, step, LEAD_LABEL, STATIC_LABEL["lead"], box_meta, ts),
@@ -281,17 +280,19 @@ def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) 
     return root / "logs" / "carla_train" / name
 
 
-def lead_lidar(actors: list[lead.Actor], ego: np.ndarray, step: int, rng: np.random.Generator) -> np.ndarray:
-    """Points on the actors as LEAD's exporter stores them (departure 3): CARLA centre frame, y negated, x moved
-    to the rear axle, z raised by half the sensor height."""
+def lead_lidar(actors: list[lead.Actor], ego: np.ndarray, step: int) -> np.ndarray:
+    """Points on the actors at a tick in LEAD's own LiDAR frame (CARLA vehicle centre, y right), as its route
+    folders store them; the same for the same tick."""
+    rng = np.random.default_rng(step)
     clouds = []
     for actor in actors:
         pose = actor.pose_at(np.array([step]))[0]
         local = rng.uniform(-1, 1, (20, 3)) * np.asarray(actor.extent)
-        centre = points_to_local(pose[:2], ego)
-        xy = rotate(local[:, :2], pose[2] - ego[2]) + centre
+        xy = rotate(local[:, :2], pose[2] - ego[2]) + points_to_local(pose[:2], ego)
         clouds.append(np.column_stack([xy, local[:, 2] + actor.extent[2]]))
-    points = np.concatenate(clouds)
-    return np.column_stack(
-        [points[:, 0] + CARLA_REAR_AXLE_TO_CENTER, -points[:, 1], points[:, 2] + LIDAR_HEIGHT / 2]
-    )
+    return np.concatenate(clouds)
+
+
+def lead_exported(points: np.ndarray) -> np.ndarray:
+    """Departure 3, as LEAD's exporter does it: y negated, x moved to the rear axle, z raised by half the height."""
+    return np.column_stack([points[:, 0] + CARLA_REAR_AXLE_TO_CENTER, -points[:, 1], points[:, 2] + LIDAR_HEIGHT / 2])
