@@ -185,7 +185,7 @@ def test_a_truncated_file_fails_its_log_only(tmp_path: Path) -> None:
 
 
 def test_resume_skips_finished_logs_and_inspect_passes(converted, tmp_path: Path) -> None:
-    src, logs = converted
+    src, _ = converted
     out = tmp_path / "out"
     first = convert(Py123dAdapter(stride=5), src, out)
     again = convert(Py123dAdapter(stride=5), src, out)
