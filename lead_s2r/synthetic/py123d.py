@@ -12,7 +12,8 @@ world (y and yaw negated) and written every second tick (10 Hz):
 - :func:`write_lead_log`: the route folder :func:`lead_s2r.synthetic.carla_lead.write_route` writes for the same
   ``index``/``frames``/seed, as LEAD's ``expert_py123d.py`` would have logged it, with its three departures
   (world-frame velocity in the body field and deg/s yaw rate, CARLA lane indices for traffic lights, LiDAR raised
-  by half the sensor height) and its default-label boxes (no traffic-light boxes, emergency vehicles as VEHICLE).
+  by half the sensor height), its default-label boxes (no traffic-light boxes, emergency vehicles as VEHICLE) and
+  one front camera.
   Its vehicle's centre sits :data:`CARLA_REAR_AXLE_TO_CENTER` ahead of the IMU, our CARLA constant, so the two
   conversions of one drive agree to float precision (real LEAD logs carry py123d's 1.649 m, read from the log).
 
@@ -90,6 +91,19 @@ def drive_and_actors(index: int, frames: int, seed: int) -> tuple[lead.Drive, li
     return drive, lead.make_actors(drive, rng)
 
 
+def front_camera(name: str) -> PinholeCameraMetadata:
+    """A small forward pinhole camera 1.5 m ahead of the IMU, 1.4 m up (optical axis = ego x)."""
+    return PinholeCameraMetadata(
+        camera_name=name,
+        camera_id=CameraID.PCAM_F0,
+        intrinsics=PinholeIntrinsics(CAMERA["f"], CAMERA["f"], CAMERA["width"] / 2, CAMERA["height"] / 2),
+        distortion=None,
+        width=CAMERA["width"],
+        height=CAMERA["height"],
+        camera_to_imu_se3=PoseSE3(1.5, 0.0, 1.4, 0.5, -0.5, 0.5, -0.5),
+    )
+
+
 def log_actors(actors: list[lead.Actor]) -> list[lead.Actor]:
     """write_log's actors: the CARLA scene's without the oncoming car, the walker standing (module docstring)."""
     return [replace(a, speed=0.0) if a.cls == "walker" else a for a in actors if a.actor_id != ONCOMING]
@@ -149,15 +163,7 @@ def write_log(
         center_to_imu_se3=PoseSE3(1.1, 0.0, 0.4, 1.0, 0.0, 0.0, 0.0),
         rear_axle_to_imu_se3=PoseSE3(*REAR_AXLE_TO_IMU, 1.0, 0.0, 0.0, 0.0),
     )
-    camera = PinholeCameraMetadata(
-        camera_name="CAM_F0",
-        camera_id=CameraID.PCAM_F0,
-        intrinsics=PinholeIntrinsics(CAMERA["f"], CAMERA["f"], CAMERA["width"] / 2, CAMERA["height"] / 2),
-        distortion=None,
-        width=CAMERA["width"],
-        height=CAMERA["height"],
-        camera_to_imu_se3=PoseSE3(1.5, 0.0, 1.4, 0.5, -0.5, 0.5, -0.5),
-    )
+    camera = front_camera("CAM_F0")
     lidar = LidarMetadata("MergedPointCloud", LidarID.LIDAR_TOP, PoseSE3(0.0, 0.0, LIDAR_HEIGHT, 1.0, 0.0, 0.0, 0.0))
     box_meta = BoxDetectionsSE3Metadata(box_detection_label_class=NuPlanBoxDetectionLabel)
     maps = MapMetadata(dataset="nuplan", location=f"synthetic-{name}", map_has_z=False, map_is_per_log=False)
@@ -253,6 +259,7 @@ def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) 
     ego_meta = lead_ego_metadata()
     lidar = LidarMetadata("LIDAR_TOP", LidarID.LIDAR_TOP, PoseSE3(0.0, 0.0, LIDAR_HEIGHT, 1.0, 0.0, 0.0, 0.0))
     box_meta = BoxDetectionsSE3Metadata(box_detection_label_class=DefaultBoxDetectionLabel)
+    camera = front_camera("PCAM_F0")  # LEAD's exporter names its one camera by its id
     name = f"{lead.TOWNS[index % len(lead.TOWNS)]}_Rep0_{1000 + index}"
     maps = MapMetadata(dataset="carla", location="town12", map_has_z=True, map_is_per_log=False)
     writer = _writer(root, "laz")
@@ -272,6 +279,7 @@ def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) 
         modalities = [
             ego,
             _boxes(actors, step, LEAD_LABEL, STATIC_LABEL["lead"], box_meta, ts),
+            ParsedCamera(camera, ts, None, byte_string=jpeg(step // STEP)),
             Lidar(ts, ts, lidar, points.astype(np.float32), _intensity(len(points))),
             TrafficLightDetections([TrafficLightDetection(-1, TrafficLightStatus.RED)], ts),  # departure 2
         ]
