@@ -159,7 +159,7 @@ def test_map_gives_the_scoring_context_and_bev(converted) -> None:
 
 def test_pdms_of_the_logged_future(converted) -> None:
     from lead_s2r.predictions import Prediction
-    from lead_s2r.scoring.pdms import PDMSScorer
+    from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
 
     _, logs = converted
     sample = logs["nuplan_test/log-left"][4]
