@@ -78,7 +78,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
     try:
         module = importlib.import_module(f"lead_s2r.synthetic.{args.name}")
     except ModuleNotFoundError:
-        raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim or wod_e2e") from None
+        raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim, wod_e2e or py123d") from None
     module.generate(Path(args.out), count=args.count, seed=args.seed)
     print(f"wrote synthetic {args.name} data to {args.out}")
     return 0
@@ -279,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.set_defaults(run=cmd_adapters)
 
     sub = verbs.add_parser("synth", help="write synthetic raw data in a source's true on-disk format")
-    sub.add_argument("name", help="carla_lead | navsim | navsim_navhard | wod_e2e")
+    sub.add_argument("name", help="carla_lead | navsim | navsim_navhard | wod_e2e | py123d")
     sub.add_argument("--out", required=True)
     sub.add_argument("--count", "--routes", "--logs", "--segments", type=int, default=None, help="number of logs")
     sub.add_argument("--seed", type=int, default=0)

@@ -163,6 +163,9 @@ def test_pdms_of_the_logged_future(converted) -> None:
 
     _, logs = converted
     sample = logs["nuplan_test/log-left"][4]
+    ego_past = sample["scoring"]["ego_past"]  # t, x, y, yaw, vx, vy, ax, ay: EPDMS's history comfort reads it
+    assert ego_past.shape == (5, 8) and ego_past[-1, :4].tolist() == [0.0, 0.0, 0.0, 0.0]
+    np.testing.assert_allclose(ego_past[:, 4:6], [[6.0, 0.0]] * 5, atol=1e-9)
     future = sample["future"]
     prediction = Prediction(sample["__key__"], sample["meta"]["dataset"], future[:, 0], future[:, 1:3], future[:, 3])
     row = PDMSScorer().score_sample(sample, [prediction])
@@ -171,16 +174,29 @@ def test_pdms_of_the_logged_future(converted) -> None:
     assert 0.9 < row["score"] <= 1.0
 
 
-def test_a_truncated_file_fails_its_log_only(tmp_path: Path) -> None:
+def test_a_log_without_ego_dynamics_takes_the_speed_from_its_poses(tmp_path: Path) -> None:
+    synth.write_log(tmp_path / "src", "log-poses", index=0, frames=FRAMES, dynamics=False)
+    convert(Py123dAdapter(), tmp_path / "src", tmp_path / "out")
+    samples = list(read_samples(tmp_path / "out"))
+    assert samples
+    for sample in samples:
+        ego = sample["meta"]["ego"]
+        assert ego["speed"] == pytest.approx(6.0, abs=0.05) and ego["acceleration"] == [0.0, 0.0]
+        assert "finite differences" in sample["meta"]["extras"]["py123d"]["ego_dynamics"]
+        assert "ego_past" not in sample["scoring"]  # EPDMS's history comfort needs logged dynamics
+
+
+@pytest.mark.parametrize("damaged", ["box_detections_se3.arrow", "sync.arrow", "camera.pcam_f0.arrow"])
+def test_a_truncated_file_fails_its_log_only(tmp_path: Path, damaged: str) -> None:
     good = synth.write_log(tmp_path / "src", "log-good", index=2, frames=FRAMES)
     bad = synth.write_log(tmp_path / "src", "log-bad", index=0, frames=FRAMES)
-    blob = (bad / "box_detections_se3.arrow").read_bytes()
-    (bad / "box_detections_se3.arrow").write_bytes(blob[: len(blob) // 2])
+    blob = (bad / damaged).read_bytes()
+    (bad / damaged).write_bytes(blob[: len(blob) // 2])
     result = convert(Py123dAdapter(), tmp_path / "src", tmp_path / "out")
     assert result.logs_converted == 1 and len(result.errors) == 1
     (line,) = (tmp_path / "out" / "errors.jsonl").read_text().splitlines()
     error = json.loads(line)
-    assert "box_detections_se3.arrow" in error["error"] and "not a readable Arrow IPC file" in error["error"]
+    assert str(bad / damaged) in error["error"] and "not a readable Arrow IPC file" in error["error"]
     assert {s["meta"]["log_id"] for s in read_samples(tmp_path / "out")} == {f"nuplan_test/{good.name}"}
 
 
@@ -196,16 +212,18 @@ def test_resume_skips_finished_logs_and_inspect_passes(converted, tmp_path: Path
     assert report["by_dataset_split"] == {"py123d_nuplan/nuplan_test": 4}
 
 
-def test_cli_lists_and_converts(tmp_path: Path) -> None:
-    synth.write_log(tmp_path / "src", "log-cli", index=2, frames=FRAMES)
+def test_cli_synth_lists_and_converts(tmp_path: Path) -> None:
     cli = [sys.executable, "-m", "lead_s2r.cli"]
+    subprocess.run([*cli, "synth", "py123d", "--out", str(tmp_path / "src"), "--logs", "1"], check=True)
     listed = subprocess.run([*cli, "adapters"], capture_output=True, text=True, check=True).stdout
     assert "py123d" in listed
     run = subprocess.run(
-        [*cli, "convert", "py123d", "--src", str(tmp_path / "src"), "--out", str(tmp_path / "out")],
+        [*cli, "convert", "py123d", "--src", str(tmp_path / "src"), "--out", str(tmp_path / "out"), "--stride", "4"],
         capture_output=True,
         text=True,
     )
     assert run.returncode == 0, run.stderr
-    iterations = len(_drive(2)[0].pose[:: synth.STEP])
-    assert len(list(read_samples(tmp_path / "out"))) == iterations - 40  # every frame with a whole 4 s future
+    iterations = len(synth.drive_and_actors(0, 16, 0)[0].pose[:: synth.STEP])
+    per_log = len(range(0, iterations - 40, 4))  # every 4th frame with a whole 4 s future
+    datasets = [s["meta"]["dataset"] for s in read_samples(tmp_path / "out")]
+    assert sorted(set(datasets)) == ["lead123d", "py123d_nuplan"] and len(datasets) == 2 * per_log

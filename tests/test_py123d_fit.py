@@ -10,12 +10,12 @@ import yaml
 
 pytest.importorskip("py123d", reason="py123d is installed with --no-deps in CI (docs/datasets/py123d.md)")
 
-from lead_s2r.convert import convert  # noqa: E402
-from lead_s2r.synthetic import carla_lead as lead  # noqa: E402
-from lead_s2r.synthetic import py123d as synth  # noqa: E402
-from lead_s2r.training.cli import run_lightning_cli  # noqa: E402
-from lead_s2r_adapters.carla_lead import CarlaLeadAdapter  # noqa: E402
-from lead_s2r_adapters.py123d import Py123dAdapter  # noqa: E402
+from lead_s2r.convert import convert
+from lead_s2r.synthetic import carla_lead as lead
+from lead_s2r.synthetic import py123d as synth
+from lead_s2r.training.cli import run_lightning_cli
+from lead_s2r_adapters.carla_lead import CarlaLeadAdapter
+from lead_s2r_adapters.py123d import Py123dAdapter
 
 SMOKE = Path(__file__).parents[1] / "recipes" / "smoke" / "sim2real.yaml"
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -25,36 +25,45 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from py123d.api.map.arrow.arrow_map_writer import ArrowMapWriter
-from py123d.api.scene.arrow.arrow_log_writer import ArrowLogWriter
-from py123d.api.scene.arrow.utils.log_writer_config import LogWriterConfig
-from py123d.datatypes import (
-    BoxDetectionAttributes,
-    BoxDetectionSE3,
-    BoxDetectionsSE3,
-    BoxDetectionsSE3Metadata,
-    Intersection,
-    IntersectionType,
-    Lane,
-    LaneGroup,
-    LaneType,
-    TrafficLightDetection,
-    TrafficLightDetections,
-    TrafficLightStatus,
-)
-from py123d.datatypes.detections.box_detection_label import DefaultBoxDetectionLabel
-from py123d.datatypes.metadata.log_metadata import LogMetadata
-from py123d.datatypes.metadata.map_metadata import MapMetadata
-from py123d.datatypes.sensors.base_camera import CameraID
-from py123d.datatypes.sensors.lidar import Lidar, LidarFeature, LidarID, LidarMetadata
-from py123d.datatypes.sensors.pinhole_camera import PinholeCameraMetadata, PinholeIntrinsics
-from py123d.datatypes.time.timestamp import Timestamp
-from py123d.datatypes.vehicle_state.dynamic_state import DynamicStateSE3
-from py123d.datatypes.vehicle_state.ego_state import EgoStateSE3
-from py123d.datatypes.vehicle_state.ego_state_metadata import EgoStateSE3Metadata
-from py123d.geometry import BoundingBoxSE3, Polyline2D, PoseSE3, Vector3D
-from py123d.parser.base_dataset_parser import ModalitiesSync, ParsedCamera
-from py123d.parser.registry import NuPlanBoxDetectionLabel
+
+from lead_s2r.errors import UserError
+
+try:
+    from py123d.api.map.arrow.arrow_map_writer import ArrowMapWriter
+    from py123d.api.scene.arrow.arrow_log_writer import ArrowLogWriter
+    from py123d.api.scene.arrow.utils.log_writer_config import LogWriterConfig
+    from py123d.datatypes import (
+        BoxDetectionAttributes,
+        BoxDetectionSE3,
+        BoxDetectionsSE3,
+        BoxDetectionsSE3Metadata,
+        Intersection,
+        IntersectionType,
+        Lane,
+        LaneGroup,
+        LaneType,
+        TrafficLightDetection,
+        TrafficLightDetections,
+        TrafficLightStatus,
+    )
+    from py123d.datatypes.detections.box_detection_label import DefaultBoxDetectionLabel
+    from py123d.datatypes.metadata.log_metadata import LogMetadata
+    from py123d.datatypes.metadata.map_metadata import MapMetadata
+    from py123d.datatypes.sensors.base_camera import CameraID
+    from py123d.datatypes.sensors.lidar import Lidar, LidarFeature, LidarID, LidarMetadata
+    from py123d.datatypes.sensors.pinhole_camera import PinholeCameraMetadata, PinholeIntrinsics
+    from py123d.datatypes.time.timestamp import Timestamp
+    from py123d.datatypes.vehicle_state.dynamic_state import DynamicStateSE3
+    from py123d.datatypes.vehicle_state.ego_state import EgoStateSE3
+    from py123d.datatypes.vehicle_state.ego_state_metadata import EgoStateSE3Metadata
+    from py123d.geometry import BoundingBoxSE3, Polyline2D, PoseSE3, Vector3D
+    from py123d.parser.base_dataset_parser import ModalitiesSync, ParsedCamera
+    from py123d.parser.registry import NuPlanBoxDetectionLabel
+except ModuleNotFoundError as err:  # py123d is installed apart, without its dependencies
+    raise UserError(
+        f"writing 123D logs needs py123d ({err}): pip install -e '.[py123d-writers]' "
+        "&& pip install --no-deps 'py123d>=0.7,<0.8' (docs/datasets/py123d.md)"
+    ) from None
 
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, points_to_local, rotate
 from lead_s2r.synthetic import carla_lead as lead
@@ -148,10 +157,17 @@ def _writer(root: Path, codec: str) -> ArrowLogWriter:
 
 
 def write_log(
-    root: Path, name: str = "log-left", index: int = 0, frames: int = 12, seed: int = 0, codec: str = "ipc"
+    root: Path,
+    name: str = "log-left",
+    index: int = 0,
+    frames: int = 12,
+    seed: int = 0,
+    codec: str = "ipc",
+    dynamics: bool = True,
 ) -> Path:
     """A nuPlan-style 123D log of the drive ``index`` (0 left turn, 1 right turn, 2 stop) and its map; returns the
-    log folder (``root/logs/nuplan_test/<name>``). ``codec``: ipc | laz, the LiDAR payload."""
+    log folder (``root/logs/nuplan_test/<name>``). ``codec``: ipc | laz, the LiDAR payload; ``dynamics``: False
+    writes poses only, as parsers of datasets without ego dynamics do."""
     drive, actors = drive_and_actors(index, frames, seed)
     actors = log_actors(actors)
     ego_meta = EgoStateSE3Metadata(
@@ -173,12 +189,12 @@ def write_log(
         ts = Timestamp.from_us(1_000_000 + step * 50_000)
         rear = iso(drive.pose[step])  # the drive's poses are taken as the rear axle here
         yaw_rate = -drive.yaw_rate[step]
-        dynamics = DynamicStateSE3(
+        state = DynamicStateSE3(
             Vector3D(float(drive.speed[step]), 0.0, 0.0),
             Vector3D(float(drive.accel[step]), float(drive.speed[step] * yaw_rate), 0.0),
             Vector3D(0.0, 0.0, float(yaw_rate)),
         )
-        ego = EgoStateSE3.from_rear_axle(_pose(*rear), ego_meta, ts, dynamics)
+        ego = EgoStateSE3.from_rear_axle(_pose(*rear), ego_meta, ts, state if dynamics else None)
         red = drive.kind == "stop" or step < 10  # the turn's light turns green before the ego reaches it
         light = TrafficLightStatus.RED if red else TrafficLightStatus.GREEN
         modalities = [
@@ -304,3 +320,11 @@ def lead_lidar(actors: list[lead.Actor], ego: np.ndarray, step: int) -> np.ndarr
 def lead_exported(points: np.ndarray) -> np.ndarray:
     """Departure 3, as LEAD's exporter does it: y negated, x moved to the rear axle, z raised by half the height."""
     return np.column_stack([points[:, 0] + CARLA_REAR_AXLE_TO_CENTER, -points[:, 1], points[:, 2] + LIDAR_HEIGHT / 2])
+
+
+def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
+    """``lead-s2r synth py123d --out DIR [--logs N]``: N nuPlan-style logs with their maps (default 3: left turn,
+    right turn, stop) and one LEAD recording, under ``DIR/logs`` and ``DIR/maps``."""
+    for index in range(3 if count is None else count):
+        write_log(Path(out), f"log-{lead.KINDS[index % len(lead.KINDS)]}-{index}", index, frames=16, seed=seed)
+    write_lead_log(Path(out), 0, frames=16, seed=seed)
