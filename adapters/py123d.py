@@ -111,6 +111,7 @@ class _Builder:
         path = py123d_map.find_map(data.files.folder, Path(maps) if maps else None, data.files.log)
         self.map = py123d_map.load_map(path) if path is not None else None
         self.targets = self._plan() if lead else None
+        self.roadblocks: list[str] = []
 
     def frames(self) -> np.ndarray:
         count = len(self.data.t_us)
@@ -196,11 +197,14 @@ class _Builder:
         """The PDMS context: map near the ego, roadblocks along the route (else the driven path), red lights."""
         assert self.map is not None
         data = self.data
-        path = self.route if self.route is not None else data.pose2d[i:, :2]
         steps = np.r_[i, future]
         red = [[] if self.lead else [lane for lane, s in data.lights(int(j)) if s == RED] for j in steps]
         times = (data.t_us[steps] - data.t_us[i]) / 1e6
-        roadblocks = py123d_map.route_roadblocks(self.map, path)
+        if self.route is None:  # the driven path from here on
+            roadblocks = py123d_map.route_roadblocks(self.map, data.pose2d[i:, :2][data.valid[i:]])
+        else:  # one route for the whole log
+            self.roadblocks = self.roadblocks or py123d_map.route_roadblocks(self.map, self.route)
+            roadblocks = self.roadblocks
         context = navsim_map.scoring_context(self.map, data.pose2d[i], self.adapter.map_radius, roadblocks, red, times)
         past = np.arange(max(i - self.past_n, 0), i + 1)
         dynamics = [self._dynamics(int(j)) for j in past]

@@ -75,6 +75,8 @@ class LogData:
         self.world = rear_axle_poses(imu[self.ego_rows], self.rear_axle_to_imu)  # (I, 4, 4) per iteration
         self.pose2d = np.column_stack([self.world[:, :2, 3], np.arctan2(self.world[:, 1, 0], self.world[:, 0, 0])])
         self.t_us = files.timestamps_us
+        self._box_cache: dict[int, tuple | None] = {}
+        self._light_cache: dict[int, list[tuple[int, int]]] = {}
 
     # ------------------------------------------------------------------ ego
 
@@ -100,7 +102,26 @@ class LogData:
 
     def boxes_in(self, j: int, i: int) -> Boxes | None:
         """Boxes observed at iteration ``j``, in the ego frame of iteration ``i``."""
+        world = self._world_boxes(j)
+        if world is None:
+            return None
+        poses, sizes, velocity, classes, tokens, raw = world
+        local = np.linalg.inv(self.world[i]) @ poses
+        rows = np.zeros((len(tokens), 10))
+        rows[:, 0:3] = local[:, :3, 3]
+        rows[:, 3:6] = sizes
+        rows[:, 6] = np.arctan2(local[:, 1, 0], local[:, 0, 0])
+        rows[:, 7:9] = (velocity @ self.world[i][:3, :3])[:, :2]  # world -> ego: R^T v, row-wise
+        rows[:, 9] = classes
+        return Boxes(rows, tokens, raw)
+
+    def _world_boxes(self, j: int) -> tuple | None:
+        """Iteration ``j``'s boxes in the world, decoded once per log: 4x4 poses, sizes, velocities, classes,
+        tokens and raw labels (the ego's own box dropped)."""
+        if j in self._box_cache:
+            return self._box_cache[j]
         if not self.files.has(BOX_KEY) or self.files.sync[BOX_KEY][j] < 0:
+            self._box_cache[j] = None
             return None
         table, meta = self.files.table(BOX_KEY)
         path, row = self.files.path(BOX_KEY), int(self.files.sync[BOX_KEY][j])
@@ -108,21 +129,22 @@ class LogData:
         tokens = [str(t) for t in column(table, path, f"{BOX_KEY}.track_token")[row].as_py() or []]
         labels = column(table, path, f"{BOX_KEY}.label")[row].as_py() or []
         velocity = column(table, path, f"{BOX_KEY}.velocity_3d")[row].as_py() or [None] * len(tokens)
-        if boxes.shape != (len(tokens), 10) or len(labels) != len(tokens):
+        if boxes.reshape(-1, 10).shape != (len(tokens), 10) or len(labels) != len(tokens):
             raise Py123dFormatError(path, f"row {row}: boxes, tokens and labels disagree in length", "bounding_box_se3")
         qualified = str(meta.get("box_detection_label_class", "unknown"))
         classes = [box_class(qualified, int(label)) for label in labels]
         keep = [k for k, (cls, _) in enumerate(classes) if cls is not None]
-        local = np.linalg.inv(self.world[i]) @ pose_matrix(boxes[keep, :7])
-        rotation = self.world[i][:3, :3].T
-        world_velocity = np.array([v if v is not None else [0.0, 0.0, 0.0] for v in velocity], np.float64)
-        rows = np.zeros((len(keep), 10))
-        rows[:, 0:3] = local[:, :3, 3]
-        rows[:, 3:6] = boxes[keep, 7:10]
-        rows[:, 6] = np.arctan2(local[:, 1, 0], local[:, 0, 0])
-        rows[:, 7:9] = (world_velocity.reshape(-1, 3)[keep] @ rotation.T)[:, :2]
-        rows[:, 9] = [int(classes[k][0]) for k in keep]
-        return Boxes(rows, [tokens[k] for k in keep], [classes[k][1] for k in keep])
+        boxes = boxes.reshape(-1, 10)[keep]
+        moving = np.array([velocity[k] if velocity[k] is not None else [0.0, 0.0, 0.0] for k in keep], np.float64)
+        self._box_cache[j] = (
+            pose_matrix(boxes[:, :7]),
+            boxes[:, 7:10],
+            moving.reshape(-1, 3),
+            np.array([int(classes[k][0]) for k in keep], np.float64),
+            [tokens[k] for k in keep],
+            [classes[k][1] for k in keep],
+        )
+        return self._box_cache[j]
 
     def agents_future(self, i: int, now: Boxes, span: np.ndarray) -> dict[str, np.ndarray]:
         """Tracks seen at iterations ``span`` in the frame of ``i``: the current boxes first (row k = box k), then
@@ -225,15 +247,18 @@ class LogData:
         return np.concatenate(parts).astype(np.float32), columns
 
     def lights(self, i: int) -> list[tuple[int, int]]:
-        """(lane id, status) of the traffic lights at iteration ``i`` ([] where the log has none)."""
-        if not self.files.has(LIGHT_KEY) or self.files.sync[LIGHT_KEY][i] < 0:
-            return []
-        row = int(self.files.sync[LIGHT_KEY][i])
-        lanes = self.files.value(LIGHT_KEY, "lane_id", row) or []
-        status = self.files.value(LIGHT_KEY, "status", row) or []
-        if len(lanes) != len(status):
-            raise Py123dFormatError(self.files.path(LIGHT_KEY), f"row {row}: lane ids and statuses differ", "status")
-        return [(int(lane), int(s)) for lane, s in zip(lanes, status, strict=True)]
+        """(lane id, status) of the traffic lights at iteration ``i`` ([] where the log has none), read once."""
+        if i not in self._light_cache:
+            self._light_cache[i] = []
+            if self.files.has(LIGHT_KEY) and self.files.sync[LIGHT_KEY][i] >= 0:
+                row = int(self.files.sync[LIGHT_KEY][i])
+                lanes = self.files.value(LIGHT_KEY, "lane_id", row) or []
+                status = self.files.value(LIGHT_KEY, "status", row) or []
+                if len(lanes) != len(status):
+                    path = self.files.path(LIGHT_KEY)
+                    raise Py123dFormatError(path, f"row {row}: lane ids and statuses differ", "status")
+                self._light_cache[i] = [(int(lane), int(s)) for lane, s in zip(lanes, status, strict=True)]
+        return self._light_cache[i]
 
 
 def log_folders(src: Path) -> list[Path]:
