@@ -137,8 +137,9 @@ class _Builder:
         points, options = py123d_lead.sparse_plan(route, py123d_lead.road_options(route), self.adapter.plan_spacing)
         planner = py123d_lead.RoutePlanner(points, options, self.adapter.tp_distance)
         out = []
-        for pose in self.data.pose2d:
-            planner.step(pose[:2] + offset * np.array([np.cos(pose[2]), np.sin(pose[2])]))
+        for pose, valid in zip(self.data.pose2d, self.data.valid, strict=True):
+            if valid:  # an iteration without an ego state has no sample and must not move the planner
+                planner.step(pose[:2] + offset * np.array([np.cos(pose[2]), np.sin(pose[2])]))
             out.append(planner.targets(pose))
         return out
 
