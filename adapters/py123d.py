@@ -151,7 +151,11 @@ class _Builder:
         sample: dict[str, Any] = {"__key__": key, "past": data.trajectory(i, past)}
         if len(future):
             sample["future"] = data.trajectory(i, future)
-        extras: dict[str, Any] = {"log_name": files.log.get("log_name"), "source_dataset": files.log.get("dataset")}
+        extras: dict[str, Any] = {
+            "log_name": files.log.get("log_name"),
+            "source_dataset": files.log.get("dataset"),
+            "written_by": f"py123d {files.log.get('version', '?')}",
+        }
         boxes = data.boxes(i)
         if boxes is not None:
             sample["boxes"] = boxes.rows.astype(np.float32)

@@ -125,12 +125,8 @@ class LogFiles:
         stamps = column(table, path, "sync.timestamp_us").to_numpy().astype(np.int64)
         sync = {}
         for name in table.column_names:
-            if name.startswith("sync."):
-                continue
-            values = table[name].combine_chunks()
-            if not pa.types.is_integer(values.type):
-                raise Py123dFormatError(path, f"expected int64 row indices, got {values.type}", name)
-            sync[name] = np.asarray(values.fill_null(-1).to_numpy(zero_copy_only=False), np.int64)
+            if not name.startswith("sync."):
+                sync[name] = _row_indices(table[name].combine_chunks(), path, name)
         return cls(folder, log, stamps, sync)
 
     def has(self, key: str) -> bool:
@@ -155,6 +151,18 @@ class LogFiles:
         """One cell of a modality's file as a Python value."""
         table, _ = self.table(key)
         return column(table, self.path(key), f"{key}.{name}")[row].as_py()
+
+
+def _row_indices(values: pa.Array, path: Path, name: str) -> np.ndarray:
+    """A sync column as one row index per iteration (-1 where absent). py123d 0.7 writes one int64 per
+    iteration; earlier versions wrote a list of the rows within the iteration, of which we take the first."""
+    if pa.types.is_list(values.type) or pa.types.is_large_list(values.type):
+        if not pa.types.is_integer(values.type.value_type):
+            raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)
+        return np.array([rows[0] if rows else -1 for rows in values.to_pylist()], np.int64)  # a few thousand rows
+    if not pa.types.is_integer(values.type):
+        raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)
+    return np.asarray(values.fill_null(-1).to_numpy(zero_copy_only=False), np.int64)
 
 
 def decode_points(blob: bytes, path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:

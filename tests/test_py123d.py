@@ -2,11 +2,13 @@
 every field against the values written, the frame conversion, error isolation, resume and inspection."""
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pytest
 
 pytest.importorskip("py123d", reason="py123d is installed with --no-deps in CI (docs/datasets/py123d.md)")
@@ -172,6 +174,30 @@ def test_pdms_of_the_logged_future(converted) -> None:
     assert row["valid"] and row["no_at_fault_collisions"] == 1.0 and row["drivable_area_compliance"] == 1.0
     assert row["driving_direction_compliance"] == 1.0 and row["progress_m"] > 20  # the 4 s turn on the map's lanes
     assert 0.9 < row["score"] <= 1.0
+
+
+def test_list_valued_sync_columns_of_older_py123d_read_alike(converted, tmp_path: Path) -> None:
+    """Before 0.7, sync.arrow held a list of row indices per modality and iteration; the first one is used."""
+    src, logs = converted
+    folder = tmp_path / "logs" / "nuplan_test" / "log-left"
+    folder.parent.mkdir(parents=True)
+    shutil.copytree(src / "logs" / "nuplan_test" / "log-left", folder)
+    table = pa.ipc.open_file(pa.memory_map(str(folder / "sync.arrow"))).read_all()
+    columns = {}
+    for name in table.column_names:
+        values = table[name].to_pylist()
+        columns[name] = values if name.startswith("sync.") else [[] if v is None else [v, v + 1] for v in values]
+    fields = [f if f.name.startswith("sync.") else pa.field(f.name, pa.list_(pa.int64())) for f in table.schema]
+    listed = pa.table(columns, schema=pa.schema(fields, metadata=table.schema.metadata))
+    with pa.OSFile(str(folder / "sync.arrow"), "wb") as sink, pa.ipc.new_file(sink, listed.schema) as writer:
+        writer.write_table(listed)
+    convert(Py123dAdapter(maps=str(src / "maps")), tmp_path, tmp_path / "out")
+    again = list(read_samples(tmp_path / "out"))
+    assert [s["__key__"] for s in again] == [s["__key__"] for s in logs["nuplan_test/log-left"]]
+    for new, old in zip(again, logs["nuplan_test/log-left"], strict=True):
+        np.testing.assert_array_equal(new["future"], old["future"])
+        np.testing.assert_array_equal(new["boxes"], old["boxes"])
+        assert new["cam_front"] == old["cam_front"] and "scoring" in new
 
 
 def test_a_log_without_ego_dynamics_takes_the_speed_from_its_poses(tmp_path: Path) -> None:
