@@ -253,3 +253,11 @@ def test_cli_synth_lists_and_converts(tmp_path: Path) -> None:
     per_log = len(range(0, iterations - 40, 4))  # every 4th frame with a whole 4 s future
     datasets = [s["meta"]["dataset"] for s in read_samples(tmp_path / "out")]
     assert sorted(set(datasets)) == ["lead123d", "py123d_nuplan"] and len(datasets) == 2 * per_log
+
+
+def test_without_msgpack_the_error_names_the_extra(converted, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    src, _ = converted
+    monkeypatch.setitem(sys.modules, "msgpack", None)  # as if the py123d extra were not installed
+    result = convert(Py123dAdapter(), src, tmp_path / "out")
+    assert result.logs_converted == 0 and len(result.errors) == 2
+    assert all("pip install 'lead-s2r[py123d]'" in json.dumps(error) for error in result.errors)
