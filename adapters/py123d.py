@@ -181,7 +181,9 @@ class _Builder:
             extras["traffic_lights"] = [[lane, LIGHT_STATUS[s] if s < len(LIGHT_STATUS) else s] for lane, s in lights]
         if self.map is not None:
             sample["scoring"] = self._scoring(i, future)
-            sample["bev_semantic"] = navsim_map.render_bev(sample["scoring"], sample.get("boxes", np.zeros((0, 10))))
+            sample["bev_semantic"] = navsim_map.bev_semantic_raster(
+                sample["scoring"], sample.get("boxes", np.zeros((0, 10)))
+            )
         sample["meta"] = self._meta(i, sample, cameras, command_raw, extras, lidar[1] if lidar else None)
         return sample
 

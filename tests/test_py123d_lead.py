@@ -22,7 +22,7 @@ from lead_s2r_adapters.py123d_frames import pose_matrix, yaw_of
 
 FRAMES = 8
 #: the route folder's 3 s future at 20 Hz is compared with the 123D log's at 10 Hz
-FUTURE_S = lead.EGO_FUTURE_STEPS / lead.FPS
+FUTURE_S = lead.EGO_FUTURE_STEPS * lead.DT
 
 
 def _by_frame(out: Path) -> dict[int, dict]:
