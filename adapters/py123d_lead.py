@@ -89,15 +89,15 @@ def road_options(route: np.ndarray) -> np.ndarray:
 
 def sparse_plan(route: np.ndarray, options: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """The leaderboard's ``downsample_route``: keep the first and last point, every point where the option
-    changes, and a lane-follow point every ``spacing`` metres."""
-    keep = [0]
-    travelled = 0.0
-    for k in range(1, len(route)):
-        travelled += float(np.hypot(*(route[k] - route[k - 1])))
-        change = options[k] != options[k - 1]
-        if change or (options[k] == LANEFOLLOW and travelled >= spacing) or k == len(route) - 1:
+    changes, and a point once more than ``spacing`` metres were travelled since the last kept one (counted, as
+    there, over the steps between points that are not kept)."""
+    keep, travelled = [], 0.0
+    for k in range(len(route)):
+        if k == 0 or options[k] != options[k - 1] or travelled > spacing or k == len(route) - 1:
             keep.append(k)
             travelled = 0.0
+        else:
+            travelled += float(np.hypot(*(route[k] - route[k - 1])))
     return route[keep], options[keep]
 
 
