@@ -20,7 +20,7 @@ from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
 from lead_s2r_adapters import navsim_map, py123d_lead, py123d_map
 from lead_s2r_adapters.py123d_arrow import ROUTE_KEY, LogFiles, Py123dFormatError
-from lead_s2r_adapters.py123d_log import LIGHT_STATUS, RED, LogData, log_folders
+from lead_s2r_adapters.py123d_log import LIGHT_STATUS, RED, LogData, camera_id, log_folders
 
 OPTIONAL = ("future", "lidar", "target_points", "route", "boxes", "agents_future", "scoring", "bev_semantic")
 LEAD_MODES = ("auto", "yes", "no")
@@ -112,6 +112,8 @@ class _Builder:
         self.map = py123d_map.load_map(path) if path is not None else None
         self.targets = self._plan() if lead else None
         self.roadblocks: list[str] = []
+        #: every camera field the log may give, so a frame without one says so in ``meta.has``
+        self.cameras = [f"cam_{camera_id(key)}" for key in data.files.keys("camera.")]
 
     def frames(self) -> np.ndarray:
         count = len(self.data.t_us)
@@ -267,7 +269,7 @@ class _Builder:
             },
             "vehicle": dict(self.data.vehicle),
             "cameras": cameras,
-            "has": {name: name in sample for name in OPTIONAL} | {n: True for n in sample if n.startswith("cam_")},
+            "has": {name: name in sample for name in (*OPTIONAL, *self.cameras)},
             "extras": {"py123d": extras},
         }
         if lidar_columns is not None:

@@ -39,6 +39,14 @@ CAMERA_IDS = {
     "pcam_stereo_l": "stereo_left",
     "pcam_stereo_r": "stereo_right",
 }
+
+
+def camera_id(key: str) -> str:
+    """Our camera id of a py123d camera modality key (``camera.pcam_f0`` -> ``front``)."""
+    native = key.partition(".")[2]
+    return CAMERA_IDS.get(native, native)
+
+
 LIGHT_STATUS = ("GREEN", "YELLOW", "RED", "OFF", "UNKNOWN")
 RED = 2
 
@@ -183,8 +191,7 @@ class LogData:
         images, calibration, skipped = {}, [], {}
         for key in self.files.keys("camera."):
             _, meta = self.files.table(key)
-            native = key.partition(".")[2]
-            cam_id = CAMERA_IDS.get(native, native)
+            native, cam_id = key.partition(".")[2], camera_id(key)
             if meta.get("camera_model") != "pinhole":
                 skipped[cam_id] = f"camera model {meta.get('camera_model')!r} (only pinhole cameras are read)"
                 continue
