@@ -79,7 +79,7 @@ class Py123dAdapter(Adapter):
     def describe(self) -> dict[str, Any]:
         return {
             "dataset": "py123d",
-            "frame_rate_hz": "the log's sync rate / stride (10 Hz for LEAD, 10 Hz for nuPlan in 123D)",
+            "frame_rate_hz": "the log's sync rate / stride (LEAD's recordings: 10 Hz)",
             "future": {"rate_hz": "native", "horizon_s": self.future_s},
             "past": {"rate_hz": "native", "horizon_s": self.past_s},
             "stride": self.stride,
@@ -216,6 +216,7 @@ class _Builder:
             roadblocks = self.roadblocks
         context = navsim_map.scoring_context(self.map, data.pose2d[i], self.adapter.map_radius, roadblocks, red, times)
         past = np.arange(max(i - self.past_n, 0), i + 1)
+        past = past[data.valid[past]]
         dynamics = [self._dynamics(int(j)) for j in past]
         if len(past) >= 2 and all(d is not None for d in dynamics):
             states = np.array([np.r_[v, a] for v, a, _ in dynamics])  # type: ignore[misc]
