@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from lead_reference import CASES, seeded_inputs, seeded_state
 
 from lead_s2r.errors import UserError
 from lead_s2r.models import lead
@@ -171,3 +172,16 @@ def test_bad_folders_are_user_errors(tmp_path: Path) -> None:
     shutil.copy(TINY / "model_0000.pth", tmp_path / "model_0000.pth")
     with pytest.raises(UserError, match=r"model_0000\.pth: does not match"):
         lead.load_checkpoint(tmp_path)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_carla_tfv6_with_radar_and_tfv5_reproduce_leads_outputs(name: str) -> None:
+    """LEAD's TFv6 with LiDAR and radar, and TFv5, on seeded weights: outputs computed by LEAD's code (README)."""
+    model = lead.model_from_config(CASES[name])
+    model.load_state_dict(seeded_state(model.state_dict()), strict=True)
+    expected = torch.load(DATA / f"reference_{name}.pt", weights_only=True)
+    got = single_thread_forward(model.eval(), seeded_inputs(CASES[name]))
+    assert set(got) == set(expected)
+    assert expected["pred_radar_predictions"][..., :2].abs().max() > 1.0
+    for key, value in expected.items():
+        torch.testing.assert_close(got[key], value, rtol=1e-5, atol=1e-5, msg=key)
