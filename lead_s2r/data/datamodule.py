@@ -30,6 +30,8 @@ from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
 from lead_s2r.models.inputs import Batch, target_point_range
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_driver import transform_config
 from lead_s2r.shards import (
     INFO,
     ManifestCheck,
@@ -186,6 +188,8 @@ class DriveDataModule(L.LightningDataModule):
             config = getattr(getattr(model, "model", None), "config", None)
             if isinstance(config, EgoMLPConfig):
                 config = ego_status_transform_config(config)
+            if isinstance(config, LeadConfig):  # a LEAD network: LEAD's image, BEV and inputs
+                config = transform_config(config)
             if not isinstance(config, TFv6Config):
                 raise ValueError("DriveDataModule needs a TFv6Config: pass config= or train a model that has one")
             self._config = config

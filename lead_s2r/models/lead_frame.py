@@ -1,0 +1,84 @@
+"""The one place where our ISO ego frame (x forward, y LEFT) meets LEAD's (x forward, y RIGHT).
+
+:func:`to_lead_inputs` turns our :class:`~lead_s2r.models.inputs.Batch` into LEAD's input contract and
+:func:`from_lead_outputs` turns LEAD's outputs back into our names and frame; nothing else in the package flips y.
+
+- Lateral coordinates (target points, radar, predicted waypoints and route) change sign; headings change sign.
+- The LiDAR raster: ours has rows along +x and columns along +y (left); LEAD's has rows along its y (left to right,
+  i.e. row 0 is the leftmost) and columns along x (back to front), so LEAD's raster is ours transposed with its rows
+  reversed. Both grids are symmetric in y, so no cell moves off the grid (a point exactly on a cell edge lands in
+  the cell beside LEAD's, as both rasters take half-open cells in their own y direction).
+- Commands: our 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} ids become LEAD's one-hot, NAVSIM order (left, straight,
+  right, unknown) or CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
+  unknown -> lane follow, as LEAD maps it).
+- Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
+"""
+
+import torch
+from torch import Tensor
+
+from lead_s2r.models.inputs import Batch, lidar_input
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.schema import Command
+
+#: Our 4-way command id -> index in LEAD's one-hot.
+NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
+CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
+#: Slots of our ``target_points`` (B, 3, 2): previous, current, next.
+TARGET_POINT_KEYS = ("target_point_previous", "target_point", "target_point_next")
+
+
+def flip_y(points: Tensor) -> Tensor:
+    """(..., >= 2) points with the lateral coordinate negated (column 1); other columns unchanged."""
+    flipped = points.clone()
+    flipped[..., 1] = -flipped[..., 1]
+    return flipped
+
+
+def lidar_to_lead(lidar_bev: Tensor) -> Tensor:
+    """Our (B, C, H=x, W=y left) raster -> LEAD's (B, C, rows = y from left to right, columns = x), in [0, 1]."""
+    return lidar_input(lidar_bev, torch.float32).transpose(-1, -2).flip(-2)
+
+
+def command_one_hot(command: Tensor, config: LeadConfig) -> Tensor:
+    """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot."""
+    table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
+    lookup = torch.zeros(len(Command), dtype=torch.int64)
+    for ours, theirs in table.items():
+        lookup[ours] = theirs
+    index = lookup.to(command.device)[command.long()]
+    return torch.nn.functional.one_hot(index, config.discrete_command_dim).float()
+
+
+def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
+    """Our batch -> LEAD's input dict (keys, units and frame of LEAD's ``TFv6.forward``)."""
+    speed = batch["speed"].float()
+    out: dict[str, Tensor] = {"rgb": batch["rgb"], "speed": speed, "command": command_one_hot(batch["command"], config)}
+    accel = batch.get("acceleration")
+    out["acceleration"] = accel.float().reshape(len(speed), -1).norm(dim=-1) if accel is not None else speed * 0
+    if "lidar_bev" in batch:
+        out["rasterized_lidar"] = lidar_to_lead(batch["lidar_bev"])
+    if "target_points" in batch:
+        points = flip_y(batch["target_points"].float())
+        out.update({key: points[:, i] for i, key in enumerate(TARGET_POINT_KEYS)})
+    if "radar" in batch:
+        radar = flip_y(batch["radar"].float())
+        if "radar_valid" in batch:  # LEAD's missing rows are zeros with the sensor id kept
+            radar[..., :4] = radar[..., :4] * batch["radar_valid"][..., None]
+        out["radar"] = radar
+    return out
+
+
+def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
+    """LEAD's planning outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``,
+    ``target_speed_logits`` (those the network produced)."""
+    ours: dict[str, Tensor] = {}
+    if "pred_future_waypoints" in outputs:
+        ours["waypoints"] = flip_y(outputs["pred_future_waypoints"])
+    if "pred_headings" in outputs:
+        ours["headings"] = -outputs["pred_headings"]
+    if "pred_route" in outputs:
+        ours["route"] = flip_y(outputs["pred_route"])
+    if "pred_target_speed_distribution" in outputs:
+        ours["target_speed_logits"] = outputs["pred_target_speed_distribution"]
+    return ours

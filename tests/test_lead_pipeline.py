@@ -1,0 +1,148 @@
+"""LEAD's networks through our pipeline: the y flip at the one frame boundary, a LEAD checkpoint folder predicting on
+converted NAVSIM data that PDMS scores, and a smoke-recipe run exported back to LEAD's format."""
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from lead_s2r.cli import main as cli_main
+from lead_s2r.convert import convert
+from lead_s2r.data.lidar import rasterize_lidar
+from lead_s2r.models import lead
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_driver import LeadDriver, transform_config
+from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
+from lead_s2r.predictions import read_predictions
+from lead_s2r.schema import Command
+from lead_s2r.synthetic import navsim as synth
+from lead_s2r.synthetic import navsim_map as synth_map
+from lead_s2r.training.cli import run_lightning_cli
+from lead_s2r.training.module import DrivingModule
+from lead_s2r_adapters.navsim import NavsimAdapter
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+DATA = Path(__file__).parent / "data" / "lead_tfv6"
+TINY = DATA / "tiny_ltfv6_navsim"
+RECIPE = Path(__file__).parents[1] / "recipes" / "smoke" / "navsim_lead_ltfv6.yaml"
+CARLA = {"use_planning_decoder": True}
+
+
+def test_a_left_point_arrives_where_lead_puts_left() -> None:
+    config = LeadConfig.from_json(CARLA)  # BEV x -32..64, y -40..40 m at 4 px/m: LEAD's raster is 320 x 384
+    ours = transform_config(config).bev
+    point = np.array([[10.1, 5.1, 0.0]], np.float32)  # 10.1 m ahead, 5.1 m to the LEFT (ISO)
+    batch = {
+        "rgb": torch.zeros(1, 3, 384, 1152, dtype=torch.uint8),
+        "lidar_bev": torch.from_numpy(rasterize_lidar(point, ours))[None, None],
+        "speed": torch.tensor([3.0]),
+        "acceleration": torch.tensor([[3.0, -4.0]]),
+        "command": torch.tensor([int(Command.LEFT)]),
+        "target_points": torch.tensor([[[1.0, 0.5], [20.0, 5.0], [40.0, -6.0]]]),
+    }
+    inputs = to_lead_inputs(batch, config)
+    raster = inputs["rasterized_lidar"][0, 0]
+    assert raster.shape == (config.lidar_height_pixel, config.lidar_width_pixel) == (320, 384)
+    rows, cols = torch.nonzero(raster, as_tuple=True)
+    # LEAD: rows run along its y from min_y (left) to max_y (right): y_right = -5.1 -> row floor((40 - 5.1) * 4)
+    assert rows.tolist() == [139] and cols.tolist() == [168] and raster[139, 168] == 1 / 5
+    assert inputs["target_point"].tolist() == [[20.0, -5.0]]  # LEAD's left is negative y
+    assert inputs["target_point_previous"].tolist() == [[1.0, -0.5]]
+    assert inputs["target_point_next"].tolist() == [[40.0, 6.0]]
+    assert inputs["command"].tolist() == [[1, 0, 0, 0, 0, 0]]  # CARLA RoadOption - 1: LEFT first
+    assert inputs["acceleration"].tolist() == [5.0]
+    navsim = LeadConfig.from_json(json.loads((TINY / "config.json").read_text()))
+    right = to_lead_inputs({**batch, "command": torch.tensor([int(Command.RIGHT)])}, navsim)
+    assert right["command"].tolist() == [[0, 0, 1, 0]]  # NAVSIM order: left, straight, right, unknown
+    back = from_lead_outputs(
+        {"pred_future_waypoints": torch.tensor([[[2.0, 1.5]]]), "pred_headings": torch.tensor([[0.25]])}
+    )
+    assert back["waypoints"].tolist() == [[[2.0, -1.5]]] and back["headings"].tolist() == [[-0.25]]
+
+
+@pytest.fixture(scope="module")
+def navsim_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One synthetic NAVSIM log, converted; its scenes are in split 'trainval'... whatever the adapter names."""
+    raw = tmp_path_factory.mktemp("lead_navsim_raw")
+    synth_map.write_map(raw / "maps")
+    logs = {synth.LOGS[0].name: synth.write_log(raw, synth.LOGS[0], np.random.default_rng(0))}
+    synth.write_scene_filter(raw / "scene_filters" / "navmini.yaml", logs)
+    out = tmp_path_factory.mktemp("lead_navsim")
+    adapter = NavsimAdapter(scene_filter=str(raw / "scene_filters" / "navmini.yaml"), maps=str(raw / "maps"))
+    assert convert(adapter, raw, out).ok
+    return out
+
+
+def recipe_args(data: Path, root: Path) -> list[str]:
+    """The smoke recipe on ``data`` (every split), rooted at ``root``."""
+    spec = json.dumps({"paths": [str(data)], "splits": None, "cameras": ["front"]})
+    return [
+        "--config",
+        str(RECIPE),
+        "--trainer.default_root_dir",
+        str(root),
+        f"--data.train.navsim={spec}",
+        f"--data.predict.navsim={spec}",
+    ]
+
+
+def test_lead_checkpoint_predicts_in_our_frame_and_pdms_scores_it(navsim_data: Path, tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])
+    folder = tmp_path / "lead"
+    folder.mkdir()
+    (folder / "config.json").write_text((TINY / "config.json").read_text())
+    state = torch.load(TINY / "model_0000.pth", weights_only=True)
+    # every waypoint step 1 m ahead and 0.5 m to LEAD's right; headings step 0.1 rad in LEAD's sign
+    state["planning_decoder.wp_decoder.weight"].zero_()
+    state["planning_decoder.wp_decoder.bias"].copy_(torch.tensor([1.0, 0.5]))
+    state["planning_decoder.heading_decoder.weight"].zero_()
+    state["planning_decoder.heading_decoder.bias"].fill_(0.1)
+    torch.save(state, folder / "model_0030_0.pth")
+    output = tmp_path / "predictions.parquet"
+    run_lightning_cli(
+        [
+            "predict",
+            *recipe_args(navsim_data, tmp_path / "run"),
+            "--model.model.init_args.config=null",
+            f"--model.model.init_args.checkpoint={folder}",
+            f"--trainer.callbacks.output={output}",
+        ]
+    )
+    predictions = read_predictions(output)
+    assert predictions
+    steps = np.arange(1, 9)
+    for p in predictions:
+        np.testing.assert_allclose(p.t, 0.5 * steps)
+        np.testing.assert_allclose(p.xy, np.stack([steps, -0.5 * steps], 1), atol=1e-5)  # LEAD's right: y < 0
+        np.testing.assert_allclose(p.yaw, -0.1 * steps, atol=1e-5)
+    out = tmp_path / "scores"
+    args = ["score", "--metric", "pdms@navsim-1.1", "--predictions", str(output), "--data", str(navsim_data)]
+    assert cli_main([*args, "--out", str(out)]) == 0
+    aggregates = json.loads((out / "scores.json").read_text())["aggregates"]
+    assert aggregates["frames_valid"] == len(predictions) and math.isfinite(aggregates["pdms"])
+
+
+def test_smoke_recipe_run_exports_to_leads_format(navsim_data: Path, tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(sys, "argv", ["lead-s2r"])
+    root = tmp_path / "run"
+    run_lightning_cli(["fit", *recipe_args(navsim_data, root)])
+    assert cli_main(["export-lead", str(root), "--out", str(tmp_path / "lead")]) == 0
+    written = json.loads((tmp_path / "lead" / "config.json").read_text())
+    spec = yaml.safe_load(RECIPE.read_text())["model"]["model"]["init_args"]["config"]
+    assert {k: written[k] for k in spec} == spec
+    assert written["img_vert_anchors"] == 8 and written["lidar_width_pixel"] == 128  # derived values, for LEAD's file
+    module = DrivingModule.load_from_checkpoint(root / "checkpoints" / "last.ckpt", map_location="cpu")
+    trained = module.model.network.eval()
+    initial = LeadDriver(LeadConfig.from_json(spec)).network
+    assert any(not torch.equal(a, b) for a, b in zip(trained.state_dict().values(), initial.state_dict().values()))
+    loaded = lead.load_checkpoint(tmp_path / "lead")
+    inputs = torch.load(TINY / "inputs.pt", weights_only=True)
+    expected, got = lead.forward(trained, inputs), lead.forward(loaded, inputs)
+    assert set(got) == set(expected) and all(torch.equal(got[k], expected[k]) for k in expected)
+    assert cli_main(["export-lead", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
