@@ -16,7 +16,7 @@ from lead_s2r.convert import convert
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.models import lead
 from lead_s2r.models.lead_config import LeadConfig
-from lead_s2r.models.lead_driver import transform_config
+from lead_s2r.models.lead_driver import LeadDriver, transform_config
 from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
 from lead_s2r.predictions import read_predictions
 from lead_s2r.schema import Command
@@ -24,6 +24,7 @@ from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r.training.cli import run_lightning_cli
 from lead_s2r.training.module import DrivingModule
+from lead_s2r.training.weights import load_matching
 from lead_s2r_adapters.navsim import NavsimAdapter
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -145,3 +146,14 @@ def test_smoke_recipe_run_exports_to_leads_format(navsim_data: Path, tmp_path, m
     expected, got = lead.forward(trained, inputs), lead.forward(loaded, inputs)
     assert set(got) == set(expected) and all(torch.equal(got[k], expected[k]) for k in expected)
     assert cli_main(["export-lead", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
+
+
+def test_init_from_a_lead_checkpoint_file() -> None:
+    driver = LeadDriver(LeadConfig.from_json(json.loads((TINY / "config.json").read_text())))
+    report = load_matching(driver, TINY / "model_0000.pth")
+    assert len(report.loaded) == len(driver.state_dict()) == 364
+    assert not (report.missing or report.unexpected or report.mismatched)
+    inputs = torch.load(TINY / "inputs.pt", weights_only=True)
+    expected = lead.forward(lead.load_checkpoint(TINY), inputs)
+    got = lead.forward(driver.network.eval(), inputs)
+    assert all(torch.equal(got[k], expected[k]) for k in expected)
