@@ -157,3 +157,35 @@ def test_init_from_a_lead_checkpoint_file() -> None:
     expected = lead.forward(lead.load_checkpoint(TINY), inputs)
     got = lead.forward(driver.network.eval(), inputs)
     assert all(torch.equal(got[k], expected[k]) for k in expected)
+
+
+def test_radar_rows_are_sensor_major_as_lead_lays_them_out() -> None:
+    config = LeadConfig.from_json(CARLA)
+    radar = torch.tensor([[[10.0, 3.0, 0.5, 2.0, 1.0], [5.0, -1.0, 0.5, -1.0, 3.0], [90.0, 0.0, 0.5, 1.0, 0.0]]])
+    valid = torch.tensor([[True, True, True]])
+    inputs = to_lead_inputs({"rgb": torch.zeros(1, 3, 4, 4), "speed": torch.zeros(1), "command": torch.zeros(1),
+                             "radar": radar, "radar_valid": valid}, config)  # fmt: skip
+    lead_radar = inputs["radar"][0]
+    assert lead_radar.shape == (300, 5)
+    assert lead_radar[:, 4].tolist() == [float(s) for s in range(4) for _ in range(75)]
+    assert lead_radar[75].tolist() == [10.0, -3.0, 0.5, 2.0, 1.0]  # sensor 1's first row; left -> negative y
+    assert lead_radar[225].tolist() == [5.0, 1.0, 0.5, -1.0, 3.0]
+    assert lead_radar[0].tolist() == [0.0, 0.0, 0.0, 0.0, 0.0]  # x = 90 m is off LEAD's BEV: dropped
+    assert int((lead_radar[:, :4] != 0).any(1).sum()) == 2
+
+
+def test_converted_carla_samples_drive_a_lead_tfv6(carla_samples) -> None:
+    from lead_reference import TINY_CARLA
+
+    from lead_s2r.data.collate import collate
+    from lead_s2r.data.transforms import SourceTransform
+
+    driver = LeadDriver(LeadConfig.from_json(TINY_CARLA)).eval()
+    transform = SourceTransform("carla", driver.transform_config, cameras=["carla_mosaic"])
+    batch = collate([transform(sample) for sample in carla_samples])
+    assert batch["rgb"].shape[-2:] == (384, 1152) and batch["lidar_bev"].shape[-2:] == (192, 160)
+    with torch.inference_mode():
+        out = driver(batch, "carla", driver.tasks("carla"))
+    assert driver.tasks("carla") == {"waypoints", "route"} and driver.grid("carla").dt == 0.25
+    assert out["waypoints"].shape == (3, 8, 2) and out["route"].shape == (3, 10, 2)
+    assert torch.isfinite(out["waypoints"]).all()

@@ -12,6 +12,8 @@
   right, unknown) or CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
   unknown -> lane follow, as LEAD maps it).
 - Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
+- Radar: LEAD's (B, 300, 5) is sensor-major, 75 rows per sensor, points outside its BEV dropped and missing rows
+  zero with the sensor id kept; LEAD does not mask them, so the padding rows' ids matter and are rebuilt here.
 """
 
 import torch
@@ -24,6 +26,8 @@ from lead_s2r.schema import Command
 #: Our 4-way command id -> index in LEAD's one-hot.
 NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
 CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
+#: LEAD's radar rows per sensor (``num_radar_points_per_sensor``).
+RADAR_ROWS_PER_SENSOR = 75
 #: Slots of our ``target_points`` (B, 3, 2): previous, current, next.
 TARGET_POINT_KEYS = ("target_point_previous", "target_point", "target_point_next")
 
@@ -50,6 +54,26 @@ def command_one_hot(command: Tensor, config: LeadConfig) -> Tensor:
     return torch.nn.functional.one_hot(index, config.discrete_command_dim).float()
 
 
+def radar_to_lead(radar: Tensor, valid: Tensor, config: LeadConfig) -> Tensor:
+    """Our (B, N, 5) radar rows (ISO) with their mask -> LEAD's sensor-major (B, sensors x 75, 5), y flipped."""
+    flipped = flip_y(radar.float())
+    inside = (
+        valid
+        & (flipped[..., 0] >= config.min_x_meter)
+        & (flipped[..., 0] <= config.max_x_meter)
+        & (flipped[..., 1] >= config.min_y_meter)
+        & (flipped[..., 1] <= config.max_y_meter)
+    )
+    sensors, rows = config.num_radar_sensors, RADAR_ROWS_PER_SENSOR
+    out = torch.zeros(len(radar), sensors * rows, 5, device=radar.device)
+    out[..., 4] = torch.arange(sensors, device=radar.device).repeat_interleave(rows).float()
+    for b in range(len(radar)):
+        for sensor in range(sensors):
+            points = flipped[b][inside[b] & (flipped[b, :, 4] == sensor)][:rows]
+            out[b, sensor * rows : sensor * rows + len(points)] = points
+    return out
+
+
 def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
     """Our batch -> LEAD's input dict (keys, units and frame of LEAD's ``TFv6.forward``)."""
     speed = batch["speed"].float()
@@ -62,10 +86,8 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
         points = flip_y(batch["target_points"].float())
         out.update({key: points[:, i] for i, key in enumerate(TARGET_POINT_KEYS)})
     if "radar" in batch:
-        radar = flip_y(batch["radar"].float())
-        if "radar_valid" in batch:  # LEAD's missing rows are zeros with the sensor id kept
-            radar[..., :4] = radar[..., :4] * batch["radar_valid"][..., None]
-        out["radar"] = radar
+        valid = batch.get("radar_valid", torch.ones(batch["radar"].shape[:2], dtype=torch.bool))
+        out["radar"] = radar_to_lead(batch["radar"], valid.to(batch["radar"].device), config)
     return out
 
 
