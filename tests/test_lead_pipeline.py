@@ -17,7 +17,7 @@ from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.models import lead
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver, transform_config
-from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
+from lead_s2r.models.lead_frame import bev_map_from_lead, from_lead_outputs, to_lead_inputs
 from lead_s2r.predictions import read_predictions
 from lead_s2r.schema import Command
 from lead_s2r.synthetic import navsim as synth
@@ -53,6 +53,7 @@ def test_a_left_point_arrives_where_lead_puts_left() -> None:
     rows, cols = torch.nonzero(raster, as_tuple=True)
     # LEAD: rows run along its y from min_y (left) to max_y (right): y_right = -5.1 -> row floor((40 - 5.1) * 4)
     assert rows.tolist() == [139] and cols.tolist() == [168] and raster[139, 168] == 1 / 5
+    assert torch.equal(bev_map_from_lead(inputs["rasterized_lidar"]), batch["lidar_bev"] / 5)  # LEAD maps come back
     assert inputs["target_point"].tolist() == [[20.0, -5.0]]  # LEAD's left is negative y
     assert inputs["target_point_previous"].tolist() == [[1.0, -0.5]]
     assert inputs["target_point_next"].tolist() == [[40.0, 6.0]]
@@ -189,3 +190,39 @@ def test_converted_carla_samples_drive_a_lead_tfv6(carla_samples) -> None:
     assert driver.tasks("carla") == {"waypoints", "route"} and driver.grid("carla").dt == 0.25
     assert out["waypoints"].shape == (3, 8, 2) and out["route"].shape == (3, 10, 2)
     assert torch.isfinite(out["waypoints"]).all()
+
+
+def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> None:
+    """LEAD's mixed training (NAVSIM target + CARLA heads): each source's losses reach the heads LEAD has for it."""
+    spec = {**json.loads((TINY / "config.json").read_text()), "use_carla_data": True}
+    driver = LeadDriver(LeadConfig.from_json(spec))
+    assert driver.tasks("navsim") == {"waypoints", "headings", "bev_semantic"}
+    assert driver.tasks("carla") == {"semantic"} and driver.tasks("wod") == set()
+    assert set(driver.transform_config.trajectory_grids) == {"navsim", "carla"}
+    module = DrivingModule(driver, supervise={"navsim": ["planning", "perception"], "carla": ["perception"]})
+    g = torch.Generator().manual_seed(0)
+
+    def status(n: int) -> dict[str, torch.Tensor]:
+        return {
+            "rgb": torch.randint(0, 256, (n, 3, 270, 480), dtype=torch.uint8, generator=g),
+            "speed": torch.rand(n, generator=g) * 10,
+            "acceleration": torch.randn(n, 2, generator=g),
+            "command": torch.tensor([1, 3][:n]),
+        }
+
+    batch = {
+        "navsim": {
+            **status(2),
+            "waypoints": torch.randn(2, 8, 2, generator=g),
+            "headings": torch.randn(2, 8, generator=g) * 0.1,
+            "bev_semantic": torch.randint(0, 7, (2, 128, 128), dtype=torch.uint8, generator=g),
+        },
+        "carla": {**status(1), "semantic": torch.randint(0, 10, (1, 270, 480), dtype=torch.uint8, generator=g)},
+    }
+    total, terms = module.compute_losses(batch)
+    assert set(terms) == {"navsim/waypoints", "navsim/headings", "navsim/bev_semantic", "carla/semantic"}
+    total.backward()
+    network = driver.network
+    for head in (network.bev_semantic_decoder_navsim, network.semantic_decoder, network.planning_decoder):
+        assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
+    assert all(p.grad is None for p in network.center_net_decoder.parameters())  # boxes: not trained here

@@ -4,8 +4,10 @@ fine-tuning with ``fit``, and back out with ``lead-s2r export-lead``.
 
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
 :mod:`lead_s2r.models.lead_frame` only. The loader follows :func:`transform_config`: LEAD's image size and camera
-band, its BEV extent for the LiDAR raster, radar and target points when the network reads them, and no perception
-labels (this wrapper trains the planner's outputs: waypoints, NAVSIM headings, CARLA route).
+band, its BEV extent for the LiDAR raster, radar and target points when the network reads them, and the labels of the
+heads whose classes are ours too: the planner's outputs (waypoints, NAVSIM headings, CARLA route) for the source the
+network plans for, NAVSIM BEV semantics, and with CARLA data (LEAD's mixed training) CARLA perspective semantics and
+depth. LEAD's CARLA BEV classes, boxes and radar detections are not trained through this wrapper.
 """
 
 from collections.abc import Collection
@@ -23,7 +25,7 @@ from lead_s2r.models.config import (
 )
 from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
-from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, LeadConfig
 from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
@@ -33,9 +35,27 @@ def lead_source(config: LeadConfig) -> str:
     return "carla" if config.carla_leaderboard_mode else "navsim"
 
 
+def lead_sources(config: LeadConfig) -> tuple[str, ...]:
+    """The sources whose batches the network reads: the one it plans for, and CARLA when it has CARLA heads."""
+    source = lead_source(config)
+    return (source, "carla") if config.use_carla_data and source != "carla" else (source,)
+
+
+def perception_tasks(config: LeadConfig, source: str) -> set[str]:
+    """Our perception tasks a LEAD network's heads produce for ``source`` in our label spaces."""
+    tasks = set()
+    if source == "navsim" and config.use_navsim_data and config.use_bev_semantic:
+        tasks.add("bev_semantic")
+    if source == "carla" and config.use_carla_data and config.use_semantic:
+        tasks.add("semantic")
+    if source == "carla" and config.use_carla_data and config.use_depth:
+        tasks.add("depth")
+    return tasks
+
+
 def transform_config(config: LeadConfig) -> TFv6Config:
     """What our loader must produce for this LEAD network (see the module docstring)."""
-    source = lead_source(config)
+    grids, carla = default_grids(), perception_tasks(config, "carla")
     return TFv6Config(
         image_size=(config.final_image_height, config.final_image_width),
         vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG if config.use_navsim_data else None,
@@ -49,13 +69,13 @@ def transform_config(config: LeadConfig) -> TFv6Config:
         bev_input="coordinates" if config.LTF else "raster",
         lidar_channels=2 if config.LTF else 1,
         target_points=TARGET_POINT_SLOTS if config.use_tp or config.use_tfv5_planning_decoder else (),
-        trajectory_grids={source: default_grids()[source]},
+        trajectory_grids={source: grids[source] for source in lead_sources(config)},
         use_radar=config.has_radar_detector,
         radar_sources=("carla",),
-        bev_semantic_classes={},
+        bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if perception_tasks(config, "navsim") else {},
         box_classes={},
-        semantic_classes={},
-        depth_sources=(),
+        semantic_classes={"carla": config.num_semantic_classes} if "semantic" in carla else {},
+        depth_sources=("carla",) if "depth" in carla else (),
     )
 
 
@@ -89,21 +109,21 @@ class LeadDriver(nn.Module):
         return transform_config(self.config)
 
     def grid(self, source: str) -> TrajectoryGrid:
-        return default_grids()[self.source]
+        return default_grids()[source]
 
     def tasks(self, source: str) -> frozenset[str]:
-        if source != self.source:
-            return frozenset()
-        tasks = {"waypoints"}
-        if self.config.use_navsim_data and not self.config.use_tfv5_planning_decoder:
-            tasks.add("headings")
-        if self.config.predict_spatial_path or self.config.use_tfv5_planning_decoder:
-            tasks.add("route")
+        tasks = perception_tasks(self.config, source)
+        if source == self.source:
+            tasks.add("waypoints")
+            if self.config.use_navsim_data and not self.config.use_tfv5_planning_decoder:
+                tasks.add("headings")
+            if self.config.predict_spatial_path or self.config.use_tfv5_planning_decoder:
+                tasks.add("route")
         return frozenset(tasks)
 
     def forward(self, batch: Batch, source: str, tasks: Collection[str] | None = None) -> dict[str, Tensor]:
-        if source != self.source:
-            raise ValueError(f"this LEAD network plans for {self.source!r}, not {source!r}")
+        if source not in lead_sources(self.config):
+            raise ValueError(f"this LEAD network reads {list(lead_sources(self.config))} batches, not {source!r}")
         if isinstance(self.network, LeadEnsemble) and self.training:
             raise ValueError("a LEAD ensemble predicts only; fine-tune one member (pattern=model_0030_0.pth)")
         return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)))

@@ -44,6 +44,11 @@ def lidar_to_lead(lidar_bev: Tensor) -> Tensor:
     return lidar_input(lidar_bev, torch.float32).transpose(-1, -2).flip(-2)
 
 
+def bev_map_from_lead(lead_map: Tensor) -> Tensor:
+    """LEAD's (B, C, rows = y left to right, columns = x) map -> ours (B, C, H=x, W=y left); inverse of the raster's."""
+    return lead_map.flip(-2).transpose(-1, -2)
+
+
 def command_one_hot(command: Tensor, config: LeadConfig) -> Tensor:
     """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot."""
     table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
@@ -92,9 +97,16 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
 
 
 def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
-    """LEAD's planning outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``,
-    ``target_speed_logits`` (those the network produced)."""
+    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
+    NAVSIM ``bev_semantic`` (same 7 classes) and the image-space CARLA ``semantic`` / ``depth`` (those the network
+    produced). LEAD's CARLA BEV classes, boxes and radar have no counterpart in our label spaces and stay out."""
     ours: dict[str, Tensor] = {}
+    if "pred_bev_semantic_navsim" in outputs:
+        ours["bev_semantic"] = bev_map_from_lead(outputs["pred_bev_semantic_navsim"])
+    if "pred_semantic" in outputs:
+        ours["semantic"] = outputs["pred_semantic"]
+    if "pred_depth" in outputs:
+        ours["depth"] = outputs["pred_depth"]
     if "pred_future_waypoints" in outputs:
         ours["waypoints"] = flip_y(outputs["pred_future_waypoints"])
     if "pred_headings" in outputs:
