@@ -15,8 +15,9 @@ from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.models import lead
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.lead_config import LeadConfig
-from lead_s2r.models.lead_driver import LeadDriver, transform_config
+from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_frame import bev_map_from_lead, from_lead_outputs, to_lead_inputs
 from lead_s2r.predictions import read_predictions
 from lead_s2r.schema import Command
@@ -37,7 +38,7 @@ CARLA = {"use_planning_decoder": True}
 
 def test_a_left_point_arrives_where_lead_puts_left() -> None:
     config = LeadConfig.from_json(CARLA)  # BEV x -32..64, y -40..40 m at 4 px/m: LEAD's raster is 320 x 384
-    ours = transform_config(config).bev
+    ours = input_spec(config).bev
     point = np.array([[10.1, 5.1, 0.0]], np.float32)  # 10.1 m ahead, 5.1 m to the LEFT (ISO)
     batch = {
         "rgb": torch.zeros(1, 3, 384, 1152, dtype=torch.uint8),
@@ -182,7 +183,7 @@ def test_converted_carla_samples_drive_a_lead_tfv6(carla_samples) -> None:
     from lead_s2r.data.transforms import SourceTransform
 
     driver = LeadDriver(LeadConfig.from_json(TINY_CARLA)).eval()
-    transform = SourceTransform("carla", driver.transform_config, cameras=["carla_mosaic"])
+    transform = SourceTransform("carla", input_spec(driver.config), cameras=["carla_mosaic"])
     batch = collate([transform(sample) for sample in carla_samples])
     assert batch["rgb"].shape[-2:] == (384, 1152) and batch["lidar_bev"].shape[-2:] == (192, 160)
     with torch.inference_mode():
@@ -198,7 +199,7 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
     driver = LeadDriver(LeadConfig.from_json(spec))
     assert driver.tasks("navsim") == {"waypoints", "headings", "bev_semantic"}
     assert driver.tasks("carla") == {"semantic"} and driver.tasks("wod") == set()
-    assert set(driver.transform_config.trajectory_grids) == {"navsim", "carla"}
+    assert set(input_spec(driver.config).trajectory_grids) == {"navsim", "carla"}
     module = DrivingModule(driver, supervise={"navsim": ["planning", "perception"], "carla": ["perception"]})
     g = torch.Generator().manual_seed(0)
 

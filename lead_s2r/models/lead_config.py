@@ -328,6 +328,29 @@ class LeadConfig:
         return 8
 
     @property
+    def planning_source(self) -> str:
+        """The one source (our name) the planner predicts for: 8 poses at 4 Hz for CARLA, 2 Hz for NAVSIM."""
+        return "carla" if self.carla_leaderboard_mode else "navsim"
+
+    @property
+    def sources(self) -> tuple[str, ...]:
+        """The sources whose batches the network reads: the one it plans for, and CARLA when it has CARLA heads."""
+        source = self.planning_source
+        return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
+
+    def perception_tasks(self, source: str) -> set[str]:
+        """Our perception tasks (names of ``lead_s2r.training.losses``) LEAD's heads produce for ``source`` in our
+        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and CARLA perspective semantics and depth."""
+        tasks = set()
+        if source == "navsim" and self.use_navsim_data and self.use_bev_semantic:
+            tasks.add("bev_semantic")
+        if source == "carla" and self.use_carla_data and self.use_semantic:
+            tasks.add("semantic")
+        if source == "carla" and self.use_carla_data and self.use_depth:
+            tasks.add("depth")
+        return tasks
+
+    @property
     def has_radar_detector(self) -> bool:
         return bool(self.radar_detection and self.use_carla_data)
 

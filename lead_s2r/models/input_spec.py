@@ -1,0 +1,110 @@
+"""What a model asks of its data: the inputs and labels the data transforms build, per source, on which grids.
+
+The data side (``lead_s2r.data``) is configured by an :class:`InputSpec`, never by a model's own configuration: a
+model config produces one (:func:`input_spec`), so a model with other inputs (the ego-status MLP: no sensor, no
+label) says so plainly instead of posing as a TFv6 configuration.
+"""
+
+from dataclasses import dataclass, field
+
+from lead_s2r.models.config import (
+    CARLA_BEV,
+    NAVSIM_VERTICAL_FOV_DEG,
+    BEVGrid,
+    EgoMLPConfig,
+    TFv6Config,
+    TrajectoryGrid,
+    default_grids,
+)
+from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, LeadConfig
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """The inputs and labels a model reads, and their grids.
+
+    Attributes:
+        trajectory_grids: per source, the output grid its future is resampled to (the sources the model knows).
+        image_size: (H, W) of the camera input.
+        vertical_fov_deg: rows kept around each camera tile's principal point (None: all rows).
+        equal_tiles: the model cuts equal tiles from a mosaic that fills ``image_size`` (the camera ablations).
+        bev: the BEV grid of the LiDAR raster and the BEV labels.
+        lidar_raster: the model reads the LiDAR BEV raster.
+        radar: the model reads radar points; ``radar_sources`` also get radar detection targets.
+        label_space: source -> label space of its perception labels (default: the source's own name).
+        bev_semantic_classes, box_classes, semantic_classes: per label space, the classes of each perception head.
+        depth_sources: label spaces with a depth head; ``max_depth`` decodes stored depth PNGs without a scale.
+        num_route_points: route checkpoints per sample.
+    """
+
+    trajectory_grids: dict[str, TrajectoryGrid]
+    image_size: tuple[int, int] = (384, 1152)
+    vertical_fov_deg: float | None = None
+    equal_tiles: bool = False
+    bev: BEVGrid = CARLA_BEV
+    lidar_raster: bool = False
+    radar: bool = False
+    radar_sources: tuple[str, ...] = ()
+    label_space: dict[str, str] = field(default_factory=dict)
+    bev_semantic_classes: dict[str, int] = field(default_factory=dict)
+    box_classes: dict[str, int] = field(default_factory=dict)
+    semantic_classes: dict[str, int] = field(default_factory=dict)
+    depth_sources: tuple[str, ...] = ()
+    max_depth: float = 50.0
+    num_route_points: int = 10
+
+    def space(self, source: str) -> str:
+        """The label space a source's perception labels live in."""
+        return self.label_space.get(source, source)
+
+
+def input_spec(config: TFv6Config | EgoMLPConfig | LeadConfig) -> InputSpec:
+    """The inputs a model built from ``config`` reads: every sensor and label of a TFv6-family config; the ego state
+    and its output grids only for the ego-status MLP; for LEAD's own network, :func:`lead_input_spec`."""
+    if isinstance(config, EgoMLPConfig):
+        return InputSpec(trajectory_grids=dict(config.trajectory_grids))
+    if isinstance(config, LeadConfig):
+        return lead_input_spec(config)
+    return InputSpec(
+        trajectory_grids=dict(config.trajectory_grids),
+        image_size=tuple(config.image_size),
+        vertical_fov_deg=config.vertical_fov_deg,
+        equal_tiles=config.use_tiles is not None or config.fov_fraction < 1.0,
+        bev=config.bev,
+        lidar_raster=config.bev_input == "raster",
+        radar=config.use_radar,
+        radar_sources=tuple(config.radar_sources),
+        label_space=dict(config.label_space),
+        bev_semantic_classes=dict(config.bev_semantic_classes),
+        box_classes=dict(config.box_classes),
+        semantic_classes=dict(config.semantic_classes),
+        depth_sources=tuple(config.depth_sources),
+        max_depth=config.max_depth,
+        num_route_points=config.num_route_points,
+    )
+
+
+def lead_input_spec(config: LeadConfig) -> InputSpec:
+    """What LEAD's network (``lead_s2r.models.lead_driver.LeadDriver``) reads: LEAD's image size (NAVSIM: at NAVSIM's
+    vertical field of view), its BEV extent for the LiDAR raster, radar and target points when it reads them, and the
+    labels of the heads whose classes are ours too (:meth:`LeadConfig.perception_tasks`)."""
+    grids, carla = default_grids(), config.perception_tasks("carla")
+    return InputSpec(
+        trajectory_grids={source: grids[source] for source in config.sources},
+        image_size=(config.final_image_height, config.final_image_width),
+        vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG if config.use_navsim_data else None,
+        bev=BEVGrid(
+            float(config.min_x_meter),
+            float(config.max_x_meter),
+            float(config.min_y_meter),
+            float(config.max_y_meter),
+            float(config.pixels_per_meter),
+        ),
+        lidar_raster=not config.LTF,
+        radar=config.has_radar_detector,
+        radar_sources=(),  # radar detection is not trained through LeadDriver: no detection targets
+        bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if config.perception_tasks("navsim") else {},
+        semantic_classes={"carla": config.num_semantic_classes} if "semantic" in carla else {},
+        depth_sources=("carla",) if "depth" in carla else (),
+        num_route_points=config.num_route_points_prediction,
+    )
