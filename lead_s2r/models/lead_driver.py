@@ -16,6 +16,7 @@ from pathlib import Path
 
 from torch import Tensor, nn
 
+from lead_s2r.errors import UserError
 from lead_s2r.models.config import TrajectoryGrid, default_grids
 from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
@@ -63,8 +64,12 @@ class LeadDriver(nn.Module):
         return frozenset(tasks)
 
     def forward(self, batch: Batch, source: str, tasks: Collection[str] | None = None) -> dict[str, Tensor]:
+        """Our outputs for ``source``; ``tasks`` is part of the interface only: LEAD's network runs all its heads."""
         if source not in self.config.sources:
             raise ValueError(f"this LEAD network reads {list(self.config.sources)} batches, not {source!r}")
         if isinstance(self.network, LeadEnsemble) and self.training:
-            raise ValueError("a LEAD ensemble predicts only; fine-tune one member (pattern=model_0030_0.pth)")
+            raise UserError(
+                "model.checkpoint holds several model*.pth files (an ensemble, prediction only); to fine-tune, pick "
+                "one with model.pattern, e.g. model_0030_0.pth"
+            )
         return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)))
