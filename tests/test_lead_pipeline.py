@@ -197,7 +197,7 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
     """LEAD's mixed training (NAVSIM target + CARLA heads): each source's losses reach the heads LEAD has for it."""
     spec = {**json.loads((TINY / "config.json").read_text()), "use_carla_data": True}
     driver = LeadDriver(LeadConfig.from_json(spec))
-    assert driver.tasks("navsim") == {"waypoints", "headings", "bev_semantic"}
+    assert driver.tasks("navsim") == {"waypoints", "headings", "bev_semantic", "boxes"}
     assert driver.tasks("carla") == {"semantic"} and driver.tasks("wod") == set()
     assert set(input_spec(driver.config).trajectory_grids) == {"navsim", "carla"}
     module = DrivingModule(driver, supervise={"navsim": ["planning", "perception"], "carla": ["perception"]})
@@ -217,13 +217,27 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
             "waypoints": torch.randn(2, 8, 2, generator=g),
             "headings": torch.randn(2, 8, generator=g) * 0.1,
             "bev_semantic": torch.randint(0, 7, (2, 128, 128), dtype=torch.uint8, generator=g),
+            "box_heatmap": torch.rand(2, 1, 32, 32, generator=g).pow(8),
+            "box_index": torch.tensor([[40, 700], [5, 0]]),
+            "box_valid": torch.tensor([[True, True], [True, False]]),
+            "box_offset": torch.rand(2, 2, 2, generator=g),
+            "box_size": torch.rand(2, 2, 2, generator=g) * 4,
+            "box_yaw": torch.randn(2, 2, generator=g),
+            "box_velocity": torch.rand(2, 2, generator=g) * 5,
         },
         "carla": {**status(1), "semantic": torch.randint(0, 10, (1, 270, 480), dtype=torch.uint8, generator=g)},
     }
     total, terms = module.compute_losses(batch)
-    assert set(terms) == {"navsim/waypoints", "navsim/headings", "navsim/bev_semantic", "carla/semantic"}
+    assert set(terms) == {
+        "navsim/waypoints",
+        "navsim/headings",
+        "navsim/bev_semantic",
+        "navsim/boxes",
+        "carla/semantic",
+    }
     total.backward()
     network = driver.network
-    for head in (network.bev_semantic_decoder_navsim, network.semantic_decoder, network.planning_decoder):
+    heads = (network.bev_semantic_decoder_navsim, network.center_net_decoder_navsim, network.semantic_decoder)
+    for head in (*heads, network.planning_decoder):
         assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
     assert all(p.grad is None for p in network.center_net_decoder.parameters())  # boxes: not trained here

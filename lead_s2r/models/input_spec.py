@@ -16,7 +16,7 @@ from lead_s2r.models.config import (
     TrajectoryGrid,
     default_grids,
 )
-from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, LeadConfig
+from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, NAVSIM_BOX_CLASSES, LeadConfig
 
 
 @dataclass(frozen=True)
@@ -88,7 +88,7 @@ def lead_input_spec(config: LeadConfig) -> InputSpec:
     """What LEAD's network (``lead_s2r.models.lead_driver.LeadDriver``) reads: LEAD's image size (NAVSIM: at NAVSIM's
     vertical field of view), its BEV extent for the LiDAR raster, radar and target points when it reads them, and the
     labels of the heads whose classes are ours too (:meth:`LeadConfig.perception_tasks`)."""
-    grids, carla = default_grids(), config.perception_tasks("carla")
+    grids, navsim, carla = default_grids(), config.perception_tasks("navsim"), config.perception_tasks("carla")
     return InputSpec(
         trajectory_grids={source: grids[source] for source in config.sources},
         image_size=(config.final_image_height, config.final_image_width),
@@ -103,7 +103,8 @@ def lead_input_spec(config: LeadConfig) -> InputSpec:
         lidar_raster=not config.LTF,
         radar=config.has_radar_detector,
         radar_sources=(),  # radar detection is not trained through LeadDriver: no detection targets
-        bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if config.perception_tasks("navsim") else {},
+        bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if "bev_semantic" in navsim else {},
+        box_classes={"navsim": NAVSIM_BOX_CLASSES} if "boxes" in navsim else {},
         semantic_classes={"carla": config.num_semantic_classes} if "semantic" in carla else {},
         depth_sources=("carla",) if "depth" in carla else (),
         num_route_points=config.num_route_points_prediction,

@@ -340,15 +340,23 @@ class LeadConfig:
 
     def perception_tasks(self, source: str) -> set[str]:
         """Our perception tasks (names of ``lead_s2r.training.losses``) LEAD's heads produce for ``source`` in our
-        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and CARLA perspective semantics and depth."""
+        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics and
+        depth."""
         tasks = set()
         if source == "navsim" and self.use_navsim_data and self.use_bev_semantic:
             tasks.add("bev_semantic")
+        if source == "navsim" and self.use_navsim_data and self.detect_boxes:
+            tasks.add("boxes")
         if source == "carla" and self.use_carla_data and self.use_semantic:
             tasks.add("semantic")
         if source == "carla" and self.use_carla_data and self.use_depth:
             tasks.add("depth")
         return tasks
+
+    @property
+    def box_yaw_bins(self) -> int:
+        """Yaw bins of the CenterNet heads, under the name our box loss reads."""
+        return self.num_dir_bins
 
     @property
     def has_radar_detector(self) -> bool:

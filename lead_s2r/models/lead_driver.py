@@ -7,8 +7,8 @@ Batches cross into LEAD's input contract and predictions come back into our ISO 
 :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
 raster, radar and target points when the network reads them, and the labels of the heads whose classes are ours too:
 the planner's outputs (waypoints, NAVSIM headings, CARLA route) for the source the network plans for, NAVSIM BEV
-semantics, and with CARLA data (LEAD's mixed training) CARLA perspective semantics and depth. LEAD's CARLA BEV
-classes, boxes and radar detections are not trained through this wrapper.
+semantics and boxes, and with CARLA data (LEAD's mixed training) CARLA perspective semantics and depth. LEAD's CARLA BEV
+classes, CARLA boxes, radar detections and target speed are not trained through this wrapper.
 """
 
 from collections.abc import Collection

@@ -26,6 +26,15 @@ from lead_s2r.schema import Command
 #: Our 4-way command id -> index in LEAD's one-hot.
 NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
 CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
+#: LEAD's CenterNet fields -> our box head's names (``lead_s2r.training.losses.box_loss``).
+BOX_FIELDS = {
+    "center_heatmap_logit_pred": "box_heatmap",
+    "offset_pred": "box_offset",
+    "wh_pred": "box_size",
+    "yaw_class_pred": "box_yaw_class",
+    "yaw_res_pred": "box_yaw_residual",
+    "velocity_pred": "box_velocity",
+}
 #: LEAD's radar rows per sensor (``num_radar_points_per_sensor``).
 RADAR_ROWS_PER_SENSOR = 75
 #: Slots of our ``target_points`` (B, 3, 2): previous, current, next.
@@ -98,11 +107,17 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
 
 def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
     """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
-    NAVSIM ``bev_semantic`` (same 7 classes) and the image-space CARLA ``semantic`` / ``depth`` (those the network
-    produced). LEAD's CARLA BEV classes, boxes and radar have no counterpart in our label spaces and stay out."""
+    NAVSIM ``bev_semantic`` (same 7 classes) and ``box_*`` maps, and the image-space CARLA ``semantic`` / ``depth``
+    (those the network produced). LEAD's CARLA BEV classes, boxes and radar have no counterpart in our label spaces.
+
+    The NAVSIM box maps only move onto our grid: their channels are whatever our box loss trains them to be (LEAD's
+    own offset, size and yaw encodings are in its frame, so released box heads start from a different encoding)."""
     ours: dict[str, Tensor] = {}
     if "pred_bev_semantic_navsim" in outputs:
         ours["bev_semantic"] = bev_map_from_lead(outputs["pred_bev_semantic_navsim"])
+    for field, name in BOX_FIELDS.items():
+        if f"pred_bounding_box_navsim.{field}" in outputs:
+            ours[name] = bev_map_from_lead(outputs[f"pred_bounding_box_navsim.{field}"])
     if "pred_semantic" in outputs:
         ours["semantic"] = outputs["pred_semantic"]
     if "pred_depth" in outputs:
