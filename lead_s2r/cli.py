@@ -250,6 +250,13 @@ def cmd_table(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_lead(args: argparse.Namespace) -> int:
+    from lead_s2r.training.lead_export import export_run
+
+    print(f"wrote {export_run(Path(args.run_dir), Path(args.out))} (config.json + model_0000.pth, LEAD's format)")
+    return 0
+
+
 def cmd_quickstart(args: argparse.Namespace) -> int:
     from lead_s2r.demo.quickstart import quickstart
 
@@ -337,6 +344,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--runs", required=True, nargs="+", help="run directories or glob patterns (runs/*/seed*)")
     sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
     sub.set_defaults(run=cmd_table)
+
+    sub = verbs.add_parser("export-lead", help="a run trained with LEAD's architecture -> a LEAD checkpoint folder")
+    sub.add_argument("run_dir", metavar="RUN", help="run folder (its checkpoints/last.ckpt) or a .ckpt file")
+    sub.add_argument("--out", required=True, help="folder for config.json + model_0000.pth")
+    sub.set_defaults(run=cmd_export_lead)
 
     sub = verbs.add_parser("quickstart", help="synthetic data -> smoke runs -> held-out scores -> Table 4")
     sub.add_argument("--out", default="quickstart")
