@@ -185,7 +185,18 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
         f"predictions, scores): {out / 'runs'}/<family>/<name>/seed{SEED} (lead-s2r table --spec table4 --runs "
         f"'{out / 'runs'}/*/*/seed*'); Lightning's console output: {out / LIGHTNING_LOG}"
     )
+    console.print(f"Report (open in a browser): {write_report(out)}")
     return results
+
+
+def write_report(out: Path) -> Path:
+    """The web report of the Ego MLP on NAVSIM against the logged human (the Expert row) as baseline: where the model
+    loses to the human, sample by sample, PDMS and EPDMS sub-scores included. Returns its ``index.html``. (A run
+    folder holds one family, ``runs/<family>/<name>/seed0``; the WOD-E2E half is ``runs/wod/ego_mlp/seed0``.)"""
+    from lead_s2r.report.site import build_report
+
+    run, baseline = run_folder(out, "navsim", "ego_mlp"), run_folder(out, "navsim", "expert")
+    return build_report(run, out / "report", baseline=baseline, worst=4)
 
 
 def steps_range() -> str:
