@@ -204,9 +204,11 @@ def test_a_folder_holds_one_adapter_and_one_set_of_options(tmp_path):
     assert forced.logs_converted == 2 and load_info(tmp_path / "out")["adapter_options"] == {"rig": "both"}
 
 
-def _children(pid: int) -> list[int]:
+def _descendants(pid: int) -> list[int]:
+    """Children, grandchildren...: pool workers are children of a forkserver, the driver's child."""
     path = Path(f"/proc/{pid}/task/{pid}/children")
-    return [int(child) for child in path.read_text().split()] if path.exists() else []
+    children = [int(child) for child in path.read_text().split()] if path.exists() else []
+    return children + [grandchild for child in children for grandchild in _descendants(child)]
 
 
 def _alive(pid: int) -> bool:
@@ -229,8 +231,8 @@ def test_killed_driver_leaves_no_orphaned_workers(tmp_path):
     deadline = time.time() + 60
     while time.time() < deadline and not list((out / "shards").glob("*.partial")):  # workers are converting
         time.sleep(0.05)
-    workers = _children(driver.pid)
-    assert workers, "the driver should have started its workers"
+    workers = _descendants(driver.pid)
+    assert len(workers) >= 2, "the driver should have started its workers"
     os.kill(driver.pid, signal.SIGKILL)  # the driver alone, as an OOM killer would
     driver.wait()
     deadline = time.time() + 10
