@@ -13,11 +13,14 @@ import sys
 import types
 import typing
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
 from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, names
+
+if TYPE_CHECKING:
+    from lead_s2r.processes import Executor
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
 DEBUG_FLAG = "--debug"
@@ -84,6 +87,31 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cluster_executor(args: argparse.Namespace) -> "Executor | None":
+    """A RayExecutor for ``--executor ray`` (checked before anything is written), else None: ``--workers`` decides."""
+    if args.executor != "ray":
+        if args.address is not None:
+            raise UserError("--address names a Ray cluster: add --executor ray")
+        return None
+    from lead_s2r.convert import one_thread_per_worker
+    from lead_s2r.processes import RayExecutor
+
+    return RayExecutor(args.address, initializer=one_thread_per_worker)
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address``: where the jobs of ``convert`` and ``score`` run."""
+    parser.add_argument(
+        "--executor",
+        choices=["processes", "ray"],
+        default="processes",
+        help="processes: --workers on this machine; ray: a task per job on a Ray cluster (pip install lead-s2r[ray])",
+    )
+    parser.add_argument(
+        "--address", default=None, help="with --executor ray: auto, or HOST:PORT of the head (default: RAY_ADDRESS)"
+    )
+
+
 def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
     from lead_s2r.convert import convert
     from lead_s2r.shards import ERRORS
@@ -99,6 +127,7 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
         args.src,
         args.out,
         workers=args.workers,
+        executor=_cluster_executor(args),
         shard_size=args.shard_size,
         limit_logs=args.limit_logs,
         force=args.force,
@@ -294,8 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--src", required=True)
     sub.add_argument("--out", required=True)
     sub.add_argument(
-        "--workers", type=int, default=1, help="processes converting, this one included (the output is the same)"
+        "--workers", type=int, default=1, help="processes converting on this machine (the output is the same)"
     )
+    add_executor_arguments(sub)
     sub.add_argument("--shard-size", type=int, default=1000, help="samples per shard (closed at a log boundary)")
     sub.add_argument("--limit-logs", type=int, default=None)
     sub.add_argument("--force", action="store_true", help="start over instead of resuming")

@@ -138,7 +138,7 @@ def _run_log(adapter: Adapter, out: Path, position: int, log: LogRef) -> tuple[s
         return "error", position, f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"
 
 
-def _one_thread_per_worker() -> None:
+def one_thread_per_worker() -> None:
     """Processes are the parallelism: a native pool per worker (lazrs' rayon LAZ decoder, OpenCV) would
     oversubscribe the cores the other workers use. Rayon reads its variable when its pool first starts."""
     os.environ["RAYON_NUM_THREADS"] = "1"
@@ -254,7 +254,7 @@ def _executor(workers: int, executor: Executor | None) -> Executor:
         return executor
     if workers <= 1:
         return InlineExecutor()
-    return ProcessExecutor(workers, preload=[__name__], initializer=_one_thread_per_worker)
+    return ProcessExecutor(workers, preload=[__name__], initializer=one_thread_per_worker)
 
 
 def _messages(adapter: Adapter, logs: list[LogRef], out: Path, executor: Executor) -> Iterator[tuple[str, int, Any]]:
