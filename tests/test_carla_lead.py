@@ -21,6 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lead_s2r.convert import convert
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.schema import BoxClass, Command
 from lead_s2r.shards import load_info, load_manifest, read_samples
 from lead_s2r.synthetic import carla_lead as synth
@@ -426,10 +427,10 @@ def test_each_rig_is_laid_out_in_ltfv6_by_its_calibration(tmp_path: Path) -> Non
 
     for rig, (tiles, width, height, *_) in LEAD_RIGS.items():
         cameras = camera_calibration(rig)
-        transform = SourceTransform("carla", ltfv6_config(), ["carla_mosaic"])
+        transform = SourceTransform("carla", input_spec(ltfv6_config()), ["carla_mosaic"])
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            layout = transform.layout({"cameras": cameras}, [(height, tiles * width)])
+            layout = transform.camera.layout({"cameras": cameras}, [(height, tiles * width)])
         assert layout.letterboxed == (rig != "NAVSIM_4CAMERAS") == bool(caught), rig
         if rig == "NAVSIM_4CAMERAS":  # nuPlan's 38.5 deg around the principal row 140: rows [5, 275)
             assert {(b.top, b.bottom) for b in layout.bands[0]} == {(5, 275)}

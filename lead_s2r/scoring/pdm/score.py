@@ -116,6 +116,27 @@ def _footprints(scene: PDMScene, states: np.ndarray, drivable_map: DrivableMap |
     return _Footprints(coords, enclosing_radius(scene.vehicle.length, scene.vehicle.width), areas)
 
 
+@dataclass
+class _Prelude:
+    """What v1.1 and v2.2 score alike before they part: checked states, footprints, NC (and when) and DAC."""
+
+    states: np.ndarray
+    fp: _Footprints
+    nc: np.ndarray
+    collision_idx: np.ndarray
+    dac: np.ndarray
+
+
+def _prelude(
+    scene: PDMScene, states: np.ndarray, observation: Observation, lookahead: int, drivable_map: DrivableMap | None
+) -> _Prelude:
+    states = np.asarray(states, np.float64)
+    _check_states(scene, states, observation, lookahead)
+    fp = _footprints(scene, states, drivable_map)
+    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
+    return _Prelude(states, fp, nc, collision_idx, drivable_area_compliance(fp.areas.non_drivable_area))
+
+
 def score_states(
     scene: PDMScene,
     states: np.ndarray,
@@ -128,11 +149,8 @@ def score_states(
     column of :data:`COLUMNS` (indices -1 where nothing happened), plus the ``(N, 41)`` flags ``multiple_lanes``,
     ``non_drivable_area`` and ``oncoming_traffic``. ``ep_reference`` picks EP's normalisation (see
     :func:`~lead_s2r.scoring.pdm.metrics.ego_progress`)."""
-    states = np.asarray(states, np.float64)
-    _check_states(scene, states, observation, max(TTC_OFFSETS))
-    fp = _footprints(scene, states, drivable_map)
-    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
-    dac = drivable_area_compliance(fp.areas.non_drivable_area)
+    base = _prelude(scene, states, observation, max(TTC_OFFSETS), drivable_map)
+    states, fp, nc, collision_idx, dac = base.states, base.fp, base.nc, base.collision_idx, base.dac
     ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S)
     progress = progress_along(_centerline(scene), fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
@@ -184,13 +202,10 @@ def score_states_v2(
     the v1.1 extras, ``lane_keeping_fail_idx`` and the ``(N, 41)`` flags (v1.1's, ``in_intersection`` of the centre
     and ``on_red_light``). HC reads the scene's ``ego_past`` for every row. ``observation``: v2's log replay
     (``log_observation(scene, 41, replay=True)``); ``red_lights``: per step (``red_light_polygons``)."""
-    states = np.asarray(states, np.float64)
-    _check_states(scene, states, observation, 0)
-    fp = _footprints(scene, states, drivable_map)
+    base = _prelude(scene, states, observation, 0, drivable_map)
+    states, fp, nc, collision_idx, dac = base.states, base.fp, base.nc, base.collision_idx, base.dac
     num_steps = states.shape[1]
     red_lights = red_light_polygons(scene, num_steps, INTERVAL_S) if red_lights is None else red_lights
-    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
-    dac = drivable_area_compliance(fp.areas.non_drivable_area)
     in_intersection = fp.areas.center_in_intersection
     ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S, exclude=in_intersection)
     touching = on_red_light(fp.coords, red_lights)
@@ -241,11 +256,7 @@ def _poses(scene: PDMScene, poses: Any, name: str, dims: str) -> np.ndarray:
     return array
 
 
-def _reference(scene: PDMScene, reference: np.ndarray | None) -> np.ndarray:
-    if reference is None:
-        from lead_s2r.scoring.pdm.pdm_closed import plan_reference
-
-        reference = plan_reference(scene)
+def _reference(scene: PDMScene, reference: np.ndarray) -> np.ndarray:
     reference = _poses(scene, reference, "reference", "M, 3")
     if len(reference) < 2:
         raise ValueError(f"scene {scene.key!r}: reference needs poses after t = 0, got shape {reference.shape}")
@@ -263,7 +274,7 @@ def score_proposals(
     scene: PDMScene,
     proposals: np.ndarray,
     interval: float,
-    reference: np.ndarray | None = None,
+    reference: np.ndarray,
     metric: str = METRIC,
     previous: Sequence[PreviousFrame | None] | None = None,
     *,
@@ -273,7 +284,8 @@ def score_proposals(
 ) -> dict[str, np.ndarray]:
     """``metric`` (PDMS v1.1 or EPDMS v2.2) of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``),
     one row each, with the columns of :data:`COLUMNS` or :data:`EPDMS_COLUMNS`. ``reference (M, 3)``: the EP
-    normaliser's trajectory at 0.1 s steps from t = 0 (row 0 is the initial pose); None plans it with PDM-Closed.
+    normaliser's trajectory at 0.1 s steps from t = 0 (row 0 is the initial pose), e.g. PDM-Closed's
+    (:func:`~lead_s2r.scoring.pdm.pdm_closed.plan_reference`, which scores its own candidates with this module).
     ``previous`` (EPDMS only): per proposal the frame before it for EC, or None (EC NaN). ``with_states`` adds the
     proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``).
     The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
