@@ -13,14 +13,11 @@ import sys
 import types
 import typing
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import Any, NoReturn
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
 from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, names
-
-if TYPE_CHECKING:
-    from lead_s2r.processes import Executor
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
 DEBUG_FLAG = "--debug"
@@ -87,18 +84,6 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cluster_executor(args: argparse.Namespace) -> "Executor | None":
-    """A RayExecutor for ``--executor ray`` (checked before anything is written), else None: ``--workers`` decides."""
-    if args.executor != "ray":
-        if args.address is not None:
-            raise UserError("--address names a Ray cluster: add --executor ray")
-        return None
-    from lead_s2r.convert import one_thread_per_worker
-    from lead_s2r.processes import RayExecutor
-
-    return RayExecutor(args.address, initializer=one_thread_per_worker)
-
-
 def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
     """``--executor`` and ``--address``: where the jobs of ``convert`` and ``score`` run."""
     parser.add_argument(
@@ -113,7 +98,7 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
-    from lead_s2r.convert import convert
+    from lead_s2r.convert import conversion_executor, convert
     from lead_s2r.shards import ERRORS
 
     cls = load(args.adapter)
@@ -126,8 +111,7 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
         adapter,
         args.src,
         args.out,
-        workers=args.workers,
-        executor=_cluster_executor(args),
+        executor=conversion_executor(args.workers, args.executor, args.address),
         shard_size=args.shard_size,
         limit_logs=args.limit_logs,
         force=args.force,
@@ -154,6 +138,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
+    from lead_s2r.processes import make_executor
     from lead_s2r.scoring.run import planner_predictions, score_predictions
 
     options: dict[str, Any] = {"allow_missing": not args.strict}
@@ -167,11 +152,13 @@ def cmd_score(args: argparse.Namespace) -> int:
             options[name] = value
     if args.reference_cache:
         options["reference_cache"] = args.reference_cache
+    scorer_module = load(args.metric, SCORER_GROUP).__module__  # the workers' forkserver imports it once
+    executor = make_executor(args.workers, args.executor, args.address, preload=[scorer_module])
     data = [Path(folder) for folder in args.data]
     predictions = Path(args.predictions) if args.predictions else None
     if predictions is None:
         predictions = planner_predictions(args.planner, data, Path(args.out) / f"predictions-{args.planner}.parquet")
-    summary = score_predictions(args.metric, predictions, data, Path(args.out), **options)
+    summary = score_predictions(args.metric, predictions, data, Path(args.out), executor=executor, **options)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -349,6 +336,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
     sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
+    sub.add_argument(
+        "--workers", type=int, default=1, help="processes scoring on this machine (the scores are the same)"
+    )
+    add_executor_arguments(sub)
     sub.set_defaults(run=cmd_score)
 
     _submit_parser(verbs)

@@ -44,7 +44,7 @@ import numpy as np
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, WorkerDied
+from lead_s2r.processes import Executor, WorkerDied, make_executor
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, validate
 from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
@@ -248,13 +248,9 @@ def _next_shard_index(records: list[dict[str, Any]]) -> int:
     return max(indices, default=-1) + 1
 
 
-def _executor(workers: int, executor: Executor | None) -> Executor:
-    """The executor a run uses: the one given, else ``workers`` local processes (this one alone for 1)."""
-    if executor is not None:
-        return executor
-    if workers <= 1:
-        return InlineExecutor()
-    return ProcessExecutor(workers, preload=[__name__], initializer=one_thread_per_worker)
+def conversion_executor(workers: int = 1, executor: str = "processes", address: str | None = None) -> Executor:
+    """The executor of ``workers`` local processes (this one alone for 1), or of the Ray cluster at ``address``."""
+    return make_executor(workers, executor, address, preload=[__name__], initializer=one_thread_per_worker)
 
 
 def _messages(adapter: Adapter, logs: list[LogRef], out: Path, executor: Executor) -> Iterator[tuple[str, int, Any]]:
@@ -369,7 +365,7 @@ def convert(
 
         assembler = _Assembler(out, adapter.name, shard_size, _next_shard_index(records), record)
         try:
-            messages = _messages(adapter, todo, out, _executor(workers, executor))
+            messages = _messages(adapter, todo, out, executor or conversion_executor(workers))
             for arrived, (kind, position, payload) in _in_list_order(messages):
                 if arrived:
                     result.samples += len(payload) if kind == "done" else 0

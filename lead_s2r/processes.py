@@ -75,6 +75,36 @@ class Executor(ABC):
     def description(self) -> str:
         """A few words for logs and benchmarks: ``"2 processes"``, ``"Ray at 10.0.0.1:6379"``."""
 
+    def map(self, function: Job, items: Sequence[tuple[Any, ...]], per_job: int) -> list[Any]:
+        """``[function(*item) for item in items]``, in order, computed in jobs of ``per_job`` consecutive items (one
+        job per item would cost more in messages than many a function call)."""
+        chunks = [(function, items[start : start + per_job]) for start in range(0, len(items), per_job)]
+        results: list[list[Any]] = [[] for _ in chunks]
+        for index, chunk_results in self.run(_apply_to_chunk, chunks):
+            results[index] = chunk_results
+        return [result for chunk_results in results for result in chunk_results]
+
+
+def _apply_to_chunk(function: Job, items: Sequence[tuple[Any, ...]]) -> list[Any]:
+    return [function(*item) for item in items]
+
+
+def make_executor(
+    workers: int,
+    executor: str = "processes",
+    address: str | None = None,
+    preload: Sequence[str] = (),
+    initializer: Callable[[], None] | None = None,
+) -> Executor:
+    """The executor the CLI's ``--workers``, ``--executor`` and ``--address`` name (checked before any work)."""
+    if executor == "ray":
+        return RayExecutor(address, initializer=initializer)
+    if address is not None:
+        raise UserError("--address names a Ray cluster: add --executor ray")
+    if workers <= 1:
+        return InlineExecutor()
+    return ProcessExecutor(workers, preload=preload, initializer=initializer)
+
 
 class InlineExecutor(Executor):
     """Every job in this process, in list order: no start-up, the reference the others must match."""
