@@ -83,7 +83,7 @@ def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> d
     if on_ray:
         import ray
 
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
         executor = RayExecutor(initializer=one_thread_per_worker)
     load = os.getloadavg()[0]
     wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
