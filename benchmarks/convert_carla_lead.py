@@ -78,7 +78,7 @@ def digests(out: Path) -> dict[str, str]:
 
 
 def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> dict[str, float]:
-    """One conversion; on Ray, worker CPU is not measured (Ray's workers are not this process's children)."""
+    """One conversion: wall time, CPU of this process and of its reaped children (NaN for a process pool's)."""
     executor = None
     if on_ray:
         import ray
@@ -99,7 +99,8 @@ def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> d
         "samples": result.samples,
         "wall": wall,
         "driver_cpu": time.process_time() - cpu,
-        "worker_cpu": children_cpu() - child,
+        # a pool's workers are the forkserver's children, and it outlives the run: their CPU is not ours to read
+        "worker_cpu": float("nan") if workers > 1 and not on_ray else children_cpu() - child,
         "load": load,
     }
 
