@@ -23,27 +23,15 @@ from lead_s2r.synthetic import carla_lead, navsim, wod_e2e
 
 ray = pytest.importorskip("ray")
 from ray.cluster_utils import Cluster  # noqa: E402
+from ray_cluster import two_node_cluster  # noqa: E402
 
 TESTS = str(Path(__file__).parent)
-NODE = {"num_cpus": 1, "object_store_memory": 100 * 2**20}
 
 
 @pytest.fixture(scope="module")
 def cluster() -> Iterator[Cluster]:
-    """A head and a second node, each a raylet of its own; workers import the test helpers (toy_adapter)."""
-    saved = os.environ.get("PYTHONPATH")
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [TESTS, saved]))
-    cluster = Cluster(initialize_head=True, head_node_args={**NODE, "include_dashboard": False})
-    try:
-        cluster.add_node(**NODE)
-        cluster.wait_for_nodes()
+    with two_node_cluster() as cluster:
         yield cluster
-    finally:
-        cluster.shutdown()
-        if saved is None:
-            del os.environ["PYTHONPATH"]
-        else:
-            os.environ["PYTHONPATH"] = saved
 
 
 def on_ray(cluster: Cluster) -> RayExecutor:

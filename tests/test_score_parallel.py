@@ -2,7 +2,7 @@
 bytes one process writes: PDMS and EPDMS on converted NAVSIM data, RFS on WOD-E2E; the reference cache is shared."""
 
 import json
-import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -23,26 +23,13 @@ from lead_s2r_adapters.wod_e2e import WodE2EAdapter
 
 ray = pytest.importorskip("ray")
 from ray.cluster_utils import Cluster  # noqa: E402
-
-TESTS = str(Path(__file__).parent)
-NODE = {"num_cpus": 1, "object_store_memory": 100 * 2**20}
+from ray_cluster import two_node_cluster  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def cluster() -> Cluster:
-    saved = os.environ.get("PYTHONPATH")
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [TESTS, saved]))
-    cluster = Cluster(initialize_head=True, head_node_args={**NODE, "include_dashboard": False})
-    try:
-        cluster.add_node(**NODE)
-        cluster.wait_for_nodes()
+def cluster() -> Iterator[Cluster]:
+    with two_node_cluster() as cluster:
         yield cluster
-    finally:
-        cluster.shutdown()
-        if saved is None:
-            del os.environ["PYTHONPATH"]
-        else:
-            os.environ["PYTHONPATH"] = saved
 
 
 @pytest.fixture(scope="module")
