@@ -5,14 +5,16 @@ We do not schedule work ourselves: :class:`ProcessExecutor` is ``concurrent.futu
 :class:`RayExecutor` is Ray's tasks (``ray.remote``, ``ray.wait``). Both yield ``(index, result)`` as jobs finish,
 in any order: callers that need an order (``convert`` assembles shards in log order) restore it from the index.
 
-Worker processes start from a forkserver that has imported the caller's ``__main__`` and the modules the jobs need
-once: a spawned worker imports them again each (a script that imports torch paid 2-4 s per worker before its first
-job). A driver killed by SIGKILL (the OOM killer, a scheduler's time limit) runs no clean-up: its workers would keep
-writing into a folder nobody finishes (and a forkserver lives as long as its children). Each worker therefore
-watches its driver from a daemon thread and ends itself when the driver is gone. Watching
-multiprocessing's parent sentinel is portable, where Linux's ``PR_SET_PDEATHSIG`` is not.
+Worker processes start from a forkserver that has imported the caller's ``__main__``
+(:mod:`lead_s2r.forkserver_main`) and the modules the jobs need once: a spawned worker imports them again each (a
+script that imports torch paid 2-4 s per worker before its first job). A driver killed by SIGKILL (the OOM killer, a
+scheduler's time limit) runs no clean-up: its workers would keep writing into a folder nobody finishes (and a
+forkserver lives as long as its children). Each worker therefore watches its driver from a daemon thread and ends
+itself when the driver is gone. Watching multiprocessing's parent sentinel is portable, where Linux's
+``PR_SET_PDEATHSIG`` is not.
 """
 
+import json
 import multiprocessing as mp
 import os
 import threading
@@ -27,6 +29,9 @@ from lead_s2r.errors import UserError
 
 #: Seconds between two looks at the parent; a worker outlives a killed driver by at most this.
 PARENT_POLL_S = 0.2
+
+#: The environment variable that tells a starting forkserver how the caller's ``__main__`` was started.
+FORKSERVER_MAIN = "LEAD_S2R_FORKSERVER_MAIN"
 
 #: How often Ray runs a job again whose worker or node died before it returned (Ray's ``max_retries``).
 RAY_RETRIES = 3
@@ -141,8 +146,7 @@ class ProcessExecutor(Executor):
 
     def run(self, job: Job, arguments: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
         context = mp.get_context("forkserver")
-        # a forkserver already running (started earlier in this process) keeps its own preload list: still correct
-        context.set_forkserver_preload(["__main__", *self.preload])
+        _start_forkserver(self.preload)
         pool = ProcessPoolExecutor(
             min(self.workers, max(len(arguments), 1)),
             mp_context=context,
@@ -166,6 +170,21 @@ class ProcessExecutor(Executor):
             if not finished:  # jobs already handed to a worker cannot be cancelled, only stopped
                 _terminate_workers(pool)
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _start_forkserver(preload: Sequence[str]) -> None:
+    """Start this process's forkserver with the caller's main module and ``preload`` imported (see
+    :mod:`lead_s2r.forkserver_main`). A forkserver already running keeps what it imported: still correct, if slower."""
+    from multiprocessing import forkserver, spawn
+
+    started = spawn.get_preparation_data("forkserver")
+    main = {name: value for name, value in started.items() if name.startswith("init_main_from")}
+    forkserver.set_forkserver_preload(["lead_s2r.forkserver_main", *preload])
+    os.environ[FORKSERVER_MAIN] = json.dumps(main)
+    try:
+        forkserver.ensure_running()
+    finally:
+        del os.environ[FORKSERVER_MAIN]
 
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:

@@ -7,17 +7,16 @@ import subprocess
 import sys
 import time
 from collections import Counter
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from toy_adapter import ToyAdapter, write_toy_logs
+from toy_adapter import InterruptedToy, ToyAdapter, write_toy_logs
 
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.registry import Adapter, LogRef
+from lead_s2r.registry import Adapter
 from lead_s2r.shards import load_info, load_manifest, read_samples
 
 
@@ -103,15 +102,6 @@ def test_any_number_of_workers_writes_the_same_bytes(tmp_path, broken, skipped, 
             *(f"shards/{shard}" for shard in shards),
         ]
     )
-
-
-class InterruptedToy(ToyAdapter):
-    """Ctrl-C while converting log000, in whichever process converts it."""
-
-    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
-        if log.log_id == "log000":
-            raise KeyboardInterrupt
-        yield from super().iter_samples(log)
 
 
 def test_an_interrupted_conversion_stops_its_workers(tmp_path):
@@ -242,3 +232,32 @@ def test_killed_driver_leaves_no_orphaned_workers(tmp_path):
     for pid in survivors:  # do not leave them running after a failure
         os.kill(pid, signal.SIGKILL)
     assert not survivors
+
+
+USER_SCRIPT = """
+import os
+import sys
+
+with open({marker!r}, "a") as file:  # every import of this script, as __main__ or as a worker's __mp_main__
+    file.write(__name__ + "\\n")
+sys.path.insert(0, {tests!r})
+from toy_adapter import ToyAdapter
+from lead_s2r.convert import convert
+
+if __name__ == "__main__":
+    assert convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers=2, shard_size=8).ok
+"""
+
+
+def test_workers_do_not_import_the_callers_script_again(tmp_path):
+    """A user's script (which may import torch) is imported once for all workers, by their forkserver: spawned
+    workers imported it once each before their first log."""
+    write_toy_logs(tmp_path / "src", n_logs=8, frames=5)
+    marker, script = tmp_path / "imports.txt", tmp_path / "user_script.py"
+    tests = str(Path(__file__).parent)
+    script.write_text(
+        USER_SCRIPT.format(marker=str(marker), tests=tests, src=str(tmp_path / "src"), out=str(tmp_path / "out"))
+    )
+    subprocess.run([sys.executable, str(script)], check=True, timeout=120)
+    assert marker.read_text().split() == ["__main__", "__mp_main__"]
+    assert len(keys_in_shards(tmp_path / "out")) == 40
