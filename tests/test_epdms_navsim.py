@@ -14,7 +14,7 @@ from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.navsim import epdms_scorer
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
@@ -77,9 +77,9 @@ def test_human_ec_pairs_with_its_own_plan_half_a_second_earlier(converted: Path)
     predictions = [predict_human(sample) for sample in samples]
     result = epdms_scorer.EPDMSScorer().score(predictions, samples).table.to_pylist()
     paired = [row for row in result if row["previous_key"] is not None]
-    assert paired and all(np.isfinite(row[E.EC]) for row in paired)
+    assert paired and all(np.isfinite(row[epdms.EC]) for row in paired)
     first = next(row for row in result if row["previous_key"] is None)
-    assert np.isnan(first[E.EC])
+    assert np.isnan(first[epdms.EC])
     scene = scene_from_sample(samples[0])
     assert scene.ego_past is not None and scene.human_poses is not None
 

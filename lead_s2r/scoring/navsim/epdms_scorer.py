@@ -39,7 +39,7 @@ from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
 from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
 from lead_s2r.scoring.navsim.proposals import ReferenceCache, navsim_token, proposal_of, top_inference
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
 from lead_s2r.scoring.pdm.route import RouteError
@@ -49,7 +49,7 @@ from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
 from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
-NAVSIM_COLUMNS = (*E.SUB_SCORES, "score")
+NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
 CSV_NAME = "navsim_epdms.csv"
 AVERAGE_TOKEN = "average_all_frames"
@@ -246,7 +246,7 @@ class EPDMSScorer(PDMSScorer):
         )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
-        with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[E.EC]))
+        with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[epdms.EC]))
         return {**super()._aggregate(rows), "frames_with_ec": with_ec}
 
     def write_files(self, result: ScoreResult, out: Path) -> None:

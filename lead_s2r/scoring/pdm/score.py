@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import shapely
 
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, enclosing_radius, no_at_fault_collisions, time_to_collision
 from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
 from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
@@ -65,7 +65,7 @@ COLUMNS = (
     "ttc_time_idx",
 )
 #: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's extras
-EPDMS_COLUMNS = (*E.SUB_SCORES, "score", *COLUMNS[-4:])
+EPDMS_COLUMNS = (*epdms.SUB_SCORES, "score", *COLUMNS[-4:])
 
 
 def _centerline(scene: PDMScene) -> shapely.LineString:
@@ -126,6 +126,17 @@ class _Prelude:
     collision_idx: np.ndarray
     dac: np.ndarray
 
+    def time_to_collision(
+        self, observation: Observation, num_steps: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """TTC and its first violating step over the first ``num_steps`` states (all: None)."""
+        fp = self.fp
+        areas = fp.areas
+        return time_to_collision(
+            self.states, fp.coords, fp.radius, observation, fp.lanes_or_off_road, areas.rear_axle_in_intersection,
+            INTERVAL_S, num_steps=num_steps,
+        )  # fmt: skip
+
 
 def _prelude(
     scene: PDMScene, states: np.ndarray, observation: Observation, lookahead: int, drivable_map: DrivableMap | None
@@ -154,15 +165,7 @@ def score_states(
     ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S)
     progress = progress_along(_centerline(scene), fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
-    ttc, ttc_idx = time_to_collision(
-        states,
-        fp.coords,
-        fp.radius,
-        observation,
-        fp.lanes_or_off_road,
-        fp.areas.rear_axle_in_intersection,
-        INTERVAL_S,
-    )
+    ttc, ttc_idx = base.time_to_collision(observation)
     c = comfort(states, INTERVAL_S)
     return {
         "no_at_fault_collisions": nc,
@@ -214,26 +217,17 @@ def score_states_v2(
     centerline = _centerline(scene)
     progress = progress_along(centerline, fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress_v2(progress, product, ep_reference)
-    ttc, ttc_idx = time_to_collision(
-        states,
-        fp.coords,
-        fp.radius,
-        observation,
-        fp.lanes_or_off_road,
-        fp.areas.rear_axle_in_intersection,
-        INTERVAL_S,
-        num_steps=num_steps - max(TTC_OFFSETS),
-    )
+    ttc, ttc_idx = base.time_to_collision(observation, num_steps - max(TTC_OFFSETS))
     lk, lk_idx = lane_keeping(fp.centers, centerline, in_intersection, INTERVAL_S)
     return {
-        E.NC: nc,
-        E.DAC: dac,
-        E.DDC: ddc,
-        E.TLC: tlc,
-        E.EP: ep,
-        E.TTC: ttc,
-        E.LK: lk,
-        E.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
+        epdms.NC: nc,
+        epdms.DAC: dac,
+        epdms.DDC: ddc,
+        epdms.TLC: tlc,
+        epdms.EP: ep,
+        epdms.TTC: ttc,
+        epdms.LK: lk,
+        epdms.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
         "multiplicative_metrics_prod": product,
         "progress_m": progress,
         "ep_normaliser_m": normaliser,
@@ -313,10 +307,12 @@ def score_proposals(
         return {name: scores[name][agents] for name in COLUMNS} | extra
     observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
     scores = score_states_v2(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
-    human_row = None if human is None else {name: scores[name][-1] for name in E.FILTERED} | {E.EP: 1.0, E.HC: 1.0}
-    columns = E.human_penalty_filter({name: scores[name][agents] for name in E.FILTERED}, human_row)
-    columns[E.EC] = extended_comfort(scene, states[agents], previous)
-    columns["score"] = E.epdms(columns)
+    human_row = (
+        None if human is None else {name: scores[name][-1] for name in epdms.FILTERED} | {epdms.EP: 1.0, epdms.HC: 1.0}
+    )
+    columns = epdms.human_penalty_filter({name: scores[name][agents] for name in epdms.FILTERED}, human_row)
+    columns[epdms.EC] = extended_comfort(scene, states[agents], previous)
+    columns["score"] = epdms.epdms(columns)
     return columns | {name: scores[name][agents] for name in COLUMNS[-4:]} | extra
 
 
