@@ -14,6 +14,7 @@ itself when the driver is gone. Watching multiprocessing's parent sentinel is po
 ``PR_SET_PDEATHSIG`` is not.
 """
 
+import copy
 import json
 import multiprocessing as mp
 import os
@@ -252,10 +253,13 @@ class RayExecutor(Executor):
                 ray.shutdown()
 
     def _result(self, reference: Any) -> Any:
-        """The task's return value or its own exception; a lost worker or node after the retries is WorkerDied."""
+        """The task's return value or its own exception; a lost worker or node after the retries is WorkerDied.
+
+        The value is copied out: Ray hands numpy arrays over as views into its object store, which the disconnect at
+        the end of :meth:`run` unmaps (a second run over the first one's results then read freed memory)."""
         exceptions = self.ray.exceptions
         try:
-            return self.ray.get(reference)
+            return copy.deepcopy(self.ray.get(reference))
         except exceptions.RayTaskError as err:  # the job raised: hand its exception on as the job's own
             raise err.as_instanceof_cause() from None
         except (exceptions.WorkerCrashedError, exceptions.NodeDiedError, exceptions.OwnerDiedError) as err:

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from test_convert import digests, keys_in_shards
 from toy_adapter import ToyAdapter, write_toy_logs
@@ -135,3 +136,12 @@ def test_ray_missing_is_one_line_and_writes_nothing(tmp_path, monkeypatch, capsy
     assert not (tmp_path / "out").exists()
     assert main([*args[:-2], "--address", "auto"]) == 2
     assert "--address names a Ray cluster: add --executor ray" in capsys.readouterr().err
+
+
+def test_results_outlive_the_connection(cluster):
+    """Ray hands arrays over as views into its object store, unmapped when the run disconnects: results are copies
+    (a second run, as EPDMS makes over the first one's frames, read freed memory)."""
+    results = dict(RayExecutor(cluster.address).run(np.full, [((1000, 1000), 7.0), ((10,), 1.0)]))
+    assert not ray.is_initialized()  # connected for the run only
+    assert results[0].flags.writeable and results[0].shape == (1000, 1000) and float(results[0].sum()) == 7e6
+    assert float(results[1].sum()) == 10.0
