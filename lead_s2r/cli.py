@@ -108,8 +108,21 @@ def _written(name: str, out: Path) -> str:
     return f"logs {logs} ({size}); next: lead-s2r convert {name} --src {out} --out DATA (docs/datasets/{name}.md)"
 
 
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address``: where the jobs of ``convert`` and ``score`` run."""
+    parser.add_argument(
+        "--executor",
+        choices=["processes", "ray"],
+        default="processes",
+        help="processes: --workers on this machine; ray: a task per job on a Ray cluster (pip install lead-s2r[ray])",
+    )
+    parser.add_argument(
+        "--address", default=None, help="with --executor ray: auto, or HOST:PORT of the head (default: RAY_ADDRESS)"
+    )
+
+
 def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
-    from lead_s2r.convert import convert
+    from lead_s2r.convert import conversion_executor, convert
     from lead_s2r.shards import ERRORS
 
     cls = load(args.adapter)
@@ -122,7 +135,7 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
         adapter,
         args.src,
         args.out,
-        workers=args.workers,
+        executor=conversion_executor(args.workers, args.executor, args.address),
         shard_size=args.shard_size,
         limit_logs=args.limit_logs,
         force=args.force,
@@ -152,6 +165,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
+    from lead_s2r.processes import make_executor
     from lead_s2r.scoring.run import planner_predictions, score_predictions
 
     options: dict[str, Any] = {"allow_missing": not args.strict}
@@ -165,12 +179,16 @@ def cmd_score(args: argparse.Namespace) -> int:
             options[name] = value
     if args.reference_cache:
         options["reference_cache"] = args.reference_cache
+    scorer_module = load(args.metric, SCORER_GROUP).__module__  # the workers' forkserver imports it once
+    executor = make_executor(args.workers, args.executor, args.address, preload=[scorer_module])
     data = [Path(folder) for folder in args.data]
     predictions = Path(args.predictions) if args.predictions else None
     if predictions is None:
         path = Path(args.out) / f"predictions-{args.planner}.parquet"
         predictions = planner_predictions(args.planner, data, path, args.split)
-    summary = score_predictions(args.metric, predictions, data, Path(args.out), split=args.split, **options)
+    summary = score_predictions(
+        args.metric, predictions, data, Path(args.out), split=args.split, executor=executor, **options
+    )
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -357,8 +375,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--src", required=True)
     sub.add_argument("--out", required=True)
     sub.add_argument(
-        "--workers", type=int, default=1, help="processes converting, this one included (the output is the same)"
+        "--workers", type=int, default=1, help="processes converting on this machine (the output is the same)"
     )
+    add_executor_arguments(sub)
     sub.add_argument("--shard-size", type=int, default=1000, help="samples per shard (closed at a log boundary)")
     sub.add_argument("--limit-logs", type=int, default=None)
     sub.add_argument("--force", action="store_true", help="start over instead of resuming")
@@ -385,6 +404,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
     sub.add_argument("--json", action="store_true", help="print scores.json instead of the summary table")
     sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
+    sub.add_argument(
+        "--workers", type=int, default=1, help="processes scoring on this machine (the scores are the same)"
+    )
+    add_executor_arguments(sub)
     sub.set_defaults(run=cmd_score)
 
     _submit_parser(verbs)

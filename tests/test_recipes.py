@@ -12,11 +12,12 @@ from lead_s2r.data.mixing import MixingSchedule
 ROOT = Path(__file__).parents[1] / "recipes"
 #: Training recipes; recipes/paper holds table specs for `lead-s2r table`, and recipes/smoke/twin*.yaml and
 #: recipes/logging/*.yaml are overlays that only parse on top of a full-scale recipe (tests/test_smoke_twins.py runs
-#: the twins), not LightningCLI configs.
+#: the twins), not LightningCLI configs; so are recipes/multinode/*.yaml (tests/test_multinode.py runs one over the
+#: sim-to-real smoke recipe).
 RECIPES = sorted(
     p
     for p in ROOT.rglob("*.yaml")
-    if p.parent.name not in ("paper", "logging") and p not in set(ROOT.glob("smoke/twin*.yaml"))
+    if p.parent.name not in ("paper", "logging", "multinode") and p not in set(ROOT.glob("smoke/twin*.yaml"))
 )
 
 

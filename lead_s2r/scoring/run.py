@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import read_predictions, write_predictions
+from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
 from lead_s2r.shards import read_samples
@@ -80,7 +81,13 @@ def scorer_options(cls: type[Scorer]) -> list[str]:
 
 
 def score_predictions(
-    metric: str, predictions: Path, data: Path | list[Path], out: Path, split: str | None = None, **config: Any
+    metric: str,
+    predictions: Path,
+    data: Path | list[Path],
+    out: Path,
+    split: str | None = None,
+    executor: Executor | None = None,
+    **config: Any,
 ) -> dict[str, Any]:
     """Score ``predictions`` (predictions.parquet) against one or more converted folders.
 
@@ -88,8 +95,11 @@ def score_predictions(
     and version, config, package version, inputs, ``unpredicted`` samples and predictions of ``other_datasets``)
     and returns the JSON content. ``config`` goes to the scorer; without ``allow_missing=True`` an unpredicted
     sample is an error, as in :func:`~lead_s2r.scoring.base.join`. ``split`` scores only that split's samples.
+    ``executor`` spreads the per-sample work (:meth:`~lead_s2r.scoring.base.Scorer.map_samples`); the files are the
+    same bytes without it, but the ``seconds`` of scores.json.
     """
     scorer = make_scorer(metric, **config)
+    scorer.executor = executor
     folders = _folders(data)
     start = time.perf_counter()
     samples = select_samples(folders, scorer.fields, split)
