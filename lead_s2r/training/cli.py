@@ -45,8 +45,9 @@ class DrivingCLI(LightningCLI):
         return super().instantiate_trainer(**kwargs)
 
     def after_fit(self) -> None:
+        log_dir = self.trainer.log_dir  # a broadcast under DDP: every rank asks, rank 0 prints
         if self.trainer.is_global_zero:
-            print("\n".join(fit_summary(self.trainer)), flush=True)
+            print("\n".join(fit_summary(self.trainer, log_dir)), flush=True)
 
     def after_instantiate_classes(self) -> None:
         super().after_instantiate_classes()

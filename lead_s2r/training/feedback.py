@@ -52,9 +52,10 @@ def _metric_order(name: str) -> tuple[int, str]:
     return 4, name
 
 
-def fit_summary(trainer: Trainer) -> list[str]:
+def fit_summary(trainer: Trainer, log_dir: str | None) -> list[str]:
     """Lines that end a fit: epochs and steps done, the last and best checkpoints, the final logged metrics and
-    where the logs are (with the TensorBoard command when it logged there)."""
+    where the logs are, ``log_dir`` (``trainer.log_dir``, which every rank must ask for: it is a broadcast under
+    DDP), with the TensorBoard command when it logged there."""
     lines = [f"fit done: {trainer.current_epoch} epoch(s), {trainer.global_step} optimizer step(s)"]
     checkpoint = trainer.checkpoint_callback
     if checkpoint is not None:
@@ -71,8 +72,8 @@ def fit_summary(trainer: Trainer) -> list[str]:
         more = f" ({len(metrics) - len(shown)} more in metrics.csv)" if len(metrics) > len(shown) else ""
         lines.append(f"  final metrics{more}:")
         lines += [f"    {name:32s} {metrics[name]:.4g}" for name in shown]
-    if trainer.log_dir:
-        lines.append(f"  logs: {trainer.log_dir} (metrics.csv, config.yaml)")
+    if log_dir:
+        lines.append(f"  logs: {log_dir} (metrics.csv, config.yaml)")
         if any(isinstance(logger, TensorBoardLogger) for logger in trainer.loggers):
-            lines.append(f"  TensorBoard: tensorboard --logdir {Path(trainer.log_dir).parent}")
+            lines.append(f"  TensorBoard: tensorboard --logdir {Path(log_dir).parent}")
     return lines
