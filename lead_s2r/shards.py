@@ -216,7 +216,7 @@ def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
         folder = path.parent
     if not (folder / MANIFEST).is_file():
         return None
-    return keys_by_shard(folder, load_manifest(folder).select(["shard", "key"]).to_pylist())
+    return keys_by_shard(folder, load_manifest(folder, columns=("shard", "key")).to_pylist())
 
 
 def keys_by_shard(folder: Path, rows: Iterable[dict[str, Any]]) -> dict[str, list[str]]:
@@ -225,6 +225,14 @@ def keys_by_shard(folder: Path, rows: Iterable[dict[str, Any]]) -> dict[str, lis
     for row in rows:
         listed.setdefault(str(folder / SHARD_DIR / row["shard"]), []).append(row["key"])
     return listed
+
+
+def check_listed_shards(listed: Mapping[str, Sequence[str]]) -> None:
+    """Raise :class:`ShardError` naming the first tar the manifest lists samples in that is not on disk: a deleted
+    tar is otherwise a shorter, valid-looking folder."""
+    for shard, keys in sorted(listed.items()):
+        if not os.path.isfile(shard):
+            raise ShardError(f"{shard}: missing, but {MANIFEST} lists {len(keys)} samples in it; {_REDO}")
 
 
 class ManifestCheck:
@@ -303,8 +311,11 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
 
     fields = None if fields is None else tuple(fields)
     listed = listed_keys(path)
+    shards = shard_paths(path)
+    if listed is not None and Path(path).is_dir():
+        check_listed_shards(listed)
     dataset = wds.WebDataset(
-        shard_paths(path),
+        shards,
         shardshuffle=False,
         empty_check=False,
         nodesplitter=None,
@@ -315,12 +326,46 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
         yield decode_sample(raw, fields)
 
 
-def load_manifest(path: str | Path) -> pa.Table:
-    """The manifest table of a converted folder: one row per sample, no blobs."""
+#: Columns every manifest of a conversion that wrote a sample has; a conversion that wrote none writes only ``key``.
+MANIFEST_COLUMNS = ("key", "shard", "dataset", "split", "log")
+
+
+def load_manifest(
+    path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()
+) -> pa.Table:
+    """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
+
+    ``columns`` keeps only those; they and ``required`` must be there. A file that is missing, is not parquet or
+    lacks a column is a :class:`ShardError` naming it.
+    """
     path = Path(path)
-    return pq.read_table(path / MANIFEST if path.is_dir() else path)
+    file = path / MANIFEST if path.is_dir() else path
+    try:
+        table = pq.read_table(file)
+    except (pa.ArrowException, OSError) as err:  # ArrowInvalid (not parquet), OSError (missing, bad thrift)
+        raise ShardError(f"{file}: cannot be read as a manifest ({_first_line(err)}); {_REDO}") from None
+    absent = [name for name in (*(columns or ()), *required) if name not in table.column_names]
+    if absent and not len(table):
+        raise ShardError(f"{file} lists no sample: the conversion wrote none; see the errors.jsonl beside it")
+    if absent:
+        raise ShardError(f"{file}: no column {absent[0]!r}; {_REDO}")
+    return table if columns is None else table.select(list(columns))
 
 
 def load_info(path: str | Path) -> dict[str, Any]:
-    """``info.json`` of a converted folder."""
-    return json.loads((Path(path) / INFO).read_text())
+    """``info.json`` of a converted folder; missing, undecodable or not a JSON object is a :class:`ShardError`."""
+    file = Path(path) / INFO
+    try:
+        info = json.loads(file.read_bytes())
+    except OSError as err:
+        raise ShardError(f"{file}: cannot be read ({err.strerror or err}); {_REDO}") from None
+    except ValueError as err:  # JSONDecodeError, UnicodeDecodeError
+        raise ShardError(f"{file}: not valid JSON ({_first_line(err)}); {_REDO}") from None
+    if not isinstance(info, dict):
+        raise ShardError(f"{file}: expected a JSON object, got {type(info).__name__}; {_REDO}")
+    return info
+
+
+def _first_line(err: Exception) -> str:
+    """The first line of a library's message (Arrow's run over several)."""
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]

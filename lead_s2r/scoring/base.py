@@ -33,6 +33,8 @@ class Scorer(ABC):
     fields: ClassVar[tuple[str, ...]]
     #: datasets the metric is defined on (None: all); the validation callback skips the others.
     datasets: ClassVar[tuple[str, ...] | None] = None
+    #: fields without which a sample cannot be scored: data where no sample has them is the wrong data.
+    required: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, allow_missing: bool = False) -> None:
         """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones (off by

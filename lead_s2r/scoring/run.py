@@ -34,8 +34,9 @@ def planner_predictions(planner: str, data: Path | list[Path], path: Path) -> Pa
         raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
     folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
     predict = PLANNERS[planner]
+    predictions = [predict(s) for folder in folders for s in read_samples(folder, fields=("future",))]
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_predictions(path, (predict(s) for folder in folders for s in read_samples(folder, fields=("future",))))
+    return write_predictions(path, predictions)
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
@@ -70,6 +71,7 @@ def score_predictions(
     folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
     start = time.perf_counter()
     samples = [sample for folder in folders for sample in read_samples(folder, fields=scorer.fields)]
+    _check_metric_fits(scorer, folders, samples)
     predicted = read_predictions(predictions)
     covered = coverage(predicted, samples)
     if len(covered["unpredicted"]) == len(samples):
@@ -95,6 +97,20 @@ def score_predictions(
     report = write_scores(out, result.table, report)
     scorer.write_files(result, out)
     return report
+
+
+def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[str, Any]]) -> None:
+    """A metric asked of data it is not defined on (RFS on data without raters, PDMS on WOD-E2E) scores nothing:
+    an error naming the datasets, not a scores.json of null aggregates."""
+    datasets = sorted({sample["meta"]["dataset"] for sample in samples})
+    wrong_dataset = scorer.datasets is not None and not set(datasets) & set(scorer.datasets)
+    unscorable = scorer.required and not any(all(name in s for name in scorer.required) for s in samples)
+    if wrong_dataset or unscorable:
+        needs = f"datasets {list(scorer.datasets)}" if wrong_dataset else f"samples with {list(scorer.required)}"
+        raise UserError(
+            f"--metric {scorer.name} scores {needs}, but {', '.join(map(str, folders))} holds datasets {datasets} "
+            "without them; choose the metric of that dataset (docs/metrics.md) or other --data"
+        )
 
 
 def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
