@@ -4,6 +4,7 @@ LEAD's ``.pkl`` files are LZMA streams holding pickles. Pickles can run arbitrar
 unpickler that only admits plain builtin containers/scalars and numpy arrays/scalars.
 """
 
+import importlib.util
 import json
 import lzma
 import pickle
@@ -14,6 +15,7 @@ import numpy as np
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats import restricted_pickle
+from lead_s2r_adapters.laz_decoder import LazDecodeError, decode
 
 
 class LeadFormatError(UserError, ValueError):
@@ -62,22 +64,48 @@ def array(record: dict[str, Any], name: str, path: Path, columns: int | None = N
 
 
 def read_laz(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file."""
+    """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file.
+
+    Decoded in a helper process (:mod:`lead_s2r_adapters.laz_decoder`): a damaged file can abort the decoder.
+    """
+    if importlib.util.find_spec("laspy") is None or importlib.util.find_spec("lazrs") is None:  # pragma: no cover
+        raise ImportError("reading LEAD LiDAR needs laspy with lazrs: pip install 'lead-s2r[carla]'")
     try:
-        import laspy
-    except ImportError as err:  # pragma: no cover - depends on the environment
-        raise ImportError("reading LEAD LiDAR needs laspy with lazrs: pip install 'lead-s2r[carla]'") from err
-    try:
-        las = laspy.read(str(path))
-        points = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)]).astype(np.float64)
-        names = set(las.point_format.extra_dimension_names)
-        if "time" not in names:
-            raise LeadFormatError(path, "LAS file has no extra dimension 'time'", "time")
-        return points, np.asarray(las["time"], dtype=np.float64)
-    except LeadFormatError:
-        raise
-    except Exception as err:  # laspy/lazrs raise many types for damaged files
-        raise LeadFormatError(path, f"corrupt LAZ file ({type(err).__name__}: {err})") from err
+        points = decode(path)
+    except LazDecodeError as err:
+        raise LeadFormatError(path, f"corrupt LAZ file ({err})") from None
+    return points[:, :3], points[:, 3]
+
+
+def route_frames(folder: Path) -> list[str]:
+    """Frame names (``0000``...) of a route: LEAD counts frames by the files in ``bboxes/``; every frame has a
+    ``metas/`` pickle too, and frames are numbered without gaps, so a deleted file of either is an error naming it,
+    not a frame silently left out."""
+    names = {path.stem for sub in ("bboxes", "metas") for path in (folder / sub).glob("*.pkl")}
+    if not names:
+        raise LeadFormatError(folder / "bboxes", "no frames (LEAD counts frames by the files in bboxes/)")
+    if not all(name.isdigit() for name in names):
+        odd = sorted(name for name in names if not name.isdigit())[0]
+        raise LeadFormatError(folder / "bboxes", f"frame file {odd!r}.pkl is not named by a frame number")
+    width = len(min(names))
+    numbers = sorted(int(name) for name in names)
+    expected = [f"{number:0{width}d}" for number in range(numbers[0], numbers[-1] + 1)]
+    for name in expected:
+        for sub in ("bboxes", "metas"):
+            if not (folder / sub / f"{name}.pkl").is_file():
+                raise LeadFormatError(folder / sub / f"{name}.pkl", "missing: the route's other frames have it")
+    return expected
+
+
+def frame_file(folder: Path, sensor: str, name: str, suffix: str) -> Path | None:
+    """The file of frame ``name`` in the sensor folder ``sensor``, None where the route has no such folder (a rig
+    or sensor it did not record); missing from a folder that holds other frames is an error naming it."""
+    path = folder / sensor / f"{name}{suffix}"
+    if path.is_file():
+        return path
+    if (folder / sensor).is_dir():
+        raise LeadFormatError(path, f"missing: the route's {sensor}/ folder holds other frames")
+    return None
 
 
 RADAR_KEYS = ("radar1", "radar2", "radar3", "radar4")

@@ -133,7 +133,9 @@ def _run_log(adapter: Adapter, out: Path, position: int, log: LogRef) -> tuple[s
         return "done", position, _convert_log(adapter, log, _fragment_path(out, position))
     except SkipLog as reason:
         return "skipped", position, str(reason)
-    except Exception as err:  # every failure of one log is isolated and reported
+    except UserError as err:  # a bad source file: the adapter's message names it
+        return "error", position, f"{type(err).__name__}: {err.one_line()}"
+    except Exception as err:  # every failure of one log is isolated and reported; a bug keeps its code line
         where = traceback.extract_tb(err.__traceback__)[-1]
         return "error", position, f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"
 

@@ -7,6 +7,7 @@ touched convert exactly as before. ``LEAD_S2R_FUZZ_TRIALS`` sets the number of t
 about a minute for the six targets); ``LEAD_S2R_FUZZ_SEED`` the seed.
 """
 
+import json
 import os
 from collections import Counter
 from pathlib import Path
@@ -86,7 +87,7 @@ def raw_trial(name: str, made: tuple[Path, Path, dict[str, set[str]]], trial: Pa
     except UserError as err:
         assert _names_file(str(err), target) or str(src) in str(err), f"{what}: {err}"
         return "user error"
-    reports = (out / ERRORS).read_text()
+    reports = (out / ERRORS).read_text() + json.dumps(result.skipped)
     after = _keys_by_log(out) if result.samples or result.logs_resumed else {}
     for log, keys in before.items():
         if after.get(log) != keys:
