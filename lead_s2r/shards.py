@@ -32,7 +32,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.schema import field_spec
+from lead_s2r.schema import REQUIRED_FIELDS, field_spec
 
 MANIFEST = "manifest.parquet"
 INFO = "info.json"
@@ -283,7 +283,22 @@ def decode_sample(raw: dict[str, Any], fields: Iterable[str] | None = None) -> d
         name = member.rsplit(".", 1)[0]
         if wanted is None or name in wanted:
             sample[name] = _decode_member(raw, name, data)
+    _check_members(raw, sample.get("meta"))
     return sample
+
+
+def _check_members(raw: dict[str, Any], meta: Any) -> None:
+    """Raise :class:`ShardError` unless the sample holds every field its ``meta.has`` flags (and ``past``): a zeroed
+    or damaged tar header ends the tar's stream in the middle of a sample, which comes out short of its last
+    fields, with no error from tarfile."""
+    where = f"{raw.get('__url__', 'shard')}: sample {raw['__key__']!r}"
+    if not isinstance(meta, dict) or not isinstance(meta.get("has"), dict):
+        raise ShardError(f"{where}: no meta.json with its 'has' flags (a damaged tar); {_REDO}")
+    present = {member.rsplit(".", 1)[0] for member in raw if not member.startswith("__")}
+    flagged = [name for name, flag in meta["has"].items() if flag]
+    missing = [name for name in (*REQUIRED_FIELDS, *flagged) if name not in present]
+    if missing:
+        raise ShardError(f"{where}: field {missing[0]!r} is missing from the tar, though meta flags it; {_REDO}")
 
 
 def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
