@@ -16,7 +16,7 @@ import numpy as np
 
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
-from lead_s2r_adapters.navsim import BOX_CLASSES
+from lead_s2r_adapters.navsim_io import BOX_CLASSES
 
 GOLDEN = Path(__file__).parent / "data" / "navsim_pdms_v11_official.json.gz"
 GOLDEN_V22 = Path(__file__).parent / "data" / "navsim_epdms_v22_official.json.gz"

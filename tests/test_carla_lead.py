@@ -429,7 +429,7 @@ def test_each_rig_is_laid_out_in_ltfv6_by_its_calibration(tmp_path: Path) -> Non
         transform = SourceTransform("carla", ltfv6_config(), ["carla_mosaic"])
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            layout = transform.layout({"cameras": cameras}, [(height, tiles * width)])
+            layout = transform.camera.layout({"cameras": cameras}, [(height, tiles * width)])
         assert layout.letterboxed == (rig != "NAVSIM_4CAMERAS") == bool(caught), rig
         if rig == "NAVSIM_4CAMERAS":  # nuPlan's 38.5 deg around the principal row 140: rows [5, 275)
             assert {(b.top, b.bottom) for b in layout.bands[0]} == {(5, 275)}

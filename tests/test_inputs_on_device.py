@@ -17,6 +17,7 @@ import torch
 from tiny_models import TINY
 
 from lead_s2r.convert import convert
+from lead_s2r.data.collate import collate
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.device_inputs import (
     LIDAR_POINTS,
@@ -27,8 +28,9 @@ from lead_s2r.data.device_inputs import (
     jpeg_tensor,
     rasterize_points,
 )
+from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.transforms import SourceTransform, collate, lidar_xy, rasterize_lidar
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import BEVGrid, TFv6Config, tfv6_config
 from lead_s2r.models.inputs import LIDAR_HITS_MAX
 from lead_s2r.models.tfv6 import TFv6

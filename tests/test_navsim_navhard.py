@@ -16,6 +16,7 @@ import yaml
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global, to_local
 from lead_s2r.predictions import write_predictions
 from lead_s2r.scoring.baselines import predict_constant_velocity
@@ -29,7 +30,8 @@ from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r.synthetic import navsim_navhard as hard
 from lead_s2r_adapters import navsim_synthetic
-from lead_s2r_adapters.navsim import NavsimAdapter, NavsimFormatError
+from lead_s2r_adapters.navsim import NavsimAdapter
+from lead_s2r_adapters.navsim_io import NavsimFormatError
 
 
 @pytest.fixture(scope="module")
@@ -62,9 +64,9 @@ def samples(converted: Path) -> dict[str, dict]:
 
 
 @pytest.fixture(scope="module")
-def mapping(raw: Path) -> list[T.TwoStageGroup]:
+def mapping(raw: Path) -> list[TwoStageGroup]:
     config = yaml.safe_load((raw / "train_test_split" / f"{hard.SPLIT}.yaml").read_text())
-    return T.parse_mapping(config["reactive_all_mapping"])
+    return parse_mapping(config["reactive_all_mapping"])
 
 
 def scene_paths(raw: Path) -> list[Path]:
@@ -200,9 +202,9 @@ def test_a_filter_token_without_a_synthetic_pickle_is_reported(raw: Path, tmp_pa
     broken = tmp_path / "filter.yaml"
     broken.write_text(yaml.safe_dump(config))
     checker = NavsimAdapter(split=hard.SPLIT, scene_filter=str(broken))
-    ref = next(r for r in checker.list_logs(raw) if r.log_id.startswith("scene-filter"))
-    with pytest.raises(LookupError, match="0123456789abcdef0"):
-        list(checker.iter_samples(ref))
+    checker.list_logs(raw)
+    (bad,) = checker.bad_records()
+    assert bad["scene_filter"] == str(broken) and "0123456789abcdef0" in bad["error"]
 
 
 # --------------------------------------------------------------------------- scored end to end

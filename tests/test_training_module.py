@@ -256,7 +256,8 @@ def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tm
     generated frames, one of them without labels (collation's filler)."""
     from test_transform_speed import reference_bev_labels, reference_camera
 
-    from lead_s2r.data.transforms import SourceTransform, collate
+    from lead_s2r.data.collate import collate
+    from lead_s2r.data.transforms import SourceTransform
     from lead_s2r.registry import get_adapter
     from lead_s2r.synthetic.carla_lead import generate
 

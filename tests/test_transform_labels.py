@@ -14,18 +14,18 @@ import pytest
 import torch
 from test_transform_speed import random_boxes, reference_centernet, reference_lidar
 
-from lead_s2r.data.transforms import (
+from lead_s2r.data.lidar import rasterize_lidar
+from lead_s2r.data.targets import (
     CENTERNET_STRIDE,
     MAX_RADAR_TARGETS,
     RADAR_HIT_MARGIN_M,
     ROUTE_START_M,
-    SourceTransform,
     centernet_targets,
     gaussian_window,
     radar_targets,
-    rasterize_lidar,
     route_checkpoints,
 )
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import resample, rotate
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, BEVGrid, tfv6_config
 from lead_s2r.models.inputs import lidar_input

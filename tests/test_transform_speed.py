@@ -14,25 +14,22 @@ import numpy as np
 import pytest
 import torch
 
-from lead_s2r.data.transforms import (
-    CENTERNET_STRIDE,
-    MAX_BOXES,
-    SourceTransform,
-    Tile,
-    bev_cell_centres,
-    bev_labels,
-    camera_layout,
-    centernet_targets,
-    jpeg_reduction,
-    rasterize_lidar,
-    render,
-)
+from lead_s2r.data.camera_input import jpeg_reduction
+from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
+from lead_s2r.data.lidar import rasterize_lidar
+from lead_s2r.data.targets import CENTERNET_STRIDE, MAX_BOXES, bev_cell_centres, bev_labels, centernet_targets
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
 from lead_s2r.schema import BoxClass
 
 # --------------------------------------------------------------------------- references
+
+
+def camera_image(transform: SourceTransform, sample: dict) -> tuple[torch.Tensor, CameraLayout]:
+    """The transform's camera input of ``sample`` and its layout, by whichever decode path the rig takes."""
+    return transform.camera.image(sample, transform.camera.stored_layout(sample["meta"]))
 
 
 def reference_centernet(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, np.ndarray]:
@@ -93,7 +90,7 @@ def reference_lidar(points: np.ndarray, grid: BEVGrid) -> np.ndarray:
 def reference_camera(transform: SourceTransform, sample: dict) -> dict[str, np.ndarray]:
     """Full-size BGR decode, the layout of the decoded shapes applied to image and labels, as the definition."""
     images = [cv2.imdecode(np.frombuffer(sample[f"cam_{c}"], np.uint8), cv2.IMREAD_COLOR) for c in transform.cameras]
-    layout = transform.layout(sample["meta"], [image.shape[:2] for image in images])
+    layout = transform.camera.layout(sample["meta"], [image.shape[:2] for image in images])
     rgb = render(layout, images, cv2.INTER_AREA, 0)
     out = {"rgb": np.ascontiguousarray(rgb[:, :, ::-1].transpose(2, 0, 1))}
     camera = transform.cameras[0]
@@ -258,9 +255,9 @@ def smooth_camera_sample(width: int, height: int) -> dict:
 def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int], factor: int) -> None:
     sample = smooth_camera_sample(1920, 1080)
     transform = SourceTransform("navsim", tfv6_config(image_size=image_size), ["front"])
-    layout = transform.layout(sample["meta"], [(1080, 1920)])
+    layout = transform.camera.layout(sample["meta"], [(1080, 1920)])
     assert jpeg_reduction(layout)[0] == factor
-    rgb, _ = transform.image(sample)
+    rgb, _ = camera_image(transform, sample)
     expected = reference_camera(transform, sample)["rgb"]
     assert rgb.shape == expected.shape == (3, *image_size)
     diff = np.abs(rgb.numpy().astype(np.int16) - expected)
@@ -278,7 +275,7 @@ def test_labels_of_a_reduced_decode_follow_the_full_size_layout(image_size: tupl
     sample["depth_front"] = rng.integers(0, 256, (270, 480)).astype(np.uint8)  # stored at 1/4, like LEAD's
     sample["meta"]["depth"] = {"max_m": 50.0}
     transform = SourceTransform("carla", tfv6_config(image_size=image_size), ["front"])
-    _, layout = transform.image(sample)
+    _, layout = camera_image(transform, sample)
     assert jpeg_reduction(layout)[0] == 4
     got = transform.perspective_labels(sample, "carla", layout)
     expected = reference_camera(transform, sample)

@@ -7,18 +7,11 @@ import pytest
 import torch
 from toy_adapter import toy_sample
 
-from lead_s2r.data.transforms import (
-    Band,
-    SourceTransform,
-    Tile,
-    bev_labels,
-    camera_layout,
-    centernet_targets,
-    collate,
-    radar_targets,
-    rasterize_lidar,
-    route_checkpoints,
-)
+from lead_s2r.data.camera_layout import Band, Tile, camera_layout
+from lead_s2r.data.collate import collate
+from lead_s2r.data.lidar import rasterize_lidar
+from lead_s2r.data.targets import bev_labels, centernet_targets, radar_targets, route_checkpoints
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import NAVSIM_VERTICAL_FOV_DEG, BEVGrid, TrajectoryGrid, tfv6_config
 
 GRID = BEVGrid(-32.0, 64.0, -40.0, 40.0, 4.0)

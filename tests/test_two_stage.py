@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm import two_stage as T
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
@@ -24,7 +25,7 @@ def row(token: str, t: float, start: tuple, end: tuple, accel: float = 0.0, **co
     return T.TokenRow(token, values, t, np.array(start, float), np.array(end, float), states)
 
 
-GROUP = T.TwoStageGroup("orig", "prev", (("now1", "prev1"), ("now2", "prev2")))
+GROUP = TwoStageGroup("orig", "prev", (("now1", "prev1"), ("now2", "prev2")))
 
 
 def rows() -> list[T.TokenRow]:
@@ -89,10 +90,10 @@ def test_pair_frames_must_be_half_a_second_apart() -> None:
 
 
 def test_parse_mapping_and_csv_layout() -> None:
-    groups = T.parse_mapping([["orig", "prev", [["now1", "prev1"], ["now2", "prev2"]]]])
+    groups = parse_mapping([["orig", "prev", [["now1", "prev1"], ["now2", "prev2"]]]])
     assert groups == [GROUP]
     with pytest.raises(ValueError, match="entry 0"):
-        T.parse_mapping([["orig", "prev"]])
+        parse_mapping([["orig", "prev"]])
     csv = T.navsim_csv_rows(T.two_stage_aggregate(rows(), groups, accel_only))
     assert [r["token"] for r in csv[-3:]] == list(T.SUMMARY_TOKENS)
     orig = next(r for r in csv if r["token"] == "orig")

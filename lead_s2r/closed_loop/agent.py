@@ -46,7 +46,9 @@ from lead_s2r.closed_loop.route import (
     world_to_iso,
 )
 from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_sample, reading, sensor_specs
-from lead_s2r.data.transforms import CENTERNET_STRIDE, SourceTransform, bev_cell_centres, collate
+from lead_s2r.data.collate import collate
+from lead_s2r.data.targets import CENTERNET_STRIDE, bev_cell_centres
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 from lead_s2r.models.config import TFv6Config

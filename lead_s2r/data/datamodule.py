@@ -22,10 +22,11 @@ import lightning as L
 import torch
 import webdataset as wds
 
+from lead_s2r.data.collate import collate
 from lead_s2r.data.device_inputs import RGB_JPEG, check_device_decode, decode_images, rasterize_points
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.streams import ResampledShards, SampleShare, SeededShuffle, StreamSeed, manifest_samples
-from lead_s2r.data.transforms import SourceTransform, collate
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import EgoMLPConfig, TFv6Config
 from lead_s2r.models.inputs import Batch, target_point_range

@@ -32,6 +32,7 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.errors import UserError
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
 from lead_s2r.scoring import epdms_two_stage as TS
@@ -42,7 +43,7 @@ from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
-from lead_s2r.scoring.pdm.two_stage import TwoStageGroup, TwoStageResult
+from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 from lead_s2r.scoring.pdms import PDMSScorer, ReferenceCache, navsim_token, proposal_of, top_inference
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.

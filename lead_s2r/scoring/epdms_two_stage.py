@@ -27,6 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.errors import UserError
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
 from lead_s2r.scoring.pdm import epdms as E
 from lead_s2r.scoring.pdm import two_stage as T
@@ -47,18 +48,18 @@ def navsim_extras(sample: dict[str, Any]) -> dict[str, Any]:
     return sample["meta"].get("extras", {}).get("navsim", {})
 
 
-def mapping_of(samples: Sequence[dict[str, Any]]) -> list[T.TwoStageGroup]:
+def mapping_of(samples: Sequence[dict[str, Any]]) -> list[TwoStageGroup]:
     """The two-stage groups recorded in ``samples`` (each once, in data order); empty for a one-stage split."""
     raw: dict[str, Any] = {}
     for sample in samples:
         group = navsim_extras(sample).get("two_stage_group")
         if group is not None:
             raw.setdefault(str(group[0]), group)
-    return T.parse_mapping(list(raw.values()))
+    return parse_mapping(list(raw.values()))
 
 
 def check_complete(
-    mapping: Sequence[T.TwoStageGroup], samples: Sequence[dict[str, Any]], scored: dict[str, str | None]
+    mapping: Sequence[TwoStageGroup], samples: Sequence[dict[str, Any]], scored: dict[str, str | None]
 ) -> None:
     """Every token of ``mapping`` has a sample, a prediction and a scene; else a one-line error naming the token.
 
@@ -100,7 +101,7 @@ def token_row(token: str, sample: dict[str, Any], poses: np.ndarray, result: dic
 
 
 def aggregate(
-    rows: Sequence[T.TokenRow], mapping: Sequence[T.TwoStageGroup], features: T.FeatureExtractor
+    rows: Sequence[T.TokenRow], mapping: Sequence[TwoStageGroup], features: T.FeatureExtractor
 ) -> T.TwoStageResult:
     """:func:`two_stage_aggregate`, with its input errors (a stray token, frames not 0.5 s apart) as one line."""
     try:
