@@ -106,8 +106,21 @@ class NavsimAdapter(Adapter):
             if not (root / split).is_dir():
                 raise FileNotFoundError(f"split folder {root / split} does not exist")
             refs += self._log_refs(root / split, Path(src) / "sensor_blobs" / split, split)
-        self._filter_problems = self._check_filter(refs, [])
+        self._filter_problems = self._check_filter(refs, []) + self._orphan_sensors(refs)
         return refs
+
+    def _orphan_sensors(self, logs: list[LogRef]) -> list[dict[str, Any]]:
+        """Sensor folders of logs with no log pickle: a log pickle deleted or lost in a download leaves its sensor
+        blobs behind, and its scenes would otherwise vanish without a word."""
+        problems = []
+        for folder in sorted({Path(ref.extra["sensors"]) for ref in logs}):
+            listed = {ref.log_id for ref in logs if Path(ref.extra["sensors"]) == folder}
+            for log in sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []:
+                wanted = self.filter is None or self.filter.log_names is None or log in self.filter.log_names
+                if wanted and log not in listed:
+                    error = f"{folder / log}: sensor blobs of log {log!r}, which has no log pickle {log}.pkl"
+                    problems.append({"log": log, "error": error})
+        return problems
 
     def _log_refs(self, logs: Path, sensors: Path, split: str) -> list[LogRef]:
         refs = []
