@@ -48,6 +48,7 @@ from lead_s2r_adapters.carla_lead_io import (
     array,
     field,
     frame_file,
+    is_route,
     read_jpeg,
     read_laz,
     read_pickle,
@@ -193,13 +194,15 @@ class CarlaLeadAdapter(Adapter):
     # ------------------------------------------------------------------ logs
 
     def list_logs(self, src: Path) -> list[LogRef]:
-        """Route folders under ``src/data/*/`` (or ``src/*/`` when ``src`` is the data folder), sorted."""
+        """Route folders under ``src/data/*/`` (or ``src/*/`` when ``src`` is the data folder), sorted. A route
+        folder holds ``bboxes/``, ``metas/`` or ``results.json``: another dataset's folders two levels down (NAVSIM's
+        ``navsim_logs/mini``) are not routes to skip one by one, they are the wrong ``--src``."""
         src = Path(src)
         root = src / "data" if (src / "data").is_dir() else src
         if not root.is_dir():
             raise FileNotFoundError(f"{root}: not a folder of LEAD scenarios")
         logs = []
-        for folder in sorted(p for p in root.glob("*/*") if p.is_dir()):
+        for folder in sorted(p for p in root.glob("*/*") if is_route(p)):
             town = folder.name.split("_Rep")[0]
             split = self.heldout_split if town in self.heldout_towns else self.split
             log_id = f"{folder.parent.name}/{folder.name}"

@@ -77,6 +77,11 @@ def read_laz(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return points[:, :3], points[:, 3]
 
 
+def is_route(folder: Path) -> bool:
+    """Whether ``folder`` is a LEAD route folder (finished or not)."""
+    return (folder / "bboxes").is_dir() or (folder / "metas").is_dir() or (folder / "results.json").is_file()
+
+
 def route_frames(folder: Path) -> list[str]:
     """Frame names (``0000``...) of a route: LEAD counts frames by the files in ``bboxes/``; every frame has a
     ``metas/`` pickle too, and frames are numbered without gaps, so a deleted file of either is an error naming it,
