@@ -47,13 +47,12 @@ from lead_s2r.errors import UserError
 from lead_s2r.processes import exit_with_parent
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, validate
-from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
+from lead_s2r.shards import ERRORS, IDENTITY, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
 PROGRESS = "progress.jsonl"
-IDENTITY = "convert.json"
 _DIED = "a conversion worker died; rerun the same command to resume"
 
 

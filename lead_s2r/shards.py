@@ -39,6 +39,8 @@ from lead_s2r.schema import REQUIRED_FIELDS, field_spec
 MANIFEST = "manifest.parquet"
 INFO = "info.json"
 ERRORS = "errors.jsonl"
+#: Written by ``convert`` before its first shard: the folder is a conversion, whose readers need its manifest.
+IDENTITY = "convert.json"
 SHARD_DIR = "shards"
 _BLOCK = 512
 _END_OF_ARCHIVE = 2 * _BLOCK
@@ -217,6 +219,8 @@ def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
     elif path.name == SHARD_DIR:
         folder = path.parent
     if not (folder / MANIFEST).is_file():
+        if (folder / IDENTITY).is_file():  # convert wrote here: its manifest is lost, or it never finished
+            raise ShardError(f"{folder} has no {MANIFEST}: its conversion did not finish or it was deleted; {_REDO}")
         return None
     return keys_by_shard(folder, load_manifest(folder, columns=("shard", "key")).to_pylist())
 
@@ -300,7 +304,7 @@ def _check_members(raw: dict[str, Any], meta: Any) -> None:
     flagged = [name for name, flag in meta["has"].items() if flag]
     missing = [name for name in (*REQUIRED_FIELDS, *flagged) if name not in present]
     if missing:
-        raise ShardError(f"{where}: field {missing[0]!r} is missing from the tar, though meta flags it; {_REDO}")
+        raise ShardError(f"{where}: field {missing[0]!r} is missing from the tar (a damaged header ends it); {_REDO}")
 
 
 def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:

@@ -69,9 +69,9 @@ def _retype(path: Path, data: bytes, rng: np.random.Generator) -> bytes | None:
         if suffix == ".yaml":
             return yaml.safe_dump(_wrong_typed(yaml.safe_load(data), rng)).encode()
         if suffix == ".pkl" and data[:1] == b"\xfd":  # LEAD: an LZMA (xz) stream holding a pickle
-            return lzma.compress(pickle.dumps(_wrong_typed(pickle.loads(lzma.decompress(data)), rng)))  # noqa: S301
+            return lzma.compress(pickle.dumps(_wrong_typed(pickle.loads(lzma.decompress(data)), rng)))
         if suffix == ".pkl":  # OpenScene logs: a plain pickle of a list of frame dicts
-            return pickle.dumps(_wrong_typed(pickle.loads(data), rng))  # noqa: S301
+            return pickle.dumps(_wrong_typed(pickle.loads(data), rng))
     except (ValueError, yaml.YAMLError, lzma.LZMAError, pickle.UnpicklingError):
         return None
     return None

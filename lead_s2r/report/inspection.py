@@ -19,7 +19,6 @@ from lead_s2r.report.render import render_sample
 from lead_s2r.schema import SchemaError, validate
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples
 
-
 #: Manifest columns the report reads.
 _READ = ("key", "shard", "dataset", "split", "log", "speed", "command", "tp_x", "tp_y")
 
