@@ -111,7 +111,7 @@ def mosaic_height(data: bytes, rig: str, path: Path) -> int:
     calibration written beside it would be wrong."""
     try:
         width, height = Image.open(io.BytesIO(data)).size
-    except Exception as err:  # Pillow raises several types for damaged headers
+    except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError) as err:  # Pillow's, by plugin
         raise LeadFormatError(path, f"unreadable JPEG header ({err})") from err
     cameras = CAMERA_RIGS[rig]
     want_width, heights = sum(c.width for c in cameras), (cameras[0].stored_height, cameras[0].height)

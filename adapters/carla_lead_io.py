@@ -7,7 +7,8 @@ unpickler that only admits plain builtin containers/scalars and numpy arrays/sca
 import importlib.util
 import json
 import lzma
-import pickle
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,7 @@ def read_pickle(path: Path) -> Any:
             return restricted_pickle.load(file)
     except (lzma.LZMAError, EOFError) as err:
         raise LeadFormatError(path, f"truncated or corrupt LZMA pickle ({err or type(err).__name__})") from err
-    except (pickle.UnpicklingError, ValueError, TypeError, AttributeError, IndexError) as err:
+    except restricted_pickle.DAMAGED as err:
         raise LeadFormatError(path, f"not a valid pickle ({type(err).__name__}: {err})") from err
     except OSError as err:
         raise LeadFormatError(path, f"cannot be read ({err})") from err
@@ -119,18 +120,18 @@ RADAR_KEYS = ("radar1", "radar2", "radar3", "radar4")
 def read_radar(path: Path) -> list[np.ndarray]:
     """The four radar clouds (n, 4) = x, y, z, radial velocity of one LEAD radar ``.npz`` (float16 on disk)."""
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            clouds = []
-            for key in RADAR_KEYS:
-                cloud = npz[key] if key in npz.files else np.zeros((0, 4), np.float16)
-                if cloud.ndim != 2 or cloud.shape[1] != 4:
-                    raise LeadFormatError(path, f"expected shape (n, 4), got {cloud.shape}", key)
-                clouds.append(cloud.astype(np.float64))
-            return clouds
-    except LeadFormatError:
-        raise
-    except Exception as err:
+        npz = np.load(path, allow_pickle=False)
+        if isinstance(npz, np.lib.npyio.NpzFile):  # a damaged zip magic reads as an .npy
+            with npz:
+                clouds = [npz[key] if key in npz.files else np.zeros((0, 4), np.float16) for key in RADAR_KEYS]
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as err:  # np.load of a zip
         raise LeadFormatError(path, f"corrupt radar npz ({type(err).__name__}: {err})") from err
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise LeadFormatError(path, "not an npz archive")
+    for key, cloud in zip(RADAR_KEYS, clouds, strict=True):
+        if cloud.ndim != 2 or cloud.shape[1] != 4:
+            raise LeadFormatError(path, f"expected shape (n, 4), got {cloud.shape}", key)
+    return [cloud.astype(np.float64) for cloud in clouds]
 
 
 def read_png(path: Path) -> np.ndarray:
