@@ -247,7 +247,7 @@ def test_missing_token_nan_pose_short_horizon_and_missing_metadata_write_nothing
 
     full = predictions_file(tmp_path / "full.parquet", keys, GRID)
     refused(lambda: N.write_navsim(out, METADATA, [full], [tmp_path / "nope"]), out, "nope: no such converted folder")
-    argv = ["submit", "navsim", "--data", str(data), "--out", str(out), "--predictions", str(full)]
+    argv = ["--debug", "submit", "navsim", "--data", str(data), "--out", str(out), "--predictions", str(full)]
     refused(lambda: cli_main([*argv, *metadata_args(country=" ")]), out, "'country' .*--country")
 
 
