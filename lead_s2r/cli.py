@@ -198,7 +198,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
         data = [Path(d) for d in args.data]
         report = write_wod(Path(args.out), metadata, Path(args.predictions), data, args.split, args.shards)
     else:
-        raise SystemExit("error: lead-s2r submit needs navsim, wod-e2e or --check FILE")
+        raise UserError("lead-s2r submit needs navsim, wod-e2e or --check FILE (see lead-s2r submit --help)")
     print(json.dumps(report, indent=2))
     return 0
 
