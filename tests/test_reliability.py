@@ -132,10 +132,11 @@ def test_navsim_log_pickle_deleted_is_reported(raw, tmp_path):
     assert pickle_path.stem in (tmp_path / "out" / ERRORS).read_text()
 
 
-@pytest.mark.parametrize("content", [b"tokens: [a, b\n", b"\xff\xfe tokens", b"- just\n- a list\n"])
-def test_navsim_scene_filter_unreadable_is_one_line(raw, tmp_path, capsys, content):
+@pytest.mark.parametrize("content", [None, b"tokens: [a, b\n", b"\xff\xfe tokens", b"- just\n- a list\n"])
+def test_navsim_scene_filter_missing_or_unreadable_is_one_line(raw, tmp_path, capsys, content):
     scene_filter = tmp_path / "filter.yaml"
-    scene_filter.write_bytes(content)
+    if content is not None:
+        scene_filter.write_bytes(content)
     argv = ["convert", "navsim", "--src", str(raw["navsim"]), "--out", str(tmp_path / "out"), "--quiet"]
     line = user_error([*argv, "--scene-filter", str(scene_filter)], capsys)
     assert str(scene_filter) in line
