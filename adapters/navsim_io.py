@@ -174,3 +174,26 @@ def log_lidar2ego(log_path: Path) -> np.ndarray:
     where = f"{log_path} frame 0"
     rotation = quaternion_matrix(required(frame, "lidar2ego_rotation", where))
     return homogeneous(rotation, required(frame, "lidar2ego_translation", where))
+
+
+#: Annotation field names: (boxes, class names, 3-D velocities, track tokens) in a log frame's ``anns`` and in a
+#: synthetic scene frame's ``annotations``.
+LOG_ANNOTATIONS = ("gt_boxes", "gt_names", "gt_velocity_3d", "track_tokens")
+SCENE_ANNOTATIONS = ("boxes", "names", "velocity_3d", "track_tokens")
+
+
+def read_annotations(anns: dict[str, Any], fields: tuple[str, str, str, str], where: str) -> dict[str, Any]:
+    """Boxes (N, 7), class ``names``, velocities (N, 3) in the lidar frame (NaN as 0), track tokens and
+    :class:`~lead_s2r.schema.BoxClass` ids (N,) of one frame's annotations, checked to agree in length and class."""
+    boxes_field, names_field, velocity_field, tracks_field = fields
+    boxes = np.asarray(required(anns, boxes_field, where), np.float64).reshape(-1, 7)
+    names = [str(n) for n in required(anns, names_field, where)]
+    velocity = np.asarray(required(anns, velocity_field, where), np.float64).reshape(-1, 3)
+    tracks = [str(t) for t in required(anns, tracks_field, where)]
+    if not len(boxes) == len(names) == len(velocity) == len(tracks):
+        raise NavsimFormatError(f"{where}: {', '.join(fields[:3])} and {tracks_field} differ in length")
+    unknown = sorted(set(names) - set(BOX_CLASSES))
+    if unknown:
+        raise NavsimFormatError(f"{where}: field {names_field!r} has unknown classes {unknown}")
+    classes = np.array([BOX_CLASSES[n] for n in names], np.float64)
+    return {"boxes": boxes, "names": names, "velocity": np.nan_to_num(velocity), "tracks": tracks, "classes": classes}

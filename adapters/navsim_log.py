@@ -14,12 +14,13 @@ from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
 from lead_s2r_adapters.navsim_io import (
-    BOX_CLASSES,
     CAMERAS,
+    LOG_ANNOTATIONS,
     NavsimFormatError,
     homogeneous,
     quaternion_matrix,
     quaternion_yaw,
+    read_annotations,
     read_camera,
     read_pcd,
     required,
@@ -142,28 +143,11 @@ class LogScenes:
 
     def _read_annotations(self, index: int) -> dict[str, Any]:
         where = f"{self.where(index)} anns"
-        anns = required(self.frames[index], "anns", self.where(index))
-        boxes = np.asarray(required(anns, "gt_boxes", where), np.float64).reshape(-1, 7)
-        names = [str(n) for n in required(anns, "gt_names", where)]
-        velocity = np.asarray(required(anns, "gt_velocity_3d", where), np.float64).reshape(-1, 3)
-        tracks = [str(t) for t in required(anns, "track_tokens", where)]
-        if not len(boxes) == len(names) == len(velocity) == len(tracks):
-            raise NavsimFormatError(f"{where}: gt_boxes, gt_names, gt_velocity_3d and track_tokens differ in length")
-        unknown = sorted(set(names) - set(BOX_CLASSES))
-        if unknown:
-            raise NavsimFormatError(f"{where}: field 'gt_names' has unknown classes {unknown}")
-        frame = self.frames[index]
-        rotation = quaternion_matrix(required(frame, "lidar2ego_rotation", self.where(index)))
-        velocity = np.nan_to_num(velocity) @ rotation.T  # OpenScene rotates velocities into the lidar frame
-        classes = np.array([BOX_CLASSES[n] for n in names], np.float64)
-        return {
-            "boxes": boxes,
-            "names": names,
-            "velocity": velocity[:, :2],
-            "tracks": tracks,
-            "classes": classes,
-            "global_poses": to_global(boxes[:, [0, 1, 6]], self.poses[index]),  # for the scenes it is a future of
-        }
+        anns = read_annotations(required(self.frames[index], "anns", self.where(index)), LOG_ANNOTATIONS, where)
+        rotation = quaternion_matrix(required(self.frames[index], "lidar2ego_rotation", self.where(index)))
+        velocity = anns["velocity"] @ rotation.T  # OpenScene rotates velocities into the lidar frame
+        global_poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])  # for the scenes it is a future of
+        return anns | {"velocity": velocity[:, :2], "global_poses": global_poses}
 
     def agents_future(self, current: int, now: dict[str, Any]) -> dict[str, np.ndarray]:
         """The other agents' tracks over the scene's future frames (:func:`~navsim_scene.agents_future`); each

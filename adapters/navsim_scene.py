@@ -179,4 +179,4 @@ def add_map_fields(
     context = navsim_map.scoring_context(nuplan_map, origin, source.map_radius, roadblocks, red, times)
     context["ego_past"] = past
     sample["scoring"] = context
-    sample["bev_semantic"] = navsim_map.render_bev(context, sample.get("boxes", np.zeros((0, 10))))
+    sample["bev_semantic"] = navsim_map.bev_semantic_raster(context, sample.get("boxes", np.zeros((0, 10))))

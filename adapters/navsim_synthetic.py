@@ -26,7 +26,16 @@ from lead_s2r.geometry import to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
-from lead_s2r_adapters.navsim_io import BOX_CLASSES, CAMERAS, NavsimFormatError, log_lidar2ego, read_camera, required
+from lead_s2r_adapters.navsim_io import (
+    BOX_CLASSES,
+    CAMERAS,
+    SCENE_ANNOTATIONS,
+    NavsimFormatError,
+    log_lidar2ego,
+    read_annotations,
+    read_camera,
+    required,
+)
 from lead_s2r_adapters.navsim_scene import (
     SceneFrame,
     SceneSource,
@@ -248,20 +257,11 @@ class SyntheticScene:
         """The current frame's boxes (N, 10) as the logs' are converted (velocity rotated by lidar2ego)."""
         where = f"{self.where} frame {self.current} annotations"
         anns = required(frame, "annotations", f"{self.where} frame {self.current}")
-        boxes = np.asarray(required(anns, "boxes", where), np.float64).reshape(-1, 7)
-        names = [str(n) for n in required(anns, "names", where)]
-        velocity = np.asarray(required(anns, "velocity_3d", where), np.float64).reshape(-1, 3)
-        tracks = [str(t) for t in required(anns, "track_tokens", where)]
-        if not len(boxes) == len(names) == len(velocity) == len(tracks):
-            raise NavsimFormatError(f"{where}: boxes, names, velocity_3d and track_tokens differ in length")
-        unknown = sorted(set(names) - set(BOX_CLASSES))
-        if unknown:
-            raise NavsimFormatError(f"{where}: field 'names' has unknown classes {unknown}")
-        velocity = (np.nan_to_num(velocity) @ lidar2ego[:3, :3].T)[:, :2]
-        classes = np.array([BOX_CLASSES[n] for n in names], np.float64)
-        out = np.column_stack([boxes, velocity, classes]).astype(np.float32).reshape(-1, 10)
+        anns = read_annotations(anns, SCENE_ANNOTATIONS, where)
+        velocity = (anns["velocity"] @ lidar2ego[:3, :3].T)[:, :2]
+        out = np.column_stack([anns["boxes"], velocity, anns["classes"]]).astype(np.float32).reshape(-1, 10)
         out[:, 6] = wrap_angle(out[:, 6])
-        return {"boxes": out, "names": names, "tracks": tracks}
+        return {"boxes": out, "names": anns["names"], "tracks": anns["tracks"]}
 
     def agents_future(self, now: dict[str, Any]) -> dict[str, np.ndarray]:
         """Every track of ``extended_detections_tracks`` (2 Hz after the current frame) in the current ego frame

@@ -21,6 +21,7 @@ from lead_s2r.data.targets import CENTERNET_STRIDE, MAX_BOXES, bev_cell_centres,
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
 from lead_s2r.schema import BoxClass
 
@@ -190,7 +191,7 @@ def test_lidar_counts_scale_to_the_float32_levels_of_the_old_raster() -> None:
 
 
 def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", tfv6_config())  # paper size: the 1152x384 mosaic is the input
+    transform = SourceTransform("carla", input_spec(tfv6_config()))  # paper size: the 1152x384 mosaic is the input
     for sample in carla_samples:
         expected = reference_camera(transform, sample)
         got = transform(sample)
@@ -208,7 +209,9 @@ def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples
 
 
 def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", tfv6_config(image_size=(256, 1024)))  # 3:1 strip into 4:1: letterboxed
+    transform = SourceTransform(
+        "carla", input_spec(tfv6_config(image_size=(256, 1024)))
+    )  # 3:1 strip into 4:1: letterboxed
     with pytest.warns(UserWarning, match="letterboxed"):
         got = transform(carla_samples[0])
     expected = reference_camera(transform, carla_samples[0])
@@ -219,7 +222,7 @@ def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> 
 
 
 def test_the_transform_reads_only_its_fields_and_gives_the_same_tensors(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", tfv6_config())
+    transform = SourceTransform("carla", input_spec(tfv6_config()))
     assert "past" not in transform.fields and "agents_future" not in transform.fields
     for sample in carla_samples:
         assert {"past", "agents_future"} <= set(sample)  # the adapter wrote them; the model reads neither
@@ -254,7 +257,7 @@ def smooth_camera_sample(width: int, height: int) -> dict:
 )
 def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int], factor: int) -> None:
     sample = smooth_camera_sample(1920, 1080)
-    transform = SourceTransform("navsim", tfv6_config(image_size=image_size), ["front"])
+    transform = SourceTransform("navsim", input_spec(tfv6_config(image_size=image_size)), ["front"])
     layout = transform.camera.layout(sample["meta"], [(1080, 1920)])
     assert jpeg_reduction(layout)[0] == factor
     rgb, _ = camera_image(transform, sample)
@@ -274,7 +277,7 @@ def test_labels_of_a_reduced_decode_follow_the_full_size_layout(image_size: tupl
     sample["semantic_front"] = np.kron(rng.integers(0, 20, (27, 48)), np.ones((40, 40))).astype(np.uint8)
     sample["depth_front"] = rng.integers(0, 256, (270, 480)).astype(np.uint8)  # stored at 1/4, like LEAD's
     sample["meta"]["depth"] = {"max_m": 50.0}
-    transform = SourceTransform("carla", tfv6_config(image_size=image_size), ["front"])
+    transform = SourceTransform("carla", input_spec(tfv6_config(image_size=image_size)), ["front"])
     _, layout = camera_image(transform, sample)
     assert jpeg_reduction(layout)[0] == 4
     got = transform.perspective_labels(sample, "carla", layout)

@@ -1,6 +1,7 @@
 """Schema v1 sample -> model input tensors (the :class:`lead_s2r.models.inputs.Batch` contract), per source.
 
-:class:`SourceTransform` is a pure function of one decoded sample and the model configuration: the native-rate
+:class:`SourceTransform` is a pure function of one decoded sample and the model's
+:class:`~lead_s2r.models.input_spec.InputSpec`: the native-rate
 future resampled to the model's grid, cameras laid out in the input image (:mod:`lead_s2r.data.camera_input`), LiDAR
 rasterised onto the BEV grid (:mod:`lead_s2r.data.lidar`), and the labels moved onto the model's grids
 (:mod:`lead_s2r.data.targets`); :func:`~lead_s2r.data.collate.collate` stacks them. A label a sample does not have
@@ -38,17 +39,18 @@ from lead_s2r.data.targets import (
     route_checkpoints,
 )
 from lead_s2r.geometry import resample
-from lead_s2r.models.config import TFv6Config
+from lead_s2r.models.input_spec import InputSpec
 from lead_s2r.schema import command4
 
 
 @dataclass
 class SourceTransform:
-    """Turns samples of one source into tensors for ``config``.
+    """Turns samples of one source into the tensors a model reading ``spec`` takes.
 
     Args:
         source: the source name the model knows (its trajectory grid and label space), e.g. "carla".
-        config: the model configuration (image size, BEV grid, trajectory grids, head sizes).
+        spec: what the model reads (image size, BEV grid, trajectory grids, labels): its config's
+            :func:`~lead_s2r.models.input_spec.input_spec`.
         cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
         inputs_on_device: leave a camera JPEG that is the model's image as stored encoded (``rgb_jpeg``), for
             :func:`~lead_s2r.data.device_inputs.decode_images` on the training device (other rigs are decoded here), and
@@ -56,38 +58,35 @@ class SourceTransform:
     """
 
     source: str
-    config: TFv6Config
+    spec: InputSpec
     cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
     inputs_on_device: bool = False
     camera: CameraInput = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        config = self.config
-        equal_tiles = config.use_tiles is not None or config.fov_fraction < 1.0
-        self.camera = CameraInput(
-            self.source, self.cameras, tuple(config.image_size), config.vertical_fov_deg, equal_tiles
-        )
+        spec = self.spec
+        self.camera = CameraInput(self.source, self.cameras, spec.image_size, spec.vertical_fov_deg, spec.equal_tiles)
 
     @property
     def fields(self) -> list[str]:
         """The sample fields this transform reads, so loaders decode nothing else (``meta`` always comes)."""
-        config, space = self.config, self.config.space(self.source)
-        radar_targets = config.use_radar and self.source in config.radar_sources
+        spec, space = self.spec, self.spec.space(self.source)
+        radar_targets = spec.radar and self.source in spec.radar_sources
         wanted = {
             "future": True,
             "target_points": True,
             "route": True,
-            "lidar": config.bev_input == "raster",
-            "radar": config.use_radar,
-            "boxes": radar_targets or space in config.box_classes,
-            "bev_semantic": space in config.bev_semantic_classes,
+            "lidar": spec.lidar_raster,
+            "radar": spec.radar,
+            "boxes": radar_targets or space in spec.box_classes,
+            "bev_semantic": space in spec.bev_semantic_classes,
         }
         fields = [name for name, read in wanted.items() if read]
         fields += [f"cam_{camera}" for camera in self.cameras]
         if len(self.cameras) == 1:
-            if space in config.depth_sources:
+            if space in spec.depth_sources:
                 fields.append(f"depth_{self.cameras[0]}")
-            if space in config.semantic_classes:
+            if space in spec.semantic_classes:
                 fields.append(f"semantic_{self.cameras[0]}")
         return fields
 
@@ -108,27 +107,28 @@ class SourceTransform:
             else:
                 out["rgb"], layout = self.camera.image(sample, stored)
         out.update(self.target_points(sample))
-        if self.config.bev_input == "raster" and self.inputs_on_device:
+        spec = self.spec
+        if spec.lidar_raster and self.inputs_on_device:
             out[LIDAR_POINTS] = lidar_xy(sample.get("lidar"))
-        elif self.config.bev_input == "raster":
-            out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), self.config.bev))[None]
-        if self.config.use_radar:
+        elif spec.lidar_raster:
+            out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), spec.bev))[None]
+        if spec.radar:
             out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
-            if "radar" in sample and "boxes" in sample and self.source in self.config.radar_sources:
+            if "radar" in sample and "boxes" in sample and self.source in spec.radar_sources:
                 out.update(radar_targets(sample["radar"], sample["boxes"]))
         if "future" in sample:
             out.update(self.trajectory(sample["future"]))
         if "route" in sample:
-            out.update(route_checkpoints(sample["route"], self.config.num_route_points))
+            out.update(route_checkpoints(sample["route"], spec.num_route_points))
         target_speed = meta["extras"].get(meta["dataset"], {}).get("target_speed")
         if target_speed is not None:
             out["target_speed"] = torch.scalar_tensor(float(target_speed))
             out["target_speed_valid"] = torch.scalar_tensor(True, dtype=torch.bool)
-        space = self.config.space(self.source)
-        if "bev_semantic" in sample and space in self.config.bev_semantic_classes:
-            out["bev_semantic"] = torch.from_numpy(bev_labels(sample["bev_semantic"], meta["bev"], self.config.bev))
-        if "boxes" in sample and space in self.config.box_classes:
-            out.update(centernet_targets(sample["boxes"], self.config.bev, self.config.box_classes[space]))
+        space = spec.space(self.source)
+        if "bev_semantic" in sample and space in spec.bev_semantic_classes:
+            out["bev_semantic"] = torch.from_numpy(bev_labels(sample["bev_semantic"], meta["bev"], spec.bev))
+        if "boxes" in sample and space in spec.box_classes:
+            out.update(centernet_targets(sample["boxes"], spec.bev, spec.box_classes[space]))
         if len(self.cameras) == 1:
             out.update(self.perspective_labels(sample, space, layout))
         return out
@@ -146,7 +146,7 @@ class SourceTransform:
     def trajectory(self, future: np.ndarray) -> dict[str, torch.Tensor]:
         """Waypoints (and headings, where the source has them) on the source's output grid, masked beyond the
         recorded horizon."""
-        times = np.asarray(self.config.trajectory_grids[self.source].times)
+        times = np.asarray(self.spec.trajectory_grids[self.source].times)
         knots = np.vstack([np.zeros((1, 4), np.float32), future])  # the ego sits at the origin at t = 0
         poses, valid = resample(knots[:, 0], knots[:, 1:], times, angle_columns=(2,))
         out = {
@@ -168,12 +168,12 @@ class SourceTransform:
         camera = self.cameras[0]
         out = {}
         depth = sample.get(f"depth_{camera}")
-        if depth is not None and space in self.config.depth_sources:
+        if depth is not None and space in self.spec.depth_sources:
             encoding = sample["meta"].get("depth", {})
-            metres = depth.astype(np.float32) / 255.0 * float(encoding.get("max_m", self.config.max_depth))
+            metres = depth.astype(np.float32) / 255.0 * float(encoding.get("max_m", self.spec.max_depth))
             out["depth"] = torch.from_numpy(label_on_layout(layout, metres, cv2.INTER_LINEAR, 0.0))
         semantic = sample.get(f"semantic_{camera}")
-        if semantic is not None and space in self.config.semantic_classes:
+        if semantic is not None and space in self.spec.semantic_classes:
             out["semantic"] = torch.from_numpy(
                 label_on_layout(layout, semantic, cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
             )

@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.extended_comfort import FeatureExtractor, two_frame_extended_comfort
 
 SIGMA_SQUARED = 0.1
 #: Columns aggregated over groups, in NAVSIM's CSV order (``score`` last).
-SCORE_COLUMNS = (*E.FILTERED, E.EC, "score")
+SCORE_COLUMNS = (*epdms.FILTERED, epdms.EC, "score")
 SUMMARY_TOKENS = ("extended_pdm_score_stage_one", "extended_pdm_score_stage_two", "extended_pdm_score_combined")
 
 
@@ -108,12 +108,12 @@ def _pair_ec(rows: Mapping[str, TokenRow], now: str, before: str, features: Feat
 
 
 def _token_columns(row: TokenRow, ec: float, weight: float, stage: int) -> dict[str, float]:
-    missing = [name for name in E.FILTERED if name not in row.columns]
+    missing = [name for name in epdms.FILTERED if name not in row.columns]
     if missing:
         raise KeyError(f"two-stage aggregation: token {row.token} has no column {', '.join(missing)}")
-    columns = {name: float(row.columns[name]) for name in E.FILTERED}
-    columns[E.EC] = ec
-    columns["score"] = float(E.epdms(columns))
+    columns = {name: float(row.columns[name]) for name in epdms.FILTERED}
+    columns[epdms.EC] = ec
+    columns["score"] = float(epdms.epdms(columns))
     return columns | {"weight": weight, "stage": stage}
 
 
