@@ -351,9 +351,7 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
 MANIFEST_COLUMNS = ("key", "shard", "dataset", "split", "log")
 
 
-def load_manifest(
-    path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()
-) -> pa.Table:
+def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
     """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
 
     ``columns`` keeps only those; they and ``required`` must be there. A file that is missing, is not parquet or
