@@ -98,11 +98,13 @@ def _check_png(png: Path) -> None:
 
 
 def _with_bar(samples: Iterator[dict[str, Any]], total: int, progress: bool) -> Iterator[dict[str, Any]]:
-    """``samples`` passed through, advancing a rich progress bar on stderr when ``progress``."""
+    """``samples`` passed through, advancing a rich progress bar on stderr when ``progress`` and stderr is a terminal
+    (in a log or a pipe the bar's last frame would be a second line beside an error's one)."""
     from rich.console import Console
     from rich.progress import Progress
 
-    with Progress(console=Console(stderr=True), disable=not progress) as bar:
+    console = Console(stderr=True)
+    with Progress(console=console, disable=not (progress and console.is_terminal)) as bar:
         task = bar.add_task("checking samples", total=total)
         for sample in samples:
             yield sample
