@@ -98,7 +98,7 @@ def test_missing_shard_tar_is_named_by_every_reader(converted, tmp_path):
             read()
 
 
-def test_tar_cut_mid_sample_is_an_error_not_a_short_sample(converted, tmp_path):
+def test_tar_cut_mid_sample_is_an_error_not_a_short_sample(converted, tmp_path, capsys):
     """A zeroed tar header ends tarfile's stream quietly: the sample before it came out short of fields."""
     folder = copy_of(converted["wod_e2e"], tmp_path)
     shard = sorted((folder / "shards").glob("*.tar"))[0]
@@ -108,6 +108,7 @@ def test_tar_cut_mid_sample_is_an_error_not_a_short_sample(converted, tmp_path):
     rewrite(shard, bytes(data))
     with pytest.raises(ShardError, match=rf"{shard}: sample '\w+': field '(future|past)' is missing from the tar"):
         list(read_samples(folder, fields=("future",)))
+    assert str(shard) in user_error(["inspect", str(folder)], capsys)  # the progress bar adds no line off a terminal
 
 
 def test_lead_deleted_frame_or_sensor_file_is_named(raw, tmp_path):
