@@ -329,3 +329,15 @@ def test_fuzz_trials_helpers_make_real_corruptions(tmp_path):
     path.write_text(yaml.safe_dump({"tokens": ["a", "b"]}))
     corrupt(path, "wrong_type", rng)
     assert yaml.safe_load(path.read_text()) != {"tokens": ["a", "b"]}
+
+
+def test_navsim_damaged_map_names_the_geopackage(raw, tmp_path):
+    src = copy_of(raw["navsim"], tmp_path)
+    (gpkg,) = (src / "maps").rglob("map.gpkg")
+    rewrite(gpkg, gpkg.read_bytes()[: gpkg.stat().st_size // 2])
+    from lead_s2r_adapters import navsim_map
+
+    navsim_map.load_map.cache_clear()  # a map read by an earlier test in this process
+    result = convert(get_adapter("navsim", maps=str(src / "maps")), src, tmp_path / "out")
+    assert len(result.errors) == 2
+    assert all(f"{gpkg}: not a readable GeoPackage" in error["error"] for error in result.errors)
