@@ -19,7 +19,7 @@ from corruptions import KINDS, corrupt, hardlink_copy, pick_file
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import write_predictions
-from lead_s2r.registry import get_adapter
+from lead_s2r.registry import Adapter, get_adapter
 from lead_s2r.report.inspection import inspect_dataset
 from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.run import score_predictions
@@ -45,6 +45,13 @@ def _generate(name: str, out: Path) -> None:
         generate(out, seed=3, splits={"train": 1, "val": 2})  # test segments have no future to score
 
 
+def _adapter(name: str, src: Path) -> Adapter:
+    """The adapter with every reader on: NAVSIM with its maps and scene filter (GeoPackage and yaml are read too)."""
+    if name == "navsim":
+        return get_adapter(name, maps=str(src / "maps"), scene_filter=str(src / "scene_filters" / "navmini.yaml"))
+    return get_adapter(name)
+
+
 def _keys_by_log(folder: Path) -> dict[str, set[str]]:
     by_log: dict[str, set[str]] = {}
     for row in load_manifest(folder).select(["log", "key"]).to_pylist():
@@ -59,7 +66,7 @@ def pristine(tmp_path_factory) -> dict[str, tuple[Path, Path, dict[str, set[str]
     made = {}
     for name in RAW:
         _generate(name, root / name)
-        result = convert(get_adapter(name), root / name, root / f"{name}-out", shard_size=8)
+        result = convert(_adapter(name, root / name), root / name, root / f"{name}-out", shard_size=8)
         assert result.ok, result.errors
         made[name] = (root / name, root / f"{name}-out", _keys_by_log(root / f"{name}-out"))
     return made
@@ -84,8 +91,8 @@ def raw_trial(name: str, made: tuple[Path, Path, dict[str, set[str]]], trial: Pa
     hardlink_copy(pristine_src, src)
     target = pick_file(src, rng, _weight)
     what = corrupt(target, KINDS[int(rng.integers(len(KINDS)))], rng)
-    try:
-        result = convert(get_adapter(name), src, out, shard_size=8)
+    try:  # a bad scene filter is found by the adapter's constructor
+        result = convert(_adapter(name, src), src, out, shard_size=8)
     except UserError as err:
         assert _names_file(str(err), target) or str(src) in str(err), f"{what}: {err}"
         return "user error"
