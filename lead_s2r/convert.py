@@ -46,7 +46,7 @@ from lead_s2r import __version__
 from lead_s2r.errors import UserError
 from lead_s2r.processes import exit_with_parent
 from lead_s2r.registry import Adapter, LogRef, SkipLog
-from lead_s2r.schema import SCHEMA_VERSION, validate
+from lead_s2r.schema import SCHEMA_VERSION, SchemaError, validate
 from lead_s2r.shards import ERRORS, IDENTITY, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
 
 if TYPE_CHECKING:
@@ -132,8 +132,9 @@ def _run_log(adapter: Adapter, out: Path, position: int, log: LogRef) -> tuple[s
         return "done", position, _convert_log(adapter, log, _fragment_path(out, position))
     except SkipLog as reason:
         return "skipped", position, str(reason)
-    except UserError as err:  # a bad source file: the adapter's message names it
-        return "error", position, f"{type(err).__name__}: {err.one_line()}"
+    except UserError as err:  # a bad source file: the adapter's message names it; a SchemaError names a sample only
+        source = f"{log.path}: " if isinstance(err, SchemaError) else ""
+        return "error", position, f"{type(err).__name__}: {source}{err.one_line()}"
     except Exception as err:  # every failure of one log is isolated and reported; a bug keeps its code line
         where = traceback.extract_tb(err.__traceback__)[-1]
         return "error", position, f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"

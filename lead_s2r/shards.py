@@ -361,6 +361,7 @@ def load_manifest(path: str | Path, columns: Sequence[str] | None = None, requir
     file = path / MANIFEST if path.is_dir() else path
     try:
         table = pq.read_table(file)
+        table.validate(full=True)  # parquet does not check that strings are UTF-8; reading them would raise later
     except (pa.ArrowException, OSError) as err:  # ArrowInvalid (not parquet), OSError (missing, bad thrift)
         raise ShardError(f"{file}: cannot be read as a manifest ({_first_line(err)}); {_REDO}") from None
     absent = [name for name in (*(columns or ()), *required) if name not in table.column_names]

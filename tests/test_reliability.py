@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 import yaml
 from corruptions import hardlink_copy
@@ -341,3 +343,31 @@ def test_navsim_damaged_map_names_the_geopackage(raw, tmp_path):
     result = convert(get_adapter("navsim", maps=str(src / "maps")), src, tmp_path / "out")
     assert len(result.errors) == 2
     assert all(f"{gpkg}: not a readable GeoPackage" in error["error"] for error in result.errors)
+
+
+class _NaNBoxesAdapter(ToyAdapter):
+    """A toy adapter that passes a raw value it did not check into a sample (NaN in the boxes of its first log)."""
+
+    def iter_samples(self, log):
+        for sample in super().iter_samples(log):
+            if log.log_id.endswith("000"):
+                sample["boxes"][0, 0] = np.nan
+            yield sample
+
+
+def test_schema_error_of_a_converted_sample_names_the_source(tmp_path):
+    write_toy_logs(tmp_path / "src", n_logs=2, frames=3)
+    result = convert(_NaNBoxesAdapter(), tmp_path / "src", tmp_path / "out")
+    (error,) = result.errors
+    assert error["error"].startswith(f"SchemaError: {tmp_path / 'src' / 'log000.json'}: sample ")
+    assert "field 'boxes': contains NaN" in error["error"] and result.samples == 3
+
+
+def test_manifest_with_invalid_utf8_is_a_shard_error(converted, tmp_path):
+    folder = copy_of(converted["wod_e2e"], tmp_path)
+    table = load_manifest(folder)
+    keys = pa.array([b"\xf6" + key.encode() for key in table["key"].to_pylist()], pa.binary()).view(pa.string())
+    (folder / MANIFEST).unlink()
+    pq.write_table(table.set_column(table.column_names.index("key"), "key", keys), folder / MANIFEST)
+    with pytest.raises(ShardError, match=f"{folder / MANIFEST}: cannot be read as a manifest"):
+        list(read_samples(folder))
