@@ -43,10 +43,12 @@ class DrivingCLI(LightningCLI):
         if self.subcommand != "predict":
             return
         config = self.config["predict"]
-        if not (config.get("ckpt_path") or config.get("model.init_from") or config.get("untrained")):
+        weights = ("ckpt_path", "model.init_from", "model.model.init_args.checkpoint", "untrained")  # 3rd: LEAD folder
+        if not any(config.get(name) for name in weights):
             raise UserError(
-                "lead-s2r predict: no weights given; pass --ckpt_path CHECKPOINT (or --model.init_from WEIGHTS), "
-                "or --untrained to predict with the model's initial weights"
+                "lead-s2r predict: no weights given; pass --ckpt_path CHECKPOINT (or --model.init_from WEIGHTS, or a "
+                "LEAD checkpoint folder as --model.model.init_args.checkpoint), or --untrained to predict with the "
+                "model's initial weights"
             )
 
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
