@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from lead_s2r.errors import UserError
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r_adapters import navsim_map
 from lead_s2r_adapters.navsim_filter import (
@@ -24,7 +25,7 @@ from lead_s2r_adapters.navsim_filter import (
     read_two_stage_mapping,
     two_stage_roles,
 )
-from lead_s2r_adapters.navsim_io import CAMERAS, load_log, required
+from lead_s2r_adapters.navsim_io import CAMERAS, NavsimFormatError, load_log, required
 from lead_s2r_adapters.navsim_log import LogScenes
 from lead_s2r_adapters.navsim_synthetic import SyntheticScene
 
@@ -169,7 +170,7 @@ class NavsimAdapter(Adapter):
         for start, current in self.windows(frames, str(path)):
             token = str(required(frames[current], "token", f"{path} frame {current}"))
             if self.filter is None or self.filter.tokens is None or token in self.filter.tokens:
-                yield scenes.sample(start, current)
+                yield _scene(scenes, start, current, f"{path} frame {current}")
 
     def bad_records(self) -> list[dict[str, Any]]:
         """What the scene filter selects and :meth:`list_logs` found nowhere: log names without a pickle, synthetic
@@ -230,3 +231,14 @@ class NavsimAdapter(Adapter):
                 "reactive_all_mapping": [[g.original, g.previous, [list(p) for p in g.pairs]] for g in self.mapping],
             },
         }
+
+
+def _scene(scenes: LogScenes, start: int, current: int, where: str) -> dict[str, Any]:
+    """One scene's sample; a log value of the wrong type (a string where a number goes, a number where a list goes)
+    fails in numpy or a lookup deep in the builder, so it is named here by the log file and frame."""
+    try:
+        return scenes.sample(start, current)
+    except UserError:
+        raise
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as err:
+        raise NavsimFormatError(f"{where}: a value of an unexpected type ({type(err).__name__}: {err})") from err

@@ -371,3 +371,16 @@ def test_manifest_with_invalid_utf8_is_a_shard_error(converted, tmp_path):
     pq.write_table(table.set_column(table.column_names.index("key"), "key", keys), folder / MANIFEST)
     with pytest.raises(ShardError, match=f"{folder / MANIFEST}: cannot be read as a manifest"):
         list(read_samples(folder))
+
+
+def test_navsim_wrong_typed_log_value_names_the_log_file(raw, tmp_path):
+    src = copy_of(raw["navsim"], tmp_path)
+    log = sorted((src / "navsim_logs" / "mini").glob("*.pkl"))[0]
+    with open(log, "rb") as file:
+        frames = restricted_pickle.load(file)
+    for frame in frames:
+        frame["lidar2ego_translation"] = ["a", 0.0, 1.8]  # a string where metres go
+    rewrite(log, pickle.dumps(frames))
+    (error,) = convert(get_adapter("navsim"), src, tmp_path / "out").errors
+    assert error["error"].startswith(f"NavsimFormatError: {log} frame ")
+    assert "a value of an unexpected type (ValueError" in error["error"]
