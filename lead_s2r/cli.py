@@ -90,8 +90,21 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address``: where the jobs of ``convert`` and ``score`` run."""
+    parser.add_argument(
+        "--executor",
+        choices=["processes", "ray"],
+        default="processes",
+        help="processes: --workers on this machine; ray: a task per job on a Ray cluster (pip install lead-s2r[ray])",
+    )
+    parser.add_argument(
+        "--address", default=None, help="with --executor ray: auto, or HOST:PORT of the head (default: RAY_ADDRESS)"
+    )
+
+
 def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
-    from lead_s2r.convert import convert
+    from lead_s2r.convert import conversion_executor, convert
     from lead_s2r.shards import ERRORS
 
     cls = load(args.adapter)
@@ -104,7 +117,7 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
         adapter,
         args.src,
         args.out,
-        workers=args.workers,
+        executor=conversion_executor(args.workers, args.executor, args.address),
         shard_size=args.shard_size,
         limit_logs=args.limit_logs,
         force=args.force,
@@ -132,6 +145,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
+    from lead_s2r.processes import make_executor
     from lead_s2r.scoring.run import planner_predictions, score_predictions
 
     options: dict[str, Any] = {"allow_missing": not args.strict}
@@ -145,12 +159,14 @@ def cmd_score(args: argparse.Namespace) -> int:
             options[name] = value
     if args.reference_cache:
         options["reference_cache"] = args.reference_cache
+    scorer_module = load(args.metric, SCORER_GROUP).__module__  # the workers' forkserver imports it once
+    executor = make_executor(args.workers, args.executor, args.address, preload=[scorer_module])
     data, out = [Path(folder) for folder in args.data], Path(args.out)
     with removed_on_failure(out):
         predictions = Path(args.predictions) if args.predictions else None
         if predictions is None:
             predictions = planner_predictions(args.planner, data, out / f"predictions-{args.planner}.parquet")
-        summary = score_predictions(args.metric, predictions, data, out, **options)
+        summary = score_predictions(args.metric, predictions, data, out, executor=executor, **options)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -274,6 +290,14 @@ def cmd_table(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from lead_s2r.report.site import build_report
+
+    index = build_report(args.run_dir, args.out, args.baseline, args.data, args.worst, args.samples, args.threshold)
+    print(index)
+    return 0
+
+
 def cmd_export_lead(args: argparse.Namespace) -> int:
     from lead_s2r.training.lead_export import export_run
 
@@ -325,8 +349,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--src", required=True)
     sub.add_argument("--out", required=True)
     sub.add_argument(
-        "--workers", type=int, default=1, help="processes converting, this one included (the output is the same)"
+        "--workers", type=int, default=1, help="processes converting on this machine (the output is the same)"
     )
+    add_executor_arguments(sub)
     sub.add_argument("--shard-size", type=int, default=1000, help="samples per shard (closed at a log boundary)")
     sub.add_argument("--limit-logs", type=int, default=None)
     sub.add_argument("--force", action="store_true", help="start over instead of resuming")
@@ -352,6 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
     sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
+    sub.add_argument(
+        "--workers", type=int, default=1, help="processes scoring on this machine (the scores are the same)"
+    )
+    add_executor_arguments(sub)
     sub.set_defaults(run=cmd_score)
 
     _submit_parser(verbs)
@@ -370,6 +399,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--runs", required=True, nargs="+", help="run directories or glob patterns (runs/*/seed*)")
     sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
     sub.set_defaults(run=cmd_table)
+
+    sub = verbs.add_parser("report", help="a static web report of a scored run: summary, worst samples, comparison")
+    sub.add_argument("run_dir", metavar="RUN", help="run folder: scores.json files below it (lead-s2r score --out)")
+    sub.add_argument("--out", required=True, help="folder to write the site to (index.html); replaced when complete")
+    sub.add_argument("--baseline", default=None, metavar="RUN_B", help="a second run on the same data to compare")
+    sub.add_argument("--data", nargs="+", type=Path, default=None, help="converted folders (default: scores.json's)")
+    sub.add_argument("--worst", type=int, default=5, help="samples shown per metric, worst first")
+    sub.add_argument("--samples", nargs="+", default=None, metavar="KEY", help="show these sample keys instead")
+    sub.add_argument("--threshold", type=float, default=1e-9, help="smallest per-sample difference a comparison lists")
+    sub.set_defaults(run=cmd_report)
 
     sub = verbs.add_parser("export-lead", help="a run trained with LEAD's architecture -> a LEAD checkpoint folder")
     sub.add_argument("run_dir", metavar="RUN", help="run folder (its checkpoints/last.ckpt) or a .ckpt file")
