@@ -7,11 +7,15 @@ is created.
 """
 
 import argparse
+import contextlib
 import importlib
 import json
+import os
+import shutil
 import sys
 import types
 import typing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -22,6 +26,8 @@ from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
 DEBUG_FLAG = "--debug"
 USER_ERROR_STATUS = 2
+#: A closed stdout: the status a shell gives a process ended by SIGPIPE (128 + 13).
+BROKEN_PIPE_STATUS = 141
 
 
 class _Parser(argparse.ArgumentParser):
@@ -159,7 +165,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if args.list:
         print("\n".join(list_keys(args.path)))
         return 0
-    report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
+    quick = args.n if args.quick else None
+    report = inspect_dataset(args.path, quick=quick, png=args.png, key=args.key, progress=not args.no_progress)
     print(json.dumps(report, indent=2))
     return 1 if report["invalid"] else 0
 
@@ -181,14 +188,12 @@ def cmd_score(args: argparse.Namespace) -> int:
         options["reference_cache"] = args.reference_cache
     scorer_module = load(args.metric, SCORER_GROUP).__module__  # the workers' forkserver imports it once
     executor = make_executor(args.workers, args.executor, args.address, preload=[scorer_module])
-    data = [Path(folder) for folder in args.data]
-    predictions = Path(args.predictions) if args.predictions else None
-    if predictions is None:
-        path = Path(args.out) / f"predictions-{args.planner}.parquet"
-        predictions = planner_predictions(args.planner, data, path, args.split)
-    summary = score_predictions(
-        args.metric, predictions, data, Path(args.out), split=args.split, executor=executor, **options
-    )
+    data, out = [Path(folder) for folder in args.data], Path(args.out)
+    with removed_on_failure(out):
+        predictions = Path(args.predictions) if args.predictions else None
+        if predictions is None:
+            predictions = planner_predictions(args.planner, data, out / f"predictions-{args.planner}.parquet", args.split)
+        summary = score_predictions(args.metric, predictions, data, out, split=args.split, executor=executor, **options)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -197,8 +202,24 @@ def cmd_score(args: argparse.Namespace) -> int:
         from lead_s2r.report.score_summary import score_table
 
         Console().print(score_table(summary))
-        print(f"wrote {Path(args.out) / 'scores.json'} and scores.parquet ({summary['seconds']:.1f} s)")
+        print(f"wrote {out / 'scores.json'} and scores.parquet ({summary['seconds']:.1f} s)")
     return 0
+
+
+@contextlib.contextmanager
+def removed_on_failure(out: Path) -> Iterator[None]:
+    """What the block writes under ``out`` is removed if it fails (``out`` too, if the block made it): a planner's
+    predictions or a scores.parquet without its scores.json must not pass for a result."""
+    before = set(out.rglob("*")) if out.exists() else None
+    try:
+        yield
+    except BaseException:
+        if before is None:
+            shutil.rmtree(out, ignore_errors=True)
+        else:
+            for path in sorted(set(out.rglob("*")) - before, reverse=True):  # a folder's files before the folder
+                path.rmdir() if path.is_dir() else path.unlink()
+        raise
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
@@ -228,7 +249,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
         data = [Path(d) for d in args.data]
         report = write_wod(Path(args.out), metadata, Path(args.predictions), data, args.split, args.shards)
     else:
-        raise SystemExit("error: lead-s2r submit needs navsim, wod-e2e or --check FILE")
+        raise UserError("lead-s2r submit needs navsim, wod-e2e or --check FILE (see lead-s2r submit --help)")
     print(json.dumps(report, indent=2))
     return 0
 
@@ -386,9 +407,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub = verbs.add_parser("inspect", help="counts, schema check, statistics and a picture of a converted folder")
     sub.add_argument("path")
-    sub.add_argument("--n", type=int, default=32, help="samples to validate (and to pick the picture's sample from)")
+    sub.add_argument("--quick", action="store_true", help="validate the first --n samples only (default: every one)")
+    sub.add_argument("--n", type=int, default=32, help="samples to validate with --quick")
+    sub.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_argument("--png", default=None, help="draw one sample (cameras + BEV) to this file")
-    sub.add_argument("--key", default=None, help="sample to draw (default: of the --n checked, the one turning most)")
+    sub.add_argument("--key", default=None, help="sample to draw (default: of those checked, the one turning most)")
     sub.add_argument("--list", action="store_true", help="list every sample's key, split, log, frame and speed")
     sub.set_defaults(run=cmd_inspect)
 
@@ -472,12 +495,24 @@ def main(argv: list[str] | None = None) -> int:
     if from_shell:  # LightningCLI reads sys.argv itself (and warns when given both)
         sys.argv[1:] = argv
     try:
-        return _run(argv, from_shell)
+        status = _run(argv, from_shell)
+        sys.stdout.flush()  # here, where a closed pipe is caught, not at the interpreter's exit
+        return status
     except UserError as err:
         if debug:
             raise
         print(f"error: {err.one_line()}", file=sys.stderr)
         return USER_ERROR_STATUS
+    except BrokenPipeError:  # `lead-s2r ... | head`: the reader has all it wanted
+        _quiet_stdout()
+        return BROKEN_PIPE_STATUS
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's final flush of the closed pipe raises nothing either."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def _run(argv: list[str], from_shell: bool) -> int:

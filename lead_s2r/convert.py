@@ -46,14 +46,13 @@ from lead_s2r import __version__
 from lead_s2r.errors import UserError
 from lead_s2r.processes import Executor, WorkerDied, make_executor
 from lead_s2r.registry import Adapter, LogRef, SkipLog
-from lead_s2r.schema import SCHEMA_VERSION, validate
-from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
+from lead_s2r.schema import SCHEMA_VERSION, SchemaError, validate
+from lead_s2r.shards import ERRORS, IDENTITY, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
 PROGRESS = "progress.jsonl"
-IDENTITY = "convert.json"
 _DIED = "a conversion worker died; rerun the same command to resume"
 
 
@@ -133,7 +132,10 @@ def _run_log(adapter: Adapter, out: Path, position: int, log: LogRef) -> tuple[s
         return "done", position, _convert_log(adapter, log, _fragment_path(out, position))
     except SkipLog as reason:
         return "skipped", position, str(reason)
-    except Exception as err:  # every failure of one log is isolated and reported
+    except UserError as err:  # a bad source file: the adapter's message names it; a SchemaError names a sample only
+        source = f"{log.path}: " if isinstance(err, SchemaError) else ""
+        return "error", position, f"{type(err).__name__}: {source}{err.one_line()}"
+    except Exception as err:  # every failure of one log is isolated and reported; a bug keeps its code line
         where = traceback.extract_tb(err.__traceback__)[-1]
         return "error", position, f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"
 

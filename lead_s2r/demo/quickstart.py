@@ -351,7 +351,7 @@ def predict_and_score(
     root = stage_folder(out, training, home(training)[0], stage)
     args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(root)]
     with lightning_output_to(out / LIGHTNING_LOG):
-        run_lightning_cli(args + ([] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
+        run_lightning_cli(args + (["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
     predictions = read_predictions(root / "predictions.parquet")
     results = {}
     for dataset in scored_on(training):

@@ -37,6 +37,8 @@ class Scorer(ABC):
     fields: ClassVar[tuple[str, ...]]
     #: datasets the metric is defined on (None: all); the validation callback skips the others.
     datasets: ClassVar[tuple[str, ...] | None] = None
+    #: fields without which a sample cannot be scored: data where no sample has them is the wrong data.
+    required: ClassVar[tuple[str, ...]] = ()
     #: where :meth:`map_samples` runs the per-sample work (``lead-s2r score --workers / --executor``): this process
     #: when None. Not part of :meth:`config`: the scores are the same wherever they are computed.
     executor: Executor | None = None

@@ -4,7 +4,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.predictions import Prediction
+from lead_s2r.predictions import Prediction, PredictionError
 
 
 def constant_turn_rate(speed: float, yaw_rate: float, t: np.ndarray) -> np.ndarray:
@@ -30,7 +30,10 @@ def predict_human(sample: dict[str, Any], horizon: float | None = None) -> Predi
     """The logged future up to ``horizon`` seconds, by default the horizon its benchmark scores (NAVSIM's
     HumanAgent; the paper's "Expert" row)."""
     if "future" not in sample:
-        raise ValueError(f"sample {sample['__key__']!r} has no future to replay")
+        raise PredictionError(
+            f"sample {sample['__key__']!r} ({sample['meta']['dataset']}/{sample['meta']['split']}) has no logged "
+            "future for the human planner to replay; score a split with futures, or --planner constant-velocity"
+        )
     future = np.asarray(sample["future"], np.float64)
     if horizon is None:
         horizon = SCORED_HORIZON_S.get(sample["meta"]["dataset"], float(future[-1, 0]))

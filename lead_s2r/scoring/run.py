@@ -36,8 +36,9 @@ def planner_predictions(planner: str, data: Path | list[Path], path: Path, split
         raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
     predict, needs = PLANNERS[planner], PLANNER_NEEDS.get(planner)
     samples = select_samples(_folders(data), ("future",), split)
+    predictions = [predict(s) for s in samples if needs is None or needs in s]
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_predictions(path, (predict(s) for s in samples if needs is None or needs in s))
+    return write_predictions(path, predictions)
 
 
 def _folders(data: Path | list[Path]) -> list[Path]:
@@ -103,6 +104,7 @@ def score_predictions(
     folders = _folders(data)
     start = time.perf_counter()
     samples = select_samples(folders, scorer.fields, split)
+    _check_metric_fits(scorer, folders, samples)
     predicted = read_predictions(predictions)
     covered = coverage(predicted, samples)
     if len(covered["unpredicted"]) == len(samples):
@@ -129,6 +131,20 @@ def score_predictions(
     report = write_scores(out, result.table, report)
     scorer.write_files(result, out)
     return report
+
+
+def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[str, Any]]) -> None:
+    """A metric asked of data it is not defined on (RFS on data without raters, PDMS on WOD-E2E) scores nothing:
+    an error naming the datasets, not a scores.json of null aggregates."""
+    datasets = sorted({sample["meta"]["dataset"] for sample in samples})
+    wrong_dataset = scorer.datasets is not None and not set(datasets) & set(scorer.datasets)
+    unscorable = scorer.required and not any(all(name in s for name in scorer.required) for s in samples)
+    if wrong_dataset or unscorable:
+        needs = f"datasets {list(scorer.datasets)}" if wrong_dataset else f"samples with {list(scorer.required)}"
+        raise UserError(
+            f"--metric {scorer.name} scores {needs}, but {', '.join(map(str, folders))} holds datasets {datasets} "
+            "without them; choose the metric of that dataset (docs/metrics.md) or other --data"
+        )
 
 
 def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
