@@ -22,6 +22,7 @@ from typing import Any, NoReturn
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
 from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, missing_requirements, names
+from lead_s2r.submit.arguments import add_submit_parser
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
 DEBUG_FLAG = "--debug"
@@ -192,7 +193,8 @@ def cmd_score(args: argparse.Namespace) -> int:
     with removed_on_failure(out):
         predictions = Path(args.predictions) if args.predictions else None
         if predictions is None:
-            predictions = planner_predictions(args.planner, data, out / f"predictions-{args.planner}.parquet", args.split)
+            path = out / f"predictions-{args.planner}.parquet"
+            predictions = planner_predictions(args.planner, data, path, args.split)
         summary = score_predictions(args.metric, predictions, data, out, split=args.split, executor=executor, **options)
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -267,47 +269,6 @@ def _check_submission(path: Path) -> dict[str, Any]:
     from lead_s2r.submit.wod_e2e import check_wod
 
     return check_wod(path)
-
-
-def _boolean(value: str) -> bool:
-    if value.lower() not in ("true", "false"):
-        raise argparse.ArgumentTypeError(f"expected true or false, got {value!r}")
-    return value.lower() == "true"
-
-
-def _submit_parser(verbs: Any) -> None:
-    sub = verbs.add_parser(
-        "submit",
-        help="write a NAVSIM or WOD-E2E leaderboard submission (validated first), or --check one",
-        description="Steps for both leaderboards: docs/submitting.md.",
-    )
-    sub.add_argument("--check", metavar="FILE", help="re-read a written submission and report what it holds")
-    sub.set_defaults(run=cmd_submit, target=None)
-    targets = sub.add_subparsers(dest="target", metavar="LEADERBOARD")
-
-    navsim = targets.add_parser("navsim", help="submission.pkl for NAVSIM v1.1 (navtest) or v2 two-stage (navhard)")
-    navsim.add_argument("--predictions", required=True, action="append", help="predictions.parquet; repeat per seed")
-    navsim.add_argument("--data", required=True, nargs="+", help="the converted split (navtest, navhard_two_stage)")
-    navsim.add_argument("--out", required=True, help="submission.pkl (the name the leaderboard expects)")
-    navsim.add_argument("--two-stage", action="store_true", help="v2: first- and second-stage predictions")
-    for option in ("team", "authors", "email", "institution", "country"):
-        navsim.add_argument(f"--{option}", required=True)
-
-    wod = targets.add_parser("wod-e2e", help="E2EDChallengeSubmission shards and the tar.gz to upload")
-    wod.add_argument("--predictions", required=True)
-    wod.add_argument("--data", required=True, nargs="+", help="the converted WOD-E2E folder(s)")
-    wod.add_argument("--out", required=True, help="folder for the shards; OUT.tar.gz is written beside it")
-    wod.add_argument("--split", default="test", help="converted split to cover (default: test)")
-    wod.add_argument("--shards", type=int, default=1)
-    wod.add_argument("--account", required=True, help="the email registered at waymo.com/open")
-    wod.add_argument("--method", required=True, help="unique method name (the leaderboard keeps its latest result)")
-    wod.add_argument("--authors", required=True, nargs="+")
-    wod.add_argument("--num-params", required=True, help="model size: an integer and K/M/B/T, e.g. 60M")
-    wod.add_argument("--pretrained", required=True, type=_boolean, help="true if public LLM/VLM pre-training was used")
-    wod.add_argument("--public-models", nargs="*", default=[], help="names of those public models")
-    wod.add_argument("--affiliation", default="")
-    wod.add_argument("--description", default="")
-    wod.add_argument("--method-link", default="")
 
 
 def cmd_carla_metrics(args: argparse.Namespace) -> int:
@@ -433,7 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_executor_arguments(sub)
     sub.set_defaults(run=cmd_score)
 
-    _submit_parser(verbs)
+    add_submit_parser(verbs, cmd_submit)
 
     sub = verbs.add_parser("carla-metrics", help="CARLA leaderboard 2.0 results -> DS, RC, IS, SR, NDS, per 100 km")
     sub.add_argument("results", nargs="+", help="results JSON files (one per seed or route batch)")
