@@ -38,6 +38,7 @@ from rich.table import Table
 from lead_s2r.convert import convert
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import get_adapter
+from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import (
     Cell,
     Column,
@@ -63,9 +64,14 @@ SMOKE = Path(__file__).resolve().parents[2] / "recipes" / "smoke"
 #: validation segment, as the real data does, so RFS is a mean over about as many frames as there are val segments.
 PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
     "carla_lead": (None, {}),
-    "navsim": ({"trainval": 12, "test": 4}, {"maps": "maps"}),
+    "navsim": ({"trainval": 32, "test": 20}, {"maps": "maps"}),
     "wod_e2e": ({"train": 48, "val": 24}, {}),
 }
+#: Every trained row is the mean and sample std over these seeds (the paper's three); a seed sets the initial
+#: weights and the training data's order.
+SEEDS = (0, 1, 2)
+#: Validation batches per epoch for the loss curves (the first of the held-out logs; the table scores all of them).
+VAL_BATCHES = 4
 #: dataset -> the held-out split every row is scored on, and its name in the table.
 EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
 LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
@@ -75,8 +81,8 @@ HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: next to nothing and it needs a few hundred to fit the WOD-E2E futures; the LTFv6 twins cost most of the run.
 STEPS: dict[str, tuple[int, int]] = {
     "ego_mlp": (8, 50),
-    "navsim_ltfv6": (4, 15),
-    "navsim_ltfv6_lead": (4, 15),
+    "navsim_ltfv6": (4, 20),
+    "navsim_ltfv6_lead": (4, 20),
     "wod_ltfv6_pretrain": (4, 15),
     "wod_ltfv6": (6, 25),
     "wod_ltfv6_lead": (6, 25),
@@ -84,6 +90,7 @@ STEPS: dict[str, tuple[int, int]] = {
 #: Where the paper has no number (the blank :func:`lead_s2r.report.tables.layout` writes too).
 PAPER_BLANK = "–"
 LIGHTNING_LOG = "lightning.log"
+LOSS_CURVES = "loss_curves.png"
 
 
 @dataclass(frozen=True)
@@ -137,7 +144,6 @@ METRICS = (
     Metric("EPDMS", "epdms@navsim-2.2", "epdms", ("navsim",), scale=100.0),
     Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
     Metric("ADE", "ade", "ade"),
-    Metric("FDE", "ade", "fde"),
 )
 
 
@@ -164,8 +170,9 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
     references = {dataset: ReferenceCache() for dataset in PLAN}
     results = {"expert": score_expert(out, references)}
     _stage(console, f"{EXPERT}: logged futures scored on the held-out logs", started)
-    for training in TRAININGS:
-        results.update(train_and_score(training, out, console, started, references))
+    for seed in SEEDS:
+        for training in TRAININGS:
+            results.update(train_and_score(training, seed, out, console, started, references))
     (out / "summary.json").write_text(json.dumps(results, indent=2))
     spec = table_spec()
     cells = collect(spec, table_runs(results, out))
@@ -176,11 +183,12 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
         console.print(grid)
     console.print(spec.notes)
     console.print(
-        f"Trained {steps_range()} optimizer steps on NAVSIM trainval / WOD-E2E train logs, scored on the held-out "
-        f"NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; the paper's numbers are on real "
-        "data.\n"
+        f"Trained {steps_range()} optimizer steps, seeds {', '.join(map(str, SEEDS))}, on NAVSIM trainval / WOD-E2E "
+        f"train logs, scored on the held-out NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; "
+        "the paper's numbers are on real data.\n"
         f"Table (markdown, LaTeX, CSV): {out / 'table'}; summary: {out / 'summary.json'}; runs (configs, checkpoints, "
-        f"predictions, scores): {out / 'runs'}; Lightning's console output: {out / LIGHTNING_LOG}"
+        f"predictions, scores, {LOSS_CURVES}): {out / 'runs'}/<training>/seed<N>; Lightning's console output: "
+        f"{out / LIGHTNING_LOG}"
     )
     return results
 
@@ -232,19 +240,33 @@ def score(predictions: Path, data: Path, dataset: str, out: Path, references: Re
     return results
 
 
-def smoke_config(training: Training, out: Path) -> Path:
+def run_folder(out: Path, name: str, seed: int) -> Path:
+    """Where training ``name`` with ``seed`` writes its checkpoints, logs, predictions and loss curves."""
+    return out / "runs" / name / f"seed{seed}"
+
+
+def smoke_config(training: Training, out: Path, seed: int = 0) -> Path:
     """The training's smoke twin with its ``quickstart/`` paths moved under ``out``, its run folder named after the
-    training, as long as :data:`STEPS` says and, for a run without LEAD, no CARLA data; written to
-    ``out/<name>.yaml``."""
+    training and seed (a CARLA pre-training it starts from: the one of the same seed), as long as :data:`STEPS` says,
+    validated on the first :data:`VAL_BATCHES` held-out batches (the loss curves) and, for a run without LEAD, no
+    CARLA data; written to ``out/<name>-seed<N>.yaml``."""
     recipe = SMOKE / f"{training.recipe}.yaml"
     if not recipe.exists():
         raise FileNotFoundError(f"{recipe} not found: run the quickstart from a source checkout (pip install -e .)")
     config = yaml.safe_load(recipe.read_text().replace("quickstart/", f"{out.as_posix()}/"))
-    config["trainer"]["default_root_dir"] = str(out / "runs" / training.name)
+    config["seed_everything"] = seed
+    config["trainer"]["default_root_dir"] = str(run_folder(out, training.name, seed))
     config["trainer"]["max_epochs"], config["data"]["steps_per_epoch"] = STEPS[training.name]
+    init_from = config["model"].get("init_from")
+    if init_from:
+        pretraining = Path(init_from).relative_to(out / "runs").parts[0]
+        config["model"]["init_from"] = str(run_folder(out, pretraining, seed) / "checkpoints" / "last.ckpt")
+    if "predict" in config["data"]:
+        config["data"]["val"] = config["data"]["predict"]
+        config["trainer"]["limit_val_batches"] = VAL_BATCHES
     if training.without_lead:
         drop_carla(config)
-    path = out / f"{training.name}.yaml"
+    path = out / f"{training.name}-seed{seed}.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 
@@ -277,22 +299,25 @@ def lightning_output_to(log: Path) -> Iterator[None]:
 
 
 def train_and_score(
-    training: Training, out: Path, console: Console, started: float, references: dict[str, ReferenceCache]
+    training: Training, seed: int, out: Path, console: Console, started: float, references: dict[str, ReferenceCache]
 ) -> dict[str, Any]:
-    """Fit the training's config; predict and score the held-out logs with the weights before and after training."""
-    config = smoke_config(training, out)
-    run = out / "runs" / training.name
+    """Fit the training's config with ``seed``; draw its loss curves; predict and score the held-out logs with the
+    weights before and after training. Returns ``{"<name>/seed<N>/<stage>": {dataset: {scorer: aggregates}}}``."""
+    config = smoke_config(training, out, seed)
+    run = run_folder(out, training.name, seed)
     shutil.rmtree(run, ignore_errors=True)  # a checkpoint left by an earlier quickstart would be predicted with
     results = {}
+    key = f"{training.name}/seed{seed}"
     if training.predicts:
-        results[f"{training.name}/{UNTRAINED}"] = predict_and_score(config, run / UNTRAINED, out, None, references)
+        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, run / UNTRAINED, out, None, references)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
+    curves = plot_loss_curves(run / "lightning_logs" / "version_0" / "metrics.csv", run / LOSS_CURVES, key)
     if training.predicts:
         checkpoint = run / "checkpoints" / "last.ckpt"
-        results[f"{training.name}/{TRAINED}"] = predict_and_score(config, run / TRAINED, out, checkpoint, references)
+        results[f"{key}/{TRAINED}"] = predict_and_score(config, run / TRAINED, out, checkpoint, references)
     scored = ", scored before and after" if training.predicts else ""
-    _stage(console, f"{training.name}: trained -> {run}{scored}", started)
+    _stage(console, f"{key}: trained{scored}; loss curves -> {curves}", started)
     return results
 
 
@@ -327,12 +352,13 @@ def by_scorer(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def table_rows() -> dict[str, dict[str, str]]:
-    """Row name -> {dataset: the run id whose scores fill that dataset's columns}: the Expert, then every model after
-    and before training (the paper's Table 4 trains one model per benchmark; a row here joins the two)."""
+    """Row name -> {dataset: the run id whose scores fill that dataset's columns, with ``{seed}`` for the seed}: the
+    Expert (deterministic: the same scores for every seed), then every model after and before training (the paper's
+    Table 4 trains one model per benchmark; a row here joins the two)."""
     rows = {EXPERT: dict.fromkeys(EVAL_SPLITS, "expert")}
     for model, runs in MODELS.items():
         for stage, name in ((TRAINED, model), (UNTRAINED, f"{model}, {BEFORE_TRAINING}")):
-            rows[name] = {dataset: f"{run}/{stage}" for dataset, run in runs.items()}
+            rows[name] = {dataset: f"{run}/seed{{seed}}/{stage}" for dataset, run in runs.items()}
     return rows
 
 
@@ -348,11 +374,12 @@ def table_spec() -> TableSpec:
     paper = load_spec("table4")
     rows = tuple(Row(name, name, paper_numbers(paper, name, columns)) for name in table_rows())
     notes = (
-        "One seed, toy models, synthetic data: numbers show that training moves the scores, not what the models can "
-        "do. Before training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS "
-        "in percent, ADE and FDE in metres; paper: the paper's Table 4 (real data)."
+        f"Mean ± sample std over seeds {', '.join(map(str, SEEDS))}; toy models, synthetic data: the numbers show "
+        "what training changes and how models rank on these worlds, not what the models can do on real data. Before "
+        "training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS in percent, "
+        "ADE and FDE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner)."
     )
-    return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=(0,), digits=2, notes=notes)
+    return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=SEEDS, digits=2, notes=notes)
 
 
 def paper_numbers(paper: TableSpec, name: str, columns: tuple[Column, ...]) -> tuple[float | None, ...]:
@@ -371,8 +398,11 @@ def table_runs(results: dict[str, Any], out: Path) -> list[Run]:
     """One run per table row, its scores gathered from the quickstart's runs as :func:`table_rows` says."""
     runs = []
     for name, sources in table_rows().items():
-        scores = {dataset: results.get(run_id, {}).get(dataset, {}) for dataset, run_id in sources.items()}
-        runs.append(Run(out / "runs", name, 0, by_scorer(scores)))
+        for seed in SEEDS:
+            ids = {dataset: run_id.format(seed=seed) for dataset, run_id in sources.items()}
+            scores = {dataset: results.get(run_id, {}).get(dataset, {}) for dataset, run_id in ids.items()}
+            if any(scores.values()):
+                runs.append(Run(out / "runs", name, seed, by_scorer(scores)))
     return runs
 
 

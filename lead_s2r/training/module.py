@@ -226,10 +226,15 @@ class DrivingModule(L.LightningModule):
                     self._val_mean(f"{source}/{metric}")
 
     def validation_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
-        """ADE / FDE per source on its own grid (``val/<source>/ade``, ``.../fde``).
+        """ADE / FDE per source on its own grid (``val/<source>/ade``, ``.../fde``) and every loss term the training
+        logs, as ``val/<source>/<task>`` (the loss curves' validation side; the weighted total is left out, since
+        each source's batch comes from its own dataloader).
 
         Returns ``{"predictions": [Prediction, ...]}`` so scoring callbacks (RFS...) can use the same forward pass.
         """
+        _, terms = self.compute_losses(batch)
+        for name, (value, n) in terms.items():
+            self.log(f"val/{name}", value, batch_size=n, add_dataloader_idx=False, sync_dist=True)
         outputs = self.predict_step(batch, batch_idx)
         for source, output in outputs.items():
             source_batch = batch[source]
