@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from rich import box
 from rich.console import Console
 from rich.table import Table
 
@@ -415,7 +416,8 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
         label = LABELS[dataset]
         columns = [i for i, column in enumerate(spec.columns) if column.key.startswith(f"{dataset}.")]
         papers = {i for i in columns if any(row.paper[i] is not None for row in spec.rows)}
-        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left")
+        # no column rules: "mean ± std" cells and the paper's numbers beside them fit 80 columns
+        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left", box=box.SIMPLE_HEAD)
         grid.add_column("model")
         for i in columns:
             grid.add_column(spec.columns[i].name.removeprefix(f"{label} "), justify="right")
@@ -433,5 +435,6 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
 
 
 def console_name(row: str) -> str:
-    """A row's name on the console: a model's untrained row sits under its trained one as "before training"."""
-    return f"  {BEFORE_TRAINING}" if row.endswith(f", {BEFORE_TRAINING}") else row
+    """A row's name on the console: a model's untrained row sits under its trained one as "untrained" (short, so
+    NAVSIM's five number columns fit 80 columns)."""
+    return f"  {UNTRAINED}" if row.endswith(f", {BEFORE_TRAINING}") else row
