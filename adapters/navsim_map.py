@@ -261,7 +261,7 @@ def _pixels(points: np.ndarray) -> np.ndarray:
     return np.round(np.column_stack([col, row]) * 4 - 2).astype(np.int32)
 
 
-def render_bev(context: dict[str, np.ndarray], boxes: np.ndarray) -> np.ndarray:
+def bev_semantic_raster(context: dict[str, np.ndarray], boxes: np.ndarray) -> np.ndarray:
     """NAVSIM's 7-class label: road (lanes + intersections), walkways, centerlines, then static objects,
     vehicles and pedestrians, later classes painted over earlier ones."""
     bev = np.zeros((BEV_SIZE, BEV_SIZE), np.uint8)

@@ -14,7 +14,6 @@ as in the logs, and ``cam_to_ego`` uses the ``lidar2ego`` of the scene's origina
 and sensor rig.
 """
 
-from collections.abc import Iterator
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -23,10 +22,30 @@ import numpy as np
 
 from lead_s2r.formats import restricted_pickle
 from lead_s2r.formats.restricted_pickle import Record
-from lead_s2r.geometry import rotate, to_local, wrap_angle
+from lead_s2r.geometry import to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
-from lead_s2r_adapters import navsim, navsim_map
+from lead_s2r_adapters import navsim_map
+from lead_s2r_adapters.navsim_io import (
+    BOX_CLASSES,
+    CAMERAS,
+    SCENE_ANNOTATIONS,
+    NavsimFormatError,
+    log_lidar2ego,
+    read_annotations,
+    read_camera,
+    required,
+)
+from lead_s2r_adapters.navsim_scene import (
+    SceneFrame,
+    SceneSource,
+    TrackStep,
+    add_map_fields,
+    agents_future,
+    ego_meta,
+    ego_past,
+    scene_meta,
+)
 
 _ACTOR = "nuplan.common.actor_state"
 _MAPS = "nuplan.common.maps.maps_datatypes"
@@ -61,19 +80,19 @@ def load_scene(path: Path) -> dict[str, Any]:
     except FileNotFoundError:
         raise
     except Exception as err:
-        raise navsim.NavsimFormatError(
+        raise NavsimFormatError(
             f"{path}: not a readable NAVSIM synthetic scene pickle ({type(err).__name__}: {err})"
         ) from None
     if not isinstance(scene, dict) or any(key not in scene for key in SCENE_KEYS):
-        raise navsim.NavsimFormatError(f"{path}: a synthetic scene must be a dict with keys {', '.join(SCENE_KEYS)}")
+        raise NavsimFormatError(f"{path}: a synthetic scene must be a dict with keys {', '.join(SCENE_KEYS)}")
     if not scene["frames"]:
-        raise navsim.NavsimFormatError(f"{path}: field 'frames' is empty")
+        raise NavsimFormatError(f"{path}: field 'frames' is empty")
     return scene
 
 
 def _record(value: Any, name: str, where: str) -> Record:
     if not isinstance(value, Record) or not value.path.endswith(f".{name}"):
-        raise navsim.NavsimFormatError(f"{where}: expected a nuPlan {name}, got {value!r:.120}")
+        raise NavsimFormatError(f"{where}: expected a nuPlan {name}, got {value!r:.120}")
     return value
 
 
@@ -103,11 +122,11 @@ def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
     for i, item in enumerate(container.state.get("tracked_objects", [])):
         at = f"{where} object {i}"
         if not isinstance(item, Record) or not item.path.endswith((".Agent", ".StaticObject")):
-            raise navsim.NavsimFormatError(f"{at}: expected a nuPlan Agent or StaticObject, got {item!r:.120}")
+            raise NavsimFormatError(f"{at}: expected a nuPlan Agent or StaticObject, got {item!r:.120}")
         box = _record(item.state.get("_box"), "OrientedBox", at)
         kind = int(_record(item.state.get("_tracked_object_type"), "TrackedObjectType", at).args[0])
         if not 0 <= kind < len(OBJECT_TYPES):
-            raise navsim.NavsimFormatError(f"{at}: TrackedObjectType {kind} is not an OpenScene class")
+            raise NavsimFormatError(f"{at}: TrackedObjectType {kind} is not an OpenScene class")
         metadata = _record(item.state.get("_metadata"), "SceneObjectMetadata", at)
         out.append(
             {
@@ -132,56 +151,57 @@ def red_lights(statuses: Record, where: str) -> list[int]:
 
 
 @lru_cache(maxsize=32)
-def log_lidar2ego(log_path: str) -> np.ndarray:
-    """The (constant) lidar2ego of a log's first frame, read once per worker and log."""
-    frame = navsim.load_log(Path(log_path))[0]
-    where = f"{log_path} frame 0"
-    rotation = navsim.quaternion_matrix(navsim._field(frame, "lidar2ego_rotation", where))
-    return navsim.homogeneous(rotation, navsim._field(frame, "lidar2ego_translation", where))
+def lidar2ego_of(log_path: str) -> np.ndarray:
+    """The lidar2ego of a scene's original log, read once per worker and log."""
+    return log_lidar2ego(Path(log_path))
 
 
-def iter_samples(adapter: "navsim.NavsimAdapter", log: LogRef) -> Iterator[dict[str, Any]]:
-    """The one sample of the synthetic scene ``log.path``."""
-    yield _SyntheticScene(adapter, log).sample()
+def track_step(objects: list[dict[str, Any]]) -> TrackStep:
+    """The :func:`tracked_objects` of one keyframe as a :class:`~navsim_scene.TrackStep` (global poses and
+    velocities)."""
+    return TrackStep(
+        tracks=[item["track_token"] for item in objects],
+        poses=np.array([item["pose"] for item in objects], np.float64).reshape(-1, 3),
+        velocity=np.array([item["velocity"] for item in objects], np.float64).reshape(-1, 2),
+        velocity_yaw=0.0,
+        size=np.array([item["size"] for item in objects], np.float64).reshape(-1, 3),
+        classes=np.array([BOX_CLASSES[item["name"]] for item in objects], np.int64),
+    )
 
 
-class _SyntheticScene:
+class SyntheticScene:
     """One loaded synthetic scene: history poses in the current ego frame, then the sample fields."""
 
-    def __init__(self, adapter: "navsim.NavsimAdapter", log: LogRef) -> None:
-        self.adapter, self.log, self.path = adapter, log, Path(log.path)
+    def __init__(self, source: SceneSource, log: LogRef) -> None:
+        self.source, self.log, self.path = source, log, Path(log.path)
         self.scene = load_scene(self.path)
         self.metadata = self.scene["scene_metadata"]
         self.frames = self.scene["frames"]
         self.where = f"{self.path}"
         self.current = int(self.metadata.get("num_history_frames", len(self.frames))) - 1
         if not 0 <= self.current < len(self.frames):
-            raise navsim.NavsimFormatError(
-                f"{self.path}: num_history_frames does not fit its {len(self.frames)} frames"
-            )
+            raise NavsimFormatError(f"{self.path}: num_history_frames does not fit its {len(self.frames)} frames")
         self.poses = np.array([self._status(i)["ego_pose"] for i in range(len(self.frames))], np.float64)
         self.stamps = np.array([int(f["timestamp"]) for f in self.frames], np.int64)
         self.origin = self.poses[self.current]
 
     def _status(self, index: int) -> dict[str, np.ndarray]:
-        status = navsim._field(self.frames[index], "ego_status", f"{self.where} frame {index}")
+        status = required(self.frames[index], "ego_status", f"{self.where} frame {index}")
         out = {}
         for name, size in (("ego_pose", 3), ("ego_velocity", 2), ("ego_acceleration", 2), ("driving_command", 4)):
             value = np.asarray(status.get(name), np.float64).ravel() if name in status else None
             if value is None or value.shape != (size,) or not np.isfinite(value).all():
-                raise navsim.NavsimFormatError(
-                    f"{self.where} frame {index}: ego_status.{name} must be {size} finite numbers"
-                )
+                raise NavsimFormatError(f"{self.where} frame {index}: ego_status.{name} must be {size} finite numbers")
             out[name] = value
         return out
 
     def sample(self) -> dict[str, Any]:
-        adapter, frame = self.adapter, self.frames[self.current]
+        source, frame = self.source, self.frames[self.current]
         token = str(self.metadata.get("initial_token") or frame["token"])
         log_name = str(self.metadata["log_name"])
         t = ((self.stamps - self.stamps[self.current]) / 1e6).astype(np.float32)
         past = np.column_stack([t, to_local(self.poses, self.origin)]).astype(np.float32)[: self.current + 1]
-        lidar2ego = log_lidar2ego(str(Path(self.log.extra["logs"]) / f"{log_name}.pkl"))
+        lidar2ego = lidar2ego_of(str(Path(self.log.extra["logs"]) / f"{log_name}.pkl"))
         sample: dict[str, Any] = {"__key__": make_key(log_name, token), "past": past}
         cameras = self.cameras(frame, lidar2ego, sample)
         now = self.annotations(frame, lidar2ego)
@@ -189,11 +209,14 @@ class _SyntheticScene:
         sample["agents_future"] = self.agents_future(now)
         map_name = navsim_map.resolve_location(str(self.metadata["map_name"]))
         roadblocks = [str(r) for r in frame.get("roadblock_ids", [])]
-        bev = None
-        if adapter.maps is not None:
-            sample["scoring"] = self.scoring(map_name, roadblocks)
-            sample["bev_semantic"] = navsim_map.render_bev(sample["scoring"], sample["boxes"])
-            bev = navsim_map.BEV_META
+        if source.maps is not None:
+            red = [[int(lc) for lc, is_red in frame.get("traffic_lights", []) if is_red]]
+            red += [
+                red_lights(s, f"{self.where} extended_traffic_light_data[{k}]")
+                for k, s in enumerate(self.scene["extended_traffic_light_data"] or [])
+            ]
+            times = np.arange(len(red)) * 0.5
+            add_map_fields(source, sample, map_name, self.origin, roadblocks, red, times, self.ego_past())
         extras = {
             "scene_token": token,
             "initial_token": token,
@@ -207,8 +230,13 @@ class _SyntheticScene:
             "box_names": now["names"],
             "corresponding_original_scene": self.metadata.get("corresponding_original_scene"),
             "corresponding_original_initial_token": self.metadata.get("corresponding_original_initial_token"),
-        } | adapter.two_stage_extras(token)
-        sample["meta"] = self.meta(log_name, past, cameras, extras, sample, bev)
+        } | source.two_stage_extras(token)
+        status = self._status(self.current)
+        velocity, acceleration = status["ego_velocity"].tolist(), status["ego_acceleration"].tolist()
+        previous = past[-2] if len(past) > 1 else past[-1]
+        ego = ego_meta(velocity, acceleration, status["driving_command"], previous)
+        scene = SceneFrame(self.log, log_name, self.current, int(self.stamps[self.current]), True)
+        sample["meta"] = scene_meta(source, scene, extras, ego, cameras, sample)
         return sample
 
     def cameras(self, frame: dict, lidar2ego: np.ndarray, sample: dict) -> list[dict[str, Any]]:
@@ -216,113 +244,38 @@ class _SyntheticScene:
         cameras = []
         camera_dict = frame.get("camera_dict") or {}
         sensors = Path(self.log.extra["sensors"])
-        for native, cam_id in navsim.CAMERAS.items():
+        for native, cam_id in CAMERAS.items():
             cam = camera_dict.get(native.lower()) or {}
             if not cam.get("data_path"):
                 continue
             where = f"{self.where} camera_dict.{native.lower()}"
-            sample[f"cam_{cam_id}"], entry = navsim.read_camera(cam, native, cam_id, sensors, lidar2ego, where)
+            sample[f"cam_{cam_id}"], entry = read_camera(cam, native, cam_id, sensors, lidar2ego, where)
             cameras.append(entry)
         return cameras
 
     def annotations(self, frame: dict, lidar2ego: np.ndarray) -> dict[str, Any]:
         """The current frame's boxes (N, 10) as the logs' are converted (velocity rotated by lidar2ego)."""
         where = f"{self.where} frame {self.current} annotations"
-        anns = navsim._field(frame, "annotations", f"{self.where} frame {self.current}")
-        boxes = np.asarray(navsim._field(anns, "boxes", where), np.float64).reshape(-1, 7)
-        names = [str(n) for n in navsim._field(anns, "names", where)]
-        velocity = np.asarray(navsim._field(anns, "velocity_3d", where), np.float64).reshape(-1, 3)
-        tracks = [str(t) for t in navsim._field(anns, "track_tokens", where)]
-        if not len(boxes) == len(names) == len(velocity) == len(tracks):
-            raise navsim.NavsimFormatError(f"{where}: boxes, names, velocity_3d and track_tokens differ in length")
-        unknown = sorted(set(names) - set(navsim.BOX_CLASSES))
-        if unknown:
-            raise navsim.NavsimFormatError(f"{where}: field 'names' has unknown classes {unknown}")
-        velocity = (np.nan_to_num(velocity) @ lidar2ego[:3, :3].T)[:, :2]
-        classes = np.array([navsim.BOX_CLASSES[n] for n in names], np.float64)
-        out = np.column_stack([boxes, velocity, classes]).astype(np.float32).reshape(-1, 10)
+        anns = required(frame, "annotations", f"{self.where} frame {self.current}")
+        anns = read_annotations(anns, SCENE_ANNOTATIONS, where)
+        velocity = (anns["velocity"] @ lidar2ego[:3, :3].T)[:, :2]
+        out = np.column_stack([anns["boxes"], velocity, anns["classes"]]).astype(np.float32).reshape(-1, 10)
         out[:, 6] = wrap_angle(out[:, 6])
-        return {"boxes": out, "names": names, "tracks": tracks}
+        return {"boxes": out, "names": anns["names"], "tracks": anns["tracks"]}
 
     def agents_future(self, now: dict[str, Any]) -> dict[str, np.ndarray]:
-        """Every track of ``extended_detections_tracks`` (2 Hz after the current frame) in the current ego frame:
-        the current boxes' tracks first, then tracks that appear later (layout of the logs' ``agents_future``)."""
+        """Every track of ``extended_detections_tracks`` (2 Hz after the current frame) in the current ego frame
+        (:func:`~navsim_scene.agents_future`, the layout of the logs' ``agents_future``)."""
         steps = [
-            tracked_objects(d, f"{self.where} extended_detections_tracks[{k}]")
+            track_step(tracked_objects(d, f"{self.where} extended_detections_tracks[{k}]"))
             for k, d in enumerate(self.scene["extended_detections_tracks"] or [])
         ]
-        horizon = len(steps)
-        order = {token: i for i, token in enumerate(now["tracks"])}
-        size = {t: box[3:6] for t, box in zip(now["tracks"], now["boxes"], strict=True)}
-        classes = {t: int(box[9]) for t, box in zip(now["tracks"], now["boxes"], strict=True)}
-        for objects in steps:
-            for item in objects:
-                if item["track_token"] not in order:
-                    order[item["track_token"]] = len(order)
-                    size[item["track_token"]] = np.array(item["size"])
-                    classes[item["track_token"]] = int(navsim.BOX_CLASSES[item["name"]])
-        count = len(order)
-        poses = np.full((count, horizon, 3), np.nan, np.float32)
-        velocity = np.full((count, horizon, 2), np.nan, np.float32)
-        valid = np.zeros((count, horizon), bool)
-        for k, objects in enumerate(steps):
-            for item in objects:
-                row = order[item["track_token"]]
-                poses[row, k] = to_local(np.array(item["pose"]), self.origin)
-                velocity[row, k] = rotate(np.array(item["velocity"]), -self.origin[2])
-                valid[row, k] = True
-        ordered = sorted(order, key=order.get)
-        return {
-            "t": (np.arange(1, horizon + 1) * 0.5).astype(np.float32),
-            "poses": poses,
-            "velocity": velocity,
-            "valid": valid,
-            "size": np.array([size[t] for t in ordered], np.float32).reshape(count, 3),
-            "class": np.array([classes[t] for t in ordered], np.int8),
-            "num_boxes": np.array(len(now["tracks"]), np.int64),
-        }
-
-    def scoring(self, map_name: str, roadblocks: list[str]) -> dict[str, np.ndarray]:
-        adapter = self.adapter
-        nuplan_map = navsim_map.load_map(adapter.maps, map_name)
-        frame = self.frames[self.current]
-        red = [[int(lc) for lc, is_red in frame.get("traffic_lights", []) if is_red]]
-        red += [
-            red_lights(s, f"{self.where} extended_traffic_light_data[{k}]")
-            for k, s in enumerate(self.scene["extended_traffic_light_data"] or [])
-        ]
-        times = np.arange(len(red)) * 0.5
-        context = navsim_map.scoring_context(nuplan_map, self.origin, adapter.map_radius, roadblocks, red, times)
-        context["ego_past"] = self.ego_past()
-        return context
+        t = np.arange(1, len(steps) + 1) * 0.5
+        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["boxes"][:, 9], steps, self.origin, t)
 
     def ego_past(self) -> np.ndarray:
-        """(P, 8) t, x, y, heading (current ego frame), vx, vy, ax, ay (body frame) of the history frames."""
+        """The history frames (:func:`~navsim_scene.ego_past`), from each frame's ``ego_status``."""
         index = np.arange(self.current + 1)
         dynamics = [np.r_[self._status(i)["ego_velocity"], self._status(i)["ego_acceleration"]] for i in index]
-        t = (self.stamps[index] - self.stamps[self.current]) / 1e6
-        return np.column_stack([t, to_local(self.poses[index], self.origin), np.array(dynamics)])
-
-    def meta(
-        self,
-        log_name: str,
-        past: np.ndarray,
-        cameras: list[dict[str, Any]],
-        extras: dict[str, Any],
-        sample: dict[str, Any],
-        bev: dict[str, Any] | None,
-    ) -> dict[str, Any]:
-        status = self._status(self.current)
-        velocity, acceleration = status["ego_velocity"].tolist(), status["ego_acceleration"].tolist()
-        previous = past[-2] if len(past) > 1 else past[-1]
-        split = self.adapter.filter.name if self.adapter.filter else self.log.split
-        stamp = int(self.stamps[self.current])
-        meta = navsim.sample_meta(self.adapter, split, log_name, self.current, stamp, True, extras)
-        meta |= {
-            "ego": navsim.ego_meta(velocity, acceleration, status["driving_command"], previous),
-            "cameras": cameras,
-            "has": {name: True for name in sample if name not in ("__key__", "meta")},
-        }
-        if bev is not None:
-            meta["bev"] = bev
-        return meta
+        now_us = int(self.stamps[self.current])
+        return ego_past(self.stamps[index], self.poses[index], np.array(dynamics), self.origin, now_us)

@@ -48,6 +48,7 @@ from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import TFv6Config, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.inputs import on_image_grid
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import make_key
@@ -113,7 +114,7 @@ def loaders(
     raw, data = tmp / kind / "raw", tmp / kind / "data"
     generate(raw, count=args.routes, frames=args.frames, realistic=kind == "realistic")
     convert(get_adapter("carla_lead"), raw, data)
-    check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
+    check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", input_spec(config)))
     streams = {to_device: training_stream(kind, data, args, config, to_device) for to_device in (False, True)}
     lead = {
         views: DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=args.workers)
@@ -142,7 +143,7 @@ def training_stream(
         schedule=MixingSchedule.constant({"carla": 1.0}, args.batch_size),
         steps_per_epoch=args.steps * args.rounds + 1,
         num_workers=args.workers,
-        config=config,
+        inputs=input_spec(config),
         inputs_on_device=inputs_on_device,
     )
     dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)

@@ -27,12 +27,12 @@ import numpy as np  # noqa: E402
 from lead_s2r.convert import convert  # noqa: E402
 from lead_s2r.registry import get_adapter  # noqa: E402
 from lead_s2r.scoring.baselines import predict_human  # noqa: E402
+from lead_s2r.scoring.navsim.proposals import proposal_of  # noqa: E402
 from lead_s2r.scoring.pdm.map_flags import DrivableMap  # noqa: E402
 from lead_s2r.scoring.pdm.observation import log_observation  # noqa: E402
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference  # noqa: E402
-from lead_s2r.scoring.pdm.scene import PDMScene  # noqa: E402
+from lead_s2r.scoring.pdm.sample import scene_from_sample  # noqa: E402
 from lead_s2r.scoring.pdm.score import score_proposals  # noqa: E402
-from lead_s2r.scoring.pdms import proposal_of  # noqa: E402
 from lead_s2r.shards import read_samples  # noqa: E402
 from lead_s2r.synthetic import navsim as synth  # noqa: E402
 
@@ -78,7 +78,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         data = args.data or synthetic_data(Path(folder))
         samples = [s for _, s in zip(range(args.scenes), read_samples(data), strict=False)]
-    scenes = [PDMScene.from_sample(sample) for sample in samples]
+    scenes = [scene_from_sample(sample) for sample in samples]
     humans = [proposal_of(predict_human(sample)) for sample in samples]
     rng = np.random.default_rng(0)
     print(f"PDMS v1.1 on one core, {len(scenes)} scenes; median over scenes of the median of {args.repeats} runs")

@@ -15,8 +15,21 @@ from typing import Any
 import numpy as np
 
 from lead_s2r.schema import MapKind
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
-from lead_s2r_adapters.navsim import BOX_CLASSES
+from lead_s2r_adapters.navsim_io import BOX_CLASSES
+
+#: The official records' short sub-score names -> our (NAVSIM's) column names.
+SHORT = {
+    "NC": epdms.NC,
+    "DAC": epdms.DAC,
+    "DDC": epdms.DDC,
+    "TLC": epdms.TLC,
+    "EP": epdms.EP,
+    "TTC": epdms.TTC,
+    "LK": epdms.LK,
+    "HC": epdms.HC,
+}
 
 GOLDEN = Path(__file__).parent / "data" / "navsim_pdms_v11_official.json.gz"
 GOLDEN_V22 = Path(__file__).parent / "data" / "navsim_epdms_v22_official.json.gz"

@@ -1,7 +1,7 @@
 import numpy as np
 from toy_adapter import toy_sample
 
-from lead_s2r.scoring.baselines import constant_turn_rate, predict_constant_turn_rate
+from lead_s2r.scoring.baselines import NAVSIM_GRID, constant_turn_rate, predict_constant_velocity
 
 
 def test_straight_line_at_constant_speed():
@@ -19,8 +19,10 @@ def test_left_turn_has_positive_y_and_stays_on_its_circle():
     assert np.isclose(np.linalg.norm(steps, axis=1).sum(), speed * 3, rtol=1e-3)  # arc length = speed * time
 
 
-def test_prediction_uses_the_sample_grid():
+def test_constant_velocity_drives_straight_at_the_current_speed_whatever_the_turn_rate():
     sample = toy_sample("log000", 0, yaw_rate=-0.1)
-    prediction = predict_constant_turn_rate(sample)
-    assert np.array_equal(prediction.t, sample["future"][:, 0])
-    assert prediction.xy[-1, 1] < 0  # a right turn
+    prediction = predict_constant_velocity(sample)
+    speed = np.hypot(*sample["meta"]["ego"]["velocity"])
+    assert np.array_equal(prediction.t, NAVSIM_GRID.astype(np.float32))
+    assert np.allclose(prediction.xy, np.column_stack([speed * NAVSIM_GRID, np.zeros(8)]))
+    assert (prediction.yaw == 0).all()

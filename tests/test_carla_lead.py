@@ -21,9 +21,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lead_s2r.convert import convert
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.schema import BoxClass, Command
 from lead_s2r.shards import load_info, load_manifest, read_samples
 from lead_s2r.synthetic import carla_lead as synth
+from lead_s2r.synthetic import carla_lead_sensors
 from lead_s2r_adapters.carla_lead import CarlaLeadAdapter, camera_calibration, hdmap_pixel_to_ego
 from lead_s2r_adapters.carla_lead_io import LeadFormatError, read_pickle
 
@@ -426,10 +428,10 @@ def test_each_rig_is_laid_out_in_ltfv6_by_its_calibration(tmp_path: Path) -> Non
 
     for rig, (tiles, width, height, *_) in LEAD_RIGS.items():
         cameras = camera_calibration(rig)
-        transform = SourceTransform("carla", ltfv6_config(), ["carla_mosaic"])
+        transform = SourceTransform("carla", input_spec(ltfv6_config()), ["carla_mosaic"])
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            layout = transform.layout({"cameras": cameras}, [(height, tiles * width)])
+            layout = transform.camera.layout({"cameras": cameras}, [(height, tiles * width)])
         assert layout.letterboxed == (rig != "NAVSIM_4CAMERAS") == bool(caught), rig
         if rig == "NAVSIM_4CAMERAS":  # nuPlan's 38.5 deg around the principal row 140: rows [5, 275)
             assert {(b.top, b.bottom) for b in layout.bands[0]} == {(5, 275)}
@@ -495,7 +497,7 @@ def test_realistic_frames_are_as_heavy_as_leads_and_convert(tmp_path: Path) -> N
     for distance in (3.0, 3.25, 7.0, 10.0):
         assert f"next_target_points_{distance}" in meta and f"next_gps_target_points_{distance}" in meta
     with np.load(folder / "radar" / "0000.npz") as radar:
-        assert sum(len(radar[f"radar{i}"]) for i in range(1, 5)) == 4 * synth.RADAR_POINTS_PER_SENSOR
+        assert sum(len(radar[f"radar{i}"]) for i in range(1, 5)) == 4 * carla_lead_sensors.RADAR_POINTS_PER_SENSOR
     convert(CarlaLeadAdapter(), tmp_path, tmp_path / "out")
     samples = list(read_samples(tmp_path / "out"))
     assert len(samples) == 1 and len(samples[0]["lidar"]) == len(las.x)  # every point kept

@@ -20,6 +20,7 @@ from lead_s2r.closed_loop.sensors import Rig, sensor_specs
 from lead_s2r.convert import convert
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import ltfv6_config, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import validate
 from lead_s2r.synthetic import carla_lead as synth
@@ -109,7 +110,7 @@ def test_preprocessing_equals_the_adapter_and_training_transform(scene):
     folder = scene["folder"]
     log = LogRef(f"{folder.parent.name}/{folder.name}", "train", str(folder), {})
     recorded = next(CarlaLeadAdapter(tp_distance=3.25).iter_samples(log))
-    want = SourceTransform("carla", agent.model_config, cameras=["carla_mosaic"])(recorded)
+    want = SourceTransform("carla", input_spec(agent.model_config), cameras=["carla_mosaic"])(recorded)
     got = {k: v[0] for k, v in batch.items() if isinstance(v, torch.Tensor)}
     image_error = (got["rgb"].float() - want["rgb"].float()).abs()
     assert image_error.mean() < 2.0 and image_error.max() < 40  # one extra JPEG round trip at quality 90

@@ -7,6 +7,7 @@ from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import TrajectoryGrid, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 
 
 def make_datamodule(path: str, epoch: int = 0, steps_per_epoch: int | None = 3) -> DriveDataModule:
@@ -19,7 +20,7 @@ def make_datamodule(path: str, epoch: int = 0, steps_per_epoch: int | None = 3) 
         schedule=MixingSchedule.lead_sim2real("sim", "real", global_batch_size=8),
         steps_per_epoch=steps_per_epoch,
         eval_batch_size=5,
-        config=config,
+        inputs=input_spec(config),
     )
     dm.trainer = SimpleNamespace(current_epoch=epoch, world_size=1)
     return dm
@@ -55,10 +56,10 @@ def test_without_steps_per_epoch_an_epoch_is_one_pass_over_the_training_samples(
     one = DriveDataModule(
         train={"sim": SourceSpec([toy_data])}, schedule=MixingSchedule.constant({"sim": 1}, 5), steps_per_epoch=None
     )
-    assert one.steps_per_epoch == 5  # 24 toy samples at batch 5: 4.8 steps, rounded up
+    assert one.epoch_steps() == 5  # 24 toy samples at batch 5: 4.8 steps, rounded up
     dm = make_datamodule(toy_data, steps_per_epoch=None)
-    assert dm.steps_per_epoch == 6  # both sources read the 24 samples: 48 at the global batch of 8
+    assert dm.epoch_steps() == 6  # both sources read the 24 samples: 48 at the global batch of 8
     assert {name: len(list(loader)) for name, loader in dm.train_dataloader().items()} == {"sim": 6, "real": 6}
     empty = DriveDataModule(train={"sim": SourceSpec([toy_data], splits=["val"])}, steps_per_epoch=None)
     with pytest.raises(UserError, match=r"data\.train: no training samples"):
-        _ = empty.steps_per_epoch
+        empty.epoch_steps()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from pdm_golden import (
     GOLDEN_V22,
+    SHORT,
     ego_frame,
     golden_scene,
     load_golden,
@@ -17,14 +18,13 @@ from pdm_golden import (
     simulated_states,
 )
 
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import history_comfort_checks
 from lead_s2r.scoring.pdm.observation import V2_STEPS, log_observation
 from lead_s2r.scoring.pdm.score import EPDMS_COLUMNS, EPDMS_METRIC, score_proposals, score_states_v2
 
 GOLDEN = load_golden(GOLDEN_V22)
 CASES = {case["id"]: case for case in GOLDEN["scenes"]}
-SHORT = {"NC": E.NC, "DAC": E.DAC, "DDC": E.DDC, "TLC": E.TLC, "EP": E.EP, "TTC": E.TTC, "LK": E.LK, "HC": E.HC}
 FLAGS = ("multiple_lanes", "non_drivable_area", "oncoming_traffic", "in_intersection", "on_red_light")
 CHECKS = ("lon_accel", "lat_accel", "jerk_magnitude", "lon_jerk", "yaw_accel", "yaw_rate")
 
@@ -107,7 +107,7 @@ def test_score_proposals_gives_the_official_epdms(case_id: str) -> None:
         for name, column in SHORT.items():
             assert scores[column][0] == pytest.approx(official[name], abs=1e-6), (trajectory["id"], name)
         expected_ec = np.nan if official["EC"] is None else official["EC"]
-        assert scores[E.EC][0] == pytest.approx(expected_ec, nan_ok=True), trajectory["id"]
+        assert scores[epdms.EC][0] == pytest.approx(expected_ec, nan_ok=True), trajectory["id"]
         assert scores["score"][0] == pytest.approx(official["EPDMS"], abs=1e-6), trajectory["id"]
 
 
@@ -120,13 +120,13 @@ def test_the_filter_acts_where_the_human_fails() -> None:
     scores = score_proposals(
         scene, np.asarray(trajectory["poses"])[None], 0.5, reference_poses(case), metric=EPDMS_METRIC
     )
-    assert scores[E.NC][0] == 1.0 and scores[E.TTC][0] == 1.0 and scores["collision_time_idx"][0] == 24
+    assert scores[epdms.NC][0] == 1.0 and scores[epdms.TTC][0] == 1.0 and scores["collision_time_idx"][0] == 24
     assert scores["score"][0] == 1.0  # EC NaN here: (5 + 5 + 2 + 2) / 14
     scene.is_synthetic = True  # no human trajectory: nothing is filtered
     unfiltered = score_proposals(
         scene, np.asarray(trajectory["poses"])[None], 0.5, reference_poses(case), metric=EPDMS_METRIC
     )
-    assert unfiltered[E.NC][0] == 0.0 and unfiltered["score"][0] == 0.0
+    assert unfiltered[epdms.NC][0] == 0.0 and unfiltered["score"][0] == 0.0
 
 
 def test_states_come_back_for_two_stage_ec() -> None:

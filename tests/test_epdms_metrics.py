@@ -8,7 +8,7 @@ import shapely
 from pdm_scenes import TIMES, agent, drive, road_scene
 
 from lead_s2r.schema import BoxClass, MapKind
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import center_frame, history_comfort, past_states
 from lead_s2r.scoring.pdm.footprint import ego_coords
 from lead_s2r.scoring.pdm.metrics import driving_direction_compliance, ego_progress_v2, lane_keeping
@@ -53,8 +53,8 @@ def v2(scene: PDMScene, *rows: np.ndarray) -> dict[str, np.ndarray]:
 def test_red_light_crossed_on_route_fails_off_route_does_not(on_route: bool, expected: float) -> None:
     scene = with_connector(road_scene(), [True] * 9, on_route)
     scores = v2(scene, drive(10.0 * TIMES))  # rear axle 0 -> 40 m, front bumper reaches x = 20 at t = 1.6 s
-    assert scores[E.TLC][0] == expected
-    assert scores[E.DDC][0] == 1.0 and scores[E.NC][0] == 1.0  # a red light is no collision
+    assert scores[epdms.TLC][0] == expected
+    assert scores[epdms.DDC][0] == 1.0 and scores[epdms.NC][0] == 1.0  # a red light is no collision
     if on_route:  # the front bumper (rear axle + 4.049 m) passes x = 20 between 1.5 and 1.6 s
         assert int(np.argmax(scores["on_red_light"][0])) == 16
 
@@ -161,7 +161,7 @@ def test_log_replay_removes_tracks_overlapping_the_ego_at_t0() -> None:
     scene = road_scene([agent(BoxClass.VEHICLE, 1.0, 0.0), agent(BoxClass.VEHICLE, 30.0, 0.0)])
     replay = log_observation(scene, V2_STEPS, replay=True)
     assert replay.objects.tolist() == [1] * V2_STEPS  # only the car ahead is left, at every step
-    assert v2(scene, drive(np.zeros(41)))[E.NC][0] == 1.0
+    assert v2(scene, drive(np.zeros(41)))[epdms.NC][0] == 1.0
 
 
 def scene_with_human(human_speed: float) -> PDMScene:
@@ -178,10 +178,10 @@ def test_ec_nan_without_a_previous_frame_drops_its_weight() -> None:
     scene = scene_with_human(10.0)
     proposals = np.stack([cruise(10.0), cruise(7.0)])
     scores = score_proposals(scene, proposals, 0.5, reference=reference_at(10.0), metric=EPDMS_METRIC)
-    assert np.isnan(scores[E.EC]).all()
-    ep = scores[E.EP]
+    assert np.isnan(scores[epdms.EC]).all()
+    ep = scores[epdms.EP]
     assert 0.6 < ep[1] < 0.8 and ep[0] == pytest.approx(1.0, abs=1e-3)
-    weighted = 5 * ep + 5 * scores[E.TTC] + 2 * scores[E.LK] + 2 * scores[E.HC]
+    weighted = 5 * ep + 5 * scores[epdms.TTC] + 2 * scores[epdms.LK] + 2 * scores[epdms.HC]
     assert scores["score"] == pytest.approx(weighted / 14, abs=1e-12)
 
 
@@ -203,7 +203,7 @@ def test_ec_compares_with_the_plan_made_half_a_second_earlier() -> None:
     scores = score_proposals(
         scene, proposals, 0.5, reference_at(10.0), metric=EPDMS_METRIC, previous=[consistent, braking, None]
     )
-    assert scores[E.EC][:2].tolist() == [1.0, 0.0] and np.isnan(scores[E.EC][2])
+    assert scores[epdms.EC][:2].tolist() == [1.0, 0.0] and np.isnan(scores[epdms.EC][2])
     assert scores["score"][:2] == pytest.approx([1.0, 14 / 16], abs=1e-9)
     assert scores["score"][2] == pytest.approx(1.0, abs=1e-9)
     with pytest.raises(ValueError, match="one per proposal"):

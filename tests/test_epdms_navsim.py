@@ -12,10 +12,10 @@ import pytest
 
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
-from lead_s2r.scoring import epdms as S
 from lead_s2r.scoring.baselines import predict_human
-from lead_s2r.scoring.pdm import epdms as E
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.navsim import epdms_scorer
+from lead_s2r.scoring.pdm import epdms
+from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
@@ -52,7 +52,7 @@ def test_adjacent_frames_pair_consecutive_originals_of_a_log_within_0p55_s() -> 
         stub("a", 11.3, valid=False),  # invalid rows take no part
         stub("a", 11.5),
     ]
-    assert S.adjacent_frames(frames) == {0: 1, 6: 3}
+    assert epdms_scorer.adjacent_frames(frames) == {0: 1, 6: 3}
 
 
 def test_score_cli_writes_the_one_stage_csv(converted: Path, tmp_path: Path) -> None:
@@ -61,10 +61,10 @@ def test_score_cli_writes_the_one_stage_csv(converted: Path, tmp_path: Path) -> 
     keys = [sample["__key__"] for sample in read_samples(converted, fields=())]
     aggregates = json.loads((tmp_path / "scores.json").read_text())["aggregates"]
     assert aggregates["frames"] == aggregates["frames_valid"] == len(keys)
-    with open(tmp_path / S.CSV_NAME) as file:
+    with open(tmp_path / epdms_scorer.CSV_NAME) as file:
         rows = list(csv.reader(file))
-    assert rows[0] == ["", "token", "valid", *S.NAVSIM_COLUMNS]
-    assert S.NAVSIM_COLUMNS[-2:] == ("two_frame_extended_comfort", "score")
+    assert rows[0] == ["", "token", "valid", *epdms_scorer.NAVSIM_COLUMNS]
+    assert epdms_scorer.NAVSIM_COLUMNS[-2:] == ("two_frame_extended_comfort", "score")
     assert rows[-1][1] == "average_all_frames" and len(rows) == len(keys) + 2
     assert float(rows[-1][-1]) == pytest.approx(aggregates["epdms"])
     ec = [row[-2] for row in rows[1:-1]]
@@ -75,12 +75,12 @@ def test_score_cli_writes_the_one_stage_csv(converted: Path, tmp_path: Path) -> 
 def test_human_ec_pairs_with_its_own_plan_half_a_second_earlier(converted: Path) -> None:
     samples = sorted(read_samples(converted), key=lambda s: s["meta"]["timestamp_us"])
     predictions = [predict_human(sample) for sample in samples]
-    result = S.EPDMSScorer().score(predictions, samples).table.to_pylist()
+    result = epdms_scorer.EPDMSScorer().score(predictions, samples).table.to_pylist()
     paired = [row for row in result if row["previous_key"] is not None]
-    assert paired and all(np.isfinite(row[E.EC]) for row in paired)
+    assert paired and all(np.isfinite(row[epdms.EC]) for row in paired)
     first = next(row for row in result if row["previous_key"] is None)
-    assert np.isnan(first[E.EC])
-    scene = PDMScene.from_sample(samples[0])
+    assert np.isnan(first[epdms.EC])
+    scene = scene_from_sample(samples[0])
     assert scene.ego_past is not None and scene.human_poses is not None
 
 

@@ -17,6 +17,7 @@ import torch
 from tiny_models import TINY
 
 from lead_s2r.convert import convert
+from lead_s2r.data.collate import collate
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.device_inputs import (
     LIDAR_POINTS,
@@ -27,9 +28,11 @@ from lead_s2r.data.device_inputs import (
     jpeg_tensor,
     rasterize_points,
 )
+from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.transforms import SourceTransform, collate, lidar_xy, rasterize_lidar
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import BEVGrid, TFv6Config, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.inputs import LIDAR_HITS_MAX
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.registry import get_adapter
@@ -65,8 +68,10 @@ def on_the_device(batch: dict, config: TFv6Config) -> dict:
 
 def test_inputs_sent_raw_give_the_loaders_batch(carla_samples: list[dict]) -> None:
     config = tfv6_config()  # paper size: the 1152x384 mosaic is the model's image as stored
-    in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
-    encoded = collate([SourceTransform("carla", config, inputs_on_device=True)(sample) for sample in carla_samples])
+    in_loader = collate([SourceTransform("carla", input_spec(config))(sample) for sample in carla_samples])
+    encoded = collate(
+        [SourceTransform("carla", input_spec(config), inputs_on_device=True)(sample) for sample in carla_samples]
+    )
     assert "rgb" not in encoded and len(encoded[RGB_JPEG]) == len(carla_samples)
     assert "lidar_bev" not in encoded and [len(p) for p in encoded[LIDAR_POINTS]] == [
         len(sample["lidar"]) for sample in carla_samples
@@ -94,14 +99,17 @@ def test_the_device_raster_is_the_loaders_on_cell_edges_and_off_the_grid() -> No
 
 def test_a_rig_the_loader_must_lay_out_is_decoded_there(carla_samples: list[dict]) -> None:
     config = tfv6_config(image_size=(192, 576))  # the mosaic is scaled: not the model's image as stored
-    out = SourceTransform("carla", config, inputs_on_device=True)(carla_samples[0])
+    out = SourceTransform("carla", input_spec(config), inputs_on_device=True)(carla_samples[0])
     assert RGB_JPEG not in out and out["rgb"].shape == (3, 192, 576)
-    assert torch.equal(out["rgb"], SourceTransform("carla", config)(carla_samples[0])["rgb"])
+    assert torch.equal(out["rgb"], SourceTransform("carla", input_spec(config))(carla_samples[0])["rgb"])
 
 
 def test_a_batch_mixing_encoded_and_decoded_images_is_decoded_in_the_loader(carla_samples: list[dict]) -> None:
     config = tfv6_config()
-    loader, device = SourceTransform("carla", config), SourceTransform("carla", config, inputs_on_device=True)
+    loader, device = (
+        SourceTransform("carla", input_spec(config)),
+        SourceTransform("carla", input_spec(config), inputs_on_device=True),
+    )
     laid_out = {k: v for k, v in device(carla_samples[0]).items() if k != RGB_JPEG}  # a rig the loader decodes
     laid_out["rgb"] = loader(carla_samples[0])["rgb"]
     mixed = collate([laid_out, device(carla_samples[1]), device(carla_samples[2])])
@@ -136,12 +144,14 @@ def test_an_undecodable_jpeg_names_the_batchs_samples() -> None:
 
 def test_the_data_module_decodes_before_the_batch_moves(carla_samples: list[dict], toy_data: str) -> None:
     config = tfv6_config()
-    encoded = collate([SourceTransform("carla", config, inputs_on_device=True)(sample) for sample in carla_samples])
-    dm = DriveDataModule(train={"carla": SourceSpec([toy_data])}, config=config)
+    encoded = collate(
+        [SourceTransform("carla", input_spec(config), inputs_on_device=True)(sample) for sample in carla_samples]
+    )
+    dm = DriveDataModule(train={"carla": SourceSpec([toy_data])}, inputs=input_spec(config))
     dm.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device("cpu")))
     batch = dm.on_before_batch_transfer({"carla": encoded}, 0)
     assert RGB_JPEG not in batch["carla"] and LIDAR_POINTS not in batch["carla"]
-    in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
+    in_loader = collate([SourceTransform("carla", input_spec(config))(sample) for sample in carla_samples])
     assert_batches_equal(batch["carla"], in_loader)
 
 
@@ -155,7 +165,7 @@ def converted_route(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 def carla_data(path: str, config: TFv6Config, **kwargs: Any) -> DriveDataModule:
     schedule = MixingSchedule.constant({"carla": 1.0}, 2)
-    dm = DriveDataModule(train={"carla": SourceSpec([path])}, schedule=schedule, config=config, **kwargs)
+    dm = DriveDataModule(train={"carla": SourceSpec([path])}, schedule=schedule, inputs=input_spec(config), **kwargs)
     dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
     return dm
 
@@ -192,8 +202,8 @@ def test_the_datamodule_sends_raw_inputs_only_when_training_on_a_gpu(toy_data: s
         return dm.inputs_on_device
 
     train = {"carla": SourceSpec([toy_data])}
-    auto = DriveDataModule(train=train, config=tfv6_config())
+    auto = DriveDataModule(train=train, inputs=input_spec(tfv6_config()))
     assert not auto.inputs_on_device  # no trainer yet
     assert not on(auto, "cpu") and on(auto, "cuda")
-    assert on(DriveDataModule(train=train, config=tfv6_config(), inputs_on_device=True), "cpu")
-    assert not on(DriveDataModule(train=train, config=tfv6_config(), inputs_on_device=False), "cuda")
+    assert on(DriveDataModule(train=train, inputs=input_spec(tfv6_config()), inputs_on_device=True), "cpu")
+    assert not on(DriveDataModule(train=train, inputs=input_spec(tfv6_config()), inputs_on_device=False), "cuda")

@@ -15,7 +15,7 @@ from lead_s2r.models.ego_mlp import EgoStatusMLP
 from lead_s2r.models.embeddings import grid_embedding, sine_embedding
 from lead_s2r.models.inputs import target_point_range
 from lead_s2r.models.planning_decoder import TargetPointNorm
-from lead_s2r.models.tfv6 import TFv6, parameter_table
+from lead_s2r.models.tfv6 import TFv6, count_parameters
 from lead_s2r.training.losses import focal_heatmap_loss, heading_loss, radar_loss, segmentation_loss, two_hot
 
 SOURCES = ("carla", "navsim", "wod")
@@ -26,8 +26,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_parameter_counts_match_lead():
-    counts = {name: parameter_table(TFv6(make()))["total"] for name, make in VARIANTS.items()}
-    counts["ego_mlp"] = parameter_table(EgoStatusMLP(EgoMLPConfig()))["total"]
+    counts = {name: count_parameters(TFv6(make())) for name, make in VARIANTS.items()}
+    counts["ego_mlp"] = count_parameters(EgoStatusMLP(EgoMLPConfig()))
     for name, n in counts.items():
         print(f"{name:8s} {n / 1e6:6.2f}M")
     # LEAD README: "ResNet34 (60M params)" with token dim 256 (two ResNet34 = 42.6M, fusion 8.4M, planner 9.6M)

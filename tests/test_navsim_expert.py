@@ -10,8 +10,8 @@ import yaml
 
 from lead_s2r.convert import convert
 from lead_s2r.scoring.baselines import predict_human
-from lead_s2r.scoring.epdms import EPDMSScorer
-from lead_s2r.scoring.pdms import PDMSScorer, ReferenceCache
+from lead_s2r.scoring.navsim import EPDMSScorer, PDMSScorer
+from lead_s2r.scoring.navsim.proposals import ReferenceCache
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map

@@ -16,12 +16,12 @@ import yaml
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global, to_local
 from lead_s2r.predictions import write_predictions
 from lead_s2r.scoring.baselines import predict_constant_velocity
-from lead_s2r.scoring.epdms_two_stage import CSV_NAME
-from lead_s2r.scoring.pdm import epdms as E
-from lead_s2r.scoring.pdm import two_stage as T
+from lead_s2r.scoring.navsim.two_stage_samples import CSV_NAME
+from lead_s2r.scoring.pdm import epdms, two_stage
 from lead_s2r.scoring.pdm.epdms import FILTERED
 from lead_s2r.scoring.pdm.state import STATE_SIZE
 from lead_s2r.shards import read_samples
@@ -29,7 +29,8 @@ from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r.synthetic import navsim_navhard as hard
 from lead_s2r_adapters import navsim_synthetic
-from lead_s2r_adapters.navsim import NavsimAdapter, NavsimFormatError
+from lead_s2r_adapters.navsim import NavsimAdapter
+from lead_s2r_adapters.navsim_io import NavsimFormatError
 
 
 @pytest.fixture(scope="module")
@@ -62,9 +63,9 @@ def samples(converted: Path) -> dict[str, dict]:
 
 
 @pytest.fixture(scope="module")
-def mapping(raw: Path) -> list[T.TwoStageGroup]:
+def mapping(raw: Path) -> list[TwoStageGroup]:
     config = yaml.safe_load((raw / "train_test_split" / f"{hard.SPLIT}.yaml").read_text())
-    return T.parse_mapping(config["reactive_all_mapping"])
+    return parse_mapping(config["reactive_all_mapping"])
 
 
 def scene_paths(raw: Path) -> list[Path]:
@@ -154,7 +155,7 @@ def test_stage_one_samples_store_the_logged_past_dynamics(samples: dict, mapping
     np.testing.assert_allclose(past[:, 1:3], sample["past"][:, 1:3], atol=1e-5)
 
 
-def rows_from_samples(samples: dict) -> list[T.TokenRow]:
+def rows_from_samples(samples: dict) -> list[two_stage.TokenRow]:
     """Stand-in scores (all 1) on the converted samples' start points, planned endpoints (the logged future's end
     for stage 1) and times: what the two-stage math needs from a conversion."""
     rows = []
@@ -162,7 +163,7 @@ def rows_from_samples(samples: dict) -> list[T.TokenRow]:
         origin = sample["scoring"]["origin"]
         end = to_global(sample["future"][-1, 1:], origin)[:2] if "future" in sample else origin[:2]
         rows.append(
-            T.TokenRow(
+            two_stage.TokenRow(
                 token,
                 dict.fromkeys(FILTERED, 1.0),
                 sample["meta"]["timestamp_us"] / 1e6,
@@ -179,7 +180,7 @@ def no_features(states: np.ndarray, time: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def test_converted_split_aggregates_two_stage(samples: dict, mapping: list) -> None:
-    result = T.two_stage_aggregate(rows_from_samples(samples), mapping, no_features)
+    result = two_stage.two_stage_aggregate(rows_from_samples(samples), mapping, no_features)
     raw = np.exp(-np.square(hard.OFFSETS) / 0.2)  # the logged endpoint is the unshifted synthetic start
     for group in mapping:
         weights = [result.per_token[now]["weight"] for now, _ in group.pairs]
@@ -191,7 +192,7 @@ def test_a_missing_stage_two_token_fails_with_its_name(samples: dict, mapping: l
     dropped = mapping[2].pairs[1][1]
     rows = [row for row in rows_from_samples(samples) if row.token != dropped]
     with pytest.raises(KeyError, match=dropped):
-        T.two_stage_aggregate(rows, mapping, no_features)
+        two_stage.two_stage_aggregate(rows, mapping, no_features)
 
 
 def test_a_filter_token_without_a_synthetic_pickle_is_reported(raw: Path, tmp_path: Path) -> None:
@@ -200,9 +201,9 @@ def test_a_filter_token_without_a_synthetic_pickle_is_reported(raw: Path, tmp_pa
     broken = tmp_path / "filter.yaml"
     broken.write_text(yaml.safe_dump(config))
     checker = NavsimAdapter(split=hard.SPLIT, scene_filter=str(broken))
-    ref = next(r for r in checker.list_logs(raw) if r.log_id.startswith("scene-filter"))
-    with pytest.raises(LookupError, match="0123456789abcdef0"):
-        list(checker.iter_samples(ref))
+    checker.list_logs(raw)
+    (bad,) = checker.bad_records()
+    assert bad["scene_filter"] == str(broken) and "0123456789abcdef0" in bad["error"]
 
 
 # --------------------------------------------------------------------------- scored end to end
@@ -229,12 +230,12 @@ def test_scored_split_reports_navsim_two_stage_summaries_and_log_replay(scored: 
     assert config["scored_two_stage"] and config["traffic_agents"] == "log_replay"
     assert "reactive" in config["known_difference"]
     rows = scored_rows(scored)
-    assert all(np.isfinite(row[E.EC]) for row in rows.values())  # every frame has its pair
+    assert all(np.isfinite(row[epdms.EC]) for row in rows.values())  # every frame has its pair
     # CV keeps every rule on the stage-1 frames (each log still drives straight on behind its lead car, which keeps
     # its gap); 4 s later the turning log's ego is at the junction and CV goes straight on, off the road
     stage_one, stage_two = (aggregates[f"extended_pdm_score_stage_{n}_columns"] for n in ("one", "two"))
-    assert all(stage_one[name] == 1.0 for name in (E.NC, E.DAC, E.DDC, E.TLC, E.TTC, E.LK))
-    assert stage_two[E.NC] == 1.0 and stage_two[E.DAC] < 1.0
+    assert all(stage_one[name] == 1.0 for name in (epdms.NC, epdms.DAC, epdms.DDC, epdms.TLC, epdms.TTC, epdms.LK))
+    assert stage_two[epdms.NC] == 1.0 and stage_two[epdms.DAC] < 1.0
 
 
 def test_stage_two_weights_measure_from_the_planned_endpoint(scored: Path, samples: dict, mapping: list) -> None:
@@ -255,7 +256,7 @@ def test_stage_two_weights_measure_from_the_planned_endpoint(scored: Path, sampl
 def test_combined_is_the_group_mean_of_weighted_stage_products(scored: Path, mapping: list) -> None:
     rows = scored_rows(scored)
     aggregates = json.loads((scored / "scores.json").read_text())["aggregates"]
-    for column in (*T.SCORE_COLUMNS[:-1], "score"):
+    for column in (*two_stage.SCORE_COLUMNS[:-1], "score"):
         groups = []
         for group in mapping:
             sides = []
@@ -274,7 +275,7 @@ def test_two_stage_csv_has_navsims_layout(scored: Path, mapping: list) -> None:
     assert header[:3] == ["", "token", "valid"] and header[-1] == "score"
     assert header[3:5] == ["no_at_fault_collisions_stage_one", "drivable_area_compliance_stage_one"]
     assert "two_frame_extended_comfort_stage_two" in header
-    assert [row[1] for row in rows[-3:]] == list(T.SUMMARY_TOKENS)
+    assert [row[1] for row in rows[-3:]] == list(two_stage.SUMMARY_TOKENS)
     assert len(rows) == 1 + 24 + 3 and [row[0] for row in rows[1:]] == [str(i) for i in range(27)]
     original = next(row for row in rows if row[1] == mapping[0].original)
     assert original[header.index("ego_progress_stage_two")] == "" and original[header.index("ego_progress_stage_one")]

@@ -15,7 +15,7 @@ from lead_s2r.scoring.pdm.pdm_closed import (
     forecast,
     idm_step,
     offset_path,
-    red_light_polygons,
+    red_lights_at_start,
     select_objects,
     target_velocities,
     unroll,
@@ -133,7 +133,7 @@ def test_red_lights_are_red_on_route_connectors_not_holding_the_ego() -> None:
         route_lane_ids=np.array([7, 9]),
     )
     scene.red_light_ids, scene.red_light_offsets = np.array([7, 8, 9]), np.array([0, 3])
-    (polygon,) = red_light_polygons(scene)
+    (polygon,) = red_lights_at_start(scene)
     assert polygon.bounds == (20.0, -2.0, 30.0, 2.0)
 
 

@@ -20,13 +20,13 @@ from lead_s2r.scoring.pdm.lqr import (
     JERK_PENALTY,
     StepReference,
     curvature_profile,
+    normalize_angle,
     speed_fit_matrix,
     track,
     tracking_reference,
-    wrap_angle,
 )
 from lead_s2r.scoring.pdm.simulation import simulate_proposals
-from lead_s2r.scoring.pdm.state import StateIndex as S
+from lead_s2r.scoring.pdm.state import StateIndex
 
 DATA = Path(__file__).parent / "data"
 GOLDEN_FILES = ("navsim_pdms_v11_official.json.gz", "navsim_epdms_v22_official.json.gz")
@@ -180,8 +180,8 @@ def test_bad_shapes_are_errors_naming_the_argument() -> None:
 def test_initial_state_is_the_logged_ego() -> None:
     states = simulate_proposals(interpolate_proposals(straight(10.0), 0.5), np.array([9.0, 0.3]), np.array([1.0, 0.2]))
     np.testing.assert_array_equal(states[0, 0], [0, 0, 0, 9.0, 0.3, 1.0, 0.2, 0, 0, 0, 0])
-    assert states[0, 1, S.VELOCITY_Y] == 0.0 and states[0, 1, S.ACCELERATION_Y] == 0.0
-    assert states[0, 1, S.X] == pytest.approx(9.0 * 0.1)  # the first step moves at the logged speed
+    assert states[0, 1, StateIndex.VELOCITY_Y] == 0.0 and states[0, 1, StateIndex.ACCELERATION_Y] == 0.0
+    assert states[0, 1, StateIndex.X] == pytest.approx(9.0 * 0.1)  # the first step moves at the logged speed
 
 
 def test_bicycle_keeps_its_heading_on_a_straight() -> None:
@@ -189,7 +189,10 @@ def test_bicycle_keeps_its_heading_on_a_straight() -> None:
         states = simulate_proposals(
             interpolate_proposals(straight(target_speed), 0.5), np.array([speed, 0]), np.zeros(2)
         )
-        assert np.all(states[0, :, [S.Y, S.HEADING, S.STEERING_ANGLE, S.ANGULAR_VELOCITY]] == 0.0)
+        assert np.all(
+            states[0, :, [StateIndex.Y, StateIndex.HEADING, StateIndex.STEERING_ANGLE, StateIndex.ANGULAR_VELOCITY]]
+            == 0.0
+        )
 
 
 def test_tracks_a_gentle_curve_within_30_cm() -> None:
@@ -197,22 +200,22 @@ def test_tracks_a_gentle_curve_within_30_cm() -> None:
         targets = interpolate_proposals(arc(radius, 10.0), 0.5)
         states = simulate_proposals(targets, np.array([10.0, 0.0]), np.zeros(2), steering)
         assert np.hypot(*(states[0, :, :2] - targets[0, :, :2]).T).max() <= 0.3
-        assert np.abs(states[0, :, S.VELOCITY_X] - 10.0).max() < 0.01
-        assert states[0, -1, S.HEADING] == pytest.approx(40.0 / radius, abs=0.01)
+        assert np.abs(states[0, :, StateIndex.VELOCITY_X] - 10.0).max() < 0.01
+        assert states[0, -1, StateIndex.HEADING] == pytest.approx(40.0 / radius, abs=0.01)
 
 
 def test_stopping_controller_takes_over_at_or_below_20_cm_per_s() -> None:
     at_rest = interpolate_proposals(np.zeros((1, 8, 3)), 0.5)
     # P controller: 0.5 * (0 - 0.2) = -0.1 m/s^2, through the 0.2 s lag: -0.1 * 0.1 / 0.3
     stopping = simulate_proposals(at_rest, np.array([0.2, 0.0]), np.zeros(2))
-    assert stopping[0, 1, S.ACCELERATION_X] == pytest.approx(-0.1 / 3)
+    assert stopping[0, 1, StateIndex.ACCELERATION_X] == pytest.approx(-0.1 / 3)
     # above it the longitudinal LQR: -10 / 11 * (0.21 - 0), lagged
     tracking = simulate_proposals(at_rest, np.array([0.21, 0.0]), np.zeros(2))
-    assert tracking[0, 1, S.ACCELERATION_X] == pytest.approx(-10 / 11 * 0.21 / 3)
+    assert tracking[0, 1, StateIndex.ACCELERATION_X] == pytest.approx(-10 / 11 * 0.21 / 3)
     # a target 1 m to the left at rest: the stopping controller never steers, the LQR does
     aside = interpolate_proposals(np.tile([0.0, 1.0, 0.0], (1, 8, 1)), 0.5)
-    assert np.all(simulate_proposals(aside, np.array([0.15, 0.0]), np.zeros(2))[0, :, S.STEERING_ANGLE] == 0.0)
-    assert simulate_proposals(aside, np.array([0.25, 0.0]), np.zeros(2))[0, 2, S.STEERING_ANGLE] > 0.0
+    assert np.all(simulate_proposals(aside, np.array([0.15, 0.0]), np.zeros(2))[0, :, StateIndex.STEERING_ANGLE] == 0.0)
+    assert simulate_proposals(aside, np.array([0.25, 0.0]), np.zeros(2))[0, 2, StateIndex.STEERING_ANGLE] > 0.0
 
 
 def test_proposals_are_simulated_independently_on_arrays_or_floats() -> None:
@@ -260,7 +263,7 @@ def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:
     speed_fit = (np.cos(targets[:, :-1, 2]) * steps[..., 0] + np.sin(targets[:, :-1, 2]) * steps[..., 1]) @ (
         speed_fit_matrix(40, dt).T
     )
-    curvature = curvature_profile(wrap_angle(steps[..., 2]), speed_fit, dt)
+    curvature = curvature_profile(normalize_angle(steps[..., 2]), speed_fit, dt)
     for step in (0, 17, 35):
         ahead = np.minimum(step + np.arange(horizon + 1), 39)
         x, y, heading = targets[:, step].T + rng.normal(0, [0.5, 0.5, 0.05], (3, 3)).T
@@ -271,13 +274,13 @@ def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:
             lookahead = speed[n] + dt * expected_accel * np.arange(horizon)
             cos, sin = np.cos(targets[n, step, 2]), np.sin(targets[n, step, 2])
             error = np.array([-(x[n] - targets[n, step, 0]) * sin + (y[n] - targets[n, step, 1]) * cos, 0.0, 0.0])
-            error[1:] = [wrap_angle(heading[n] - targets[n, step, 2]), steering[n]]
+            error[1:] = [normalize_angle(heading[n] - targets[n, step, 2]), steering[n]]
             response = np.zeros(3)
             for k in range(horizon):
                 dynamics = np.array([[1, lookahead[k] * dt, 0], [0, 1, lookahead[k] * dt / wheel_base], [0, 0, 1]])
                 error = dynamics @ error - [0, lookahead[k] * curvature[n, ahead[k]] * dt, 0]
                 response = dynamics @ response + [0, 0, dt]
-            error[1:] = wrap_angle(error[1:])
+            error[1:] = normalize_angle(error[1:])
             weights = np.array([1.0, 10.0, 0.0])
             expected_rate = -(response * weights) @ error / ((response * weights) @ response + 1.0)
             assert accel[n] == pytest.approx(expected_accel, abs=1e-12)

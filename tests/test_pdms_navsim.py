@@ -13,14 +13,15 @@ from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, PredictionError
 from lead_s2r.schema import SchemaError
-from lead_s2r.scoring import pdms as pdms_module
 from lead_s2r.scoring.baselines import predict_constant_velocity, predict_human
-from lead_s2r.scoring.epdms import EPDMSScorer
+from lead_s2r.scoring.navsim import EPDMSScorer, PDMSScorer, proposals
+from lead_s2r.scoring.navsim.pdms_scorer import NAVSIM_COLUMNS
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, proposal_of
 from lead_s2r.scoring.pdm import score_proposals
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.route import LaneGraph, correct_route
+from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
-from lead_s2r.scoring.pdms import NAVSIM_COLUMNS, PDMSScorer, ReferenceCache, proposal_of
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
@@ -65,7 +66,7 @@ def first(converted: Path) -> dict[str, dict]:
 
 
 def test_scene_follows_the_corrected_route_through_the_turn(first: dict) -> None:
-    scene = PDMScene.from_sample(first[MID_TURN.name])
+    scene = scene_from_sample(first[MID_TURN.name])
     assert set(scene.route_lane_ids.tolist()) == {1011, 1012, 2021, 1031, 1032}
     assert scene.speed_limit_mps == pytest.approx(8.0)  # the start lane is the arc 2021
     # the centreline runs from the arc into lane 1032, heading north at its end
@@ -87,7 +88,7 @@ def test_route_correction_prepends_the_way_from_an_off_route_start_and_fills_gap
 def test_sample_without_scoring_names_the_key_and_the_fix(first: dict) -> None:
     sample = {k: v for k, v in first[CRUISE.name].items() if k != "scoring"}
     with pytest.raises(SchemaError, match=r"sample '.*', field 'scoring'.*--option maps="):
-        PDMScene.from_sample(sample)
+        scene_from_sample(sample)
 
 
 def test_scorer_input_keeps_regular_grids_and_resamples_others(first: dict) -> None:
@@ -127,7 +128,8 @@ def test_score_cli_scores_a_model_free_planner(converted: Path, tmp_path: Path) 
 
 def score_one(sample: dict, prediction: Prediction) -> dict[str, float]:
     poses, interval = proposal_of(prediction)
-    result = score_proposals(PDMScene.from_sample(sample), poses[None], interval)
+    scene = scene_from_sample(sample)
+    result = score_proposals(scene, poses[None], interval, plan_reference(scene))
     return {name: float(np.asarray(values)[0]) for name, values in result.items()}
 
 
@@ -186,7 +188,7 @@ def test_pdms_and_epdms_plan_each_reference_once_with_a_shared_cache(
         planned.append(scene.key)
         return plan_reference(scene)
 
-    monkeypatch.setattr(pdms_module, "plan_reference", counting)
+    monkeypatch.setattr(proposals, "plan_reference", counting)
     samples = list(read_samples(converted, fields=EPDMSScorer.fields))
     predictions = [predict_human(sample) for sample in samples]
     cache = ReferenceCache()

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from rfs_lists import pad_rater_lists
 from test_score_cli import GRID, prediction, scoring_sample, straight
 
 from lead_s2r.predictions import PredictionError
 from lead_s2r.schema import SchemaError
-from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_rater_lists, pad_raters, rater_feedback_score, speed_scale
+from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_raters, rater_feedback_score, speed_scale
 
 # the official unit-test samples (Apache-2.0), copied into tests/data so the suite stands alone
 GOLDEN = json.loads((Path(__file__).parent / "data" / "wod_rfs_official_samples.json").read_text())

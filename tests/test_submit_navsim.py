@@ -18,13 +18,15 @@ from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, write_predictions
 from lead_s2r.shards import load_info, read_samples
-from lead_s2r.submit import navsim as N
+from lead_s2r.submit import navsim as navsim_submit
 from lead_s2r.submit.common import SubmissionError
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_navhard as hard
 from lead_s2r_adapters.navsim import NavsimAdapter
 
-METADATA = N.NavsimMetadata("Team <a href='https://x.org/r.pdf'>X</a>", "A. B, C. D", "a@b.org", "Uni", "Germany")
+METADATA = navsim_submit.NavsimMetadata(
+    "Team <a href='https://x.org/r.pdf'>X</a>", "A. B, C. D", "a@b.org", "Uni", "Germany"
+)
 GRID = 0.5 * np.arange(1, 9)
 
 STAND_INS = {
@@ -175,7 +177,7 @@ def test_pickle_names_exactly_navsim_nuplan_and_numpy1_classes_and_needs_them(na
     data, tokens = navtest
     predictions = predictions_file(tmp_path / "p.parquet", sorted(tokens.values()), GRID)
     out = tmp_path / "submission.pkl"
-    N.write_navsim(out, METADATA, [predictions], [data])
+    navsim_submit.write_navsim(out, METADATA, [predictions], [data])
     assert importlib.util.find_spec("navsim") is None and importlib.util.find_spec("nuplan") is None
     assert stream_globals(out.read_bytes()) == {
         "navsim.common.dataclasses.Trajectory",
@@ -193,7 +195,7 @@ def test_two_stage_lists_follow_the_converted_navhard_split(navhard, tmp_path: P
     info = load_info(data)["two_stage"]
     predictions = predictions_file(tmp_path / "p.parquet", sorted(tokens.values()), GRID)
     out = tmp_path / "submission.pkl"
-    report = N.write_navsim(out, METADATA, [predictions], [data], two_stage=True)
+    report = navsim_submit.write_navsim(out, METADATA, [predictions], [data], two_stage=True)
     assert report["format"] == "navsim-v2 two-stage"
     loaded = load_on_server(out, tmp_path)
     assert "predictions" not in loaded["keys"]
@@ -204,16 +206,16 @@ def test_two_stage_lists_follow_the_converted_navhard_split(navhard, tmp_path: P
     assert all(len(token) == 17 for token in second[0])
     np.testing.assert_array_equal(np.float32(second[0][info["stage_two_tokens"][0]]["poses"]), expected_poses())
     with pytest.raises(SubmissionError, match="--two-stage with 2 --predictions files; NAVSIM v2 scores exactly one"):
-        N.write_navsim(tmp_path / "v2.pkl", METADATA, [predictions, predictions], [data], two_stage=True)
+        navsim_submit.write_navsim(tmp_path / "v2.pkl", METADATA, [predictions, predictions], [data], two_stage=True)
     with pytest.raises(SubmissionError, match=r"synthetic.*--two-stage"):
-        N.write_navsim(tmp_path / "v1.pkl", METADATA, [predictions], [data])
+        navsim_submit.write_navsim(tmp_path / "v1.pkl", METADATA, [predictions], [data])
 
 
 def test_check_reports_a_written_file_and_rejects_a_foreign_pickle(navtest, tmp_path: Path, capsys) -> None:
     data, tokens = navtest
     predictions = predictions_file(tmp_path / "p.parquet", sorted(tokens.values()), GRID)
     out = tmp_path / "submission.pkl"
-    N.write_navsim(out, METADATA, [predictions, predictions], [data])
+    navsim_submit.write_navsim(out, METADATA, [predictions, predictions], [data])
     assert cli_main(["submit", "--check", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["lists"]["predictions"] == {"seeds": 2, "tokens": len(tokens)}
@@ -221,7 +223,7 @@ def test_check_reports_a_written_file_and_rejects_a_foreign_pickle(navtest, tmp_
     bad = tmp_path / "bad.pkl"
     bad.write_bytes(pickle.dumps({"team_name": "x"}))
     with pytest.raises(SubmissionError, match=r"bad.pkl: prediction lists \[\]: expected 'predictions'"):
-        N.check_navsim(bad)
+        navsim_submit.check_navsim(bad)
 
 
 def refused(call, out: Path, match: str) -> None:
@@ -236,17 +238,27 @@ def test_missing_token_nan_pose_short_horizon_and_missing_metadata_write_nothing
     out = tmp_path / "submission.pkl"
     missing = predictions_file(tmp_path / "missing.parquet", keys, GRID, drop=1)
     lost = next(token for token, key in tokens.items() if key == keys[0])
-    refused(lambda: N.write_navsim(out, METADATA, [missing], [data]), out, f"1 of {len(keys)} tokens .*{lost}")
+    refused(
+        lambda: navsim_submit.write_navsim(out, METADATA, [missing], [data]), out, f"1 of {len(keys)} tokens .*{lost}"
+    )
 
     nan = [Prediction(key, "navsim", GRID, np.column_stack([GRID, GRID]), np.full(8, np.nan)) for key in keys]
     path = write_predictions(tmp_path / "nan.parquet", nan)
-    refused(lambda: N.write_navsim(out, METADATA, [path], [data]), out, "yaw is NaN")
+    refused(lambda: navsim_submit.write_navsim(out, METADATA, [path], [data]), out, "yaw is NaN")
 
     short = predictions_file(tmp_path / "short.parquet", keys, GRID[:6])  # 6 poses: 3 s
-    refused(lambda: N.write_navsim(out, METADATA, [short], [data]), out, "ends at 3 s, NAVSIM needs 8 poses up to 4 s")
+    refused(
+        lambda: navsim_submit.write_navsim(out, METADATA, [short], [data]),
+        out,
+        "ends at 3 s, NAVSIM needs 8 poses up to 4 s",
+    )
 
     full = predictions_file(tmp_path / "full.parquet", keys, GRID)
-    refused(lambda: N.write_navsim(out, METADATA, [full], [tmp_path / "nope"]), out, "nope: no such converted folder")
+    refused(
+        lambda: navsim_submit.write_navsim(out, METADATA, [full], [tmp_path / "nope"]),
+        out,
+        "nope: no such converted folder",
+    )
     argv = ["submit", "navsim", "--data", str(data), "--out", str(out), "--predictions", str(full)]
     refused(lambda: cli_main([*argv, *metadata_args(country=" ")]), out, "'country' .*--country")
 
@@ -255,7 +267,7 @@ def test_validate_rejects_what_the_server_would(navtest) -> None:
     _, tokens = navtest
     good = {token: np.zeros((8, 3), np.float32) for token in tokens}
     base = {**METADATA.as_keys(), "predictions": [good]}
-    N.validate(base, {"predictions": sorted(tokens)})
+    navsim_submit.validate(base, {"predictions": sorted(tokens)})
     token = next(iter(tokens))
     cases = {
         "float32 \\(8, 3\\) at 0.5 s, got float32 \\(6, 3\\)": {**good, token: np.zeros((6, 3), np.float32)},
@@ -264,9 +276,9 @@ def test_validate_rejects_what_the_server_would(navtest) -> None:
     }
     for message, seed in cases.items():
         with pytest.raises(SubmissionError, match=message):
-            N.validate({**base, "predictions": [good, seed]}, {"predictions": sorted(tokens)})
+            navsim_submit.validate({**base, "predictions": [good, seed]}, {"predictions": sorted(tokens)})
     renamed = {("country/region" if k == "country / region" else k): v for k, v in base.items()}
     with pytest.raises(SubmissionError, match=r"\['country/region'\] unexpected, \['country / region'\] missing"):
-        N.validate(renamed)
+        navsim_submit.validate(renamed)
     with pytest.raises(SubmissionError, match="'email' is missing"):
-        N.NavsimMetadata("t", "a", "", "i", "c")
+        navsim_submit.NavsimMetadata("t", "a", "", "i", "c")

@@ -13,12 +13,12 @@ from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, write_predictions
 from lead_s2r.shards import read_samples
-from lead_s2r.submit import wod_e2e as W
+from lead_s2r.submit import wod_e2e as wod_submit
 from lead_s2r.submit.common import SubmissionError
 from lead_s2r.synthetic import wod_e2e as synth
 from lead_s2r_adapters.wod_e2e import WodE2EAdapter
 
-METADATA = W.WodMetadata(
+METADATA = wod_submit.WodMetadata(
     account_name="someone@uni.org",
     unique_method_name="LTFv6-s2r",
     authors=["A. B", "C. D"],
@@ -121,8 +121,8 @@ def test_shards_tar_and_frames_as_the_server_reads_them(converted, tmp_path: Pat
         assert fields[2] == 1 and fields[3] == b"someone@uni.org" and fields[4] == b"LTFv6-s2r"
         assert fields[11] == 0 and fields[12] == b"60M" and shard["authors"] == ["A. B", "C. D"]
 
-    parsed = W.read_shards(tmp_path / "MySubmission.tar.gz")
-    message = W.E2EDChallengeSubmission.FromString(parsed[names[0]])
+    parsed = wod_submit.read_shards(tmp_path / "MySubmission.tar.gz")
+    message = wod_submit.E2EDChallengeSubmission.FromString(parsed[names[0]])
     assert message.predictions[0].frame_name in synthetic_names and len(message.predictions[0].trajectory.pos_x) == 20
 
 
@@ -130,7 +130,7 @@ def test_check_reads_a_folder_and_rejects_tutorial_part_names(converted, tmp_pat
     data, frames = converted
     predictions = two_inference_predictions(tmp_path / "p.parquet", sorted(frames))
     out = tmp_path / "sub"
-    W.write_wod(out, METADATA, predictions, [data])
+    wod_submit.write_wod(out, METADATA, predictions, [data])
     assert cli_main(["submit", "--check", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["frames"] == len(frames) and report["metadata"]["num_model_parameters"] == "60M"
@@ -138,13 +138,13 @@ def test_check_reads_a_folder_and_rejects_tutorial_part_names(converted, tmp_pat
         cli_main(["submit", "--check", str(tmp_path / "nope.tar.gz")])
     (out / "submission.binproto-00000-of-00001").rename(out / "part0")
     with pytest.raises(SubmissionError, match=r"part0 are not <stem>\.binproto-00000-of-0000N"):
-        W.check_wod(out)
+        wod_submit.check_wod(out)
 
 
 def refused(call, out: Path, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         call()
-    assert not out.exists() and not W.tar_path(out).exists() and not list(out.parent.glob("*.partial"))
+    assert not out.exists() and not wod_submit.tar_path(out).exists() and not list(out.parent.glob("*.partial"))
 
 
 def test_missing_frame_short_horizon_and_bad_metadata_write_nothing(converted, tmp_path: Path) -> None:
@@ -152,23 +152,27 @@ def test_missing_frame_short_horizon_and_bad_metadata_write_nothing(converted, t
     keys = sorted(frames)
     out = tmp_path / "sub"
     missing = two_inference_predictions(tmp_path / "missing.parquet", keys[1:])
-    refused(lambda: W.write_wod(out, METADATA, missing, [data]), out, f"1 of 11 frames .*{frames[keys[0]]}")
+    refused(lambda: wod_submit.write_wod(out, METADATA, missing, [data]), out, f"1 of 11 frames .*{frames[keys[0]]}")
     short = two_inference_predictions(tmp_path / "short.parquet", keys, 0.25 * np.arange(1, 17))  # 16 points: 4 s
-    refused(lambda: W.write_wod(out, METADATA, short, [data]), out, "short.parquet: .*horizon 4 s ends before .* 5 s")
+    refused(
+        lambda: wod_submit.write_wod(out, METADATA, short, [data]),
+        out,
+        "short.parquet: .*horizon 4 s ends before .* 5 s",
+    )
     good = two_inference_predictions(tmp_path / "good.parquet", keys)
     argv = ["submit", "wod-e2e", "--predictions", str(good), "--data", str(data), "--out", str(out)]
     argv += ["--account", "someone@uni.org", "--method", "m", "--authors", "A", "--pretrained", "true"]
     refused(lambda: cli_main([*argv, "--num-params", "60M"]), out, "'public_model_names' is empty")
     refused(lambda: cli_main([*argv, "--num-params", "", "--public-models", "Qwen2-VL"]), out, "'num_model_parameters'")
     with pytest.raises(SubmissionError, match=r"'num_model_parameters' is '1\.5B'; write an integer"):
-        W.WodMetadata("a@b.c", "m", ["A"], "1.5B", False)
+        wod_submit.WodMetadata("a@b.c", "m", ["A"], "1.5B", False)
     with pytest.raises(SubmissionError, match="'uses_public_model_pretraining' is required"):
-        W.WodMetadata("a@b.c", "m", ["A"], "60M", None)
+        wod_submit.WodMetadata("a@b.c", "m", ["A"], "60M", None)
 
 
 def test_validate_rejects_wrong_point_counts_nan_and_duplicates() -> None:
     def shard(points: list[np.ndarray]) -> object:
-        message = W.E2EDChallengeSubmission()
+        message = wod_submit.E2EDChallengeSubmission()
         METADATA.fill(message)
         for i, xy in enumerate(points):
             entry = message.predictions.add(frame_name=f"seq-{i:03d}")
@@ -177,15 +181,15 @@ def test_validate_rejects_wrong_point_counts_nan_and_duplicates() -> None:
         return message
 
     good = np.zeros((20, 2))
-    assert W.validate({"s.binproto-00000-of-00001": shard([good, good])}, ["seq-000", "seq-001"]) == 2
+    assert wod_submit.validate({"s.binproto-00000-of-00001": shard([good, good])}, ["seq-000", "seq-001"]) == 2
     cases = {
         "frame 'seq-001' has 19 x / 19 y points, not 20": [good, good[:19]],
         "frame 'seq-000': trajectory holds NaN": [np.full((20, 2), np.nan)],
     }
     for message, points in cases.items():
         with pytest.raises(SubmissionError, match=message):
-            W.validate({"s.binproto-00000-of-00001": shard(points)})
+            wod_submit.validate({"s.binproto-00000-of-00001": shard(points)})
     with pytest.raises(SubmissionError, match="'seq-000' appears twice"):
-        W.validate({"s.binproto-00000-of-00002": shard([good]), "s.binproto-00001-of-00002": shard([good])})
+        wod_submit.validate({"s.binproto-00000-of-00002": shard([good]), "s.binproto-00001-of-00002": shard([good])})
     with pytest.raises(SubmissionError, match="not one complete set"):
-        W.validate({"s.binproto-00001-of-00002": shard([good])})
+        wod_submit.validate({"s.binproto-00001-of-00002": shard([good])})

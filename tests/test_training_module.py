@@ -16,8 +16,10 @@ from torch.utils.data import DataLoader
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import TrajectoryGrid, ltfv6_config, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.training.cli import TRAINER_DEFAULTS
+from lead_s2r.training.loss_table import task_loss
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.module import DrivingModule, model_spec
 
@@ -256,7 +258,8 @@ def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tm
     generated frames, one of them without labels (collation's filler)."""
     from test_transform_speed import reference_bev_labels, reference_camera
 
-    from lead_s2r.data.transforms import SourceTransform, collate
+    from lead_s2r.data.collate import collate
+    from lead_s2r.data.transforms import SourceTransform
     from lead_s2r.registry import get_adapter
     from lead_s2r.synthetic.carla_lead import generate
 
@@ -264,7 +267,7 @@ def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tm
     adapter = get_adapter("carla_lead")
     samples = [s for log in adapter.list_logs(tmp_path) for s in adapter.iter_samples(log)]
     config = tfv6_config(**{**TINY, "image_size": image_size, **camera})
-    transform = SourceTransform("carla", config)
+    transform = SourceTransform("carla", input_spec(config))
     unlabelled = {k: v for k, v in samples[1].items() if k not in ("bev_semantic", "semantic_carla_mosaic")}
     lean = collate([transform(samples[0]), transform(unlabelled)])
     bev = reference_bev_labels(samples[0]["bev_semantic"], samples[0]["meta"]["bev"]["pixel_to_ego"], config.bev)
@@ -288,6 +291,6 @@ def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tm
         "bev_semantic": torch.randn(2, config.bev_semantic_classes["carla"], *lean["bev_semantic"].shape[-2:]),
     }
     for task in ("semantic", "depth", "bev_semantic"):
-        before, after = module.task_loss(task, pred, old), module.task_loss(task, pred, lean)
+        before, after = task_loss(task, pred, old, module.model), task_loss(task, pred, lean, module.model)
         assert before > 0
         torch.testing.assert_close(after, before, rtol=1e-6, atol=0.0, msg=task)

@@ -14,20 +14,21 @@ import pytest
 import torch
 from test_transform_speed import random_boxes, reference_centernet, reference_lidar
 
-from lead_s2r.data.transforms import (
+from lead_s2r.data.lidar import rasterize_lidar
+from lead_s2r.data.targets import (
     CENTERNET_STRIDE,
     MAX_RADAR_TARGETS,
     RADAR_HIT_MARGIN_M,
     ROUTE_START_M,
-    SourceTransform,
     centernet_targets,
     gaussian_window,
     radar_targets,
-    rasterize_lidar,
     route_checkpoints,
 )
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import resample, rotate
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, BEVGrid, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.inputs import lidar_input
 from lead_s2r.schema import command4
 
@@ -242,8 +243,8 @@ def future(steps: int, headings: bool = True) -> np.ndarray:
 @pytest.mark.parametrize("knots", [future(60), future(7), future(60, headings=False), future(0)])
 @pytest.mark.parametrize("source", ["carla", "navsim", "wod"])
 def test_trajectory_equals_the_nan_to_num_definition(knots: np.ndarray, source: str) -> None:
-    transform = SourceTransform(source, tfv6_config(), [])
-    expected = reference_trajectory(knots, transform.config.trajectory_grids[source].times)
+    transform = SourceTransform(source, input_spec(tfv6_config()), [])
+    expected = reference_trajectory(knots, transform.spec.trajectory_grids[source].times)
     assert_bit_identical(transform.trajectory(knots), expected)
 
 
@@ -257,7 +258,7 @@ def test_ego_scalars_equal_torch_tensor_of_the_meta(speed: float, acceleration: 
         "ego": {"speed": speed, "acceleration": acceleration, "command": command},
         "extras": {"carla_lead": {"target_speed": 8.3}},
     }
-    out = SourceTransform("carla", tfv6_config(), [])({"__key__": "k", "meta": meta})
+    out = SourceTransform("carla", input_spec(tfv6_config()), [])({"__key__": "k", "meta": meta})
     expected = {
         "speed": torch.tensor(float(speed)),
         "acceleration": torch.tensor(acceleration, dtype=torch.float32),

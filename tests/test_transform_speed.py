@@ -14,25 +14,23 @@ import numpy as np
 import pytest
 import torch
 
-from lead_s2r.data.transforms import (
-    CENTERNET_STRIDE,
-    MAX_BOXES,
-    SourceTransform,
-    Tile,
-    bev_cell_centres,
-    bev_labels,
-    camera_layout,
-    centernet_targets,
-    jpeg_reduction,
-    rasterize_lidar,
-    render,
-)
+from lead_s2r.data.camera_input import jpeg_reduction
+from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
+from lead_s2r.data.lidar import rasterize_lidar
+from lead_s2r.data.targets import CENTERNET_STRIDE, MAX_BOXES, bev_cell_centres, bev_labels, centernet_targets
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
 from lead_s2r.schema import BoxClass
 
 # --------------------------------------------------------------------------- references
+
+
+def camera_image(transform: SourceTransform, sample: dict) -> tuple[torch.Tensor, CameraLayout]:
+    """The transform's camera input of ``sample`` and its layout, by whichever decode path the rig takes."""
+    return transform.camera.image(sample, transform.camera.stored_layout(sample["meta"]))
 
 
 def reference_centernet(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, np.ndarray]:
@@ -93,7 +91,7 @@ def reference_lidar(points: np.ndarray, grid: BEVGrid) -> np.ndarray:
 def reference_camera(transform: SourceTransform, sample: dict) -> dict[str, np.ndarray]:
     """Full-size BGR decode, the layout of the decoded shapes applied to image and labels, as the definition."""
     images = [cv2.imdecode(np.frombuffer(sample[f"cam_{c}"], np.uint8), cv2.IMREAD_COLOR) for c in transform.cameras]
-    layout = transform.layout(sample["meta"], [image.shape[:2] for image in images])
+    layout = transform.camera.layout(sample["meta"], [image.shape[:2] for image in images])
     rgb = render(layout, images, cv2.INTER_AREA, 0)
     out = {"rgb": np.ascontiguousarray(rgb[:, :, ::-1].transpose(2, 0, 1))}
     camera = transform.cameras[0]
@@ -193,7 +191,7 @@ def test_lidar_counts_scale_to_the_float32_levels_of_the_old_raster() -> None:
 
 
 def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", tfv6_config())  # paper size: the 1152x384 mosaic is the input
+    transform = SourceTransform("carla", input_spec(tfv6_config()))  # paper size: the 1152x384 mosaic is the input
     for sample in carla_samples:
         expected = reference_camera(transform, sample)
         got = transform(sample)
@@ -211,7 +209,9 @@ def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples
 
 
 def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", tfv6_config(image_size=(256, 1024)))  # 3:1 strip into 4:1: letterboxed
+    transform = SourceTransform(
+        "carla", input_spec(tfv6_config(image_size=(256, 1024)))
+    )  # 3:1 strip into 4:1: letterboxed
     with pytest.warns(UserWarning, match="letterboxed"):
         got = transform(carla_samples[0])
     expected = reference_camera(transform, carla_samples[0])
@@ -222,7 +222,7 @@ def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> 
 
 
 def test_the_transform_reads_only_its_fields_and_gives_the_same_tensors(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", tfv6_config())
+    transform = SourceTransform("carla", input_spec(tfv6_config()))
     assert "past" not in transform.fields and "agents_future" not in transform.fields
     for sample in carla_samples:
         assert {"past", "agents_future"} <= set(sample)  # the adapter wrote them; the model reads neither
@@ -257,10 +257,10 @@ def smooth_camera_sample(width: int, height: int) -> dict:
 )
 def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int], factor: int) -> None:
     sample = smooth_camera_sample(1920, 1080)
-    transform = SourceTransform("navsim", tfv6_config(image_size=image_size), ["front"])
-    layout = transform.layout(sample["meta"], [(1080, 1920)])
+    transform = SourceTransform("navsim", input_spec(tfv6_config(image_size=image_size)), ["front"])
+    layout = transform.camera.layout(sample["meta"], [(1080, 1920)])
     assert jpeg_reduction(layout)[0] == factor
-    rgb, _ = transform.image(sample)
+    rgb, _ = camera_image(transform, sample)
     expected = reference_camera(transform, sample)["rgb"]
     assert rgb.shape == expected.shape == (3, *image_size)
     diff = np.abs(rgb.numpy().astype(np.int16) - expected)
@@ -277,8 +277,8 @@ def test_labels_of_a_reduced_decode_follow_the_full_size_layout(image_size: tupl
     sample["semantic_front"] = np.kron(rng.integers(0, 20, (27, 48)), np.ones((40, 40))).astype(np.uint8)
     sample["depth_front"] = rng.integers(0, 256, (270, 480)).astype(np.uint8)  # stored at 1/4, like LEAD's
     sample["meta"]["depth"] = {"max_m": 50.0}
-    transform = SourceTransform("carla", tfv6_config(image_size=image_size), ["front"])
-    _, layout = transform.image(sample)
+    transform = SourceTransform("carla", input_spec(tfv6_config(image_size=image_size)), ["front"])
+    _, layout = camera_image(transform, sample)
     assert jpeg_reduction(layout)[0] == 4
     got = transform.perspective_labels(sample, "carla", layout)
     expected = reference_camera(transform, sample)

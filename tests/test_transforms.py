@@ -7,26 +7,20 @@ import pytest
 import torch
 from toy_adapter import toy_sample
 
-from lead_s2r.data.transforms import (
-    Band,
-    SourceTransform,
-    Tile,
-    bev_labels,
-    camera_layout,
-    centernet_targets,
-    collate,
-    radar_targets,
-    rasterize_lidar,
-    route_checkpoints,
-)
+from lead_s2r.data.camera_layout import Band, Tile, camera_layout
+from lead_s2r.data.collate import collate
+from lead_s2r.data.lidar import rasterize_lidar
+from lead_s2r.data.targets import bev_labels, centernet_targets, radar_targets, route_checkpoints
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import NAVSIM_VERTICAL_FOV_DEG, BEVGrid, TrajectoryGrid, tfv6_config
+from lead_s2r.models.input_spec import input_spec
 
 GRID = BEVGrid(-32.0, 64.0, -40.0, 40.0, 4.0)
 
 
 def transform(**overrides) -> SourceTransform:
     config = tfv6_config(**{"image_size": (32, 64), "trajectory_grids": {"toy": TrajectoryGrid(6, 0.5)}, **overrides})
-    return SourceTransform("toy", config, ["front"])
+    return SourceTransform("toy", input_spec(config), ["front"])
 
 
 def test_future_is_resampled_onto_the_model_grid_and_masked_past_the_horizon():
@@ -210,7 +204,7 @@ def mosaic_transform(**overrides) -> SourceTransform:
     """A transform reading camera field ``mosaic`` with CARLA's perspective label space."""
     grids = {"toy": TrajectoryGrid(6, 0.5)}
     return SourceTransform(
-        "toy", tfv6_config(trajectory_grids=grids, label_space={"toy": "carla"}, **overrides), ["mosaic"]
+        "toy", input_spec(tfv6_config(trajectory_grids=grids, label_space={"toy": "carla"}, **overrides)), ["mosaic"]
     )
 
 

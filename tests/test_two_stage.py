@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from lead_s2r.scoring.pdm import epdms as E
-from lead_s2r.scoring.pdm import two_stage as T
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
+from lead_s2r.scoring.pdm import epdms, two_stage
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
 
 
@@ -17,17 +17,17 @@ def accel_only(states: np.ndarray, time: np.ndarray) -> dict[str, np.ndarray]:
     return {"acceleration": states[:, StateIndex.ACCELERATION_X], "jerk": zeros, "yaw_rate": zeros, "yaw_accel": zeros}
 
 
-def row(token: str, t: float, start: tuple, end: tuple, accel: float = 0.0, **columns: float) -> T.TokenRow:
+def row(token: str, t: float, start: tuple, end: tuple, accel: float = 0.0, **columns: float) -> two_stage.TokenRow:
     states = np.zeros((41, STATE_SIZE))
     states[:, StateIndex.ACCELERATION_X] = accel
-    values = {name: 1.0 for name in E.FILTERED} | {getattr(E, k): v for k, v in columns.items()}
-    return T.TokenRow(token, values, t, np.array(start, float), np.array(end, float), states)
+    values = {name: 1.0 for name in epdms.FILTERED} | {getattr(epdms, k): v for k, v in columns.items()}
+    return two_stage.TokenRow(token, values, t, np.array(start, float), np.array(end, float), states)
 
 
-GROUP = T.TwoStageGroup("orig", "prev", (("now1", "prev1"), ("now2", "prev2")))
+GROUP = TwoStageGroup("orig", "prev", (("now1", "prev1"), ("now2", "prev2")))
 
 
-def rows() -> list[T.TokenRow]:
+def rows() -> list[two_stage.TokenRow]:
     return [
         row("orig", 10.0, (0, 0), (10.0, 0.0)),
         row("prev", 9.5, (-5, 0), (5.0, 0.0), EP=0.6),
@@ -41,23 +41,23 @@ def rows() -> list[T.TokenRow]:
 
 
 def test_weights_gaussian_and_equal_fallback() -> None:
-    w = T.pseudo_closed_loop_weights(np.array([10.0, 0.0]), np.array([[10.0, 0.0], [10.3, 0.0]]))
+    w = two_stage.pseudo_closed_loop_weights(np.array([10.0, 0.0]), np.array([[10.0, 0.0], [10.3, 0.0]]))
     assert w == pytest.approx([1 / (1 + math.exp(-0.45)), math.exp(-0.45) / (1 + math.exp(-0.45))], rel=1e-12)
-    far = T.pseudo_closed_loop_weights(np.array([5.0, 0.0]), np.array([[9.0, 0.0], [8.0, 0.0], [5.0, 2.0]]))
+    far = two_stage.pseudo_closed_loop_weights(np.array([5.0, 0.0]), np.array([[9.0, 0.0], [8.0, 0.0], [5.0, 2.0]]))
     assert far.tolist() == [1 / 3, 1 / 3, 1 / 3]  # exp(-2^2 / 0.2) = 2e-9 still sums to "about zero"
-    near = T.pseudo_closed_loop_weights(np.array([5.0, 0.0]), np.array([[5.0, 1.5], [5.0, 2.0]]))
+    near = two_stage.pseudo_closed_loop_weights(np.array([5.0, 0.0]), np.array([[5.0, 1.5], [5.0, 2.0]]))
     assert near == pytest.approx([1 / (1 + math.exp(-8.75)), 1 - 1 / (1 + math.exp(-8.75))])  # 1.5 m still counts
 
 
 def test_hand_worked_group() -> None:
-    result = T.two_stage_aggregate(rows(), [GROUP], accel_only)
+    result = two_stage.two_stage_aggregate(rows(), [GROUP], accel_only)
     per = result.per_token
     w1 = 1 / (1 + math.exp(-0.45))
     assert per["now1"]["weight"] == pytest.approx(w1) and per["now2"]["weight"] == pytest.approx(1 - w1)
     assert per["prev1"]["weight"] == per["prev2"]["weight"] == 0.5
     assert per["orig"]["weight"] == per["prev"]["weight"] == 1.0
     # EC: both frames of a pair get the pair's value
-    assert [per[t][E.EC] for t in ("orig", "prev", "now1", "prev1", "now2", "prev2")] == [1, 1, 1, 1, 0, 0]
+    assert [per[t][epdms.EC] for t in ("orig", "prev", "now1", "prev1", "now2", "prev2")] == [1, 1, 1, 1, 0, 0]
     scores = {t: per[t]["score"] for t in per}
     assert scores == pytest.approx(
         {"orig": 1.0, "prev": 14 / 16, "now1": 1.0, "prev1": 0.0, "now2": 10 / 16, "prev2": 14 / 16}
@@ -68,34 +68,36 @@ def test_hand_worked_group() -> None:
     assert result.stage_two["score"] == pytest.approx((now_side + prev_side) / 2)
     assert result.combined["score"] == pytest.approx((1.0 * now_side + 14 / 16 * prev_side) / 2)
     # sub-scores go through the same column-wise products: NC is 1 everywhere except prev1
-    assert result.combined[E.NC] == pytest.approx((1.0 + 0.5) / 2)
-    assert result.stage_two[E.EC] == pytest.approx((w1 + 0.5) / 2)
+    assert result.combined[epdms.NC] == pytest.approx((1.0 + 0.5) / 2)
+    assert result.stage_two[epdms.EC] == pytest.approx((w1 + 0.5) / 2)
 
 
 def test_missing_stage_two_token_is_an_error_naming_it() -> None:
     with pytest.raises(KeyError, match="now2"):
-        T.two_stage_aggregate([r for r in rows() if r.token != "now2"], [GROUP], accel_only)
+        two_stage.two_stage_aggregate([r for r in rows() if r.token != "now2"], [GROUP], accel_only)
     with pytest.raises(KeyError, match="stray"):
-        T.two_stage_aggregate([*rows(), row("stray", 0.0, (0, 0), (0, 0))], [GROUP], accel_only)
-    lacking = [dataclasses.replace(r, columns={E.NC: 1.0}) if r.token == "prev1" else r for r in rows()]
+        two_stage.two_stage_aggregate([*rows(), row("stray", 0.0, (0, 0), (0, 0))], [GROUP], accel_only)
+    lacking = [dataclasses.replace(r, columns={epdms.NC: 1.0}) if r.token == "prev1" else r for r in rows()]
     with pytest.raises(KeyError, match="prev1 has no column drivable_area_compliance"):
-        T.two_stage_aggregate(lacking, [GROUP], accel_only)
+        two_stage.two_stage_aggregate(lacking, [GROUP], accel_only)
 
 
 def test_pair_frames_must_be_half_a_second_apart() -> None:
     shifted = [row("prev", 9.0, (-5, 0), (5.0, 0.0)) if r.token == "prev" else r for r in rows()]
     with pytest.raises(ValueError, match=r"\(orig, prev\)"):
-        T.two_stage_aggregate(shifted, [GROUP], accel_only)
+        two_stage.two_stage_aggregate(shifted, [GROUP], accel_only)
 
 
 def test_parse_mapping_and_csv_layout() -> None:
-    groups = T.parse_mapping([["orig", "prev", [["now1", "prev1"], ["now2", "prev2"]]]])
+    groups = parse_mapping([["orig", "prev", [["now1", "prev1"], ["now2", "prev2"]]]])
     assert groups == [GROUP]
     with pytest.raises(ValueError, match="entry 0"):
-        T.parse_mapping([["orig", "prev"]])
-    csv = T.navsim_csv_rows(T.two_stage_aggregate(rows(), groups, accel_only))
-    assert [r["token"] for r in csv[-3:]] == list(T.SUMMARY_TOKENS)
+        parse_mapping([["orig", "prev"]])
+    csv = two_stage.navsim_csv_rows(two_stage.two_stage_aggregate(rows(), groups, accel_only))
+    assert [r["token"] for r in csv[-3:]] == list(two_stage.SUMMARY_TOKENS)
     orig = next(r for r in csv if r["token"] == "orig")
     assert orig["ego_progress_stage_one"] == 1.0 and math.isnan(orig["ego_progress_stage_two"])
-    assert csv[-1]["score"] == pytest.approx(T.two_stage_aggregate(rows(), groups, accel_only).combined["score"])
+    assert csv[-1]["score"] == pytest.approx(
+        two_stage.two_stage_aggregate(rows(), groups, accel_only).combined["score"]
+    )
     assert not math.isnan(csv[-1]["lane_keeping_stage_one"]) and not math.isnan(csv[-1]["lane_keeping_stage_two"])

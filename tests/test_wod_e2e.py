@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from rfs_lists import pad_rater_lists
 
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.schema import Command, make_key, validate
-from lead_s2r.scoring.rfs import pad_rater_lists, rater_feedback_score
+from lead_s2r.scoring.rfs import rater_feedback_score
 from lead_s2r.shards import load_info, load_manifest, read_samples
 from lead_s2r.synthetic.wod_e2e import (
     CLUSTER_FILE,

@@ -46,10 +46,13 @@ from lead_s2r.closed_loop.route import (
     world_to_iso,
 )
 from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_sample, reading, sensor_specs
-from lead_s2r.data.transforms import CENTERNET_STRIDE, SourceTransform, bev_cell_centres, collate
+from lead_s2r.data.collate import collate
+from lead_s2r.data.targets import CENTERNET_STRIDE, bev_cell_centres
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 from lead_s2r.models.config import TFv6Config
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.schema import BoxClass
 
 try:  # pragma: no cover - depends on the environment
@@ -177,7 +180,7 @@ class LeadS2RAgent(Base):
         self.rig = Rig(
             config.rig or rig_for(model_config), lidar=model_config.bev_input == "raster", radar=model_config.use_radar
         )
-        self.transform = SourceTransform(config.source, model_config, cameras=[MOSAIC_ID])
+        self.transform = SourceTransform(config.source, input_spec(model_config), cameras=[MOSAIC_ID])
         self.classes = tuple(model_config.target_speed_classes)
         self.lateral = LateralPID(config.steer_correction)
         self.waypoint_controller = WaypointController(model_config.trajectory_grids[config.source].dt)

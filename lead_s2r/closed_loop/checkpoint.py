@@ -10,7 +10,7 @@ an output grid for the source, or one that reads no route target points (an LTFv
 configs and weights; here they are errors at load time.
 
 The camera rig is not stored by training either; it follows from the model's input: the LEAD rig whose stitched
-strip (after the model's ``vertical_fov_deg`` crop, the same :func:`~lead_s2r.data.transforms.camera_layout`
+strip (after the model's ``vertical_fov_deg`` crop, the same :func:`~lead_s2r.data.camera_layout.camera_layout`
 training used) has the aspect of ``image_size`` (3 cameras 3:1, 6 cameras 6:1, the wide camera 8:3, NAVSIM's 64:9).
 """
 
@@ -22,7 +22,7 @@ import torch
 import yaml
 from torch import nn
 
-from lead_s2r.data.transforms import camera_layout, camera_tiles
+from lead_s2r.data.camera_layout import camera_layout, camera_tiles
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
 from lead_s2r.models.config import TFv6Config
 

@@ -16,18 +16,19 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import lightning as L
 import torch
 import webdataset as wds
 
+from lead_s2r.data.collate import collate
 from lead_s2r.data.device_inputs import RGB_JPEG, check_device_decode, decode_images, rasterize_points
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.streams import ResampledShards, SampleShare, SeededShuffle, StreamSeed, manifest_samples
-from lead_s2r.data.transforms import SourceTransform, collate
+from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
-from lead_s2r.models.config import EgoMLPConfig, TFv6Config
+from lead_s2r.models.input_spec import InputSpec
 from lead_s2r.models.inputs import Batch, target_point_range
 from lead_s2r.shards import (
     INFO,
@@ -88,17 +89,12 @@ class _Tag:
         return {self.source: batch}
 
 
-def ego_status_transform_config(config: EgoMLPConfig) -> TFv6Config:
-    """What the transforms need for the ego-status MLP: its output grids and no sensor input or perception label."""
-    return TFv6Config(
-        bev_input="coordinates",
-        use_radar=False,
-        trajectory_grids=dict(config.trajectory_grids),
-        bev_semantic_classes={},
-        box_classes={},
-        semantic_classes={},
-        depth_sources=(),
-    )
+@runtime_checkable
+class ReadsInputs(Protocol):
+    """A LightningModule that tells its data module what its model reads
+    (:meth:`lead_s2r.training.module.DrivingModule.input_spec`)."""
+
+    def input_spec(self) -> InputSpec: ...
 
 
 class DriveDataModule(L.LightningDataModule):
@@ -114,7 +110,8 @@ class DriveDataModule(L.LightningDataModule):
         eval_batch_size: batch size of validation and prediction loaders.
         num_workers: dataloader workers per source.
         shuffle_buffer: samples in each source's shuffle buffer.
-        config: the model configuration the transforms follow; by default the trained model's own.
+        inputs: what the transforms build (:class:`~lead_s2r.models.input_spec.InputSpec`, from a model config by
+            :func:`~lead_s2r.models.input_spec.input_spec`); by default what the attached module's model reads.
         seed: seed of shard resampling and shuffling (with the epoch, rank, worker and source); by default the
             one ``seed_everything`` set, else 0.
         inputs_on_device: send a camera JPEG that is the model's image as stored (CARLA's mosaic at TFv6's size) to the
@@ -133,7 +130,7 @@ class DriveDataModule(L.LightningDataModule):
         eval_batch_size: int = 8,
         num_workers: int = 0,
         shuffle_buffer: int = 256,
-        config: TFv6Config | None = None,
+        inputs: InputSpec | None = None,
         seed: int | None = None,
         inputs_on_device: bool | None = None,
     ) -> None:
@@ -149,7 +146,7 @@ class DriveDataModule(L.LightningDataModule):
         self.eval_batch_size = eval_batch_size
         self.num_workers = num_workers
         self.shuffle_buffer = shuffle_buffer
-        self._config = config
+        self._inputs = inputs
         self._seed = seed
         self._inputs_on_device = inputs_on_device
         self._device_decode_checked = False
@@ -163,35 +160,34 @@ class DriveDataModule(L.LightningDataModule):
     def _stages(self) -> dict[str, dict[str, SourceSpec]]:
         return {"train": self.train_sources, "val": self.val_sources, "predict": self.predict_sources}
 
-    def check_sources(self, config: TFv6Config) -> None:
+    def check_sources(self, inputs: InputSpec) -> None:
         """Raise :class:`UserError` naming ``data.<stage>.<name>`` for a source the model has no trajectory grid for."""
-        known = sorted(config.trajectory_grids)
+        known = sorted(inputs.trajectory_grids)
         for stage, sources in self._stages().items():
             for name in sources:
-                if name not in config.trajectory_grids:
+                if name not in inputs.trajectory_grids:
                     raise UserError(
                         f"data.{stage}.{name}: the model knows no source {name!r}; name it one of {known} "
                         "(the model config's trajectory_grids)"
                     )
 
     def setup(self, stage: str) -> None:
-        self.check_sources(self.config)
+        self.check_sources(self.inputs)
 
     @property
-    def config(self) -> TFv6Config:
-        """The model configuration: given, else the attached LightningModule's ``model.config``."""
-        if self._config is None:
-            model = getattr(self.trainer, "lightning_module", None)
-            config = getattr(getattr(model, "model", None), "config", None)
-            if isinstance(config, EgoMLPConfig):
-                config = ego_status_transform_config(config)
-            if not isinstance(config, TFv6Config):
-                raise ValueError("DriveDataModule needs a TFv6Config: pass config= or train a model that has one")
-            self._config = config
-        return self._config
+    def inputs(self) -> InputSpec:
+        """What the transforms build: as given, else what the attached LightningModule's model reads."""
+        if self._inputs is None:
+            module = getattr(self.trainer, "lightning_module", None)
+            if not isinstance(module, ReadsInputs):
+                raise ValueError(
+                    "DriveDataModule needs to know the model's inputs: pass inputs=input_spec(config) or attach a "
+                    "module with input_spec() (DrivingModule)"
+                )
+            self._inputs = module.input_spec()
+        return self._inputs
 
-    @property
-    def steps_per_epoch(self) -> int:
+    def epoch_steps(self) -> int:
         """Optimizer steps per epoch: as given, else one pass over the training samples (read once, on first use)."""
         if self._steps_per_epoch is None:
             samples = self.train_samples()
@@ -199,6 +195,10 @@ class DriveDataModule(L.LightningDataModule):
                 raise UserError("data.train: no training samples in the given paths and splits; check data.train")
             self._steps_per_epoch = math.ceil(samples / self.schedule.global_batch_size)
         return self._steps_per_epoch
+
+    def validation_sources(self) -> dict[str, SourceSpec]:
+        """The validation sources, by name."""
+        return self.val_sources
 
     def train_samples(self) -> int:
         """Samples of every training source in its splits, counted from the folders' manifests."""
@@ -252,7 +252,7 @@ class DriveDataModule(L.LightningDataModule):
         (``lidar_points``) rasterised. The first image a GPU decodes in this process is held to the CPU's decode
         (:func:`check_device_decode`): a broken decoder fails the run at once instead of training on garbage."""
         device = self.trainer.strategy.root_device if self.trainer is not None else torch.device("cpu")
-        grid = self.config.bev
+        grid = self.inputs.bev
         decoded = {source: rasterize_points(decode_images(b, device), grid, device) for source, b in batch.items()}
         if device.type != "cpu" and not self._device_decode_checked:
             source = next((source for source, source_batch in batch.items() if RGB_JPEG in source_batch), None)
@@ -262,7 +262,7 @@ class DriveDataModule(L.LightningDataModule):
         return decoded
 
     def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
-        return _Prepare(SourceTransform(name, self.config, list(spec.cameras), self.inputs_on_device))
+        return _Prepare(SourceTransform(name, self.inputs, list(spec.cameras), self.inputs_on_device))
 
     def _train_pipeline(self, name: str, spec: SourceSpec, batch_size: int) -> wds.DataPipeline:
         epoch, rank, _ = self._where()
@@ -314,7 +314,7 @@ class DriveDataModule(L.LightningDataModule):
         for name, size in self.current_batch_sizes().items():
             if size > 0:
                 pipeline = self._train_pipeline(name, self.train_sources[name], size)
-                loaders[name] = self._loader(pipeline).with_epoch(self.steps_per_epoch)
+                loaders[name] = self._loader(pipeline).with_epoch(self.epoch_steps())
         return loaders
 
     def _eval_loaders(self, sources: dict[str, SourceSpec], what: str) -> list[wds.WebLoader]:

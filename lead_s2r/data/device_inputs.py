@@ -9,7 +9,7 @@ pixels, and nvJPEG and one ``bincount`` per batch do the work there. Only a came
 image (one camera at ``image_size``: nothing to crop, stitch or scale) goes encoded; other rigs are laid out in the
 loader.
 
-The raster is bit for bit the loader's (:func:`~lead_s2r.data.transforms.rasterize_lidar`: the same float32
+The raster is bit for bit the loader's (:func:`~lead_s2r.data.lidar.rasterize_lidar`: the same float32
 arithmetic). On the CPU the decoder is libjpeg-turbo, pixel for pixel OpenCV's decode; nvJPEG's pixels may differ
 by a level or two (its own IDCT and chroma upsampling), and the first image a run decodes on a GPU is held to the
 CPU's decode (:func:`check_device_decode`). torchvision's CUDA decoder writes on a stream of its own that does not
@@ -95,7 +95,7 @@ def check_device_decode(encoded: Tensor, decoded: Tensor) -> float:
 def rasterize_points(batch: Batch, grid: BEVGrid, device: torch.device | str) -> Batch:
     """``batch`` with its :data:`LIDAR_POINTS` turned into ``lidar_bev`` on ``device``: hits per cell of ``grid``,
     saturated at :data:`LIDAR_HITS_MAX`, (B, 1, H, W) uint8, bit for bit the loader's
-    :func:`~lead_s2r.data.transforms.rasterize_lidar` (the same float32 arithmetic, truncation as the floor inside
+    :func:`~lead_s2r.data.lidar.rasterize_lidar` (the same float32 arithmetic, truncation as the floor inside
     the grid); a batch without them is returned as it is. One ``bincount`` for the batch."""
     if LIDAR_POINTS not in batch:
         return batch

@@ -96,10 +96,6 @@ class MixingSchedule:
             raise ValueError(f"global_batch_size {self.global_batch_size} must be divisible by world_size {world_size}")
         return largest_remainder(self.shares(epoch), self.global_batch_size // world_size)
 
-    def active_sources(self, epoch: int, world_size: int = 1) -> list[str]:
-        """Sources with at least one sample per rank at ``epoch`` (the loaders to build)."""
-        return [s for s, n in self.batch_sizes(epoch, world_size).items() if n > 0]
-
 
 def _normalised(mix: Mapping[str, float]) -> dict[str, float]:
     total = sum(mix.values())

@@ -54,7 +54,7 @@ from lead_s2r.report.tables import (
     to_markdown,
 )
 from lead_s2r.scoring.baselines import predict_human
-from lead_s2r.scoring.pdms import ReferenceCache
+from lead_s2r.scoring.navsim.proposals import ReferenceCache
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import read_samples
 from lead_s2r.training.cli import run_lightning_cli

@@ -46,7 +46,7 @@ def write_carla(root: Path, workers: int) -> None:
         _convert("carla_lead", raw, root / DATA / name, workers, rig="both")
 
 
-def write_navsim(root: Path, workers: int) -> None:
+def write_navsim_twin(root: Path, workers: int) -> None:
     for name, (split, seed) in NAVSIM_FOLDERS.items():
         raw = root / RAW / f"navsim_{name}"
         navsim.generate(raw, seed=seed, splits={split: 1})
@@ -68,13 +68,13 @@ def write_navhard(root: Path, workers: int) -> None:
     _convert("navsim", raw, root / DATA / "navsim_navhard", workers, **options)
 
 
-def write_wod(root: Path, workers: int) -> None:
+def write_wod_twin(root: Path, workers: int) -> None:
     raw = root / RAW / "wod_e2e"
     wod_e2e.generate(raw, seed=0, splits=WOD_SPLITS)
     _convert("wod_e2e", raw, root / DATA / "wod_e2e", workers)
 
 
-WRITERS: tuple[Callable[[Path, int], None], ...] = (write_carla, write_navsim, write_navhard, write_wod)
+WRITERS: tuple[Callable[[Path, int], None], ...] = (write_carla, write_navsim_twin, write_navhard, write_wod_twin)
 
 
 def write_twin_data(root: Path, workers: int = 1) -> list[str]:

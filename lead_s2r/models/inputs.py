@@ -35,6 +35,7 @@ class Batch(TypedDict, total=False):
     """Inputs and targets of one per-source batch (B samples). Keys a source does not have are left out."""
 
     __key__: list[str]  # sample keys, for predictions
+    __dataset__: list[str]  # each sample's meta.dataset, for predictions and per-dataset scoring
     # --- inputs
     rgb: Tensor  # (B, 3, H, W) uint8 (or float in [0, 255]), RGB order; normalised inside the model
     rgb_jpeg: list[Tensor]  # instead of rgb: each sample's JPEG bytes (1-D uint8, CPU), see lead_s2r.data.device_inputs

@@ -118,10 +118,3 @@ class TFv6(nn.Module):
 
 def count_parameters(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
-
-
-def parameter_table(model: nn.Module) -> dict[str, int]:
-    """Parameters per top-level child, for the docs and the count test."""
-    table = {name: count_parameters(child) for name, child in model.named_children()}
-    table["total"] = count_parameters(model)
-    return table

@@ -17,19 +17,6 @@ def constant_turn_rate(speed: float, yaw_rate: float, t: np.ndarray) -> np.ndarr
     return np.stack([radius * np.sin(yaw), radius * (1.0 - np.cos(yaw)), yaw], axis=1)
 
 
-def predict_constant_turn_rate(sample: dict[str, Any], t: np.ndarray | None = None) -> Prediction:
-    """CTRV prediction for a sample on ``t`` (default: the sample's own future grid)."""
-    if t is None:
-        if "future" not in sample:
-            raise ValueError(f"sample {sample['__key__']!r} has no future; pass the time grid to predict on")
-        t = sample["future"][:, 0]
-    ego = sample["meta"]["ego"]
-    poses = constant_turn_rate(ego["speed"], ego["yaw_rate"], t)
-    return Prediction(
-        sample["__key__"], sample["meta"]["dataset"], np.asarray(t, np.float32), poses[:, :2], poses[:, 2]
-    )
-
-
 #: NAVSIM's agent output grid: 8 poses at 0.5 s.
 NAVSIM_GRID = 0.5 * np.arange(1, 9)
 

@@ -80,21 +80,6 @@ def pad_raters(
     return padded, np.asarray(labels, np.float64)[frames, rater]
 
 
-def pad_rater_lists(
-    trajectories: Sequence[Sequence[np.ndarray]],
-    labels: Sequence[Sequence[float]],
-    config: RFSConfig = RFSConfig(),
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`pad_raters` for ragged per-frame lists of (T_p, 2) trajectories and their labels."""
-    frames = []
-    for frame, frame_labels in zip(trajectories, labels, strict=True):
-        padded = np.full((len(frame), max(len(t) for t in frame), 2), np.nan)
-        for p, trajectory in enumerate(frame):
-            padded[p, : len(trajectory)] = trajectory
-        frames.append((padded, np.array([len(t) for t in frame]), np.asarray(frame_labels, np.float64)))
-    return pad_raters(*_stack(frames), config)
-
-
 def _stack(
     frames: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -20,7 +20,6 @@ from lightning.pytorch.cli import LightningCLI
 
 from lead_s2r.data.datamodule import DriveDataModule
 from lead_s2r.errors import UserError
-from lead_s2r.models.config import TFv6Config
 from lead_s2r.training.module import DrivingModule
 
 #: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
@@ -35,9 +34,8 @@ class DrivingCLI(LightningCLI):
     checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``."""
 
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
-        config = getattr(getattr(self.model, "model", None), "config", None)
-        if isinstance(self.datamodule, DriveDataModule) and isinstance(config, TFv6Config):
-            self.datamodule.check_sources(config)
+        if isinstance(self.datamodule, DriveDataModule) and isinstance(self.model, DrivingModule):
+            self.datamodule.check_sources(self.model.input_spec())
         return super().instantiate_trainer(**kwargs)
 
     def after_instantiate_classes(self) -> None:

@@ -1,4 +1,5 @@
-"""Loss terms, one function per task. Each returns a scalar mean over the labelled entries of one source's batch.
+"""Loss terms, one function per task (keyed by task in :mod:`lead_s2r.training.loss_table`). Each returns a scalar
+mean over the labelled entries of one source's batch.
 
 Predictions are cast to float32 first, so the terms are stable under bf16 autocast.
 """
@@ -12,19 +13,6 @@ from scipy.optimize import linear_sum_assignment
 from torch import Tensor
 
 from lead_s2r.models.inputs import Batch, class_ids
-
-#: Each task's target key in the batch; a term is computed only where that key is present.
-TASK_TARGETS = {
-    "waypoints": "waypoints",
-    "headings": "headings",
-    "route": "route",
-    "target_speed": "target_speed",
-    "bev_semantic": "bev_semantic",
-    "boxes": "box_heatmap",
-    "depth": "depth",
-    "semantic": "semantic",
-    "radar": "radar_targets",
-}
 
 
 def masked_mean(values: Tensor, mask: Tensor) -> Tensor:

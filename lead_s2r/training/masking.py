@@ -3,7 +3,7 @@
 from collections.abc import Collection, Mapping
 
 from lead_s2r.models.inputs import PERCEPTION_TASKS, PLANNING_TASKS, Batch
-from lead_s2r.training.losses import TASK_TARGETS
+from lead_s2r.training.loss_table import TASK_TARGETS
 
 GROUPS: dict[str, frozenset[str]] = {"planning": PLANNING_TASKS, "perception": PERCEPTION_TASKS}
 

@@ -22,14 +22,16 @@ from lightning.pytorch.utilities import rank_zero_info, rank_zero_warn
 from torch import Tensor, nn
 from torchmetrics import MeanMetric
 
-from lead_s2r.models.inputs import Batch, on_image_grid
-from lead_s2r.training import losses
+from lead_s2r.models.input_spec import InputSpec, input_spec
+from lead_s2r.models.inputs import Batch
+from lead_s2r.training.data_contract import TrainingData
+from lead_s2r.training.loss_table import TASK_TARGETS, task_loss
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.prediction_writer import to_predictions
 from lead_s2r.training.weights import LoadReport, load_matching
 
 #: LEAD's weights (``detailed_loss_weights``): all 1 except depth.
-DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in losses.TASK_TARGETS} | {"depth": 1e-5}
+DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in TASK_TARGETS} | {"depth": 1e-5}
 
 #: Lightning's allow-listed instantiator (LightningCLI's); ``load_from_checkpoint`` builds the module with it.
 INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
@@ -88,9 +90,9 @@ class DrivingModule(L.LightningModule):
         self.model = model
         self.supervise = {k: list(v) for k, v in (SIM_TO_REAL if supervise is None else supervise).items()}
         self.loss_weights = DEFAULT_LOSS_WEIGHTS | (loss_weights or {})
-        unknown = set(self.loss_weights) - set(losses.TASK_TARGETS)
+        unknown = set(self.loss_weights) - set(TASK_TARGETS)
         if unknown:
-            raise ValueError(f"loss_weights: unknown tasks {sorted(unknown)}; known: {sorted(losses.TASK_TARGETS)}")
+            raise ValueError(f"loss_weights: unknown tasks {sorted(unknown)}; known: {sorted(TASK_TARGETS)}")
         self.val_means = nn.ModuleDict()  # per "<source>/<metric>"; metric states stay out of checkpoints
         self.init_report: LoadReport | None = None
         if init_from is not None:
@@ -113,6 +115,16 @@ class DrivingModule(L.LightningModule):
         hparams.setdefault("_instantiator", INSTANTIATOR)
 
     # --- setup
+    def input_spec(self) -> InputSpec:
+        """What the model reads, for the data module to build (``DriveDataModule`` asks when given no ``inputs``)."""
+        return input_spec(self.model.config)
+
+    @property
+    def data(self) -> TrainingData | None:
+        """The trainer's data module, where it provides :class:`TrainingData` (None on plain dataloaders)."""
+        datamodule = self.trainer.datamodule
+        return datamodule if isinstance(datamodule, TrainingData) else None
+
     def setup(self, stage: str) -> None:
         """At the start of a fit, normalise target points by the training data's statistics.
 
@@ -126,10 +138,9 @@ class DrivingModule(L.LightningModule):
         model = self.model
         if not getattr(model, "reads_target_points", False) or model.config.target_point_normalisation != "data":
             return
-        resolve = getattr(self.trainer.datamodule, "target_point_range", None)
-        if resolve is None:  # plain dataloaders: no converted folders to read statistics from
+        if self.data is None:  # plain dataloaders: no converted folders to read statistics from
             return
-        resolved = resolve()
+        resolved = self.data.target_point_range()
         if resolved is None:
             rank_zero_warn(
                 "target_point_normalisation='data', but no training folder has statistics.target_points in its "
@@ -142,38 +153,6 @@ class DrivingModule(L.LightningModule):
         rank_zero_info(f"target points normalised over x [{x0:.1f}, {x1:.1f}] m, y [{y0:.1f}, {y1:.1f}] m")
 
     # --- losses
-    def task_loss(self, task: str, pred: dict[str, Tensor], batch: Batch) -> Tensor:
-        """One loss term for one source's batch."""
-        config = getattr(self.model, "config", None)
-        if task == "waypoints":
-            return losses.waypoint_loss(pred, batch)
-        if task == "headings":
-            return losses.heading_loss(pred, batch)
-        if task == "route":
-            return losses.route_loss(pred, batch)
-        if task == "target_speed":
-            return losses.target_speed_loss(pred, batch, self.model.planner.speed_classes)  # a buffer: no copy
-        if task == "bev_semantic":
-            return losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
-        if task == "boxes":
-            return losses.box_loss(pred, batch, config.box_yaw_bins)
-        if task in ("semantic", "depth"):
-            return self._perspective_loss(task, pred, batch)
-        if task == "radar":
-            bev = config.bev
-            scale = ((bev.x_max - bev.x_min) / 2, (bev.y_max - bev.y_min) / 2, config.max_speed)
-            return losses.radar_loss(pred, batch, scale)
-        raise ValueError(f"unknown task {task!r}")
-
-    def _perspective_loss(self, task: str, pred: dict[str, Tensor], batch: Batch) -> Tensor:
-        """Depth or semantic loss on the input image's grid (the label brought there on the device), cropped as the
-        camera ablations crop the image."""
-        crop = getattr(self.model, "camera_select", nn.Identity())
-        label = crop(on_image_grid(batch[task], tuple(batch["rgb"].shape[-2:])))
-        if task == "semantic":
-            return losses.segmentation_loss(pred["semantic"], label)
-        return losses.depth_loss(pred["depth"], label)
-
     def compute_losses(self, batch: Mapping[str, Batch]) -> tuple[Tensor | None, dict[str, tuple[Tensor, int]]]:
         """Weighted total (None when nothing is supervised) and every per-source term with its batch size."""
         per_task: dict[str, list[tuple[Tensor, int]]] = {}
@@ -185,7 +164,7 @@ class DrivingModule(L.LightningModule):
             n = len(source_batch["speed"])
             pred = self.model(source_batch, source, tasks)
             for task in sorted(tasks):
-                value = self.task_loss(task, pred, source_batch)
+                value = task_loss(task, pred, source_batch, self.model)
                 terms[f"{source}/{task}"] = (value, n)
                 per_task.setdefault(task, []).append((value, n))
         if not per_task:
@@ -198,8 +177,7 @@ class DrivingModule(L.LightningModule):
 
     def on_train_epoch_start(self) -> None:
         """Log this epoch's per-rank batch size of each source (``train/batch_size/<source>``), zeros included."""
-        batch_sizes = getattr(self.trainer.datamodule, "current_batch_sizes", None)
-        for source, size in (batch_sizes() if batch_sizes else {}).items():
+        for source, size in (self.data.current_batch_sizes() if self.data else {}).items():
             self.log(f"train/batch_size/{source}", float(size), on_epoch=True, sync_dist=True)
 
     def training_step(self, batch: Mapping[str, Batch], batch_idx: int) -> Tensor | None:
@@ -219,8 +197,7 @@ class DrivingModule(L.LightningModule):
         Under DDP a rank may hold no sample of a source; its metric must still exist and be computed at the epoch's
         end, since computing syncs the ranks and one rank missing from that sync would hang the others.
         """
-        sources = getattr(self.trainer.datamodule, "val_sources", None) or {}
-        for source in sources:
+        for source in self.data.validation_sources() if self.data else {}:
             if "waypoints" in self.model.tasks(source):
                 for metric in ("ade", "fde"):
                     self._val_mean(f"{source}/{metric}")
@@ -321,7 +298,7 @@ class DrivingModule(L.LightningModule):
 
     def _steps_per_epoch(self) -> int:
         """Optimizer steps per epoch: the data module's fixed epoch length, else Lightning's estimate."""
-        steps = getattr(self.trainer.datamodule, "steps_per_epoch", None)
+        steps = self.data.epoch_steps() if self.data else None
         if steps is None:
             total = self.trainer.estimated_stepping_batches
             if not math.isfinite(total):

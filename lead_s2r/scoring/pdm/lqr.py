@@ -51,7 +51,7 @@ STOPPING_GAIN = 0.5
 STOPPING_VELOCITY = 0.2
 
 
-def wrap_angle(angle: Values, ops: Elementwise = NUMPY) -> Values:
+def normalize_angle(angle: Values, ops: Elementwise = NUMPY) -> Values:
     """NAVSIM ``normalize_angle``: ``arctan2(sin, cos)``, in (-pi, pi]."""
     return ops.arctan2(ops.sin(angle), ops.cos(angle))
 
@@ -181,7 +181,7 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     projected = np.cos(headings) * steps[..., 0] + np.sin(headings) * steps[..., 1]
     num_fits = steps.shape[1]
     speed = projected @ speed_fit_matrix(num_fits, dt).T
-    curvature = curvature_profile(wrap_angle(steps[..., 2]), speed, dt)
+    curvature = curvature_profile(normalize_angle(steps[..., 2]), speed, dt)
     ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
     reference_speed = speed[:, ahead[:, -1]].T  # (S, N)
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
@@ -236,12 +236,12 @@ def track(
     appears below.
     """
     lateral_error = (y - ref.y) * ref.cos - (x - ref.x) * ref.sin
-    heading_error = wrap_angle(heading - ref.heading, ops)
+    heading_error = normalize_angle(heading - ref.heading, ops)
     accel = ref.accel_per_speed * speed + ref.accel_offset
 
     u_sum = ref.u_sum_1 * speed + ref.u_sum_0
     steer_per_length = steering * ref.inverse_wheel_base
-    final_heading = wrap_angle(
+    final_heading = normalize_angle(
         heading_error + steer_per_length * u_sum - (ref.curvature_1 * speed + ref.curvature_0), ops
     )
     pairs = (ref.pairs_2 * speed + ref.pairs_1) * speed + ref.pairs_0

@@ -159,7 +159,7 @@ class Forecast:
     def polygons(self, step: int) -> np.ndarray:
         """Object polygons at 10 Hz step ``step``, then the red lights (which never move); built once per step."""
         if step not in self.built:
-            moving = box_polygons(self.poses[:, step], self.size)
+            moving = agent_box_polygons(self.poses[:, step], self.size)
             self.built[step] = np.concatenate([moving, np.array(self.red_lights, object)])
         return self.built[step]
 
@@ -172,7 +172,7 @@ class Forecast:
         return out
 
 
-def box_polygons(poses: np.ndarray, size: np.ndarray) -> np.ndarray:
+def agent_box_polygons(poses: np.ndarray, size: np.ndarray) -> np.ndarray:
     """Shapely boxes of centre poses (M, 3) with (length, width, ...) sizes (M, 2+)."""
     half = np.asarray(size, np.float64)[:, None, :2] / 2 * np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]])
     cos, sin = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
@@ -201,7 +201,8 @@ def select_objects(scene: PDMScene, config: PDMClosedConfig = PDMClosedConfig())
         chosen.append(seen[rows[np.argsort(distance[rows])][:cap]])
     rows = np.concatenate(chosen).astype(np.int64)
     overlapping = shapely.intersects(
-        box_polygons(scene.agent_poses[rows, 0], scene.agent_size[rows]), ego_footprint(np.zeros(3), scene.vehicle)
+        agent_box_polygons(scene.agent_poses[rows, 0], scene.agent_size[rows]),
+        ego_footprint(np.zeros(3), scene.vehicle),
     )
     return rows[~overlapping]
 
@@ -227,11 +228,11 @@ def forecast(scene: PDMScene, config: PDMClosedConfig = PDMClosedConfig()) -> Fo
         agent_class=scene.agent_class[rows],
         speed=speed,
         heading=pose[:, 2],
-        red_lights=red_light_polygons(scene),
+        red_lights=red_lights_at_start(scene),
     )
 
 
-def red_light_polygons(scene: PDMScene) -> list[shapely.Polygon]:
+def red_lights_at_start(scene: PDMScene) -> list[shapely.Polygon]:
     """Polygons of on-route lane connectors red at t = 0, except one containing the ego footprint."""
     if len(scene.red_light_offsets) < 2:  # no traffic-light keyframes
         return []

@@ -5,7 +5,6 @@ converted sample maps onto a scene without renaming. v2-only fields are optional
 """
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -56,13 +55,6 @@ class PDMScene:
     is_synthetic: bool = False
     # PDM-Closed: speed limit of its start lane (NaN: none in the map, IDM falls back to 15 m/s)
     speed_limit_mps: float = float("nan")
-
-    @classmethod
-    def from_sample(cls, sample: dict[str, Any]) -> "PDMScene":
-        """A converted NAVSIM sample (``scoring``, ``boxes``, ``agents_future``, ``meta``) as a scene."""
-        from lead_s2r.scoring.pdm.sample import scene_from_sample
-
-        return scene_from_sample(sample)
 
 
 @dataclass

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import shapely
 
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, enclosing_radius, no_at_fault_collisions, time_to_collision
 from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
 from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
@@ -65,7 +65,7 @@ COLUMNS = (
     "ttc_time_idx",
 )
 #: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's extras
-EPDMS_COLUMNS = (*E.SUB_SCORES, "score", *COLUMNS[-4:])
+EPDMS_COLUMNS = (*epdms.SUB_SCORES, "score", *COLUMNS[-4:])
 
 
 def _centerline(scene: PDMScene) -> shapely.LineString:
@@ -116,6 +116,38 @@ def _footprints(scene: PDMScene, states: np.ndarray, drivable_map: DrivableMap |
     return _Footprints(coords, enclosing_radius(scene.vehicle.length, scene.vehicle.width), areas)
 
 
+@dataclass
+class _Prelude:
+    """What v1.1 and v2.2 score alike before they part: checked states, footprints, NC (and when) and DAC."""
+
+    states: np.ndarray
+    fp: _Footprints
+    nc: np.ndarray
+    collision_idx: np.ndarray
+    dac: np.ndarray
+
+    def time_to_collision(
+        self, observation: Observation, num_steps: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """TTC and its first violating step over the first ``num_steps`` states (all: None)."""
+        fp = self.fp
+        areas = fp.areas
+        return time_to_collision(
+            self.states, fp.coords, fp.radius, observation, fp.lanes_or_off_road, areas.rear_axle_in_intersection,
+            INTERVAL_S, num_steps=num_steps,
+        )  # fmt: skip
+
+
+def _prelude(
+    scene: PDMScene, states: np.ndarray, observation: Observation, lookahead: int, drivable_map: DrivableMap | None
+) -> _Prelude:
+    states = np.asarray(states, np.float64)
+    _check_states(scene, states, observation, lookahead)
+    fp = _footprints(scene, states, drivable_map)
+    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
+    return _Prelude(states, fp, nc, collision_idx, drivable_area_compliance(fp.areas.non_drivable_area))
+
+
 def score_states(
     scene: PDMScene,
     states: np.ndarray,
@@ -128,23 +160,12 @@ def score_states(
     column of :data:`COLUMNS` (indices -1 where nothing happened), plus the ``(N, 41)`` flags ``multiple_lanes``,
     ``non_drivable_area`` and ``oncoming_traffic``. ``ep_reference`` picks EP's normalisation (see
     :func:`~lead_s2r.scoring.pdm.metrics.ego_progress`)."""
-    states = np.asarray(states, np.float64)
-    _check_states(scene, states, observation, max(TTC_OFFSETS))
-    fp = _footprints(scene, states, drivable_map)
-    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
-    dac = drivable_area_compliance(fp.areas.non_drivable_area)
+    base = _prelude(scene, states, observation, max(TTC_OFFSETS), drivable_map)
+    states, fp, nc, collision_idx, dac = base.states, base.fp, base.nc, base.collision_idx, base.dac
     ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S)
     progress = progress_along(_centerline(scene), fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
-    ttc, ttc_idx = time_to_collision(
-        states,
-        fp.coords,
-        fp.radius,
-        observation,
-        fp.lanes_or_off_road,
-        fp.areas.rear_axle_in_intersection,
-        INTERVAL_S,
-    )
+    ttc, ttc_idx = base.time_to_collision(observation)
     c = comfort(states, INTERVAL_S)
     return {
         "no_at_fault_collisions": nc,
@@ -184,13 +205,10 @@ def score_states_v2(
     the v1.1 extras, ``lane_keeping_fail_idx`` and the ``(N, 41)`` flags (v1.1's, ``in_intersection`` of the centre
     and ``on_red_light``). HC reads the scene's ``ego_past`` for every row. ``observation``: v2's log replay
     (``log_observation(scene, 41, replay=True)``); ``red_lights``: per step (``red_light_polygons``)."""
-    states = np.asarray(states, np.float64)
-    _check_states(scene, states, observation, 0)
-    fp = _footprints(scene, states, drivable_map)
+    base = _prelude(scene, states, observation, 0, drivable_map)
+    states, fp, nc, collision_idx, dac = base.states, base.fp, base.nc, base.collision_idx, base.dac
     num_steps = states.shape[1]
     red_lights = red_light_polygons(scene, num_steps, INTERVAL_S) if red_lights is None else red_lights
-    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
-    dac = drivable_area_compliance(fp.areas.non_drivable_area)
     in_intersection = fp.areas.center_in_intersection
     ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S, exclude=in_intersection)
     touching = on_red_light(fp.coords, red_lights)
@@ -199,26 +217,17 @@ def score_states_v2(
     centerline = _centerline(scene)
     progress = progress_along(centerline, fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress_v2(progress, product, ep_reference)
-    ttc, ttc_idx = time_to_collision(
-        states,
-        fp.coords,
-        fp.radius,
-        observation,
-        fp.lanes_or_off_road,
-        fp.areas.rear_axle_in_intersection,
-        INTERVAL_S,
-        num_steps=num_steps - max(TTC_OFFSETS),
-    )
+    ttc, ttc_idx = base.time_to_collision(observation, num_steps - max(TTC_OFFSETS))
     lk, lk_idx = lane_keeping(fp.centers, centerline, in_intersection, INTERVAL_S)
     return {
-        E.NC: nc,
-        E.DAC: dac,
-        E.DDC: ddc,
-        E.TLC: tlc,
-        E.EP: ep,
-        E.TTC: ttc,
-        E.LK: lk,
-        E.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
+        epdms.NC: nc,
+        epdms.DAC: dac,
+        epdms.DDC: ddc,
+        epdms.TLC: tlc,
+        epdms.EP: ep,
+        epdms.TTC: ttc,
+        epdms.LK: lk,
+        epdms.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
         "multiplicative_metrics_prod": product,
         "progress_m": progress,
         "ep_normaliser_m": normaliser,
@@ -241,11 +250,7 @@ def _poses(scene: PDMScene, poses: Any, name: str, dims: str) -> np.ndarray:
     return array
 
 
-def _reference(scene: PDMScene, reference: np.ndarray | None) -> np.ndarray:
-    if reference is None:
-        from lead_s2r.scoring.pdm.pdm_closed import plan_reference
-
-        reference = plan_reference(scene)
+def _reference(scene: PDMScene, reference: np.ndarray) -> np.ndarray:
     reference = _poses(scene, reference, "reference", "M, 3")
     if len(reference) < 2:
         raise ValueError(f"scene {scene.key!r}: reference needs poses after t = 0, got shape {reference.shape}")
@@ -263,7 +268,7 @@ def score_proposals(
     scene: PDMScene,
     proposals: np.ndarray,
     interval: float,
-    reference: np.ndarray | None = None,
+    reference: np.ndarray,
     metric: str = METRIC,
     previous: Sequence[PreviousFrame | None] | None = None,
     *,
@@ -273,7 +278,8 @@ def score_proposals(
 ) -> dict[str, np.ndarray]:
     """``metric`` (PDMS v1.1 or EPDMS v2.2) of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``),
     one row each, with the columns of :data:`COLUMNS` or :data:`EPDMS_COLUMNS`. ``reference (M, 3)``: the EP
-    normaliser's trajectory at 0.1 s steps from t = 0 (row 0 is the initial pose); None plans it with PDM-Closed.
+    normaliser's trajectory at 0.1 s steps from t = 0 (row 0 is the initial pose), e.g. PDM-Closed's
+    (:func:`~lead_s2r.scoring.pdm.pdm_closed.plan_reference`, which scores its own candidates with this module).
     ``previous`` (EPDMS only): per proposal the frame before it for EC, or None (EC NaN). ``with_states`` adds the
     proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``).
     The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
@@ -301,10 +307,12 @@ def score_proposals(
         return {name: scores[name][agents] for name in COLUMNS} | extra
     observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
     scores = score_states_v2(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
-    human_row = None if human is None else {name: scores[name][-1] for name in E.FILTERED} | {E.EP: 1.0, E.HC: 1.0}
-    columns = E.human_penalty_filter({name: scores[name][agents] for name in E.FILTERED}, human_row)
-    columns[E.EC] = extended_comfort(scene, states[agents], previous)
-    columns["score"] = E.epdms(columns)
+    human_row = (
+        None if human is None else {name: scores[name][-1] for name in epdms.FILTERED} | {epdms.EP: 1.0, epdms.HC: 1.0}
+    )
+    columns = epdms.human_penalty_filter({name: scores[name][agents] for name in epdms.FILTERED}, human_row)
+    columns[epdms.EC] = extended_comfort(scene, states[agents], previous)
+    columns["score"] = epdms.epdms(columns)
     return columns | {name: scores[name][agents] for name in COLUMNS[-4:]} | extra
 
 

@@ -19,8 +19,7 @@ from lead_s2r.scoring.pdm.bicycle import BicycleConstants, BicycleState, bicycle
 from lead_s2r.scoring.pdm.elementwise import FLOATS, NUMPY, Elementwise
 from lead_s2r.scoring.pdm.interpolation import PROPOSAL_INTERVAL
 from lead_s2r.scoring.pdm.lqr import StepReference, step_references, stop_where_slow, track, tracking_reference
-from lead_s2r.scoring.pdm.state import STATE_SIZE
-from lead_s2r.scoring.pdm.state import StateIndex as S
+from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
 from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
 
 #: nuPlan steps the bicycle by ``TimeDuration.from_s(0.1).time_s`` = 100000 us * 1e-6 (0.09999999999999999).
@@ -31,15 +30,15 @@ SCALAR_PROPOSALS = 6
 
 #: The state columns the bicycle integrates, in ``BicycleState`` order (vy and ay are 0 after t0).
 _BICYCLE_COLUMNS = [
-    S.X,
-    S.Y,
-    S.HEADING,
-    S.VELOCITY_X,
-    S.ACCELERATION_X,
-    S.STEERING_ANGLE,
-    S.STEERING_RATE,
-    S.ANGULAR_VELOCITY,
-    S.ANGULAR_ACCELERATION,
+    StateIndex.X,
+    StateIndex.Y,
+    StateIndex.HEADING,
+    StateIndex.VELOCITY_X,
+    StateIndex.ACCELERATION_X,
+    StateIndex.STEERING_ANGLE,
+    StateIndex.STEERING_RATE,
+    StateIndex.ANGULAR_VELOCITY,
+    StateIndex.ANGULAR_ACCELERATION,
 ]
 
 
@@ -51,9 +50,9 @@ def initial_state(
         if np.shape(value) != (2,) or not np.isfinite(value).all():
             raise ValueError(f"{name}: expected 2 finite numbers (x, y in the ego body frame), got {value!r}")
     state = np.zeros(STATE_SIZE)
-    state[S.VELOCITY_X : S.VELOCITY_Y + 1] = ego_velocity
-    state[S.ACCELERATION_X : S.ACCELERATION_Y + 1] = ego_acceleration
-    state[S.STEERING_ANGLE] = tire_steering_angle
+    state[StateIndex.VELOCITY_X : StateIndex.VELOCITY_Y + 1] = ego_velocity
+    state[StateIndex.ACCELERATION_X : StateIndex.ACCELERATION_Y + 1] = ego_acceleration
+    state[StateIndex.STEERING_ANGLE] = tire_steering_angle
     return state
 
 

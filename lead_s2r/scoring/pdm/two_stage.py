@@ -27,12 +27,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.extended_comfort import FeatureExtractor, two_frame_extended_comfort
 
 SIGMA_SQUARED = 0.1
 #: Columns aggregated over groups, in NAVSIM's CSV order (``score`` last).
-SCORE_COLUMNS = (*E.FILTERED, E.EC, "score")
+SCORE_COLUMNS = (*epdms.FILTERED, epdms.EC, "score")
 SUMMARY_TOKENS = ("extended_pdm_score_stage_one", "extended_pdm_score_stage_two", "extended_pdm_score_combined")
 
 
@@ -54,18 +55,6 @@ class TokenRow:
     simulated_states: np.ndarray
 
 
-@dataclass(frozen=True)
-class TwoStageGroup:
-    """One entry of ``reactive_all_mapping``: the stage-1 frames at t = 0 and -0.5 s and their synthetic pairs."""
-
-    original: str
-    previous: str
-    pairs: tuple[tuple[str, str], ...]
-
-    def tokens(self) -> list[str]:
-        return [self.original, self.previous, *(token for pair in self.pairs for token in pair)]
-
-
 @dataclass
 class TwoStageResult:
     """Per-token columns (sub-scores, EC, ``score``, ``weight``, ``stage`` 1 or 2) and NAVSIM's three summaries."""
@@ -74,21 +63,6 @@ class TwoStageResult:
     stage_one: dict[str, float] = field(default_factory=dict)
     stage_two: dict[str, float] = field(default_factory=dict)
     combined: dict[str, float] = field(default_factory=dict)
-
-
-def parse_mapping(raw: Sequence) -> list[TwoStageGroup]:
-    """NAVSIM's ``reactive_all_mapping`` (``[[orig, prev, [[now, prev], ...]], ...]``) as groups."""
-    groups = []
-    for i, entry in enumerate(raw):
-        try:
-            original, previous, pairs = entry
-            parsed = tuple((str(now), str(before)) for now, before in pairs)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"reactive_all_mapping entry {i}: expected [orig_token, prev_token, [[now, prev], ...]], got {entry!r}"
-            ) from None
-        groups.append(TwoStageGroup(str(original), str(previous), parsed))
-    return groups
 
 
 def pseudo_closed_loop_weights(endpoint: np.ndarray, start_points: np.ndarray) -> np.ndarray:
@@ -134,12 +108,12 @@ def _pair_ec(rows: Mapping[str, TokenRow], now: str, before: str, features: Feat
 
 
 def _token_columns(row: TokenRow, ec: float, weight: float, stage: int) -> dict[str, float]:
-    missing = [name for name in E.FILTERED if name not in row.columns]
+    missing = [name for name in epdms.FILTERED if name not in row.columns]
     if missing:
         raise KeyError(f"two-stage aggregation: token {row.token} has no column {', '.join(missing)}")
-    columns = {name: float(row.columns[name]) for name in E.FILTERED}
-    columns[E.EC] = ec
-    columns["score"] = float(E.epdms(columns))
+    columns = {name: float(row.columns[name]) for name in epdms.FILTERED}
+    columns[epdms.EC] = ec
+    columns["score"] = float(epdms.epdms(columns))
     return columns | {"weight": weight, "stage": stage}
 
 

@@ -3,9 +3,9 @@
 Per sample: the most probable inference is put on NAVSIM's input grid (a prediction on a regular grid
 ``dt, 2dt, ...`` is passed as it is, as NAVSIM passes an agent's own ``TrajectorySampling``; any other grid is
 resampled to 8 poses at 0.5 s with :func:`lead_s2r.geometry.resample`, never extrapolated), the scene is built
-from the sample (:meth:`PDMScene.from_sample`), PDM-Closed plans the EP reference (or it is read from
-``reference_cache``), and :func:`score_proposals` scores the prediction beside it. A sample whose scene cannot be
-built (no route PDM-Closed can follow) is an invalid row with NaN scores and the error, as NAVSIM's evaluation
+from the sample (:func:`~lead_s2r.scoring.pdm.sample.scene_from_sample`), PDM-Closed plans the EP reference (or it
+is read from ``reference_cache``), and :func:`score_proposals` scores the prediction beside it. A sample whose scene
+cannot be built (no route PDM-Closed can follow) is an invalid row with NaN scores and the error, as NAVSIM's evaluation
 isolates a failing token; the split score is the mean over valid rows (NAVSIM's ``average`` row).
 
 Besides scores.parquet / scores.json, :meth:`PDMSScorer.write_files` writes ``navsim_pdms.csv`` in the layout of
@@ -21,12 +21,11 @@ from typing import Any, ClassVar
 import numpy as np
 import pyarrow as pa
 
-from lead_s2r.geometry import resample
-from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError
+from lead_s2r.predictions import Prediction
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.pdm.pdm_closed import plan_reference
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, navsim_token, proposal_of, top_inference
 from lead_s2r.scoring.pdm.route import RouteError
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.score import score_proposals
 
 METRIC = "pdms@navsim-1.1"
@@ -41,73 +40,12 @@ NAVSIM_COLUMNS = (
     "score",
 )
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
-#: NAVSIM's agent output: 8 poses at 0.5 s (``TrajectorySampling(time_horizon=4, interval_length=0.5)``).
-NAVSIM_INTERVAL = 0.5
-NAVSIM_POSES = 8
-#: PDM-Closed's output: 51 poses at 0.1 s from t = 0.
-REFERENCE_SHAPE = (51, 3)
 CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
     + [("error", pa.string())]
 )
-
-
-def proposal_of(prediction: Prediction) -> tuple[np.ndarray, float]:
-    """A prediction as score_proposals' input: poses (K, 3) at ``interval * (k + 1)`` and the interval."""
-    if np.isnan(prediction.yaw).any():
-        raise PredictionError(f"prediction {prediction.key!r}: yaw is NaN; the PDM score tracks headings, predict them")
-    t = np.asarray(prediction.t, np.float64)
-    poses = np.column_stack([prediction.xy, prediction.yaw]).astype(np.float64)
-    interval = float(t[0])
-    if np.abs(t - interval * np.arange(1, len(t) + 1)).max() <= TIME_TOLERANCE:
-        return poses, interval
-    grid = NAVSIM_INTERVAL * np.arange(1, NAVSIM_POSES + 1)
-    values, inside = resample(np.r_[0.0, t], np.vstack([np.zeros(3), poses]), grid, angle_columns=(2,))
-    if not inside.all():
-        raise PredictionError(
-            f"prediction {prediction.key!r}: horizon {t[-1]:g} s ends before NAVSIM's {grid[-1]:g} s "
-            "(predictions are never extrapolated)"
-        )
-    return values, NAVSIM_INTERVAL
-
-
-def top_inference(frame: list[Prediction]) -> Prediction:
-    return max(frame, key=lambda p: p.probability)
-
-
-def navsim_token(sample: dict[str, Any]) -> str:
-    """NAVSIM's scene token (the key of its CSV rows); our sample key where the converter kept none."""
-    return sample["meta"].get("extras", {}).get("navsim", {}).get("scene_token", sample["__key__"])
-
-
-class ReferenceCache:
-    """PDM-Closed references per sample key: in memory, and in ``folder`` (``<key>.npy``) when given.
-
-    A reference depends on the scene only, so one cache serves every model scored on the same data."""
-
-    def __init__(self, folder: str | Path | None = None) -> None:
-        self.folder = Path(folder) if folder else None
-        self.memory: dict[str, np.ndarray] = {}
-
-    def get(self, scene: PDMScene) -> np.ndarray:
-        """The scene's reference: cached, else planned (and stored)."""
-        key = scene.key
-        if key in self.memory:
-            return self.memory[key]
-        path = self.folder / f"{key}.npy" if self.folder else None
-        if path is not None and path.is_file():
-            reference = np.load(path)
-            if reference.shape != REFERENCE_SHAPE or not np.isfinite(reference).all():
-                raise ValueError(f"{path}: a reference must be {REFERENCE_SHAPE} finite poses; delete the file")
-        else:
-            reference = plan_reference(scene)
-            if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                np.save(path, reference)
-        self.memory[key] = reference
-        return reference
 
 
 class PDMSScorer(Scorer):
@@ -118,7 +56,7 @@ class PDMSScorer(Scorer):
     fields: ClassVar[tuple[str, ...]] = ("scoring", "boxes", "agents_future", "future")
     datasets: ClassVar[tuple[str, ...] | None] = ("navsim",)
     #: the CSV's score columns (after ``token``, ``valid``), the aggregate naming the split score, the CSV file
-    #: and its average row's token: what ``epdms@navsim-2.2`` (``lead_s2r.scoring.epdms``) changes
+    #: and its average row's token: what ``epdms@navsim-2.2`` (:mod:`lead_s2r.scoring.navsim.epdms_scorer`) changes
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
     headline: ClassVar[str] = "pdms"
     csv_name: ClassVar[str] = CSV_NAME
@@ -155,7 +93,7 @@ class PDMSScorer(Scorer):
             "error": None,
         }
         try:
-            scene = PDMScene.from_sample(sample)
+            scene = scene_from_sample(sample)
         except RouteError as err:
             return {**row, **dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan")), "valid": False,
                     "error": str(err)}  # fmt: skip

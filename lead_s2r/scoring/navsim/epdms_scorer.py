@@ -1,13 +1,13 @@
 """``epdms@navsim-2.2``: NAVSIM v2.2's extended PDM score of predictions on converted NAVSIM samples, one stage.
 
-Everything per sample is :mod:`lead_s2r.scoring.pdms`'s (input grid, scene from the sample, PDM-Closed reference
-and its cache, invalid rows for scenes without a followable route); the sub-scores, the human penalty filter and
-the final score are ``score_proposals(..., metric="epdms@navsim-2.2")``'s. What one stage adds is EC: as
-``run_pdm_score_one_stage.infer_start_adjacent_mapping`` does, the valid original (non-synthetic) frames of a log
-are sorted by time and each frame is paired with the one before it when they are at most 0.55 s apart; the later
-frame's EC compares its simulation with that of the earlier frame's plan (ego state there: the earlier sample's
-velocity and acceleration, its pose read from the later sample's ``past``). A frame without such a predecessor has
-EC NaN and its score drops EC's weight (denominator 14).
+Everything per sample is as ``pdms@navsim-1.1`` does it (:mod:`lead_s2r.scoring.navsim.proposals`: input grid,
+PDM-Closed reference and its cache; the scene from the sample, invalid rows for scenes without a followable route); the
+sub-scores, the human penalty filter and the final score are ``score_proposals(..., metric="epdms@navsim-2.2")``'s.
+What one stage adds is EC: as ``run_pdm_score_one_stage.infer_start_adjacent_mapping`` does, the valid original
+(non-synthetic) frames of a log are sorted by time and each frame is paired with the one before it when they are at
+most 0.55 s apart; the later frame's EC compares its simulation with that of the earlier frame's plan (ego state
+there: the earlier sample's velocity and acceleration, its pose read from the later sample's ``past``). A frame
+without such a predecessor has EC NaN and its score drops EC's weight (denominator 14).
 
 Besides scores.parquet / scores.json, :meth:`EPDMSScorer.write_files` writes ``navsim_epdms.csv`` in the layout of
 ``run_pdm_score_one_stage.py``'s output (index column, ``token``, ``valid``, the v2 sub-scores in ``PDMResults``
@@ -16,7 +16,7 @@ order, ``two_frame_extended_comfort``, ``score``, then the ``average_all_frames`
 A navhard two-stage split (samples carrying the adapter's ``two_stage_group``) is scored as NAVSIM's
 ``run_pdm_score.py`` scores it: every stage-1 and stage-2 frame alone, then EC per mapped pair, the pseudo
 closed-loop weights and the ``extended_pdm_score_stage_one`` / ``_stage_two`` / ``_combined`` summaries
-(:mod:`lead_s2r.scoring.epdms_two_stage`), written to ``navsim_epdms_two_stage.csv``. One known difference:
+(:mod:`lead_s2r.scoring.navsim.two_stage_samples`), written to ``navsim_epdms_two_stage.csv``. One known difference:
 NAVSIM's two-stage run simulates reactive IDM traffic, this scorer replays the log (``config.known_difference``).
 """
 
@@ -32,21 +32,24 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.errors import UserError
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
-from lead_s2r.scoring import epdms_two_stage as TS
 from lead_s2r.scoring.base import ScoreResult, join
-from lead_s2r.scoring.pdm import epdms as E
+from lead_s2r.scoring.navsim import two_stage_samples as navhard
+from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
 from lead_s2r.scoring.pdm.route import RouteError
+from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
-from lead_s2r.scoring.pdm.two_stage import TwoStageGroup, TwoStageResult
-from lead_s2r.scoring.pdms import PDMSScorer, ReferenceCache, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
-NAVSIM_COLUMNS = (*E.SUB_SCORES, "score")
+NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
 CSV_NAME = "navsim_epdms.csv"
 AVERAGE_TOKEN = "average_all_frames"
@@ -125,7 +128,7 @@ def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:
 
 class EPDMSScorer(PDMSScorer):
     """``epdms@navsim-2.2``: per-sample NAVSIM v2.2 sub-scores, EC from adjacent frames and the final EPDMS; on a
-    navhard two-stage split, NAVSIM's two-stage aggregation (:mod:`lead_s2r.scoring.epdms_two_stage`)."""
+    navhard two-stage split, NAVSIM's two-stage aggregation (:mod:`lead_s2r.scoring.navsim.two_stage_samples`)."""
 
     name: ClassVar[str] = EPDMS_METRIC
     version: ClassVar[str] = "1"
@@ -159,7 +162,7 @@ class EPDMSScorer(PDMSScorer):
         """Samples of other datasets are skipped and counted, as :class:`PDMSScorer` does."""
         data = list(data)
         ours = [sample for sample in data if sample["meta"]["dataset"] in self.datasets]
-        mapping = [] if self.two_stage is False else TS.mapping_of(ours)
+        mapping = [] if self.two_stage is False else navhard.mapping_of(ours)
         if self.two_stage and not mapping:
             raise UserError(
                 "--option two_stage=true: no sample carries meta.extras.navsim.two_stage_group; convert the split "
@@ -181,33 +184,33 @@ class EPDMSScorer(PDMSScorer):
         self, frames: list[Frame], mapping: list[TwoStageGroup], samples: list[dict[str, Any]]
     ) -> tuple[pa.Table, dict[str, Any]]:
         """Every frame of the mapping scored alone, then NAVSIM's two-stage weights, EC and summaries."""
-        TS.check_complete(mapping, samples, {navsim_token(frame.sample): frame.error for frame in frames})
+        navhard.check_complete(mapping, samples, {navsim_token(frame.sample): frame.error for frame in frames})
         results = [self.proposal_scores(frame, None, with_states=True) for frame in frames]
         tokens = [navsim_token(frame.sample) for frame in frames]
         rows = [
-            TS.token_row(token, frame.sample, frame.poses, result)
+            navhard.token_row(token, frame.sample, frame.poses, result)
             for token, frame, result in zip(tokens, frames, results, strict=True)
         ]
-        self.two_stage_result = TS.aggregate(rows, mapping, extended_comfort_features)
+        self.two_stage_result = navhard.aggregate(rows, mapping, extended_comfort_features)
         table = []
         for token, frame, result in zip(tokens, frames, results, strict=True):
             per = self.two_stage_result.per_token[token]
             table.append(
                 {"key": frame.sample["__key__"], "dataset": frame.sample["meta"]["dataset"], "token": token}
                 | {"valid": True, "stage": int(per["stage"]), "weight": per["weight"], "error": None}
-                | {"two_stage_role": TS.navsim_extras(frame.sample).get("two_stage_role")}
-                | {name: per[name] for name in TS.TABLE_COLUMNS}
+                | {"two_stage_role": navhard.navsim_extras(frame.sample).get("two_stage_role")}
+                | {name: per[name] for name in navhard.TABLE_COLUMNS}
                 | {name: float(np.asarray(result[name])[0]) for name in EXTRA_COLUMNS}
             )
         stage_one = sum(1 for row in table if row["stage"] == 1)
         counts = {"frames": len(table), "frames_valid": len(table), "frames_failed": 0, "groups": len(mapping)}
         counts |= {"frames_stage_one": stage_one, "frames_stage_two": len(table) - stage_one}
-        return pa.Table.from_pylist(table, schema=TS.SCHEMA), TS.summaries(self.two_stage_result) | counts
+        return pa.Table.from_pylist(table, schema=navhard.SCHEMA), navhard.summaries(self.two_stage_result) | counts
 
     def frame(self, sample: dict[str, Any], predictions: list[Prediction]) -> Frame:
         poses, interval = proposal_of(top_inference(predictions))
         try:
-            return Frame(sample, PDMScene.from_sample(sample), poses, interval, None)
+            return Frame(sample, scene_from_sample(sample), poses, interval, None)
         except RouteError as err:
             return Frame(sample, None, poses, interval, str(err))
 
@@ -241,14 +244,14 @@ class EPDMSScorer(PDMSScorer):
         )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
-        with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[E.EC]))
+        with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[epdms.EC]))
         return {**super()._aggregate(rows), "frames_with_ec": with_ec}
 
     def write_files(self, result: ScoreResult, out: Path) -> None:
         """``navsim_epdms.csv`` (one stage) or ``navsim_epdms_two_stage.csv`` (NAVSIM's two-stage layout)."""
         if self.two_stage_result is None:
             return super().write_files(result, out)
-        header, rows = TS.csv_table(self.two_stage_result)
-        with open(Path(out) / TS.CSV_NAME, "w", newline="") as file:
+        header, rows = navhard.csv_table(self.two_stage_result)
+        with open(Path(out) / navhard.CSV_NAME, "w", newline="") as file:
             csv.writer(file).writerows([header, *rows])
         return None

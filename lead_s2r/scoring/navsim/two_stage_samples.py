@@ -27,13 +27,13 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.errors import UserError
+from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
-from lead_s2r.scoring.pdm import epdms as E
-from lead_s2r.scoring.pdm import two_stage as T
-from lead_s2r.scoring.pdms import navsim_token
+from lead_s2r.scoring.navsim.proposals import navsim_token
+from lead_s2r.scoring.pdm import epdms, two_stage
 
 #: per-token table of a two-stage run: the one-stage columns, the token's stage, role and pseudo closed-loop weight.
-TABLE_COLUMNS = (*E.SUB_SCORES, "score")
+TABLE_COLUMNS = (*epdms.SUB_SCORES, "score")
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [("stage", pa.int8()), ("two_stage_role", pa.string()), ("weight", pa.float64())]
@@ -47,18 +47,18 @@ def navsim_extras(sample: dict[str, Any]) -> dict[str, Any]:
     return sample["meta"].get("extras", {}).get("navsim", {})
 
 
-def mapping_of(samples: Sequence[dict[str, Any]]) -> list[T.TwoStageGroup]:
+def mapping_of(samples: Sequence[dict[str, Any]]) -> list[TwoStageGroup]:
     """The two-stage groups recorded in ``samples`` (each once, in data order); empty for a one-stage split."""
     raw: dict[str, Any] = {}
     for sample in samples:
         group = navsim_extras(sample).get("two_stage_group")
         if group is not None:
             raw.setdefault(str(group[0]), group)
-    return T.parse_mapping(list(raw.values()))
+    return parse_mapping(list(raw.values()))
 
 
 def check_complete(
-    mapping: Sequence[T.TwoStageGroup], samples: Sequence[dict[str, Any]], scored: dict[str, str | None]
+    mapping: Sequence[TwoStageGroup], samples: Sequence[dict[str, Any]], scored: dict[str, str | None]
 ) -> None:
     """Every token of ``mapping`` has a sample, a prediction and a scene; else a one-line error naming the token.
 
@@ -86,12 +86,14 @@ def check_complete(
                     raise UserError(f"{where} cannot be scored: {scored[token]}")
 
 
-def token_row(token: str, sample: dict[str, Any], poses: np.ndarray, result: dict[str, np.ndarray]) -> T.TokenRow:
+def token_row(
+    token: str, sample: dict[str, Any], poses: np.ndarray, result: dict[str, np.ndarray]
+) -> two_stage.TokenRow:
     """A frame scored by ``score_proposals(..., with_states=True)`` (one proposal, ``poses``) as a two-stage row."""
     origin = np.asarray(sample["scoring"]["origin"], np.float64)
-    return T.TokenRow(
+    return two_stage.TokenRow(
         token=token,
-        columns={name: float(np.asarray(result[name])[0]) for name in E.FILTERED},
+        columns={name: float(np.asarray(result[name])[0]) for name in epdms.FILTERED},
         start_time=int(sample["meta"]["timestamp_us"]) * 1e-6,
         start_point=origin[:2],
         endpoint=to_global(np.asarray(poses, np.float64)[-1], origin)[:2],
@@ -100,11 +102,11 @@ def token_row(token: str, sample: dict[str, Any], poses: np.ndarray, result: dic
 
 
 def aggregate(
-    rows: Sequence[T.TokenRow], mapping: Sequence[T.TwoStageGroup], features: T.FeatureExtractor
-) -> T.TwoStageResult:
+    rows: Sequence[two_stage.TokenRow], mapping: Sequence[TwoStageGroup], features: two_stage.FeatureExtractor
+) -> two_stage.TwoStageResult:
     """:func:`two_stage_aggregate`, with its input errors (a stray token, frames not 0.5 s apart) as one line."""
     try:
-        return T.two_stage_aggregate(rows, mapping, features)
+        return two_stage.two_stage_aggregate(rows, mapping, features)
     except (KeyError, ValueError) as err:
         raise UserError(str(err.args[0] if isinstance(err, KeyError) else err)) from None
 
@@ -113,9 +115,9 @@ def _json(value: float) -> float | None:
     return None if not math.isfinite(value) else float(value)
 
 
-def summaries(result: T.TwoStageResult) -> dict[str, Any]:
+def summaries(result: two_stage.TwoStageResult) -> dict[str, Any]:
     """scores.json aggregates: ``epdms`` (= combined), NAVSIM's three summary scores and their sub-score means."""
-    stages = dict(zip(T.SUMMARY_TOKENS, (result.stage_one, result.stage_two, result.combined), strict=True))
+    stages = dict(zip(two_stage.SUMMARY_TOKENS, (result.stage_one, result.stage_two, result.combined), strict=True))
     return {
         "epdms": _json(result.combined["score"]),
         **{token: _json(values["score"]) for token, values in stages.items()},
@@ -123,10 +125,10 @@ def summaries(result: T.TwoStageResult) -> dict[str, Any]:
     }
 
 
-def csv_table(result: T.TwoStageResult) -> tuple[list[str], list[list[str]]]:
+def csv_table(result: two_stage.TwoStageResult) -> tuple[list[str], list[list[str]]]:
     """NAVSIM's two-stage CSV (``navsim_csv_rows``) as a header and rows of strings: pandas' index column first,
     NaN written empty."""
-    rows = T.navsim_csv_rows(result)
+    rows = two_stage.navsim_csv_rows(result)
     header = list(rows[0])
     body = [[str(index), *(_cell(row[name]) for name in header)] for index, row in enumerate(rows)]
     return ["", *header], body

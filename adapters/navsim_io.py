@@ -1,0 +1,199 @@
+"""Readers of NAVSIM / OpenScene files apart from the scene logic: log pickles, nuPlan PCDs, JPEG frame headers,
+quaternions and the camera calibration entries, each failing with the file and field it cannot read.
+"""
+
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lead_s2r.errors import UserError
+from lead_s2r.formats import restricted_pickle
+from lead_s2r.schema import BoxClass
+
+#: NAVSIM camera -> our camera id.
+CAMERAS = {
+    "CAM_F0": "front",
+    "CAM_L0": "front_left",
+    "CAM_L1": "left",
+    "CAM_L2": "back_left",
+    "CAM_R0": "front_right",
+    "CAM_R1": "right",
+    "CAM_R2": "back_right",
+    "CAM_B0": "back",
+}
+BOX_CLASSES = {
+    "vehicle": BoxClass.VEHICLE,
+    "pedestrian": BoxClass.PEDESTRIAN,
+    "bicycle": BoxClass.BICYCLE,
+    "traffic_cone": BoxClass.TRAFFIC_CONE,
+    "barrier": BoxClass.BARRIER,
+    "czone_sign": BoxClass.CZONE_SIGN,
+    "generic_object": BoxClass.GENERIC_OBJECT,
+}
+
+
+class NavsimFormatError(UserError, ValueError):
+    """A source file breaks the OpenScene format; the message names the file and the field."""
+
+
+def load_log(path: Path) -> list[dict[str, Any]]:
+    """The frames of an OpenScene log pickle, checked to be a non-empty list of dicts."""
+    try:
+        with open(path, "rb") as file:
+            frames = restricted_pickle.load(file)
+    except FileNotFoundError:
+        raise
+    except Exception as err:
+        raise NavsimFormatError(f"{path}: not a readable OpenScene log pickle ({type(err).__name__}: {err})") from None
+    if not isinstance(frames, list) or not frames or not all(isinstance(f, dict) for f in frames):
+        raise NavsimFormatError(f"{path}: expected a non-empty list of frame dicts, got {type(frames).__name__}")
+    return frames
+
+
+_PCD_TYPES = {"F": "f", "U": "u", "I": "i"}
+
+
+def read_pcd(path: Path) -> tuple[np.ndarray, list[str]]:
+    """Points (N, C) float32 and field names of an ASCII or binary PCD (nuPlan's MergedPointCloud)."""
+    data = path.read_bytes()
+    header: dict[str, list[str]] = {}
+    pos = 0
+    while "DATA" not in header:
+        end = data.find(b"\n", pos)
+        if end < 0:
+            raise NavsimFormatError(f"{path}: PCD header has no DATA line")
+        line = data[pos:end].decode("ascii", "replace").strip()
+        pos = end + 1
+        if line and not line.startswith("#"):
+            key, *values = line.split()
+            header[key.upper()] = values
+    try:
+        names = header["FIELDS"]
+        counts = [int(c) for c in header.get("COUNT", ["1"] * len(names))]
+        kinds = [f"<{_PCD_TYPES[t]}{s}" for t, s in zip(header["TYPE"], header["SIZE"], strict=True)]
+        n = int(header["POINTS"][0])
+    except (KeyError, ValueError) as err:
+        raise NavsimFormatError(f"{path}: bad PCD header field {err}") from None
+    dtype = np.dtype([(name, kind, (count,)) for name, kind, count in zip(names, kinds, counts, strict=True)])
+    mode = header["DATA"][0].lower()
+    if mode == "binary":
+        if len(data) - pos < n * dtype.itemsize:
+            raise NavsimFormatError(f"{path}: PCD holds fewer bytes than its {n} points need")
+        records = np.frombuffer(data, dtype, count=n, offset=pos)
+        points = np.concatenate([records[name].reshape(n, -1) for name in names], axis=1)
+    elif mode == "ascii":
+        points = np.loadtxt(io.BytesIO(data[pos:]), dtype=np.float64, ndmin=2)[:n]
+    else:
+        raise NavsimFormatError(f"{path}: PCD DATA {mode!r} is not supported (binary or ascii)")
+    columns = [name if c == 1 else f"{name}_{j}" for name, c in zip(names, counts, strict=True) for j in range(c)]
+    return points.astype(np.float32).reshape(n, len(columns)), columns
+
+
+_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def jpeg_size(data: bytes, where: str) -> tuple[int, int]:
+    """(width, height) from a JPEG's frame header, without decoding the image."""
+    i = 2
+    while data[:2] == b"\xff\xd8" and i + 9 <= len(data):
+        if data[i] != 0xFF:
+            break
+        marker = data[i + 1]
+        if marker == 0xFF or 0xD0 <= marker <= 0xD7 or marker == 0x01:
+            i += 1 if marker == 0xFF else 2
+            continue
+        if marker in _SOF:
+            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
+        i += 2 + int.from_bytes(data[i + 2 : i + 4], "big")
+    raise NavsimFormatError(f"{where}: not a JPEG with a frame header")
+
+
+def quaternion_matrix(q: Any) -> np.ndarray:
+    """3x3 rotation of a [w, x, y, z] quaternion (normalised first)."""
+    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def quaternion_yaw(q: Any) -> float:
+    """Heading (rotation about z) of a [w, x, y, z] quaternion."""
+    w, x, y, z = np.asarray(q, np.float64)
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def homogeneous(rotation: Any, translation: Any) -> np.ndarray:
+    """4x4 rigid transform of a 3x3 rotation and a translation."""
+    matrix = np.eye(4)
+    matrix[:3, :3], matrix[:3, 3] = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
+    return matrix
+
+
+def required(frame: dict[str, Any], name: str, where: str) -> Any:
+    """``frame[name]``, or an error naming ``where`` and the missing field."""
+    if name not in frame:
+        raise NavsimFormatError(f"{where}: field {name!r} is missing")
+    return frame[name]
+
+
+def read_camera(
+    cam: dict, native: str, cam_id: str, sensors: Path, lidar2ego: np.ndarray, where: str
+) -> tuple[bytes, dict[str, Any]]:
+    """One camera's JPEG bytes as stored and its ``meta.cameras`` entry (OpenScene calibrates cameras to the LiDAR,
+    so ``cam_to_ego`` goes through ``lidar2ego``)."""
+    path = sensors / str(required(cam, "data_path", where))
+    if not path.is_file():
+        raise FileNotFoundError(f"{where}: sensor blob {path} is missing")
+    data = path.read_bytes()
+    width, height = jpeg_size(data, str(path))
+    sensor2lidar = homogeneous(
+        required(cam, "sensor2lidar_rotation", where), required(cam, "sensor2lidar_translation", where)
+    )
+    entry = {
+        "id": cam_id,
+        "native_name": native,
+        "width": width,
+        "height": height,
+        "K": np.asarray(required(cam, "cam_intrinsic", where), np.float64).tolist(),
+        "distortion": np.asarray(required(cam, "distortion", where), np.float64).tolist(),
+        "cam_to_ego": (lidar2ego @ sensor2lidar).tolist(),
+    }
+    return data, entry
+
+
+def log_lidar2ego(log_path: Path) -> np.ndarray:
+    """The lidar2ego of a log's first frame (constant over a log: one vehicle, one rig)."""
+    frame = load_log(log_path)[0]
+    where = f"{log_path} frame 0"
+    rotation = quaternion_matrix(required(frame, "lidar2ego_rotation", where))
+    return homogeneous(rotation, required(frame, "lidar2ego_translation", where))
+
+
+#: Annotation field names: (boxes, class names, 3-D velocities, track tokens) in a log frame's ``anns`` and in a
+#: synthetic scene frame's ``annotations``.
+LOG_ANNOTATIONS = ("gt_boxes", "gt_names", "gt_velocity_3d", "track_tokens")
+SCENE_ANNOTATIONS = ("boxes", "names", "velocity_3d", "track_tokens")
+
+
+def read_annotations(anns: dict[str, Any], fields: tuple[str, str, str, str], where: str) -> dict[str, Any]:
+    """Boxes (N, 7), class ``names``, velocities (N, 3) in the lidar frame (NaN as 0), track tokens and
+    :class:`~lead_s2r.schema.BoxClass` ids (N,) of one frame's annotations, checked to agree in length and class."""
+    boxes_field, names_field, velocity_field, tracks_field = fields
+    boxes = np.asarray(required(anns, boxes_field, where), np.float64).reshape(-1, 7)
+    names = [str(n) for n in required(anns, names_field, where)]
+    velocity = np.asarray(required(anns, velocity_field, where), np.float64).reshape(-1, 3)
+    tracks = [str(t) for t in required(anns, tracks_field, where)]
+    if not len(boxes) == len(names) == len(velocity) == len(tracks):
+        raise NavsimFormatError(f"{where}: {', '.join(fields[:3])} and {tracks_field} differ in length")
+    unknown = sorted(set(names) - set(BOX_CLASSES))
+    if unknown:
+        raise NavsimFormatError(f"{where}: field {names_field!r} has unknown classes {unknown}")
+    classes = np.array([BOX_CLASSES[n] for n in names], np.float64)
+    return {"boxes": boxes, "names": names, "velocity": np.nan_to_num(velocity), "tracks": tracks, "classes": classes}

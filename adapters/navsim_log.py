@@ -1,0 +1,179 @@
+"""OpenScene log pickle -> schema v1 samples: one per NAVSIM scene (``num_history_frames`` frames whose last is the
+current frame, plus ``num_future_frames``). nuPlan data is already ISO 8855 with the origin at the rear axle, so
+nothing is flipped. Layout of every field: ``docs/datasets/navsim.md``.
+"""
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lead_s2r.geometry import to_global, to_local, wrap_angle
+from lead_s2r.registry import LogRef
+from lead_s2r.schema import make_key
+from lead_s2r_adapters import navsim_map
+from lead_s2r_adapters.navsim_io import (
+    CAMERAS,
+    LOG_ANNOTATIONS,
+    NavsimFormatError,
+    homogeneous,
+    quaternion_matrix,
+    quaternion_yaw,
+    read_annotations,
+    read_camera,
+    read_pcd,
+    required,
+)
+from lead_s2r_adapters.navsim_scene import (
+    SceneFrame,
+    SceneSource,
+    TrackStep,
+    add_map_fields,
+    agents_future,
+    ego_meta,
+    ego_past,
+    scene_meta,
+)
+
+
+class LogScenes:
+    """One loaded log: global ego poses once, then a sample per scene."""
+
+    def __init__(self, source: SceneSource, log: LogRef, frames: list[dict[str, Any]]) -> None:
+        self.source, self.log, self.frames = source, log, frames
+        self.path = Path(log.path)
+        self.sensors = Path(log.extra["sensors"])
+        poses, stamps = [], []
+        for i, frame in enumerate(frames):
+            where = self.where(i)
+            translation = np.asarray(required(frame, "ego2global_translation", where), np.float64)
+            yaw = quaternion_yaw(required(frame, "ego2global_rotation", where))
+            poses.append([translation[0], translation[1], yaw])
+            stamps.append(int(required(frame, "timestamp", where)))
+        self.poses = np.array(poses)
+        self._annotations: dict[int, dict[str, Any]] = {}
+        self.stamps = np.array(stamps, np.int64)
+        if (np.diff(self.stamps) <= 0).any():
+            raise NavsimFormatError(f"{self.path}: field 'timestamp' is not strictly increasing")
+
+    def where(self, index: int) -> str:
+        return f"{self.path} frame {index}"
+
+    def sample(self, start: int, current: int) -> dict[str, Any]:
+        """The sample of the scene whose first frame is ``start`` and current frame ``current``."""
+        source, frame, where = self.source, self.frames[current], self.where(current)
+        origin = self.poses[current]
+        index = np.arange(start, current + source.future + 1)
+        t = ((self.stamps[index] - self.stamps[current]) / 1e6).astype(np.float32)
+        trajectory = np.column_stack([t, to_local(self.poses[index], origin)]).astype(np.float32)
+        lidar2ego = homogeneous(
+            quaternion_matrix(required(frame, "lidar2ego_rotation", where)),
+            required(frame, "lidar2ego_translation", where),
+        )
+        token = str(required(frame, "token", where))
+        location = str(required(frame, "map_location", where))
+        sample: dict[str, Any] = {
+            "__key__": make_key(self.log.log_id, token),
+            "past": trajectory[: source.history],
+            "future": trajectory[source.history :],
+        }
+        cameras = self.cameras(frame, where, lidar2ego, sample)
+        points, columns = read_pcd(self.sensors / str(required(frame, "lidar_path", where)))
+        points[:, :3] = (points[:, :3].astype(np.float64) @ lidar2ego[:3, :3].T + lidar2ego[:3, 3]).astype(np.float32)
+        sample["lidar"] = points
+        extras: dict[str, Any] = {
+            "scene_token": token,
+            "initial_token": str(self.frames[start].get("token")),
+            "log_name": str(frame.get("log_name", self.log.log_id)),
+            "map_location": location,
+            "map_name": navsim_map.resolve_location(location),
+            "data_split": self.log.split,
+            "roadblock_ids": [str(r) for r in required(frame, "roadblock_ids", where)],
+            "traffic_lights": [[int(lc), bool(red)] for lc, red in required(frame, "traffic_lights", where)],
+        } | source.two_stage_extras(token)
+        if "anns" in frame:
+            now = self.annotations(current)
+            boxes = np.column_stack([now["boxes"], now["velocity"], now["classes"]]).astype(np.float32).reshape(-1, 10)
+            boxes[:, 6] = wrap_angle(boxes[:, 6])
+            sample["boxes"] = boxes
+            sample["agents_future"] = self.agents_future(current, now)
+            extras.update(track_tokens=now["tracks"], box_names=now["names"])
+        if source.maps is not None:
+            future = range(current, current + source.future + 1)
+            red = [[int(lc) for lc, is_red in self.traffic_lights(i) if is_red] for i in future]
+            times = (self.stamps[list(future)] - self.stamps[current]) / 1e6
+            roadblocks, map_name = extras["roadblock_ids"], extras["map_name"]
+            add_map_fields(source, sample, map_name, origin, roadblocks, red, times, self.ego_past(current))
+        ego = self.ego(current, where, trajectory[source.history - 2])
+        scene = SceneFrame(self.log, self.log.log_id, current, int(self.stamps[current]), False)
+        sample["meta"] = scene_meta(source, scene, extras, ego, cameras, sample) | {"lidar_columns": columns}
+        return sample
+
+    def ego(self, current: int, where: str, previous: np.ndarray) -> dict[str, Any]:
+        """``meta.ego`` of frame ``current``; ``previous`` is the pose before it, [t < 0, x, y, yaw] in its frame."""
+        frame = self.frames[current]
+        state = [float(v) for v in required(frame, "ego_dynamic_state", where)]
+        if len(state) != 4 or not all(math.isfinite(v) for v in state):
+            raise NavsimFormatError(f"{where}: field 'ego_dynamic_state' must be 4 finite numbers, got {state!r}")
+        one_hot = np.asarray(required(frame, "driving_command", where)).ravel()
+        if one_hot.shape != (4,):
+            raise NavsimFormatError(f"{where}: field 'driving_command' must be a (4,) one-hot, got {one_hot!r}")
+        return ego_meta(state[:2], state[2:], one_hot, previous)
+
+    def cameras(self, frame: dict, where: str, lidar2ego: np.ndarray, sample: dict) -> list[dict[str, Any]]:
+        cameras = []
+        for native, cam_id in CAMERAS.items():
+            cam = required(required(frame, "cams", where), native, where)
+            sample[f"cam_{cam_id}"], entry = read_camera(
+                cam, native, cam_id, self.sensors, lidar2ego, f"{where} cams.{native}"
+            )
+            cameras.append(entry)
+        return cameras
+
+    def traffic_lights(self, index: int) -> list:
+        return required(self.frames[index], "traffic_lights", self.where(index))
+
+    def annotations(self, index: int) -> dict[str, Any]:
+        """A frame's ``anns`` as arrays, with classes mapped; boxes (N, 7) in that frame's ego frame. Cached:
+        with a stride of 1 every frame is a future frame of up to ``num_future_frames`` scenes."""
+        if index not in self._annotations:
+            self._annotations[index] = self._read_annotations(index)
+        return self._annotations[index]
+
+    def _read_annotations(self, index: int) -> dict[str, Any]:
+        where = f"{self.where(index)} anns"
+        anns = read_annotations(required(self.frames[index], "anns", self.where(index)), LOG_ANNOTATIONS, where)
+        rotation = quaternion_matrix(required(self.frames[index], "lidar2ego_rotation", self.where(index)))
+        velocity = anns["velocity"] @ rotation.T  # OpenScene rotates velocities into the lidar frame
+        global_poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])  # for the scenes it is a future of
+        return anns | {"velocity": velocity[:, :2], "global_poses": global_poses}
+
+    def agents_future(self, current: int, now: dict[str, Any]) -> dict[str, np.ndarray]:
+        """The other agents' tracks over the scene's future frames (:func:`~navsim_scene.agents_future`); each
+        frame's velocities are in that frame's ego frame."""
+        index = np.arange(current + 1, current + 1 + self.source.future)
+        steps = []
+        for i in index:
+            anns = self.annotations(i)
+            size = anns["boxes"][:, 3:6]
+            steps.append(
+                TrackStep(
+                    anns["tracks"], anns["global_poses"], anns["velocity"], self.poses[i, 2], size, anns["classes"]
+                )
+            )
+        t = (self.stamps[index] - self.stamps[current]) / 1e6
+        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["classes"], steps, self.poses[current], t)
+
+    def ego_past(self, current: int) -> np.ndarray:
+        """The history frames up to and including ``current`` (:func:`~navsim_scene.ego_past`), from each frame's
+        ``ego_dynamic_state``."""
+        index = np.arange(current - self.source.history + 1, current + 1)
+        dynamics = []
+        for i in index:
+            state = np.asarray(required(self.frames[i], "ego_dynamic_state", self.where(i)), np.float64).ravel()
+            if state.shape != (4,) or not np.isfinite(state).all():
+                raise NavsimFormatError(f"{self.where(i)}: field 'ego_dynamic_state' must be 4 finite numbers")
+            dynamics.append(state)
+        origin, now_us = self.poses[current], int(self.stamps[current])
+        return ego_past(self.stamps[index], self.poses[index], np.array(dynamics), origin, now_us)

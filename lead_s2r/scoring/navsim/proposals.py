@@ -1,0 +1,74 @@
+"""What every NAVSIM scorer does per sample before scoring: the scene token, the most probable inference put on
+NAVSIM's input grid, and PDM-Closed's reference (planned once per scene and cached)."""
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lead_s2r.geometry import resample
+from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError
+from lead_s2r.scoring.pdm.pdm_closed import plan_reference
+from lead_s2r.scoring.pdm.scene import PDMScene
+
+#: NAVSIM's agent output: 8 poses at 0.5 s (``TrajectorySampling(time_horizon=4, interval_length=0.5)``).
+NAVSIM_INTERVAL = 0.5
+NAVSIM_POSES = 8
+#: PDM-Closed's output: 51 poses at 0.1 s from t = 0.
+REFERENCE_SHAPE = (51, 3)
+
+
+def proposal_of(prediction: Prediction) -> tuple[np.ndarray, float]:
+    """A prediction as score_proposals' input: poses (K, 3) at ``interval * (k + 1)`` and the interval."""
+    if np.isnan(prediction.yaw).any():
+        raise PredictionError(f"prediction {prediction.key!r}: yaw is NaN; the PDM score tracks headings, predict them")
+    t = np.asarray(prediction.t, np.float64)
+    poses = np.column_stack([prediction.xy, prediction.yaw]).astype(np.float64)
+    interval = float(t[0])
+    if np.abs(t - interval * np.arange(1, len(t) + 1)).max() <= TIME_TOLERANCE:
+        return poses, interval
+    grid = NAVSIM_INTERVAL * np.arange(1, NAVSIM_POSES + 1)
+    values, inside = resample(np.r_[0.0, t], np.vstack([np.zeros(3), poses]), grid, angle_columns=(2,))
+    if not inside.all():
+        raise PredictionError(
+            f"prediction {prediction.key!r}: horizon {t[-1]:g} s ends before NAVSIM's {grid[-1]:g} s "
+            "(predictions are never extrapolated)"
+        )
+    return values, NAVSIM_INTERVAL
+
+
+def top_inference(frame: list[Prediction]) -> Prediction:
+    return max(frame, key=lambda p: p.probability)
+
+
+def navsim_token(sample: dict[str, Any]) -> str:
+    """NAVSIM's scene token (the key of its CSV rows); our sample key where the converter kept none."""
+    return sample["meta"].get("extras", {}).get("navsim", {}).get("scene_token", sample["__key__"])
+
+
+class ReferenceCache:
+    """PDM-Closed references per sample key: in memory, and in ``folder`` (``<key>.npy``) when given.
+
+    A reference depends on the scene only, so one cache serves every model scored on the same data."""
+
+    def __init__(self, folder: str | Path | None = None) -> None:
+        self.folder = Path(folder) if folder else None
+        self.memory: dict[str, np.ndarray] = {}
+
+    def get(self, scene: PDMScene) -> np.ndarray:
+        """The scene's reference: cached, else planned (and stored)."""
+        key = scene.key
+        if key in self.memory:
+            return self.memory[key]
+        path = self.folder / f"{key}.npy" if self.folder else None
+        if path is not None and path.is_file():
+            reference = np.load(path)
+            if reference.shape != REFERENCE_SHAPE or not np.isfinite(reference).all():
+                raise ValueError(f"{path}: a reference must be {REFERENCE_SHAPE} finite poses; delete the file")
+        else:
+            reference = plan_reference(scene)
+            if path is not None:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                np.save(path, reference)
+        self.memory[key] = reference
+        return reference
