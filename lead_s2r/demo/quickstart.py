@@ -265,6 +265,7 @@ def smoke_config(training: Training, out: Path, seed: int = 0) -> Path:
     if "predict" in config["data"]:
         config["data"]["val"] = config["data"]["predict"]
         config["trainer"]["limit_val_batches"] = VAL_BATCHES
+        config["model"]["log_val_losses"] = True
     if training.without_lead:
         drop_carla(config)
     path = out / f"{training.name}-seed{seed}.yaml"
