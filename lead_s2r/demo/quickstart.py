@@ -8,7 +8,9 @@ The traps: a model judged on the logs it trained on looks better than it is, so 
 ``trainval`` / WOD-E2E ``train`` and are scored on NAVSIM ``test`` / WOD-E2E ``val`` logs only, which the generators
 draw from the same distribution as the training logs. And a few optimizer steps teach a model nothing, so the
 quickstart trains the smoke twins for :data:`STEPS` steps (they run a handful in the test suite) and reports every
-model before training too: the two rows show what training changed.
+model before training too: the two rows show what training changed. One seed can rank two models either way, so
+every row is the mean and sample std over :data:`SEEDS`, on held-out splits large enough that one log moves a score
+by at most 5 points (20 NAVSIM test logs).
 
 The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken out (no CARLA source, no
 ``init_from`` of a CARLA pre-training), so the two rows differ in nothing else. Lightning talks a lot on the console
