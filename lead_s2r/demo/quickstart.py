@@ -17,7 +17,7 @@ The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken o
 (model summary, tips, deprecation warnings from its dependencies); the quickstart sends all of it to
 ``<out>/lightning.log`` so the console shows the stages and the table. Columns are :data:`METRICS`, one per metric and
 dataset, so a new metric is one line there. The files under ``<out>/table`` hold Table 4's single layout (every
-column, ours and the paper's); the console splits it into one table per dataset with short row names, because nine
+column, ours and the paper's); the console splits it into one table per dataset with short row names, because ten
 columns squeezed into an 80-column terminal cut every header and wrap every model name over four lines.
 """
 
