@@ -14,8 +14,8 @@ import matplotlib
 matplotlib.use("Agg")  # files only: no display on a training node
 import matplotlib.pyplot as plt
 
-#: Logged metrics that are not loss terms (validation displacement errors, batch sizes).
-NOT_LOSSES = ("/ade", "/fde", "batch_size")
+#: Path components of logged metrics that are not loss terms (validation displacement errors, batch sizes).
+NOT_LOSSES = frozenset({"ade", "fde", "batch_size"})
 
 
 def read_curves(metrics_csv: Path) -> dict[str, list[tuple[int, float]]]:
@@ -24,7 +24,7 @@ def read_curves(metrics_csv: Path) -> dict[str, list[tuple[int, float]]]:
     with metrics_csv.open(newline="") as file:
         for row in csv.DictReader(file):
             for name, value in row.items():
-                if not value or not name.startswith(("train/", "val/")) or name.endswith(NOT_LOSSES):
+                if not value or not name.startswith(("train/", "val/")) or NOT_LOSSES & set(name.split("/")):
                     continue
                 curves.setdefault(name.removesuffix("_epoch"), []).append((int(row["step"]), float(value)))
     return {name: points for name, points in curves.items() if not name.endswith("_step")}
