@@ -1,4 +1,4 @@
-"""Loss curves from Lightning's metrics.csv: the loss terms, training per step and validation per epoch, nothing else."""
+"""Loss curves from metrics.csv: the loss terms, training per step and validation per epoch, nothing else."""
 
 import pytest
 
@@ -31,5 +31,5 @@ def test_curves_keep_loss_terms_by_step_and_drop_batch_sizes_and_displacements(t
 def test_a_log_without_loss_terms_is_an_error_naming_the_file(tmp_path):
     path = tmp_path / "metrics.csv"
     path.write_text("epoch,step,val/navsim/ade\n0,0,1.0\n")
-    with pytest.raises(ValueError, match="metrics.csv: no train/ or val/ loss terms"):
+    with pytest.raises(ValueError, match=r"metrics\.csv: no train/ or val/ loss terms"):
         plot_loss_curves(path, tmp_path / "out.png")
