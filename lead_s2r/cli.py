@@ -78,7 +78,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
     try:
         module = importlib.import_module(f"lead_s2r.synthetic.{args.name}")
     except ModuleNotFoundError:
-        raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim or wod_e2e") from None
+        raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim, wod_e2e or py123d") from None
     module.generate(Path(args.out), count=args.count, seed=args.seed)
     print(f"wrote synthetic {args.name} data to {args.out}")
     return 0
@@ -250,6 +250,13 @@ def cmd_table(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_lead(args: argparse.Namespace) -> int:
+    from lead_s2r.training.lead_export import export_run
+
+    print(f"wrote {export_run(Path(args.run_dir), Path(args.out))} (config.json + model_0000.pth, LEAD's format)")
+    return 0
+
+
 def cmd_quickstart(args: argparse.Namespace) -> int:
     from lead_s2r.demo.quickstart import quickstart
 
@@ -279,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.set_defaults(run=cmd_adapters)
 
     sub = verbs.add_parser("synth", help="write synthetic raw data in a source's true on-disk format")
-    sub.add_argument("name", help="carla_lead | navsim | navsim_navhard | wod_e2e")
+    sub.add_argument("name", help="carla_lead | navsim | navsim_navhard | wod_e2e | py123d")
     sub.add_argument("--out", required=True)
     sub.add_argument("--count", "--routes", "--logs", "--segments", type=int, default=None, help="number of logs")
     sub.add_argument("--seed", type=int, default=0)
@@ -337,6 +344,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--runs", required=True, nargs="+", help="run directories or glob patterns (runs/*/seed*)")
     sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
     sub.set_defaults(run=cmd_table)
+
+    sub = verbs.add_parser("export-lead", help="a run trained with LEAD's architecture -> a LEAD checkpoint folder")
+    sub.add_argument("run_dir", metavar="RUN", help="run folder (its checkpoints/last.ckpt) or a .ckpt file")
+    sub.add_argument("--out", required=True, help="folder for config.json + model_0000.pth")
+    sub.set_defaults(run=cmd_export_lead)
 
     sub = verbs.add_parser("quickstart", help="synthetic data -> smoke runs -> held-out scores -> Table 4")
     sub.add_argument("--out", default="quickstart")

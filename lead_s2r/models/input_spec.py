@@ -7,7 +7,16 @@ label) says so plainly instead of posing as a TFv6 configuration.
 
 from dataclasses import dataclass, field
 
-from lead_s2r.models.config import CARLA_BEV, BEVGrid, EgoMLPConfig, TFv6Config, TrajectoryGrid
+from lead_s2r.models.config import (
+    CARLA_BEV,
+    NAVSIM_VERTICAL_FOV_DEG,
+    BEVGrid,
+    EgoMLPConfig,
+    TFv6Config,
+    TrajectoryGrid,
+    default_grids,
+)
+from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, NAVSIM_BOX_CLASSES, LeadConfig
 
 
 @dataclass(frozen=True)
@@ -49,11 +58,13 @@ class InputSpec:
         return self.label_space.get(source, source)
 
 
-def input_spec(config: TFv6Config | EgoMLPConfig) -> InputSpec:
+def input_spec(config: TFv6Config | EgoMLPConfig | LeadConfig) -> InputSpec:
     """The inputs a model built from ``config`` reads: every sensor and label of a TFv6-family config; the ego state
-    and its output grids only for the ego-status MLP."""
+    and its output grids only for the ego-status MLP; for LEAD's own network, :func:`lead_input_spec`."""
     if isinstance(config, EgoMLPConfig):
         return InputSpec(trajectory_grids=dict(config.trajectory_grids))
+    if isinstance(config, LeadConfig):
+        return lead_input_spec(config)
     return InputSpec(
         trajectory_grids=dict(config.trajectory_grids),
         image_size=tuple(config.image_size),
@@ -70,4 +81,31 @@ def input_spec(config: TFv6Config | EgoMLPConfig) -> InputSpec:
         depth_sources=tuple(config.depth_sources),
         max_depth=config.max_depth,
         num_route_points=config.num_route_points,
+    )
+
+
+def lead_input_spec(config: LeadConfig) -> InputSpec:
+    """What LEAD's network (``lead_s2r.models.lead_driver.LeadDriver``) reads: LEAD's image size (NAVSIM: at NAVSIM's
+    vertical field of view), its BEV extent for the LiDAR raster, radar and target points when it reads them, and the
+    labels of the heads whose classes are ours too (:meth:`LeadConfig.perception_tasks`)."""
+    grids, navsim, carla = default_grids(), config.perception_tasks("navsim"), config.perception_tasks("carla")
+    return InputSpec(
+        trajectory_grids={source: grids[source] for source in config.sources},
+        image_size=(config.final_image_height, config.final_image_width),
+        vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG if config.use_navsim_data else None,
+        bev=BEVGrid(
+            float(config.min_x_meter),
+            float(config.max_x_meter),
+            float(config.min_y_meter),
+            float(config.max_y_meter),
+            float(config.pixels_per_meter),
+        ),
+        lidar_raster=not config.LTF,
+        radar=config.has_radar_detector,
+        radar_sources=(),  # radar detection is not trained through LeadDriver: no detection targets
+        bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if "bev_semantic" in navsim else {},
+        box_classes={"navsim": NAVSIM_BOX_CLASSES} if "boxes" in navsim else {},
+        semantic_classes={"carla": config.num_semantic_classes} if "semantic" in carla else {},
+        depth_sources=("carla",) if "depth" in carla else (),
+        num_route_points=config.num_route_points_prediction,
     )

@@ -1,10 +1,16 @@
-"""``init_from``: start fine-tuning from pre-trained weights, loading every tensor whose name and shape match."""
+"""``init_from``: start fine-tuning from pre-trained weights, loading every tensor whose name and shape match.
+
+Besides our Lightning checkpoints, a bare LEAD checkpoint file (``model_0030.pth``, LEAD's ``TFv6.state_dict()``)
+initialises a :class:`~lead_s2r.models.lead_driver.LeadDriver`: its keys are LEAD's, under the driver's ``network.``.
+"""
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
 from torch import nn
+
+from lead_s2r.models.lead_driver import LeadDriver
 
 #: Prefixes stripped from checkpoint keys: the LightningModule attribute and torch.compile's wrapper.
 PREFIXES = ("model.", "_orig_mod.")
@@ -61,6 +67,8 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
 def load_matching(model: nn.Module, path: str | Path) -> LoadReport:
     """Copy every checkpoint tensor whose name and shape match ``model``'s; report the rest."""
     source = read_state_dict(path)
+    if isinstance(model, LeadDriver) and not any(k.startswith("network.") for k in source):
+        source = {f"network.{k}": v for k, v in source.items()}  # a bare LEAD state_dict
     target = model.state_dict()
     report = LoadReport()
     matched = {}

@@ -1,0 +1,105 @@
+"""LEAD's checkpoint folders in and out: ``config.json`` + ``model*.pth`` (bare ``TFv6.state_dict()`` files).
+
+- :func:`load_checkpoint` reads a folder as LEAD's ``OpenLoopInference`` does: the config through LEAD's rules
+  (:meth:`LeadConfig.from_json`), one network per matching file, each loaded strictly; several files make an ensemble.
+- :func:`forward` runs LEAD's input contract (x forward, y right) and returns LEAD's ``Prediction`` fields, flat.
+- :func:`model_from_config` builds a randomly initialised network from a config.json dict.
+- :func:`export_checkpoint` writes a folder LEAD's own loader reads with ``strict=True``.
+"""
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from lead_s2r.errors import UserError
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_planner import expected_speed
+from lead_s2r.models.lead_tfv6 import LeadTFv6
+
+#: Fields averaged over ensemble members (LEAD averages waypoints, route, headings and target-speed logits; the
+#: scalar speed is recomputed from the averaged logits). Semantic maps merge as LEAD does: background channel min,
+#: other channels max. Everything else (CenterNet maps, radar) is averaged as maps: LEAD merges decoded boxes by NMS,
+#: which is post-processing outside the network.
+MAX_MERGED = ("pred_bev_semantic", "pred_bev_semantic_navsim", "pred_semantic")
+
+
+class LeadEnsemble(nn.Module):
+    """Several LEAD networks with one config; ``forward`` merges their outputs as LEAD's open-loop inference."""
+
+    def __init__(self, members: list[LeadTFv6]) -> None:
+        super().__init__()
+        self.members = nn.ModuleList(members)
+        self.config = members[0].config
+
+    def forward(self, data: dict[str, Tensor]) -> dict[str, Tensor]:
+        outputs = [member(data) for member in self.members]
+        merged: dict[str, Tensor] = {}
+        for key in outputs[0]:
+            stacked = torch.stack([o[key] for o in outputs])
+            if key in MAX_MERGED:
+                merged[key] = torch.cat([stacked[:, :, :1].min(0).values, stacked[:, :, 1:].max(0).values], dim=1)
+            else:
+                merged[key] = stacked.mean(0)
+        if "pred_target_speed_distribution" in merged:
+            merged["pred_target_speed_scalar"] = expected_speed(merged["pred_target_speed_distribution"])
+        return merged
+
+
+def model_from_config(config: dict[str, Any]) -> LeadTFv6:
+    """A randomly initialised LEAD network for a config.json dict (LEAD's defaults for every key it lacks)."""
+    return LeadTFv6(LeadConfig.from_json(config))
+
+
+def read_config(folder: Path) -> LeadConfig:
+    path = folder / "config.json"
+    if not path.is_file():
+        raise UserError(f"{folder}: no config.json; give a LEAD checkpoint folder (config.json + model*.pth)")
+    try:
+        values = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise UserError(f"{path}: not valid JSON ({err})") from err
+    if not isinstance(values, dict):
+        raise UserError(f"{path}: expected a JSON object of LEAD TrainingConfig fields")
+    return LeadConfig.from_json(values)
+
+
+def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Module:
+    """LEAD's checkpoint folder -> one network in eval mode, or a :class:`LeadEnsemble` when several files match."""
+    folder = Path(folder)
+    config = read_config(folder)
+    files = sorted(folder.glob(pattern))
+    if not files:
+        raise UserError(f"{folder}: no file matches {pattern!r}; LEAD names its weights model_<epoch>.pth")
+    members = []
+    for file in files:
+        model = LeadTFv6(config)
+        state = torch.load(file, map_location="cpu", weights_only=True)
+        try:
+            model.load_state_dict(state, strict=True)
+        except RuntimeError as err:
+            raise UserError(f"{file}: does not match the architecture config.json describes: {err}") from err
+        members.append(model.eval())
+    return members[0] if len(members) == 1 else LeadEnsemble(members).eval()
+
+
+def forward(model: nn.Module, inputs: dict[str, Tensor]) -> dict[str, Tensor]:
+    """LEAD's input dict -> LEAD's ``Prediction`` fields as a flat dict, in inference mode (float32)."""
+    with torch.inference_mode():
+        return model(inputs)
+
+
+def export_checkpoint(model: nn.Module, folder: str | Path) -> Path:
+    """Write ``config.json`` + ``model_0000.pth`` (contiguous float32 tensors, no wrapper, no prefix)."""
+    if not isinstance(model, LeadTFv6):
+        raise TypeError(f"export_checkpoint takes one LeadTFv6 network, got {type(model).__name__}")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu().contiguous().clone() for k, v in model.state_dict().items()}
+    tmp = folder / "model_0000.pth.tmp"
+    torch.save(state, tmp)
+    (folder / "config.json").write_text(json.dumps(model.config.to_json(), indent=1))
+    tmp.replace(folder / "model_0000.pth")
+    return folder

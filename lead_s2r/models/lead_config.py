@@ -1,0 +1,368 @@
+"""LEAD's ``TrainingConfig`` as a typed dataclass: the fields that shape a TFv6 / LTFv6 / TFv5 network, under LEAD's own
+names, and the rules LEAD uses to derive everything else from them.
+
+LEAD writes ``config.json`` next to every checkpoint (``TrainingConfig.training_dict()``, about 196 keys). Reading it
+back, LEAD takes class attributes from the file, casts "overridable" properties to their default's type, and silently
+recomputes plain properties (BEV extent, image size, anchors, status-token switches ...) from the target dataset, so the
+derived numbers in a file are informational. :meth:`LeadConfig.from_json` does the same, which is why a config.json
+edited by hand must change the *switch* (``use_navsim_data``, ``used_cameras``, ``pixels_per_meter``), not the derived
+value. Keys this class does not model are ignored, as LEAD ignores keys it does not know.
+"""
+
+from dataclasses import asdict, dataclass, fields
+from enum import IntEnum
+from typing import Any
+
+from lead_s2r.errors import UserError
+
+
+class TargetDataset(IntEnum):
+    """LEAD's ``TargetDataset`` codes (``lead/common/constants.py``), as stored in config.json."""
+
+    CARLA_LEADERBOARD2_3CAMERAS = 0
+    CARLA_LEADERBOARD2_6CAMERAS = 2
+    NAVSIM_4CAMERAS = 4
+    WAYMO_E2E_2025_3CAMERAS = 5
+
+
+#: Camera tile of each target: (width, cropped height) in pixels (``BaseConfig.camera_calibration``).
+CAMERA_TILE = {
+    TargetDataset.CARLA_LEADERBOARD2_3CAMERAS: (384, 384),
+    TargetDataset.CARLA_LEADERBOARD2_6CAMERAS: (384, 384),
+    TargetDataset.NAVSIM_4CAMERAS: (480, 270),
+}
+NUM_CAMERAS = {
+    TargetDataset.CARLA_LEADERBOARD2_3CAMERAS: 3,
+    TargetDataset.CARLA_LEADERBOARD2_6CAMERAS: 6,
+    TargetDataset.NAVSIM_4CAMERAS: 4,
+    TargetDataset.WAYMO_E2E_2025_3CAMERAS: 3,
+}
+#: CARLA target-speed bins, m/s, exactly as LEAD writes them.
+TARGET_SPEED_CLASSES = (0.0, 4.0, 8.0, 10.0, 13.88888888, 16.0, 17.77777777, 20.0)
+#: ``len(NavSimBEVSemanticClass)`` and ``len(NavSimBBClass)``.
+NAVSIM_BEV_SEMANTIC_CLASSES = 7
+NAVSIM_BOX_CLASSES = 1
+#: ``training_used_lidar_steps`` is a fixed property (> 1 adds the CenterNet velocity head).
+TRAINING_USED_LIDAR_STEPS = 10
+#: Overridable properties: None means "LEAD's rule decides"; a file value is cast to the rule's type.
+OVERRIDABLE = (
+    "used_cameras",
+    "use_depth",
+    "radar_detection",
+    "use_radar_detection",
+    "use_discrete_command",
+    "use_past_positions",
+    "use_past_speeds",
+    "num_past_samples_used",
+)
+
+
+@dataclass
+class LeadConfig:
+    """The architecture-relevant part of LEAD's ``TrainingConfig`` (defaults = LEAD main at 4489176)."""
+
+    image_architecture: str = "resnet34"
+    lidar_architecture: str = "resnet34"
+    LTF: bool = False  # LEAD's field name, kept so config.json round-trips
+    n_layer: int = 2
+    n_head: int = 4
+    block_exp: int = 4
+    embd_pdrop: float = 0.1
+    attn_pdrop: float = 0.1
+    resid_pdrop: float = 0.1
+    gpt_linear_layer_init_mean: float = 0.0
+    gpt_linear_layer_init_std: float = 0.02
+    gpt_layer_norm_init_weight: float = 1.0
+    pixels_per_meter: float = 4.0
+    perspective_downsample_factor: int = 1
+    bev_upsample_factor: int = 2
+    bev_down_sample_factor: int = 4
+    bev_features_chanels: int = 64
+    bb_input_channel: int = 64
+    use_semantic: bool = True
+    num_semantic_classes: int = 10
+    deconv_channel_num_0: int = 128
+    deconv_channel_num_1: int = 64
+    deconv_channel_num_2: int = 32
+    deconv_scale_factor_0: int = 4
+    deconv_scale_factor_1: int = 8
+    use_bev_semantic: bool = True
+    num_bev_semantic_classes: int = 13
+    detect_boxes: bool = True
+    num_bb_classes: int = 8
+    num_dir_bins: int = 12
+    use_carla_data: bool = True
+    use_navsim_data: bool = False
+    use_waymo_e2e_data: bool = False
+    carla_root: str = "data/carla_leaderboard2"
+    use_radars: bool = True
+    num_radar_sensors: int = 4
+    num_radar_queries: int = 20
+    radar_token_dim: int = 256
+    radar_hidden_dim_tokenizer: int = 1024
+    radar_tf_dim_ff: int = 1024
+    radar_dropout: float = 0.1
+    radar_num_heads: int = 8
+    radar_num_layers: int = 4
+    radar_hidden_dim_decoder: int = 1024
+    use_velocity: bool = True
+    use_planning_decoder: bool = False
+    use_tfv5_planning_decoder: bool = False
+    gru_hidden_size: int = 64
+    transfuser_token_dim: int = 64
+    transfuser_num_bev_cross_attention_heads: int = 8
+    transfuser_num_bev_cross_attention_layers: int = 6
+    predict_temporal_spatial_waypoints: bool = True
+    num_route_points_prediction: int = 10
+    use_mixed_precision_training: bool = True
+    # overridable properties (None: derived by LEAD's rule)
+    used_cameras: list[bool] | None = None
+    use_depth: bool | None = None
+    radar_detection: bool | None = None
+    use_radar_detection: bool | None = None
+    use_discrete_command: bool | None = None
+    use_past_positions: bool | None = None
+    use_past_speeds: bool | None = None
+    num_past_samples_used: int | None = None
+
+    def __post_init__(self) -> None:
+        target = self.target_dataset
+        if target == TargetDataset.WAYMO_E2E_2025_3CAMERAS:
+            raise UserError(
+                "config.json: use_waymo_e2e_data=true cannot be built: LEAD's WOD-E2E camera calibration imports a "
+                "function missing from its public code and its planner has past-state token slots forward never fills"
+            )
+        defaults = {
+            "used_cameras": [True] * NUM_CAMERAS[target],
+            "use_depth": self.carla_leaderboard_mode,
+            "radar_detection": self.carla_leaderboard_mode,
+            "use_radar_detection": self.carla_leaderboard_mode,
+            "use_discrete_command": True,
+            "use_past_positions": False,
+            "use_past_speeds": False,
+        }
+        for name, default in defaults.items():
+            if getattr(self, name) is None:
+                setattr(self, name, default)
+        if self.num_past_samples_used is None:
+            self.num_past_samples_used = 6 if self.use_past_positions or self.use_past_speeds else 0
+        if self.use_past_positions or self.use_past_speeds:
+            raise UserError(
+                "config.json: use_past_positions / use_past_speeds add planner token slots that LEAD's forward never "
+                "fills (it fails with a shape error); set both to false"
+            )
+        if len(self.used_cameras) != NUM_CAMERAS[target] or not any(self.used_cameras):
+            raise UserError(
+                f"config.json: used_cameras={self.used_cameras} must hold {NUM_CAMERAS[target]} flags, one true"
+            )
+
+    @classmethod
+    def from_json(cls, values: dict[str, Any]) -> "LeadConfig":
+        """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored)."""
+        kwargs: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name not in values:
+                continue
+            value = values[f.name]
+            if f.name in OVERRIDABLE:
+                value = list(value) if f.name == "used_cameras" else (int if f.name.startswith("num") else bool)(value)
+            kwargs[f.name] = value
+        return cls(**kwargs)
+
+    def to_json(self) -> dict[str, Any]:
+        """Every field LEAD's loader reads, plus the derived values (informational, as in LEAD's own files)."""
+        out = asdict(self)
+        out.update(
+            target_dataset=int(self.target_dataset),
+            num_available_cameras=NUM_CAMERAS[self.target_dataset],
+            num_used_cameras=self.num_used_cameras,
+            min_x_meter=self.min_x_meter,
+            max_x_meter=self.max_x_meter,
+            min_y_meter=self.min_y_meter,
+            max_y_meter=self.max_y_meter,
+            lidar_width_pixel=self.lidar_width_pixel,
+            lidar_height_pixel=self.lidar_height_pixel,
+            lidar_vert_anchors=self.lidar_vert_anchors,
+            lidar_horz_anchors=self.lidar_horz_anchors,
+            final_image_width=self.final_image_width,
+            final_image_height=self.final_image_height,
+            img_vert_anchors=self.img_vert_anchors,
+            img_horz_anchors=self.img_horz_anchors,
+            training_used_lidar_steps=TRAINING_USED_LIDAR_STEPS,
+            discrete_command_dim=self.discrete_command_dim,
+            use_acceleration=self.use_acceleration,
+            max_speed=self.max_speed,
+            max_acceleration=self.max_acceleration,
+            use_tp=self.use_tp,
+            use_previous_tp=self.use_tp,
+            use_next_tp=self.use_tp,
+            target_points_normalization_constants=[list(self.target_points_normalization_constants)],
+            predict_target_speed=self.predict_target_speed,
+            predict_spatial_path=self.predict_spatial_path,
+            num_way_points_prediction=self.num_way_points_prediction,
+            target_speed_classes=list(TARGET_SPEED_CLASSES),
+            target_speeds=list(TARGET_SPEED_CLASSES),
+            navsim_num_bev_semantic_classes=NAVSIM_BEV_SEMANTIC_CLASSES,
+            navsim_num_bb_classes=NAVSIM_BOX_CLASSES,
+            mixed_data_training=self.mixed_data_training,
+            carla_leaderboard_mode=self.carla_leaderboard_mode,
+            channel_last=True,
+        )
+        return out
+
+    # --- derived exactly as LEAD's properties ---
+    @property
+    def target_dataset(self) -> TargetDataset:
+        if self.use_waymo_e2e_data:
+            return TargetDataset.WAYMO_E2E_2025_3CAMERAS
+        if self.use_navsim_data:
+            return TargetDataset.NAVSIM_4CAMERAS
+        root = self.carla_root
+        if any(tag in root for tag in ("carla_leaderboard2", "carla_leaderboad2_v3", "carla_leaderboad2_v8")):
+            return TargetDataset.CARLA_LEADERBOARD2_3CAMERAS
+        if "carla_leaderboad2_v10" in root:
+            return TargetDataset.CARLA_LEADERBOARD2_6CAMERAS
+        raise UserError(f"config.json: carla_root={root!r} names no CARLA dataset LEAD knows (carla_leaderboard2 ...)")
+
+    @property
+    def mixed_data_training(self) -> bool:
+        return int(self.use_navsim_data) + int(self.use_carla_data) + int(self.use_waymo_e2e_data) > 1
+
+    @property
+    def carla_leaderboard_mode(self) -> bool:
+        carla = self.target_dataset in (
+            TargetDataset.CARLA_LEADERBOARD2_3CAMERAS,
+            TargetDataset.CARLA_LEADERBOARD2_6CAMERAS,
+        )
+        return carla and not self.mixed_data_training
+
+    @property
+    def num_used_cameras(self) -> int:
+        return sum(int(bool(u)) for u in self.used_cameras or ())
+
+    @property
+    def min_x_meter(self) -> int:
+        return -32
+
+    @property
+    def max_x_meter(self) -> int:
+        return 64 if self.carla_leaderboard_mode else 32
+
+    @property
+    def min_y_meter(self) -> int:
+        return -40 if self.carla_leaderboard_mode else -32
+
+    @property
+    def max_y_meter(self) -> int:
+        return 40 if self.carla_leaderboard_mode else 32
+
+    @property
+    def lidar_width_pixel(self) -> int:
+        """BEV columns (ego x, back to front)."""
+        return int((self.max_x_meter - self.min_x_meter) * self.pixels_per_meter)
+
+    @property
+    def lidar_height_pixel(self) -> int:
+        """BEV rows (ego y, left to right)."""
+        return int((self.max_y_meter - self.min_y_meter) * self.pixels_per_meter)
+
+    @property
+    def lidar_vert_anchors(self) -> int:
+        return self.lidar_height_pixel // 32
+
+    @property
+    def lidar_horz_anchors(self) -> int:
+        return self.lidar_width_pixel // 32
+
+    @property
+    def final_image_width(self) -> int:
+        return self.num_used_cameras * CAMERA_TILE[self.target_dataset][0]
+
+    @property
+    def final_image_height(self) -> int:
+        return CAMERA_TILE[self.target_dataset][1]
+
+    @property
+    def img_vert_anchors(self) -> int:
+        return self.final_image_height // 32
+
+    @property
+    def img_horz_anchors(self) -> int:
+        return self.final_image_width // 32
+
+    @property
+    def discrete_command_dim(self) -> int:
+        return 6 if self.carla_leaderboard_mode else 4
+
+    @property
+    def use_acceleration(self) -> bool:
+        return not self.carla_leaderboard_mode
+
+    @property
+    def max_speed(self) -> float:
+        return 25.0 if self.carla_leaderboard_mode else 15.0
+
+    @property
+    def max_acceleration(self) -> float:
+        return 10.0 if self.carla_leaderboard_mode else 4.0
+
+    @property
+    def use_tp(self) -> bool:
+        """Current, previous and next target point tokens all follow CARLA leaderboard mode."""
+        return self.carla_leaderboard_mode
+
+    @property
+    def target_points_normalization_constants(self) -> tuple[float, float]:
+        return (200.0, 50.0)
+
+    @property
+    def predict_target_speed(self) -> bool:
+        return self.carla_leaderboard_mode
+
+    @property
+    def predict_spatial_path(self) -> bool:
+        return self.carla_leaderboard_mode
+
+    @property
+    def num_way_points_prediction(self) -> int:
+        return 8
+
+    @property
+    def planning_source(self) -> str:
+        """The one source (our name) the planner predicts for: 8 poses at 4 Hz for CARLA, 2 Hz for NAVSIM."""
+        return "carla" if self.carla_leaderboard_mode else "navsim"
+
+    @property
+    def sources(self) -> tuple[str, ...]:
+        """The sources whose batches the network reads: the one it plans for, and CARLA when it has CARLA heads."""
+        source = self.planning_source
+        return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
+
+    def perception_tasks(self, source: str) -> set[str]:
+        """Our perception tasks (names of ``lead_s2r.training.losses``) LEAD's heads produce for ``source`` in our
+        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics and
+        depth."""
+        tasks = set()
+        if source == "navsim" and self.use_navsim_data and self.use_bev_semantic:
+            tasks.add("bev_semantic")
+        if source == "navsim" and self.use_navsim_data and self.detect_boxes:
+            tasks.add("boxes")
+        if source == "carla" and self.use_carla_data and self.use_semantic:
+            tasks.add("semantic")
+        if source == "carla" and self.use_carla_data and self.use_depth:
+            tasks.add("depth")
+        return tasks
+
+    @property
+    def box_yaw_bins(self) -> int:
+        """Yaw bins of the CenterNet heads, under the name our box loss reads."""
+        return self.num_dir_bins
+
+    @property
+    def has_radar_detector(self) -> bool:
+        return bool(self.radar_detection and self.use_carla_data)
+
+    @property
+    def planner_radar_tokens(self) -> bool:
+        """Whether the planner has radar query tokens; it reads them only with CARLA data (LEAD's TFv6.forward)."""
+        return bool(self.use_radars and self.radar_detection and self.use_radar_detection)

@@ -1,0 +1,75 @@
+"""LEAD's network with the interface our LightningModule trains and predicts with (``tasks``, ``grid``,
+``forward(batch, source, tasks)``), so a LEAD checkpoint folder works wherever a run does: ``lead-s2r predict``,
+fine-tuning with ``fit``, and back out with ``lead-s2r export-lead``.
+
+Batches cross into LEAD's input contract and predictions come back into our ISO frame in
+:mod:`lead_s2r.models.lead_frame` only. The loader follows
+:func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
+raster, radar and target points when the network reads them, and the labels of the heads whose classes are ours too:
+the planner's outputs (waypoints, NAVSIM headings, CARLA route) for the source the network plans for, NAVSIM BEV
+semantics and boxes, and with CARLA data (LEAD's mixed training) CARLA perspective semantics and depth. LEAD's CARLA BEV
+classes, CARLA boxes, radar detections and target speed are not trained through this wrapper.
+"""
+
+from collections.abc import Collection
+from pathlib import Path
+
+from torch import Tensor, nn
+
+from lead_s2r.errors import UserError
+from lead_s2r.models.config import TrajectoryGrid, default_grids
+from lead_s2r.models.inputs import Batch
+from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
+from lead_s2r.models.lead_tfv6 import LeadTFv6
+
+
+class LeadDriver(nn.Module):
+    """A LEAD TFv6 / LTFv6 / TFv5 network (``self.network``, LEAD's state_dict keys) driven by our batches.
+
+    Args:
+        config: the LEAD architecture (LEAD's field names; see docs/models.md); ignored when ``checkpoint`` is given.
+        checkpoint: a LEAD checkpoint folder (config.json + model*.pth): its config and weights, loaded strictly;
+            several matching files make an ensemble (prediction only).
+        pattern: which weight files of ``checkpoint`` to load.
+    """
+
+    def __init__(
+        self, config: LeadConfig | None = None, checkpoint: str | None = None, pattern: str = "model*.pth"
+    ) -> None:
+        super().__init__()
+        if checkpoint is not None:
+            config = read_config(Path(checkpoint))
+            self.network: nn.Module = load_checkpoint(checkpoint, pattern).train()
+        else:
+            config = config if config is not None else LeadConfig(use_planning_decoder=True)
+            self.network = LeadTFv6(config)
+        if not config.use_planning_decoder:
+            raise ValueError("LeadDriver needs use_planning_decoder=true (a pretraining network has no planner)")
+        self.config = config
+        self.source = config.planning_source
+
+    def grid(self, source: str) -> TrajectoryGrid:
+        return default_grids()[source]
+
+    def tasks(self, source: str) -> frozenset[str]:
+        tasks = self.config.perception_tasks(source)
+        if source == self.source:
+            tasks.add("waypoints")
+            if self.config.use_navsim_data and not self.config.use_tfv5_planning_decoder:
+                tasks.add("headings")
+            if self.config.predict_spatial_path or self.config.use_tfv5_planning_decoder:
+                tasks.add("route")
+        return frozenset(tasks)
+
+    def forward(self, batch: Batch, source: str, tasks: Collection[str] | None = None) -> dict[str, Tensor]:
+        """Our outputs for ``source``; ``tasks`` is part of the interface only: LEAD's network runs all its heads."""
+        if source not in self.config.sources:
+            raise ValueError(f"this LEAD network reads {list(self.config.sources)} batches, not {source!r}")
+        if isinstance(self.network, LeadEnsemble) and self.training:
+            raise UserError(
+                "model.checkpoint holds several model*.pth files (an ensemble, prediction only); to fine-tune, pick "
+                "one with model.pattern, e.g. model_0030_0.pth"
+            )
+        return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)))

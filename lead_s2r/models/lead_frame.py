@@ -1,0 +1,133 @@
+"""The one place where our ISO ego frame (x forward, y LEFT) meets LEAD's (x forward, y RIGHT).
+
+:func:`to_lead_inputs` turns our :class:`~lead_s2r.models.inputs.Batch` into LEAD's input contract and
+:func:`from_lead_outputs` turns LEAD's outputs back into our names and frame; nothing else in the package flips y.
+
+- Lateral coordinates (target points, radar, predicted waypoints and route) change sign; headings change sign.
+- The LiDAR raster: ours has rows along +x and columns along +y (left); LEAD's has rows along its y (left to right,
+  i.e. row 0 is the leftmost) and columns along x (back to front), so LEAD's raster is ours transposed with its rows
+  reversed. Both grids are symmetric in y, so no cell moves off the grid (a point exactly on a cell edge lands in
+  the cell beside LEAD's, as both rasters take half-open cells in their own y direction).
+- Commands: our 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} ids become LEAD's one-hot, NAVSIM order (left, straight,
+  right, unknown) or CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
+  unknown -> lane follow, as LEAD maps it).
+- Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
+- Radar: LEAD's (B, 300, 5) is sensor-major, 75 rows per sensor, points outside its BEV dropped and missing rows
+  zero with the sensor id kept; LEAD does not mask them, so the padding rows' ids matter and are rebuilt here.
+"""
+
+import torch
+from torch import Tensor
+
+from lead_s2r.models.inputs import Batch, lidar_input
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.schema import Command
+
+#: Our 4-way command id -> index in LEAD's one-hot.
+NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
+CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
+#: LEAD's CenterNet fields -> our box head's names (``lead_s2r.training.losses.box_loss``).
+BOX_FIELDS = {
+    "center_heatmap_logit_pred": "box_heatmap",
+    "offset_pred": "box_offset",
+    "wh_pred": "box_size",
+    "yaw_class_pred": "box_yaw_class",
+    "yaw_res_pred": "box_yaw_residual",
+    "velocity_pred": "box_velocity",
+}
+#: LEAD's radar rows per sensor (``num_radar_points_per_sensor``).
+RADAR_ROWS_PER_SENSOR = 75
+#: Slots of our ``target_points`` (B, 3, 2): previous, current, next.
+TARGET_POINT_KEYS = ("target_point_previous", "target_point", "target_point_next")
+
+
+def flip_y(points: Tensor) -> Tensor:
+    """(..., >= 2) points with the lateral coordinate negated (column 1); other columns unchanged."""
+    flipped = points.clone()
+    flipped[..., 1] = -flipped[..., 1]
+    return flipped
+
+
+def lidar_to_lead(lidar_bev: Tensor) -> Tensor:
+    """Our (B, C, H=x, W=y left) raster -> LEAD's (B, C, rows = y from left to right, columns = x), in [0, 1]."""
+    return lidar_input(lidar_bev, torch.float32).transpose(-1, -2).flip(-2)
+
+
+def bev_map_from_lead(lead_map: Tensor) -> Tensor:
+    """LEAD's (B, C, rows = y left to right, columns = x) map -> ours (B, C, H=x, W=y left); inverse of the raster's."""
+    return lead_map.flip(-2).transpose(-1, -2)
+
+
+def command_one_hot(command: Tensor, config: LeadConfig) -> Tensor:
+    """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot."""
+    table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
+    lookup = torch.zeros(len(Command), dtype=torch.int64)
+    for ours, theirs in table.items():
+        lookup[ours] = theirs
+    index = lookup.to(command.device)[command.long()]
+    return torch.nn.functional.one_hot(index, config.discrete_command_dim).float()
+
+
+def radar_to_lead(radar: Tensor, valid: Tensor, config: LeadConfig) -> Tensor:
+    """Our (B, N, 5) radar rows (ISO) with their mask -> LEAD's sensor-major (B, sensors x 75, 5), y flipped."""
+    flipped = flip_y(radar.float())
+    inside = (
+        valid
+        & (flipped[..., 0] >= config.min_x_meter)
+        & (flipped[..., 0] <= config.max_x_meter)
+        & (flipped[..., 1] >= config.min_y_meter)
+        & (flipped[..., 1] <= config.max_y_meter)
+    )
+    sensors, rows = config.num_radar_sensors, RADAR_ROWS_PER_SENSOR
+    out = torch.zeros(len(radar), sensors * rows, 5, device=radar.device)
+    out[..., 4] = torch.arange(sensors, device=radar.device).repeat_interleave(rows).float()
+    for b in range(len(radar)):
+        for sensor in range(sensors):
+            points = flipped[b][inside[b] & (flipped[b, :, 4] == sensor)][:rows]
+            out[b, sensor * rows : sensor * rows + len(points)] = points
+    return out
+
+
+def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
+    """Our batch -> LEAD's input dict (keys, units and frame of LEAD's ``TFv6.forward``)."""
+    speed = batch["speed"].float()
+    out: dict[str, Tensor] = {"rgb": batch["rgb"], "speed": speed, "command": command_one_hot(batch["command"], config)}
+    accel = batch.get("acceleration")
+    out["acceleration"] = accel.float().reshape(len(speed), -1).norm(dim=-1) if accel is not None else speed * 0
+    if "lidar_bev" in batch:
+        out["rasterized_lidar"] = lidar_to_lead(batch["lidar_bev"])
+    if "target_points" in batch:
+        points = flip_y(batch["target_points"].float())
+        out.update({key: points[:, i] for i, key in enumerate(TARGET_POINT_KEYS)})
+    if "radar" in batch:
+        valid = batch.get("radar_valid", torch.ones(batch["radar"].shape[:2], dtype=torch.bool))
+        out["radar"] = radar_to_lead(batch["radar"], valid.to(batch["radar"].device), config)
+    return out
+
+
+def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
+    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
+    NAVSIM ``bev_semantic`` (same 7 classes) and ``box_*`` maps, and the image-space CARLA ``semantic`` / ``depth``
+    (those the network produced). LEAD's CARLA BEV classes, boxes and radar have no counterpart in our label spaces.
+
+    The NAVSIM box maps only move onto our grid: their channels are whatever our box loss trains them to be (LEAD's
+    own offset, size and yaw encodings are in its frame, so released box heads start from a different encoding)."""
+    ours: dict[str, Tensor] = {}
+    if "pred_bev_semantic_navsim" in outputs:
+        ours["bev_semantic"] = bev_map_from_lead(outputs["pred_bev_semantic_navsim"])
+    for field, name in BOX_FIELDS.items():
+        if f"pred_bounding_box_navsim.{field}" in outputs:
+            ours[name] = bev_map_from_lead(outputs[f"pred_bounding_box_navsim.{field}"])
+    if "pred_semantic" in outputs:
+        ours["semantic"] = outputs["pred_semantic"]
+    if "pred_depth" in outputs:
+        ours["depth"] = outputs["pred_depth"]
+    if "pred_future_waypoints" in outputs:
+        ours["waypoints"] = flip_y(outputs["pred_future_waypoints"])
+    if "pred_headings" in outputs:
+        ours["headings"] = -outputs["pred_headings"]
+    if "pred_route" in outputs:
+        ours["route"] = flip_y(outputs["pred_route"])
+    if "pred_target_speed_distribution" in outputs:
+        ours["target_speed_logits"] = outputs["pred_target_speed_distribution"]
+    return ours

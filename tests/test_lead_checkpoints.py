@@ -1,0 +1,187 @@
+"""LEAD's checkpoints in our models: parameter tables of eight LEAD configurations, output parity with a case computed
+by LEAD's own code (tests/data/lead_tfv6/, copied from the golden folder), config derivation, ensembles, export."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from lead_reference import CASES, seeded_inputs, seeded_state
+
+from lead_s2r.errors import UserError
+from lead_s2r.models import lead
+from lead_s2r.models.lead_config import LeadConfig
+
+DATA = Path(__file__).parent / "data" / "lead_tfv6"
+TINY = DATA / "tiny_ltfv6_navsim"
+CONFIGS = sorted(p.name[len("config_") : -len(".json")] for p in DATA.glob("config_*.json"))
+BUILDABLE = [
+    name for name in CONFIGS if "fields_read_by_model" in json.loads((DATA / f"config_{name}.json").read_text())
+]
+
+
+def lead_table(name: str) -> tuple[dict[str, tuple[int, ...]], int]:
+    """LEAD's state_dict entries (name -> shape) and parameter count of one configuration."""
+    shapes, total = {}, None
+    for line in (DATA / f"params_{name}.tsv").read_text().splitlines():
+        cells = line.split("\t")
+        if line.startswith("# total_parameters"):
+            total = int(cells[1])
+        elif len(cells) == 5 and not line.startswith(("#", "name\t")):
+            shapes[cells[0]] = tuple(json.loads(cells[2]))
+    return shapes, total
+
+
+def test_all_lead_configurations_are_covered() -> None:
+    assert len(BUILDABLE) == 8 and "ltfv6_wod_e2e" in CONFIGS
+
+
+@pytest.mark.parametrize("name", BUILDABLE)
+def test_state_dict_is_leads_entry_for_entry(name: str) -> None:
+    overrides = json.loads((DATA / f"config_{name}.json").read_text())["overrides"]
+    model = lead.model_from_config(overrides)
+    want, total = lead_table(name)
+    got = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+    assert got == want
+    assert sum(p.numel() for p in model.parameters()) == total
+
+
+@pytest.mark.parametrize("name", BUILDABLE)
+def test_derived_fields_follow_leads_rules(name: str) -> None:
+    """Every field LEAD's model read (derived or not) has the value our config derives from the overrides alone."""
+    spec = json.loads((DATA / f"config_{name}.json").read_text())
+    ours = LeadConfig.from_json(spec["overrides"]).to_json()
+    read = {k: v["value"] for k, v in spec["fields_read_by_model"].items() if k in ours}
+    assert len(read) > 40
+    for key, value in read.items():
+        mine = ours[key]
+        assert mine == pytest.approx(value) if isinstance(value, float) else mine == value, key
+
+
+def test_derived_values_in_a_file_are_recomputed() -> None:
+    """Derived numbers in config.json are informational for LEAD; editing one changes nothing."""
+    values = json.loads((TINY / "config.json").read_text())
+    edited = dict(values, lidar_width_pixel=999, img_horz_anchors=3, max_speed=1.0, use_tp=True)
+    assert LeadConfig.from_json(edited) == LeadConfig.from_json(values)
+    config = LeadConfig.from_json(values)
+    assert (config.lidar_height_pixel, config.img_vert_anchors, config.img_horz_anchors) == (128, 8, 15)
+    assert config.to_json()["target_dataset"] == values["target_dataset"]
+
+
+def test_wod_configuration_is_refused_with_the_reason() -> None:
+    spec = json.loads((DATA / "config_ltfv6_wod_e2e.json").read_text())
+    with pytest.raises(UserError, match="use_waymo_e2e_data"):
+        lead.model_from_config(spec["overrides"])
+
+
+@pytest.fixture(scope="module")
+def tiny_case() -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    return (
+        torch.load(TINY / "inputs.pt", weights_only=True),
+        torch.load(TINY / "outputs.pt", weights_only=True),
+    )
+
+
+def single_thread_forward(model: torch.nn.Module, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return lead.forward(model, inputs)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_tiny_ltfv6_reproduces_leads_outputs(tiny_case) -> None:
+    inputs, expected = tiny_case
+    model = lead.load_checkpoint(TINY)
+    got = single_thread_forward(model, inputs)
+    assert set(got) == set(expected)
+    for key, value in expected.items():
+        assert got[key].dtype == torch.float32
+        torch.testing.assert_close(got[key], value, rtol=1e-5, atol=1e-5, msg=key)
+
+
+def test_tiny_ltfv6_intermediates(tiny_case) -> None:
+    inputs, _ = tiny_case
+    stages = torch.load(TINY / "intermediates.pt", weights_only=True)
+    model = lead.load_checkpoint(TINY)
+    with torch.inference_mode():
+        bev, image = model.backbone(inputs)
+        context = model.planning_decoder.planning_context_encoder(bev, inputs)
+    torch.testing.assert_close(bev, stages["backbone[0]"], rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(image, stages["backbone[1]"], rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(context, stages["planning_decoder.planning_context_encoder"], rtol=1e-5, atol=1e-5)
+
+
+def test_ensemble_merges_as_lead(tmp_path: Path, tiny_case) -> None:
+    inputs, _ = tiny_case
+    shutil.copy(TINY / "config.json", tmp_path / "config.json")
+    shutil.copy(TINY / "model_0000.pth", tmp_path / "model_0030_0.pth")
+    state = torch.load(TINY / "model_0000.pth", weights_only=True)
+    shifted = {k: v + 0.01 if v.is_floating_point() else v for k, v in state.items()}
+    torch.save(shifted, tmp_path / "model_0030_1.pth")
+    torch.save(shifted, tmp_path / "optimizer_0030.pth")  # not a model file: ignored
+    ensemble = lead.load_checkpoint(tmp_path)
+    assert isinstance(ensemble, lead.LeadEnsemble) and len(ensemble.members) == 2
+    merged = lead.forward(ensemble, inputs)
+    a, b = (lead.forward(m, inputs) for m in ensemble.members)
+    assert not torch.equal(a["pred_future_waypoints"], b["pred_future_waypoints"])
+    torch.testing.assert_close(
+        merged["pred_future_waypoints"], (a["pred_future_waypoints"] + b["pred_future_waypoints"]) / 2
+    )
+    torch.testing.assert_close(merged["pred_headings"], (a["pred_headings"] + b["pred_headings"]) / 2)
+    bev = merged["pred_bev_semantic_navsim"]
+    torch.testing.assert_close(
+        bev[:, 0], torch.minimum(a["pred_bev_semantic_navsim"][:, 0], b["pred_bev_semantic_navsim"][:, 0])
+    )
+    torch.testing.assert_close(
+        bev[:, 1:], torch.maximum(a["pred_bev_semantic_navsim"][:, 1:], b["pred_bev_semantic_navsim"][:, 1:])
+    )
+    single = lead.load_checkpoint(tmp_path, pattern="model_0030_0.pth")
+    torch.testing.assert_close(lead.forward(single, inputs)["pred_future_waypoints"], a["pred_future_waypoints"])
+
+
+def test_export_round_trip(tmp_path: Path, tiny_case) -> None:
+    inputs, _ = tiny_case
+    model = lead.model_from_config(json.loads((TINY / "config.json").read_text())).eval()
+    lead.export_checkpoint(model, tmp_path / "out")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["config.json", "model_0000.pth"]
+    written = json.loads((tmp_path / "out" / "config.json").read_text())
+    lead_file = json.loads((TINY / "config.json").read_text())
+    shared = set(written) & set(lead_file)
+    assert len(shared) > 80
+    assert {k: written[k] for k in shared} == {k: lead_file[k] for k in shared}
+    state = torch.load(tmp_path / "out" / "model_0000.pth", weights_only=True)
+    assert type(state) is dict or isinstance(state, dict)
+    assert all(v.is_contiguous() for v in state.values())
+    again = lead.load_checkpoint(tmp_path / "out")
+    expected = lead.forward(model, inputs)
+    got = lead.forward(again, inputs)
+    assert all(torch.equal(got[k], expected[k]) for k in expected)
+
+
+def test_bad_folders_are_user_errors(tmp_path: Path) -> None:
+    with pytest.raises(UserError, match=r"no config\.json"):
+        lead.load_checkpoint(tmp_path)
+    shutil.copy(TINY / "config.json", tmp_path / "config.json")
+    with pytest.raises(UserError, match="no file matches"):
+        lead.load_checkpoint(tmp_path)
+    values = json.loads((TINY / "config.json").read_text())
+    (tmp_path / "config.json").write_text(json.dumps(dict(values, transfuser_token_dim=64)))
+    shutil.copy(TINY / "model_0000.pth", tmp_path / "model_0000.pth")
+    with pytest.raises(UserError, match=r"model_0000\.pth: does not match"):
+        lead.load_checkpoint(tmp_path)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_carla_tfv6_with_radar_and_tfv5_reproduce_leads_outputs(name: str) -> None:
+    """LEAD's TFv6 with LiDAR and radar, and TFv5, on seeded weights: outputs computed by LEAD's code (README)."""
+    model = lead.model_from_config(CASES[name])
+    model.load_state_dict(seeded_state(model.state_dict()), strict=True)
+    expected = torch.load(DATA / f"reference_{name}.pt", weights_only=True)
+    got = single_thread_forward(model.eval(), seeded_inputs(CASES[name]))
+    assert set(got) == set(expected)
+    assert expected["pred_radar_predictions"][..., :2].abs().max() > 1.0
+    for key, value in expected.items():
+        torch.testing.assert_close(got[key], value, rtol=1e-5, atol=1e-5, msg=key)
