@@ -193,7 +193,16 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
         f"predictions, scores, {LOSS_CURVES}): {out / 'runs'}/<training>/seed<N>; Lightning's console output: "
         f"{out / LIGHTNING_LOG}"
     )
+    console.print(f"Report (open in a browser): {write_report(out)}")
     return results
+
+
+def write_report(out: Path) -> Path:
+    """The web report of the Ego MLP, the one model scored on both datasets, against the logged human (the Expert
+    row) as baseline: where the model loses to the human, sample by sample. Returns its ``index.html``."""
+    from lead_s2r.report.site import build_report
+
+    return build_report(out / "runs" / "ego_mlp" / TRAINED, out / "report", baseline=out / "runs" / "expert", worst=4)
 
 
 def steps_range() -> str:
@@ -332,7 +341,7 @@ def predict_and_score(
     dataset's predictions against that dataset alone."""
     args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(folder)]
     with lightning_output_to(out / LIGHTNING_LOG):
-        run_lightning_cli(args + ([] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
+        run_lightning_cli(args + (["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
     predictions = read_predictions(folder / "predictions.parquet")
     results = {}
     for dataset in EVAL_SPLITS:

@@ -37,8 +37,9 @@ from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
+from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
 from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of, top_inference
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
@@ -51,6 +52,7 @@ from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
 NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
+STEP_COLUMNS = (*PDMS_STEP_COLUMNS, "lane_keeping_fail_idx")
 CSV_NAME = "navsim_epdms.csv"
 AVERAGE_TOKEN = "average_all_frames"
 #: the background traffic, in scores.json's config: NAVSIM's two-stage runner uses the reactive IDM policy for both
@@ -66,6 +68,7 @@ TRAFFIC_AGENTS = {
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
+    + [(name, pa.int64()) for name in STEP_COLUMNS]
     + [("previous_key", pa.string()), ("error", pa.string())]
 )
 
@@ -133,6 +136,8 @@ class EPDMSScorer(PDMSScorer):
     name: ClassVar[str] = EPDMS_METRIC
     version: ClassVar[str] = "1"
     fields: ClassVar[tuple[str, ...]] = (*PDMSScorer.fields, "past")
+    #: NAVSIM's frames only: EC pairs adjacent frames by NAVSIM's scene tokens and navhard's two stages
+    datasets: ClassVar[tuple[str, ...] | None] = ("navsim",)
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
     headline: ClassVar[str] = "epdms"
     csv_name: ClassVar[str] = CSV_NAME
@@ -169,14 +174,16 @@ class EPDMSScorer(PDMSScorer):
                 "with the adapter's two_stage_mapping (docs/datasets/navsim.md)"
             )
         pairs = join(predictions, data, self.allow_missing)
-        frames = [self.frame(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
+        frames = self.map_samples(self.frame, [pair for pair in pairs if pair[0]["meta"]["dataset"] in self.datasets])
         skipped = {"frames_skipped_other_dataset": len(pairs) - len(frames)}
         self.two_stage_result = None
         if mapping:
             table, aggregates = self.score_two_stage(frames, mapping, ours)
             return ScoreResult(table, aggregates | skipped)
         earlier = adjacent_frames(frames)
-        rows = [self.row(frame, frames[earlier[i]] if i in earlier else None) for i, frame in enumerate(frames)]
+        rows = self.map_samples(
+            self.row, [(frame, frames[earlier[i]] if i in earlier else None) for i, frame in enumerate(frames)]
+        )
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, {**self._aggregate(rows), **skipped})
 
@@ -185,7 +192,7 @@ class EPDMSScorer(PDMSScorer):
     ) -> tuple[pa.Table, dict[str, Any]]:
         """Every frame of the mapping scored alone, then NAVSIM's two-stage weights, EC and summaries."""
         navhard.check_complete(mapping, samples, {navsim_token(frame.sample): frame.error for frame in frames})
-        results = [self.proposal_scores(frame, None, with_states=True) for frame in frames]
+        results = self.map_samples(self.proposal_scores, [(frame, None, True) for frame in frames])
         tokens = [navsim_token(frame.sample) for frame in frames]
         rows = [
             navhard.token_row(token, frame.sample, frame.poses, result)
@@ -228,7 +235,7 @@ class EPDMSScorer(PDMSScorer):
         if frame.scene is None:
             return row | dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan"))
         result = self.proposal_scores(frame, earlier)
-        return row | {name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}
+        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
 
     def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
         """``score_proposals`` of the frame's plan (EC against ``earlier``'s plan, NaN without one)."""

@@ -23,7 +23,7 @@ import pyarrow as pa
 
 from lead_s2r.predictions import Prediction
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of, top_inference
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.score import score_proposals
@@ -40,10 +40,14 @@ NAVSIM_COLUMNS = (
     "score",
 )
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
+#: the 0.1 s simulation step where NC, TTC and DAC failed and the agent row NC hit (-1: none; null in an invalid row),
+#: so a report can say when a sub-score was lost and to whom
+STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx", "collision_object_idx")
 CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
+    + [(name, pa.int64()) for name in STEP_COLUMNS]
     + [("error", pa.string())]
 )
 
@@ -54,7 +58,8 @@ class PDMSScorer(Scorer):
     name: ClassVar[str] = METRIC
     version: ClassVar[str] = "1"
     fields: ClassVar[tuple[str, ...]] = ("scoring", "boxes", "agents_future", "future")
-    datasets: ClassVar[tuple[str, ...] | None] = ("navsim",)
+    #: any sample with a ``scoring`` context (NAVSIM, and 123D logs converted with their map), not a dataset name
+    required: ClassVar[tuple[str, ...]] = ("scoring",)
     #: the CSV's score columns (after ``token``, ``valid``), the aggregate naming the split score, the CSV file
     #: and its average row's token: what ``epdms@navsim-2.2`` (:mod:`lead_s2r.scoring.navsim.epdms_scorer`) changes
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
@@ -75,10 +80,10 @@ class PDMSScorer(Scorer):
         return {**super().config(), "reference_cache": self.reference_cache}
 
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
-        """Samples of other datasets (e.g. WOD-E2E beside NAVSIM in one run) are skipped and counted."""
+        """Samples without a ``scoring`` context (e.g. WOD-E2E beside NAVSIM in one run) are skipped and counted."""
         pairs = join(predictions, data, self.allow_missing)
-        ours = [(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
-        rows = [self.score_sample(sample, frame) for sample, frame in ours]
+        ours = [(sample, frame) for sample, frame in pairs if "scoring" in sample]
+        rows = self.map_samples(self.score_sample, ours)
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": len(pairs) - len(ours)})
 
@@ -98,7 +103,7 @@ class PDMSScorer(Scorer):
             return {**row, **dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan")), "valid": False,
                     "error": str(err)}  # fmt: skip
         result = score_proposals(scene, proposals[None], interval, reference=self.references.get(scene))
-        return {**row, **{name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}}
+        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]
