@@ -14,7 +14,7 @@ from lead_s2r.predictions import read_predictions
 from lead_s2r.report.tables import MISSING, collect, to_markdown
 from lead_s2r.shards import load_manifest
 
-COLUMNS = ["NAVSIM PDMS", "NAVSIM EPDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE", "NAVSIM FDE", "WOD-E2E FDE"]
+COLUMNS = ["NAVSIM PDMS", "NAVSIM EPDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE"]
 ROWS = [
     qs.EXPERT,
     "Ego MLP",
@@ -38,7 +38,17 @@ def test_without_lead_is_the_lead_twin_minus_its_carla_data(tmp_path):
         family, model = name.split("_", 1)  # the recipes' layout: runs/<family>/<name>/seed<k>
         assert without["trainer"]["default_root_dir"] == str(tmp_path / "runs" / family / model / "seed0")
         assert (without["trainer"]["max_epochs"], without["data"]["steps_per_epoch"]) == qs.STEPS[name]
-        assert "quickstart/" not in (tmp_path / f"{name}.yaml").read_text()
+        assert without["data"]["val"] == without["data"]["predict"]  # the loss curves' validation side
+        assert "quickstart/" not in (tmp_path / f"{name}-seed0.yaml").read_text()
+
+
+def test_a_seed_sets_the_run_its_folder_and_the_pretraining_it_starts_from(tmp_path):
+    training = next(t for t in qs.TRAININGS if t.name == "wod_ltfv6_lead")
+    config = yaml.safe_load(qs.smoke_config(training, tmp_path, seed=2).read_text())
+    assert config["seed_everything"] == 2
+    assert config["trainer"]["default_root_dir"] == str(tmp_path / "runs" / "wod" / "ltfv6_lead" / "seed2")
+    pretraining = tmp_path / "runs" / "wod" / "ltfv6_pretrain" / "seed2"
+    assert config["model"]["init_from"] == str(pretraining / "checkpoints" / "last.ckpt")
 
 
 def test_twins_train_and_predict_on_disjoint_splits(tmp_path):
@@ -61,6 +71,7 @@ def test_table_spec_is_table4_over_the_quickstart_rows():
     }
     for i, column in enumerate(COLUMNS):
         assert [row.paper[i] for row in spec.rows] == papers.get(column, [None] * len(ROWS)), column
+    assert spec.seeds == qs.SEEDS == (0, 1, 2)
 
 
 def _scores(pdms: float, ade: float) -> dict:
@@ -68,23 +79,28 @@ def _scores(pdms: float, ade: float) -> dict:
     return {"navsim": {**navsim, "ade": {"ade": ade, "fde": 2 * ade}}}
 
 
+def _wod(rfs: float, ade: float) -> dict:
+    return {"wod_e2e": {"rfs@wod-e2e-2025": {"rfs": rfs}, "ade": {"ade": ade, "fde": 2 * ade}}}
+
+
 RESULTS = {
-    "expert": {**_scores(0.9375, 0.0), "wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 8.0}, "ade": {"ade": 0, "fde": 0}}},
-    "navsim_ltfv6/trained": _scores(0.5, 1.5),
-    "wod_ltfv6/trained": {"wod_e2e": {"rfs@wod-e2e-2025": {"rfs": 6.5}, "ade": {"ade": 1.25, "fde": 3.0}}},
-    "navsim_ltfv6/untrained": _scores(0.0, 9.0),  # its WOD-E2E run is missing
+    "expert": {**_scores(0.9375, 0.0), **_wod(8.0, 0.0)},
+    **{f"navsim_ltfv6/seed{seed}/trained": _scores(pdms, 1.5) for seed, pdms in enumerate((0.5, 0.6, 0.7))},
+    **{f"wod_ltfv6/seed{seed}/trained": _wod(rfs, 1.25) for seed, rfs in enumerate((6.0, 6.5, 7.0))},
+    "navsim_ltfv6/seed0/untrained": _scores(0.0, 9.0),  # seeds 1 and 2 and its WOD-E2E runs are missing
 }
 
 
-def test_a_row_joins_the_navsim_and_wod_runs_of_one_model(tmp_path):
+def test_a_row_joins_the_navsim_and_wod_runs_of_one_model_over_seeds(tmp_path):
     spec = qs.table_spec()
     lines = to_markdown(spec, collect(spec, qs.table_runs(RESULTS, tmp_path))).splitlines()
-    expert = "| Expert (logged) | 93.75 | 94.5 | 46.88 | 51.3 | 8.00 | 8.10 | " + " | ".join(["0.00", "–"] * 4) + " |"
-    assert expert in lines
-    assert "| LTFv6 | 50.00 | 85.4 | 25.00 | 28.3 | 6.50 | 7.51 | 1.50 | – | 1.25 | – | 3.00 | – | 3.00 | – |" in lines
+    zero = "0.00 ± 0.00"
+    expert = f"| Expert (logged) | 93.75 ± 0.00 | 94.5 | 46.88 ± 0.00 | 51.3 | 8.00 ± 0.00 | 8.10 | {zero} | – |"
+    assert f"{expert} {zero} | – |" in lines  # deterministic: the same scores for every seed
+    ltfv6 = "| LTFv6 | 60.00 ± 10.00 | 85.4 | 30.00 ± 5.00 | 28.3 | 6.50 ± 0.50 | 7.51 | 1.50 ± 0.00 | – |"
+    assert f"{ltfv6} 1.25 ± 0.00 | – |" in lines
     m = MISSING
-    untrained = f"| LTFv6, before training | 0.00 | – | 0.00 | – | {m} | – | 9.00 | – | {m} | – | 18.00 | – | {m} | – |"
-    assert untrained in lines
+    assert f"| LTFv6, before training | 0.00* | – | 0.00* | – | {m} | – | 9.00* | – | {m} | – |" in lines
     assert f"| Ego MLP | {m} | 65.6 | {m} | 12.7 | {m} | 7.31 |" in "\n".join(lines)
 
 
@@ -95,53 +111,58 @@ def test_console_shows_one_table_per_dataset_within_80_columns(tmp_path):
         console.print(grid)
     lines = console.file.getvalue().splitlines()
     assert max(len(line) for line in lines) <= 80 and "…" not in console.file.getvalue()
-    rows = [" ".join(line.strip("│┃ ").replace("│", " ").replace("┃", " ").split()) for line in lines]
+    rows = [" ".join(line.split()) for line in lines]
     assert "NAVSIM: held-out test logs" in rows and "WOD-E2E: held-out val logs" in rows
-    assert "model PDMS paper EPDMS paper ADE FDE" in rows
-    assert "model RFS paper ADE FDE" in rows
+    assert "model PDMS paper EPDMS paper ADE" in rows
+    assert "model RFS paper ADE" in rows
     m = MISSING
     navsim = [
-        "Expert (logged) 93.75 94.5 46.88 51.3 0.00 0.00",
-        f"Ego MLP {m} 65.6 {m} 12.7 {m} {m}",
-        "LTFv6 50.00 85.4 25.00 28.3 1.50 3.00",
+        "Expert (logged) 93.75 ± 0.00 94.5 46.88 ± 0.00 51.3 0.00 ± 0.00",
+        f"Ego MLP {m} 65.6 {m} 12.7 {m}",
+        "LTFv6 60.00 ± 10.00 85.4 30.00 ± 5.00 28.3 1.50 ± 0.00",
     ]
-    wod = ["Expert (logged) 8.00 8.10 0.00 0.00", f"Ego MLP {m} 7.31 {m} {m}", "LTFv6 6.50 7.51 1.25 3.00"]
-    before = ["before training 0.00 – 0.00 – 9.00 18.00", f"before training {m} – {m} {m}"]
+    wod = ["Expert (logged) 8.00 ± 0.00 8.10 0.00 ± 0.00", f"Ego MLP {m} 7.31 {m}"]
+    wod.append("LTFv6 6.50 ± 0.50 7.51 1.25 ± 0.00")
+    before = ["untrained 0.00* – 0.00* – 9.00*", f"untrained {m} – {m}"]
     for row in navsim + wod + before:
         assert row in rows
     assert rows[rows.index(navsim[2]) + 1] == before[0]  # a model's untrained row sits under it
     assert rows[rows.index(wod[2]) + 1] == before[1]
-    assert all(line.startswith("│   before training ") for line in lines if "before training" in line)
+    indent = {line.index(line.lstrip()) for line in lines if line.lstrip().startswith(("LTFv6", "Ego MLP"))}
+    assert {line.index("untrained") for line in lines if "untrained" in line} == {min(indent) + 2}
 
 
 @pytest.mark.slow
 def test_quickstart_scores_every_model_before_and_after_training_on_held_out_logs(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI reads it beside its args
     monkeypatch.setattr(qs, "STEPS", dict.fromkeys(qs.STEPS, (1, 2)))
+    monkeypatch.setattr(qs, "SEEDS", (0, 1))
     small = {"navsim": ({"trainval": 2, "test": 1}, {"maps": "maps"}), "wod_e2e": ({"train": 2, "val": 2}, {})}
     monkeypatch.setattr(qs, "PLAN", {**qs.PLAN, **small, "carla_lead": (None, {})})
     console = Console(file=io.StringIO(), width=80)
     results = qs.quickstart(tmp_path, workers=1, console=console)
 
+    text = console.file.getvalue().replace("\n", "")  # rich wraps long paths
     held_out = set()
     for dataset, split in qs.EVAL_SPLITS.items():
         manifest = load_manifest(tmp_path / "data" / dataset).to_pydict()
         assert set(manifest["split"]) == {split, {"navsim": "trainval", "wod_e2e": "train"}[dataset]}
         held_out |= {k for k, s in zip(manifest["key"], manifest["split"], strict=True) if s == split}
-    for training in (t for t in qs.TRAININGS if t.predicts):
+    for training, seed in ((t, seed) for t in qs.TRAININGS for seed in qs.SEEDS):
         dataset, name = qs.home(training)
-        for stage in (qs.UNTRAINED, qs.TRAINED):
-            predictions = qs.stage_folder(tmp_path, training, dataset, stage) / "predictions.parquet"
+        run = qs.run_folder(tmp_path, dataset, name, seed)
+        for stage in (qs.UNTRAINED, qs.TRAINED) if training.predicts else ():
+            predictions = qs.stage_folder(tmp_path, training, dataset, stage, seed) / "predictions.parquet"
             predicted = {p.key for p in read_predictions(predictions)}
             assert predicted <= held_out and predicted, (training.name, stage)
-        assert (tmp_path / "runs" / qs.FAMILIES[dataset] / name / "seed0" / "checkpoints" / "last.ckpt").exists()
-    assert set(results) == {"expert"} | {
-        f"{t.name}/{s}" for t in qs.TRAININGS if t.predicts for s in ("untrained", "trained")
-    }
+        assert (run / "checkpoints" / "last.ckpt").exists()
+        assert (run / qs.LOSS_CURVES).read_bytes().startswith(b"\x89PNG") and str(run / qs.LOSS_CURVES) in text
+    stages = ("untrained", "trained")
+    runs = {f"{t.name}/seed{seed}/{s}" for t in qs.TRAININGS if t.predicts for seed in qs.SEEDS for s in stages}
+    assert set(results) == {"expert"} | runs
     assert results["expert"]["wod_e2e"]["ade"]["ade"] == 0.0  # the logged future replayed
     assert json.loads((tmp_path / "summary.json").read_text()) == results
 
-    text = console.file.getvalue()
     captured = capsys.readouterr()
     assert "Total params" not in text + captured.out + captured.err
     assert "Total params" in (tmp_path / "lightning.log").read_text()  # the model summary, kept

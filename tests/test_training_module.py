@@ -18,6 +18,7 @@ from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.models.config import TrajectoryGrid, ltfv6_config, tfv6_config
 from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.training import losses
 from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.loss_table import task_loss
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
@@ -161,6 +162,10 @@ def test_bf16_fit_init_from_round_trip_validate_predict(tmp_path):
     err = (pred - val_batch["wod"]["waypoints"]).norm(dim=-1)
     assert metrics["val/wod/ade"] == pytest.approx(err.mean().item(), rel=1e-5)
     assert metrics["val/wod/fde"] == pytest.approx(err[:, -1].mean().item(), rel=1e-5)
+    assert not any(name.startswith("val/wod/waypoints") for name in metrics)  # loss terms only when asked for
+    fine.hparams.log_val_losses = True
+    metrics = evaluation.validate(fine, loader([val_batch]), verbose=False)[0]
+    assert metrics["val/wod/waypoints"] == pytest.approx(losses.waypoint_loss({"waypoints": pred}, val_batch["wod"]))
 
     # predictions: ISO ego frame poses on the source's own time grid
     out = trainer().predict(fine, loader([val_batch]))[0]["wod"]

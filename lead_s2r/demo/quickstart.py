@@ -8,14 +8,16 @@ The traps: a model judged on the logs it trained on looks better than it is, so 
 ``trainval`` / WOD-E2E ``train`` and are scored on NAVSIM ``test`` / WOD-E2E ``val`` logs only, which the generators
 draw from the same distribution as the training logs. And a few optimizer steps teach a model nothing, so the
 quickstart trains the smoke twins for :data:`STEPS` steps (they run a handful in the test suite) and reports every
-model before training too: the two rows show what training changed.
+model before training too: the two rows show what training changed. One seed can rank two models either way, so
+every row is the mean and sample std over :data:`SEEDS`, on held-out splits large enough that one log moves a score
+by at most 5 points (20 NAVSIM test logs).
 
 The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken out (no CARLA source, no
 ``init_from`` of a CARLA pre-training), so the two rows differ in nothing else. Lightning talks a lot on the console
 (model summary, tips, deprecation warnings from its dependencies); the quickstart sends all of it to
 ``<out>/lightning.log`` so the console shows the stages and the table. Columns are :data:`METRICS`, one per metric and
 dataset, so a new metric is one line there. The files under ``<out>/table`` hold Table 4's single layout (every
-column, ours and the paper's); the console splits it into one table per dataset with short row names, because nine
+column, ours and the paper's); the console splits it into one table per dataset with short row names, because ten
 columns squeezed into an 80-column terminal cut every header and wrap every model name over four lines.
 """
 
@@ -32,12 +34,14 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from rich import box
 from rich.console import Console
 from rich.table import Table
 
 from lead_s2r.convert import convert
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import get_adapter
+from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import (
     Cell,
     Column,
@@ -64,28 +68,33 @@ SMOKE = Path(__file__).resolve().parents[2] / "recipes" / "smoke"
 #: validation segment, as the real data does, so RFS is a mean over about as many frames as there are val segments.
 PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
     "carla_lead": (None, {}),
-    "navsim": ({"trainval": 12, "test": 4}, {"maps": "maps"}),
+    "navsim": ({"trainval": 32, "test": 20}, {"maps": "maps"}),
     "wod_e2e": ({"train": 48, "val": 24}, {}),
 }
+#: Every trained row is the mean and sample std over these seeds (the paper's three); a seed sets the initial
+#: weights and the training data's order.
+SEEDS = (0, 1, 2)
+#: Validation batches per epoch for the loss curves (the first of the held-out logs; the table scores all of them).
+VAL_BATCHES = 4
 #: dataset -> the held-out split every row is scored on, and its name in the table.
 EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
 LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
 #: dataset -> the family folder its runs sit in (``runs/<family>/<name>/seed<k>``, as in the recipes and Table 4).
 FAMILIES = {"navsim": "navsim", "wod_e2e": "wod"}
-SEED = 0
 #: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
 HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: Training name -> its length in the quickstart: (epochs, optimizer steps per epoch). The Ego MLP's steps cost
 #: next to nothing and it needs a few hundred to fit the WOD-E2E futures; the LTFv6 twins cost most of the run.
 STEPS: dict[str, tuple[int, int]] = {
     "ego_mlp": (8, 50),
-    "navsim_ltfv6": (4, 15),
-    "navsim_ltfv6_lead": (4, 15),
+    "navsim_ltfv6": (4, 20),
+    "navsim_ltfv6_lead": (4, 20),
     "wod_ltfv6_pretrain": (4, 15),
     "wod_ltfv6": (6, 25),
     "wod_ltfv6_lead": (6, 25),
 }
 LIGHTNING_LOG = "lightning.log"
+LOSS_CURVES = "loss_curves.png"
 
 
 @dataclass(frozen=True)
@@ -139,7 +148,6 @@ METRICS = (
     Metric("EPDMS", "epdms@navsim-2.2", "epdms", ("navsim",), scale=100.0),
     Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
     Metric("ADE", "ade", "ade"),
-    Metric("FDE", "ade", "fde"),
 )
 
 
@@ -166,8 +174,9 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
     references = {dataset: ReferenceCache() for dataset in PLAN}
     results = {"expert": score_expert(out, references)}
     _stage(console, f"{EXPERT}: logged futures scored on the held-out logs", started)
-    for training in TRAININGS:
-        results.update(train_and_score(training, out, console, started, references))
+    for seed in SEEDS:
+        for training in TRAININGS:
+            results.update(train_and_score(training, seed, out, console, started, references))
     (out / "summary.json").write_text(json.dumps(results, indent=2))
     spec = table_spec()
     cells = collect(spec, table_runs(results, out))
@@ -178,12 +187,12 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
         console.print(grid)
     console.print(spec.notes)
     console.print(
-        f"Trained {steps_range()} optimizer steps on NAVSIM trainval / WOD-E2E train logs, scored on the held-out "
-        f"NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; the paper's numbers are on real "
-        "data.\n"
+        f"Trained {steps_range()} optimizer steps, seeds {', '.join(map(str, SEEDS))}, on NAVSIM trainval / WOD-E2E "
+        f"train logs, scored on the held-out NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; "
+        "the paper's numbers are on real data.\n"
         f"Table (markdown, LaTeX, CSV): {out / 'table'}; summary: {out / 'summary.json'}; runs (configs, checkpoints, "
-        f"predictions, scores): {out / 'runs'}/<family>/<name>/seed{SEED} (lead-s2r table --spec table4 --runs "
-        f"'{out / 'runs'}/*/*/seed*'); Lightning's console output: {out / LIGHTNING_LOG}"
+        f"predictions, scores, {LOSS_CURVES}): {out / 'runs'}/<family>/<name>/seed<N> (lead-s2r table --spec table4 "
+        f"--runs '{out / 'runs'}/*/*/seed*'); Lightning's console output: {out / LIGHTNING_LOG}"
     )
     console.print(f"Report (open in a browser): {write_report(out)}")
     return results
@@ -195,7 +204,7 @@ def write_report(out: Path) -> Path:
     folder holds one family, ``runs/<family>/<name>/seed0``; the WOD-E2E half is ``runs/wod/ego_mlp/seed0``.)"""
     from lead_s2r.report.site import build_report
 
-    run, baseline = run_folder(out, "navsim", "ego_mlp"), run_folder(out, "navsim", "expert")
+    run, baseline = run_folder(out, "navsim", "ego_mlp", 0), run_folder(out, "navsim", "expert", 0)
     return build_report(run, out / "report", baseline=baseline, worst=4)
 
 
@@ -223,7 +232,7 @@ def score_expert(out: Path, references: dict[str, ReferenceCache]) -> dict[str, 
     """The logged human trajectory (NAVSIM's HumanAgent) on every held-out sample, scored like a model."""
     results = {}
     for dataset, split in EVAL_SPLITS.items():
-        data, run = out / "data" / dataset, run_folder(out, dataset, "expert")
+        data, run = out / "data" / dataset, run_folder(out, dataset, "expert", 0)
         run.mkdir(parents=True, exist_ok=True)
         held_out = (s for s in read_samples(data, fields=["future"]) if s["meta"]["split"] == split)
         path = write_predictions(run / "predictions.parquet", [predict_human(s, HORIZONS[dataset]) for s in held_out])
@@ -231,9 +240,9 @@ def score_expert(out: Path, references: dict[str, ReferenceCache]) -> dict[str, 
     return results
 
 
-def run_folder(out: Path, dataset: str, name: str) -> Path:
+def run_folder(out: Path, dataset: str, name: str, seed: int) -> Path:
     """``<out>/runs/<family>/<name>/seed0``: the layout of the recipes, which ``lead-s2r table`` reads."""
-    return out / "runs" / FAMILIES[dataset] / name / f"seed{SEED}"
+    return out / "runs" / FAMILIES[dataset] / name / f"seed{seed}"
 
 
 def scored_on(training: Training) -> tuple[str, ...]:
@@ -249,11 +258,11 @@ def home(training: Training) -> tuple[str, str]:
     return dataset, training.name.removeprefix(f"{FAMILIES[dataset]}_")
 
 
-def stage_folder(out: Path, training: Training, dataset: str, stage: str) -> Path:
+def stage_folder(out: Path, training: Training, dataset: str, stage: str, seed: int) -> Path:
     """Where a training's predictions and scores on ``dataset`` go: its run folder once trained, ``<name>_untrained``
     for its initial weights (a run of its own, so a table row never mixes the two)."""
     name = home(training)[1]
-    return run_folder(out, dataset, name if stage == TRAINED else f"{name}_{UNTRAINED}")
+    return run_folder(out, dataset, name if stage == TRAINED else f"{name}_{UNTRAINED}", seed)
 
 
 def score(predictions: Path, data: Path, dataset: str, out: Path, references: ReferenceCache) -> dict[str, Any]:
@@ -269,20 +278,30 @@ def score(predictions: Path, data: Path, dataset: str, out: Path, references: Re
     return results
 
 
-def smoke_config(training: Training, out: Path) -> Path:
+def smoke_config(training: Training, out: Path, seed: int = 0) -> Path:
     """The training's smoke twin with its ``quickstart/`` paths moved under ``out``, its run folder named after the
-    training, as long as :data:`STEPS` says and, for a run without LEAD, no CARLA data; written to
-    ``out/<name>.yaml``."""
+    training and seed (a CARLA pre-training it starts from: the one of the same seed), as long as :data:`STEPS` says,
+    validated on the first :data:`VAL_BATCHES` held-out batches (the loss curves) and, for a run without LEAD, no
+    CARLA data; written to ``out/<name>-seed<N>.yaml``."""
     recipe = SMOKE / f"{training.recipe}.yaml"
     if not recipe.exists():
         raise FileNotFoundError(f"{recipe} not found: run the quickstart from a source checkout (pip install -e .)")
     config = yaml.safe_load(recipe.read_text().replace("quickstart/", f"{out.as_posix()}/"))
-    config["trainer"]["default_root_dir"] = str(run_folder(out, *home(training)))
+    config["seed_everything"] = seed
+    config["trainer"]["default_root_dir"] = str(run_folder(out, *home(training), seed))
     config["trainer"]["max_epochs"], config["data"]["steps_per_epoch"] = STEPS[training.name]
     config["trainer"]["enable_progress_bar"] = False  # the quickstart's console shows its stages, not every step
+    init_from = config["model"].get("init_from")
+    if init_from:  # the CARLA pre-training of the same seed: runs/<family>/<name>/seed<N>/checkpoints/last.ckpt
+        family, name = Path(init_from).relative_to(out / "runs").parts[:2]
+        config["model"]["init_from"] = str(out / "runs" / family / name / f"seed{seed}" / "checkpoints" / "last.ckpt")
+    if "predict" in config["data"]:
+        config["data"]["val"] = config["data"]["predict"]
+        config["trainer"]["limit_val_batches"] = VAL_BATCHES
+        config["model"]["log_val_losses"] = True
     if training.without_lead:
         drop_carla(config)
-    path = out / f"{training.name}.yaml"
+    path = out / f"{training.name}-seed{seed}.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 
@@ -315,26 +334,27 @@ def lightning_output_to(log: Path) -> Iterator[None]:
 
 
 def train_and_score(
-    training: Training, out: Path, console: Console, started: float, references: dict[str, ReferenceCache]
+    training: Training, seed: int, out: Path, console: Console, started: float, references: dict[str, ReferenceCache]
 ) -> dict[str, Any]:
-    """Fit the training's config; predict and score the held-out logs with the weights before and after training."""
-    config = smoke_config(training, out)
-    run = run_folder(out, *home(training))
+    """Fit the training's config with ``seed``; draw its loss curves; predict and score the held-out logs with the
+    weights before and after training. Returns ``{"<name>/seed<N>/<stage>": {dataset: {scorer: aggregates}}}``."""
+    config = smoke_config(training, out, seed)
+    run = run_folder(out, *home(training), seed)
     for dataset in scored_on(training):  # a checkpoint or scores left by an earlier quickstart would pass for new
         for stage in (TRAINED, UNTRAINED):
-            shutil.rmtree(stage_folder(out, training, dataset, stage), ignore_errors=True)
+            shutil.rmtree(stage_folder(out, training, dataset, stage, seed), ignore_errors=True)
     results = {}
+    key = f"{training.name}/seed{seed}"
     if training.predicts:
-        untrained = predict_and_score(config, training, UNTRAINED, out, None, references)
-        results[f"{training.name}/{UNTRAINED}"] = untrained
+        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, references)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
+    curves = plot_loss_curves(run / "lightning_logs" / "version_0" / "metrics.csv", run / LOSS_CURVES, key)
     if training.predicts:
         checkpoint = run / "checkpoints" / "last.ckpt"
-        trained = predict_and_score(config, training, TRAINED, out, checkpoint, references)
-        results[f"{training.name}/{TRAINED}"] = trained
+        results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, references)
     scored = ", scored before and after" if training.predicts else ""
-    _stage(console, f"{training.name}: trained -> {run}{scored}", started)
+    _stage(console, f"{key}: trained{scored}; loss curves -> {curves}", started)
     return results
 
 
@@ -342,13 +362,14 @@ def predict_and_score(
     config: Path,
     training: Training,
     stage: str,
+    seed: int,
     out: Path,
     checkpoint: Path | None,
     references: dict[str, ReferenceCache],
 ) -> dict[str, Any]:
     """Predict with ``config``'s model (``checkpoint``; None: its initial weights) and score each dataset's
     predictions against that dataset alone, in the stage's folder of that dataset's family."""
-    root = stage_folder(out, training, home(training)[0], stage)
+    root = stage_folder(out, training, home(training)[0], stage, seed)
     args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(root)]
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(args + (["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
@@ -357,7 +378,7 @@ def predict_and_score(
     for dataset in scored_on(training):
         mine = [p for p in predictions if p.dataset == dataset]
         if mine:
-            folder = stage_folder(out, training, dataset, stage)
+            folder = stage_folder(out, training, dataset, stage, seed)
             folder.mkdir(parents=True, exist_ok=True)
             path = write_predictions(folder / f"predictions-{dataset}.parquet", mine)
             results[dataset] = score(path, out / "data" / dataset, dataset, folder / "scores", references[dataset])
@@ -375,12 +396,13 @@ def by_scorer(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def table_rows() -> dict[str, dict[str, str]]:
-    """Row name -> {dataset: the run id whose scores fill that dataset's columns}: the Expert, then every model after
-    and before training (the paper's Table 4 trains one model per benchmark; a row here joins the two)."""
+    """Row name -> {dataset: the run id whose scores fill that dataset's columns, with ``{seed}`` for the seed}: the
+    Expert (deterministic: the same scores for every seed), then every model after and before training (the paper's
+    Table 4 trains one model per benchmark; a row here joins the two)."""
     rows = {EXPERT: dict.fromkeys(EVAL_SPLITS, "expert")}
     for model, runs in MODELS.items():
         for stage, name in ((TRAINED, model), (UNTRAINED, f"{model}, {BEFORE_TRAINING}")):
-            rows[name] = {dataset: f"{run}/{stage}" for dataset, run in runs.items()}
+            rows[name] = {dataset: f"{run}/seed{{seed}}/{stage}" for dataset, run in runs.items()}
     return rows
 
 
@@ -396,11 +418,12 @@ def table_spec() -> TableSpec:
     paper = load_spec("table4")
     rows = tuple(Row(name, name, paper_numbers(paper, name, columns)) for name in table_rows())
     notes = (
-        "One seed, toy models, synthetic data: numbers show that training moves the scores, not what the models can "
-        "do. Before training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS "
-        "in percent, ADE and FDE in metres; paper: the paper's Table 4 (real data)."
+        f"Mean ± sample std over seeds {', '.join(map(str, SEEDS))}; toy models, synthetic data: the numbers show "
+        "what training changes and how models rank on these worlds, not what the models can do on real data. Before "
+        "training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS in percent, "
+        "ADE and FDE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner)."
     )
-    return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=(0,), digits=2, notes=notes)
+    return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=SEEDS, digits=2, notes=notes)
 
 
 def paper_numbers(paper: TableSpec, name: str, columns: tuple[Column, ...]) -> tuple[float | str | None, ...]:
@@ -420,8 +443,11 @@ def table_runs(results: dict[str, Any], out: Path) -> list[Run]:
     """One run per table row, its scores gathered from the quickstart's runs as :func:`table_rows` says."""
     runs = []
     for name, sources in table_rows().items():
-        scores = {dataset: results.get(run_id, {}).get(dataset, {}) for dataset, run_id in sources.items()}
-        runs.append(Run(out / "runs", name, 0, by_scorer(scores)))
+        for seed in SEEDS:
+            ids = {dataset: run_id.format(seed=seed) for dataset, run_id in sources.items()}
+            scores = {dataset: results.get(run_id, {}).get(dataset, {}) for dataset, run_id in ids.items()}
+            if any(scores.values()):
+                runs.append(Run(out / "runs", name, seed, by_scorer(scores)))
     return runs
 
 
@@ -434,7 +460,8 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
         label = LABELS[dataset]
         columns = [i for i, column in enumerate(spec.columns) if column.key.startswith(f"{dataset}.")]
         papers = {i for i in columns if any(row.paper[i] is not None for row in spec.rows)}
-        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left")
+        # no column rules: "mean ± std" cells and the paper's numbers beside them fit 80 columns
+        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left", box=box.SIMPLE_HEAD)
         grid.add_column("model")
         for i in columns:
             grid.add_column(spec.columns[i].name.removeprefix(f"{label} "), justify="right")
@@ -452,5 +479,6 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
 
 
 def console_name(row: str) -> str:
-    """A row's name on the console: a model's untrained row sits under its trained one as "before training"."""
-    return f"  {BEFORE_TRAINING}" if row.endswith(f", {BEFORE_TRAINING}") else row
+    """A row's name on the console: a model's untrained row sits under its trained one as "untrained" (short, so
+    NAVSIM's five number columns fit 80 columns)."""
+    return f"  {UNTRAINED}" if row.endswith(f", {BEFORE_TRAINING}") else row

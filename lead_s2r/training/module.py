@@ -68,6 +68,8 @@ class DrivingModule(L.LightningModule):
             "cosine" decays once over the whole run (LEAD's WOD-E2E schedule).
         compile: wrap the model with ``torch.compile`` (parameter names stay the same).
         init_from: checkpoint whose matching tensors initialise the model (fine-tuning); new heads are reported.
+        log_val_losses: also log every loss term on the validation data (``val/<source>/<task>``), for loss curves.
+            Under DDP each is the mean of the ranks' means, not the exact mean over samples that ADE/FDE are.
 
     A checkpoint of it rebuilds the module alone: ``DrivingModule.load_from_checkpoint(path)``.
     """
@@ -84,6 +86,7 @@ class DrivingModule(L.LightningModule):
         lr_schedule: Literal["constant", "cosine_restarts", "cosine"] = "constant",
         compile: bool = False,
         init_from: str | None = None,
+        log_val_losses: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["model"])
@@ -203,10 +206,16 @@ class DrivingModule(L.LightningModule):
                     self._val_mean(f"{source}/{metric}")
 
     def validation_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
-        """ADE / FDE per source on its own grid (``val/<source>/ade``, ``.../fde``).
+        """ADE / FDE per source on its own grid (``val/<source>/ade``, ``.../fde``); with ``log_val_losses``, every loss
+        term as ``val/<source>/<task>`` too (the loss curves' validation side; no weighted total, since each source's
+        batch comes from its own dataloader).
 
         Returns ``{"predictions": [Prediction, ...]}`` so scoring callbacks (RFS...) can use the same forward pass.
         """
+        if self.hparams.log_val_losses:
+            _, terms = self.compute_losses(batch)
+            for name, (value, n) in terms.items():
+                self.log(f"val/{name}", value, batch_size=n, add_dataloader_idx=False, sync_dist=True)
         outputs = self.predict_step(batch, batch_idx)
         for source, output in outputs.items():
             source_batch = batch[source]
