@@ -261,3 +261,16 @@ def test_without_msgpack_the_error_names_the_extra(converted, tmp_path: Path, mo
     result = convert(Py123dAdapter(), src, tmp_path / "out")
     assert result.logs_converted == 0 and len(result.errors) == 2
     assert all("pip install 'lead-s2r[py123d]'" in json.dumps(error) for error in result.errors)
+
+
+def test_lead_s2r_score_computes_pdms_on_a_converted_123d_log(converted, tmp_path: Path) -> None:
+    """PDMS is defined on any sample with a map's ``scoring`` context, so a 123D log scores like a NAVSIM one."""
+    from lead_s2r.scoring.run import planner_predictions, score_predictions
+
+    src, _ = converted
+    data = src.parent / "py123d_out"
+    predictions = planner_predictions("human", data, tmp_path / "predictions.parquet")
+    report = score_predictions("pdms@navsim-1.1", predictions, [data], tmp_path / "scores")
+    aggregates = report["aggregates"]
+    assert aggregates["frames"] > 0 and aggregates["frames_skipped_other_dataset"] == 0
+    assert 0.9 < aggregates["pdms"] <= 1.0 and aggregates["no_at_fault_collisions"] == 1.0

@@ -49,6 +49,14 @@ class Scorer(ABC):
         ``--strict``, and lists the unpredicted samples in scores.json)."""
         self.allow_missing = allow_missing
 
+    def scores_any(self, samples: Iterable[dict[str, Any]]) -> bool:
+        """Whether some sample is of a dataset this metric is defined on and carries the fields it requires."""
+        return any(
+            (self.datasets is None or sample["meta"]["dataset"] in self.datasets)
+            and all(name in sample for name in self.required)
+            for sample in samples
+        )
+
     def config(self) -> dict[str, Any]:
         """JSON-ready configuration, written next to the scores."""
         return {"allow_missing": self.allow_missing}

@@ -107,9 +107,8 @@ def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[s
     """A metric asked of data it is not defined on (RFS on data without raters, PDMS on WOD-E2E) scores nothing:
     an error naming the datasets, not a scores.json of null aggregates."""
     datasets = sorted({sample["meta"]["dataset"] for sample in samples})
-    wrong_dataset = scorer.datasets is not None and not set(datasets) & set(scorer.datasets)
-    unscorable = scorer.required and not any(all(name in s for name in scorer.required) for s in samples)
-    if wrong_dataset or unscorable:
+    if not scorer.scores_any(samples):
+        wrong_dataset = scorer.datasets is not None and not set(datasets) & set(scorer.datasets)
         needs = f"datasets {list(scorer.datasets)}" if wrong_dataset else f"samples with {list(scorer.required)}"
         raise UserError(
             f"--metric {scorer.name} scores {needs}, but {', '.join(map(str, folders))} holds datasets {datasets} "

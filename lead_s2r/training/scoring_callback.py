@@ -90,7 +90,7 @@ class ScoringCallback(L.Callback):
             keys = dict.fromkeys(p.key for p in group)
             data = [samples[key] for key in keys if key in samples]
             for scorer in self.scorers:
-                if scorer.datasets is not None and dataset not in scorer.datasets:
+                if not scorer.scores_any(data):
                     continue
                 aggregates = scorer.score(group, data).aggregates
                 for name, value in aggregates.items():

@@ -136,6 +136,8 @@ class EPDMSScorer(PDMSScorer):
     name: ClassVar[str] = EPDMS_METRIC
     version: ClassVar[str] = "1"
     fields: ClassVar[tuple[str, ...]] = (*PDMSScorer.fields, "past")
+    #: NAVSIM's frames only: EC pairs adjacent frames by NAVSIM's scene tokens and navhard's two stages
+    datasets: ClassVar[tuple[str, ...] | None] = ("navsim",)
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
     headline: ClassVar[str] = "epdms"
     csv_name: ClassVar[str] = CSV_NAME

@@ -58,7 +58,8 @@ class PDMSScorer(Scorer):
     name: ClassVar[str] = METRIC
     version: ClassVar[str] = "1"
     fields: ClassVar[tuple[str, ...]] = ("scoring", "boxes", "agents_future", "future")
-    datasets: ClassVar[tuple[str, ...] | None] = ("navsim",)
+    #: any sample with a ``scoring`` context (NAVSIM, and 123D logs converted with their map), not a dataset name
+    required: ClassVar[tuple[str, ...]] = ("scoring",)
     #: the CSV's score columns (after ``token``, ``valid``), the aggregate naming the split score, the CSV file
     #: and its average row's token: what ``epdms@navsim-2.2`` (:mod:`lead_s2r.scoring.navsim.epdms_scorer`) changes
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
@@ -79,9 +80,9 @@ class PDMSScorer(Scorer):
         return {**super().config(), "reference_cache": self.reference_cache}
 
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
-        """Samples of other datasets (e.g. WOD-E2E beside NAVSIM in one run) are skipped and counted."""
+        """Samples without a ``scoring`` context (e.g. WOD-E2E beside NAVSIM in one run) are skipped and counted."""
         pairs = join(predictions, data, self.allow_missing)
-        ours = [(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
+        ours = [(sample, frame) for sample, frame in pairs if "scoring" in sample]
         rows = self.map_samples(self.score_sample, ours)
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": len(pairs) - len(ours)})
