@@ -11,6 +11,7 @@ A point cloud crosses the pipe in about a millisecond.
 
 import io
 import json
+import select
 import struct
 import subprocess
 import sys
@@ -20,6 +21,10 @@ from typing import BinaryIO
 import numpy as np
 
 _HEADER = struct.Struct("<cQ")
+#: Raw point bytes per compressed byte a LAZ file may claim (LEAD's files: about 6).
+MAX_COMPRESSION = 100
+#: Seconds the helper may take for one file (LEAD's take about 0.05 s) before it is killed and the file refused.
+TIMEOUT_S = 60.0
 
 
 class LazDecodeError(Exception):
@@ -27,10 +32,18 @@ class LazDecodeError(Exception):
 
 
 def _decode(path: Path) -> np.ndarray:
-    """(N, 4) float64 x, y, z, time of one LEAD ``.laz`` file, decoded in this process."""
+    """(N, 4) float64 x, y, z, time of one LEAD ``.laz`` file, decoded in this process.
+
+    The header's point count is held against the file's size first: a damaged count makes the decoder allocate and
+    fill gigabytes for minutes (LAZ packs a point into no less than a hundredth of its record, LEAD's about a sixth).
+    """
     import laspy
 
-    las = laspy.read(str(path))
+    with laspy.open(str(path)) as reader:
+        header, size = reader.header, path.stat().st_size
+        if header.point_count * header.point_format.size > MAX_COMPRESSION * size:
+            raise LazDecodeError(f"the header claims {header.point_count} points, more than {size} bytes can hold")
+        las = reader.read()
     if "time" not in set(las.point_format.extra_dimension_names):
         raise LazDecodeError("LAS file has no extra dimension 'time'")
     columns = [np.asarray(las.x), np.asarray(las.y), np.asarray(las.z), np.asarray(las["time"])]
@@ -76,11 +89,18 @@ class _Helper:
         try:
             process.stdin.write(json.dumps(str(path)).encode() + b"\n")
             process.stdin.flush()
+            if not select.select([process.stdout], [], [], TIMEOUT_S)[0]:
+                process.kill()
+                raise TimeoutError
             status, size = _HEADER.unpack(_read(process.stdout, _HEADER.size))
             payload = _read(process.stdout, size)
         except (BrokenPipeError, EOFError):
             cls.process = None
             raise LazDecodeError(f"the LAZ decoder died on it (exit status {process.wait()})") from None
+        except TimeoutError:
+            cls.process = None
+            process.wait()
+            raise LazDecodeError(f"the LAZ decoder took over {TIMEOUT_S:g} s on it and was stopped") from None
         if status != b"P":
             raise LazDecodeError(payload.decode(errors="replace"))
         return np.load(io.BytesIO(payload), allow_pickle=False)

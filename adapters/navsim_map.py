@@ -64,7 +64,10 @@ def _read_layer(path: Path, layer: str) -> pa.Table:
     except pyogrio.errors.DataLayerError as err:
         raise MapError(f"{path}: layer {layer!r} is missing ({err})") from None
     rename = {meta["geometry_name"]: "geometry", meta.get("fid_column") or "OGC_FID": "fid", "OGC_FID": "fid"}
-    return table.rename_columns([rename.get(name, name) for name in table.column_names])
+    table = table.rename_columns([rename.get(name, name) for name in table.column_names])
+    if "geometry" not in table.column_names:  # damaged GeoPackage metadata loses the geometry column's name
+        raise MapError(f"{path}: layer {layer!r} has no geometry column")
+    return table
 
 
 def _column(path: Path, layer: str, table: pa.Table, name: str, fill: float | int = -1) -> np.ndarray:

@@ -9,7 +9,9 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+import shapely
 
+from lead_s2r.errors import UserError
 from lead_s2r.geometry import rotate, to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command
@@ -176,7 +178,15 @@ def add_map_fields(
     ``past``) and ``bev_semantic`` (rendered from it and the boxes) into ``sample``; needs ``source.maps``."""
     assert source.maps is not None
     nuplan_map = navsim_map.load_map(source.maps, map_name)
-    context = navsim_map.scoring_context(nuplan_map, origin, source.map_radius, roadblocks, red, times)
-    context["ego_past"] = past
-    sample["scoring"] = context
-    sample["bev_semantic"] = navsim_map.bev_semantic_raster(context, sample.get("boxes", np.zeros((0, 10))))
+    try:  # a damaged map (or the log's ids into it) fails deep in numpy/shapely: name the map file here
+        context = navsim_map.scoring_context(nuplan_map, origin, source.map_radius, roadblocks, red, times)
+        context["ego_past"] = past
+        sample["scoring"] = context
+        sample["bev_semantic"] = navsim_map.bev_semantic_raster(context, sample.get("boxes", np.zeros((0, 10))))
+    except (TypeError, ValueError, KeyError, IndexError, shapely.errors.ShapelyError) as err:
+        if isinstance(err, UserError):
+            raise
+        problem = f"{type(err).__name__}: {err}"
+        raise navsim_map.MapError(
+            f"{nuplan_map.path}: unusable around this scene, or the log's ids into it ({problem})"
+        ) from err

@@ -384,3 +384,20 @@ def test_navsim_wrong_typed_log_value_names_the_log_file(raw, tmp_path):
     (error,) = convert(get_adapter("navsim"), src, tmp_path / "out").errors
     assert error["error"].startswith(f"NavsimFormatError: {log} frame ")
     assert "a value of an unexpected type (ValueError" in error["error"]
+
+
+def test_laz_header_claiming_too_many_points_or_a_stuck_decoder_is_refused(raw, tmp_path, monkeypatch):
+    """A damaged point count made the decoder fill gigabytes for minutes (a hang of the whole conversion)."""
+    from lead_s2r_adapters import laz_decoder
+    from lead_s2r_adapters.carla_lead_io import LeadFormatError, read_laz
+
+    laz = routes(copy_of(raw["carla_lead"], tmp_path))[0] / "lidar" / "0001.laz"
+    data = bytearray(laz.read_bytes())
+    struct.pack_into("<I", data, 107, 2_000_000_000)  # LAS 1.2 header: number of point records
+    rewrite(laz, bytes(data))
+    with pytest.raises(LeadFormatError, match=f"{laz}: corrupt LAZ file .*the header claims 2000000000 points"):
+        read_laz(laz)
+    monkeypatch.setattr(laz_decoder._Helper, "process", None)  # a fresh helper: it cannot answer within 0 s
+    monkeypatch.setattr(laz_decoder, "TIMEOUT_S", 0.0)
+    with pytest.raises(LeadFormatError, match="the LAZ decoder took over 0 s on it and was stopped"):
+        read_laz(laz)
