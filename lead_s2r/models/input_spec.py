@@ -102,7 +102,7 @@ def lead_input_spec(config: LeadConfig) -> InputSpec:
         ),
         lidar_raster=not config.LTF,
         radar=config.has_radar_detector,
-        radar_sources=(),  # radar detection is not trained through LeadDriver: no detection targets
+        radar_sources=("carla",) if "radar" in carla else (),
         bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if "bev_semantic" in navsim else {},
         box_classes={"navsim": NAVSIM_BOX_CLASSES} if "boxes" in navsim else {},
         semantic_classes={"carla": config.num_semantic_classes} if "semantic" in carla else {},

@@ -340,8 +340,8 @@ class LeadConfig:
 
     def perception_tasks(self, source: str) -> set[str]:
         """Our perception tasks (names of ``lead_s2r.training.losses``) LEAD's heads produce for ``source`` in our
-        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics and
-        depth."""
+        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics,
+        depth and radar detection."""
         tasks = set()
         if source == "navsim" and self.use_navsim_data and self.use_bev_semantic:
             tasks.add("bev_semantic")
@@ -351,6 +351,8 @@ class LeadConfig:
             tasks.add("semantic")
         if source == "carla" and self.use_carla_data and self.use_depth:
             tasks.add("depth")
+        if source == "carla" and self.has_radar_detector:
+            tasks.add("radar")
         return tasks
 
     @property

@@ -1,26 +1,28 @@
 """LEAD's network with the interface our LightningModule trains and predicts with (``tasks``, ``grid``,
 ``forward(batch, source, tasks)``), so a LEAD checkpoint folder works wherever a run does: ``lead-s2r predict``,
-fine-tuning with ``fit``, and back out with ``lead-s2r export-lead``.
+fine-tuning with ``fit``, the CARLA closed-loop agent, and back out with ``lead-s2r export-lead``.
 
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
 :mod:`lead_s2r.models.lead_frame` only. The loader follows
 :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
 raster, radar and target points when the network reads them, and the labels of the heads whose classes are ours too:
-the planner's outputs (waypoints, NAVSIM headings, CARLA route) for the source the network plans for, NAVSIM BEV
-semantics and boxes, and with CARLA data (LEAD's mixed training) CARLA perspective semantics and depth. LEAD's CARLA BEV
-classes, CARLA boxes, radar detections and target speed are not trained through this wrapper.
+the planner's outputs (waypoints, NAVSIM headings, CARLA route and target speed) for the source the network plans for,
+NAVSIM BEV semantics and boxes, and with CARLA data CARLA perspective semantics, depth and radar detection. LEAD's
+13-class CARLA BEV and 8-class CARLA boxes are not trained here: our CARLA labels use other class tables
+(docs/models.md).
 """
 
 from collections.abc import Collection
 from pathlib import Path
 
+import torch
 from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
 from lead_s2r.models.config import TrajectoryGrid, default_grids
 from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
-from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
 from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
@@ -45,22 +47,31 @@ class LeadDriver(nn.Module):
         else:
             config = config if config is not None else LeadConfig(use_planning_decoder=True)
             self.network = LeadTFv6(config)
-        if not config.use_planning_decoder:
-            raise ValueError("LeadDriver needs use_planning_decoder=true (a pretraining network has no planner)")
         self.config = config
         self.source = config.planning_source
+        speeds = torch.tensor(TARGET_SPEED_CLASSES)
+        self.register_buffer("target_speed_classes", speeds, persistent=False)  # the target-speed loss's bins
+
+    @property
+    def radar_scale(self) -> tuple[float, float, float]:
+        """What the radar detection loss divides (x, y, speed) by: LEAD's BEV half extents and its maximum speed."""
+        c = self.config
+        return (c.max_x_meter - c.min_x_meter) / 2, (c.max_y_meter - c.min_y_meter) / 2, c.max_speed
 
     def grid(self, source: str) -> TrajectoryGrid:
         return default_grids()[source]
 
     def tasks(self, source: str) -> frozenset[str]:
-        tasks = self.config.perception_tasks(source)
-        if source == self.source:
+        c = self.config
+        tasks = c.perception_tasks(source)
+        if source == self.source and c.use_planning_decoder:  # a pretraining network (no planner) plans nothing
             tasks.add("waypoints")
-            if self.config.use_navsim_data and not self.config.use_tfv5_planning_decoder:
+            if c.use_navsim_data and not c.use_tfv5_planning_decoder:
                 tasks.add("headings")
-            if self.config.predict_spatial_path or self.config.use_tfv5_planning_decoder:
+            if c.predict_spatial_path or c.use_tfv5_planning_decoder:
                 tasks.add("route")
+            if c.predict_target_speed:
+                tasks.add("target_speed")
         return frozenset(tasks)
 
     def forward(self, batch: Batch, source: str, tasks: Collection[str] | None = None) -> dict[str, Tensor]:
