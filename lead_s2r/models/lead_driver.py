@@ -53,6 +53,11 @@ class LeadDriver(nn.Module):
         self.register_buffer("target_speed_classes", speeds, persistent=False)  # the target-speed loss's bins
 
     @property
+    def reads_target_points(self) -> bool:
+        """Whether route target points reach the planner (LEAD's CARLA mode: previous, current and next)."""
+        return bool(self.config.use_planning_decoder and self.config.use_tp)
+
+    @property
     def radar_scale(self) -> tuple[float, float, float]:
         """What the radar detection loss divides (x, y, speed) by: LEAD's BEV half extents and its maximum speed."""
         c = self.config
