@@ -35,10 +35,16 @@ class LeadDriver(nn.Module):
         checkpoint: a LEAD checkpoint folder (config.json + model*.pth): its config and weights, loaded strictly;
             several matching files make an ensemble (prediction only).
         pattern: which weight files of ``checkpoint`` to load.
+        pretrained: start the image encoder of a ``config``-built network from timm's ImageNet weights, as LEAD's
+            training does.
     """
 
     def __init__(
-        self, config: LeadConfig | None = None, checkpoint: str | None = None, pattern: str = "model*.pth"
+        self,
+        config: LeadConfig | None = None,
+        checkpoint: str | None = None,
+        pattern: str = "model*.pth",
+        pretrained: bool = False,
     ) -> None:
         super().__init__()
         if checkpoint is not None:
@@ -46,7 +52,7 @@ class LeadDriver(nn.Module):
             self.network: nn.Module = load_checkpoint(checkpoint, pattern).train()
         else:
             config = config if config is not None else LeadConfig(use_planning_decoder=True)
-            self.network = LeadTFv6(config)
+            self.network = LeadTFv6(config, pretrained=pretrained)
         self.config = config
         self.source = config.planning_source
         speeds = torch.tensor(TARGET_SPEED_CLASSES)
