@@ -78,7 +78,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
     try:
         module = importlib.import_module(f"lead_s2r.synthetic.{args.name}")
     except ModuleNotFoundError:
-        raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim or wod_e2e") from None
+        raise UserError(f"no synthetic generator {args.name!r}; choose carla_lead, navsim, wod_e2e or py123d") from None
     module.generate(Path(args.out), count=args.count, seed=args.seed)
     print(f"wrote synthetic {args.name} data to {args.out}")
     return 0
@@ -250,6 +250,14 @@ def cmd_table(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from lead_s2r.report.site import build_report
+
+    index = build_report(args.run_dir, args.out, args.baseline, args.data, args.worst, args.samples, args.threshold)
+    print(index)
+    return 0
+
+
 def cmd_export_lead(args: argparse.Namespace) -> int:
     from lead_s2r.training.lead_export import export_run
 
@@ -286,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.set_defaults(run=cmd_adapters)
 
     sub = verbs.add_parser("synth", help="write synthetic raw data in a source's true on-disk format")
-    sub.add_argument("name", help="carla_lead | navsim | navsim_navhard | wod_e2e")
+    sub.add_argument("name", help="carla_lead | navsim | navsim_navhard | wod_e2e | py123d")
     sub.add_argument("--out", required=True)
     sub.add_argument("--count", "--routes", "--logs", "--segments", type=int, default=None, help="number of logs")
     sub.add_argument("--seed", type=int, default=0)
@@ -344,6 +352,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--runs", required=True, nargs="+", help="run directories or glob patterns (runs/*/seed*)")
     sub.add_argument("--out", default=None, help="also write markdown, LaTeX, CSV (and the figure) here")
     sub.set_defaults(run=cmd_table)
+
+    sub = verbs.add_parser("report", help="a static web report of a scored run: summary, worst samples, comparison")
+    sub.add_argument("run_dir", metavar="RUN", help="run folder: scores.json files below it (lead-s2r score --out)")
+    sub.add_argument("--out", required=True, help="folder to write the site to (index.html); replaced when complete")
+    sub.add_argument("--baseline", default=None, metavar="RUN_B", help="a second run on the same data to compare")
+    sub.add_argument("--data", nargs="+", type=Path, default=None, help="converted folders (default: scores.json's)")
+    sub.add_argument("--worst", type=int, default=5, help="samples shown per metric, worst first")
+    sub.add_argument("--samples", nargs="+", default=None, metavar="KEY", help="show these sample keys instead")
+    sub.add_argument("--threshold", type=float, default=1e-9, help="smallest per-sample difference a comparison lists")
+    sub.set_defaults(run=cmd_report)
 
     sub = verbs.add_parser("export-lead", help="a run trained with LEAD's architecture -> a LEAD checkpoint folder")
     sub.add_argument("run_dir", metavar="RUN", help="run folder (its checkpoints/last.ckpt) or a .ckpt file")

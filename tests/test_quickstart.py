@@ -144,3 +144,5 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     assert max(len(line) for line in text.splitlines()) <= 80
     assert MISSING not in markdown  # every row scored on both datasets
     assert str(tmp_path / "table") in text and "lightning.log" in text
+    assert str(tmp_path / "report" / "index.html") in "".join(text.split())  # the web report, printed
+    assert (tmp_path / "report" / "comparison.html").is_file()

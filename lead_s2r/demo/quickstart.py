@@ -182,7 +182,16 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
         f"Table (markdown, LaTeX, CSV): {out / 'table'}; summary: {out / 'summary.json'}; runs (configs, checkpoints, "
         f"predictions, scores): {out / 'runs'}; Lightning's console output: {out / LIGHTNING_LOG}"
     )
+    console.print(f"Report (open in a browser): {write_report(out)}")
     return results
+
+
+def write_report(out: Path) -> Path:
+    """The web report of the Ego MLP, the one model scored on both datasets, against the logged human (the Expert
+    row) as baseline: where the model loses to the human, sample by sample. Returns its ``index.html``."""
+    from lead_s2r.report.site import build_report
+
+    return build_report(out / "runs" / "ego_mlp" / TRAINED, out / "report", baseline=out / "runs" / "expert", worst=4)
 
 
 def steps_range() -> str:

@@ -37,8 +37,9 @@ from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
+from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
 from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of, top_inference
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
@@ -51,6 +52,7 @@ from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
 NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
+STEP_COLUMNS = (*PDMS_STEP_COLUMNS, "lane_keeping_fail_idx")
 CSV_NAME = "navsim_epdms.csv"
 AVERAGE_TOKEN = "average_all_frames"
 #: the background traffic, in scores.json's config: NAVSIM's two-stage runner uses the reactive IDM policy for both
@@ -66,6 +68,7 @@ TRAFFIC_AGENTS = {
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
+    + [(name, pa.int64()) for name in STEP_COLUMNS]
     + [("previous_key", pa.string()), ("error", pa.string())]
 )
 
@@ -228,7 +231,7 @@ class EPDMSScorer(PDMSScorer):
         if frame.scene is None:
             return row | dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan"))
         result = self.proposal_scores(frame, earlier)
-        return row | {name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}
+        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
 
     def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
         """``score_proposals`` of the frame's plan (EC against ``earlier``'s plan, NaN without one)."""

@@ -23,7 +23,7 @@ import pyarrow as pa
 
 from lead_s2r.predictions import Prediction
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of, top_inference
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.score import score_proposals
@@ -40,10 +40,14 @@ NAVSIM_COLUMNS = (
     "score",
 )
 EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
+#: the 0.1 s simulation step where NC, TTC and DAC failed and the agent row NC hit (-1: none; null in an invalid row),
+#: so a report can say when a sub-score was lost and to whom
+STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx", "collision_object_idx")
 CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
+    + [(name, pa.int64()) for name in STEP_COLUMNS]
     + [("error", pa.string())]
 )
 
@@ -98,7 +102,7 @@ class PDMSScorer(Scorer):
             return {**row, **dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan")), "valid": False,
                     "error": str(err)}  # fmt: skip
         result = score_proposals(scene, proposals[None], interval, reference=self.references.get(scene))
-        return {**row, **{name: float(np.asarray(result[name])[0]) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)}}
+        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]

@@ -37,6 +37,13 @@ def proposal_of(prediction: Prediction) -> tuple[np.ndarray, float]:
     return values, NAVSIM_INTERVAL
 
 
+def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tuple[str, ...]) -> dict[str, Any]:
+    """Row 0 of ``score_proposals``' columns: ``scores`` as floats, ``steps`` (failure steps) as ints."""
+    return {name: float(np.asarray(result[name])[0]) for name in scores} | {
+        name: int(np.asarray(result[name])[0]) for name in steps
+    }
+
+
 def top_inference(frame: list[Prediction]) -> Prediction:
     return max(frame, key=lambda p: p.probability)
 

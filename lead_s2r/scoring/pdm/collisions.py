@@ -128,6 +128,17 @@ def _first_step(rows: np.ndarray, steps: np.ndarray, num_rows: int) -> np.ndarra
     return np.where(first == np.iinfo(np.int64).max, -1, first)
 
 
+def _first_hit(
+    rows: np.ndarray, steps: np.ndarray, objects: np.ndarray, num_rows: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per row the smallest step and the object hit at it (the lowest index on a tie), -1 for rows without any."""
+    first = _first_step(rows, steps, num_rows)
+    at_first = steps == first[rows]
+    hit = np.full(num_rows, np.iinfo(np.int64).max)
+    np.minimum.at(hit, rows[at_first], objects[at_first].astype(np.int64))
+    return first, np.where(first >= 0, hit, -1)
+
+
 def _usable(hits: Hits, observation: Observation) -> np.ndarray:
     obj = observation.objects[hits.geom]
     return ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
@@ -144,10 +155,10 @@ def no_at_fault_collisions(
     ego_radius: float,
     observation: Observation,
     lanes_or_off_road: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """NC ``(N,)`` in {0, 0.5, 1} and the first at-fault step ``(N,)`` (-1 if none), for states ``(N, T, 11)`` and
-    their boxes ``(N, T, 5, 2)`` (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or
-    NON_DRIVABLE_AREA."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NC ``(N,)`` in {0, 0.5, 1}, the first at-fault step ``(N,)`` and the observation object hit there ``(N,)``
+    (a track index: the scene's agent row; -1 if none), for states ``(N, T, 11)`` and their boxes ``(N, T, 5, 2)``
+    (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or NON_DRIVABLE_AREA."""
     num_rows, num_steps = ego_coords.shape[:2]
     row, step = np.divmod(np.arange(num_rows * num_steps), num_steps)
     hits = find_hits(observation, ego_coords.reshape(-1, 5, 2), step, row, step, ego_radius)
@@ -166,7 +177,7 @@ def no_at_fault_collisions(
     severity = np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE)
     scores = np.ones(num_rows)
     np.minimum.at(scores, row[counted], severity[counted])
-    return scores, _first_step(row[counted], step[counted], num_rows)
+    return scores, *_first_hit(row[counted], step[counted], obj[counted], num_rows)
 
 
 def ttc_coords(states: np.ndarray, ego_coords: np.ndarray, interval: float, offsets: tuple[int, ...]) -> np.ndarray:

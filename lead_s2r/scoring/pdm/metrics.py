@@ -36,6 +36,12 @@ def drivable_area_compliance(non_drivable_area: np.ndarray) -> np.ndarray:
     return np.where(non_drivable_area.any(axis=-1), 0.0, 1.0)
 
 
+def first_step(flags: np.ndarray) -> np.ndarray:
+    """The first step ``(N,)`` where ``flags (N, T)`` holds, -1 where it never does: where a sub-score failed, for a
+    report to name (e.g. the step DAC's NON_DRIVABLE_AREA starts)."""
+    return np.where(flags.any(axis=-1), flags.argmax(axis=-1), -1)
+
+
 def driving_direction_compliance(
     centers: np.ndarray, oncoming: np.ndarray, interval: float = 0.1, exclude: np.ndarray | None = None
 ) -> np.ndarray:

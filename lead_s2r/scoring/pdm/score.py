@@ -36,6 +36,7 @@ from lead_s2r.scoring.pdm.metrics import (
     driving_direction_compliance,
     ego_progress,
     ego_progress_v2,
+    first_step,
     lane_keeping,
     pdms_v11,
     progress_along,
@@ -63,9 +64,15 @@ COLUMNS = (
     "ep_normaliser_m",
     "collision_time_idx",
     "ttc_time_idx",
+    "dac_time_idx",
+    "collision_object_idx",
 )
-#: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's extras
-EPDMS_COLUMNS = (*epdms.SUB_SCORES, "score", *COLUMNS[-4:])
+#: the columns after the sub-scores: EP's metres, the 0.1 s step where NC, TTC and DAC failed and the agent row NC hit
+#: (-1: they did not)
+DIAGNOSTICS = COLUMNS[-6:]
+#: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's
+#: diagnostics and the step where LK failed
+EPDMS_COLUMNS = (*epdms.SUB_SCORES, "score", *DIAGNOSTICS, "lane_keeping_fail_idx")
 
 
 def _centerline(scene: PDMScene) -> shapely.LineString:
@@ -124,6 +131,7 @@ class _Prelude:
     fp: _Footprints
     nc: np.ndarray
     collision_idx: np.ndarray
+    collision_object: np.ndarray
     dac: np.ndarray
 
     def time_to_collision(
@@ -144,8 +152,8 @@ def _prelude(
     states = np.asarray(states, np.float64)
     _check_states(scene, states, observation, lookahead)
     fp = _footprints(scene, states, drivable_map)
-    nc, collision_idx = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
-    return _Prelude(states, fp, nc, collision_idx, drivable_area_compliance(fp.areas.non_drivable_area))
+    nc, step, hit = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
+    return _Prelude(states, fp, nc, step, hit, drivable_area_compliance(fp.areas.non_drivable_area))
 
 
 def score_states(
@@ -179,6 +187,8 @@ def score_states(
         "ep_normaliser_m": normaliser,
         "collision_time_idx": collision_idx,
         "ttc_time_idx": ttc_idx,
+        "dac_time_idx": first_step(fp.areas.non_drivable_area),
+        "collision_object_idx": base.collision_object,
         **_flags(fp.areas),
     }
 
@@ -233,6 +243,8 @@ def score_states_v2(
         "ep_normaliser_m": normaliser,
         "collision_time_idx": collision_idx,
         "ttc_time_idx": ttc_idx,
+        "dac_time_idx": first_step(fp.areas.non_drivable_area),
+        "collision_object_idx": base.collision_object,
         "lane_keeping_fail_idx": lk_idx,
         **_flags(fp.areas),
         "in_intersection": in_intersection,
@@ -313,7 +325,7 @@ def score_proposals(
     columns = epdms.human_penalty_filter({name: scores[name][agents] for name in epdms.FILTERED}, human_row)
     columns[epdms.EC] = extended_comfort(scene, states[agents], previous)
     columns["score"] = epdms.epdms(columns)
-    return columns | {name: scores[name][agents] for name in COLUMNS[-4:]} | extra
+    return columns | {name: scores[name][agents] for name in EPDMS_COLUMNS[len(epdms.SUB_SCORES) + 1 :]} | extra
 
 
 def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:

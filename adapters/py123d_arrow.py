@@ -1,0 +1,201 @@
+"""py123d (123D) Arrow logs read with pyarrow alone: files, schema metadata, the sync index and payload codecs.
+
+A 123D log is a folder ``<root>/logs/<split>/<log_name>/`` of Arrow IPC *files* (not Parquet), one per modality
+(``ego_state_se3.arrow``, ``camera.pcam_f0.arrow``, ``lidar.lidar_top.arrow``, ...), plus ``sync.arrow``: one row
+per iteration with ``sync.timestamp_us`` and, per modality key, the row index into that modality's file (null where
+the modality has no observation). Columns are prefixed with the modality key; each file's static metadata (log
+identity, vehicle, calibration, label enum) is msgpack in the Arrow schema metadata under ``b"metadata"``, with
+numpy arrays packed as ``{"__ndarray__": True, "dtype", "shape", "data"}`` maps.
+
+We read this layout directly (pinned to py123d 0.7's schema by the tests, which write logs with py123d's own
+``ArrowLogWriter``) rather than through py123d's reader API, which imports Ray and OpenCV's GUI build; the
+adapter then needs only pyarrow, msgpack and, for LAZ-coded LiDAR, laspy.
+"""
+
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from lead_s2r.errors import UserError
+
+METADATA_KEY = b"metadata"
+SYNC_FILE = "sync.arrow"
+EGO_KEY = "ego_state_se3"
+BOX_KEY = "box_detections_se3"
+LIGHT_KEY = "traffic_light_detections"
+ROUTE_KEY = "route_position"
+INSTALL = "pip install 'lead-s2r[py123d]'"
+LAZ_PREFIX = "extra_"
+
+
+class Py123dFormatError(UserError, ValueError):
+    """A 123D log file is unreadable or lacks a field; the message names the file and the field."""
+
+    def __init__(self, path: Path | str, problem: str, field_name: str | None = None) -> None:
+        where = f"{path}" if field_name is None else f"{path}, field {field_name!r}"
+        super().__init__(f"{where}: {problem}")
+
+
+def _msgpack() -> Any:
+    try:
+        import msgpack
+    except ImportError:
+        raise UserError(f"reading 123D logs needs msgpack: {INSTALL}") from None
+    return msgpack
+
+
+def _ndarray_hook(obj: dict) -> Any:
+    if obj.get(b"__ndarray__") or obj.get("__ndarray__"):
+        get = {k.decode() if isinstance(k, bytes) else k: v for k, v in obj.items()}
+        return np.frombuffer(get["data"], dtype=np.dtype(get["dtype"])).reshape(get["shape"])
+    return obj
+
+
+def unpack(blob: bytes) -> Any:
+    """py123d's msgpack (schema metadata, map features) with its numpy arrays restored."""
+    return _msgpack().unpackb(blob, raw=False, strict_map_key=False, object_hook=_ndarray_hook)
+
+
+def read_table(path: Path) -> pa.Table:
+    """One Arrow IPC file, whole; a truncated or foreign file is a :class:`Py123dFormatError` naming it."""
+    try:
+        with pa.memory_map(str(path), "r") as source:
+            return pa.ipc.open_file(source).read_all()
+    except (pa.ArrowInvalid, OSError) as err:
+        raise Py123dFormatError(
+            path, f"not a readable Arrow IPC file ({err}); copy or convert this log again"
+        ) from None
+
+
+def table_metadata(table: pa.Table, path: Path) -> dict[str, Any]:
+    """The msgpack metadata of a file's schema ({} where the writer stored none)."""
+    raw = (table.schema.metadata or {}).get(METADATA_KEY)
+    if raw is None:
+        return {}
+    try:
+        meta = unpack(raw)
+    except Exception as err:  # msgpack raises several unrelated types for corrupt input
+        raise Py123dFormatError(path, f"schema metadata is not py123d msgpack ({err})", "metadata") from None
+    if not isinstance(meta, dict):
+        raise Py123dFormatError(path, "schema metadata must be a map", "metadata")
+    return meta
+
+
+def column(table: pa.Table, path: Path, name: str) -> pa.ChunkedArray:
+    if name not in table.column_names:
+        raise Py123dFormatError(path, f"column missing (has {', '.join(table.column_names)})", name)
+    return table[name]
+
+
+def fixed_rows(table: pa.Table, path: Path, name: str, width: int) -> np.ndarray:
+    """A column of fixed-size float lists (poses, dynamic states) as (N, width) float64; NaN rows where null."""
+    values = column(table, path, name).combine_chunks()
+    out = np.full((len(values), width), np.nan)
+    valid = ~np.asarray(values.is_null().to_numpy(zero_copy_only=False), bool)
+    if valid.any():
+        flat = values.filter(pa.array(valid)).flatten().to_numpy(zero_copy_only=False)
+        if flat.size != valid.sum() * width:
+            raise Py123dFormatError(path, f"expected {width} numbers per row", name)
+        out[valid] = flat.reshape(-1, width)
+    return out
+
+
+@dataclass
+class LogFiles:
+    """The Arrow files of one 123D log, opened lazily; ``sync`` maps iterations to each modality's rows."""
+
+    folder: Path
+    log: dict[str, Any]
+    timestamps_us: np.ndarray
+    sync: dict[str, np.ndarray]  # modality key -> (iterations,) int64 row index, -1 where absent
+    _tables: dict[str, tuple[pa.Table, dict[str, Any]]] = field(default_factory=dict)
+
+    @classmethod
+    def open(cls, folder: Path) -> "LogFiles":
+        path = folder / SYNC_FILE
+        table = read_table(path)
+        log = table_metadata(table, path)
+        for name in ("dataset", "split", "log_name"):
+            if name not in log:
+                raise Py123dFormatError(path, "log metadata lacks this entry", f"metadata.{name}")
+        stamps = column(table, path, "sync.timestamp_us").to_numpy().astype(np.int64)
+        sync = {}
+        for name in table.column_names:
+            if not name.startswith("sync."):
+                sync[name] = _row_indices(table[name].combine_chunks(), path, name)
+        return cls(folder, log, stamps, sync)
+
+    def has(self, key: str) -> bool:
+        return key in self.sync and (self.folder / f"{key}.arrow").is_file()
+
+    def keys(self, prefix: str) -> list[str]:
+        """Modality keys of one type (``camera.``, ``lidar.``) present in the sync table, sorted."""
+        return sorted(key for key in self.sync if key.startswith(prefix) and self.has(key))
+
+    def table(self, key: str) -> tuple[pa.Table, dict[str, Any]]:
+        """A modality's table and its metadata, read once."""
+        if key not in self._tables:
+            path = self.path(key)
+            table = read_table(path)
+            self._tables[key] = table, table_metadata(table, path)
+        return self._tables[key]
+
+    def path(self, key: str) -> Path:
+        return self.folder / f"{key}.arrow"
+
+    def value(self, key: str, name: str, row: int) -> Any:
+        """One cell of a modality's file as a Python value."""
+        table, _ = self.table(key)
+        return column(table, self.path(key), f"{key}.{name}")[row].as_py()
+
+
+def _row_indices(values: pa.Array, path: Path, name: str) -> np.ndarray:
+    """A sync column as one row index per iteration (-1 where absent). py123d 0.7 writes one int64 per
+    iteration; earlier versions wrote a list of the rows within the iteration, of which we take the first."""
+    if pa.types.is_list(values.type) or pa.types.is_large_list(values.type):
+        if not pa.types.is_integer(values.type.value_type):
+            raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)
+        return np.array([rows[0] if rows else -1 for rows in values.to_pylist()], np.int64)  # a few thousand rows
+    if not pa.types.is_integer(values.type):
+        raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)
+    return np.asarray(values.fill_null(-1).to_numpy(zero_copy_only=False), np.int64)
+
+
+def decode_points(blob: bytes, path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A LiDAR payload -> (N, 3) float64 xyz and per-point features, for py123d's three binary codecs."""
+    if blob[:4] == b"\xff\xff\xff\xff":  # Arrow IPC stream (codecs ipc, ipc_zstd, ipc_lz4)
+        try:
+            batch = pa.ipc.open_stream(pa.BufferReader(blob)).read_next_batch()
+        except (pa.ArrowInvalid, OSError) as err:
+            raise Py123dFormatError(path, f"LiDAR payload is not an Arrow stream ({err})", "data") from None
+        columns = {name: batch.column(i).to_numpy(zero_copy_only=False) for i, name in enumerate(batch.schema.names)}
+    elif blob[:4] == b"LASF":
+        columns = _laz_columns(blob, path)
+    else:
+        raise Py123dFormatError(
+            path, "LiDAR payload is neither Arrow IPC nor LAZ (Draco and file paths are not read)", "data"
+        )
+    try:
+        xyz = np.column_stack([columns.pop(axis) for axis in "xyz"]).astype(np.float64)
+    except KeyError:
+        raise Py123dFormatError(path, "LiDAR payload lacks x, y or z", "data") from None
+    return xyz, columns
+
+
+def _laz_columns(blob: bytes, path: Path) -> dict[str, np.ndarray]:
+    try:
+        import laspy
+    except ImportError:
+        raise UserError(f"{path}: LAZ-coded LiDAR needs laspy[lazrs]: {INSTALL}") from None
+    try:
+        las = laspy.read(io.BytesIO(blob))
+    except Exception as err:  # laspy raises its own and lazrs errors
+        raise Py123dFormatError(path, f"LiDAR payload is not valid LAZ ({err})", "data") from None
+    columns = {"x": np.asarray(las.x), "y": np.asarray(las.y), "z": np.asarray(las.z)}
+    for dim in las.point_format.extra_dimension_names:  # py123d's features, ``extra_`` where a LAS name clashed
+        columns[dim.removeprefix(LAZ_PREFIX)] = np.asarray(las[dim])
+    return columns

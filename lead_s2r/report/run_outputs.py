@@ -1,0 +1,171 @@
+"""What a report reads: one run's scores, predictions, config and training logs, and the converted samples it scored.
+
+A run is a folder holding ``scores.json`` / ``scores.parquet`` pairs anywhere below it (one folder per metric, as
+``lead-s2r score --out`` writes them). Each scores.json records the predictions file and the converted folders it
+was scored on, so a run whose predictions sit elsewhere (the quickstart's expert keeps one file per dataset) is
+found all the same; ``predictions.parquet`` in the run folder is the fallback. Every problem a user can fix (no
+scores, predictions gone, a ``--data`` folder without the run's samples) is a :class:`UserError` naming the path.
+"""
+
+import csv
+import json
+import math
+from collections import defaultdict
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from lead_s2r.errors import UserError
+from lead_s2r.predictions import Prediction, group_by_key, read_predictions
+from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
+
+SCORES_JSON = "scores.json"
+SCORES_TABLE = "scores.parquet"
+PREDICTIONS = "predictions.parquet"
+#: metric family -> (the per-sample headline column, True when higher is better): what "worst" and "wins" mean
+HEADLINES = {"pdms": ("score", True), "epdms": ("score", True), "rfs": ("rfs", True), "ade": ("ade", False)}
+
+
+@dataclass
+class MetricScores:
+    """One ``lead-s2r score`` output: the scores.json content and its per-sample rows by key."""
+
+    folder: Path
+    report: dict[str, Any]
+    rows: dict[str, dict[str, Any]]
+
+    @property
+    def metric(self) -> str:
+        return str(self.report["metric"])
+
+    @property
+    def family(self) -> str:
+        """``pdms`` of ``pdms@navsim-1.1``: what the views key their choices on."""
+        return self.metric.split("@")[0]
+
+    @property
+    def dataset(self) -> str:
+        datasets = sorted({str(row.get("dataset")) for row in self.rows.values() if row.get("dataset")})
+        return ", ".join(datasets) or "-"
+
+    @property
+    def label(self) -> str:
+        return f"{self.metric} on {self.dataset}"
+
+    def headline(self, key: str) -> float | None:
+        """The headline value of sample ``key`` (None: not scored, invalid, or a metric without a headline)."""
+        column = HEADLINES.get(self.family, (None, True))[0]
+        row = self.rows.get(key)
+        value = None if row is None or column is None else row.get(column)
+        return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+
+
+@dataclass
+class RunOutputs:
+    """A run as the report sees it."""
+
+    path: Path
+    scores: list[MetricScores]
+    predictions: dict[str, list[Prediction]]
+    config: str | None = None
+    logs: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.path.resolve().name  # "." is a run too
+
+    def data_folders(self) -> list[Path]:
+        """The converted folders the scores.json files record, in first-seen order."""
+        folders = [Path(folder) for scores in self.scores for folder in scores.report.get("data", [])]
+        return list(dict.fromkeys(folders))
+
+
+def load_run(path: str | Path) -> RunOutputs:
+    """Read a run folder (see the module docstring)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise UserError(f"{path}: no such run folder; give the folder `lead-s2r score --out` wrote into (or above it)")
+    scores = [_metric_scores(json_path) for json_path in sorted(path.rglob(SCORES_JSON))]
+    if not scores:
+        raise UserError(f"{path}: no {SCORES_JSON} below it; score the run first (`lead-s2r score ... --out`)")
+    return RunOutputs(path, scores, _predictions(path, scores), _config(path), training_curves(path))
+
+
+def _metric_scores(json_path: Path) -> MetricScores:
+    table_path = json_path.with_name(SCORES_TABLE)
+    try:
+        report = json.loads(json_path.read_text())
+        table = pq.read_table(table_path)
+    except (OSError, json.JSONDecodeError) as err:
+        raise UserError(f"{json_path.parent}: cannot read {SCORES_JSON} / {SCORES_TABLE} ({err})") from None
+    if "metric" not in report or "key" not in table.column_names:
+        raise UserError(f"{json_path}: not a `lead-s2r score` output (no 'metric', or no 'key' column in the table)")
+    return MetricScores(json_path.parent, report, {row["key"]: row for row in table.to_pylist()})
+
+
+def _predictions(path: Path, scores: list[MetricScores]) -> dict[str, list[Prediction]]:
+    """Every predictions file the scores name (relative to the working folder or to the run), else the run's own."""
+    files: list[Path] = []
+    for entry in scores:
+        recorded = Path(entry.report.get("predictions", ""))
+        candidates = [recorded, path / recorded.name, path / PREDICTIONS]
+        found = next((c for c in candidates if str(c) != "." and c.is_file()), None)
+        if found is None:
+            raise UserError(f"{entry.folder / SCORES_JSON}: its predictions {recorded} are gone and {path} holds no "
+                            f"{PREDICTIONS}; the report draws the predicted trajectories")  # fmt: skip
+        files.append(found.resolve())
+    return group_by_key(p for file in dict.fromkeys(files) for p in read_predictions(file))
+
+
+def _config(path: Path) -> str | None:
+    configs = sorted(path.rglob("config.yaml"))
+    return configs[0].read_text() if configs else None
+
+
+def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
+    """``{column: [(step, value), ...]}`` of every loss / validation column in the Lightning CSV logs
+    (``metrics.csv``; the x axis is the optimizer step) below ``path``, else in ``path/../lightning_logs``: a
+    prediction folder inside its training's root (``<default_root_dir>/trained``) shows the training's curves."""
+    curves: dict[str, list[tuple[float, float]]] = defaultdict(list)
+    logs = sorted(path.rglob("metrics.csv")) or sorted((path.parent / "lightning_logs").rglob("metrics.csv"))
+    for log in logs:
+        with log.open(newline="") as file:
+            for row in csv.DictReader(file):
+                step = row.get("step")
+                for name, value in row.items():
+                    if name not in ("step", "epoch") and value not in (None, "") and step not in (None, ""):
+                        curves[name].append((float(step), float(value)))
+    return dict(curves)
+
+
+def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict[str, Any]]:
+    """The samples of ``keys`` from converted ``folders``, every field decoded, reading only the shards that hold
+    them (the manifest says which). A key none of the folders holds is a :class:`UserError`."""
+    wanted = set(keys)
+    by_shard: dict[Path, set[str]] = defaultdict(set)
+    folders = list(folders)
+    for folder in folders:
+        if not (folder / MANIFEST).is_file():
+            raise UserError(f"--data {folder}: not a converted folder (no {MANIFEST}); give what `lead-s2r convert` "
+                            "wrote")  # fmt: skip
+        manifest = load_manifest(folder)
+        rows = manifest.filter(pc.is_in(manifest["key"], value_set=pa.array(sorted(wanted), pa.string())))
+        for key, shard in zip(rows["key"].to_pylist(), rows["shard"].to_pylist(), strict=True):
+            by_shard[folder / SHARD_DIR / shard].add(key)
+    found = {key for keys_ in by_shard.values() for key in keys_}
+    missing = sorted(wanted - found)
+    if missing:
+        where = ", ".join(str(folder) for folder in folders) or "no --data folder"
+        raise UserError(f"sample {missing[0]!r} (and {len(missing) - 1} more) is not in {where}; pass the converted "
+                        "folders the run was scored on with --data")  # fmt: skip
+    samples = {}
+    for shard, shard_keys in by_shard.items():
+        for sample in read_samples(shard):
+            if sample["__key__"] in shard_keys:
+                samples[sample["__key__"]] = sample
+    return samples
