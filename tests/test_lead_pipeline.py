@@ -206,6 +206,23 @@ def test_converted_carla_samples_train_every_carla_head_of_a_lead_tfv6(carla_sam
     assert torch.equal(out["radar_xy"][..., 1], -radar[..., 1]) and torch.equal(out["radar_logit"], radar[..., 3])
 
 
+def test_a_lead_network_on_some_mosaic_cameras_reads_the_whole_mosaic_and_keeps_its_tiles() -> None:
+    from lead_reference import TINY_CARLA
+
+    config = LeadConfig.from_json(
+        {**TINY_CARLA, "carla_root": "data/carla_leaderboad2_v10", "used_cameras": [True, True, True] + [False] * 3}
+    )
+    spec = input_spec(config)
+    assert spec.image_size == (384, 2304) and spec.equal_tiles and config.final_image_width == 1152
+    driver = LeadDriver(config).eval()
+    mosaic = torch.arange(6.0).repeat_interleave(384).expand(1, 3, 384, 2304)  # each pixel holds its tile's id
+    assert torch.equal(driver.camera_select(mosaic)[0, 0, 0, ::384], torch.tensor([0.0, 1.0, 2.0]))
+    batch = {"rgb": mosaic, "speed": torch.zeros(1), "command": torch.zeros(1), "target_points": torch.zeros(1, 3, 2),
+             "lidar_bev": torch.zeros(1, 1, 192, 160), "radar": torch.zeros(1, 0, 5)}  # fmt: skip
+    with torch.inference_mode():
+        assert driver(batch, "carla")["waypoints"].shape == (1, 8, 2)
+
+
 def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> None:
     """LEAD's mixed training (NAVSIM target + CARLA heads): each source's losses reach the heads LEAD has for it."""
     spec = {**json.loads((TINY / "config.json").read_text()), "use_carla_data": True}

@@ -275,6 +275,14 @@ class LeadConfig:
         return self.lidar_width_pixel // 32
 
     @property
+    def mosaic_tiles(self) -> tuple[int, ...] | None:
+        """CARLA: the used camera tiles of the stitched mosaic when LEAD crops some of them (``used_cameras``), else
+        None; NAVSIM's cameras are separate images, picked by the data's camera list instead."""
+        if not self.carla_leaderboard_mode or all(self.used_cameras):
+            return None
+        return tuple(i for i, used in enumerate(self.used_cameras) if used)
+
+    @property
     def final_image_width(self) -> int:
         return self.num_used_cameras * CAMERA_TILE[self.target_dataset][0]
 

@@ -19,6 +19,7 @@ import torch
 from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
+from lead_s2r.models.backbone import CameraSelect
 from lead_s2r.models.config import TrajectoryGrid, default_grids
 from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
@@ -55,6 +56,8 @@ class LeadDriver(nn.Module):
             self.network = LeadTFv6(config, pretrained=pretrained)
         self.config = config
         self.source = config.planning_source
+        tiles = config.mosaic_tiles
+        self.camera_select = CameraSelect(len(config.used_cameras), tiles, 1.0)  # also crops perspective labels
         speeds = torch.tensor(TARGET_SPEED_CLASSES)
         self.register_buffer("target_speed_classes", speeds, persistent=False)  # the target-speed loss's bins
 
@@ -94,4 +97,5 @@ class LeadDriver(nn.Module):
                 "model.checkpoint holds several model*.pth files (an ensemble, prediction only); to fine-tune, pick "
                 "one with model.pattern, e.g. model_0030_0.pth"
             )
+        batch = {**batch, "rgb": self.camera_select(batch["rgb"])}
         return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)))
