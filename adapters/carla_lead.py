@@ -47,11 +47,14 @@ from lead_s2r_adapters.carla_lead_io import (
     LeadFormatError,
     array,
     field,
+    frame_file,
+    is_route,
     read_jpeg,
     read_laz,
     read_pickle,
     read_png,
     read_radar,
+    route_frames,
     route_skip_reason,
 )
 
@@ -108,7 +111,7 @@ def mosaic_height(data: bytes, rig: str, path: Path) -> int:
     calibration written beside it would be wrong."""
     try:
         width, height = Image.open(io.BytesIO(data)).size
-    except Exception as err:  # Pillow raises several types for damaged headers
+    except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError) as err:  # Pillow's, by plugin
         raise LeadFormatError(path, f"unreadable JPEG header ({err})") from err
     cameras = CAMERA_RIGS[rig]
     want_width, heights = sum(c.width for c in cameras), (cameras[0].stored_height, cameras[0].height)
@@ -191,13 +194,15 @@ class CarlaLeadAdapter(Adapter):
     # ------------------------------------------------------------------ logs
 
     def list_logs(self, src: Path) -> list[LogRef]:
-        """Route folders under ``src/data/*/`` (or ``src/*/`` when ``src`` is the data folder), sorted."""
+        """Route folders under ``src/data/*/`` (or ``src/*/`` when ``src`` is the data folder), sorted. A route
+        folder holds ``bboxes/``, ``metas/`` or ``results.json``: another dataset's folders two levels down (NAVSIM's
+        ``navsim_logs/mini``) are not routes to skip one by one, they are the wrong ``--src``."""
         src = Path(src)
         root = src / "data" if (src / "data").is_dir() else src
         if not root.is_dir():
             raise FileNotFoundError(f"{root}: not a folder of LEAD scenarios")
         logs = []
-        for folder in sorted(p for p in root.glob("*/*") if p.is_dir()):
+        for folder in sorted(p for p in root.glob("*/*") if is_route(p)):
             town = folder.name.split("_Rep")[0]
             split = self.heldout_split if town in self.heldout_towns else self.split
             log_id = f"{folder.parent.name}/{folder.name}"
@@ -224,21 +229,23 @@ class CarlaLeadAdapter(Adapter):
         reason = route_skip_reason(folder, self.keep_failed)
         if reason is not None:
             raise SkipLog(f"{log.log_id}: {reason}")
-        frames = sorted(path.stem for path in (folder / "bboxes").glob("*.pkl"))
-        if not frames:
-            raise LeadFormatError(folder / "bboxes", "no frames (LEAD counts frames by the files in bboxes/)")
+        frames = route_frames(folder)
         rigs = ("normal", "perturbated") if self.rig == "both" else (self.rig,)
         for name in frames[self.skip_first : len(frames) - self.skip_last]:
-            meta_path = folder / "metas" / f"{name}.pkl"
+            meta_path, boxes_path = folder / "metas" / f"{name}.pkl", folder / "bboxes" / f"{name}.pkl"
             meta = read_pickle(meta_path)
-            boxes = read_pickle(folder / "bboxes" / f"{name}.pkl")
+            boxes = read_pickle(boxes_path)
             if not isinstance(boxes, list) or not all(isinstance(box, dict) for box in boxes):
-                raise LeadFormatError(folder / "bboxes" / f"{name}.pkl", "expected a list of dicts (one per box)")
+                raise LeadFormatError(boxes_path, "expected a list of dicts (one per box)")
             others = [box for box in boxes if box.get("class") != "ego_car"]
-            lidar_path = folder / "lidar" / f"{name}.laz"
-            lidar = read_laz(lidar_path) if lidar_path.is_file() else None  # one LiDAR for both rigs
+            lidar_path = frame_file(folder, "lidar", name, ".laz")
+            lidar = None if lidar_path is None else read_laz(lidar_path)  # one LiDAR for both rigs
             for rig in rigs:
-                yield self._sample(log, folder, name, meta, meta_path, others, lidar, rig)
+                try:
+                    yield self._sample(log, folder, name, meta, meta_path, others, lidar, rig)
+                except (TypeError, KeyError, IndexError, AttributeError) as err:  # a value of an unexpected type
+                    problem = f"a value of an unexpected type ({type(err).__name__}: {err})"
+                    raise LeadFormatError(meta_path, f"{problem}, here or in {boxes_path}") from err
 
     def _view(self, meta: dict[str, Any], path: Path, rig: str) -> np.ndarray:
         if rig == "normal":
@@ -371,20 +378,20 @@ class CarlaLeadAdapter(Adapter):
     def _sensors(self, folder: Path, name: str, suffix: str) -> dict[str, Any]:
         """Camera mosaic, perspective labels, hdmap and radar of one frame and rig, each where its file exists."""
         out: dict[str, Any] = {}
-        rgb = folder / f"rgb{suffix}" / f"{name}.jpg"
-        if rgb.is_file():
+        rgb = frame_file(folder, f"rgb{suffix}", name, ".jpg")
+        if rgb is not None:
             out[f"cam_{MOSAIC_ID}"] = read_jpeg(rgb)
-        semantic = folder / f"semantics{suffix}" / f"{name}.png"
-        if semantic.is_file():
+        semantic = frame_file(folder, f"semantics{suffix}", name, ".png")
+        if semantic is not None:
             out[f"semantic_{MOSAIC_ID}"] = read_png(semantic)
-        depth = folder / f"depth{suffix}" / f"{name}.png"
-        if depth.is_file():
+        depth = frame_file(folder, f"depth{suffix}", name, ".png")
+        if depth is not None:
             out[f"depth_{MOSAIC_ID}"] = read_png(depth)
-        hdmap = folder / f"hdmap{suffix}" / f"{name}.png"
-        if hdmap.is_file():
+        hdmap = frame_file(folder, f"hdmap{suffix}", name, ".png")
+        if hdmap is not None:
             out["bev_semantic"] = np.ascontiguousarray(np.rot90(read_png(hdmap)))
-        radar = folder / f"radar{suffix}" / f"{name}.npz"
-        if radar.is_file():  # the perturbated radar was recorded from the perturbated rig, in its frame
+        radar = frame_file(folder, f"radar{suffix}", name, ".npz")
+        if radar is not None:  # the perturbated radar was recorded from the perturbated rig, in its frame
             clouds = read_radar(radar)
             rows = [
                 np.column_stack([carla_points_to_iso(c[:, :3]), c[:, 3], np.full(len(c), i)])

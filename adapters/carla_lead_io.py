@@ -4,9 +4,11 @@ LEAD's ``.pkl`` files are LZMA streams holding pickles. Pickles can run arbitrar
 unpickler that only admits plain builtin containers/scalars and numpy arrays/scalars.
 """
 
+import importlib.util
 import json
 import lzma
-import pickle
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,7 @@ import numpy as np
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats import restricted_pickle
+from lead_s2r_adapters.laz_decoder import LazDecodeError, decode
 
 
 class LeadFormatError(UserError, ValueError):
@@ -32,7 +35,7 @@ def read_pickle(path: Path) -> Any:
             return restricted_pickle.load(file)
     except (lzma.LZMAError, EOFError) as err:
         raise LeadFormatError(path, f"truncated or corrupt LZMA pickle ({err or type(err).__name__})") from err
-    except (pickle.UnpicklingError, ValueError, TypeError, AttributeError, IndexError) as err:
+    except restricted_pickle.DAMAGED as err:
         raise LeadFormatError(path, f"not a valid pickle ({type(err).__name__}: {err})") from err
     except OSError as err:
         raise LeadFormatError(path, f"cannot be read ({err})") from err
@@ -62,22 +65,53 @@ def array(record: dict[str, Any], name: str, path: Path, columns: int | None = N
 
 
 def read_laz(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file."""
+    """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file.
+
+    Decoded in a helper process (:mod:`lead_s2r_adapters.laz_decoder`): a damaged file can abort the decoder.
+    """
+    if importlib.util.find_spec("laspy") is None or importlib.util.find_spec("lazrs") is None:  # pragma: no cover
+        raise ImportError("reading LEAD LiDAR needs laspy with lazrs: pip install 'lead-s2r[carla]'")
     try:
-        import laspy
-    except ImportError as err:  # pragma: no cover - depends on the environment
-        raise ImportError("reading LEAD LiDAR needs laspy with lazrs: pip install 'lead-s2r[carla]'") from err
-    try:
-        las = laspy.read(str(path))
-        points = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)]).astype(np.float64)
-        names = set(las.point_format.extra_dimension_names)
-        if "time" not in names:
-            raise LeadFormatError(path, "LAS file has no extra dimension 'time'", "time")
-        return points, np.asarray(las["time"], dtype=np.float64)
-    except LeadFormatError:
-        raise
-    except Exception as err:  # laspy/lazrs raise many types for damaged files
-        raise LeadFormatError(path, f"corrupt LAZ file ({type(err).__name__}: {err})") from err
+        points = decode(path)
+    except LazDecodeError as err:
+        raise LeadFormatError(path, f"corrupt LAZ file ({err})") from None
+    return points[:, :3], points[:, 3]
+
+
+def is_route(folder: Path) -> bool:
+    """Whether ``folder`` is a LEAD route folder (finished or not)."""
+    return (folder / "bboxes").is_dir() or (folder / "metas").is_dir() or (folder / "results.json").is_file()
+
+
+def route_frames(folder: Path) -> list[str]:
+    """Frame names (``0000``...) of a route: LEAD counts frames by the files in ``bboxes/``; every frame has a
+    ``metas/`` pickle too, and frames are numbered without gaps, so a deleted file of either is an error naming it,
+    not a frame silently left out."""
+    names = {path.stem for sub in ("bboxes", "metas") for path in (folder / sub).glob("*.pkl")}
+    if not names:
+        raise LeadFormatError(folder / "bboxes", "no frames (LEAD counts frames by the files in bboxes/)")
+    if not all(name.isdigit() for name in names):
+        odd = sorted(name for name in names if not name.isdigit())[0]
+        raise LeadFormatError(folder / "bboxes", f"frame file {odd!r}.pkl is not named by a frame number")
+    width = len(min(names))
+    numbers = sorted(int(name) for name in names)
+    expected = [f"{number:0{width}d}" for number in range(numbers[0], numbers[-1] + 1)]
+    for name in expected:
+        for sub in ("bboxes", "metas"):
+            if not (folder / sub / f"{name}.pkl").is_file():
+                raise LeadFormatError(folder / sub / f"{name}.pkl", "missing: the route's other frames have it")
+    return expected
+
+
+def frame_file(folder: Path, sensor: str, name: str, suffix: str) -> Path | None:
+    """The file of frame ``name`` in the sensor folder ``sensor``, None where the route has no such folder (a rig
+    or sensor it did not record); missing from a folder that holds other frames is an error naming it."""
+    path = folder / sensor / f"{name}{suffix}"
+    if path.is_file():
+        return path
+    if (folder / sensor).is_dir():
+        raise LeadFormatError(path, f"missing: the route's {sensor}/ folder holds other frames")
+    return None
 
 
 RADAR_KEYS = ("radar1", "radar2", "radar3", "radar4")
@@ -86,18 +120,18 @@ RADAR_KEYS = ("radar1", "radar2", "radar3", "radar4")
 def read_radar(path: Path) -> list[np.ndarray]:
     """The four radar clouds (n, 4) = x, y, z, radial velocity of one LEAD radar ``.npz`` (float16 on disk)."""
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            clouds = []
-            for key in RADAR_KEYS:
-                cloud = npz[key] if key in npz.files else np.zeros((0, 4), np.float16)
-                if cloud.ndim != 2 or cloud.shape[1] != 4:
-                    raise LeadFormatError(path, f"expected shape (n, 4), got {cloud.shape}", key)
-                clouds.append(cloud.astype(np.float64))
-            return clouds
-    except LeadFormatError:
-        raise
-    except Exception as err:
+        npz = np.load(path, allow_pickle=False)
+        if isinstance(npz, np.lib.npyio.NpzFile):  # a damaged zip magic reads as an .npy
+            with npz:
+                clouds = [npz[key] if key in npz.files else np.zeros((0, 4), np.float16) for key in RADAR_KEYS]
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as err:  # np.load of a zip
         raise LeadFormatError(path, f"corrupt radar npz ({type(err).__name__}: {err})") from err
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise LeadFormatError(path, "not an npz archive")
+    for key, cloud in zip(RADAR_KEYS, clouds, strict=True):
+        if cloud.ndim != 2 or cloud.shape[1] != 4:
+            raise LeadFormatError(path, f"expected shape (n, 4), got {cloud.shape}", key)
+    return [cloud.astype(np.float64) for cloud in clouds]
 
 
 def read_png(path: Path) -> np.ndarray:

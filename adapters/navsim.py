@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from lead_s2r.errors import UserError
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r_adapters import navsim_map
 from lead_s2r_adapters.navsim_filter import (
@@ -24,7 +25,7 @@ from lead_s2r_adapters.navsim_filter import (
     read_two_stage_mapping,
     two_stage_roles,
 )
-from lead_s2r_adapters.navsim_io import CAMERAS, load_log, required
+from lead_s2r_adapters.navsim_io import CAMERAS, NavsimFormatError, load_log, required
 from lead_s2r_adapters.navsim_log import LogScenes
 from lead_s2r_adapters.navsim_synthetic import SyntheticScene
 
@@ -106,8 +107,21 @@ class NavsimAdapter(Adapter):
             if not (root / split).is_dir():
                 raise FileNotFoundError(f"split folder {root / split} does not exist")
             refs += self._log_refs(root / split, Path(src) / "sensor_blobs" / split, split)
-        self._filter_problems = self._check_filter(refs, [])
+        self._filter_problems = self._check_filter(refs, []) + self._orphan_sensors(refs)
         return refs
+
+    def _orphan_sensors(self, logs: list[LogRef]) -> list[dict[str, Any]]:
+        """Sensor folders of logs with no log pickle: a log pickle deleted or lost in a download leaves its sensor
+        blobs behind, and its scenes would otherwise vanish without a word."""
+        problems = []
+        for folder in sorted({Path(ref.extra["sensors"]) for ref in logs}):
+            listed = {ref.log_id for ref in logs if Path(ref.extra["sensors"]) == folder}
+            for log in sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []:
+                wanted = self.filter is None or self.filter.log_names is None or log in self.filter.log_names
+                if wanted and log not in listed:
+                    error = f"{folder / log}: sensor blobs of log {log!r}, which has no log pickle {log}.pkl"
+                    problems.append({"log": log, "error": error})
+        return problems
 
     def _log_refs(self, logs: Path, sensors: Path, split: str) -> list[LogRef]:
         refs = []
@@ -156,7 +170,7 @@ class NavsimAdapter(Adapter):
         for start, current in self.windows(frames, str(path)):
             token = str(required(frames[current], "token", f"{path} frame {current}"))
             if self.filter is None or self.filter.tokens is None or token in self.filter.tokens:
-                yield scenes.sample(start, current)
+                yield _scene(scenes, start, current, f"{path} frame {current}")
 
     def bad_records(self) -> list[dict[str, Any]]:
         """What the scene filter selects and :meth:`list_logs` found nowhere: log names without a pickle, synthetic
@@ -217,3 +231,14 @@ class NavsimAdapter(Adapter):
                 "reactive_all_mapping": [[g.original, g.previous, [list(p) for p in g.pairs]] for g in self.mapping],
             },
         }
+
+
+def _scene(scenes: LogScenes, start: int, current: int, where: str) -> dict[str, Any]:
+    """One scene's sample; a log value of the wrong type (a string where a number goes, a number where a list goes)
+    fails in numpy or a lookup deep in the builder, so it is named here by the log file and frame."""
+    try:
+        return scenes.sample(start, current)
+    except UserError:
+        raise
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as err:
+        raise NavsimFormatError(f"{where}: a value of an unexpected type ({type(err).__name__}: {err})") from err

@@ -36,15 +36,29 @@ class SceneFilter:
     synthetic_tokens: frozenset[str] | None = None  # v2 synthetic (stage-2) scenes to convert; None = all
 
 
+def _text(path: Path) -> str:
+    try:
+        return path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise NavsimFormatError(f"{path}: cannot be read as text ({err})") from None
+
+
+def _yaml(path: Path) -> Any:
+    try:
+        return yaml.safe_load(_text(path))
+    except yaml.YAMLError as err:
+        raise NavsimFormatError(f"{path}: not valid YAML ({' '.join(str(err).split())})") from None
+
+
 def read_scene_filter(path: Path) -> SceneFilter:
     """A NAVSIM scene-filter yaml (``tokens``, ``log_names``, frame counts) or a text file of one token a line."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"scene filter {path} does not exist")
+        raise NavsimFormatError(f"scene filter {path} does not exist")
     if path.suffix not in (".yaml", ".yml"):
-        lines = [line.strip() for line in path.read_text().splitlines()]
+        lines = [line.strip() for line in _text(path).splitlines()]
         return SceneFilter(path.stem, tokens=frozenset(t for t in lines if t and not t.startswith("#")))
-    config = yaml.safe_load(path.read_text()) or {}
+    config = _yaml(path) or {}
     if not isinstance(config, dict):
         raise NavsimFormatError(f"{path}: a scene filter must be a mapping")
 
@@ -78,8 +92,8 @@ def read_scene_filter(path: Path) -> SceneFilter:
 def read_two_stage_mapping(path: Path) -> list[TwoStageGroup]:
     """``reactive_all_mapping`` of a NAVSIM v2 train/test-split yaml (e.g. ``navhard_two_stage.yaml``)."""
     if not path.is_file():
-        raise FileNotFoundError(f"two-stage mapping {path} does not exist")
-    config = yaml.safe_load(path.read_text()) or {}
+        raise NavsimFormatError(f"two-stage mapping {path} does not exist")
+    config = _yaml(path) or {}
     raw = config.get("reactive_all_mapping") if isinstance(config, dict) else None
     if not isinstance(raw, list):
         raise NavsimFormatError(f"{path}: field 'reactive_all_mapping' must be a list of [orig, prev, pairs] entries")

@@ -46,7 +46,7 @@ def load_log(path: Path) -> list[dict[str, Any]]:
             frames = restricted_pickle.load(file)
     except FileNotFoundError:
         raise
-    except Exception as err:
+    except (OSError, *restricted_pickle.DAMAGED) as err:
         raise NavsimFormatError(f"{path}: not a readable OpenScene log pickle ({type(err).__name__}: {err})") from None
     if not isinstance(frames, list) or not frames or not all(isinstance(f, dict) for f in frames):
         raise NavsimFormatError(f"{path}: expected a non-empty list of frame dicts, got {type(frames).__name__}")

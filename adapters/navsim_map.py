@@ -59,6 +59,8 @@ def _read_layer(path: Path, layer: str) -> pa.Table:
 
     try:
         meta, table = pyogrio.read_arrow(path, layer=layer, return_fids=True)
+    except pyogrio.errors.DataSourceError as err:  # a damaged SQLite file
+        raise MapError(f"{path}: not a readable GeoPackage ({' '.join(str(err).split())})") from None
     except pyogrio.errors.DataLayerError as err:
         raise MapError(f"{path}: layer {layer!r} is missing ({err})") from None
     rename = {meta["geometry_name"]: "geometry", meta.get("fid_column") or "OGC_FID": "fid", "OGC_FID": "fid"}

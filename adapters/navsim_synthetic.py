@@ -79,7 +79,7 @@ def load_scene(path: Path) -> dict[str, Any]:
             scene = restricted_pickle.load(file, NUPLAN_RECORDS)
     except FileNotFoundError:
         raise
-    except Exception as err:
+    except (OSError, *restricted_pickle.DAMAGED) as err:
         raise NavsimFormatError(
             f"{path}: not a readable NAVSIM synthetic scene pickle ({type(err).__name__}: {err})"
         ) from None

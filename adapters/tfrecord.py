@@ -173,7 +173,7 @@ def build_index(
     """
     if workers > 1:
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(workers, context, initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
+        with ProcessPoolExecutor(workers, context, initializer=exit_with_parent) as pool:
             parts = list(pool.map(_index_shard, shards, [describe] * len(shards)))
     else:
         parts = [_index_shard(shard, describe) for shard in shards]

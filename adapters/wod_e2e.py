@@ -15,6 +15,7 @@ WOD-E2E trajectories are already in our frame (ISO 8855, origin at the rear axle
 """
 
 import json
+import re
 from collections.abc import Iterator
 from itertools import groupby
 from pathlib import Path
@@ -46,6 +47,7 @@ INTENTS = {0: Command.UNKNOWN, 1: Command.STRAIGHT, 2: Command.LEFT, 3: Command.
 #: Shard-name prefix -> split (``training_...tfrecord-00000-of-00263``).
 SPLITS = {"training": "train", "train": "train", "validation": "val", "val": "val", "testing": "test", "test": "test"}
 CLUSTER_GLOB = "*sequence_name_to_scenario_cluster.json"
+SHARD_NAME = re.compile(r"^(?P<set>.+)-(?P<index>\d+)-of-(?P<count>\d+)$")
 STATE_DT = 0.25  # past and future states are 4 Hz
 FRAME_DT_US = 100_000  # frames are 10 Hz; the records' timestamp_micros is 0, so time comes from the index
 #: Waymo camera axes (x along the optical axis, y left, z up) from OpenCV's (x right, y down, z forward).
@@ -113,11 +115,36 @@ def find_shards(src: Path) -> dict[str, list[Path]]:
     return shards
 
 
+def missing_shards(shards: list[Path]) -> list[Path]:
+    """Files a shard set names but lacks: ``<name>.tfrecord-00001-of-00003`` says its set has three files.
+
+    Records of a segment are shuffled over every shard of its split, so a set short of one file leaves most of its
+    segments short of frames, and nothing else tells.
+    """
+    sets: dict[tuple[Path, str, int], set[int]] = {}
+    for path in shards:
+        match = SHARD_NAME.match(path.name)
+        if match:
+            sets.setdefault((path.parent, match["set"], int(match["count"])), set()).add(int(match["index"]))
+    return [
+        folder / f"{name}-{index:05d}-of-{count:05d}"
+        for (folder, name, count), present in sorted(sets.items())
+        for index in range(count)
+        if index not in present
+    ]
+
+
 def load_clusters(src: Path) -> dict[str, str]:
     """Sequence uuid -> scenario cluster, from ``val_sequence_name_to_scenario_cluster.json`` if present."""
     clusters: dict[str, str] = {}
     for path in sorted(Path(src).rglob(CLUSTER_GLOB)):
-        for sequence, entry in json.loads(path.read_text()).items():
+        try:
+            mapping = json.loads(path.read_bytes())
+        except ValueError as err:  # JSONDecodeError, UnicodeDecodeError
+            raise WodE2EError(f"{path}: not valid JSON ({err})") from None
+        if not isinstance(mapping, dict):
+            raise WodE2EError(f"{path}: expected an object of sequence -> cluster, got {type(mapping).__name__}")
+        for sequence, entry in mapping.items():
             name = entry.get("scenario_cluster") if isinstance(entry, dict) else entry
             if not isinstance(name, str):
                 raise WodE2EError(
@@ -255,12 +282,20 @@ class WodE2EAdapter(Adapter):
         clusters = load_clusters(src)
         logs = []
         for split, shards in sorted(find_shards(src).items()):
+            missing = [str(path) for path in missing_shards(shards)]
             for sequence, group in groupby(self.index(split, shards), key=lambda r: r["sequence"]):
                 records = [(r["frame"], r["shard"], r["offset"], r["length"]) for r in group]
-                logs.append(LogRef(sequence, split, str(src), {"records": records, "cluster": clusters.get(sequence)}))
+                extra = {"records": records, "cluster": clusters.get(sequence), "missing_shards": missing}
+                logs.append(LogRef(sequence, split, str(src), extra))
         return logs
 
     def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
+        missing = log.extra.get("missing_shards")
+        if missing:
+            raise WodE2EError(
+                f"segment {log.log_id} ({log.split}): its split's shard set lacks {', '.join(missing)}; its frames "
+                "are shuffled over every shard, so some are missing: download the missing file(s)"
+            )
         recent: dict[int, tuple[dict[str, Any], bytes]] = {}
         with RecordReader() as reader:
             for frame_idx, shard, offset, length in log.extra["records"]:

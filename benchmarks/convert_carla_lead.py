@@ -1,6 +1,8 @@
 """Conversion throughput of the LEAD CARLA adapter on generated routes: scaling over workers, and CPU by stage.
 
 .venv/bin/python benchmarks/convert_carla_lead.py --routes 64 --frames 16 --workers 1 2 --rounds 3
+.venv/bin/python benchmarks/convert_carla_lead.py --import-torch --workers 1 2 --rounds 3   # a user's script
+.venv/bin/python benchmarks/convert_carla_lead.py --executor ray --workers 1 2 --rounds 3    # Ray, N CPUs
 
 Runs ``convert`` with each worker count in turn, ``--rounds`` times (interleaved, so a machine shared with other
 jobs slows every count alike), and reports per round: wall time, samples/s in total and per worker, the CPU
@@ -9,6 +11,10 @@ same round, beside a machine check (how much faster two processes run a plain CP
 moment), and whether every worker count wrote the same bytes (every file of the converted folder). Then one
 process converts the routes again stage by stage and splits its CPU time: the adapter (reading LZMA pickles, LAZ,
 PNGs and building the sample), schema validation, encoding the fields, writing the tar.
+
+``--import-torch`` imports torch first, as a user's training script calling ``convert`` would (the workers must not
+pay for it again). ``--executor ray`` runs each worker count on a Ray started on this machine with that many CPUs
+(started before the clock starts: the throughput of a running cluster).
 """
 
 import argparse
@@ -17,12 +23,17 @@ import multiprocessing as mp
 import os
 import resource
 import statistics
+import sys
 import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
 
-from lead_s2r.convert import convert, manifest_row
+if "--import-torch" in sys.argv:  # at the top, as in a user's script: whatever re-imports __main__ pays for it
+    import torch  # noqa: F401
+
+from lead_s2r.convert import convert, manifest_row, one_thread_per_worker
+from lead_s2r.processes import RayExecutor
 from lead_s2r.registry import Adapter, get_adapter
 from lead_s2r.schema import validate
 from lead_s2r.shards import ShardFile, encode_sample
@@ -66,18 +77,30 @@ def digests(out: Path) -> dict[str, str]:
     }
 
 
-def run(adapter: Adapter, src: Path, out: Path, workers: int) -> dict[str, float]:
+def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> dict[str, float]:
+    """One conversion: wall time, CPU of this process and of its reaped children (NaN for a process pool's)."""
+    executor = None
+    if on_ray:
+        import ray
+
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        executor = RayExecutor(initializer=one_thread_per_worker)
     load = os.getloadavg()[0]
     wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
-    result = convert(adapter, src, out, workers=workers, force=True)
-    wall = time.perf_counter() - wall
+    try:
+        result = convert(adapter, src, out, workers=workers, force=True, executor=executor)
+        wall = time.perf_counter() - wall
+    finally:
+        if on_ray:
+            ray.shutdown()
     if not result.ok:
         raise RuntimeError(f"conversion failed: {result.errors[:3]}")
     return {
         "samples": result.samples,
         "wall": wall,
         "driver_cpu": time.process_time() - cpu,
-        "worker_cpu": children_cpu() - child,
+        # a pool's workers are the forkserver's children, and it outlives the run: their CPU is not ours to read
+        "worker_cpu": float("nan") if workers > 1 and not on_ray else children_cpu() - child,
         "load": load,
     }
 
@@ -122,6 +145,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--rig", default="normal", choices=["normal", "perturbated", "both"])
     parser.add_argument("--raw", type=Path, help="reuse (or create) the generated routes here")
+    parser.add_argument("--executor", choices=["processes", "ray"], default="processes")
+    parser.add_argument("--import-torch", action="store_true", help="import torch first, as a training script does")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         src = args.raw or Path(tmp) / "raw"
@@ -138,7 +163,7 @@ def main() -> None:
             base = None
             written = []
             for workers in args.workers:
-                r = run(adapter, src, Path(tmp) / f"out{workers}", workers)
+                r = run(adapter, src, Path(tmp) / f"out{workers}", workers, args.executor == "ray")
                 written.append(digests(Path(tmp) / f"out{workers}"))
                 rate = r["samples"] / r["wall"]
                 base = base or rate

@@ -7,11 +7,15 @@ is created.
 """
 
 import argparse
+import contextlib
 import importlib
 import json
+import os
+import shutil
 import sys
 import types
 import typing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -22,6 +26,8 @@ from lead_s2r.registry import ADAPTER_GROUP, SCORER_GROUP, RegistryError, load, 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
 DEBUG_FLAG = "--debug"
 USER_ERROR_STATUS = 2
+#: A closed stdout: the status a shell gives a process ended by SIGPIPE (128 + 13).
+BROKEN_PIPE_STATUS = 141
 
 
 class _Parser(argparse.ArgumentParser):
@@ -84,8 +90,21 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--address``: where the jobs of ``convert`` and ``score`` run."""
+    parser.add_argument(
+        "--executor",
+        choices=["processes", "ray"],
+        default="processes",
+        help="processes: --workers on this machine; ray: a task per job on a Ray cluster (pip install lead-s2r[ray])",
+    )
+    parser.add_argument(
+        "--address", default=None, help="with --executor ray: auto, or HOST:PORT of the head (default: RAY_ADDRESS)"
+    )
+
+
 def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
-    from lead_s2r.convert import convert
+    from lead_s2r.convert import conversion_executor, convert
     from lead_s2r.shards import ERRORS
 
     cls = load(args.adapter)
@@ -98,7 +117,7 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
         adapter,
         args.src,
         args.out,
-        workers=args.workers,
+        executor=conversion_executor(args.workers, args.executor, args.address),
         shard_size=args.shard_size,
         limit_logs=args.limit_logs,
         force=args.force,
@@ -119,12 +138,14 @@ def cmd_convert(args: argparse.Namespace, extra: list[str]) -> int:
 def cmd_inspect(args: argparse.Namespace) -> int:
     from lead_s2r.report.inspection import inspect_dataset
 
-    report = inspect_dataset(args.path, n=args.n, png=args.png, key=args.key)
+    quick = args.n if args.quick else None
+    report = inspect_dataset(args.path, quick=quick, png=args.png, key=args.key, progress=not args.no_progress)
     print(json.dumps(report, indent=2))
     return 1 if report["invalid"] else 0
 
 
 def cmd_score(args: argparse.Namespace) -> int:
+    from lead_s2r.processes import make_executor
     from lead_s2r.scoring.run import planner_predictions, score_predictions
 
     options: dict[str, Any] = {"allow_missing": not args.strict}
@@ -138,13 +159,32 @@ def cmd_score(args: argparse.Namespace) -> int:
             options[name] = value
     if args.reference_cache:
         options["reference_cache"] = args.reference_cache
-    data = [Path(folder) for folder in args.data]
-    predictions = Path(args.predictions) if args.predictions else None
-    if predictions is None:
-        predictions = planner_predictions(args.planner, data, Path(args.out) / f"predictions-{args.planner}.parquet")
-    summary = score_predictions(args.metric, predictions, data, Path(args.out), **options)
+    scorer_module = load(args.metric, SCORER_GROUP).__module__  # the workers' forkserver imports it once
+    executor = make_executor(args.workers, args.executor, args.address, preload=[scorer_module])
+    data, out = [Path(folder) for folder in args.data], Path(args.out)
+    with removed_on_failure(out):
+        predictions = Path(args.predictions) if args.predictions else None
+        if predictions is None:
+            predictions = planner_predictions(args.planner, data, out / f"predictions-{args.planner}.parquet")
+        summary = score_predictions(args.metric, predictions, data, out, executor=executor, **options)
     print(json.dumps(summary, indent=2))
     return 0
+
+
+@contextlib.contextmanager
+def removed_on_failure(out: Path) -> Iterator[None]:
+    """What the block writes under ``out`` is removed if it fails (``out`` too, if the block made it): a planner's
+    predictions or a scores.parquet without its scores.json must not pass for a result."""
+    before = set(out.rglob("*")) if out.exists() else None
+    try:
+        yield
+    except BaseException:
+        if before is None:
+            shutil.rmtree(out, ignore_errors=True)
+        else:
+            for path in sorted(set(out.rglob("*")) - before, reverse=True):  # a folder's files before the folder
+                path.rmdir() if path.is_dir() else path.unlink()
+        raise
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
@@ -174,7 +214,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
         data = [Path(d) for d in args.data]
         report = write_wod(Path(args.out), metadata, Path(args.predictions), data, args.split, args.shards)
     else:
-        raise SystemExit("error: lead-s2r submit needs navsim, wod-e2e or --check FILE")
+        raise UserError("lead-s2r submit needs navsim, wod-e2e or --check FILE (see lead-s2r submit --help)")
     print(json.dumps(report, indent=2))
     return 0
 
@@ -309,8 +349,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--src", required=True)
     sub.add_argument("--out", required=True)
     sub.add_argument(
-        "--workers", type=int, default=1, help="processes converting, this one included (the output is the same)"
+        "--workers", type=int, default=1, help="processes converting on this machine (the output is the same)"
     )
+    add_executor_arguments(sub)
     sub.add_argument("--shard-size", type=int, default=1000, help="samples per shard (closed at a log boundary)")
     sub.add_argument("--limit-logs", type=int, default=None)
     sub.add_argument("--force", action="store_true", help="start over instead of resuming")
@@ -319,7 +360,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub = verbs.add_parser("inspect", help="counts, schema check, statistics and a picture of a converted folder")
     sub.add_argument("path")
-    sub.add_argument("--n", type=int, default=32, help="samples to validate")
+    sub.add_argument("--quick", action="store_true", help="validate the first --n samples only (default: every one)")
+    sub.add_argument("--n", type=int, default=32, help="samples to validate with --quick")
+    sub.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_argument("--png", default=None, help="draw one sample (cameras + BEV) to this file")
     sub.add_argument("--key", default=None, help="sample to draw (default: the first)")
     sub.set_defaults(run=cmd_inspect)
@@ -334,6 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
     sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
+    sub.add_argument(
+        "--workers", type=int, default=1, help="processes scoring on this machine (the scores are the same)"
+    )
+    add_executor_arguments(sub)
     sub.set_defaults(run=cmd_score)
 
     _submit_parser(verbs)
@@ -389,12 +436,24 @@ def main(argv: list[str] | None = None) -> int:
     if from_shell:  # LightningCLI reads sys.argv itself (and warns when given both)
         sys.argv[1:] = argv
     try:
-        return _run(argv, from_shell)
+        status = _run(argv, from_shell)
+        sys.stdout.flush()  # here, where a closed pipe is caught, not at the interpreter's exit
+        return status
     except UserError as err:
         if debug:
             raise
         print(f"error: {err.one_line()}", file=sys.stderr)
         return USER_ERROR_STATUS
+    except BrokenPipeError:  # `lead-s2r ... | head`: the reader has all it wanted
+        _quiet_stdout()
+        return BROKEN_PIPE_STATUS
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's final flush of the closed pipe raises nothing either."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def _run(argv: list[str], from_shell: bool) -> int:

@@ -4,14 +4,15 @@ deterministic.
 The same raw data and options give the same bytes in every file of the folder, whatever the number of workers:
 seeded training draws shards by name, so shards whose contents hung on which worker finished first would make two
 identical runs train on different data. Logs are converted in any order and assembled in the order of the log list.
-``workers`` processes (the driver and ``workers - 1`` spawned ones; the driver alone for ``workers <= 1``) take logs
-from a queue, so a long log holds up no other, and write each log to a fragment of its own
-(``shards/log-<position>.partial``: its tar members, no end-of-archive blocks). The driver appends the fragments to
-shards in list order, skipping failed and skipped logs, and closes a shard at the first log boundary after
-``shard_size`` samples: a log never straddles two shards, and names and contents are those one process converting
-the logs in turn writes. The driver converts logs too: it is up while the others start (0.4 s of imports each), and
-appending is ``copy_file_range`` in the kernel (45 MB, 1000 CARLA samples, in 15 ms). A slow log holds back
-assembly, not conversion: the logs after it wait on disk as fragments.
+Each log is one job of an executor (:mod:`lead_s2r.processes`: this process alone for ``workers <= 1``, else
+``workers`` processes of a ``concurrent.futures`` pool, or Ray tasks on a cluster whose nodes all see ``out``), so a
+long log holds up no other; a job writes its log to a fragment of its own (``shards/log-<position>.partial``: its
+tar members, no end-of-archive blocks). The driver appends the fragments to shards in list order, skipping failed
+and skipped logs, and closes a shard at the first log boundary after ``shard_size`` samples: a log never straddles
+two shards, and names and contents are those one process converting the logs in turn writes. Appending is
+``copy_file_range`` in the kernel (45 MB, 1000 CARLA samples, in 15 ms). A slow log holds back assembly, not
+conversion: the logs after it wait on disk as fragments. A job run again (Ray retries a job whose worker or node
+died) truncates its fragment first, so no partial fragment of the lost attempt remains.
 
 A closed shard is fsynced and renamed from ``.partial`` before the driver records it (with its logs and manifest
 rows) in ``progress.jsonl``; a fragment is deleted once appended. After a kill, a rerun deletes fragments, partial
@@ -23,14 +24,13 @@ ends with the folder an uninterrupted run writes. A log that raises loses its fr
 
 A folder belongs to one adapter, version and set of options (``convert.json``, written before the first shard):
 resuming with others would mix two conversions in one manifest, so it is refused unless ``force``. Inputs are
-checked (``src`` exists, holds logs) before ``out`` is created. Workers end with their driver
-(:func:`lead_s2r.processes.exit_with_parent`), so a killed driver leaves no orphans converting into the folder.
+checked (``src`` exists, holds logs) before ``out`` is created. Local workers end with their driver
+(:func:`lead_s2r.processes.exit_with_parent`) and Ray cancels a dead driver's tasks, so a killed driver leaves no
+orphans converting into the folder.
 """
 
 import json
-import multiprocessing as mp
 import os
-import queue
 import shutil
 import time
 import traceback
@@ -44,16 +44,15 @@ import numpy as np
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.processes import exit_with_parent
+from lead_s2r.processes import Executor, WorkerDied, make_executor
 from lead_s2r.registry import Adapter, LogRef, SkipLog
-from lead_s2r.schema import SCHEMA_VERSION, validate
-from lead_s2r.shards import ERRORS, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
+from lead_s2r.schema import SCHEMA_VERSION, SchemaError, validate
+from lead_s2r.shards import ERRORS, IDENTITY, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
 PROGRESS = "progress.jsonl"
-IDENTITY = "convert.json"
 _DIED = "a conversion worker died; rerun the same command to resume"
 
 
@@ -133,28 +132,19 @@ def _run_log(adapter: Adapter, out: Path, position: int, log: LogRef) -> tuple[s
         return "done", position, _convert_log(adapter, log, _fragment_path(out, position))
     except SkipLog as reason:
         return "skipped", position, str(reason)
-    except Exception as err:  # every failure of one log is isolated and reported
+    except UserError as err:  # a bad source file: the adapter's message names it; a SchemaError names a sample only
+        source = f"{log.path}: " if isinstance(err, SchemaError) else ""
+        return "error", position, f"{type(err).__name__}: {source}{err.one_line()}"
+    except Exception as err:  # every failure of one log is isolated and reported; a bug keeps its code line
         where = traceback.extract_tb(err.__traceback__)[-1]
         return "error", position, f"{type(err).__name__}: {err} (at {Path(where.filename).name}:{where.lineno})"
 
 
-def _one_thread_per_worker() -> None:
+def one_thread_per_worker() -> None:
     """Processes are the parallelism: a native pool per worker (lazrs' rayon LAZ decoder, OpenCV) would
     oversubscribe the cores the other workers use. Rayon reads its variable when its pool first starts."""
     os.environ["RAYON_NUM_THREADS"] = "1"
     cv2.setNumThreads(1)
-
-
-def _worker_main(adapter: Adapter, out: Path, tasks: Any, results: Any, parent: int) -> None:
-    exit_with_parent(parent)
-    _one_thread_per_worker()
-    finished = False
-    try:
-        for position, log in iter(tasks.get, None):
-            results.put(_run_log(adapter, out, position, log))
-        finished = True
-    finally:
-        results.put(("exit", os.getpid(), finished))
 
 
 # --------------------------------------------------------------------------- main side
@@ -260,77 +250,20 @@ def _next_shard_index(records: list[dict[str, Any]]) -> int:
     return max(indices, default=-1) + 1
 
 
-def _messages(adapter: Adapter, logs: list[LogRef], out: Path, workers: int) -> Iterator[tuple[str, int, Any]]:
-    """Convert ``logs`` into fragments with ``workers`` processes, the driver one of them, and yield
-    :func:`_run_log`'s messages in the order the logs finish."""
-    helpers = min(workers, len(logs)) - 1
-    if helpers <= 0:
-        for position, log in enumerate(logs):
-            yield _run_log(adapter, out, position, log)
-        return
-    yield from _Helpers(adapter, out, helpers).messages(logs)
+def conversion_executor(workers: int = 1, executor: str = "processes", address: str | None = None) -> Executor:
+    """The executor of ``workers`` local processes (this one alone for 1), or of the Ray cluster at ``address``."""
+    return make_executor(workers, executor, address, preload=[__name__], initializer=one_thread_per_worker)
 
 
-class _Helpers:
-    """Spawned worker processes taking logs from a queue beside the driver, which takes them too (see the module
-    docstring) and reads the workers' messages between its own logs."""
-
-    def __init__(self, adapter: Adapter, out: Path, count: int) -> None:
-        self.adapter, self.out = adapter, out
-        context = mp.get_context("spawn")
-        self.tasks, self.results = context.Queue(), context.Queue()
-        self.procs = [
-            context.Process(
-                target=_worker_main, args=(adapter, out, self.tasks, self.results, os.getpid()), daemon=True
-            )
-            for _ in range(count)
-        ]
-        self.running = count
-
-    def messages(self, logs: list[LogRef]) -> Iterator[tuple[str, int, Any]]:
-        """Every log's message. Once every log is reported the workers hold no work and are stopped, not waited for
-        (a small run ends before they have started); so are they if the driver fails (a rerun deletes what they
-        wrote)."""
-        for proc in self.procs:
-            proc.start()
-        for task in enumerate(logs):
-            self.tasks.put(task)
-        for _ in range(len(self.procs) + 1):  # one end mark for each process taking tasks, the driver included
-            self.tasks.put(None)
-        reported = 0
-        try:
-            for position, log in iter(self.tasks.get, None):
-                for message in (_run_log(self.adapter, self.out, position, log), *self._received(wait=0.0)):
-                    reported += 1
-                    yield message
-            while reported < len(logs):
-                if not self.running:  # every worker ended, one without reporting a log it took
-                    raise RuntimeError(_DIED)
-                for message in self._received(wait=1.0):
-                    reported += 1
-                    yield message
-        finally:
-            for proc in self.procs:
-                if proc.is_alive():
-                    proc.terminate()
-                proc.join()
-
-    def _received(self, wait: float) -> Iterator[tuple[str, int, Any]]:
-        """The workers' messages already sent, after waiting up to ``wait`` seconds for the first."""
-        while self.running:
-            try:
-                message = self.results.get(timeout=wait) if wait else self.results.get_nowait()
-            except queue.Empty:
-                if any(proc.exitcode not in (None, 0) for proc in self.procs):
-                    raise RuntimeError(_DIED) from None
-                return
-            wait = 0.0
-            if message[0] != "exit":
-                yield message
-            elif message[2]:
-                self.running -= 1
-            else:  # a BaseException (Ctrl-C) past _run_log: that worker's log is lost
-                raise RuntimeError(_DIED)
+def _messages(adapter: Adapter, logs: list[LogRef], out: Path, executor: Executor) -> Iterator[tuple[str, int, Any]]:
+    """Convert ``logs`` into fragments with ``executor`` and yield :func:`_run_log`'s messages in the order the logs
+    finish. A worker that died for good (a crash, or Ray's retries spent) ends the run: a rerun resumes it."""
+    jobs = [(adapter, out, position, log) for position, log in enumerate(logs)]
+    try:
+        for _, message in executor.run(_run_log, jobs):
+            yield message
+    except WorkerDied as err:
+        raise RuntimeError(f"{_DIED} ({err})") from err
 
 
 def _in_list_order(messages: Iterator[tuple[str, int, Any]]) -> Iterator[tuple[bool, tuple[str, int, Any]]]:
@@ -394,11 +327,13 @@ def convert(
     limit_logs: int | None = None,
     force: bool = False,
     progress: bool = False,
+    executor: Executor | None = None,
 ) -> ConvertResult:
     """Convert every log of ``src`` with ``adapter`` into ``out`` (see the module docstring for the guarantees).
 
-    ``workers`` counts the processes converting, the driver included. ``shard_size`` is the number of samples after
-    which a shard is closed (at the next log boundary).
+    ``workers`` counts the processes converting on this machine (1: this process alone; more: that many workers
+    while this process assembles shards); ``executor`` replaces them (``RayExecutor`` for a cluster). ``shard_size``
+    is the number of samples after which a shard is closed (at the next log boundary).
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # see _finish
 
@@ -432,7 +367,8 @@ def convert(
 
         assembler = _Assembler(out, adapter.name, shard_size, _next_shard_index(records), record)
         try:
-            for arrived, (kind, position, payload) in _in_list_order(_messages(adapter, todo, out, workers)):
+            messages = _messages(adapter, todo, out, executor or conversion_executor(workers))
+            for arrived, (kind, position, payload) in _in_list_order(messages):
                 if arrived:
                     result.samples += len(payload) if kind == "done" else 0
                     rate = result.samples / max(time.perf_counter() - started, 1e-9)
@@ -459,7 +395,7 @@ def convert(
 def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]], result: ConvertResult) -> None:
     """Write ``manifest.parquet`` and ``info.json`` from every recorded shard (this run's and earlier ones).
 
-    pyarrow and rich are imported in the driver's functions only: each spawned worker imports this module, and
+    pyarrow and rich are imported in the driver's functions only: the workers' forkserver imports this module, and
     they are 0.2 s of its start-up."""
     import pyarrow as pa
     import pyarrow.parquet as pq

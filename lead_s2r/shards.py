@@ -22,6 +22,8 @@ import json
 import os
 import shutil
 import tarfile
+import zipfile
+import zlib
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -32,11 +34,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.schema import field_spec
+from lead_s2r.schema import REQUIRED_FIELDS, field_spec
 
 MANIFEST = "manifest.parquet"
 INFO = "info.json"
 ERRORS = "errors.jsonl"
+#: Written by ``convert`` before its first shard: the folder is a conversion, whose readers need its manifest.
+IDENTITY = "convert.json"
 SHARD_DIR = "shards"
 _BLOCK = 512
 _END_OF_ARCHIVE = 2 * _BLOCK
@@ -215,8 +219,10 @@ def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
     elif path.name == SHARD_DIR:
         folder = path.parent
     if not (folder / MANIFEST).is_file():
+        if (folder / IDENTITY).is_file():  # convert wrote here: its manifest is lost, or it never finished
+            raise ShardError(f"{folder} has no {MANIFEST}: its conversion did not finish or it was deleted; {_REDO}")
         return None
-    return keys_by_shard(folder, load_manifest(folder).select(["shard", "key"]).to_pylist())
+    return keys_by_shard(folder, load_manifest(folder, columns=("shard", "key")).to_pylist())
 
 
 def keys_by_shard(folder: Path, rows: Iterable[dict[str, Any]]) -> dict[str, list[str]]:
@@ -225,6 +231,14 @@ def keys_by_shard(folder: Path, rows: Iterable[dict[str, Any]]) -> dict[str, lis
     for row in rows:
         listed.setdefault(str(folder / SHARD_DIR / row["shard"]), []).append(row["key"])
     return listed
+
+
+def check_listed_shards(listed: Mapping[str, Sequence[str]]) -> None:
+    """Raise :class:`ShardError` naming the first tar the manifest lists samples in that is not on disk: a deleted
+    tar is otherwise a shorter, valid-looking folder."""
+    for shard, keys in sorted(listed.items()):
+        if not os.path.isfile(shard):
+            raise ShardError(f"{shard}: missing, but {MANIFEST} lists {len(keys)} samples in it; {_REDO}")
 
 
 class ManifestCheck:
@@ -275,7 +289,22 @@ def decode_sample(raw: dict[str, Any], fields: Iterable[str] | None = None) -> d
         name = member.rsplit(".", 1)[0]
         if wanted is None or name in wanted:
             sample[name] = _decode_member(raw, name, data)
+    _check_members(raw, sample.get("meta"))
     return sample
+
+
+def _check_members(raw: dict[str, Any], meta: Any) -> None:
+    """Raise :class:`ShardError` unless the sample holds every field its ``meta.has`` flags (and ``past``): a zeroed
+    or damaged tar header ends the tar's stream in the middle of a sample, which comes out short of its last
+    fields, with no error from tarfile."""
+    where = f"{raw.get('__url__', 'shard')}: sample {raw['__key__']!r}"
+    if not isinstance(meta, dict) or not isinstance(meta.get("has"), dict):
+        raise ShardError(f"{where}: no meta.json with its 'has' flags (a damaged tar); {_REDO}")
+    present = {member.rsplit(".", 1)[0] for member in raw if not member.startswith("__")}
+    flagged = [name for name, flag in meta["has"].items() if flag]
+    missing = [name for name in (*REQUIRED_FIELDS, *flagged) if name not in present]
+    if missing:
+        raise ShardError(f"{where}: field {missing[0]!r} is missing from the tar (a damaged header ends it); {_REDO}")
 
 
 def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
@@ -285,7 +314,7 @@ def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
         value = decode_field(name, data)
     except KeyError:
         raise ShardError(f"{where}: not a schema v1 field; {_REDO}") from None
-    except (ValueError, OSError, EOFError) as err:
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as err:  # .npz: a zip of deflated .npy
         raise ShardError(f"{where}: cannot be decoded as .{spec.ext} ({err}); {_REDO}") from None
     if spec.ext == "npy" and spec.dtype is not None and value.dtype != np.dtype(spec.dtype):
         raise ShardError(f"{where}: dtype {value.dtype}, but schema v1 stores {spec.dtype}; {_REDO}")
@@ -303,8 +332,11 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
 
     fields = None if fields is None else tuple(fields)
     listed = listed_keys(path)
+    shards = shard_paths(path)
+    if listed is not None and Path(path).is_dir():
+        check_listed_shards(listed)
     dataset = wds.WebDataset(
-        shard_paths(path),
+        shards,
         shardshuffle=False,
         empty_check=False,
         nodesplitter=None,
@@ -315,12 +347,45 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
         yield decode_sample(raw, fields)
 
 
-def load_manifest(path: str | Path) -> pa.Table:
-    """The manifest table of a converted folder: one row per sample, no blobs."""
+#: Columns every manifest of a conversion that wrote a sample has; a conversion that wrote none writes only ``key``.
+MANIFEST_COLUMNS = ("key", "shard", "dataset", "split", "log")
+
+
+def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
+    """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
+
+    ``columns`` keeps only those; they and ``required`` must be there. A file that is missing, is not parquet or
+    lacks a column is a :class:`ShardError` naming it.
+    """
     path = Path(path)
-    return pq.read_table(path / MANIFEST if path.is_dir() else path)
+    file = path / MANIFEST if path.is_dir() else path
+    try:
+        table = pq.read_table(file)
+        table.validate(full=True)  # parquet does not check that strings are UTF-8; reading them would raise later
+    except (pa.ArrowException, OSError) as err:  # ArrowInvalid (not parquet), OSError (missing, bad thrift)
+        raise ShardError(f"{file}: cannot be read as a manifest ({_first_line(err)}); {_REDO}") from None
+    absent = [name for name in (*(columns or ()), *required) if name not in table.column_names]
+    if absent and not len(table):
+        raise ShardError(f"{file} lists no sample: the conversion wrote none; see the errors.jsonl beside it")
+    if absent:
+        raise ShardError(f"{file}: no column {absent[0]!r}; {_REDO}")
+    return table if columns is None else table.select(list(columns))
 
 
 def load_info(path: str | Path) -> dict[str, Any]:
-    """``info.json`` of a converted folder."""
-    return json.loads((Path(path) / INFO).read_text())
+    """``info.json`` of a converted folder; missing, undecodable or not a JSON object is a :class:`ShardError`."""
+    file = Path(path) / INFO
+    try:
+        info = json.loads(file.read_bytes())
+    except OSError as err:
+        raise ShardError(f"{file}: cannot be read ({err.strerror or err}); {_REDO}") from None
+    except ValueError as err:  # JSONDecodeError, UnicodeDecodeError
+        raise ShardError(f"{file}: not valid JSON ({_first_line(err)}); {_REDO}") from None
+    if not isinstance(info, dict):
+        raise ShardError(f"{file}: expected a JSON object, got {type(info).__name__}; {_REDO}")
+    return info
+
+
+def _first_line(err: Exception) -> str:
+    """The first line of a library's message (Arrow's run over several)."""
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]

@@ -341,18 +341,22 @@ def test_partial_route_converts_with_has_flags_false(tmp_path: Path) -> None:
     src = tmp_path / "src"
     synth.generate(src, count=1, seed=4, frames=3)
     route = next((src / "data").glob("*/*"))
-    for folder in ("radar", "depth", "semantics"):
+    for folder in ("radar", "depth", "semantics", "lidar"):
         shutil.rmtree(route / folder)
-    (route / "lidar" / "0001.laz").unlink()
     result = convert(CarlaLeadAdapter(), src, tmp_path / "out")
     assert result.ok and result.samples == 3
     samples = sorted(read_samples(tmp_path / "out"), key=lambda s: s["meta"]["frame_idx"])
     for sample in samples:
         has = sample["meta"]["has"]
         assert has["radar"] is False and has["depth_carla_mosaic"] is False and has["semantic_carla_mosaic"] is False
-        assert "radar" not in sample and "depth_carla_mosaic" not in sample
+        assert has["lidar"] is False and "radar" not in sample and "depth_carla_mosaic" not in sample
         assert has["cam_carla_mosaic"] and has["bev_semantic"]
-    assert [s["meta"]["has"]["lidar"] for s in samples] == [True, False, True]
+    # a sensor folder that holds other frames but not this one is damage, not a sensor the route lacks
+    synth.generate(tmp_path / "src2", count=1, seed=4, frames=3)
+    missing = next((tmp_path / "src2" / "data").glob("*/*")) / "lidar" / "0001.laz"
+    missing.unlink()
+    (error,) = convert(CarlaLeadAdapter(), tmp_path / "src2", tmp_path / "out2").errors
+    assert f"{missing}: missing: the route's lidar/ folder holds other frames" in error["error"]
 
 
 def test_options_split_skip_and_rig_validation(tmp_path: Path) -> None:

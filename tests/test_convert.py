@@ -7,17 +7,16 @@ import subprocess
 import sys
 import time
 from collections import Counter
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from toy_adapter import ToyAdapter, write_toy_logs
+from toy_adapter import InterruptedToy, ToyAdapter, write_toy_logs
 
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.registry import Adapter, LogRef
+from lead_s2r.registry import Adapter
 from lead_s2r.shards import load_info, load_manifest, read_samples
 
 
@@ -103,15 +102,6 @@ def test_any_number_of_workers_writes_the_same_bytes(tmp_path, broken, skipped, 
             *(f"shards/{shard}" for shard in shards),
         ]
     )
-
-
-class InterruptedToy(ToyAdapter):
-    """Ctrl-C while converting log000, in whichever process converts it."""
-
-    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
-        if log.log_id == "log000":
-            raise KeyboardInterrupt
-        yield from super().iter_samples(log)
 
 
 def test_an_interrupted_conversion_stops_its_workers(tmp_path):
@@ -204,9 +194,11 @@ def test_a_folder_holds_one_adapter_and_one_set_of_options(tmp_path):
     assert forced.logs_converted == 2 and load_info(tmp_path / "out")["adapter_options"] == {"rig": "both"}
 
 
-def _children(pid: int) -> list[int]:
+def _descendants(pid: int) -> list[int]:
+    """Children, grandchildren...: pool workers are children of a forkserver, the driver's child."""
     path = Path(f"/proc/{pid}/task/{pid}/children")
-    return [int(child) for child in path.read_text().split()] if path.exists() else []
+    children = [int(child) for child in path.read_text().split()] if path.exists() else []
+    return children + [grandchild for child in children for grandchild in _descendants(child)]
 
 
 def _alive(pid: int) -> bool:
@@ -229,8 +221,8 @@ def test_killed_driver_leaves_no_orphaned_workers(tmp_path):
     deadline = time.time() + 60
     while time.time() < deadline and not list((out / "shards").glob("*.partial")):  # workers are converting
         time.sleep(0.05)
-    workers = _children(driver.pid)
-    assert workers, "the driver should have started its workers"
+    workers = _descendants(driver.pid)
+    assert len(workers) >= 2, "the driver should have started its workers"
     os.kill(driver.pid, signal.SIGKILL)  # the driver alone, as an OOM killer would
     driver.wait()
     deadline = time.time() + 10
@@ -240,3 +232,32 @@ def test_killed_driver_leaves_no_orphaned_workers(tmp_path):
     for pid in survivors:  # do not leave them running after a failure
         os.kill(pid, signal.SIGKILL)
     assert not survivors
+
+
+USER_SCRIPT = """
+import os
+import sys
+
+with open({marker!r}, "a") as file:  # every import of this script, as __main__ or as a worker's __mp_main__
+    file.write(__name__ + "\\n")
+sys.path.insert(0, {tests!r})
+from toy_adapter import ToyAdapter
+from lead_s2r.convert import convert
+
+if __name__ == "__main__":
+    assert convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers=2, shard_size=8).ok
+"""
+
+
+def test_workers_do_not_import_the_callers_script_again(tmp_path):
+    """A user's script (which may import torch) is imported once for all workers, by their forkserver: spawned
+    workers imported it once each before their first log."""
+    write_toy_logs(tmp_path / "src", n_logs=8, frames=5)
+    marker, script = tmp_path / "imports.txt", tmp_path / "user_script.py"
+    tests = str(Path(__file__).parent)
+    script.write_text(
+        USER_SCRIPT.format(marker=str(marker), tests=tests, src=str(tmp_path / "src"), out=str(tmp_path / "out"))
+    )
+    subprocess.run([sys.executable, str(script)], check=True, timeout=120)
+    assert marker.read_text().split() == ["__main__", "__mp_main__"]
+    assert len(keys_in_shards(tmp_path / "out")) == 40

@@ -11,9 +11,12 @@ from lead_s2r.data.mixing import MixingSchedule
 
 ROOT = Path(__file__).parents[1] / "recipes"
 #: Training recipes; recipes/paper holds table specs for `lead-s2r table`, and recipes/smoke/twin*.yaml are overlays
-#: that only parse on top of a full-scale recipe (tests/test_smoke_twins.py runs them), not LightningCLI configs.
+#: that only parse on top of a full-scale recipe (tests/test_smoke_twins.py runs them), not LightningCLI configs;
+#: so are recipes/multinode/*.yaml (tests/test_multinode.py runs one over the sim-to-real smoke recipe).
 RECIPES = sorted(
-    p for p in ROOT.rglob("*.yaml") if p.parent.name != "paper" and p not in set(ROOT.glob("smoke/twin*.yaml"))
+    p
+    for p in ROOT.rglob("*.yaml")
+    if p.parent.name not in ("paper", "multinode") and p not in set(ROOT.glob("smoke/twin*.yaml"))
 )
 
 

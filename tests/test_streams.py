@@ -9,7 +9,7 @@ import pytest
 
 from lead_s2r.data import streams
 from lead_s2r.data.streams import SampleShare, StreamSeed, manifest_samples, share, stream_seed
-from lead_s2r.shards import read_samples
+from lead_s2r.shards import ShardError, read_samples
 
 
 def test_share_splits_contiguously_with_the_longer_runs_first():
@@ -40,7 +40,7 @@ def test_manifest_split_filter_and_missing_manifest(toy_data, tmp_path):
     samples, listed = manifest_samples(toy_data, splits=["val"])
     assert samples == []  # toy data is all "train"
     assert sum(len(keys) for keys in listed.values()) == 24  # what each tar holds, whatever the split
-    with pytest.raises(FileNotFoundError, match=r"manifest\.parquet"):
+    with pytest.raises(ShardError, match=r"manifest\.parquet"):
         manifest_samples(tmp_path, splits=None)
 
 

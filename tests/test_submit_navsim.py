@@ -259,7 +259,7 @@ def test_missing_token_nan_pose_short_horizon_and_missing_metadata_write_nothing
         out,
         "nope: no such converted folder",
     )
-    argv = ["submit", "navsim", "--data", str(data), "--out", str(out), "--predictions", str(full)]
+    argv = ["--debug", "submit", "navsim", "--data", str(data), "--out", str(out), "--predictions", str(full)]
     refused(lambda: cli_main([*argv, *metadata_args(country=" ")]), out, "'country' .*--country")
 
 

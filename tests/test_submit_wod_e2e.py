@@ -135,7 +135,7 @@ def test_check_reads_a_folder_and_rejects_tutorial_part_names(converted, tmp_pat
     report = json.loads(capsys.readouterr().out)
     assert report["frames"] == len(frames) and report["metadata"]["num_model_parameters"] == "60M"
     with pytest.raises(SubmissionError, match=r"nope\.tar\.gz: no such submission file"):
-        cli_main(["submit", "--check", str(tmp_path / "nope.tar.gz")])
+        cli_main(["submit", "--check", str(tmp_path / "nope.tar.gz"), "--debug"])  # --debug: raise, not print
     (out / "submission.binproto-00000-of-00001").rename(out / "part0")
     with pytest.raises(SubmissionError, match=r"part0 are not <stem>\.binproto-00000-of-0000N"):
         wod_submit.check_wod(out)
@@ -160,7 +160,7 @@ def test_missing_frame_short_horizon_and_bad_metadata_write_nothing(converted, t
         "short.parquet: .*horizon 4 s ends before .* 5 s",
     )
     good = two_inference_predictions(tmp_path / "good.parquet", keys)
-    argv = ["submit", "wod-e2e", "--predictions", str(good), "--data", str(data), "--out", str(out)]
+    argv = ["--debug", "submit", "wod-e2e", "--predictions", str(good), "--data", str(data), "--out", str(out)]
     argv += ["--account", "someone@uni.org", "--method", "m", "--authors", "A", "--pretrained", "true"]
     refused(lambda: cli_main([*argv, "--num-params", "60M"]), out, "'public_model_names' is empty")
     refused(lambda: cli_main([*argv, "--num-params", "", "--public-models", "Qwen2-VL"]), out, "'num_model_parameters'")

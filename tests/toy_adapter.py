@@ -118,6 +118,16 @@ class ToyAdapter(Adapter):
         return {"rates_hz": {"future": 2.0}}
 
 
+class InterruptedToy(ToyAdapter):
+    """Ctrl-C while converting log000, in whichever process converts it. Here, not in a test module: a worker
+    unpickling it imports this light module, not a test module's imports (torch)."""
+
+    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
+        if log.log_id == "log000":
+            raise KeyboardInterrupt
+        yield from super().iter_samples(log)
+
+
 def corrupt_header(tar: Path, member: str) -> None:
     """Break the checksum of ``member``'s tar header (bit rot mid-file): tarfile ends the stream there, silently."""
     data = bytearray(tar.read_bytes())

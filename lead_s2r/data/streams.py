@@ -27,7 +27,7 @@ import numpy as np
 import torch.utils.data
 import webdataset as wds
 
-from lead_s2r.shards import MANIFEST, SHARD_DIR, keys_by_shard, load_manifest
+from lead_s2r.shards import MANIFEST, SHARD_DIR, ShardError, check_listed_shards, keys_by_shard, load_manifest
 
 
 def worker_info() -> tuple[int, int]:
@@ -95,15 +95,17 @@ def manifest_samples(
     the manifest lists per shard, all splits (what a tar must yield, :class:`~lead_s2r.shards.ManifestCheck`)."""
     folder = Path(path)
     if not (folder / MANIFEST).is_file():
-        raise FileNotFoundError(
+        raise ShardError(
             f"{folder / MANIFEST} not found: evaluation splits samples over ranks by the manifest; "
             "point the data at a folder written by `lead-s2r convert`"
         )
-    rows = load_manifest(folder).select(["key", "shard", "split"]).to_pylist()
+    rows = load_manifest(folder, columns=("key", "shard", "split")).to_pylist()
     wanted = None if splits is None else set(splits)
     kept = [row for row in rows if wanted is None or row["split"] in wanted]
     kept.sort(key=lambda row: row["shard"])  # stable: manifest order within a shard
-    return [(str(folder / SHARD_DIR / row["shard"]), row["key"]) for row in kept], keys_by_shard(folder, rows)
+    listed = keys_by_shard(folder, rows)
+    check_listed_shards(listed)
+    return [(str(folder / SHARD_DIR / row["shard"]), row["key"]) for row in kept], listed
 
 
 class SampleShare:

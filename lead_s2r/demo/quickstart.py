@@ -312,7 +312,7 @@ def predict_and_score(
     dataset's predictions against that dataset alone."""
     args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(folder)]
     with lightning_output_to(out / LIGHTNING_LOG):
-        run_lightning_cli(args + ([] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
+        run_lightning_cli(args + (["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
     predictions = read_predictions(folder / "predictions.parquet")
     results = {}
     for dataset in EVAL_SPLITS:

@@ -91,6 +91,23 @@ def _allowed(module: str, name: str) -> bool:
     return isinstance(candidate, type) and issubclass(candidate, np.generic)
 
 
+#: What unpickling a damaged (truncated, bit-flipped, retyped) pickle raises: the pickle machine's own errors, and
+#: those of constructors (numpy's among them) called with arguments of the wrong type or value. Readers catch these
+#: and name the file; anything else is a bug.
+DAMAGED = (
+    pickle.UnpicklingError,
+    EOFError,
+    ValueError,
+    TypeError,
+    AttributeError,
+    IndexError,
+    KeyError,
+    OverflowError,
+    MemoryError,
+    RecursionError,
+)
+
+
 def load(file: IO[bytes], records: Collection[tuple[str, str]] = ()) -> Any:
     """Unpickle one object from a binary file with :class:`RestrictedUnpickler` (``records``: foreign classes to
     rebuild as :class:`Record`)."""

@@ -1,6 +1,11 @@
-"""Summarise a converted folder: counts, a schema check of some samples, field statistics, an optional picture."""
+"""Summarise a converted folder: counts, a schema check of every sample (or the first few), statistics, a picture.
+
+Every sample is read and validated by default: reading them all is also what holds each tar against the manifest
+(:class:`~lead_s2r.shards.ManifestCheck`), so a folder that lost a tar or a sample cannot pass as whole.
+"""
 
 import itertools
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +19,9 @@ from lead_s2r.report.render import render_sample
 from lead_s2r.schema import SchemaError, validate
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples
 
+#: Manifest columns the report reads.
+_READ = ("key", "shard", "dataset", "split", "log", "speed", "command", "tp_x", "tp_y")
+
 
 def _range(values: np.ndarray) -> dict[str, float] | None:
     values = values[np.isfinite(values)]
@@ -22,9 +30,18 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
     return {"min": float(values.min()), "max": float(values.max()), "mean": float(values.mean())}
 
 
-def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None, key: str | None = None) -> dict:
-    """Counts per dataset/split, validation of the first ``n`` samples, statistics; draws one sample to ``png``."""
+def inspect_dataset(
+    path: str | Path,
+    quick: int | None = None,
+    png: str | Path | None = None,
+    key: str | None = None,
+    progress: bool = False,
+) -> dict:
+    """Counts per dataset/split, validation of every sample (the first ``quick`` with ``quick``), statistics; draws
+    one sample to ``png``. ``progress`` shows a bar on stderr."""
     path = Path(path)
+    if png is not None:
+        _check_png(Path(png))
     manifest = _manifest(path)
     info = load_info(path)
     counts: dict[str, int] = {}
@@ -38,12 +55,17 @@ def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None
     stats["command"] = {str(c): commands.count(c) for c in sorted(set(commands))}
     invalid: list[str] = []
     lengths: dict[str, list[float]] = {"past_s": [], "future_s": []}
-    samples = list(itertools.islice(read_samples(path), max(n, 1)))
-    for sample in samples:
+    samples = read_samples(path)  # read to the end unless quick: the end is where the last tar's count is checked
+    total = len(manifest) if quick is None else min(max(quick, 1), len(manifest))
+    checked, first = 0, None
+    for sample in _with_bar(samples if quick is None else itertools.islice(samples, total), total, progress):
+        checked += 1
+        first = first or sample
         try:
             validate(sample)
         except SchemaError as err:
             invalid.append(str(err))
+            continue
         lengths["past_s"].append(-float(sample["past"][0, 0]))
         if "future" in sample:
             lengths["future_s"].append(float(sample["future"][-1, 0]))
@@ -56,14 +78,37 @@ def inspect_dataset(path: str | Path, n: int = 32, png: str | Path | None = None
         "by_dataset_split": counts,
         "fields_present": has,
         "statistics": stats,
-        "checked": len(samples),
+        "checked": checked,
         "invalid": invalid,
         "failed_logs": info.get("failed_logs", 0),
     }
     if png is not None:
-        cv2.imwrite(str(png), render_sample(samples[0] if key is None else find_sample(path, manifest, key)))
+        if not cv2.imwrite(str(png), render_sample(first if key is None else find_sample(path, manifest, key))):
+            raise UserError(f"--png {png}: cannot be written there; choose a writable folder")
         report["png"] = str(png)
     return report
+
+
+def _check_png(png: Path) -> None:
+    """Refuse a picture path that cannot be written before reading anything."""
+    if png.suffix.lower() != ".png":
+        raise UserError(f"--png {png}: the picture is a PNG; give a file name ending in .png")
+    if not png.parent.is_dir():
+        raise UserError(f"--png {png}: folder {png.parent} does not exist; create it or choose another path")
+
+
+def _with_bar(samples: Iterator[dict[str, Any]], total: int, progress: bool) -> Iterator[dict[str, Any]]:
+    """``samples`` passed through, advancing a rich progress bar on stderr when ``progress`` and stderr is a terminal
+    (in a log or a pipe the bar's last frame would be a second line beside an error's one)."""
+    from rich.console import Console
+    from rich.progress import Progress
+
+    console = Console(stderr=True)
+    with Progress(console=console, disable=not (progress and console.is_terminal)) as bar:
+        task = bar.add_task("checking samples", total=total)
+        for sample in samples:
+            yield sample
+            bar.advance(task)
 
 
 def _manifest(path: Path) -> pa.Table:
@@ -72,7 +117,7 @@ def _manifest(path: Path) -> pa.Table:
         raise UserError(f"{path} is not a folder; give a folder written by lead-s2r convert")
     if not (path / MANIFEST).is_file():
         raise UserError(f"{path} holds no {MANIFEST}: not a converted folder (or its conversion did not finish)")
-    manifest = load_manifest(path)
+    manifest = load_manifest(path, required=_READ)
     if not len(manifest):
         raise UserError(f"{path}: {MANIFEST} lists no sample; convert again and check its errors.jsonl")
     return manifest

@@ -23,6 +23,7 @@ from typing import Any
 
 import yaml
 
+from lead_s2r.errors import UserError
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
 
 #: The table specs of the paper (Tables 1-5), next to the recipes they read.
@@ -31,7 +32,7 @@ SEED_FOLDER = re.compile(r"^seed[_-]?(\d+)$")
 MISSING = "missing"
 
 
-class TableError(ValueError):
+class TableError(UserError, ValueError):
     """A spec or run directory that cannot make a table; the message names the file and field."""
 
 

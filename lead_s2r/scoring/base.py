@@ -5,7 +5,7 @@ sample fields it reads (``meta`` always comes), so the data is decoded once with
 """
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -14,6 +14,10 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.predictions import Prediction, PredictionError, group_by_key
+from lead_s2r.processes import Executor
+
+#: Samples per job of a scorer's executor: a PDM-scored sample takes 50 ms, its job's messages a few ms.
+SAMPLES_PER_JOB = 8
 
 
 @dataclass
@@ -33,6 +37,11 @@ class Scorer(ABC):
     fields: ClassVar[tuple[str, ...]]
     #: datasets the metric is defined on (None: all); the validation callback skips the others.
     datasets: ClassVar[tuple[str, ...] | None] = None
+    #: fields without which a sample cannot be scored: data where no sample has them is the wrong data.
+    required: ClassVar[tuple[str, ...]] = ()
+    #: where :meth:`map_samples` runs the per-sample work (``lead-s2r score --workers / --executor``): this process
+    #: when None. Not part of :meth:`config`: the scores are the same wherever they are computed.
+    executor: Executor | None = None
 
     def __init__(self, allow_missing: bool = False) -> None:
         """``allow_missing``: score only the predicted samples instead of failing on unpredicted ones (off by
@@ -47,6 +56,18 @@ class Scorer(ABC):
     def write_files(self, result: ScoreResult, out: Path) -> None:
         """Extra files beside scores.parquet / scores.json (e.g. a benchmark's own CSV); none by default."""
         return None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """A scorer sent to a worker leaves its executor behind: the worker scores in place."""
+        return {name: value for name, value in self.__dict__.items() if name != "executor"}
+
+    def map_samples(self, function: Callable[..., Any], items: Sequence[tuple[Any, ...]]) -> list[Any]:
+        """``[function(*item) for item in items]`` in order, spread over :attr:`executor` in jobs of
+        :data:`SAMPLES_PER_JOB` items (``function`` and the items are pickled there: a bound method of the scorer
+        is fine)."""
+        if self.executor is None:
+            return [function(*item) for item in items]
+        return self.executor.map(function, items, SAMPLES_PER_JOB)
 
     @abstractmethod
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:

@@ -4,7 +4,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.predictions import Prediction
+from lead_s2r.predictions import Prediction, PredictionError
 
 
 def constant_turn_rate(speed: float, yaw_rate: float, t: np.ndarray) -> np.ndarray:
@@ -24,7 +24,10 @@ NAVSIM_GRID = 0.5 * np.arange(1, 9)
 def predict_human(sample: dict[str, Any], horizon: float = 4.0) -> Prediction:
     """The logged future up to ``horizon`` seconds (NAVSIM's HumanAgent; the paper's "Expert" row)."""
     if "future" not in sample:
-        raise ValueError(f"sample {sample['__key__']!r} has no future to replay")
+        raise PredictionError(
+            f"sample {sample['__key__']!r} ({sample['meta']['dataset']}/{sample['meta']['split']}) has no logged "
+            "future for the human planner to replay; score a split with futures, or --planner constant-velocity"
+        )
     future = np.asarray(sample["future"], np.float64)
     kept = future[future[:, 0] <= horizon + 1e-3]
     return Prediction(

@@ -31,6 +31,7 @@ from typing import Any
 
 import pyarrow as pa
 
+from lead_s2r.errors import UserError
 from lead_s2r.scoring.base import ScoreResult
 
 METRIC_VERSION = "1"
@@ -73,7 +74,7 @@ _MIN_SPEED = re.compile(r"is ([\d.eE+-]+)% of the surrounding traffic")
 _ROUTE_ID = re.compile(r"^(?:RouteScenario_)?(.+?)(?:_rep(\d+))?$")
 
 
-class ResultsError(ValueError):
+class ResultsError(UserError, ValueError):
     """A results JSON that cannot be read as leaderboard 2.0 output; the message names the file and field."""
 
 

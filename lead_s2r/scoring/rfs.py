@@ -203,6 +203,7 @@ class RFSScorer(Scorer):
     name: ClassVar[str] = "rfs@wod-e2e-2025"
     version: ClassVar[str] = "1"
     fields: ClassVar[tuple[str, ...]] = ("raters",)
+    required: ClassVar[tuple[str, ...]] = ("raters",)
 
     def __init__(self, allow_missing: bool = False, **constants: Any) -> None:
         """``constants`` override :class:`RFSConfig` fields (thresholds, decay, floor, frequency...)."""

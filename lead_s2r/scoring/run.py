@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import read_predictions, write_predictions
+from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
 from lead_s2r.shards import read_samples
@@ -34,8 +35,9 @@ def planner_predictions(planner: str, data: Path | list[Path], path: Path) -> Pa
         raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
     folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
     predict = PLANNERS[planner]
+    predictions = [predict(s) for folder in folders for s in read_samples(folder, fields=("future",))]
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_predictions(path, (predict(s) for folder in folders for s in read_samples(folder, fields=("future",))))
+    return write_predictions(path, predictions)
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
@@ -57,19 +59,23 @@ def make_scorer(metric: str, **config: Any) -> Scorer:
 
 
 def score_predictions(
-    metric: str, predictions: Path, data: Path | list[Path], out: Path, **config: Any
+    metric: str, predictions: Path, data: Path | list[Path], out: Path, executor: Executor | None = None, **config: Any
 ) -> dict[str, Any]:
     """Score ``predictions`` (predictions.parquet) against one or more converted folders.
 
     Writes ``out/scores.parquet`` (one row per scored sample) and ``out/scores.json`` (aggregates, metric name
     and version, config, package version, inputs, ``unpredicted`` samples and predictions of ``other_datasets``)
     and returns the JSON content. ``config`` goes to the scorer; without ``allow_missing=True`` an unpredicted
-    sample is an error, as in :func:`~lead_s2r.scoring.base.join`.
+    sample is an error, as in :func:`~lead_s2r.scoring.base.join`. ``executor`` spreads the per-sample work
+    (:meth:`~lead_s2r.scoring.base.Scorer.map_samples`); the files are the same bytes without it, but the
+    ``seconds`` of scores.json.
     """
     scorer = make_scorer(metric, **config)
+    scorer.executor = executor
     folders = [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
     start = time.perf_counter()
     samples = [sample for folder in folders for sample in read_samples(folder, fields=scorer.fields)]
+    _check_metric_fits(scorer, folders, samples)
     predicted = read_predictions(predictions)
     covered = coverage(predicted, samples)
     if len(covered["unpredicted"]) == len(samples):
@@ -95,6 +101,20 @@ def score_predictions(
     report = write_scores(out, result.table, report)
     scorer.write_files(result, out)
     return report
+
+
+def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[str, Any]]) -> None:
+    """A metric asked of data it is not defined on (RFS on data without raters, PDMS on WOD-E2E) scores nothing:
+    an error naming the datasets, not a scores.json of null aggregates."""
+    datasets = sorted({sample["meta"]["dataset"] for sample in samples})
+    wrong_dataset = scorer.datasets is not None and not set(datasets) & set(scorer.datasets)
+    unscorable = scorer.required and not any(all(name in s for name in scorer.required) for s in samples)
+    if wrong_dataset or unscorable:
+        needs = f"datasets {list(scorer.datasets)}" if wrong_dataset else f"samples with {list(scorer.required)}"
+        raise UserError(
+            f"--metric {scorer.name} scores {needs}, but {', '.join(map(str, folders))} holds datasets {datasets} "
+            "without them; choose the metric of that dataset (docs/metrics.md) or other --data"
+        )
 
 
 def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:

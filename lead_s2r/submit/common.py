@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from lead_s2r.errors import UserError
 from lead_s2r.predictions import Prediction, group_by_key, read_predictions
 from lead_s2r.shards import read_samples
 
@@ -18,7 +19,7 @@ from lead_s2r.shards import read_samples
 LISTED = 10
 
 
-class SubmissionError(ValueError):
+class SubmissionError(UserError, ValueError):
     """A submission the server would reject; the message names the file, token/frame or field."""
 
 

@@ -231,7 +231,7 @@ def load_navsim(path: Path) -> dict[str, Any]:
     records = {(TRAJECTORY.module, TRAJECTORY.name), (TRAJECTORY_SAMPLING.module, TRAJECTORY_SAMPLING.name)}
     try:
         raw = restricted_pickle.load(io.BytesIO(Path(path).read_bytes()), records)
-    except Exception as err:  # any unreadable pickle is a bad submission; name it
+    except (OSError, *restricted_pickle.DAMAGED) as err:  # any unreadable pickle is a bad submission; name it
         raise SubmissionError(f"{path}: not a readable NAVSIM submission pickle ({err})") from None
     if not isinstance(raw, dict):
         raise SubmissionError(f"{path}: holds a {type(raw).__name__}, not a dict")

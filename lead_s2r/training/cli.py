@@ -30,8 +30,26 @@ PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_erro
 
 
 class DrivingCLI(LightningCLI):
-    """LightningCLI that checks the data's source names against the model before anything is written, and roots
-    checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``."""
+    """LightningCLI that checks the data's source names against the model before anything is written, roots
+    checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``, and refuses to predict with random
+    weights unless asked to (``--untrained``): predictions of an untrained model look like any others."""
+
+    def add_arguments_to_parser(self, parser: Any) -> None:
+        parser.add_argument(
+            "--untrained", action="store_true", help="predict: use the model's initial weights (no --ckpt_path)"
+        )
+
+    def before_instantiate_classes(self) -> None:
+        if self.subcommand != "predict":
+            return
+        config = self.config["predict"]
+        weights = ("ckpt_path", "model.init_from", "model.model.init_args.checkpoint", "untrained")  # 3rd: LEAD folder
+        if not any(config.get(name) for name in weights):
+            raise UserError(
+                "lead-s2r predict: no weights given; pass --ckpt_path CHECKPOINT (or --model.init_from WEIGHTS, or a "
+                "LEAD checkpoint folder as --model.model.init_args.checkpoint), or --untrained to predict with the "
+                "model's initial weights"
+            )
 
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
         if isinstance(self.datamodule, DriveDataModule) and isinstance(self.model, DrivingModule):

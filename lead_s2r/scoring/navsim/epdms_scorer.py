@@ -172,14 +172,16 @@ class EPDMSScorer(PDMSScorer):
                 "with the adapter's two_stage_mapping (docs/datasets/navsim.md)"
             )
         pairs = join(predictions, data, self.allow_missing)
-        frames = [self.frame(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
+        frames = self.map_samples(self.frame, [pair for pair in pairs if pair[0]["meta"]["dataset"] in self.datasets])
         skipped = {"frames_skipped_other_dataset": len(pairs) - len(frames)}
         self.two_stage_result = None
         if mapping:
             table, aggregates = self.score_two_stage(frames, mapping, ours)
             return ScoreResult(table, aggregates | skipped)
         earlier = adjacent_frames(frames)
-        rows = [self.row(frame, frames[earlier[i]] if i in earlier else None) for i, frame in enumerate(frames)]
+        rows = self.map_samples(
+            self.row, [(frame, frames[earlier[i]] if i in earlier else None) for i, frame in enumerate(frames)]
+        )
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, {**self._aggregate(rows), **skipped})
 
@@ -188,7 +190,7 @@ class EPDMSScorer(PDMSScorer):
     ) -> tuple[pa.Table, dict[str, Any]]:
         """Every frame of the mapping scored alone, then NAVSIM's two-stage weights, EC and summaries."""
         navhard.check_complete(mapping, samples, {navsim_token(frame.sample): frame.error for frame in frames})
-        results = [self.proposal_scores(frame, None, with_states=True) for frame in frames]
+        results = self.map_samples(self.proposal_scores, [(frame, None, True) for frame in frames])
         tokens = [navsim_token(frame.sample) for frame in frames]
         rows = [
             navhard.token_row(token, frame.sample, frame.poses, result)

@@ -82,7 +82,7 @@ class PDMSScorer(Scorer):
         """Samples of other datasets (e.g. WOD-E2E beside NAVSIM in one run) are skipped and counted."""
         pairs = join(predictions, data, self.allow_missing)
         ours = [(sample, frame) for sample, frame in pairs if sample["meta"]["dataset"] in self.datasets]
-        rows = [self.score_sample(sample, frame) for sample, frame in ours]
+        rows = self.map_samples(self.score_sample, ours)
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": len(pairs) - len(ours)})
 

@@ -1,6 +1,8 @@
 """What every NAVSIM scorer does per sample before scoring: the scene token, the most probable inference put on
 NAVSIM's input grid, and PDM-Closed's reference (planned once per scene and cached)."""
 
+import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +58,10 @@ def navsim_token(sample: dict[str, Any]) -> str:
 class ReferenceCache:
     """PDM-Closed references per sample key: in memory, and in ``folder`` (``<key>.npy``) when given.
 
-    A reference depends on the scene only, so one cache serves every model scored on the same data."""
+    A reference depends on the scene only, so one cache serves every model scored on the same data, and every
+    worker of one run (``score --workers`` / ``--executor ray`` on a shared folder): a file is written under a name of
+    its own and renamed into place, so a reader sees a whole reference or none, and two workers planning the same
+    scene write the same bytes."""
 
     def __init__(self, folder: str | Path | None = None) -> None:
         self.folder = Path(folder) if folder else None
@@ -75,7 +80,14 @@ class ReferenceCache:
         else:
             reference = plan_reference(scene)
             if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                np.save(path, reference)
+                _save_atomically(path, reference)
         self.memory[key] = reference
         return reference
+
+
+def _save_atomically(path: Path, array: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.{os.getpid()}-{threading.get_ident()}.partial")
+    with open(partial, "wb") as file:
+        np.save(file, array)
+    os.replace(partial, path)

@@ -1,0 +1,115 @@
+"""Random corruptions of one file of a raw or converted data folder, for the fuzz test (tests/test_fuzz.py).
+
+A trial copies a pristine folder as hard links (cheap) and replaces one file by a corrupted copy, so the pristine
+folder is never written. The corruptions are the ones disks, copies and people cause: flipped bytes, a truncated
+file, a zeroed or random span, a deleted file, garbage appended, and a structured file (JSON, YAML, LEAD's LZMA
+pickles) re-written with one value of the wrong type.
+"""
+
+import json
+import lzma
+import os
+import pickle
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+KINDS = ("flip", "truncate", "zero_span", "random_span", "delete", "append", "wrong_type")
+#: Values that replace one of a structured file's values; each is a type the reader does not expect there.
+WRONG_VALUES: tuple[Any, ...] = (None, 7, -1.5, "x", [], {}, [1, "a"], {"k": None}, True)
+
+
+def hardlink_copy(src: Path, dst: Path) -> None:
+    """A copy of the folder ``src`` whose files are hard links: a trial replaces a file instead of writing it."""
+    shutil.copytree(src, dst, copy_function=os.link)
+
+
+def _replace(path: Path, data: bytes) -> None:
+    """Write ``data`` as a new file at ``path``, leaving the hard-linked original untouched."""
+    path.unlink()
+    path.write_bytes(data)
+
+
+def _wrong_typed(value: Any, rng: np.random.Generator) -> Any:
+    """``value`` with one nested value (a dict entry or list item, at any depth) of a wrong type."""
+    containers = []
+
+    def walk(node: Any) -> None:
+        if isinstance(node, dict) and node:
+            containers.append(node)
+            for child in node.values():
+                walk(child)
+        elif isinstance(node, list) and node:
+            containers.append(node)
+            for child in node[:8]:
+                walk(child)
+
+    walk(value)
+    wrong = WRONG_VALUES[int(rng.integers(len(WRONG_VALUES)))]
+    if not containers:
+        return wrong
+    node = containers[int(rng.integers(len(containers)))]
+    if isinstance(node, dict):
+        node[list(node)[int(rng.integers(len(node)))]] = wrong
+    else:
+        node[int(rng.integers(len(node)))] = wrong
+    return value
+
+
+def _retype(path: Path, data: bytes, rng: np.random.Generator) -> bytes | None:
+    """The file's content with one value of the wrong type, or None when it is not a structured file."""
+    suffix = path.suffix
+    try:
+        if suffix == ".json":
+            return json.dumps(_wrong_typed(json.loads(data), rng)).encode()
+        if suffix == ".yaml":
+            return yaml.safe_dump(_wrong_typed(yaml.safe_load(data), rng)).encode()
+        if suffix == ".pkl" and data[:1] == b"\xfd":  # LEAD: an LZMA (xz) stream holding a pickle
+            return lzma.compress(pickle.dumps(_wrong_typed(pickle.loads(lzma.decompress(data)), rng)))
+        if suffix == ".pkl":  # OpenScene logs: a plain pickle of a list of frame dicts
+            return pickle.dumps(_wrong_typed(pickle.loads(data), rng))
+    except (ValueError, yaml.YAMLError, lzma.LZMAError, pickle.UnpicklingError):
+        return None
+    return None
+
+
+def corrupt(path: Path, kind: str, rng: np.random.Generator) -> str:
+    """Corrupt the file ``path`` in the way ``kind`` names; returns what was done, for the failure message."""
+    if kind == "delete":
+        path.unlink()
+        return f"deleted {path}"
+    data = bytearray(path.read_bytes())
+    size = len(data)
+    if kind == "wrong_type":
+        retyped = _retype(path, bytes(data), rng)
+        if retyped is not None:
+            _replace(path, retyped)
+            return f"one value of {path} of a wrong type"
+        kind = "flip"
+    if size == 0 or kind == "append":
+        _replace(path, bytes(data) + rng.bytes(int(rng.integers(1, 600))))
+        return f"garbage appended to {path}"
+    start = int(rng.integers(size))
+    span = int(rng.integers(1, min(size - start, 512) + 1))
+    if kind == "flip":
+        for at in rng.integers(size, size=int(rng.integers(1, 9))):
+            data[at] ^= 1 << int(rng.integers(8))
+    elif kind == "truncate":
+        data = data[:start]
+    elif kind == "zero_span":
+        data[start : start + span] = bytes(span)
+    elif kind == "random_span":
+        data[start : start + span] = rng.bytes(span)
+    _replace(path, bytes(data))
+    return f"{kind} of {path} at byte {start}"
+
+
+def pick_file(root: Path, rng: np.random.Generator, weight: Callable[[Path], float] = lambda p: 1.0) -> Path:
+    """One file under ``root``, drawn with probability proportional to ``weight`` (e.g. rare kinds up-weighted)."""
+    files = sorted(p for p in root.rglob("*") if p.is_file())
+    weights = np.array([weight(p) for p in files], dtype=np.float64)
+    return files[int(rng.choice(len(files), p=weights / weights.sum()))]
