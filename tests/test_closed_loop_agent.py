@@ -15,12 +15,20 @@ from tiny_models import TINY
 
 from lead_s2r.closed_loop import agent as agent_module
 from lead_s2r.closed_loop.agent import ClosedLoopConfig, LeadS2RAgent, parse_bool
-from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, find_checkpoint, rig_for, saved_config
+from lead_s2r.closed_loop.checkpoint import (
+    UnsupportedCheckpoint,
+    check_drivable,
+    find_checkpoint,
+    rig_for,
+    saved_config,
+)
 from lead_s2r.closed_loop.sensors import Rig, sensor_specs
 from lead_s2r.convert import convert
 from lead_s2r.data.transforms import SourceTransform
+from lead_s2r.models import lead
 from lead_s2r.models.config import ltfv6_config, tfv6_config
 from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import validate
 from lead_s2r.synthetic import carla_lead as synth
@@ -34,7 +42,7 @@ TFV6 = "lead_s2r.models.tfv6.TFv6"
 MODEL = {**TINY, "image_size": [32, 96], "bev": vars(TINY["bev"])}  # 3:1, LEAD's 3-camera rig
 
 
-def fit_config(root: Path, data: Path, model: dict, steps: int) -> Path:
+def fit_config(root: Path, data: Path, model: dict, steps: int, class_path: str = TFV6) -> Path:
     """A smoke-recipe-like LightningCLI config: CARLA only, CARLA supervising planning too."""
     config = {
         "seed_everything": 0,
@@ -45,7 +53,7 @@ def fit_config(root: Path, data: Path, model: dict, steps: int) -> Path:
                            "init_args": {"dirpath": str(root / "checkpoints"), "save_last": True}}],
         },
         "model": {
-            "model": {"class_path": TFV6, "init_args": {"config": json.loads(json.dumps(model))}},
+            "model": {"class_path": class_path, "init_args": {"config": json.loads(json.dumps(model))}},
             "supervise": {"carla": ["planning", "perception"]},
         },
         "data": {
@@ -123,6 +131,46 @@ def test_preprocessing_equals_the_adapter_and_training_transform(scene):
     assert int(got["command"]) == int(want["command"])
     torch.testing.assert_close(got["radar"], want["radar"], atol=1e-3, rtol=0)
     torch.testing.assert_close(got["radar_valid"], want["radar_valid"])
+
+
+def drive(agent: LeadS2RAgent, folder: Path, steps: int) -> list:
+    """Controls of ``steps`` ticks on the scene's recorded frames, each checked to be in range."""
+    controls = [agent.run_step(sensor_data(folder, step % 4), step * 0.05) for step in range(steps)]
+    for control in controls:
+        assert -1.0 <= control.steer <= 1.0 and 0.0 <= control.throttle <= 1.0 and 0.0 <= control.brake <= 1.0
+    return controls
+
+
+def test_a_lead_checkpoint_folder_and_its_ensemble_drive(scene, tmp_path):
+    from lead_reference import TINY_CARLA
+
+    folder = tmp_path / "lead"
+    lead.export_checkpoint(lead.model_from_config(TINY_CARLA), folder)
+    agent = make_agent(folder, scene["folder"])
+    assert isinstance(agent.model, LeadDriver) and not agent.model.training
+    assert agent.rig == Rig("CARLA_LEADERBOARD2_3CAMERAS", lidar=True, radar=True)
+    assert agent.classes == pytest.approx((0.0, 4.0, 8.0, 10.0, 13.88888888, 16.0, 17.77777777, 20.0))
+    batch = agent.preprocess(sensor_data(scene["folder"], 1), 0.05)
+    assert batch["rgb"].shape[-2:] == (384, 1152) and batch["lidar_bev"].shape[-2:] == (192, 160)
+    assert set(agent.predict(batch)) >= {"waypoints", "route", "target_speed_logits"}
+    drive(agent, scene["folder"], 3)
+    shutil.copy(folder / "model_0000.pth", folder / "model_0001.pth")
+    assert isinstance(make_agent(folder, scene["folder"]).model.network, lead.LeadEnsemble)
+    with pytest.raises(UnsupportedCheckpoint, match="plans for no source 'navsim'"):
+        check_drivable(agent.model, "navsim", folder)
+
+
+def test_a_run_trained_with_leads_architecture_drives(scene):
+    from lead_reference import TINY_CARLA
+
+    root = scene["root"] / "lead_run"
+    config = fit_config(
+        root, scene["root"] / "data", TINY_CARLA, steps=1, class_path="lead_s2r.models.lead_driver.LeadDriver"
+    )
+    run_lightning_cli(["fit", "--config", str(config)])
+    agent = make_agent(root, scene["folder"])
+    assert isinstance(agent.model, LeadDriver) and agent.spec.radar and agent.spec.lidar_raster
+    assert drive(agent, scene["folder"], 3)[0].brake == 1.0
 
 
 def test_an_ltfv6_navsim_checkpoint_is_refused(scene):

@@ -176,21 +176,51 @@ def test_radar_rows_are_sensor_major_as_lead_lays_them_out() -> None:
     assert int((lead_radar[:, :4] != 0).any(1).sum()) == 2
 
 
-def test_converted_carla_samples_drive_a_lead_tfv6(carla_samples) -> None:
+def test_converted_carla_samples_train_every_carla_head_of_a_lead_tfv6(carla_samples) -> None:
+    """Converted CARLA samples reach LEAD's TFv6 (LiDAR + radar): planning with target speed, and radar detection
+    against our radar targets, each loss reaching its head."""
     from lead_reference import TINY_CARLA
 
     from lead_s2r.data.collate import collate
     from lead_s2r.data.transforms import SourceTransform
 
-    driver = LeadDriver(LeadConfig.from_json(TINY_CARLA)).eval()
+    driver = LeadDriver(LeadConfig.from_json(TINY_CARLA))
     transform = SourceTransform("carla", input_spec(driver.config), cameras=["carla_mosaic"])
     batch = collate([transform(sample) for sample in carla_samples])
     assert batch["rgb"].shape[-2:] == (384, 1152) and batch["lidar_bev"].shape[-2:] == (192, 160)
+    assert driver.tasks("carla") == {"waypoints", "route", "target_speed", "radar"} and driver.grid("carla").dt == 0.25
+    assert batch["radar_targets_valid"].any() and batch["target_speed_valid"].all()
+    module = DrivingModule(driver, supervise={"carla": ["planning", "perception"]})
+    total, terms = module.compute_losses({"carla": batch})
+    assert set(terms) == {"carla/waypoints", "carla/route", "carla/target_speed", "carla/radar"}
+    assert all(torch.isfinite(value) for value, _ in terms.values())
+    total.backward()
+    network = driver.network
+    for head in (network.planning_decoder.target_speed_decoder, network.radar_detector.state_decoder):
+        assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
     with torch.inference_mode():
-        out = driver(batch, "carla", driver.tasks("carla"))
-    assert driver.tasks("carla") == {"waypoints", "route"} and driver.grid("carla").dt == 0.25
+        out = driver.eval()(batch, "carla")
+        lead_out = network(to_lead_inputs(batch, driver.config))
     assert out["waypoints"].shape == (3, 8, 2) and out["route"].shape == (3, 10, 2)
-    assert torch.isfinite(out["waypoints"]).all()
+    radar = lead_out["pred_radar_predictions"]
+    assert torch.equal(out["radar_xy"][..., 1], -radar[..., 1]) and torch.equal(out["radar_logit"], radar[..., 3])
+
+
+def test_a_lead_network_on_some_mosaic_cameras_reads_the_whole_mosaic_and_keeps_its_tiles() -> None:
+    from lead_reference import TINY_CARLA
+
+    config = LeadConfig.from_json(
+        {**TINY_CARLA, "carla_root": "data/carla_leaderboad2_v10", "used_cameras": [True, True, True] + [False] * 3}
+    )
+    spec = input_spec(config)
+    assert spec.image_size == (384, 2304) and spec.equal_tiles and config.final_image_width == 1152
+    driver = LeadDriver(config).eval()
+    mosaic = torch.arange(6.0).repeat_interleave(384).expand(1, 3, 384, 2304)  # each pixel holds its tile's id
+    assert torch.equal(driver.camera_select(mosaic)[0, 0, 0, ::384], torch.tensor([0.0, 1.0, 2.0]))
+    batch = {"rgb": mosaic, "speed": torch.zeros(1), "command": torch.zeros(1), "target_points": torch.zeros(1, 3, 2),
+             "lidar_bev": torch.zeros(1, 1, 192, 160), "radar": torch.zeros(1, 0, 5)}  # fmt: skip
+    with torch.inference_mode():
+        assert driver(batch, "carla")["waypoints"].shape == (1, 8, 2)
 
 
 def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> None:

@@ -37,6 +37,7 @@ TWIN = RECIPES / "smoke" / "twin.yaml"
 MODEL_OVERLAYS = {
     "lead_s2r.models.tfv6.TFv6": RECIPES / "smoke" / "twin_tfv6.yaml",
     "lead_s2r.models.ego_mlp.EgoStatusMLP": RECIPES / "smoke" / "twin_ego_mlp.yaml",
+    "lead_s2r.models.lead_driver.LeadDriver": RECIPES / "smoke" / "twin_lead.yaml",
 }
 PREDICTION_WRITER = "lead_s2r.training.prediction_writer.PredictionWriter"
 #: family -> (metric, aggregate, predict folder or None for the recipe's own data.predict, output subfolder)

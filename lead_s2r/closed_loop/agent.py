@@ -24,7 +24,7 @@ import numpy as np
 import torch
 import yaml
 
-from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, check_drivable, find_checkpoint, load_model, rig_for
+from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, check_drivable, load_driving_model, rig_for
 from lead_s2r.closed_loop.controllers import (
     Control,
     Creeper,
@@ -51,8 +51,7 @@ from lead_s2r.data.targets import CENTERNET_STRIDE, bev_cell_centres
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
-from lead_s2r.models.config import TFv6Config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.input_spec import InputSpec
 from lead_s2r.schema import BoxClass
 
 try:  # pragma: no cover - depends on the environment
@@ -88,7 +87,8 @@ def parse_bool(name: str, value: str) -> bool:
 
 @dataclass
 class ClosedLoopConfig:
-    """How the agent drives. ``checkpoint``: a ``lead-s2r fit`` run folder or checkpoint file.
+    """How the agent drives. ``checkpoint``: a ``lead-s2r fit`` run folder or checkpoint file, or a LEAD checkpoint
+    folder (config.json + model*.pth; ``pattern`` picks its files, several of them drive as LEAD's ensemble).
 
     Args:
         source: the model's source whose output grid and label space drive (the CARLA data's source name).
@@ -104,6 +104,7 @@ class ClosedLoopConfig:
     """
 
     checkpoint: str
+    pattern: str = "model*.pth"
     source: str = "carla"
     rig: str | None = None
     controller: Literal["route", "waypoint"] = "route"
@@ -176,14 +177,12 @@ class LeadS2RAgent(Base):
     def setup(self, path_to_conf_file: str) -> None:
         self.track = SENSORS_TRACK
         self.config = config = ClosedLoopConfig.from_agent_config(path_to_conf_file)
-        model_config = self._load_model(config)
-        self.rig = Rig(
-            config.rig or rig_for(model_config), lidar=model_config.bev_input == "raster", radar=model_config.use_radar
-        )
-        self.transform = SourceTransform(config.source, input_spec(model_config), cameras=[MOSAIC_ID])
-        self.classes = tuple(model_config.target_speed_classes)
+        self.spec = spec = self._load_model(config)
+        self.rig = Rig(config.rig or rig_for(spec), lidar=spec.lidar_raster, radar=spec.radar)
+        self.transform = SourceTransform(config.source, spec, cameras=[MOSAIC_ID])
+        self.classes = tuple(self.model.target_speed_classes.tolist())
         self.lateral = LateralPID(config.steer_correction)
-        self.waypoint_controller = WaypointController(model_config.trajectory_grids[config.source].dt)
+        self.waypoint_controller = WaypointController(spec.trajectory_grids[config.source].dt)
         self.creeper = Creeper(EGO_HALF_EXTENT[0] + CARLA_REAR_AXLE_TO_CENTER, EGO_HALF_EXTENT[1])
         self.stop_sign = StopSignSlowdown()
         self.position_filter = PositionFilter(CARLA_DT) if config.use_kalman_filter else None
@@ -192,17 +191,17 @@ class LeadS2RAgent(Base):
         self.step = 0
         self.last_sample: dict[str, Any] | None = None
 
-    def _load_model(self, config: ClosedLoopConfig) -> TFv6Config:
-        """The network on its device; its config, once it is known to drive with every switch ``config`` sets."""
-        path = find_checkpoint(config.checkpoint)
+    def _load_model(self, config: ClosedLoopConfig) -> InputSpec:
+        """The network on its device; what it reads, once it is known to drive with every switch ``config`` sets."""
         device = config.device or ("cuda" if torch.cuda.is_available() else "cpu")
         self.device = torch.device(device)
-        self.model = load_model(path, device)
-        self.model_config = model_config = check_drivable(self.model, config.source, path)
-        if config.stop_sign_slowdown and model_config.space(config.source) not in model_config.box_classes:
+        self.model, path = load_driving_model(config.checkpoint, config.pattern, device)
+        self.model_config = self.model.config
+        spec = check_drivable(self.model, config.source, path)
+        if config.stop_sign_slowdown and spec.space(config.source) not in spec.box_classes:
             raise UnsupportedCheckpoint(f"{path}: stop_sign_slowdown needs a box head for source {config.source!r}; "
                                         "the model has none (set stop_sign_slowdown: false)")  # fmt: skip
-        return model_config
+        return spec
 
     def sensors(self) -> list[dict[str, Any]]:
         return sensor_specs(self.rig)
@@ -272,7 +271,7 @@ class LeadS2RAgent(Base):
         if float(heatmap.max()) < STOP_SIGN_SCORE:
             return None
         row, col = np.unravel_index(int(heatmap.argmax()), tuple(heatmap.shape))
-        xs, ys = bev_cell_centres(self.model_config.bev, CENTERNET_STRIDE)
+        xs, ys = bev_cell_centres(self.spec.bev, CENTERNET_STRIDE)
         bumper = EGO_HALF_EXTENT[0] + CARLA_REAR_AXLE_TO_CENTER
         return math.hypot(max(float(xs[row]) - bumper, 0.0), float(ys[col]))
 

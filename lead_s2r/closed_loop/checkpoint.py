@@ -9,6 +9,10 @@ an output grid for the source, or one that reads no route target points (an LTFv
 ``target_points=()``: it would not know where to turn). LEAD's users hit exactly these silent mismatches between
 configs and weights; here they are errors at load time.
 
+A LEAD checkpoint folder (LEAD's ``config.json`` + ``model*.pth``, e.g. its released CARLA TFv6) drives too: it is
+loaded as a :class:`~lead_s2r.models.lead_driver.LeadDriver` (several matching files: LEAD's ensemble), as is a run
+trained with that architecture.
+
 The camera rig is not stored by training either; it follows from the model's input: the LEAD rig whose stitched
 strip (after the model's ``vertical_fov_deg`` crop, the same :func:`~lead_s2r.data.camera_layout.camera_layout`
 training used) has the aspect of ``image_size`` (3 cameras 3:1, 6 cameras 6:1, the wide camera 8:3, NAVSIM's 64:9).
@@ -25,9 +29,14 @@ from torch import nn
 from lead_s2r.data.camera_layout import camera_layout, camera_tiles
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
 from lead_s2r.models.config import TFv6Config
+from lead_s2r.models.input_spec import InputSpec, input_spec
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_driver import LeadDriver
 
 #: The file LightningCLI writes the resolved run configuration to.
 CONFIG_NAME = "config.yaml"
+#: The file that marks a LEAD checkpoint folder.
+LEAD_CONFIG_NAME = "config.json"
 
 
 class UnsupportedCheckpoint(ValueError):
@@ -99,28 +108,40 @@ def load_model(checkpoint: Path, device: str = "cpu") -> nn.Module:
     return module.model.to(device).eval()
 
 
-def check_drivable(model: nn.Module, source: str, path: Path) -> TFv6Config:
-    """The model's config, or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route as ``source``."""
+def load_driving_model(path: str | Path, pattern: str, device: str) -> tuple[nn.Module, Path]:
+    """The network to drive with (eval mode, on ``device``) and the file or folder it came from: a LEAD checkpoint
+    folder's files matching ``pattern``, else the checkpoint :func:`find_checkpoint` picks."""
+    folder = Path(path)
+    if (folder / LEAD_CONFIG_NAME).is_file():
+        return LeadDriver(checkpoint=str(folder), pattern=pattern).to(device).eval(), folder
+    checkpoint = find_checkpoint(folder)
+    return load_model(checkpoint, device), checkpoint
+
+
+def check_drivable(model: nn.Module, source: str, path: Path) -> InputSpec:
+    """What the model reads (:class:`InputSpec`), or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route
+    as ``source``."""
     config = getattr(model, "config", None)
-    if not isinstance(config, TFv6Config):
+    if not isinstance(config, TFv6Config | LeadConfig):
         raise UnsupportedCheckpoint(
-            f"{path}: {type(model).__name__} is not a TFv6-family model (no TFv6Config); only camera(+LiDAR) models "
-            "with a planning decoder can drive in CARLA"
+            f"{path}: {type(model).__name__} is not a TFv6-family model (no TFv6Config or LeadConfig); only "
+            "camera(+LiDAR) models with a planning decoder can drive in CARLA"
         )
-    if source not in config.trajectory_grids:
+    spec = input_spec(config)
+    if source not in spec.trajectory_grids or "waypoints" not in model.tasks(source):
         raise UnsupportedCheckpoint(
-            f"{path}: the model has no output grid for source {source!r} (trajectory_grids: "
-            f"{sorted(config.trajectory_grids)}); set the agent's source to one it was trained on"
+            f"{path}: the model plans for no source {source!r} (output grids: {sorted(spec.trajectory_grids)}); set "
+            "the agent's source to one it was trained on"
         )
     if not getattr(model, "reads_target_points", False):
         raise UnsupportedCheckpoint(
-            f"{path}: the model reads no route target points (target_points={config.target_points!r}, e.g. an "
-            "LTFv6 NAVSIM model), so it cannot follow a CARLA route; train a model with target_points"
+            f"{path}: the model reads no route target points (e.g. an LTFv6 NAVSIM model), so it cannot follow a "
+            "CARLA route; train a model with target_points"
         )
-    return config
+    return spec
 
 
-def strip_aspect(rig: str, config: TFv6Config) -> float:
+def strip_aspect(rig: str, config: TFv6Config | InputSpec) -> float:
     """Width / height of a rig's stitched strip as the training transform lays it out for ``config``."""
     cameras = CAMERA_RIGS[rig]
     meta = {"cameras": camera_calibration(rig)}
@@ -130,7 +151,7 @@ def strip_aspect(rig: str, config: TFv6Config) -> float:
     return layout.strip[1] / layout.strip[0]
 
 
-def rig_for(config: TFv6Config) -> str:
+def rig_for(config: TFv6Config | InputSpec) -> str:
     """The LEAD rig whose strip aspect is nearest (in log ratio) to the model's ``image_size``."""
     height, width = config.image_size
     return min(CAMERA_RIGS, key=lambda rig: abs(math.log(strip_aspect(rig, config) * height / width)))

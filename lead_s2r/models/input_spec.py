@@ -89,10 +89,12 @@ def lead_input_spec(config: LeadConfig) -> InputSpec:
     vertical field of view), its BEV extent for the LiDAR raster, radar and target points when it reads them, and the
     labels of the heads whose classes are ours too (:meth:`LeadConfig.perception_tasks`)."""
     grids, navsim, carla = default_grids(), config.perception_tasks("navsim"), config.perception_tasks("carla")
+    cameras = len(config.used_cameras) if config.mosaic_tiles else config.num_used_cameras  # LeadDriver crops
     return InputSpec(
         trajectory_grids={source: grids[source] for source in config.sources},
-        image_size=(config.final_image_height, config.final_image_width),
+        image_size=(config.final_image_height, config.final_image_width // config.num_used_cameras * cameras),
         vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG if config.use_navsim_data else None,
+        equal_tiles=config.mosaic_tiles is not None,
         bev=BEVGrid(
             float(config.min_x_meter),
             float(config.max_x_meter),
@@ -102,7 +104,7 @@ def lead_input_spec(config: LeadConfig) -> InputSpec:
         ),
         lidar_raster=not config.LTF,
         radar=config.has_radar_detector,
-        radar_sources=(),  # radar detection is not trained through LeadDriver: no detection targets
+        radar_sources=("carla",) if "radar" in carla else (),
         bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if "bev_semantic" in navsim else {},
         box_classes={"navsim": NAVSIM_BOX_CLASSES} if "boxes" in navsim else {},
         semantic_classes={"carla": config.num_semantic_classes} if "semantic" in carla else {},

@@ -275,6 +275,14 @@ class LeadConfig:
         return self.lidar_width_pixel // 32
 
     @property
+    def mosaic_tiles(self) -> tuple[int, ...] | None:
+        """CARLA: the used camera tiles of the stitched mosaic when LEAD crops some of them (``used_cameras``), else
+        None; NAVSIM's cameras are separate images, picked by the data's camera list instead."""
+        if not self.carla_leaderboard_mode or all(self.used_cameras):
+            return None
+        return tuple(i for i, used in enumerate(self.used_cameras) if used)
+
+    @property
     def final_image_width(self) -> int:
         return self.num_used_cameras * CAMERA_TILE[self.target_dataset][0]
 
@@ -340,8 +348,8 @@ class LeadConfig:
 
     def perception_tasks(self, source: str) -> set[str]:
         """Our perception tasks (names of ``lead_s2r.training.losses``) LEAD's heads produce for ``source`` in our
-        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics and
-        depth."""
+        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics,
+        depth and radar detection."""
         tasks = set()
         if source == "navsim" and self.use_navsim_data and self.use_bev_semantic:
             tasks.add("bev_semantic")
@@ -351,6 +359,8 @@ class LeadConfig:
             tasks.add("semantic")
         if source == "carla" and self.use_carla_data and self.use_depth:
             tasks.add("depth")
+        if source == "carla" and self.has_radar_detector:
+            tasks.add("radar")
         return tasks
 
     @property

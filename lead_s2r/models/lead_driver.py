@@ -1,26 +1,29 @@
 """LEAD's network with the interface our LightningModule trains and predicts with (``tasks``, ``grid``,
 ``forward(batch, source, tasks)``), so a LEAD checkpoint folder works wherever a run does: ``lead-s2r predict``,
-fine-tuning with ``fit``, and back out with ``lead-s2r export-lead``.
+fine-tuning with ``fit``, the CARLA closed-loop agent, and back out with ``lead-s2r export-lead``.
 
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
 :mod:`lead_s2r.models.lead_frame` only. The loader follows
 :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
 raster, radar and target points when the network reads them, and the labels of the heads whose classes are ours too:
-the planner's outputs (waypoints, NAVSIM headings, CARLA route) for the source the network plans for, NAVSIM BEV
-semantics and boxes, and with CARLA data (LEAD's mixed training) CARLA perspective semantics and depth. LEAD's CARLA BEV
-classes, CARLA boxes, radar detections and target speed are not trained through this wrapper.
+the planner's outputs (waypoints, NAVSIM headings, CARLA route and target speed) for the source the network plans for,
+NAVSIM BEV semantics and boxes, and with CARLA data CARLA perspective semantics, depth and radar detection. LEAD's
+13-class CARLA BEV and 8-class CARLA boxes are not trained here: our CARLA labels use other class tables
+(docs/models.md).
 """
 
 from collections.abc import Collection
 from pathlib import Path
 
+import torch
 from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
+from lead_s2r.models.backbone import CameraSelect
 from lead_s2r.models.config import TrajectoryGrid, default_grids
 from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
-from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
 from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
@@ -33,10 +36,16 @@ class LeadDriver(nn.Module):
         checkpoint: a LEAD checkpoint folder (config.json + model*.pth): its config and weights, loaded strictly;
             several matching files make an ensemble (prediction only).
         pattern: which weight files of ``checkpoint`` to load.
+        pretrained: start the image encoder of a ``config``-built network from timm's ImageNet weights, as LEAD's
+            training does.
     """
 
     def __init__(
-        self, config: LeadConfig | None = None, checkpoint: str | None = None, pattern: str = "model*.pth"
+        self,
+        config: LeadConfig | None = None,
+        checkpoint: str | None = None,
+        pattern: str = "model*.pth",
+        pretrained: bool = False,
     ) -> None:
         super().__init__()
         if checkpoint is not None:
@@ -44,23 +53,39 @@ class LeadDriver(nn.Module):
             self.network: nn.Module = load_checkpoint(checkpoint, pattern).train()
         else:
             config = config if config is not None else LeadConfig(use_planning_decoder=True)
-            self.network = LeadTFv6(config)
-        if not config.use_planning_decoder:
-            raise ValueError("LeadDriver needs use_planning_decoder=true (a pretraining network has no planner)")
+            self.network = LeadTFv6(config, pretrained=pretrained)
         self.config = config
         self.source = config.planning_source
+        tiles = config.mosaic_tiles
+        self.camera_select = CameraSelect(len(config.used_cameras), tiles, 1.0)  # also crops perspective labels
+        speeds = torch.tensor(TARGET_SPEED_CLASSES)
+        self.register_buffer("target_speed_classes", speeds, persistent=False)  # the target-speed loss's bins
+
+    @property
+    def reads_target_points(self) -> bool:
+        """Whether route target points reach the planner (LEAD's CARLA mode: previous, current and next)."""
+        return bool(self.config.use_planning_decoder and self.config.use_tp)
+
+    @property
+    def radar_scale(self) -> tuple[float, float, float]:
+        """What the radar detection loss divides (x, y, speed) by: LEAD's BEV half extents and its maximum speed."""
+        c = self.config
+        return (c.max_x_meter - c.min_x_meter) / 2, (c.max_y_meter - c.min_y_meter) / 2, c.max_speed
 
     def grid(self, source: str) -> TrajectoryGrid:
         return default_grids()[source]
 
     def tasks(self, source: str) -> frozenset[str]:
-        tasks = self.config.perception_tasks(source)
-        if source == self.source:
+        c = self.config
+        tasks = c.perception_tasks(source)
+        if source == self.source and c.use_planning_decoder:  # a pretraining network (no planner) plans nothing
             tasks.add("waypoints")
-            if self.config.use_navsim_data and not self.config.use_tfv5_planning_decoder:
+            if c.use_navsim_data and not c.use_tfv5_planning_decoder:
                 tasks.add("headings")
-            if self.config.predict_spatial_path or self.config.use_tfv5_planning_decoder:
+            if c.predict_spatial_path or c.use_tfv5_planning_decoder:
                 tasks.add("route")
+            if c.predict_target_speed:
+                tasks.add("target_speed")
         return frozenset(tasks)
 
     def forward(self, batch: Batch, source: str, tasks: Collection[str] | None = None) -> dict[str, Tensor]:
@@ -72,4 +97,5 @@ class LeadDriver(nn.Module):
                 "model.checkpoint holds several model*.pth files (an ensemble, prediction only); to fine-tune, pick "
                 "one with model.pattern, e.g. model_0030_0.pth"
             )
+        batch = {**batch, "rgb": self.camera_select(batch["rgb"])}
         return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)))

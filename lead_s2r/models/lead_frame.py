@@ -108,7 +108,8 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
 def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
     """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
     NAVSIM ``bev_semantic`` (same 7 classes) and ``box_*`` maps, and the image-space CARLA ``semantic`` / ``depth``
-    (those the network produced). LEAD's CARLA BEV classes, boxes and radar have no counterpart in our label spaces.
+    (those the network produced), and the radar detector's ``radar_xy`` / ``radar_speed`` / ``radar_logit``. LEAD's
+    13-class CARLA BEV and 8-class CARLA boxes have no counterpart in our label spaces.
 
     The NAVSIM box maps only move onto our grid: their channels are whatever our box loss trains them to be (LEAD's
     own offset, size and yaw encodings are in its frame, so released box heads start from a different encoding)."""
@@ -130,4 +131,7 @@ def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
         ours["route"] = flip_y(outputs["pred_route"])
     if "pred_target_speed_distribution" in outputs:
         ours["target_speed_logits"] = outputs["pred_target_speed_distribution"]
+    if "pred_radar_predictions" in outputs:
+        radar = outputs["pred_radar_predictions"]  # x, y (m, LEAD's frame), v (m/s), validity logit
+        ours.update(radar_xy=flip_y(radar[..., :2]), radar_speed=radar[..., 2], radar_logit=radar[..., 3])
     return ours

@@ -59,6 +59,17 @@ class TFv6(nn.Module):
         return bool(self.config.target_points) or self.config.decoder == "v5"
 
     @property
+    def target_speed_classes(self) -> Tensor:
+        """The planner's target-speed bins (m/s), on its device: the target-speed loss encodes labels on them."""
+        return self.planner.speed_classes
+
+    @property
+    def radar_scale(self) -> tuple[float, float, float]:
+        """What the radar detection loss divides (x, y, speed) by: the BEV's half extents and the maximum speed."""
+        bev = self.config.bev
+        return (bev.x_max - bev.x_min) / 2, (bev.y_max - bev.y_min) / 2, self.config.max_speed
+
+    @property
     def target_point_range(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """``(low, high)`` the planner normalises target points by (saved in the state dict)."""
         return self.planner.status.tp_norm.range

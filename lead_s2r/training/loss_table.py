@@ -24,7 +24,7 @@ class Task(NamedTuple):
 
 
 def _target_speed(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.target_speed_loss(pred, batch, model.planner.speed_classes)  # a buffer: on the device, no copy
+    return losses.target_speed_loss(pred, batch, model.target_speed_classes)  # a buffer: on the device, no copy
 
 
 def _boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
@@ -32,8 +32,7 @@ def _boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
 
 
 def _radar(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    bev, max_speed = model.config.bev, model.config.max_speed
-    return losses.radar_loss(pred, batch, ((bev.x_max - bev.x_min) / 2, (bev.y_max - bev.y_min) / 2, max_speed))
+    return losses.radar_loss(pred, batch, model.radar_scale)
 
 
 def _on_input_image(task: str, batch: Batch, model: nn.Module) -> Tensor:

@@ -139,7 +139,8 @@ class DrivingModule(L.LightningModule):
 
     def _resolve_target_point_range(self) -> None:
         model = self.model
-        if not getattr(model, "reads_target_points", False) or model.config.target_point_normalisation != "data":
+        normalisation = getattr(model.config, "target_point_normalisation", "fixed")  # LEAD's network: its constants
+        if not getattr(model, "reads_target_points", False) or normalisation != "data":
             return
         if self.data is None:  # plain dataloaders: no converted folders to read statistics from
             return
