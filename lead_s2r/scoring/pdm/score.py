@@ -169,7 +169,7 @@ def score_states(
     ``non_drivable_area`` and ``oncoming_traffic``. ``ep_reference`` picks EP's normalisation (see
     :func:`~lead_s2r.scoring.pdm.metrics.ego_progress`)."""
     base = _prelude(scene, states, observation, max(TTC_OFFSETS), drivable_map)
-    states, fp, nc, collision_idx, dac = base.states, base.fp, base.nc, base.collision_idx, base.dac
+    states, fp, nc, dac = base.states, base.fp, base.nc, base.dac
     ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S)
     progress = progress_along(_centerline(scene), fp.centers[:, 0], fp.centers[:, -1])
     ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
@@ -183,13 +183,23 @@ def score_states(
         "time_to_collision_within_bound": ttc,
         "comfort": c,
         "score": pdms_v11(nc, dac, ep, ttc, c, ddc),
+        **_progress_and_failures(base, progress, normaliser, ttc_idx),
+        **_flags(fp.areas),
+    }
+
+
+def _progress_and_failures(
+    base: _Prelude, progress: np.ndarray, normaliser: np.ndarray, ttc_idx: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The columns v1.1 and v2.2 share beside their sub-scores: progress and its normaliser, and the step (or agent)
+    where NC, TTC and DAC were lost, so a report can name when a sub-score failed."""
+    return {
         "progress_m": progress,
         "ep_normaliser_m": normaliser,
-        "collision_time_idx": collision_idx,
+        "collision_time_idx": base.collision_idx,
         "ttc_time_idx": ttc_idx,
-        "dac_time_idx": first_step(fp.areas.non_drivable_area),
+        "dac_time_idx": first_step(base.fp.areas.non_drivable_area),
         "collision_object_idx": base.collision_object,
-        **_flags(fp.areas),
     }
 
 
@@ -216,7 +226,7 @@ def score_states_v2(
     and ``on_red_light``). HC reads the scene's ``ego_past`` for every row. ``observation``: v2's log replay
     (``log_observation(scene, 41, replay=True)``); ``red_lights``: per step (``red_light_polygons``)."""
     base = _prelude(scene, states, observation, 0, drivable_map)
-    states, fp, nc, collision_idx, dac = base.states, base.fp, base.nc, base.collision_idx, base.dac
+    states, fp, nc, dac = base.states, base.fp, base.nc, base.dac
     num_steps = states.shape[1]
     red_lights = red_light_polygons(scene, num_steps, INTERVAL_S) if red_lights is None else red_lights
     in_intersection = fp.areas.center_in_intersection
@@ -239,12 +249,7 @@ def score_states_v2(
         epdms.LK: lk,
         epdms.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
         "multiplicative_metrics_prod": product,
-        "progress_m": progress,
-        "ep_normaliser_m": normaliser,
-        "collision_time_idx": collision_idx,
-        "ttc_time_idx": ttc_idx,
-        "dac_time_idx": first_step(fp.areas.non_drivable_area),
-        "collision_object_idx": base.collision_object,
+        **_progress_and_failures(base, progress, normaliser, ttc_idx),
         "lane_keeping_fail_idx": lk_idx,
         **_flags(fp.areas),
         "in_intersection": in_intersection,
