@@ -233,7 +233,7 @@ def test_resume_skips_finished_logs_and_inspect_passes(converted, tmp_path: Path
     again = convert(Py123dAdapter(stride=5), src, out)
     assert first.logs_converted == 2 and again.logs_resumed == 2 and again.samples == 0
     assert [s["meta"]["frame_idx"] for s in read_samples(out) if s["meta"]["log_id"].endswith("left")] == [0, 5]
-    report = inspect_dataset(out, n=8)
+    report = inspect_dataset(out)
     assert report["samples"] == first.samples == 4 and report["invalid"] == []
     assert report["by_dataset_split"] == {"py123d_nuplan/nuplan_test": 4}
 

@@ -142,7 +142,8 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     console = Console(file=io.StringIO(), width=80)
     results = qs.quickstart(tmp_path, workers=1, console=console)
 
-    text = console.file.getvalue().replace("\n", "")  # rich wraps long paths
+    output = console.file.getvalue()
+    text = output.replace("\n", "")  # rich wraps long paths
     held_out = set()
     for dataset, split in qs.EVAL_SPLITS.items():
         manifest = load_manifest(tmp_path / "data" / dataset).to_pydict()
@@ -169,7 +170,7 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     markdown = (tmp_path / "table" / "table4.md").read_text()
     for row in ROWS:
         assert f"| {row} |" in markdown and qs.console_name(row) in text
-    assert max(len(line) for line in text.splitlines()) <= 80
+    assert max(len(line) for line in output.splitlines()) <= 80
     assert MISSING not in markdown  # every row scored on both datasets
     assert str(tmp_path / "table") in text and "lightning.log" in text
     assert str(tmp_path / "report" / "index.html") in "".join(text.split())  # the web report, printed

@@ -36,7 +36,7 @@ def test_ltfv6_twin_learns_held_out_trajectories_in_the_quickstarts_steps(tmp_pa
     training = qs.Training("navsim_ltfv6", "navsim_ltfv6_lead", without_lead=True)
     config = qs.smoke_config(training, tmp_path, seed=0)
     assert yaml.safe_load(config.read_text())["data"]["steps_per_epoch"] == qs.STEPS["navsim_ltfv6"][1]
-    run = qs.run_folder(tmp_path, training.name, 0)
+    run = qs.run_folder(tmp_path, *qs.home(training), 0)
     run_lightning_cli(["fit", "--config", str(config)])
     predicted = tmp_path / "predicted"
     args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(predicted)]

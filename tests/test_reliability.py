@@ -307,8 +307,10 @@ def test_inspect_png_in_a_missing_folder(toy_data, tmp_path, capsys):
 
 def test_score_planner_failure_leaves_nothing_behind(converted, tmp_path, capsys):
     out = tmp_path / "scores"
-    argv = ["score", "--metric", "ade", "--planner", "human", "--data", str(converted["wod_e2e"]), "--out", str(out)]
-    assert "horizon 4 s ends before the scored 5 s" in user_error(argv, capsys)
+    # the planner writes its predictions into --out first; RFS then finds no rated sample in NAVSIM data
+    argv = ["score", "--metric", "rfs@wod-e2e-2025", "--planner", "human", "--data", str(converted["navsim"])]
+    argv += ["--out", str(out)]
+    assert "samples with ['raters']" in user_error(argv, capsys)
     assert not out.exists()
     out.mkdir()
     (out / "notes.txt").write_text("mine")
