@@ -11,6 +11,7 @@ import numpy as np
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats import restricted_pickle
+from lead_s2r.geometry import quaternion_matrix
 from lead_s2r.schema import BoxClass
 
 #: NAVSIM camera -> our camera id.
@@ -109,18 +110,6 @@ def jpeg_size(data: bytes, where: str) -> tuple[int, int]:
             return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
         i += 2 + int.from_bytes(data[i + 2 : i + 4], "big")
     raise NavsimFormatError(f"{where}: not a JPEG with a frame header")
-
-
-def quaternion_matrix(q: Any) -> np.ndarray:
-    """3x3 rotation of a [w, x, y, z] quaternion (normalised first)."""
-    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def quaternion_yaw(q: Any) -> float:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import to_global, to_local, wrap_angle
+from lead_s2r.geometry import quaternion_matrix, to_global, to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
@@ -18,7 +18,6 @@ from lead_s2r_adapters.navsim_io import (
     LOG_ANNOTATIONS,
     NavsimFormatError,
     homogeneous,
-    quaternion_matrix,
     quaternion_yaw,
     read_annotations,
     read_camera,

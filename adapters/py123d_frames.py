@@ -13,21 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import wrap_angle
-
-
-def quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """(..., 4) scalar-first quaternions -> (..., 3, 3) rotation matrices (normalised first)."""
-    q = np.asarray(q, np.float64)
-    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+from lead_s2r.geometry import quaternion_matrix, wrap_angle
 
 
 def pose_matrix(pose: np.ndarray) -> np.ndarray:

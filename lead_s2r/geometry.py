@@ -52,6 +52,22 @@ def points_to_local(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
     return rotate(points, -float(origin[2]))
 
 
+def quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 4) scalar-first quaternions [w, x, y, z] -> (..., 3, 3) rotation matrices (normalised first).
+
+    One implementation for every reader of quaternions (NAVSIM's ``lidar2ego_rotation``, py123d's SE3 rows)."""
+    q = np.asarray(q, np.float64)
+    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
 def box_corners(boxes: np.ndarray) -> np.ndarray:
     """(N, 4, 2) footprint corners of boxes laid out like the schema's ``boxes`` (x, y, z, length, width, height,
     yaw, ...), counter-clockwise from front-left."""
