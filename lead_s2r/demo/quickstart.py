@@ -421,7 +421,7 @@ def table_spec() -> TableSpec:
         f"Mean ± sample std over seeds {', '.join(map(str, SEEDS))}; toy models, synthetic data: the numbers show "
         "what training changes and how models rank on these worlds, not what the models can do on real data. Before "
         "training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS in percent, "
-        "ADE and FDE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner)."
+        "ADE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner)."
     )
     return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=SEEDS, digits=2, notes=notes)
 
