@@ -1,6 +1,7 @@
 """A real Lightning fit over converted shards: the mixing schedule and the LR schedule act per epoch."""
 
 import csv
+import math
 import sys
 
 import lightning as L
@@ -33,18 +34,11 @@ class Recorder(L.Callback):
         self.sizes.append({source: len(b["__key__"]) for source, b in batch.items()})
 
 
-def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
-    grids = {"carla": TrajectoryGrid(4, 0.5), "navsim": TrajectoryGrid(4, 0.5)}
-    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
-    spec = SourceSpec([toy_data], cameras=["front"])
-    schedule = MixingSchedule(
-        {0: {"carla": 3, "navsim": 1}, 1: {"carla": 1, "navsim": 1}, 3: {"carla": 0, "navsim": 1}}, 4
-    )
-    data = DriveDataModule(train={"carla": spec, "navsim": spec}, schedule=schedule, steps_per_epoch=2)
-    module = DrivingModule(TFv6(config), lr=1e-3, lr_schedule="cosine_restarts")
+def fit_recording(module: DrivingModule, data: DriveDataModule, epochs: int) -> Recorder:
+    """Fit ``module`` on ``data`` for ``epochs`` on the CPU, recording every step."""
     recorder = Recorder()
     trainer = L.Trainer(
-        max_epochs=4,
+        max_epochs=epochs,
         accelerator="cpu",
         logger=False,
         enable_checkpointing=False,
@@ -54,11 +48,37 @@ def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
         **TRAINER_DEFAULTS,
     )
     trainer.fit(module, datamodule=data)
+    return recorder
+
+
+def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
+    grids = {"carla": TrajectoryGrid(4, 0.5), "navsim": TrajectoryGrid(4, 0.5)}
+    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
+    spec = SourceSpec([toy_data], cameras=["front"])
+    schedule = MixingSchedule(
+        {0: {"carla": 3, "navsim": 1}, 1: {"carla": 1, "navsim": 1}, 3: {"carla": 0, "navsim": 1}}, 4
+    )
+    data = DriveDataModule(train={"carla": spec, "navsim": spec}, schedule=schedule, steps_per_epoch=2)
+    recorder = fit_recording(DrivingModule(TFv6(config), lr=1e-3, lr_schedule="cosine_restarts"), data, 4)
     assert recorder.sizes == [{"carla": 3, "navsim": 1}] * 2 + [{"carla": 2, "navsim": 2}] * 4 + [{"navsim": 4}] * 2
     lrs = torch.tensor(recorder.lrs)
     restarts = [step for step in range(1, len(lrs)) if lrs[step] > lrs[step - 1]]
     assert restarts == [2, 6]  # warm restarts after 1 and 2 more epochs (T_0 = one epoch, T_mult = 2)
     assert lrs[0] == pytest.approx(1e-3) and lrs[2] == pytest.approx(1e-3)
+
+
+@pytest.mark.parametrize("schedule", ["constant", "cosine"])
+def test_warmup_rises_linearly_then_hands_over_to_the_schedule(toy_data, schedule):
+    config = tfv6_config(**{**TINY, "trajectory_grids": {"navsim": TrajectoryGrid(4, 0.5)}, "use_radar": False})
+    spec = SourceSpec([toy_data], cameras=["front"])
+    data = DriveDataModule(train={"navsim": spec}, schedule=MixingSchedule({0: {"navsim": 2}}, 2), steps_per_epoch=4)
+    module = DrivingModule(TFv6(config), lr=1e-3, lr_schedule=schedule, warmup_steps=4)
+    lrs = fit_recording(module, data, 2).lrs
+    assert lrs[:4] == pytest.approx([2.5e-4, 5e-4, 7.5e-4, 1e-3])  # lr / 4 on the first step, lr on the 4th
+    if schedule == "constant":
+        assert lrs[4:] == pytest.approx([1e-3] * 4)
+    else:  # one cosine over the 4 steps left, from lr towards 0
+        assert lrs[4:] == pytest.approx([1e-3 * (1 + math.cos(math.pi * k / 4)) / 2 for k in range(4)])
 
 
 class KeyRecorder(L.Callback):

@@ -287,3 +287,18 @@ def test_focal_loss_ignores_unlabelled_cells():
     labelled_rows_only = focal_heatmap_loss(logits[..., :2, :], target[..., :2, :])
     assert torch.isclose(focal_heatmap_loss(logits, partial), labelled_rows_only)
     assert focal_heatmap_loss(logits, partial) < focal_heatmap_loss(logits, target)  # the ignored cells counted before
+
+
+@pytest.mark.parametrize("variant", ["ltfv6", "tfv5"])
+def test_trajectory_scale_multiplies_every_step_and_nothing_else(variant):
+    """The same weights with ``trajectory_scale`` s give s times the route and waypoints, the same headings."""
+    plain = TFv6(VARIANTS[variant](**TINY, decoder_dropout=0.0, fusion_dropout=0.0)).eval()
+    scaled = TFv6(VARIANTS[variant](**TINY, decoder_dropout=0.0, fusion_dropout=0.0, trajectory_scale=7.5)).eval()
+    scaled.load_state_dict(plain.state_dict())
+    batch = random_batch(plain.config, 2, "navsim")
+    with torch.no_grad():
+        before, after = plain(batch, "navsim"), scaled(batch, "navsim")
+    for key in ("route", "waypoints"):
+        torch.testing.assert_close(after[key], 7.5 * before[key])
+    for key in set(before) - {"route", "waypoints"}:
+        torch.testing.assert_close(after[key], before[key])

@@ -121,6 +121,11 @@ class TFv6Config:
     target_point_high: tuple[float, float] = (200.0, 50.0)
     max_speed: float = 20.0
     max_acceleration: float = 4.0
+    #: Metres per unit of the route and waypoint heads' per-step outputs (1: LEAD's, the heads output metres). The
+    #: output-side twin of ``max_speed``: a small model trained for a few hundred steps cannot grow its last layer to
+    #: steps of several metres (AdamW moves a weight by about the learning rate per step), so its trajectories
+    #: shrink towards the mean; the smoke twins set it near a typical step (docs/training.md).
+    trajectory_scale: float = 1.0
     trajectory_grids: dict[str, TrajectoryGrid] = field(default_factory=default_grids)
     predict_headings: bool = True
     num_route_points: int = 10

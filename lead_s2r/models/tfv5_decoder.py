@@ -43,7 +43,4 @@ class TFv5Decoder(PlanningDecoder):
         hidden = self.init_hidden(point.to(route_q.dtype))[None]
         route, _ = self.route_gru(route_q, hidden)
         waypoints, _ = self.waypoint_gru(waypoint_q, hidden)
-        return {
-            "route": self.route_head(route).float().cumsum(1),
-            "waypoints": self.waypoint_head(waypoints).float().cumsum(1),
-        }
+        return {"route": self.path(self.route_head, route), "waypoints": self.path(self.waypoint_head, waypoints)}

@@ -20,6 +20,7 @@ import lightning as L
 import torch
 from lightning.pytorch.utilities import rank_zero_info, rank_zero_warn
 from torch import Tensor, nn
+from torch.optim.lr_scheduler import LRScheduler
 from torchmetrics import MeanMetric
 
 from lead_s2r.models.input_spec import InputSpec, input_spec
@@ -66,6 +67,9 @@ class DrivingModule(L.LightningModule):
         lr_schedule: stepped every optimizer step. "cosine_restarts" is LEAD's CARLA/NAVSIM schedule (warm
             restarts after 1, 2, 4, 8... epochs, so cycles end at epochs 1, 3, 7, 15, 31, the mixing anchors);
             "cosine" decays once over the whole run (LEAD's WOD-E2E schedule).
+        warmup_steps: the learning rate rises linearly over these first optimizer steps, then follows ``lr_schedule``
+            (a cosine then decays over the steps left). 0 (LEAD's): none. The smoke twins use a few, so the first
+            steps of a freshly initialised model, whose gradients are the largest, cannot throw it far.
         compile: wrap the model with ``torch.compile`` (parameter names stay the same).
         init_from: checkpoint whose matching tensors initialise the model (fine-tuning); new heads are reported.
         log_val_losses: also log every loss term on the validation data (``val/<source>/<task>``), for loss curves.
@@ -84,6 +88,7 @@ class DrivingModule(L.LightningModule):
         betas: tuple[float, float] = (0.9, 0.999),
         amsgrad: bool = True,
         lr_schedule: Literal["constant", "cosine_restarts", "cosine"] = "constant",
+        warmup_steps: int = 0,
         compile: bool = False,
         init_from: str | None = None,
         log_val_losses: bool = False,
@@ -291,15 +296,29 @@ class DrivingModule(L.LightningModule):
         optimizer = torch.optim.AdamW(
             self.model.parameters(), lr=hp.lr, weight_decay=hp.weight_decay, betas=tuple(hp.betas), amsgrad=hp.amsgrad
         )
-        if hp.lr_schedule == "constant":
+        scheduler = self._warmed_up(optimizer, self._schedule(optimizer))
+        if scheduler is None:
             return optimizer
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    def _schedule(self, optimizer: torch.optim.Optimizer) -> LRScheduler | None:
+        """``lr_schedule`` after the warm-up; None for a constant rate."""
+        hp, lr = self.hparams, torch.optim.lr_scheduler
+        if hp.lr_schedule == "constant":
+            return None
         steps = self._steps_per_epoch()
         if hp.lr_schedule == "cosine_restarts":
-            scheduler = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(optimizer, T_0=steps, T_mult=2)
-        else:
-            epochs = max(1, self.trainer.max_epochs or 1)
-            scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=steps * epochs)
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+            return lr.CosineAnnealingWarmRestarts(optimizer, T_0=steps, T_mult=2)
+        epochs = max(1, self.trainer.max_epochs or 1)
+        return lr.CosineAnnealingLR(optimizer, T_max=max(1, steps * epochs - hp.warmup_steps))
+
+    def _warmed_up(self, optimizer: torch.optim.Optimizer, schedule: LRScheduler | None) -> LRScheduler | None:
+        """``schedule`` behind a linear warm-up of ``warmup_steps`` (lr / n on the first step, lr on the n-th)."""
+        n, lr = self.hparams.warmup_steps, torch.optim.lr_scheduler
+        if n <= 0:
+            return schedule
+        warmup = lr.LinearLR(optimizer, start_factor=1.0 / n, end_factor=1.0, total_iters=n - 1)
+        return warmup if schedule is None else lr.SequentialLR(optimizer, [warmup, schedule], milestones=[n])
 
     def _steps_per_epoch(self) -> int:
         """Optimizer steps per epoch: the data module's fixed epoch length, else Lightning's estimate."""
