@@ -100,8 +100,6 @@ SIM2REAL_BEV = {
 }
 #: LEAD's ``scale_pedestrian_bev_semantic_size`` and ``pedestrian_bev_min_extent`` (half extent, metres).
 PEDESTRIAN_BEV_SCALE, PEDESTRIAN_BEV_MIN_HALF_EXTENT = 2.5, 0.4
-#: fillPoly's fractional bits for sub-pixel corners.
-_SHIFT = 8
 
 
 def lead_box_classes(classes: np.ndarray, leaderboard: bool) -> np.ndarray:
@@ -129,12 +127,13 @@ def lead_bev_labels(hdmap: np.ndarray, boxes: np.ndarray, grid: BEVGrid, leaderb
         if label is not None and not leaderboard:
             label = SIM2REAL_BEV.get(label, label)
         if label is not None and label != LeadBevClass.UNLABELED:
-            cv2.fillPoly(labels, [_footprint_pixels(box, grid)], int(label), lineType=cv2.LINE_8, shift=_SHIFT)
+            cv2.fillPoly(labels, [_footprint_pixels(box, grid)], int(label))
     return labels
 
 
 def _footprint_pixels(box: np.ndarray, grid: BEVGrid) -> np.ndarray:
-    """(4, 2) int32 fixed-point (column, row) corners of a box's footprint on ``grid`` (pixel centres at integers);
+    """(4, 2) int32 (column, row) corners of a box's footprint on ``grid``, as LEAD rasterises them: pixel-edge
+    coordinates truncated to integers, filled edges included (so a 4 x 2 m box at 4 px/m covers 17 x 9 pixels);
     pedestrians and bikers grown as LEAD draws them."""
     half = box[3:5] / 2
     if int(box[9]) in (BoxClass.PEDESTRIAN, BoxClass.BICYCLE):
@@ -144,5 +143,4 @@ def _footprint_pixels(box: np.ndarray, grid: BEVGrid) -> np.ndarray:
     x = box[0] + cos * local[:, 0] - sin * local[:, 1]
     y = box[1] + sin * local[:, 0] + cos * local[:, 1]
     ppm = grid.pixels_per_meter
-    pixels = np.stack([(y - grid.y_min) * ppm - 0.5, (x - grid.x_min) * ppm - 0.5], axis=1)
-    return np.round(pixels * (1 << _SHIFT)).astype(np.int32)
+    return np.stack([(y - grid.y_min) * ppm, (x - grid.x_min) * ppm], axis=1).astype(np.int32)
