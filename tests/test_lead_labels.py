@@ -81,8 +81,9 @@ def test_hdmap_classes_become_leads_bev_classes(leaderboard: bool) -> None:
 
 
 def test_box_footprints_are_drawn_over_the_map_as_lead_draws_them() -> None:
-    """A 4 x 2 m vehicle fills 17 x 9 pixels (LEAD's corners truncated, edges filled); a pedestrian is drawn 2.5 x its half extent of at least 0.4 m
-    (2 m square); in sim-to-real an emergency vehicle is a vehicle and a cone is not drawn."""
+    """A 4 x 2 m vehicle fills 17 x 9 pixels (LEAD's corners truncated, edges filled); a pedestrian is drawn 2.5 x
+    its half extent of at least 0.4 m (2 m square); in sim-to-real an emergency vehicle is a vehicle and a cone is
+    not drawn."""
     road = np.full(NAVSIM_BEV.shape, BevClassCarla.ROAD, np.uint8)
     boxes = np.array(
         [
@@ -134,7 +135,8 @@ def test_leads_encoding_of_one_box_by_hand() -> None:
     assert angle_bin(-0.3, 12) == (11, pytest.approx(math.pi / 6 - 0.3))
     assert angle_bin(math.pi, 12) == (6, pytest.approx(0.0, abs=1e-12))
     kernel = gaussian_kernel(3)
-    assert kernel.shape == (7, 7) and kernel[3, 3] == 1.0 and kernel[0, 0] == pytest.approx(math.exp(-18 / (2 * (7 / 6) ** 2)))
+    assert kernel.shape == (7, 7) and kernel[3, 3] == 1.0
+    assert kernel[0, 0] == pytest.approx(math.exp(-18 / (2 * (7 / 6) ** 2)))
 
 
 def test_boxes_off_the_grid_or_of_no_class_are_not_encoded() -> None:
