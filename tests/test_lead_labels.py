@@ -203,3 +203,15 @@ def test_leads_box_loss_by_hand_and_a_sample_without_boxes_adds_nothing() -> Non
     expected = float(focal) + 1.5 + 0.3 + math.log(12) + 0.5 * residual**2 + 7.0
     assert float(lead_box_loss(pred, batch, velocity=True)) == pytest.approx(expected, rel=1e-5)
     assert float(lead_box_loss(pred, batch, velocity=False)) == pytest.approx(expected - 7.0, rel=1e-5)
+
+
+def test_carla_bev_labels_of_another_class_table_are_refused(carla_samples) -> None:
+    from lead_reference import TINY_CARLA
+
+    from lead_s2r.errors import UserError
+
+    spec = input_spec(LeadConfig.from_json({**TINY_CARLA, "use_bev_semantic": True}))
+    sample = carla_samples[0]
+    meta = {**sample["meta"], "bev": {**sample["meta"]["bev"], "classes": "navsim"}}
+    with pytest.raises(UserError, match=r"field 'meta.bev.classes'.*'navsim'"):
+        SourceTransform("carla", spec)({**sample, "meta": meta})

@@ -40,6 +40,7 @@ from lead_s2r.data.targets import (
     radar_targets,
     route_checkpoints,
 )
+from lead_s2r.errors import UserError
 from lead_s2r.geometry import resample
 from lead_s2r.models.input_spec import InputSpec
 from lead_s2r.schema import BoxClass, command4
@@ -149,9 +150,9 @@ class SourceTransform:
         if not self.lead_carla:
             return labels
         if bev.get("classes") != "carla_hdmap":
-            raise ValueError(
-                f"sample {sample['__key__']!r}, field 'bev_semantic': LEAD's CARLA BEV head is built from the "
-                f"'carla_hdmap' classes, not {bev.get('classes')!r}"
+            raise UserError(
+                f"sample {sample['__key__']!r}, field 'meta.bev.classes': LEAD's CARLA BEV head is built from the "
+                f"'carla_hdmap' classes, not {bev.get('classes')!r}; convert the data with the carla_lead adapter"
             )
         boxes = sample.get("boxes", np.zeros((0, 10), np.float32))
         return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard")
