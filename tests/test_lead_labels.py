@@ -215,3 +215,37 @@ def test_carla_bev_labels_of_another_class_table_are_refused(carla_samples) -> N
     meta = {**sample["meta"], "bev": {**sample["meta"]["bev"], "classes": "navsim"}}
     with pytest.raises(UserError, match=r"field 'meta.bev.classes'.*'navsim'"):
         SourceTransform("carla", spec)({**sample, "meta": meta})
+
+
+def test_our_targets_are_leads_targets_of_the_mirrored_boxes_read_through_boxes_from_lead() -> None:
+    """LEAD's encoding written plainly in its frame (y right, rows along y, columns along x) for random boxes, put
+    through boxes_from_lead as if a network had predicted it exactly, gives our targets at every box cell."""
+    rng = np.random.default_rng(0)
+    grid, bins, n = NAVSIM_BEV, 12, 20
+    boxes = np.zeros((n, 10))
+    boxes[:, :2] = rng.uniform(-31.5, 31.5, (n, 2))
+    boxes[:, 3:5] = rng.uniform(1, 6, (n, 2))
+    boxes[:, 6] = rng.uniform(-math.pi, math.pi, n)
+    ours = lead_centernet_targets(boxes, np.zeros(n), grid, 1, bins, velocity=False)
+    size = 64
+    lead = {name: torch.zeros(1, channels, size, size) for name, channels in
+            [("wh_pred", 2), ("offset_pred", 2), ("yaw_class_pred", bins), ("yaw_res_pred", 1)]}  # fmt: skip
+    for x, y, length, width, yaw in boxes[:, [0, 1, 3, 4, 6]]:
+        ctx, cty = x - grid.x_min, -y - grid.y_min  # LEAD: 1 m cells, y to the right
+        row, col = int(cty), int(ctx)
+        angle = yaw * -1 % (2 * math.pi)
+        k = int(((angle + math.pi / bins) % (2 * math.pi)) // (2 * math.pi / bins))
+        lead["wh_pred"][0, :, row, col] = torch.tensor([length / 2, width / 2])
+        lead["offset_pred"][0, :, row, col] = torch.tensor([ctx - col, cty - row])
+        lead["yaw_class_pred"][0, :, row, col] = 0.0
+        lead["yaw_class_pred"][0, k, row, col] = 10.0
+        lead["yaw_res_pred"][0, 0, row, col] = (
+            (angle + math.pi / bins) % (2 * math.pi) - k * 2 * math.pi / bins - math.pi / bins
+        )
+    read = boxes_from_lead(lead)
+    cells = ours["lead_box_weight"]
+    assert int(cells.sum()) == n
+    assert torch.allclose(read["box_size"][0][:, cells], ours["lead_box_size"][:, cells])
+    assert torch.allclose(read["box_offset"][0][:, cells], ours["lead_box_offset"][:, cells], atol=1e-5)
+    assert torch.equal(read["box_yaw_class"][0].argmax(0)[cells], ours["lead_box_yaw_class"][cells].long())
+    assert torch.allclose(read["box_yaw_residual"][0, 0][cells], ours["lead_box_yaw_residual"][cells], atol=1e-5)
