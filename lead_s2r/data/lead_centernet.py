@@ -76,19 +76,22 @@ def lead_centernet_targets(
     yaw_residual, speed = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
     boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
     kept = np.flatnonzero(np.asarray(classes) >= 0)[:LEAD_MAX_BOXES]
-    for i in kept.tolist():
-        x, y, length, width, yaw, vx, vy = boxes[i, [0, 1, 3, 4, 6, 7, 8]]
-        col_f, row_f = (y - grid.y_min) / cell, (x - grid.x_min) / cell
-        row, col = math.floor(row_f), math.floor(col_f)
+    picked = boxes[kept]
+    row_f, col_f = (picked[:, 0] - grid.x_min) / cell, (picked[:, 1] - grid.y_min) / cell
+    half_length, half_width = picked[:, 3] / 2 / cell, picked[:, 4] / 2 / cell
+    speeds = np.hypot(picked[:, 7], picked[:, 8])
+    values = zip(np.asarray(classes, np.int64)[kept].tolist(), row_f.tolist(), col_f.tolist(), half_length.tolist(),
+                 half_width.tolist(), picked[:, 6].tolist(), speeds.tolist(), strict=True)  # fmt: skip
+    for label, x, y, length, width, yaw, box_speed in values:  # Python numbers: cheaper than numpy scalars per box
+        row, col = math.floor(x), math.floor(y)
         if not (0 <= row < h and 0 <= col < w):
             continue
-        half_length, half_width = length / 2 / cell, width / 2 / cell
-        radius = max(MIN_RADIUS, int(gaussian_radius(half_width, half_length)))
-        paste_max(heatmap[int(classes[i])], row, col, gaussian_kernel(radius))
-        size[:, row, col] = half_length, half_width
-        offset[:, row, col] = row_f - row, col_f - col
+        radius = max(MIN_RADIUS, int(gaussian_radius(width, length)))
+        paste_max(heatmap[label], row, col, gaussian_kernel(radius))
+        size[:, row, col] = length, width
+        offset[:, row, col] = x - row, y - col
         yaw_class[row, col], yaw_residual[row, col] = angle_bin(yaw, yaw_bins)
-        speed[row, col] = math.hypot(vx, vy)
+        speed[row, col] = box_speed
         weight[row, col] = True
     out = {
         "lead_box_heatmap": heatmap,

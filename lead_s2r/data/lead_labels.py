@@ -122,25 +122,29 @@ def lead_bev_labels(hdmap: np.ndarray, boxes: np.ndarray, grid: BEVGrid, leaderb
         lookup[ours] = SIM2REAL_BEV.get(lead, lead) if not leaderboard else lead
     labels = lookup[hdmap]
     boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
-    for box in boxes:
-        label = BOX_TO_LEAD_BEV.get(int(box[9]))
-        if label is not None and not leaderboard:
-            label = SIM2REAL_BEV.get(label, label)
-        if label is not None and label != LeadBevClass.UNLABELED:
-            cv2.fillPoly(labels, [_footprint_pixels(box, grid)], int(label))
+    bev_class = np.full(len(BoxClass), int(LeadBevClass.UNLABELED), np.int64)
+    for ours, lead in BOX_TO_LEAD_BEV.items():
+        bev_class[ours] = SIM2REAL_BEV.get(lead, lead) if not leaderboard else lead
+    ours = boxes[:, 9].astype(np.int64)
+    drawn = np.flatnonzero((ours >= 0) & (ours < len(BoxClass)))
+    drawn = drawn[bev_class[ours[drawn]] != LeadBevClass.UNLABELED]
+    corners = _footprint_pixels(boxes[drawn], grid)
+    for polygon, label in zip(corners, bev_class[ours[drawn]].tolist(), strict=True):
+        cv2.fillPoly(labels, [polygon], label)
     return labels
 
 
-def _footprint_pixels(box: np.ndarray, grid: BEVGrid) -> np.ndarray:
-    """(4, 2) int32 (column, row) corners of a box's footprint on ``grid``, as LEAD rasterises them: pixel-edge
-    coordinates truncated to integers, filled edges included (so a 4 x 2 m box at 4 px/m covers 17 x 9 pixels);
-    pedestrians and bikers grown as LEAD draws them."""
-    half = box[3:5] / 2
-    if int(box[9]) in (BoxClass.PEDESTRIAN, BoxClass.BICYCLE):
-        half = np.maximum(half, PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
-    cos, sin = np.cos(box[6]), np.sin(box[6])
-    local = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * half
-    x = box[0] + cos * local[:, 0] - sin * local[:, 1]
-    y = box[1] + sin * local[:, 0] + cos * local[:, 1]
+def _footprint_pixels(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
+    """(N, 4, 2) int32 (column, row) corners of the boxes' footprints on ``grid``, as LEAD rasterises them:
+    pixel-edge coordinates truncated to integers, filled edges included (so a 4 x 2 m box at 4 px/m covers 17 x 9
+    pixels); pedestrians and bikers grown as LEAD draws them."""
+    half = boxes[:, 3:5] / 2
+    grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
+    half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
+    cos, sin = np.cos(boxes[:, 6:7]), np.sin(boxes[:, 6:7])
+    local_x = np.array([1, 1, -1, -1]) * half[:, :1]
+    local_y = np.array([1, -1, -1, 1]) * half[:, 1:]
+    x = boxes[:, :1] + cos * local_x - sin * local_y
+    y = boxes[:, 1:2] + sin * local_x + cos * local_y
     ppm = grid.pixels_per_meter
-    return np.stack([(y - grid.y_min) * ppm, (x - grid.x_min) * ppm], axis=1).astype(np.int32)
+    return np.stack([(y - grid.y_min) * ppm, (x - grid.x_min) * ppm], axis=2).astype(np.int32)
