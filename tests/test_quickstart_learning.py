@@ -1,9 +1,11 @@
 """The quickstart's LTFv6 twin learns the synthetic NAVSIM task in the quickstart's steps.
 
-Untrained, the twin is about 12 m off on held-out logs; a model that ignores its inputs at best predicts the training
-trajectories' mean, over 3 m off here (the mean over these very held-out logs is the best any input-blind constant
-does, and the test computes it); until the status inputs were scaled and the learning rate raised, the twin stayed there
-(docs/training.md). Only a model that reads the ego status gets below the threshold.
+Untrained, the twin is tens of metres off on held-out logs (its steps are 8 m a unit); a model that ignores its inputs
+at best predicts the training trajectories' mean, over 3 m off here (the mean over these very held-out logs is the best
+any input-blind constant does, and the test computes it). Until the status inputs were scaled and the learning rate
+raised, the twin stayed there, and with outputs in metres it stayed shrunk towards it (docs/training.md, "The output
+scale"). Only a model that reads the ego status gets below the threshold: the twin reaches 1.42 m here (seed 0,
+2-core CPU, torch 2.14).
 """
 
 import sys
