@@ -290,15 +290,17 @@ def test_focal_loss_ignores_unlabelled_cells():
 
 
 @pytest.mark.parametrize("variant", ["ltfv6", "tfv5"])
-def test_trajectory_scale_multiplies_every_step_and_nothing_else(variant):
-    """The same weights with ``trajectory_scale`` s give s times the route and waypoints, the same headings."""
+def test_output_scales_multiply_their_outputs_and_nothing_else(variant):
+    """The same weights with ``trajectory_scale`` s and ``heading_scale`` h give s times the route and waypoints, h
+    times the headings (TFv5 has none), and the same everything else."""
     plain = TFv6(VARIANTS[variant](**TINY, decoder_dropout=0.0, fusion_dropout=0.0)).eval()
-    scaled = TFv6(VARIANTS[variant](**TINY, decoder_dropout=0.0, fusion_dropout=0.0, trajectory_scale=7.5)).eval()
+    options = {"decoder_dropout": 0.0, "fusion_dropout": 0.0, "trajectory_scale": 7.5, "heading_scale": 0.25}
+    scaled = TFv6(VARIANTS[variant](**TINY, **options)).eval()
     scaled.load_state_dict(plain.state_dict())
     batch = random_batch(plain.config, 2, "navsim")
     with torch.no_grad():
         before, after = plain(batch, "navsim"), scaled(batch, "navsim")
-    for key in ("route", "waypoints"):
-        torch.testing.assert_close(after[key], 7.5 * before[key])
-    for key in set(before) - {"route", "waypoints"}:
-        torch.testing.assert_close(after[key], before[key])
+    factors = {"route": 7.5, "waypoints": 7.5, "headings": 0.25}
+    assert ("headings" in before) == (variant != "tfv5")
+    for key in before:
+        torch.testing.assert_close(after[key], factors.get(key, 1.0) * before[key])

@@ -126,6 +126,10 @@ class TFv6Config:
     #: steps of several metres (AdamW moves a weight by about the learning rate per step), so its trajectories
     #: shrink towards the mean; the smoke twins set it near a typical step (docs/training.md).
     trajectory_scale: float = 1.0
+    #: Radians per unit of the heading head's per-step outputs (1: LEAD's). Its targets are hundredths of a radian on
+    #: a straight road, so a short run's AdamW steps of about the learning rate make them noise; below 1 the head
+    #: moves in smaller steps.
+    heading_scale: float = 1.0
     trajectory_grids: dict[str, TrajectoryGrid] = field(default_factory=default_grids)
     predict_headings: bool = True
     num_route_points: int = 10

@@ -153,13 +153,13 @@ class PlanningDecoder(nn.Module):
         result.update(self.trajectories(route_q, waypoint_q, batch))
         return result
 
-    def path(self, head: nn.Module, features: Tensor) -> Tensor:
-        """A trajectory in metres: the cumulative sum of ``head``'s per-step outputs, ``trajectory_scale`` m each."""
-        return (head(features).float() * self.config.trajectory_scale).cumsum(1)
+    def path(self, head: nn.Module, features: Tensor, scale: float | None = None) -> Tensor:
+        """The cumulative sum of ``head``'s per-step outputs, each ``scale`` units (default ``trajectory_scale`` m)."""
+        return (head(features).float() * (self.config.trajectory_scale if scale is None else scale)).cumsum(1)
 
     def trajectories(self, route_q: Tensor, waypoint_q: Tensor, batch: Batch) -> dict[str, Tensor]:
         """Route and waypoints as cumulative sums of per-query steps; headings likewise."""
         result = {"route": self.path(self.route_head, route_q), "waypoints": self.path(self.waypoint_head, waypoint_q)}
         if self.heading_head is not None:
-            result["headings"] = self.heading_head(waypoint_q).float().squeeze(-1).cumsum(1)
+            result["headings"] = self.path(self.heading_head, waypoint_q, self.config.heading_scale).squeeze(-1)
         return result
