@@ -3,8 +3,8 @@
 Besides our Lightning checkpoints, a bare LEAD checkpoint file (``model_0030.pth``, LEAD's ``TFv6.state_dict()``) or
 a LEAD checkpoint folder (``config.json`` + one ``model*.pth``) initialises a
 :class:`~lead_s2r.models.lead_driver.LeadDriver`: its keys are LEAD's, under the driver's ``network.``. From a folder
-the report also names the config fields where the two networks differ (LEAD's CARLA TFv6 fine-tuned on WOD-E2E:
-``LTF``, the target dataset, ...), which is why heads are new, dropped or reshaped.
+(or one weight file in it) the report also names the config fields where the two networks differ (LEAD's CARLA TFv6
+fine-tuned on WOD-E2E: ``LTF``, the target dataset, ...), which is why heads are new, dropped or reshaped.
 """
 
 from dataclasses import asdict, dataclass, field
@@ -111,6 +111,7 @@ def load_matching(model: nn.Module, path: str | Path) -> LoadReport:
             report.loaded.append(key)
     report.missing = [k for k in target if k not in source]
     model.load_state_dict(matched, strict=False)
-    if isinstance(model, LeadDriver) and Path(path).is_dir():
-        report.config_changes = config_changes(read_config(Path(path)), model.config)
+    folder = Path(path) if Path(path).is_dir() else Path(path).parent
+    if isinstance(model, LeadDriver) and (folder / "config.json").is_file():  # a LEAD folder, or one file of it
+        report.config_changes = config_changes(read_config(folder), model.config)
     return report
