@@ -228,7 +228,7 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
     spec = {**json.loads((TINY / "config.json").read_text()), "use_carla_data": True}
     driver = LeadDriver(LeadConfig.from_json(spec))
     assert driver.tasks("navsim") == {"waypoints", "headings", "bev_semantic", "boxes"}
-    # LEAD trains a mixed source's planner outputs on its target's grid; the sim-to-real supervision below leaves them out
+    # LEAD trains a mixed source's planner outputs on its target's grid; the sim-to-real supervision leaves them out
     assert driver.tasks("carla") == {"waypoints", "headings", "semantic"} and driver.tasks("wod") == set()
     assert input_spec(driver.config).trajectory_grids == {"navsim": (8, 0.5), "carla": (8, 0.5)}
     module = DrivingModule(driver, supervise={"navsim": ["planning", "perception"], "carla": ["perception"]})
