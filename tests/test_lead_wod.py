@@ -16,7 +16,9 @@ from lead_s2r.errors import UserError
 from lead_s2r.models import lead
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
+from lead_s2r.models.lead_frame import command_one_hot
 from lead_s2r.predictions import read_predictions
+from lead_s2r.schema import Command
 from lead_s2r.synthetic import wod_e2e
 from lead_s2r.training.cli import run_lightning_cli
 from lead_s2r.training.weights import load_matching
@@ -48,6 +50,13 @@ def carla_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def wod_driver() -> LeadDriver:
     return LeadDriver(LeadConfig.from_json(model_fields(RECIPE) | TINY))
+
+
+def test_wod_intent_is_one_hot_in_wods_enum_order_when_the_command_token_is_on() -> None:
+    config = LeadConfig.from_json(model_fields(RECIPE) | {"use_discrete_command": True})
+    commands = torch.tensor([int(c) for c in (Command.LEFT, Command.UNKNOWN, Command.STRAIGHT, Command.RIGHT)])
+    assert command_one_hot(commands, config).tolist() == [[0, 0, 1, 0], [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1]]
+    assert not LeadConfig.from_json(model_fields(RECIPE)).use_discrete_command  # LEAD's WOD-E2E default: no token
 
 
 def test_init_from_a_lead_folder_loads_every_matching_tensor_and_names_the_rest(carla_checkpoint: Path) -> None:
