@@ -55,7 +55,8 @@ NAVSIM_BOX_CLASSES = 1
 #: ``training_used_lidar_steps`` is a fixed property (> 1 adds the CenterNet velocity head).
 TRAINING_USED_LIDAR_STEPS = 10
 #: Overridable properties and the type a file value is cast to; None in the dataclass means "LEAD's rule decides".
-#: The last four are plain properties in LEAD (our extension; see the module docstring).
+#: The last four are our extension (see the module docstring): LEAD computes the first three as plain properties and
+#: has no fourth (its ``waypoints_spacing`` counts frames of each dataset's own rate).
 OVERRIDABLE = {
     "used_cameras": list,
     "use_depth": bool,
@@ -148,7 +149,7 @@ class LeadConfig:
 
     def __post_init__(self) -> None:
         target = self.target_dataset
-        wod = target == TargetDataset.WAYMO_E2E_2025_3CAMERAS
+        wod = self.is_wod
         defaults = {
             "used_cameras": [True] * NUM_CAMERAS[target],
             "use_depth": self.carla_leaderboard_mode,
