@@ -5,6 +5,7 @@ others are counted in ``other_datasets``. Samples without a prediction are liste
 ``allow_missing=True`` (the CLI's default; ``--strict`` turns it off), left out of the scores.
 """
 
+import contextlib
 import inspect
 import json
 import time
@@ -126,17 +127,18 @@ def score_predictions(
     scorer.executor = executor
     folders = _folders(data)
     start = time.perf_counter()
-    samples = select_samples(folders, scorer.fields, split, executor)
-    _check_metric_fits(scorer, folders, samples)
-    predicted = read_predictions(predictions)
-    covered = coverage(predicted, samples)
-    if len(covered["unpredicted"]) == len(samples):
-        datasets = sorted({sample["meta"]["dataset"] for sample in samples})
-        raise UserError(
-            f"{predictions}: no prediction for any sample of {', '.join(map(str, folders))} (datasets {datasets}); "
-            "check that --predictions and --data belong together"
-        )
-    result = scorer.score(predicted, samples)
+    with executor.session() if executor is not None else contextlib.nullcontext():  # one Ray connection
+        samples = select_samples(folders, scorer.fields, split, executor)
+        _check_metric_fits(scorer, folders, samples)
+        predicted = read_predictions(predictions)
+        covered = coverage(predicted, samples)
+        if len(covered["unpredicted"]) == len(samples):
+            datasets = sorted({sample["meta"]["dataset"] for sample in samples})
+            raise UserError(
+                f"{predictions}: no prediction for any sample of {', '.join(map(str, folders))} (datasets {datasets}); "
+                "check that --predictions and --data belong together"
+            )
+        result = scorer.score(predicted, samples)
     report = {
         "metric": scorer.name,
         "metric_version": scorer.version,
