@@ -2,7 +2,8 @@
 this process, on N local processes (``--workers N``) and on Ray with N CPUs (``--executor ray``); the CPU time of
 the driver and of every process under it; and whether every run wrote the same scores.
 
-Run: ``.venv/bin/python benchmarks/score_scale.py [--logs 150] [--workers 1 2] [--rounds 2] [--data DIR]``.
+Run: ``.venv/bin/python benchmarks/score_scale.py [--logs 150] [--workers 1 2] [--rounds 2] [--data DIR]
+[--executors processes ray]``.
 Synthetic NAVSIM logs (7 scenes each: 150 logs = 1050 samples) are generated and converted with maps (into
 ``--data`` to keep them for the next run, else a temporary folder); the constant-velocity planner is scored. Each
 round starts with a machine check (how much faster two processes run a CPU loop than one right now: 2.0 on two free
@@ -102,16 +103,19 @@ def prepare(data: Path, logs: int) -> Path:
     return planner_predictions("constant-velocity", data / "converted", data / "predictions.parquet")
 
 
-def runs(workers: list[int], predictions: Path, data: Path) -> dict[str, Callable[[Path], dict[str, float]]]:
+def runs(
+    kinds: list[str], workers: list[int], predictions: Path, data: Path
+) -> dict[str, Callable[[Path], dict[str, float]]]:
     """Every executor to time, by name; ratios are taken against the first of each kind."""
-    chosen: dict[str, Callable[[Path], dict[str, float]]] = {
-        "this process": lambda out: timed(InlineExecutor(), predictions, data, out)
-    }
-    for count in (count for count in workers if count > 1):
-        executor = ProcessExecutor(count, preload=[SCORER_MODULE])
-        chosen[f"{count} processes"] = lambda out, executor=executor: timed(executor, predictions, data, out)
-    for count in workers:
-        chosen[f"Ray, {count} CPU"] = lambda out, count=count: on_ray(count, predictions, data, out)
+    chosen: dict[str, Callable[[Path], dict[str, float]]] = {}
+    if "processes" in kinds:
+        chosen["this process"] = lambda out: timed(InlineExecutor(), predictions, data, out)
+        for count in (count for count in workers if count > 1):
+            executor = ProcessExecutor(count, preload=[SCORER_MODULE])
+            chosen[f"{count} processes"] = lambda out, executor=executor: timed(executor, predictions, data, out)
+    if "ray" in kinds:
+        for count in workers:
+            chosen[f"Ray, {count} CPU"] = lambda out, count=count: on_ray(count, predictions, data, out)
     return chosen
 
 
@@ -120,6 +124,7 @@ def main() -> None:
     parser.add_argument("--logs", type=int, default=150, help="synthetic NAVSIM logs of 7 samples each")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="process and Ray CPU counts")
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--executors", nargs="+", choices=["processes", "ray"], default=["processes", "ray"])
     parser.add_argument("--data", type=Path, help="keep (or reuse) the generated and converted data here")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -128,7 +133,7 @@ def main() -> None:
         for round_index in range(args.rounds):
             print(f"round {round_index}: machine check {machine_parallelism():.2f}x")
             digests, first = set(), {}
-            for name, run in runs(args.workers, predictions, data / "converted").items():
+            for name, run in runs(args.executors, args.workers, predictions, data / "converted").items():
                 result = run(Path(tmp) / f"scores-{round_index}-{name}")
                 digests.add(result["digest"])
                 rate = result["samples"] / result["wall"]
