@@ -30,7 +30,7 @@ from convert_carla_lead import machine_parallelism  # noqa: E402  (benchmarks/ i
 from lead_s2r.convert import convert  # noqa: E402
 from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, RayExecutor  # noqa: E402
 from lead_s2r.registry import get_adapter  # noqa: E402
-from lead_s2r.scoring.run import SCORES_TABLE, planner_predictions, score_predictions  # noqa: E402
+from lead_s2r.scoring.run import SCORES_TABLE, make_scorer, planner_predictions, score_predictions  # noqa: E402
 from lead_s2r.synthetic import navsim as synth  # noqa: E402
 
 METRIC = "pdms@navsim-1.1"
@@ -100,6 +100,7 @@ def prepare(data: Path, logs: int) -> Path:
     if not (data / "converted" / "manifest.parquet").is_file():
         synth.generate(data / "raw", count=logs, seed=0)
         assert convert(get_adapter("navsim", maps=str(data / "raw" / "maps")), data / "raw", data / "converted").ok
+    make_scorer(METRIC)  # imports the scorer's modules here, not in the first timed run
     return planner_predictions("constant-velocity", data / "converted", data / "predictions.parquet")
 
 
