@@ -347,14 +347,15 @@ class LeadConfig:
         return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
 
     def perception_tasks(self, source: str) -> set[str]:
-        """Our perception tasks (names of ``lead_s2r.training.losses``) LEAD's heads produce for ``source`` in our
-        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics,
-        depth and radar detection."""
+        """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``: BEV
+        semantics (NAVSIM's 7 classes, LEAD's 13 CARLA classes) and boxes in LEAD's CenterNet encoding (``lead_boxes``:
+        NAVSIM's one class, LEAD's 8 CARLA classes), CARLA perspective semantics, depth and radar detection."""
+        heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}
         tasks = set()
-        if source == "navsim" and self.use_navsim_data and self.use_bev_semantic:
+        if heads.get(source) and self.use_bev_semantic:
             tasks.add("bev_semantic")
-        if source == "navsim" and self.use_navsim_data and self.detect_boxes:
-            tasks.add("boxes")
+        if heads.get(source) and self.detect_boxes:
+            tasks.add("lead_boxes")
         if source == "carla" and self.use_carla_data and self.use_semantic:
             tasks.add("semantic")
         if source == "carla" and self.use_carla_data and self.use_depth:

@@ -5,11 +5,11 @@ fine-tuning with ``fit``, the CARLA closed-loop agent, and back out with ``lead-
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
 :mod:`lead_s2r.models.lead_frame` only. The loader follows
 :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
-raster, radar and target points when the network reads them, and the labels of the heads whose classes are ours too:
-the planner's outputs (waypoints, NAVSIM headings, CARLA route and target speed) for the source the network plans for,
-NAVSIM BEV semantics and boxes, and with CARLA data CARLA perspective semantics, depth and radar detection. LEAD's
-13-class CARLA BEV and 8-class CARLA boxes are not trained here: our CARLA labels use other class tables
-(docs/models.md).
+raster, radar and target points when the network reads them, and the labels of its heads: the planner's outputs
+(waypoints, NAVSIM headings, CARLA route and target speed) for the source the network plans for, BEV semantics and
+boxes of each source it has heads for (CARLA labels remapped to LEAD's 13 BEV and 8 box classes by
+:mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by :mod:`lead_s2r.data.lead_centernet`), and with
+CARLA data CARLA perspective semantics, depth and radar detection.
 """
 
 from collections.abc import Collection
@@ -67,6 +67,12 @@ class LeadDriver(nn.Module):
         return bool(self.config.use_planning_decoder and self.config.use_tp)
 
     @property
+    def box_velocity_loss(self) -> bool:
+        """Whether the box loss trains the speed channel (with CARLA labels; LEAD never trains NAVSIM's): LEAD zeroes
+        it for LTF, which has no LiDAR motion cues."""
+        return not self.config.LTF
+
+    @property
     def radar_scale(self) -> tuple[float, float, float]:
         """What the radar detection loss divides (x, y, speed) by: LEAD's BEV half extents and its maximum speed."""
         c = self.config
@@ -98,4 +104,4 @@ class LeadDriver(nn.Module):
                 "one with model.pattern, e.g. model_0030_0.pth"
             )
         batch = {**batch, "rgb": self.camera_select(batch["rgb"])}
-        return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)))
+        return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)), source)

@@ -12,6 +12,8 @@
   right, unknown) or CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
   unknown -> lane follow, as LEAD maps it).
 - Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
+- CenterNet maps: LEAD's sub-cell lateral offset is measured from the cell's other edge and its yaw bins turn the
+  other way; :func:`boxes_from_lead` turns them into ours (``lead_s2r.data.lead_centernet`` encodes our labels).
 - Radar: LEAD's (B, 300, 5) is sensor-major, 75 rows per sensor, points outside its BEV dropped and missing rows
   zero with the sensor id kept; LEAD does not mask them, so the padding rows' ids matter and are rebuilt here.
 """
@@ -105,20 +107,33 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
     return out
 
 
-def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
-    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
-    NAVSIM ``bev_semantic`` (same 7 classes) and ``box_*`` maps, and the image-space CARLA ``semantic`` / ``depth``
-    (those the network produced), and the radar detector's ``radar_xy`` / ``radar_speed`` / ``radar_logit``. LEAD's
-    13-class CARLA BEV and 8-class CARLA boxes have no counterpart in our label spaces.
+def boxes_from_lead(maps: dict[str, Tensor]) -> dict[str, Tensor]:
+    """LEAD's CenterNet maps (``BOX_FIELDS`` keys) -> our box names on our grid, in our frame: the lateral offset
+    becomes 1 - LEAD's (a cell's fraction measured from its other edge), yaw bins are mirrored (our bin k is LEAD's
+    bin -k) and the yaw residual negated; sizes, speed and heatmaps only move onto our grid."""
+    ours = {BOX_FIELDS[field]: bev_map_from_lead(value) for field, value in maps.items() if field in BOX_FIELDS}
+    if "box_offset" in ours:
+        offset = ours["box_offset"]
+        ours["box_offset"] = torch.cat([offset[:, :1], 1 - offset[:, 1:]], dim=1)
+    if "box_yaw_class" in ours:
+        bins = ours["box_yaw_class"].shape[1]
+        ours["box_yaw_class"] = ours["box_yaw_class"][:, [(-k) % bins for k in range(bins)]]
+    if "box_yaw_residual" in ours:
+        ours["box_yaw_residual"] = -ours["box_yaw_residual"]
+    return ours
 
-    The NAVSIM box maps only move onto our grid: their channels are whatever our box loss trains them to be (LEAD's
-    own offset, size and yaw encodings are in its frame, so released box heads start from a different encoding)."""
+
+def from_lead_outputs(outputs: dict[str, Tensor], source: str) -> dict[str, Tensor]:
+    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
+    the BEV semantics and ``box_*`` maps of ``source``'s heads (NAVSIM's or LEAD's CARLA ones), the image-space CARLA
+    ``semantic`` / ``depth`` (those the network produced), and the radar detector's ``radar_xy`` / ``radar_speed`` /
+    ``radar_logit``."""
+    suffix = "_navsim" if source == "navsim" else ""
     ours: dict[str, Tensor] = {}
-    if "pred_bev_semantic_navsim" in outputs:
-        ours["bev_semantic"] = bev_map_from_lead(outputs["pred_bev_semantic_navsim"])
-    for field, name in BOX_FIELDS.items():
-        if f"pred_bounding_box_navsim.{field}" in outputs:
-            ours[name] = bev_map_from_lead(outputs[f"pred_bounding_box_navsim.{field}"])
+    if f"pred_bev_semantic{suffix}" in outputs:
+        ours["bev_semantic"] = bev_map_from_lead(outputs[f"pred_bev_semantic{suffix}"])
+    prefix = f"pred_bounding_box{suffix}."
+    ours.update(boxes_from_lead({k[len(prefix) :]: v for k, v in outputs.items() if k.startswith(prefix)}))
     if "pred_semantic" in outputs:
         ours["semantic"] = outputs["pred_semantic"]
     if "pred_depth" in outputs:
