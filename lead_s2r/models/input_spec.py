@@ -14,7 +14,6 @@ from lead_s2r.models.config import (
     EgoMLPConfig,
     TFv6Config,
     TrajectoryGrid,
-    default_grids,
 )
 from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, NAVSIM_BOX_CLASSES, LeadConfig
 
@@ -96,17 +95,23 @@ def input_spec(config: TFv6Config | EgoMLPConfig | LeadConfig) -> InputSpec:
     )
 
 
+def lead_grids(config: LeadConfig) -> dict[str, TrajectoryGrid]:
+    """The planner's one output grid for every source the network reads: LEAD trains a mixed source's waypoints on its
+    target's grid (CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz, or the config's override)."""
+    grid = TrajectoryGrid(config.num_way_points_prediction, config.waypoint_interval_s)
+    return {source: grid for source in config.sources}
+
+
 def lead_input_spec(config: LeadConfig) -> InputSpec:
     """What LEAD's network (``lead_s2r.models.lead_driver.LeadDriver``) reads: LEAD's image size (NAVSIM: at NAVSIM's
     vertical field of view), its BEV extent for the LiDAR raster, radar and target points when it reads them, and the
     labels of its heads (:meth:`LeadConfig.perception_tasks`): boxes in LEAD's CenterNet encoding, CARLA BEV semantics
     and boxes in LEAD's class tables, in LEAD's leaderboard or sim-to-real mode as the network's config says."""
-    grids = default_grids()
     tasks = {source: config.perception_tasks(source) for source in ("navsim", "carla")}
     carla = tasks["carla"]
     cameras = len(config.used_cameras) if config.mosaic_tiles else config.num_used_cameras  # LeadDriver crops
     return InputSpec(
-        trajectory_grids={source: grids[source] for source in config.sources},
+        trajectory_grids=lead_grids(config),
         image_size=(config.final_image_height, config.final_image_width // config.num_used_cameras * cameras),
         vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG if config.use_navsim_data else None,
         equal_tiles=config.mosaic_tiles is not None,

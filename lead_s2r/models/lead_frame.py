@@ -9,8 +9,9 @@
   reversed. Both grids are symmetric in y, so no cell moves off the grid (a point exactly on a cell edge lands in
   the cell beside LEAD's, as both rasters take half-open cells in their own y direction).
 - Commands: our 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} ids become LEAD's one-hot, NAVSIM order (left, straight,
-  right, unknown) or CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
-  unknown -> lane follow, as LEAD maps it).
+  right, unknown), CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
+  unknown -> lane follow, as LEAD maps it) or WOD-E2E's intent order (unknown, straight, left, right; read only
+  when ``use_discrete_command`` is set, LEAD's WOD-E2E default being off).
 - Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
 - CenterNet maps: LEAD's sub-cell lateral offset is measured from the cell's other edge and its yaw bins turn the
   other way; :func:`boxes_from_lead` turns them into ours (``lead_s2r.data.lead_centernet`` encodes our labels).
@@ -28,6 +29,8 @@ from lead_s2r.schema import Command
 #: Our 4-way command id -> index in LEAD's one-hot.
 NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
 CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
+#: WOD-E2E's intent enum order (UNKNOWN, GO_STRAIGHT, GO_LEFT, GO_RIGHT), as LEAD's WOD loader one-hots it.
+WOD_COMMAND_INDEX = {Command.UNKNOWN: 0, Command.STRAIGHT: 1, Command.LEFT: 2, Command.RIGHT: 3}
 #: LEAD's CenterNet fields -> our box head's names (``lead_s2r.training.losses.box_loss``).
 BOX_FIELDS = {
     "center_heatmap_logit_pred": "box_heatmap",
@@ -63,6 +66,7 @@ def bev_map_from_lead(lead_map: Tensor) -> Tensor:
 def command_one_hot(command: Tensor, config: LeadConfig) -> Tensor:
     """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot."""
     table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
+    table = WOD_COMMAND_INDEX if config.is_wod else table
     lookup = torch.zeros(len(Command), dtype=torch.int64)
     for ours, theirs in table.items():
         lookup[ours] = theirs
