@@ -52,6 +52,7 @@ from lead_s2r.report.tables import (
     format_cell,
     format_paper,
     load_spec,
+    scores_key,
     to_csv,
     to_latex,
     to_markdown,
@@ -68,7 +69,7 @@ SMOKE = Path(__file__).resolve().parents[2] / "recipes" / "smoke"
 #: validation segment, as the real data does, so RFS is a mean over about as many frames as there are val segments.
 PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
     "carla_lead": (None, {}),
-    "navsim": ({"trainval": 32, "test": 20}, {"maps": "maps"}),
+    "navsim": ({"trainval": 32, "test": 20}, {"maps": "maps", "tag_filters": "scene_filters/pedestrians_ahead.yaml"}),
     "wod_e2e": ({"train": 48, "val": 24}, {}),
 }
 #: Every trained row is the mean and sample std over these seeds (the paper's three); a seed sets the initial
@@ -81,6 +82,10 @@ EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
 LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
 #: dataset -> the family folder its runs sit in (``runs/<family>/<name>/seed<k>``, as in the recipes and Table 4).
 FAMILIES = {"navsim": "navsim", "wod_e2e": "wod"}
+#: dataset -> the tag of its scenes that need perception (pedestrians stand in the lane ahead, and only the cameras
+#: show them: :mod:`lead_s2r.synthetic.pedestrians_ahead`): NAVSIM's from the generator's ``pedestrians_ahead.yaml``
+#: scene filter (the adapter's ``tag_filters``), WOD-E2E's from its scenario-cluster file.
+PERCEPTION_TAGS = {"navsim": "scene_filter:pedestrians_ahead", "wod_e2e": "cluster:Pedestrian"}
 #: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
 HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: Training name -> its length in the quickstart: (epochs, optimizer steps per epoch). The Ego MLP's steps cost
@@ -131,22 +136,30 @@ TRAINED = "trained"
 @dataclass(frozen=True)
 class Metric:
     """One metric of the table: the aggregate ``aggregate`` of scorer ``scorer`` times ``scale``, on ``datasets``
-    (None: every evaluated dataset); one column per dataset."""
+    (None: every evaluated dataset); one column per dataset. ``needs_perception``: scored on the held-out samples
+    with the dataset's :data:`PERCEPTION_TAGS` tag only."""
 
     column: str
     scorer: str
     aggregate: str
     datasets: tuple[str, ...] | None = None
     scale: float = 1.0
+    needs_perception: bool = False
 
     def applies(self, dataset: str) -> bool:
         return self.datasets is None or dataset in self.datasets
 
+    def tag(self, dataset: str) -> str | None:
+        """The tag of the samples this metric scores on ``dataset`` (None: all of them)."""
+        return PERCEPTION_TAGS[dataset] if self.needs_perception else None
+
 
 METRICS = (
     Metric("PDMS", "pdms@navsim-1.1", "pdms", ("navsim",), scale=100.0),
+    Metric("PDMS, needs perception", "pdms@navsim-1.1", "pdms", ("navsim",), scale=100.0, needs_perception=True),
     Metric("EPDMS", "epdms@navsim-2.2", "epdms", ("navsim",), scale=100.0),
     Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
+    Metric("RFS, needs perception", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",), needs_perception=True),
     Metric("ADE", "ade", "ade"),
 )
 
@@ -155,9 +168,9 @@ METRICS = (
 REFERENCE_SCORERS = ("pdms@navsim-1.1", "epdms@navsim-2.2")
 
 
-def scorers_for(dataset: str) -> list[str]:
-    """The scorers the table needs on ``dataset``, each once."""
-    return list(dict.fromkeys(metric.scorer for metric in METRICS if metric.applies(dataset)))
+def scorings(dataset: str) -> list[tuple[str, str | None]]:
+    """The (scorer, tag) pairs the table needs on ``dataset``, each once (tag None: every held-out sample)."""
+    return list(dict.fromkeys((m.scorer, m.tag(dataset)) for m in METRICS if m.applies(dataset)))
 
 
 def _stage(console: Console, name: str, started: float) -> None:
@@ -266,15 +279,17 @@ def stage_folder(out: Path, training: Training, dataset: str, stage: str, seed: 
 
 
 def score(predictions: Path, data: Path, dataset: str, out: Path, references: ReferenceCache) -> dict[str, Any]:
-    """Every scorer the table needs on ``dataset`` (converted in ``data``): ``{scorer: aggregates}``; files under
-    ``out/<scorer>``. ``references``: the PDM-Closed references planned on ``data``; a reference depends on the
-    scene only, so PDMS and EPDMS, the expert and every model plan each sample's once (the slowest scoring step)."""
+    """Every scoring the table needs on ``dataset`` (converted in ``data``): ``{scores_key: aggregates}`` (the
+    scorer's name, ``<scorer>#<tag>`` for a tagged subset); files under ``out/<scorer>[-<tag>]``. ``references``:
+    the PDM-Closed references planned on ``data``; a reference depends on the scene only, so PDMS and EPDMS, the
+    expert and every model plan each sample's once (the slowest scoring step)."""
     results = {}
-    for scorer in scorers_for(dataset):
+    for scorer, tag in scorings(dataset):
         options = {"reference_cache": references} if scorer in REFERENCE_SCORERS else {}
+        folder = out / (scorer if tag is None else f"{scorer}-{tag.replace(':', '-')}")
         # allow_missing: only the held-out samples are predicted
-        report = score_predictions(scorer, predictions, [data], out / scorer, allow_missing=True, **options)
-        results[scorer] = report["aggregates"]
+        report = score_predictions(scorer, predictions, [data], folder, tag=tag, allow_missing=True, **options)
+        results[scores_key(scorer, tag)] = report["aggregates"]
     return results
 
 
@@ -410,7 +425,13 @@ def table_spec() -> TableSpec:
     """Table 4's layout over the quickstart's rows: a column per metric and dataset, the paper's numbers from
     ``recipes/paper/table4.yaml`` beside the trained models and the Expert where it has them."""
     columns = tuple(
-        Column(f"{LABELS[dataset]} {metric.column}", metric.scorer, f"{dataset}.{metric.aggregate}", metric.scale)
+        Column(
+            f"{LABELS[dataset]} {metric.column}",
+            metric.scorer,
+            f"{dataset}.{metric.aggregate}",
+            metric.scale,
+            metric.tag(dataset),
+        )
         for metric in METRICS
         for dataset in EVAL_SPLITS
         if metric.applies(dataset)
@@ -434,7 +455,7 @@ def paper_numbers(paper: TableSpec, name: str, columns: tuple[Column, ...]) -> t
         dataset = column.key.split(".")[0]
         names = (f"{name} ({LABELS[dataset]})", f"{name.split(' (')[0]} ({LABELS[dataset]})", name)
         row = next((r for r in paper.rows if r.name in names), None)
-        index = next((i for i, c in enumerate(paper.columns) if c.metric == column.metric), None)
+        index = next((i for i, c in enumerate(paper.columns) if c.scores == column.scores), None)
         numbers.append(None if row is None or index is None else row.paper[index])
     return tuple(numbers)
 
