@@ -442,7 +442,9 @@ def table_spec() -> TableSpec:
         f"Mean ± sample std over seeds {', '.join(map(str, SEEDS))}; toy models, synthetic data: the numbers show "
         "what training changes and how models rank on these worlds, not what the models can do on real data. Before "
         "training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS in percent, "
-        "ADE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner)."
+        "ADE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner). Needs "
+        "perception: the same metric on the held-out scenes with pedestrians in the lane ahead, which only the cameras "
+        "show (a third of the logs; the paper has no such column)."
     )
     return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=SEEDS, digits=2, notes=notes)
 
