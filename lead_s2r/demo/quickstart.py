@@ -483,11 +483,17 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
         label = LABELS[dataset]
         columns = [i for i, column in enumerate(spec.columns) if column.key.startswith(f"{dataset}.")]
         papers = {i for i in columns if any(row.paper[i] is not None for row in spec.rows)}
-        # no column rules: "mean ± std" cells and the paper's numbers beside them fit 80 columns
-        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left", box=box.SIMPLE_HEAD)
+        grid = Table(
+            title=f"{label}: held-out {split} logs",
+            title_justify="left",
+            box=box.SIMPLE_HEAD,
+            padding=0,  # the box's space between columns only: NAVSIM's six number columns fit 80 columns
+            show_edge=False,
+        )
         grid.add_column("model")
         for i in columns:
-            grid.add_column(spec.columns[i].name.removeprefix(f"{label} "), justify="right")
+            header = spec.columns[i].name.removeprefix(f"{label} ").replace(" perception", "\nperception")
+            grid.add_column(header, justify="right")
             if i in papers:
                 grid.add_column("paper", justify="right", style="dim")
         for row, row_cells in zip(spec.rows, cells, strict=True):
@@ -502,6 +508,8 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
 
 
 def console_name(row: str) -> str:
-    """A row's name on the console: a model's untrained row sits under its trained one as "untrained" (short, so
-    NAVSIM's five number columns fit 80 columns)."""
+    """A row's name on the console: a model's untrained row sits under its trained one as "untrained", the Expert
+    without "(logged)" (short, so NAVSIM's six number columns fit 80 columns; the notes say what the Expert is)."""
+    if row == EXPERT:
+        return EXPERT.split(" (")[0]
     return f"  {UNTRAINED}" if row.endswith(f", {BEFORE_TRAINING}") else row

@@ -19,10 +19,11 @@ MIN_DURATION = 3.5
 RATE = 2.5
 #: Lateral offsets (m, left of the lane centre) of the pedestrians across the lane, and each one's box (length,
 #: width, height): a row nearly as wide as the lane and taller than a car, drawn in :data:`COLOUR` (BGR, bright
-#: yellow: far from the sky, road, grass and vehicle colours), so it stands out at 20-40 m in a 192-pixel strip.
+#: yellow, at least 8 grey levels from 0 and 255 for the cameras' pixel noise; far from the sky, road, grass and
+#: vehicle colours), so it stands out at 20-40 m in a 192-pixel strip.
 ROW = (-1.4, -0.7, 0.0, 0.7, 1.4)
 SIZE = (0.6, 0.6, 1.8)
-COLOUR = (0, 220, 255)
+COLOUR = (20, 210, 240)
 
 
 def brake_duration(speed: float) -> float:
