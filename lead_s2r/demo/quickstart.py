@@ -16,9 +16,9 @@ The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken o
 ``init_from`` of a CARLA pre-training), so the two rows differ in nothing else. Lightning talks a lot on the console
 (model summary, tips, deprecation warnings from its dependencies); the quickstart sends all of it to
 ``<out>/lightning.log`` so the console shows the stages and the table. Columns are :data:`METRICS`, one per metric and
-dataset, so a new metric is one line there. The files under ``<out>/table`` hold Table 4's single layout (every
-column, ours and the paper's); the console splits it into one table per dataset with short row names, because ten
-columns squeezed into an 80-column terminal cut every header and wrap every model name over four lines.
+dataset, so a new metric is one line there; a "needs perception" metric scores the held-out scenes with pedestrians
+ahead only (:data:`PERCEPTION_TAGS`), where the ego status cannot tell the driver to stop. ``<out>/table`` holds
+Table 4's single layout; the console has one table per dataset with short row names, to fit 80 columns.
 """
 
 import importlib
@@ -82,9 +82,8 @@ EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
 LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
 #: dataset -> the family folder its runs sit in (``runs/<family>/<name>/seed<k>``, as in the recipes and Table 4).
 FAMILIES = {"navsim": "navsim", "wod_e2e": "wod"}
-#: dataset -> the tag of its scenes that need perception (pedestrians stand in the lane ahead, and only the cameras
-#: show them: :mod:`lead_s2r.synthetic.pedestrians_ahead`): NAVSIM's from the generator's ``pedestrians_ahead.yaml``
-#: scene filter (the adapter's ``tag_filters``), WOD-E2E's from its scenario-cluster file.
+#: dataset -> the tag of its scenes that need perception (:mod:`lead_s2r.synthetic.pedestrians_ahead`): NAVSIM's
+#: from the generator's scene filter ``pedestrians_ahead.yaml`` (``tag_filters``), WOD-E2E's from its cluster file.
 PERCEPTION_TAGS = {"navsim": "scene_filter:pedestrians_ahead", "wod_e2e": "cluster:Pedestrian"}
 #: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
 HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
@@ -135,9 +134,8 @@ TRAINED = "trained"
 
 @dataclass(frozen=True)
 class Metric:
-    """One metric of the table: the aggregate ``aggregate`` of scorer ``scorer`` times ``scale``, on ``datasets``
-    (None: every evaluated dataset); one column per dataset. ``needs_perception``: scored on the held-out samples
-    with the dataset's :data:`PERCEPTION_TAGS` tag only."""
+    """One metric of the table: the aggregate ``aggregate`` of scorer ``scorer`` times ``scale``, on ``datasets`` (None:
+    all), one column per dataset; ``needs_perception``: on the samples with the :data:`PERCEPTION_TAGS` tag only."""
 
     column: str
     scorer: str
@@ -149,8 +147,7 @@ class Metric:
     def applies(self, dataset: str) -> bool:
         return self.datasets is None or dataset in self.datasets
 
-    def tag(self, dataset: str) -> str | None:
-        """The tag of the samples this metric scores on ``dataset`` (None: all of them)."""
+    def tag(self, dataset: str) -> str | None:  # of the samples scored on ``dataset`` (None: all of them)
         return PERCEPTION_TAGS[dataset] if self.needs_perception else None
 
 
@@ -162,8 +159,6 @@ METRICS = (
     Metric("RFS, needs perception", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",), needs_perception=True),
     Metric("ADE", "ade", "ade"),
 )
-
-
 #: the scorers that plan a PDM-Closed reference per sample (``reference_cache`` option)
 REFERENCE_SCORERS = ("pdms@navsim-1.1", "epdms@navsim-2.2")
 
@@ -279,10 +274,9 @@ def stage_folder(out: Path, training: Training, dataset: str, stage: str, seed: 
 
 
 def score(predictions: Path, data: Path, dataset: str, out: Path, references: ReferenceCache) -> dict[str, Any]:
-    """Every scoring the table needs on ``dataset`` (converted in ``data``): ``{scores_key: aggregates}`` (the
-    scorer's name, ``<scorer>#<tag>`` for a tagged subset); files under ``out/<scorer>[-<tag>]``. ``references``:
-    the PDM-Closed references planned on ``data``; a reference depends on the scene only, so PDMS and EPDMS, the
-    expert and every model plan each sample's once (the slowest scoring step)."""
+    """Every scoring the table needs on ``dataset`` (converted in ``data``): ``{scores_key: aggregates}``; files
+    under ``out/<scorer>[-<tag>]``. ``references``: the PDM-Closed references planned on ``data``; a reference depends
+    on the scene only, so the expert and every model plan each sample's once (the slowest scoring step)."""
     results = {}
     for scorer, tag in scorings(dataset):
         options = {"reference_cache": references} if scorer in REFERENCE_SCORERS else {}
@@ -425,16 +419,10 @@ def table_spec() -> TableSpec:
     """Table 4's layout over the quickstart's rows: a column per metric and dataset, the paper's numbers from
     ``recipes/paper/table4.yaml`` beside the trained models and the Expert where it has them."""
     columns = tuple(
-        Column(
-            f"{LABELS[dataset]} {metric.column}",
-            metric.scorer,
-            f"{dataset}.{metric.aggregate}",
-            metric.scale,
-            metric.tag(dataset),
-        )
-        for metric in METRICS
-        for dataset in EVAL_SPLITS
-        if metric.applies(dataset)
+        Column(f"{LABELS[d]} {m.column}", m.scorer, f"{d}.{m.aggregate}", m.scale, m.tag(d))
+        for m in METRICS
+        for d in EVAL_SPLITS
+        if m.applies(d)
     )
     paper = load_spec("table4")
     rows = tuple(Row(name, name, paper_numbers(paper, name, columns)) for name in table_rows())
@@ -483,13 +471,9 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
         label = LABELS[dataset]
         columns = [i for i, column in enumerate(spec.columns) if column.key.startswith(f"{dataset}.")]
         papers = {i for i in columns if any(row.paper[i] is not None for row in spec.rows)}
-        grid = Table(
-            title=f"{label}: held-out {split} logs",
-            title_justify="left",
-            box=box.SIMPLE_HEAD,
-            padding=0,  # the box's space between columns only: NAVSIM's six number columns fit 80 columns
-            show_edge=False,
-        )
+        # no padding, no edges: the box's one space between columns, so NAVSIM's six number columns fit 80 columns
+        title = f"{label}: held-out {split} logs"
+        grid = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, padding=0, show_edge=False)
         grid.add_column("model")
         for i in columns:
             header = spec.columns[i].name.removeprefix(f"{label} ").replace(" perception", "\nperception")
