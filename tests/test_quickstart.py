@@ -152,7 +152,8 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI reads it beside its args
     monkeypatch.setattr(qs, "STEPS", dict.fromkeys(qs.STEPS, (1, 2)))
     monkeypatch.setattr(qs, "SEEDS", (0, 1))
-    small = {"navsim": ({"trainval": 2, "test": 1}, {"maps": "maps"}), "wod_e2e": ({"train": 2, "val": 2}, {})}
+    # the held-out NAVSIM log 3 and WOD-E2E segment 1 have pedestrians ahead: the "needs perception" columns
+    small = {"navsim": ({"trainval": 3, "test": 1}, qs.PLAN["navsim"][1]), "wod_e2e": ({"train": 2, "val": 2}, {})}
     monkeypatch.setattr(qs, "PLAN", {**qs.PLAN, **small, "carla_lead": (None, {})})
     console = Console(file=io.StringIO(), width=80)
     results = qs.quickstart(tmp_path, workers=1, console=console)
