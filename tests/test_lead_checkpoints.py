@@ -69,10 +69,44 @@ def test_derived_values_in_a_file_are_recomputed() -> None:
     assert config.to_json()["target_dataset"] == values["target_dataset"]
 
 
-def test_wod_configuration_is_refused_with_the_reason() -> None:
+def test_wod_configuration_builds_with_leads_rules_and_our_camera_tile() -> None:
+    """LEAD's own code cannot build its WOD-E2E LTFv6; ours follows every rule LEAD's config code states for it, except
+    the past-state slots its forward never fills (off) and the camera tile LEAD's missing function would give."""
     spec = json.loads((DATA / "config_ltfv6_wod_e2e.json").read_text())
-    with pytest.raises(UserError, match="use_waymo_e2e_data"):
-        lead.model_from_config(spec["overrides"])
+    config = LeadConfig.from_json(spec["overrides"])
+    known = spec["fields_known_from_config_code"]
+    ours = config.to_json()
+    for key in ("min_x_meter", "max_x_meter", "min_y_meter", "max_y_meter", "lidar_width_pixel", "max_speed"):
+        assert ours[key] == known[key], key
+    for key in ("use_acceleration", "use_discrete_command", "predict_target_speed", "predict_spatial_path"):
+        assert ours[key] is known[key], key
+    assert ours["target_dataset"] == 5 and ours["lidar_height_pixel"] == 256 and not config.radar_detection
+    assert not (config.use_tp or config.use_previous_tp or config.use_next_tp)
+    assert (config.num_way_points_prediction, config.waypoint_interval_s) == (known["num_way_points_prediction"], 0.5)
+    assert (config.final_image_height, config.final_image_width) == (360, 972)
+    assert not (config.use_past_positions or config.use_past_speeds)
+    model = lead.model_from_config(spec["overrides"])
+    assert not hasattr(model.planning_decoder, "heading_decoder")
+    assert model.planning_decoder.planning_context_encoder.status_pos_embedding.shape[1] == 1  # the speed token only
+    outputs = lead.forward(model, {"rgb": torch.zeros(2, 3, 360, 972), "speed": torch.tensor([3.0, 30.0])})
+    assert list(outputs) == ["pred_future_waypoints"] and outputs["pred_future_waypoints"].shape == (2, 10, 2)
+    with pytest.raises(UserError, match="use_past_positions"):
+        LeadConfig.from_json({**spec["overrides"], "use_past_positions": True})
+
+
+def test_planner_overrides_shape_the_planner() -> None:
+    """Our extensions of LEAD's config: one target point, another waypoint count; LEAD's files read as before."""
+    one = lead.model_from_config({**CASES["tfv6_radar"], "use_previous_tp": False, "use_next_tp": False})
+    three = lead.model_from_config(CASES["tfv6_radar"])
+    slots = {m: m.planning_decoder.planning_context_encoder.status_pos_embedding.shape[1] for m in (one, three)}
+    assert slots[three] - slots[one] == 2
+    assert one.config.target_point_slots == ("target_point",)
+    twelve = lead.model_from_config({**CASES["tfv6_radar"], "num_way_points_prediction": 12})
+    assert twelve.planning_decoder.query.shape[1] == three.planning_decoder.query.shape[1] + 4
+    with pytest.raises(UserError, match="use_previous_tp"):
+        LeadConfig.from_json({"use_navsim_data": True, "use_previous_tp": True})
+    with pytest.raises(UserError, match="waypoint_interval_s"):
+        LeadConfig.from_json({"waypoint_interval_s": 0})
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,8 @@ import yaml
 
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
+from lead_s2r.data.collate import collate
+from lead_s2r.data.lead_centernet import lead_centernet_targets
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.models import lead
 from lead_s2r.models.input_spec import input_spec
@@ -64,7 +66,7 @@ def test_a_left_point_arrives_where_lead_puts_left() -> None:
     right = to_lead_inputs({**batch, "command": torch.tensor([int(Command.RIGHT)])}, navsim)
     assert right["command"].tolist() == [[0, 0, 1, 0]]  # NAVSIM order: left, straight, right, unknown
     back = from_lead_outputs(
-        {"pred_future_waypoints": torch.tensor([[[2.0, 1.5]]]), "pred_headings": torch.tensor([[0.25]])}
+        {"pred_future_waypoints": torch.tensor([[[2.0, 1.5]]]), "pred_headings": torch.tensor([[0.25]])}, "navsim"
     )
     assert back["waypoints"].tolist() == [[[2.0, -1.5]]] and back["headings"].tolist() == [[-0.25]]
 
@@ -177,31 +179,36 @@ def test_radar_rows_are_sensor_major_as_lead_lays_them_out() -> None:
 
 
 def test_converted_carla_samples_train_every_carla_head_of_a_lead_tfv6(carla_samples) -> None:
-    """Converted CARLA samples reach LEAD's TFv6 (LiDAR + radar): planning with target speed, and radar detection
-    against our radar targets, each loss reaching its head."""
+    """Converted CARLA samples reach LEAD's TFv6 (LiDAR + radar): planning with target speed, radar detection against
+    our radar targets, LEAD's 13-class BEV semantics and 8-class boxes, each loss finite, non-zero and reaching its
+    head."""
     from lead_reference import TINY_CARLA
 
-    from lead_s2r.data.collate import collate
     from lead_s2r.data.transforms import SourceTransform
 
-    driver = LeadDriver(LeadConfig.from_json(TINY_CARLA))
+    driver = LeadDriver(LeadConfig.from_json({**TINY_CARLA, "use_bev_semantic": True}))
     transform = SourceTransform("carla", input_spec(driver.config), cameras=["carla_mosaic"])
     batch = collate([transform(sample) for sample in carla_samples])
     assert batch["rgb"].shape[-2:] == (384, 1152) and batch["lidar_bev"].shape[-2:] == (192, 160)
-    assert driver.tasks("carla") == {"waypoints", "route", "target_speed", "radar"} and driver.grid("carla").dt == 0.25
+    tasks = {"waypoints", "route", "target_speed", "radar", "bev_semantic", "lead_boxes"}
+    assert driver.tasks("carla") == tasks and driver.grid("carla").dt == 0.25
     assert batch["radar_targets_valid"].any() and batch["target_speed_valid"].all()
+    assert batch["bev_semantic"].shape == (3, 192, 160) and int(batch["bev_semantic"].max()) < 13
+    assert batch["lead_box_heatmap"].shape == (3, 8, 48, 40) and batch["lead_box_weight"].any()
     module = DrivingModule(driver, supervise={"carla": ["planning", "perception"]})
     total, terms = module.compute_losses({"carla": batch})
-    assert set(terms) == {"carla/waypoints", "carla/route", "carla/target_speed", "carla/radar"}
-    assert all(torch.isfinite(value) for value, _ in terms.values())
+    assert set(terms) == {f"carla/{task}" for task in tasks}
+    assert all(torch.isfinite(value) and value > 0 for value, _ in terms.values())
     total.backward()
     network = driver.network
-    for head in (network.planning_decoder.target_speed_decoder, network.radar_detector.state_decoder):
+    heads = (network.bev_semantic_decoder, network.center_net_decoder.heatmap_head, network.center_net_decoder.wh_head)
+    for head in (network.planning_decoder.target_speed_decoder, network.radar_detector.state_decoder, *heads):
         assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
     with torch.inference_mode():
         out = driver.eval()(batch, "carla")
         lead_out = network(to_lead_inputs(batch, driver.config))
     assert out["waypoints"].shape == (3, 8, 2) and out["route"].shape == (3, 10, 2)
+    assert out["bev_semantic"].shape == (3, 13, 192, 160) and out["box_heatmap"].shape == (3, 8, 48, 40)
     radar = lead_out["pred_radar_predictions"]
     assert torch.equal(out["radar_xy"][..., 1], -radar[..., 1]) and torch.equal(out["radar_logit"], radar[..., 3])
 
@@ -227,11 +234,16 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
     """LEAD's mixed training (NAVSIM target + CARLA heads): each source's losses reach the heads LEAD has for it."""
     spec = {**json.loads((TINY / "config.json").read_text()), "use_carla_data": True}
     driver = LeadDriver(LeadConfig.from_json(spec))
-    assert driver.tasks("navsim") == {"waypoints", "headings", "bev_semantic", "boxes"}
-    assert driver.tasks("carla") == {"semantic"} and driver.tasks("wod") == set()
-    assert set(input_spec(driver.config).trajectory_grids) == {"navsim", "carla"}
+    assert driver.tasks("navsim") == {"waypoints", "headings", "bev_semantic", "lead_boxes"}
+    # LEAD trains a mixed source's planner outputs on its target's grid; the sim-to-real supervision leaves them out
+    carla = {"waypoints", "headings", "semantic", "bev_semantic", "lead_boxes"}
+    assert driver.tasks("carla") == carla and driver.tasks("wod") == set()
+    assert input_spec(driver.config).trajectory_grids == {"navsim": (8, 0.5), "carla": (8, 0.5)}
     module = DrivingModule(driver, supervise={"navsim": ["planning", "perception"], "carla": ["perception"]})
     g = torch.Generator().manual_seed(0)
+    grid = input_spec(driver.config).bev
+    boxes = [np.array([[5.0, -3.0, 0, 4.5, 2.0, 1.5, 0.3, 0, 0, 0], [-20.0, 10.0, 0, 5.0, 2.2, 1.5, -2.0, 0, 0, 0]])]
+    boxes.append(np.zeros((0, 10)))
 
     def status(n: int) -> dict[str, torch.Tensor]:
         return {
@@ -247,13 +259,7 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
             "waypoints": torch.randn(2, 8, 2, generator=g),
             "headings": torch.randn(2, 8, generator=g) * 0.1,
             "bev_semantic": torch.randint(0, 7, (2, 128, 128), dtype=torch.uint8, generator=g),
-            "box_heatmap": torch.rand(2, 1, 32, 32, generator=g).pow(8),
-            "box_index": torch.tensor([[40, 700], [5, 0]]),
-            "box_valid": torch.tensor([[True, True], [True, False]]),
-            "box_offset": torch.rand(2, 2, 2, generator=g),
-            "box_size": torch.rand(2, 2, 2, generator=g) * 4,
-            "box_yaw": torch.randn(2, 2, generator=g),
-            "box_velocity": torch.rand(2, 2, generator=g) * 5,
+            **collate([lead_centernet_targets(b, np.zeros(len(b)), grid, 1, 12, velocity=False) for b in boxes]),
         },
         "carla": {**status(1), "semantic": torch.randint(0, 10, (1, 270, 480), dtype=torch.uint8, generator=g)},
     }
@@ -262,7 +268,7 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
         "navsim/waypoints",
         "navsim/headings",
         "navsim/bev_semantic",
-        "navsim/boxes",
+        "navsim/lead_boxes",
         "carla/semantic",
     }
     total.backward()
@@ -270,4 +276,4 @@ def test_mixed_lead_network_trains_navsim_planning_and_carla_perception() -> Non
     heads = (network.bev_semantic_decoder_navsim, network.center_net_decoder_navsim, network.semantic_decoder)
     for head in (*heads, network.planning_decoder):
         assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
-    assert all(p.grad is None for p in network.center_net_decoder.parameters())  # boxes: not trained here
+    assert all(p.grad is None for p in network.center_net_decoder.parameters())  # no CARLA box labels in this batch

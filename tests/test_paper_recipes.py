@@ -12,12 +12,15 @@ from tiny_models import TINY
 
 from lead_s2r.cli import main
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.models.config import BEVGrid, EgoMLPConfig, TFv6Config
+from lead_s2r.models.config import BEVGrid, EgoMLPConfig, TFv6Config, default_grids
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.report.tables import SEED_FOLDER, load_spec
 from lead_s2r.training.module import DrivingModule
 
 RECIPES = Path(__file__).parents[1] / "recipes"
+GRIDS = default_grids()  # what each family's scorer reads: CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz
 FULL_SCALE = sorted(p for folder in ("carla", "navsim", "wod") for p in (RECIPES / folder).glob("*.yaml"))
 
 
@@ -147,6 +150,16 @@ def tfv6_config_of(recipe: dict) -> TFv6Config:
 def test_recipe_models_build(recipe, one_thread):
     """A switch combination the model refuses (TFv5 with target-point tokens...) fails here, not on a GPU node."""
     config = yaml.safe_load(recipe.read_text())
+    if config["model"]["model"]["class_path"].endswith("LeadDriver"):
+        fields = config["model"]["model"]["init_args"]["config"]
+        tiny = yaml.safe_load((RECIPES / "smoke" / "twin_lead.yaml").read_text())["model"]["model"]["init_args"]
+        driver = LeadDriver(LeadConfig.from_json(fields | tiny["config"]))
+        planner = driver.network.planning_decoder if fields.get("use_planning_decoder") else None
+        source = recipe.parent.name  # the family's scored source, whatever data a pre-training reads
+        assert driver.grid(source) == GRIDS[source]
+        if planner is not None:
+            assert planner.num_waypoints == GRIDS[source].num_points
+        return
     if not config["model"]["model"]["class_path"].endswith("TFv6"):
         return
     full = tfv6_config_of(config)

@@ -189,14 +189,18 @@ _FLOAT32_EXP_ZERO = 104.0
 
 def _draw_gaussian(heatmap: np.ndarray, row: int, col: int, denominator: float) -> None:
     """``heatmap = max(heatmap, exp(-d^2 / denominator))`` (d: cell distance from (row, col)), in float64 rounded to
-    float32, over the window outside which every value is 0 in float32 (:func:`gaussian_window`), cut at the
-    heatmap's edges."""
-    radius, window = gaussian_window(denominator)
+    float32, over the window outside which every value is 0 in float32 (:func:`gaussian_window`)."""
+    paste_max(heatmap, row, col, gaussian_window(denominator)[1])
+
+
+def paste_max(heatmap: np.ndarray, row: int, col: int, window: np.ndarray) -> None:
+    """``heatmap = max(heatmap, window)`` with the (2r+1)^2 ``window`` centred on (row, col), cut at the heatmap's
+    edges."""
+    radius = window.shape[0] // 2
     r0, r1 = max(row - radius, 0), min(row + radius + 1, heatmap.shape[0])
     c0, c1 = max(col - radius, 0), min(col + radius + 1, heatmap.shape[1])
     target = heatmap[r0:r1, c0:c1]
-    cut = window[r0 - row + radius : r1 - row + radius, c0 - col + radius : c1 - col + radius]
-    np.maximum(target, cut, out=target)
+    np.maximum(target, window[r0 - row + radius : r1 - row + radius, c0 - col + radius : c1 - col + radius], out=target)
 
 
 @lru_cache(maxsize=256)

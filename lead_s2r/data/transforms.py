@@ -28,6 +28,8 @@ from lead_s2r.data.camera_input import CameraInput
 from lead_s2r.data.camera_layout import CameraLayout, label_on_layout
 from lead_s2r.data.collate import IGNORE_VALUE
 from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
+from lead_s2r.data.lead_centernet import lead_centernet_targets
+from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.targets import (
     MAX_RADAR_POINTS,
@@ -38,9 +40,10 @@ from lead_s2r.data.targets import (
     radar_targets,
     route_checkpoints,
 )
+from lead_s2r.errors import UserError
 from lead_s2r.geometry import resample
 from lead_s2r.models.input_spec import InputSpec
-from lead_s2r.schema import command4
+from lead_s2r.schema import BoxClass, command4
 
 
 @dataclass
@@ -78,7 +81,7 @@ class SourceTransform:
             "route": True,
             "lidar": spec.lidar_raster,
             "radar": spec.radar,
-            "boxes": radar_targets or space in spec.box_classes,
+            "boxes": radar_targets or space in spec.box_classes or space in spec.lead_box_classes or self.lead_carla,
             "bev_semantic": space in spec.bev_semantic_classes,
         }
         fields = [name for name, read in wanted.items() if read]
@@ -126,12 +129,43 @@ class SourceTransform:
             out["target_speed_valid"] = torch.scalar_tensor(True, dtype=torch.bool)
         space = spec.space(self.source)
         if "bev_semantic" in sample and space in spec.bev_semantic_classes:
-            out["bev_semantic"] = torch.from_numpy(bev_labels(sample["bev_semantic"], meta["bev"], spec.bev))
+            out["bev_semantic"] = torch.from_numpy(self.bev_semantic(sample))
         if "boxes" in sample and space in spec.box_classes:
             out.update(centernet_targets(sample["boxes"], spec.bev, spec.box_classes[space]))
+        if "boxes" in sample and space in spec.lead_box_classes:
+            out.update(self.lead_boxes(sample["boxes"], spec.lead_box_classes[space]))
         if len(self.cameras) == 1:
             out.update(self.perspective_labels(sample, space, layout))
         return out
+
+    @property
+    def lead_carla(self) -> bool:
+        """Whether this source's labels go into LEAD's CARLA class tables (:mod:`lead_s2r.data.lead_labels`)."""
+        return self.spec.lead_carla_labels is not None and self.spec.space(self.source) == "carla"
+
+    def bev_semantic(self, sample: dict[str, Any]) -> np.ndarray:
+        """The stored BEV classes on the BEV grid; for LEAD's CARLA head its 13 classes with the boxes drawn over."""
+        bev = sample["meta"]["bev"]
+        labels = bev_labels(sample["bev_semantic"], bev, self.spec.bev)
+        if not self.lead_carla:
+            return labels
+        if bev.get("classes") != "carla_hdmap":
+            raise UserError(
+                f"sample {sample['__key__']!r}, field 'meta.bev.classes': LEAD's CARLA BEV head is built from the "
+                f"'carla_hdmap' classes, not {bev.get('classes')!r}; convert the data with the carla_lead adapter"
+            )
+        boxes = sample.get("boxes", np.zeros((0, 10), np.float32))
+        return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard")
+
+    def lead_boxes(self, boxes: np.ndarray, num_classes: int) -> dict[str, torch.Tensor]:
+        """LEAD's CenterNet targets: vehicles only for a one-class head (NAVSIM's), else LEAD's CARLA classes."""
+        classes = boxes[:, 9].astype(np.int64)
+        if num_classes == 1:
+            classes = np.where(classes == BoxClass.VEHICLE, 0, -1)
+        else:
+            classes = lead_box_classes(classes, self.spec.lead_carla_labels == "leaderboard")
+        bins = self.spec.lead_yaw_bins
+        return lead_centernet_targets(boxes, classes, self.spec.bev, num_classes, bins, velocity=self.lead_carla)
 
     def target_points(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
         points = sample.get("target_points")

@@ -14,7 +14,6 @@ from lead_s2r.models.config import (
     EgoMLPConfig,
     TFv6Config,
     TrajectoryGrid,
-    default_grids,
 )
 from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, NAVSIM_BOX_CLASSES, LeadConfig
 
@@ -35,6 +34,11 @@ class InputSpec:
         bev_semantic_classes, box_classes, semantic_classes: per label space, the classes of each perception head.
         depth_sources: label spaces with a depth head; ``max_depth`` decodes stored depth PNGs without a scale.
         num_route_points: route checkpoints per sample.
+        lead_box_classes: per label space, the classes of a box head trained with LEAD's CenterNet encoding
+            (``lead_s2r.data.lead_centernet``): 1 (NAVSIM's vehicles) or LEAD's 8 CARLA classes; ``lead_yaw_bins``
+            yaw bins (LEAD's ``num_dir_bins``).
+        lead_carla_labels: CARLA labels in LEAD's class tables (``lead_s2r.data.lead_labels``): None (ours),
+            "leaderboard" or "sim2real" (LEAD's two modes).
     """
 
     trajectory_grids: dict[str, TrajectoryGrid]
@@ -52,6 +56,13 @@ class InputSpec:
     depth_sources: tuple[str, ...] = ()
     max_depth: float = 50.0
     num_route_points: int = 10
+    lead_box_classes: dict[str, int] = field(default_factory=dict)
+    lead_yaw_bins: int = 12
+    lead_carla_labels: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.lead_carla_labels not in (None, "leaderboard", "sim2real"):
+            raise ValueError(f"lead_carla_labels: {self.lead_carla_labels!r}; use None, 'leaderboard' or 'sim2real'")
 
     def space(self, source: str) -> str:
         """The label space a source's perception labels live in."""
@@ -84,14 +95,23 @@ def input_spec(config: TFv6Config | EgoMLPConfig | LeadConfig) -> InputSpec:
     )
 
 
+def lead_grids(config: LeadConfig) -> dict[str, TrajectoryGrid]:
+    """The planner's one output grid for every source the network reads: LEAD trains a mixed source's waypoints on its
+    target's grid (CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz, or the config's override)."""
+    grid = TrajectoryGrid(config.num_way_points_prediction, config.waypoint_interval_s)
+    return {source: grid for source in config.sources}
+
+
 def lead_input_spec(config: LeadConfig) -> InputSpec:
     """What LEAD's network (``lead_s2r.models.lead_driver.LeadDriver``) reads: LEAD's image size (NAVSIM: at NAVSIM's
     vertical field of view), its BEV extent for the LiDAR raster, radar and target points when it reads them, and the
-    labels of the heads whose classes are ours too (:meth:`LeadConfig.perception_tasks`)."""
-    grids, navsim, carla = default_grids(), config.perception_tasks("navsim"), config.perception_tasks("carla")
+    labels of its heads (:meth:`LeadConfig.perception_tasks`): boxes in LEAD's CenterNet encoding, CARLA BEV semantics
+    and boxes in LEAD's class tables, in LEAD's leaderboard or sim-to-real mode as the network's config says."""
+    tasks = {source: config.perception_tasks(source) for source in ("navsim", "carla")}
+    carla = tasks["carla"]
     cameras = len(config.used_cameras) if config.mosaic_tiles else config.num_used_cameras  # LeadDriver crops
     return InputSpec(
-        trajectory_grids={source: grids[source] for source in config.sources},
+        trajectory_grids=lead_grids(config),
         image_size=(config.final_image_height, config.final_image_width // config.num_used_cameras * cameras),
         vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG if config.use_navsim_data else None,
         equal_tiles=config.mosaic_tiles is not None,
@@ -105,9 +125,18 @@ def lead_input_spec(config: LeadConfig) -> InputSpec:
         lidar_raster=not config.LTF,
         radar=config.has_radar_detector,
         radar_sources=("carla",) if "radar" in carla else (),
-        bev_semantic_classes={"navsim": NAVSIM_BEV_SEMANTIC_CLASSES} if "bev_semantic" in navsim else {},
-        box_classes={"navsim": NAVSIM_BOX_CLASSES} if "boxes" in navsim else {},
+        bev_semantic_classes=_classes(
+            {"navsim": NAVSIM_BEV_SEMANTIC_CLASSES, "carla": config.num_bev_semantic_classes}, "bev_semantic", tasks
+        ),
         semantic_classes={"carla": config.num_semantic_classes} if "semantic" in carla else {},
         depth_sources=("carla",) if "depth" in carla else (),
         num_route_points=config.num_route_points_prediction,
+        lead_box_classes=_classes({"navsim": NAVSIM_BOX_CLASSES, "carla": config.num_bb_classes}, "lead_boxes", tasks),
+        lead_yaw_bins=config.num_dir_bins,
+        lead_carla_labels="leaderboard" if config.carla_leaderboard_mode else "sim2real",
     )
+
+
+def _classes(counts: dict[str, int], task: str, tasks: dict[str, set[str]]) -> dict[str, int]:
+    """``counts`` of the sources whose tasks include ``task``."""
+    return {source: n for source, n in counts.items() if task in tasks[source]}

@@ -66,6 +66,14 @@ class Batch(TypedDict, total=False):
     box_size: Tensor  # (B, M, 2) length, width, metres
     box_yaw: Tensor  # (B, M) radians
     box_velocity: Tensor  # (B, M) m/s
+    lead_box_heatmap: Tensor  # (B, C, h, w) LEAD's CenterNet encoding (lead_s2r.data.lead_centernet), -1 = no label
+    lead_box_size: Tensor  # (B, 2, h, w) half length, half width in cells, at the weighted cells
+    lead_box_offset: Tensor  # (B, 2, h, w) sub-cell centre offset along x, y
+    lead_box_yaw_class: Tensor  # (B, h, w) uint8 yaw bin
+    lead_box_yaw_residual: Tensor  # (B, h, w) radians from the bin centre
+    lead_box_velocity: Tensor  # (B, h, w) m/s
+    lead_box_weight: Tensor  # (B, h, w) bool: the cells holding a box centre
+    lead_box_count: Tensor  # (B,) heatmap peaks (at least 1), the per-sample normaliser
     depth: Tensor  # (B, Hd, Wd) float32 metres, 0 = no label; (Hd, Wd) = (H, W) or smaller (see below)
     semantic: Tensor  # (B, Hd, Wd) uint8 perspective class ids, IGNORE_CLASS = ignore (or signed, -1)
     radar_targets: Tensor  # (B, R, 3) x, y, speed of objects seen by radar
@@ -74,7 +82,7 @@ class Batch(TypedDict, total=False):
 
 #: Loss terms by group: the planner's outputs, and the perception heads' (``supervise:`` names these groups).
 PLANNING_TASKS = frozenset({"waypoints", "headings", "route", "target_speed"})
-PERCEPTION_TASKS = frozenset({"bev_semantic", "boxes", "depth", "semantic", "radar"})
+PERCEPTION_TASKS = frozenset({"bev_semantic", "boxes", "lead_boxes", "depth", "semantic", "radar"})
 
 
 def target_point_range(info: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, float]]:

@@ -66,13 +66,19 @@ def read_config(folder: Path) -> LeadConfig:
     return LeadConfig.from_json(values)
 
 
+def weight_files(folder: Path, pattern: str = "model*.pth") -> list[Path]:
+    """The weight files of a LEAD checkpoint folder, sorted (several = an ensemble's members)."""
+    files = sorted(folder.glob(pattern))
+    if not files:
+        raise UserError(f"{folder}: no file matches {pattern!r}; LEAD names its weights model_<epoch>.pth")
+    return files
+
+
 def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Module:
     """LEAD's checkpoint folder -> one network in eval mode, or a :class:`LeadEnsemble` when several files match."""
     folder = Path(folder)
     config = read_config(folder)
-    files = sorted(folder.glob(pattern))
-    if not files:
-        raise UserError(f"{folder}: no file matches {pattern!r}; LEAD names its weights model_<epoch>.pth")
+    files = weight_files(folder, pattern)
     members = []
     for file in files:
         model = LeadTFv6(config)

@@ -7,6 +7,12 @@ recomputes plain properties (BEV extent, image size, anchors, status-token switc
 derived numbers in a file are informational. :meth:`LeadConfig.from_json` does the same, which is why a config.json
 edited by hand must change the *switch* (``use_navsim_data``, ``used_cameras``, ``pixels_per_meter``), not the derived
 value. Keys this class does not model are ignored, as LEAD ignores keys it does not know.
+
+Our extensions, where LEAD's code has no switch (docs/models.md, "LEAD's own architecture"): the WOD-E2E target builds
+(LEAD's own cannot: its camera calibration imports a function missing from its public code, see
+:data:`CAMERA_TILE`), its past-state token slots stay off, and ``use_previous_tp`` / ``use_next_tp``,
+``num_way_points_prediction`` and ``waypoint_interval_s`` may be set in a file. LEAD's loader recomputes these from
+its rules, so a network that overrides them loads in LEAD only where the rules give the same values.
 """
 
 from dataclasses import asdict, dataclass, fields
@@ -25,11 +31,15 @@ class TargetDataset(IntEnum):
     WAYMO_E2E_2025_3CAMERAS = 5
 
 
-#: Camera tile of each target: (width, cropped height) in pixels (``BaseConfig.camera_calibration``).
+#: Camera tile of each target: (width, cropped height) in pixels (``BaseConfig.camera_calibration``). WOD-E2E's is
+#: ours: LEAD's constants give each front camera 972 x 1080 (cropped) and a down-sample factor of 3, but the function
+#: that would turn them into its calibration is missing from LEAD's code; 324 x 360 is those numbers divided by 3
+#: (WOD-E2E's 972 x 1079 front images, three side by side, fill the 972 x 360 input).
 CAMERA_TILE = {
     TargetDataset.CARLA_LEADERBOARD2_3CAMERAS: (384, 384),
     TargetDataset.CARLA_LEADERBOARD2_6CAMERAS: (384, 384),
     TargetDataset.NAVSIM_4CAMERAS: (480, 270),
+    TargetDataset.WAYMO_E2E_2025_3CAMERAS: (324, 360),
 }
 NUM_CAMERAS = {
     TargetDataset.CARLA_LEADERBOARD2_3CAMERAS: 3,
@@ -44,17 +54,25 @@ NAVSIM_BEV_SEMANTIC_CLASSES = 7
 NAVSIM_BOX_CLASSES = 1
 #: ``training_used_lidar_steps`` is a fixed property (> 1 adds the CenterNet velocity head).
 TRAINING_USED_LIDAR_STEPS = 10
-#: Overridable properties: None means "LEAD's rule decides"; a file value is cast to the rule's type.
-OVERRIDABLE = (
-    "used_cameras",
-    "use_depth",
-    "radar_detection",
-    "use_radar_detection",
-    "use_discrete_command",
-    "use_past_positions",
-    "use_past_speeds",
-    "num_past_samples_used",
-)
+#: Overridable properties and the type a file value is cast to; None in the dataclass means "LEAD's rule decides".
+#: The last four are our extension (see the module docstring): LEAD computes the first three as plain properties and
+#: has no fourth (its ``waypoints_spacing`` counts frames of each dataset's own rate).
+OVERRIDABLE = {
+    "used_cameras": list,
+    "use_depth": bool,
+    "radar_detection": bool,
+    "use_radar_detection": bool,
+    "use_discrete_command": bool,
+    "use_past_positions": bool,
+    "use_past_speeds": bool,
+    "num_past_samples_used": int,
+    "use_previous_tp": bool,
+    "use_next_tp": bool,
+    "num_way_points_prediction": int,
+    "waypoint_interval_s": float,
+}
+#: WOD-E2E's maximum speed for the speed token, m/s (LEAD's ``max_speed``).
+WOD_MAX_SPEED = 33.33
 
 
 @dataclass
@@ -124,22 +142,26 @@ class LeadConfig:
     use_past_positions: bool | None = None
     use_past_speeds: bool | None = None
     num_past_samples_used: int | None = None
+    use_previous_tp: bool | None = None
+    use_next_tp: bool | None = None
+    num_way_points_prediction: int | None = None
+    waypoint_interval_s: float | None = None  # ours: seconds between waypoints (LEAD: waypoints_spacing, in frames)
 
     def __post_init__(self) -> None:
         target = self.target_dataset
-        if target == TargetDataset.WAYMO_E2E_2025_3CAMERAS:
-            raise UserError(
-                "config.json: use_waymo_e2e_data=true cannot be built: LEAD's WOD-E2E camera calibration imports a "
-                "function missing from its public code and its planner has past-state token slots forward never fills"
-            )
+        wod = self.is_wod
         defaults = {
             "used_cameras": [True] * NUM_CAMERAS[target],
             "use_depth": self.carla_leaderboard_mode,
             "radar_detection": self.carla_leaderboard_mode,
             "use_radar_detection": self.carla_leaderboard_mode,
-            "use_discrete_command": True,
-            "use_past_positions": False,
+            "use_discrete_command": not wod,
+            "use_past_positions": False,  # LEAD: on for WOD-E2E, slots its forward never fills; ours: off
             "use_past_speeds": False,
+            "use_previous_tp": self.use_tp,
+            "use_next_tp": self.use_tp,
+            "num_way_points_prediction": 10 if wod else 8,  # CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz
+            "waypoint_interval_s": 0.25 if self.carla_leaderboard_mode else 0.5,
         }
         for name, default in defaults.items():
             if getattr(self, name) is None:
@@ -150,6 +172,16 @@ class LeadConfig:
             raise UserError(
                 "config.json: use_past_positions / use_past_speeds add planner token slots that LEAD's forward never "
                 "fills (it fails with a shape error); set both to false"
+            )
+        if (self.use_previous_tp or self.use_next_tp) and not self.use_tp:
+            raise UserError(
+                "config.json: use_previous_tp / use_next_tp need the current target point's encoder, which only "
+                "CARLA leaderboard mode builds (use_tp); set them to false"
+            )
+        if self.num_way_points_prediction < 1 or self.waypoint_interval_s <= 0:
+            raise UserError(
+                f"config.json: num_way_points_prediction={self.num_way_points_prediction} and waypoint_interval_s="
+                f"{self.waypoint_interval_s} must be positive"
             )
         if len(self.used_cameras) != NUM_CAMERAS[target] or not any(self.used_cameras):
             raise UserError(
@@ -164,8 +196,8 @@ class LeadConfig:
             if f.name not in values:
                 continue
             value = values[f.name]
-            if f.name in OVERRIDABLE:
-                value = list(value) if f.name == "used_cameras" else (int if f.name.startswith("num") else bool)(value)
+            if f.name in OVERRIDABLE and value is not None:
+                value = OVERRIDABLE[f.name](value)
             kwargs[f.name] = value
         return cls(**kwargs)
 
@@ -194,12 +226,9 @@ class LeadConfig:
             max_speed=self.max_speed,
             max_acceleration=self.max_acceleration,
             use_tp=self.use_tp,
-            use_previous_tp=self.use_tp,
-            use_next_tp=self.use_tp,
             target_points_normalization_constants=[list(self.target_points_normalization_constants)],
             predict_target_speed=self.predict_target_speed,
             predict_spatial_path=self.predict_spatial_path,
-            num_way_points_prediction=self.num_way_points_prediction,
             target_speed_classes=list(TARGET_SPEED_CLASSES),
             target_speeds=list(TARGET_SPEED_CLASSES),
             navsim_num_bev_semantic_classes=NAVSIM_BEV_SEMANTIC_CLASSES,
@@ -241,12 +270,16 @@ class LeadConfig:
         return sum(int(bool(u)) for u in self.used_cameras or ())
 
     @property
+    def is_wod(self) -> bool:
+        return self.target_dataset == TargetDataset.WAYMO_E2E_2025_3CAMERAS
+
+    @property
     def min_x_meter(self) -> int:
-        return -32
+        return 0 if self.is_wod else -32
 
     @property
     def max_x_meter(self) -> int:
-        return 64 if self.carla_leaderboard_mode else 32
+        return 64 if self.carla_leaderboard_mode or self.is_wod else 32
 
     @property
     def min_y_meter(self) -> int:
@@ -304,20 +337,32 @@ class LeadConfig:
 
     @property
     def use_acceleration(self) -> bool:
-        return not self.carla_leaderboard_mode
+        return not self.carla_leaderboard_mode and not self.is_wod
 
     @property
     def max_speed(self) -> float:
-        return 25.0 if self.carla_leaderboard_mode else 15.0
+        if self.carla_leaderboard_mode:
+            return 25.0
+        return WOD_MAX_SPEED if self.is_wod else 15.0
 
     @property
-    def max_acceleration(self) -> float:
-        return 10.0 if self.carla_leaderboard_mode else 4.0
+    def max_acceleration(self) -> float | None:
+        """None for WOD-E2E, as LEAD's property (no acceleration token there)."""
+        if self.carla_leaderboard_mode:
+            return 10.0
+        return None if self.is_wod else 4.0
 
     @property
     def use_tp(self) -> bool:
-        """Current, previous and next target point tokens all follow CARLA leaderboard mode."""
+        """The current target point token follows CARLA leaderboard mode (previous and next default to it)."""
         return self.carla_leaderboard_mode
+
+    @property
+    def target_point_slots(self) -> tuple[str, ...]:
+        """LEAD's input keys of the target points the planner reads, in its token order."""
+        used = (self.use_tp, self.use_previous_tp, self.use_next_tp)
+        keys = ("target_point", "target_point_previous", "target_point_next")
+        return tuple(key for key, use in zip(keys, used, strict=True) if use)
 
     @property
     def target_points_normalization_constants(self) -> tuple[float, float]:
@@ -332,29 +377,28 @@ class LeadConfig:
         return self.carla_leaderboard_mode
 
     @property
-    def num_way_points_prediction(self) -> int:
-        return 8
-
-    @property
     def planning_source(self) -> str:
-        """The one source (our name) the planner predicts for: 8 poses at 4 Hz for CARLA, 2 Hz for NAVSIM."""
-        return "carla" if self.carla_leaderboard_mode else "navsim"
+        """The source (our name) the network is built for: its target dataset."""
+        if self.carla_leaderboard_mode:
+            return "carla"
+        return "wod" if self.is_wod else "navsim"
 
     @property
     def sources(self) -> tuple[str, ...]:
-        """The sources whose batches the network reads: the one it plans for, and CARLA when it has CARLA heads."""
+        """The sources whose batches the network reads: its target, and CARLA when it has CARLA heads."""
         source = self.planning_source
         return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
 
     def perception_tasks(self, source: str) -> set[str]:
-        """Our perception tasks (names of ``lead_s2r.training.losses``) LEAD's heads produce for ``source`` in our
-        label spaces: NAVSIM BEV semantics (NAVSIM's 7 classes) and boxes (one class), CARLA perspective semantics,
-        depth and radar detection."""
+        """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``: BEV
+        semantics (NAVSIM's 7 classes, LEAD's 13 CARLA classes) and boxes in LEAD's CenterNet encoding (``lead_boxes``:
+        NAVSIM's one class, LEAD's 8 CARLA classes), CARLA perspective semantics, depth and radar detection."""
+        heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}
         tasks = set()
-        if source == "navsim" and self.use_navsim_data and self.use_bev_semantic:
+        if heads.get(source) and self.use_bev_semantic:
             tasks.add("bev_semantic")
-        if source == "navsim" and self.use_navsim_data and self.detect_boxes:
-            tasks.add("boxes")
+        if heads.get(source) and self.detect_boxes:
+            tasks.add("lead_boxes")
         if source == "carla" and self.use_carla_data and self.use_semantic:
             tasks.add("semantic")
         if source == "carla" and self.use_carla_data and self.use_depth:

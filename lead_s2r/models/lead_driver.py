@@ -5,11 +5,11 @@ fine-tuning with ``fit``, the CARLA closed-loop agent, and back out with ``lead-
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
 :mod:`lead_s2r.models.lead_frame` only. The loader follows
 :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
-raster, radar and target points when the network reads them, and the labels of the heads whose classes are ours too:
-the planner's outputs (waypoints, NAVSIM headings, CARLA route and target speed) for the source the network plans for,
-NAVSIM BEV semantics and boxes, and with CARLA data CARLA perspective semantics, depth and radar detection. LEAD's
-13-class CARLA BEV and 8-class CARLA boxes are not trained here: our CARLA labels use other class tables
-(docs/models.md).
+raster, radar and target points when the network reads them, and the labels of its heads: the planner's outputs
+(waypoints, NAVSIM headings, CARLA route and target speed) for every source it reads, on its target's grid, BEV
+semantics and boxes of each source it has heads for (CARLA labels remapped to LEAD's 13 BEV and 8 box classes by
+:mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by :mod:`lead_s2r.data.lead_centernet`), and with
+CARLA data CARLA perspective semantics, depth and radar detection.
 """
 
 from collections.abc import Collection
@@ -20,7 +20,8 @@ from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
 from lead_s2r.models.backbone import CameraSelect
-from lead_s2r.models.config import TrajectoryGrid, default_grids
+from lead_s2r.models.config import TrajectoryGrid
+from lead_s2r.models.input_spec import lead_grids
 from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
 from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
@@ -55,7 +56,6 @@ class LeadDriver(nn.Module):
             config = config if config is not None else LeadConfig(use_planning_decoder=True)
             self.network = LeadTFv6(config, pretrained=pretrained)
         self.config = config
-        self.source = config.planning_source
         tiles = config.mosaic_tiles
         self.camera_select = CameraSelect(len(config.used_cameras), tiles, 1.0)  # also crops perspective labels
         speeds = torch.tensor(TARGET_SPEED_CLASSES)
@@ -67,18 +67,24 @@ class LeadDriver(nn.Module):
         return bool(self.config.use_planning_decoder and self.config.use_tp)
 
     @property
+    def box_velocity_loss(self) -> bool:
+        """Whether the box loss trains the speed channel (with CARLA labels; LEAD never trains NAVSIM's): LEAD zeroes
+        it for LTF, which has no LiDAR motion cues."""
+        return not self.config.LTF
+
+    @property
     def radar_scale(self) -> tuple[float, float, float]:
         """What the radar detection loss divides (x, y, speed) by: LEAD's BEV half extents and its maximum speed."""
         c = self.config
         return (c.max_x_meter - c.min_x_meter) / 2, (c.max_y_meter - c.min_y_meter) / 2, c.max_speed
 
     def grid(self, source: str) -> TrajectoryGrid:
-        return default_grids()[source]
+        return lead_grids(self.config)[source]
 
     def tasks(self, source: str) -> frozenset[str]:
         c = self.config
         tasks = c.perception_tasks(source)
-        if source == self.source and c.use_planning_decoder:  # a pretraining network (no planner) plans nothing
+        if source in c.sources and c.use_planning_decoder:  # a pretraining network (no planner) plans nothing
             tasks.add("waypoints")
             if c.use_navsim_data and not c.use_tfv5_planning_decoder:
                 tasks.add("headings")
@@ -98,4 +104,4 @@ class LeadDriver(nn.Module):
                 "one with model.pattern, e.g. model_0030_0.pth"
             )
         batch = {**batch, "rgb": self.camera_select(batch["rgb"])}
-        return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)))
+        return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)), source)

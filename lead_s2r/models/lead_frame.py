@@ -9,9 +9,12 @@
   reversed. Both grids are symmetric in y, so no cell moves off the grid (a point exactly on a cell edge lands in
   the cell beside LEAD's, as both rasters take half-open cells in their own y direction).
 - Commands: our 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} ids become LEAD's one-hot, NAVSIM order (left, straight,
-  right, unknown) or CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
-  unknown -> lane follow, as LEAD maps it).
+  right, unknown), CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
+  unknown -> lane follow, as LEAD maps it) or WOD-E2E's intent order (unknown, straight, left, right; read only
+  when ``use_discrete_command`` is set, LEAD's WOD-E2E default being off).
 - Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
+- CenterNet maps: LEAD's sub-cell lateral offset is measured from the cell's other edge and its yaw bins turn the
+  other way; :func:`boxes_from_lead` turns them into ours (``lead_s2r.data.lead_centernet`` encodes our labels).
 - Radar: LEAD's (B, 300, 5) is sensor-major, 75 rows per sensor, points outside its BEV dropped and missing rows
   zero with the sensor id kept; LEAD does not mask them, so the padding rows' ids matter and are rebuilt here.
 """
@@ -26,6 +29,8 @@ from lead_s2r.schema import Command
 #: Our 4-way command id -> index in LEAD's one-hot.
 NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
 CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
+#: WOD-E2E's intent enum order (UNKNOWN, GO_STRAIGHT, GO_LEFT, GO_RIGHT), as LEAD's WOD loader one-hots it.
+WOD_COMMAND_INDEX = {Command.UNKNOWN: 0, Command.STRAIGHT: 1, Command.LEFT: 2, Command.RIGHT: 3}
 #: LEAD's CenterNet fields -> our box head's names (``lead_s2r.training.losses.box_loss``).
 BOX_FIELDS = {
     "center_heatmap_logit_pred": "box_heatmap",
@@ -61,6 +66,7 @@ def bev_map_from_lead(lead_map: Tensor) -> Tensor:
 def command_one_hot(command: Tensor, config: LeadConfig) -> Tensor:
     """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot."""
     table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
+    table = WOD_COMMAND_INDEX if config.is_wod else table
     lookup = torch.zeros(len(Command), dtype=torch.int64)
     for ours, theirs in table.items():
         lookup[ours] = theirs
@@ -105,20 +111,33 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
     return out
 
 
-def from_lead_outputs(outputs: dict[str, Tensor]) -> dict[str, Tensor]:
-    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
-    NAVSIM ``bev_semantic`` (same 7 classes) and ``box_*`` maps, and the image-space CARLA ``semantic`` / ``depth``
-    (those the network produced), and the radar detector's ``radar_xy`` / ``radar_speed`` / ``radar_logit``. LEAD's
-    13-class CARLA BEV and 8-class CARLA boxes have no counterpart in our label spaces.
+def boxes_from_lead(maps: dict[str, Tensor]) -> dict[str, Tensor]:
+    """LEAD's CenterNet maps (``BOX_FIELDS`` keys) -> our box names on our grid, in our frame: the lateral offset
+    becomes 1 - LEAD's (a cell's fraction measured from its other edge), yaw bins are mirrored (our bin k is LEAD's
+    bin -k) and the yaw residual negated; sizes, speed and heatmaps only move onto our grid."""
+    ours = {BOX_FIELDS[field]: bev_map_from_lead(value) for field, value in maps.items() if field in BOX_FIELDS}
+    if "box_offset" in ours:
+        offset = ours["box_offset"]
+        ours["box_offset"] = torch.cat([offset[:, :1], 1 - offset[:, 1:]], dim=1)
+    if "box_yaw_class" in ours:
+        bins = ours["box_yaw_class"].shape[1]
+        ours["box_yaw_class"] = ours["box_yaw_class"][:, [(-k) % bins for k in range(bins)]]
+    if "box_yaw_residual" in ours:
+        ours["box_yaw_residual"] = -ours["box_yaw_residual"]
+    return ours
 
-    The NAVSIM box maps only move onto our grid: their channels are whatever our box loss trains them to be (LEAD's
-    own offset, size and yaw encodings are in its frame, so released box heads start from a different encoding)."""
+
+def from_lead_outputs(outputs: dict[str, Tensor], source: str) -> dict[str, Tensor]:
+    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
+    the BEV semantics and ``box_*`` maps of ``source``'s heads (NAVSIM's or LEAD's CARLA ones), the image-space CARLA
+    ``semantic`` / ``depth`` (those the network produced), and the radar detector's ``radar_xy`` / ``radar_speed`` /
+    ``radar_logit``."""
+    suffix = "_navsim" if source == "navsim" else ""
     ours: dict[str, Tensor] = {}
-    if "pred_bev_semantic_navsim" in outputs:
-        ours["bev_semantic"] = bev_map_from_lead(outputs["pred_bev_semantic_navsim"])
-    for field, name in BOX_FIELDS.items():
-        if f"pred_bounding_box_navsim.{field}" in outputs:
-            ours[name] = bev_map_from_lead(outputs[f"pred_bounding_box_navsim.{field}"])
+    if f"pred_bev_semantic{suffix}" in outputs:
+        ours["bev_semantic"] = bev_map_from_lead(outputs[f"pred_bev_semantic{suffix}"])
+    prefix = f"pred_bounding_box{suffix}."
+    ours.update(boxes_from_lead({k[len(prefix) :]: v for k, v in outputs.items() if k.startswith(prefix)}))
     if "pred_semantic" in outputs:
         ours["semantic"] = outputs["pred_semantic"]
     if "pred_depth" in outputs:

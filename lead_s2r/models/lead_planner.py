@@ -1,11 +1,11 @@
 """LEAD's TFv6 planning decoder (``lead/tfv6/planning_decoder.py``) under LEAD's names.
 
 Context = 1x1-conv BEV tokens plus a normalised 2-D sine embedding (row-major), then status tokens in the order
-velocity, acceleration, command, target point, previous, next, radar queries, plus a learned status embedding.
-Learned queries (route 10, waypoints 8, target speed 1; only those predicted) go through PyTorch's
-``nn.TransformerDecoder`` with its defaults (post-norm, feed-forward 2048 whatever the token dim, GELU) and a final
-LayerNorm. Route, waypoints and headings are cumulative sums of per-query outputs; the target speed is the
-softmax-weighted mean of the class speeds, computed in float32.
+velocity, acceleration, command, target point, previous, next (those used), radar queries, plus a learned status
+embedding. Learned queries (route 10, waypoints ``num_way_points_prediction``, target speed 1; only those predicted)
+go through PyTorch's ``nn.TransformerDecoder`` with its defaults (post-norm, feed-forward 2048 whatever the token dim,
+GELU) and a final LayerNorm. Route, waypoints and headings are cumulative sums of per-query outputs; the target speed
+is the softmax-weighted mean of the class speeds, computed in float32.
 """
 
 import torch
@@ -58,7 +58,7 @@ class PlanningContextEncoder(StatusContext):
 
     def __init__(self, config: LeadConfig, bev_channels: int) -> None:
         c, d = config, config.transfuser_token_dim
-        slots = int(c.use_velocity) + int(c.use_acceleration) + int(c.use_discrete_command) + 3 * int(c.use_tp)
+        slots = int(c.use_velocity) + int(c.use_acceleration) + int(c.use_discrete_command) + len(c.target_point_slots)
         slots += c.num_radar_queries if c.planner_radar_tokens else 0
         super().__init__(bev_channels, d, slots)
         self.config = c
@@ -89,7 +89,7 @@ class PlanningContextEncoder(StatusContext):
             status.append(status_token(self.command_encoder, data["command"].to(like.device, like.dtype), d))
         if c.use_tp:
             scale = torch.tensor(c.target_points_normalization_constants, device=like.device, dtype=like.dtype)
-            for key in ("target_point", "target_point_previous", "target_point_next"):
+            for key in c.target_point_slots:
                 status.append(status_token(self.tp_encoder, data[key].to(like.device, like.dtype) / scale, d))
         if c.planner_radar_tokens:
             if radar is None:

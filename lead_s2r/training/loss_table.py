@@ -31,6 +31,10 @@ def _boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
     return losses.box_loss(pred, batch, model.config.box_yaw_bins)
 
 
+def _lead_boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
+    return losses.lead_box_loss(pred, batch, velocity=model.box_velocity_loss)
+
+
 def _radar(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
     return losses.radar_loss(pred, batch, model.radar_scale)
 
@@ -59,6 +63,7 @@ TASKS: dict[str, Task] = {
         "bev_semantic", lambda pred, batch, model: losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
     ),
     "boxes": Task("box_heatmap", _boxes),
+    "lead_boxes": Task("lead_box_heatmap", _lead_boxes),
     "depth": Task("depth", _depth),
     "semantic": Task("semantic", _semantic),
     "radar": Task("radar_targets", _radar),

@@ -140,6 +140,38 @@ def box_loss(pred: dict[str, Tensor], batch: Batch, yaw_bins: int) -> Tensor:
     return heat + sum(terms)
 
 
+def lead_box_loss(pred: dict[str, Tensor], batch: Batch, velocity: bool) -> Tensor:
+    """LEAD's CenterNet loss (``center_net_decoder.compute_loss``) on LEAD-encoded targets
+    (``lead_s2r.data.lead_centernet``): per sample, the Gaussian focal loss of the heatmap summed over cells, L1 of
+    size and offset (per channel), yaw-bin cross-entropy, yaw-residual smooth L1 and (``velocity``, where the batch has
+    a speed label: CARLA's) speed L1 at the
+    weighted cells, each divided by the sample's peak count; the terms summed, then the mean over labelled samples
+    (a sample without boxes carries the collate filler, a heatmap of -1)."""
+    target = batch["lead_box_heatmap"].float()
+    labelled = (target >= 0).flatten(1).all(dim=1)
+    count = batch["lead_box_count"].float() + torch.finfo(torch.float32).eps
+    weight = batch["lead_box_weight"].float()
+    prob = pred["box_heatmap"].float().sigmoid()
+    eps = 1e-12  # LEAD's gaussian_focal_loss
+    pos = -(prob + eps).log() * (1 - prob).pow(2) * target.eq(1)
+    neg = -(1 - prob + eps).log() * prob.pow(2) * (1 - target).pow(4)
+    per_sample = (pos + neg).sum(dim=(1, 2, 3))
+
+    def at_boxes(values: Tensor) -> Tensor:
+        return (values * weight).flatten(1).sum(dim=1)
+
+    for name in ("size", "offset"):
+        l1 = (pred[f"box_{name}"].float() - batch[f"lead_box_{name}"].float()).abs().sum(dim=1)
+        per_sample = per_sample + at_boxes(l1) / 2
+    yaw_class = batch["lead_box_yaw_class"].long()
+    per_sample = per_sample + at_boxes(F.cross_entropy(pred["box_yaw_class"].float(), yaw_class, reduction="none"))
+    residual = pred["box_yaw_residual"].float()[:, 0]
+    per_sample = per_sample + at_boxes(F.smooth_l1_loss(residual, batch["lead_box_yaw_residual"], reduction="none"))
+    if velocity and "lead_box_velocity" in batch:
+        per_sample = per_sample + at_boxes((pred["box_velocity"].float()[:, 0] - batch["lead_box_velocity"]).abs())
+    return masked_mean(per_sample / count, labelled)
+
+
 def radar_loss(pred: dict[str, Tensor], batch: Batch, scale: tuple[float, float, float]) -> Tensor:
     """Hungarian-matched detection loss: ``5 * L1`` of scaled (x, y, speed) for matched queries + ``BCE`` validity.
 

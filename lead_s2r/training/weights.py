@@ -1,15 +1,21 @@
 """``init_from``: start fine-tuning from pre-trained weights, loading every tensor whose name and shape match.
 
-Besides our Lightning checkpoints, a bare LEAD checkpoint file (``model_0030.pth``, LEAD's ``TFv6.state_dict()``)
-initialises a :class:`~lead_s2r.models.lead_driver.LeadDriver`: its keys are LEAD's, under the driver's ``network.``.
+Besides our Lightning checkpoints, a bare LEAD checkpoint file (``model_0030.pth``, LEAD's ``TFv6.state_dict()``) or
+a LEAD checkpoint folder (``config.json`` + one ``model*.pth``) initialises a
+:class:`~lead_s2r.models.lead_driver.LeadDriver`: its keys are LEAD's, under the driver's ``network.``. From a folder
+(or one weight file in it) the report also names the config fields where the two networks differ (LEAD's CARLA TFv6
+fine-tuned on WOD-E2E: ``LTF``, the target dataset, ...), which is why heads are new, dropped or reshaped.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
 from torch import nn
 
+from lead_s2r.errors import UserError
+from lead_s2r.models.lead import read_config, weight_files
+from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
 
 #: Prefixes stripped from checkpoint keys: the LightningModule attribute and torch.compile's wrapper.
@@ -24,6 +30,7 @@ class LoadReport:
     missing: list[str] = field(default_factory=list)
     unexpected: list[str] = field(default_factory=list)
     mismatched: list[str] = field(default_factory=list)
+    config_changes: dict[str, tuple[object, object]] = field(default_factory=dict)
 
     def summary(self) -> str:
         lines = [f"init_from: loaded {len(self.loaded)} tensors"]
@@ -31,12 +38,32 @@ class LoadReport:
             keys = getattr(self, name)
             if keys:
                 lines.append(f"  {name} ({len(keys)}): {', '.join(_roots(keys))}")
+        if self.config_changes:
+            changes = (f"{k} {old!r} -> {new!r}" for k, (old, new) in self.config_changes.items())
+            lines.append(f"  LEAD config changes: {', '.join(changes)}")
         return "\n".join(lines)
 
 
 def _roots(keys: list[str], depth: int = 2) -> list[str]:
-    """Collapse parameter names to their first ``depth`` components, for a readable report."""
-    return sorted({".".join(k.split(".")[:depth]) for k in keys})
+    """Collapse parameter names to their first ``depth`` components (after a LEAD driver's ``network.``)."""
+    return sorted({".".join(k.removeprefix("network.").split(".")[:depth]) for k in keys})
+
+
+def config_changes(old: LeadConfig, new: LeadConfig) -> dict[str, tuple[object, object]]:
+    """LEAD config fields (and the target dataset) that differ between a checkpoint's network and ours."""
+    before, after = asdict(old), asdict(new)
+    changes = {k: (before[k], after[k]) for k in after if before[k] != after[k]}
+    if old.target_dataset != new.target_dataset:
+        changes["target_dataset"] = (old.target_dataset.name, new.target_dataset.name)
+    return changes
+
+
+def lead_folder_weights(folder: Path) -> Path:
+    """The one weight file of a LEAD checkpoint folder; an ensemble's several must be told apart by the user."""
+    files = weight_files(folder)
+    if len(files) > 1:
+        raise UserError(f"init_from: {folder} holds {len(files)} weight files (an ensemble); name one, e.g. {files[0]}")
+    return files[0]
 
 
 def _strip(key: str) -> str:
@@ -52,6 +79,8 @@ def _strip(key: str) -> str:
 def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     """Tensors of a Lightning checkpoint (``state_dict`` entry) or a plain state dict, keys without prefixes."""
     path = Path(path)
+    if path.is_dir():
+        path = lead_folder_weights(path)
     if not path.is_file():
         raise FileNotFoundError(f"init_from: no checkpoint at {path}")
     try:
@@ -82,4 +111,7 @@ def load_matching(model: nn.Module, path: str | Path) -> LoadReport:
             report.loaded.append(key)
     report.missing = [k for k in target if k not in source]
     model.load_state_dict(matched, strict=False)
+    folder = Path(path) if Path(path).is_dir() else Path(path).parent
+    if isinstance(model, LeadDriver) and (folder / "config.json").is_file():  # a LEAD folder, or one file of it
+        report.config_changes = config_changes(read_config(folder), model.config)
     return report

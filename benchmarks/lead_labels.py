@@ -1,0 +1,51 @@
+"""CPU cost of LEAD's CARLA labels built from one generated LEAD frame: the 13-class BEV label and the CenterNet
+targets of LEAD's 8 box classes, on LEAD's leaderboard BEV (384 x 320, CenterNet 96 x 80).
+
+.venv/bin/python benchmarks/lead_labels.py --boxes 90 --calls 200
+
+The frame's boxes are repeated to ``--boxes`` rows (LEAD encodes at most 90).
+"""
+
+import argparse
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from lead_s2r.data.lead_centernet import lead_centernet_targets
+from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes
+from lead_s2r.data.targets import bev_labels
+from lead_s2r.models.config import CARLA_BEV
+from lead_s2r.registry import get_adapter
+from lead_s2r.synthetic.carla_lead import generate
+
+
+def mean_ms(call: Callable[[], object], calls: int) -> float:
+    call()
+    start = time.perf_counter()
+    for _ in range(calls):
+        call()
+    return (time.perf_counter() - start) / calls * 1e3
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--boxes", type=int, default=90)
+    parser.add_argument("--calls", type=int, default=200)
+    args = parser.parse_args()
+    src = Path(tempfile.mkdtemp())
+    generate(src, count=1, seed=7, frames=1)
+    adapter = get_adapter("carla_lead")
+    sample = next(s for log in adapter.list_logs(src) for s in adapter.iter_samples(log))
+    boxes = np.resize(sample["boxes"], (args.boxes, 10))
+    hdmap = bev_labels(sample["bev_semantic"], sample["meta"]["bev"], CARLA_BEV)
+    classes = lead_box_classes(boxes[:, 9].astype(np.int64), leaderboard=True)
+    bev_ms = mean_ms(lambda: lead_bev_labels(hdmap, boxes, CARLA_BEV, leaderboard=True), args.calls)
+    boxes_ms = mean_ms(lambda: lead_centernet_targets(boxes, classes, CARLA_BEV, 8, 12), args.calls)
+    print(f"lead_bev_labels: {bev_ms:.2f} ms, lead_centernet_targets: {boxes_ms:.2f} ms ({args.boxes} boxes)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+"""LEAD's CenterNet box targets (``get_centernet_labels`` of LEAD's CARLA and NAVSIM loaders, LEAD commit 4489176),
+on our BEV grid in our ISO frame.
+
+LEAD's encoding, on the CenterNet grid at a quarter of the BEV resolution (1 cell per metre at LEAD's 4 px/m): a
+Gaussian peak per box at its centre's cell (CornerNet's radius for a minimum IoU of 0.1 of the half extents in
+cells, at least 2; sigma = diameter / 6), and at that cell the half length and half width in cells, the centre's
+sub-cell offset, the yaw as one of 12 bins and its residual from the bin centre (LEAD's ``angle2class``), the speed,
+and a weight of 1; a later box in the same cell overwrites the earlier one's values. The per-sample normaliser is
+the number of heatmap cells equal to 1 (at least 1).
+
+Values are in our frame (lateral offset along +y left, yaw counter-clockwise); :mod:`lead_s2r.models.lead_frame`
+turns LEAD's predictions into the same frame, so the loss equals LEAD's. LEAD pads its box list to 90 rows with zeros
+and encodes the padding too, a phantom box of class 0 in the grid's corner cell; we encode only real boxes.
+"""
+
+import math
+from functools import lru_cache
+
+import numpy as np
+import torch
+
+from lead_s2r.data.targets import CENTERNET_STRIDE, paste_max
+from lead_s2r.models.config import BEVGrid
+
+#: LEAD's ``max_num_bbs``: boxes encoded per sample, in list order.
+LEAD_MAX_BOXES = 90
+#: CornerNet's minimum IoU and LEAD's smallest radius, in cells.
+MIN_OVERLAP, MIN_RADIUS = 0.1, 2
+
+
+def gaussian_radius(height: float, width: float, min_overlap: float = MIN_OVERLAP) -> float:
+    """CornerNet's Gaussian radius: the smallest of the three corner-displacement cases' largest radius that keeps
+    an IoU of ``min_overlap`` with a ``height`` x ``width`` box (LEAD's ``gaussian_radius``, after mmdetection)."""
+    b1, c1 = height + width, width * height * (1 - min_overlap) / (1 + min_overlap)
+    r1 = (b1 - math.sqrt(b1**2 - 4 * c1)) / 2
+    b2, c2 = 2 * (height + width), (1 - min_overlap) * width * height
+    r2 = (b2 - math.sqrt(b2**2 - 16 * c2)) / 8
+    a3, b3, c3 = 4 * min_overlap, -2 * min_overlap * (height + width), (min_overlap - 1) * width * height
+    r3 = (b3 + math.sqrt(b3**2 - 4 * a3 * c3)) / (2 * a3)
+    return min(r1, r2, r3)
+
+
+@lru_cache(maxsize=64)
+def gaussian_kernel(radius: int) -> np.ndarray:
+    """(2r+1)^2 float32 ``exp(-d^2 / (2 sigma^2))`` with sigma = (2r+1) / 6, values below float32 eps x max zeroed."""
+    offsets = np.arange(-radius, radius + 1, dtype=np.float32)
+    sigma = (2 * radius + 1) / 6
+    kernel = np.exp(-(offsets[None, :] ** 2 + offsets[:, None] ** 2) / np.float32(2 * sigma * sigma))
+    kernel[kernel < np.finfo(np.float32).eps * kernel.max()] = 0
+    kernel.flags.writeable = False
+    return kernel
+
+
+def angle_bin(angle: float, bins: int) -> tuple[int, float]:
+    """(bin, residual) of ``angle``: bin k is centred on k * 2 pi / bins (LEAD's ``angle2class``)."""
+    width = 2 * math.pi / bins
+    shifted = (angle % (2 * math.pi) + width / 2) % (2 * math.pi)
+    k = int(shifted // width)
+    return k, shifted - (k * width + width / 2)
+
+
+def lead_centernet_targets(
+    boxes: np.ndarray, classes: np.ndarray, grid: BEVGrid, num_classes: int, yaw_bins: int, velocity: bool = True
+) -> dict[str, torch.Tensor]:
+    """LEAD's CenterNet targets of (N, 10) boxes on ``grid``'s stride-4 cells: ``lead_box_heatmap`` (C, h, w),
+    ``lead_box_size`` and ``lead_box_offset`` (2, h, w), ``lead_box_yaw_class`` (h, w) uint8,
+    ``lead_box_yaw_residual``, ``lead_box_velocity`` (h, w), ``lead_box_weight`` (h, w) bool and
+    ``lead_box_count``. ``classes`` holds each box's heatmap channel (-1: not encoded); centres off the grid are
+    skipped, as LEAD's BEV bounds filter. Without ``velocity`` (NAVSIM: LEAD trains no speed there) the speed map is
+    left out."""
+    h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
+    cell = CENTERNET_STRIDE / grid.pixels_per_meter
+    heatmap = np.zeros((num_classes, h, w), np.float32)
+    size, offset = np.zeros((2, h, w), np.float32), np.zeros((2, h, w), np.float32)
+    yaw_class, weight = np.zeros((h, w), np.uint8), np.zeros((h, w), bool)
+    yaw_residual, speed = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
+    kept = np.flatnonzero(np.asarray(classes) >= 0)[:LEAD_MAX_BOXES]
+    picked = boxes[kept]
+    row_f, col_f = (picked[:, 0] - grid.x_min) / cell, (picked[:, 1] - grid.y_min) / cell
+    half_length, half_width = picked[:, 3] / 2 / cell, picked[:, 4] / 2 / cell
+    speeds = np.hypot(picked[:, 7], picked[:, 8])
+    values = zip(np.asarray(classes, np.int64)[kept].tolist(), row_f.tolist(), col_f.tolist(), half_length.tolist(),
+                 half_width.tolist(), picked[:, 6].tolist(), speeds.tolist(), strict=True)  # fmt: skip
+    for label, x, y, length, width, yaw, box_speed in values:  # Python numbers: cheaper than numpy scalars per box
+        row, col = math.floor(x), math.floor(y)
+        if not (0 <= row < h and 0 <= col < w):
+            continue
+        radius = max(MIN_RADIUS, int(gaussian_radius(width, length)))
+        paste_max(heatmap[label], row, col, gaussian_kernel(radius))
+        size[:, row, col] = length, width
+        offset[:, row, col] = x - row, y - col
+        yaw_class[row, col], yaw_residual[row, col] = angle_bin(yaw, yaw_bins)
+        speed[row, col] = box_speed
+        weight[row, col] = True
+    out = {
+        "lead_box_heatmap": heatmap,
+        "lead_box_size": size,
+        "lead_box_offset": offset,
+        "lead_box_yaw_class": yaw_class,
+        "lead_box_yaw_residual": yaw_residual,
+        "lead_box_velocity": speed,
+        "lead_box_weight": weight,
+    }
+    if not velocity:
+        del out["lead_box_velocity"]
+    count = np.float32(max(1, int((heatmap == 1).sum())))
+    return {**{k: torch.from_numpy(v) for k, v in out.items()}, "lead_box_count": torch.scalar_tensor(count)}

@@ -1,0 +1,150 @@
+"""LEAD's CARLA label spaces built from our schema's: the 13 BEV semantic classes and the 8 box classes of LEAD's
+CARLA heads (LEAD ``lead/common/constants.py``: ``TransfuserBEVSemanticClass``, ``TransfuserBoundingBoxClass``; the
+loader ``lead/data_loader/carla_dataset.py`` with ``carla_dataset_utils.build_bev_occupancy`` and
+``get_bbox_labels``, LEAD commit 4489176).
+
+LEAD's BEV label is the hdmap with ChauffeurNet ids remapped (sidewalks and the hdmap's traffic-light colours become
+unlabelled, both lane-marker kinds one class), then an occupancy raster drawn from the boxes laid over it: each box's
+rotated footprint filled with its class, later boxes over earlier ones; pedestrians and bikers are drawn 2.5 times
+their size with half extents of at least 0.4 m. LEAD has two modes, and so do we: the leaderboard mode (a CARLA-only
+network) keeps emergency vehicles as special vehicles and cones and warnings as obstacles; sim-to-real (a network
+that also reads real data) applies LEAD's ``SIM2REAL_*`` converters: special vehicles are vehicles, obstacles are not
+drawn into the BEV, stop-sign areas are unlabelled.
+
+What our schema does not record is left out: which traffic lights and stop signs affect the ego and the lights'
+states (LEAD keeps only those boxes and draws the lights' convex hull in 10..12), parked cars and scenario obstacles
+(LEAD's PARKING and its scenario relabelling), and LEAD's LiDAR-hit visibility filter.
+"""
+
+from enum import IntEnum
+
+import cv2
+import numpy as np
+
+from lead_s2r.models.config import BEVGrid
+from lead_s2r.models.inputs import IGNORE_CLASS
+from lead_s2r.schema import BevClassCarla, BoxClass
+
+
+class LeadBevClass(IntEnum):
+    """LEAD's ``TransfuserBEVSemanticClass``: the channels of the CARLA BEV semantic head."""
+
+    UNLABELED = 0
+    ROAD = 1
+    LANE_MARKERS = 2
+    STOP_SIGNS = 3
+    VEHICLE = 4
+    WALKER = 5
+    OBSTACLE = 6
+    PARKING_VEHICLE = 7
+    SPECIAL_VEHICLE = 8
+    BIKER = 9
+    TRAFFIC_GREEN = 10
+    TRAFFIC_RED_NORMAL = 11
+    TRAFFIC_RED_NOT_NORMAL = 12
+
+
+class LeadBoxClass(IntEnum):
+    """LEAD's ``TransfuserBoundingBoxClass``: the heatmap channels of the CARLA CenterNet head."""
+
+    VEHICLE = 0
+    WALKER = 1
+    TRAFFIC_LIGHT = 2
+    STOP_SIGN = 3
+    SPECIAL = 4
+    OBSTACLE = 5
+    PARKING = 6
+    BIKER = 7
+
+
+#: LEAD's ``CHAFFEURNET_TO_TRANSFUSER_BEV_SEMANTIC_CONVERTER``.
+HDMAP_TO_LEAD = {
+    BevClassCarla.UNLABELED: LeadBevClass.UNLABELED,
+    BevClassCarla.ROAD: LeadBevClass.ROAD,
+    BevClassCarla.SIDEWALK: LeadBevClass.UNLABELED,
+    BevClassCarla.LANE_MARKERS: LeadBevClass.LANE_MARKERS,
+    BevClassCarla.LANE_MARKERS_BROKEN: LeadBevClass.LANE_MARKERS,
+    BevClassCarla.STOP_SIGNS: LeadBevClass.STOP_SIGNS,
+    BevClassCarla.TRAFFIC_GREEN: LeadBevClass.UNLABELED,
+    BevClassCarla.TRAFFIC_YELLOW: LeadBevClass.UNLABELED,
+    BevClassCarla.TRAFFIC_RED: LeadBevClass.UNLABELED,
+}
+#: Our box class -> LEAD's, leaderboard mode; classes LEAD does not detect (barriers, other static objects) absent.
+BOX_TO_LEAD = {
+    BoxClass.VEHICLE: LeadBoxClass.VEHICLE,
+    BoxClass.PEDESTRIAN: LeadBoxClass.WALKER,
+    BoxClass.BICYCLE: LeadBoxClass.BIKER,
+    BoxClass.TRAFFIC_CONE: LeadBoxClass.OBSTACLE,
+    BoxClass.CZONE_SIGN: LeadBoxClass.OBSTACLE,
+    BoxClass.TRAFFIC_LIGHT: LeadBoxClass.TRAFFIC_LIGHT,
+    BoxClass.STOP_SIGN: LeadBoxClass.STOP_SIGN,
+    BoxClass.EMERGENCY_VEHICLE: LeadBoxClass.SPECIAL,
+}
+#: Our box class -> the BEV class LEAD draws its footprint with, leaderboard mode.
+BOX_TO_LEAD_BEV = {
+    BoxClass.VEHICLE: LeadBevClass.VEHICLE,
+    BoxClass.PEDESTRIAN: LeadBevClass.WALKER,
+    BoxClass.BICYCLE: LeadBevClass.BIKER,
+    BoxClass.TRAFFIC_CONE: LeadBevClass.OBSTACLE,
+    BoxClass.CZONE_SIGN: LeadBevClass.OBSTACLE,
+    BoxClass.EMERGENCY_VEHICLE: LeadBevClass.SPECIAL_VEHICLE,
+}
+#: LEAD's ``SIM2REAL_*`` converters on top of the leaderboard tables (None: not drawn / unlabelled).
+SIM2REAL_BOX = {LeadBoxClass.SPECIAL: LeadBoxClass.VEHICLE, LeadBoxClass.PARKING: LeadBoxClass.VEHICLE}
+SIM2REAL_BEV = {
+    LeadBevClass.STOP_SIGNS: LeadBevClass.UNLABELED,
+    LeadBevClass.OBSTACLE: LeadBevClass.UNLABELED,
+    LeadBevClass.PARKING_VEHICLE: LeadBevClass.VEHICLE,
+    LeadBevClass.SPECIAL_VEHICLE: LeadBevClass.VEHICLE,
+    LeadBevClass.TRAFFIC_RED_NOT_NORMAL: LeadBevClass.TRAFFIC_RED_NORMAL,
+}
+#: LEAD's ``scale_pedestrian_bev_semantic_size`` and ``pedestrian_bev_min_extent`` (half extent, metres).
+PEDESTRIAN_BEV_SCALE, PEDESTRIAN_BEV_MIN_HALF_EXTENT = 2.5, 0.4
+
+
+def lead_box_classes(classes: np.ndarray, leaderboard: bool) -> np.ndarray:
+    """(N,) our :class:`~lead_s2r.schema.BoxClass` ids -> LEAD's :class:`LeadBoxClass` ids; -1 where LEAD detects
+    no such object."""
+    table = {ours: SIM2REAL_BOX.get(lead, lead) if not leaderboard else lead for ours, lead in BOX_TO_LEAD.items()}
+    lookup = np.full(len(BoxClass), -1, np.int64)
+    for ours, lead in table.items():
+        lookup[ours] = lead
+    classes = np.asarray(classes, np.int64)
+    known = (classes >= 0) & (classes < len(BoxClass))
+    return np.where(known, lookup[np.clip(classes, 0, len(BoxClass) - 1)], -1)
+
+
+def lead_bev_labels(hdmap: np.ndarray, boxes: np.ndarray, grid: BEVGrid, leaderboard: bool) -> np.ndarray:
+    """LEAD's 13-class BEV label on ``grid``: ``hdmap`` (our :class:`~lead_s2r.schema.BevClassCarla` ids on the grid,
+    :data:`IGNORE_CLASS` outside the stored raster) remapped, with the boxes' (N, 10) footprints drawn over it."""
+    lookup = np.full(256, IGNORE_CLASS, np.uint8)
+    for ours, lead in HDMAP_TO_LEAD.items():
+        lookup[ours] = SIM2REAL_BEV.get(lead, lead) if not leaderboard else lead
+    labels = lookup[hdmap]
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
+    bev_class = np.full(len(BoxClass), int(LeadBevClass.UNLABELED), np.int64)
+    for ours, lead in BOX_TO_LEAD_BEV.items():
+        bev_class[ours] = SIM2REAL_BEV.get(lead, lead) if not leaderboard else lead
+    ours = boxes[:, 9].astype(np.int64)
+    drawn = np.flatnonzero((ours >= 0) & (ours < len(BoxClass)))
+    drawn = drawn[bev_class[ours[drawn]] != LeadBevClass.UNLABELED]
+    corners = _footprint_pixels(boxes[drawn], grid)
+    for polygon, label in zip(corners, bev_class[ours[drawn]].tolist(), strict=True):
+        cv2.fillPoly(labels, [polygon], label)
+    return labels
+
+
+def _footprint_pixels(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
+    """(N, 4, 2) int32 (column, row) corners of the boxes' footprints on ``grid``, as LEAD rasterises them:
+    pixel-edge coordinates truncated to integers, filled edges included (so a 4 x 2 m box at 4 px/m covers 17 x 9
+    pixels); pedestrians and bikers grown as LEAD draws them."""
+    half = boxes[:, 3:5] / 2
+    grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
+    half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
+    cos, sin = np.cos(boxes[:, 6:7]), np.sin(boxes[:, 6:7])
+    local_x = np.array([1, 1, -1, -1]) * half[:, :1]
+    local_y = np.array([1, -1, -1, 1]) * half[:, 1:]
+    x = boxes[:, :1] + cos * local_x - sin * local_y
+    y = boxes[:, 1:2] + sin * local_x + cos * local_y
+    ppm = grid.pixels_per_meter
+    return np.stack([(y - grid.y_min) * ppm, (x - grid.x_min) * ppm], axis=2).astype(np.int32)
