@@ -1,9 +1,14 @@
 """Throughput of ``lead-s2r score`` (PDMS v1.1: a PDM-Closed reference and the prediction's score per sample) in
-this process, on 2 local processes, and on Ray with 1 and 2 CPUs; and whether every run wrote the same scores.
+this process, on N local processes (``--workers N``) and on Ray with N CPUs (``--executor ray``); the CPU time of
+the driver and of every process under it; and whether every run wrote the same scores.
 
-Run: ``.venv/bin/python benchmarks/score_scale.py [--logs 12] [--rounds 2]``. Synthetic NAVSIM logs (7 scenes each)
-are generated and converted with maps into a temporary folder; the constant-velocity planner is scored. Ray is
-started on this machine before the clock starts (the throughput of a running cluster). BLAS threads are pinned to 1.
+Run: ``.venv/bin/python benchmarks/score_scale.py [--logs 150] [--workers 1 2] [--rounds 2] [--data DIR]
+[--executors processes ray]``.
+Synthetic NAVSIM logs (7 scenes each: 150 logs = 1050 samples) are generated and converted with maps (into
+``--data`` to keep them for the next run, else a temporary folder); the constant-velocity planner is scored. Each
+round starts with a machine check (how much faster two processes run a CPU loop than one right now: 2.0 on two free
+cores) and runs every executor in turn, so a machine shared with other jobs slows them alike. Ray is started on this
+machine before the clock starts (the throughput of a running cluster). BLAS threads are pinned to 1.
 """
 
 import os
@@ -14,28 +19,73 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import hashlib  # noqa: E402
 import tempfile  # noqa: E402
+import threading  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
+
+import psutil  # noqa: E402
+from convert_carla_lead import machine_parallelism  # noqa: E402  (benchmarks/ is the script's folder)
 
 from lead_s2r.convert import convert  # noqa: E402
 from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, RayExecutor  # noqa: E402
 from lead_s2r.registry import get_adapter  # noqa: E402
-from lead_s2r.scoring.run import SCORES_TABLE, planner_predictions, score_predictions  # noqa: E402
+from lead_s2r.scoring.run import SCORES_TABLE, make_scorer, planner_predictions, score_predictions  # noqa: E402
 from lead_s2r.synthetic import navsim as synth  # noqa: E402
 
 METRIC = "pdms@navsim-1.1"
 SCORER_MODULE = "lead_s2r.scoring.navsim.pdms_scorer"
+POLL_S = 0.25
 
 
-def timed(executor: Executor, predictions: Path, data: Path, out: Path) -> tuple[int, float, str]:
-    """Samples scored, seconds, sha256 of scores.parquet."""
-    start = time.perf_counter()
-    report = score_predictions(METRIC, predictions, data, out, executor=executor, allow_missing=True)
-    seconds = time.perf_counter() - start
-    return report["aggregates"]["frames"], seconds, hashlib.sha256((out / SCORES_TABLE).read_bytes()).hexdigest()
+class DescendantsCPU:
+    """CPU seconds of every process under this one (Ray's raylet and workers, a pool's forkserver children), polled
+    from a thread while a run lasts: ``RUSAGE_CHILDREN`` counts only children this process waited for. A process
+    that ends between two polls loses at most :data:`POLL_S` of its CPU."""
+
+    def __init__(self) -> None:
+        self.seen: dict[int, float] = {}
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._watch, daemon=True)
+
+    def poll(self) -> float:
+        for process in psutil.Process().children(recursive=True):
+            try:
+                times = process.cpu_times()
+            except psutil.Error:
+                continue
+            self.seen[process.pid] = times.user + times.system
+        return sum(self.seen.values())
+
+    def _watch(self) -> None:
+        while not self.done.wait(POLL_S):
+            self.poll()
+
+    def __enter__(self) -> "DescendantsCPU":
+        self.start = self.poll()
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.done.set()
+        self.thread.join()
+        self.seconds = self.poll() - self.start
 
 
-def on_ray(cpus: int, predictions: Path, data: Path, out: Path) -> tuple[int, float, str]:
+def timed(executor: Executor, predictions: Path, data: Path, out: Path) -> dict[str, float]:
+    """Samples scored, wall and CPU seconds (driver, processes under it), sha256 of scores.parquet, load average."""
+    load = os.getloadavg()[0]
+    with DescendantsCPU() as workers:
+        start, cpu = time.perf_counter(), time.process_time()
+        report = score_predictions(METRIC, predictions, data, out, executor=executor, allow_missing=True)
+        wall, driver = time.perf_counter() - start, time.process_time() - cpu
+    digest = hashlib.sha256((out / SCORES_TABLE).read_bytes()).hexdigest()
+    load = max(load, os.getloadavg()[0])
+    return {"samples": report["aggregates"]["frames"], "wall": wall, "driver": driver, "workers": workers.seconds,
+            "digest": digest, "load": load}  # fmt: skip
+
+
+def on_ray(cpus: int, predictions: Path, data: Path, out: Path) -> dict[str, float]:
     import ray
 
     ray.init(address="local", num_cpus=cpus, include_dashboard=False, log_to_driver=False)
@@ -45,33 +95,56 @@ def on_ray(cpus: int, predictions: Path, data: Path, out: Path) -> tuple[int, fl
         ray.shutdown()
 
 
+def prepare(data: Path, logs: int) -> Path:
+    """Converted NAVSIM data (reused if ``data`` holds it) and the constant-velocity planner's predictions."""
+    if not (data / "converted" / "manifest.parquet").is_file():
+        synth.generate(data / "raw", count=logs, seed=0)
+        assert convert(get_adapter("navsim", maps=str(data / "raw" / "maps")), data / "raw", data / "converted").ok
+    make_scorer(METRIC)  # imports the scorer's modules here, not in the first timed run
+    return planner_predictions("constant-velocity", data / "converted", data / "predictions.parquet")
+
+
+def runs(
+    kinds: list[str], workers: list[int], predictions: Path, data: Path
+) -> dict[str, Callable[[Path], dict[str, float]]]:
+    """Every executor to time, by name; ratios are taken against the first of each kind."""
+    chosen: dict[str, Callable[[Path], dict[str, float]]] = {}
+    if "processes" in kinds:
+        chosen["this process"] = lambda out: timed(InlineExecutor(), predictions, data, out)
+        for count in (count for count in workers if count > 1):
+            executor = ProcessExecutor(count, preload=[SCORER_MODULE])
+            chosen[f"{count} processes"] = lambda out, executor=executor: timed(executor, predictions, data, out)
+    if "ray" in kinds:
+        for count in workers:
+            chosen[f"Ray, {count} CPU"] = lambda out, count=count: on_ray(count, predictions, data, out)
+    return chosen
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--logs", type=int, default=12)
+    parser.add_argument("--logs", type=int, default=150, help="synthetic NAVSIM logs of 7 samples each")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="process and Ray CPU counts")
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--executors", nargs="+", choices=["processes", "ray"], default=["processes", "ray"])
+    parser.add_argument("--data", type=Path, help="keep (or reuse) the generated and converted data here")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        raw, data = Path(tmp) / "raw", Path(tmp) / "data"
-        synth.generate(raw, count=args.logs, seed=0)
-        assert convert(get_adapter("navsim", maps=str(raw / "maps")), raw, data).ok
-        predictions = planner_predictions("constant-velocity", data, Path(tmp) / "predictions.parquet")
-        runs = {
-            "this process": lambda out: timed(InlineExecutor(), predictions, data, out),
-            "2 processes": lambda out: timed(ProcessExecutor(2, preload=[SCORER_MODULE]), predictions, data, out),
-            "Ray, 1 CPU": lambda out: on_ray(1, predictions, data, out),
-            "Ray, 2 CPUs": lambda out: on_ray(2, predictions, data, out),
-        }
+        data = args.data or Path(tmp) / "data"
+        predictions = prepare(data, args.logs)
         for round_index in range(args.rounds):
-            digests, base = set(), None
-            for name, run in runs.items():
-                load = os.getloadavg()[0]
-                samples, seconds, digest = run(Path(tmp) / f"scores-{round_index}-{name}")
-                digests.add(digest)
-                rate = samples / seconds
-                base = base or rate
+            print(f"round {round_index}: machine check {machine_parallelism():.2f}x")
+            digests, first = set(), {}
+            for name, run in runs(args.executors, args.workers, predictions, data / "converted").items():
+                result = run(Path(tmp) / f"scores-{round_index}-{name}")
+                digests.add(result["digest"])
+                rate = result["samples"] / result["wall"]
+                base = first.setdefault(name.split(",")[0] if name.startswith("Ray") else "local", rate)
+                cpu_ms = (result["driver"] + result["workers"]) / result["samples"] * 1e3
                 print(
-                    f"round {round_index} {name}: {samples} samples in {seconds:.2f} s = {rate:.1f} samples/s, "
-                    f"{rate / base:.2f}x this process; load average {load:.1f}"
+                    f"round {round_index} {name}: {result['samples']} samples in {result['wall']:.2f} s = "
+                    f"{rate:.1f} samples/s, {rate / base:.2f}x the first of its kind; CPU {result['driver']:.1f} s "
+                    f"driver + {result['workers']:.1f} s under it = {cpu_ms:.1f} ms/sample; "
+                    f"load average {result['load']:.1f}"
                 )
             print(f"round {round_index}: the same scores.parquet bytes in every run: {len(digests) == 1}")
 

@@ -347,6 +347,62 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
         yield decode_sample(raw, fields)
 
 
+
+def read_part(
+    shard: str, keys: Sequence[str], fields: Iterable[str] | None = None, offset: int = 0
+) -> list[dict[str, Any]]:
+    """Decode the samples ``keys`` (consecutive samples of one tar of a converted folder, the first at byte
+    ``offset``: :func:`sample_offsets`), in tar order: one job of a parallel reader (``score --workers``), which
+    hands a big tar out in parts.
+
+    A part reads from its offset to its last sample, where webdataset would read every byte of the tar for every
+    part. Members of fields nobody decodes are listed for :func:`decode_sample`'s completeness check, not read. A key
+    the tar does not yield there is a :class:`ShardError`.
+    """
+    wanted = None if fields is None else {*fields, "meta"}
+    asked = set(keys)
+    raws: dict[str, dict[str, Any]] = {}
+    try:
+        with open(shard, "rb") as file:
+            file.seek(offset)
+            with tarfile.open(fileobj=file, mode="r:") as tar:  # reads from where the file stands
+                for member in tar:
+                    key, _, ext = member.name.partition(".")
+                    if key not in asked:
+                        if len(raws) == len(asked):  # past the last sample asked for
+                            break
+                        continue
+                    raw = raws.setdefault(key, {"__key__": key, "__url__": shard})
+                    read = wanted is None or ext.rsplit(".", 1)[0] in wanted
+                    raw[ext] = _member_bytes(tar, member) if read else b""
+    except tarfile.TarError as err:
+        raise ShardError(f"{shard}: cannot be read as a tar ({err}); {_REDO}") from None
+    if len(raws) < len(asked):
+        missing = next(key for key in keys if key not in raws)
+        raise ShardError(f"{shard}: sample {missing!r}, which the manifest lists in it, is not in the tar; {_REDO}")
+    return [decode_sample(raw, wanted) for raw in raws.values()]
+
+
+def sample_offsets(shard: str) -> dict[str, int]:
+    """The byte offset of each sample's first member in ``shard`` (where :func:`read_part` starts a part): one walk
+    over the headers, seeking past the data."""
+    offsets: dict[str, int] = {}
+    try:
+        with tarfile.open(shard, "r:") as tar:
+            for member in tar:
+                offsets.setdefault(member.name.partition(".")[0], member.offset)
+    except tarfile.TarError as err:
+        raise ShardError(f"{shard}: cannot be read as a tar ({err}); {_REDO}") from None
+    return offsets
+
+
+def _member_bytes(tar: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
+    file = tar.extractfile(member)
+    if file is None:
+        raise ShardError(f"{tar.name}: member {member.name!r} is not a file; {_REDO}")
+    return file.read()
+
+
 #: Columns every manifest of a conversion that wrote a sample has; a conversion that wrote none writes only ``key``.
 MANIFEST_COLUMNS = ("key", "shard", "dataset", "split", "log")
 

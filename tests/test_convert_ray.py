@@ -145,3 +145,14 @@ def test_results_outlive_the_connection(cluster):
     assert not ray.is_initialized()  # connected for the run only
     assert results[0].flags.writeable and results[0].shape == (1000, 1000) and float(results[0].sum()) == 7e6
     assert float(results[1].sum()) == 10.0
+
+
+def test_a_session_keeps_one_connection_over_runs(cluster):
+    """``score`` reads the samples, then scores them: two runs in one session connect once."""
+    executor = RayExecutor(cluster.address)
+    with executor.session():
+        first = dict(executor.run(np.full, [((3,), 1.0)]))
+        assert ray.is_initialized()  # the run left the session's connection open
+        second = dict(executor.run(np.full, [((2,), 5.0)]))
+    assert not ray.is_initialized()
+    assert first[0].tolist() == [1.0] * 3 and second[0].tolist() == [5.0] * 2

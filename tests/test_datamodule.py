@@ -10,7 +10,9 @@ from lead_s2r.models.config import TrajectoryGrid, tfv6_config
 from lead_s2r.models.input_spec import input_spec
 
 
-def make_datamodule(path: str, epoch: int = 0, steps_per_epoch: int | None = 3) -> DriveDataModule:
+def make_datamodule(
+    path: str, epoch: int = 0, steps_per_epoch: int | None = 3, rank: int = 0, world_size: int = 1
+) -> DriveDataModule:
     grids = {"sim": TrajectoryGrid(4, 0.5), "real": TrajectoryGrid(4, 0.5)}
     config = tfv6_config(image_size=(32, 96), trajectory_grids=grids, use_radar=False)
     spec = SourceSpec([path], cameras=["front"])
@@ -22,7 +24,7 @@ def make_datamodule(path: str, epoch: int = 0, steps_per_epoch: int | None = 3) 
         eval_batch_size=5,
         inputs=input_spec(config),
     )
-    dm.trainer = SimpleNamespace(current_epoch=epoch, world_size=1)
+    dm.trainer = SimpleNamespace(current_epoch=epoch, global_rank=rank, world_size=world_size)
     return dm
 
 
@@ -32,6 +34,21 @@ def test_training_batches_follow_the_schedule_with_equal_step_counts(toy_data):
     assert sizes == {"sim": [5, 5, 5], "real": [3, 3, 3]}
     late = make_datamodule(toy_data, epoch=31).train_dataloader()
     assert list(late) == ["real"] and [len(b["__key__"]) for b in late["real"]] == [8, 8, 8]
+
+
+def test_ranks_train_on_samples_of_their_own_each_epoch(toy_data):
+    for epoch in (0, 1):
+        keys = []
+        for rank in (0, 1):
+            loaders = make_datamodule(toy_data, epoch=epoch, rank=rank, world_size=2).train_dataloader()
+            sizes = {name: [len(batch["__key__"]) for batch in loader] for name, loader in loaders.items()}
+            assert sizes == ({"sim": [3] * 3, "real": [1] * 3} if epoch == 0 else {"sim": [2] * 3, "real": [2] * 3})
+            keys.append({(name, key) for name, loader in loaders.items() for b in loader for key in b["__key__"]})
+        assert keys[0] and keys[1] and not keys[0] & keys[1]
+    dm = make_datamodule(toy_data, world_size=2)
+    dm.train_sources["sim"] = SourceSpec([toy_data], splits=["val"])  # toy data is all "train"
+    with pytest.raises(UserError, match=r"data\.train\.sim: 0 training sample\(s\) .* for 2 rank\(s\)"):
+        dm.train_dataloader()
 
 
 def test_validation_sees_every_sample_once(toy_data):

@@ -1,6 +1,6 @@
 """Two nodes x one process on this machine with torchrun (c10d rendezvous, gloo, CPU) over the sim-to-real smoke
-recipe plus recipes/multinode/ddp.yaml: equal step counts, the schedule's per-source per-rank batch sizes, rank
-streams of their own, validation split by sample, one checkpoint, and validation scores equal to one process."""
+recipe plus recipes/multinode/ddp.yaml: equal step counts, the schedule's per-source per-rank batch sizes, disjoint
+training samples per epoch, validation split by sample, one checkpoint, and validation scores equal to one process."""
 
 import json
 import os
@@ -26,21 +26,23 @@ EPOCHS, STEPS = 2, 2
 
 
 class RankRecorder(L.Callback):
-    """Writes ``rank<r>.json``: per epoch the train steps, the per-source batch sizes and the training keys drawn;
-    the validation keys of the last validation and the metrics logged."""
+    """Writes ``rank<r>.json``: per epoch the train steps, the per-source batch sizes and the ``source/key`` of every
+    training sample drawn; the validation keys of the last validation and the metrics logged."""
 
     def __init__(self, out: str) -> None:
         self.out = Path(out)
         self.steps: Counter[int] = Counter()
         self.sizes: dict[int, dict[str, int]] = {}
-        self.train_keys: list[str] = []
+        self.train_keys: dict[int, list[str]] = {}
         self.val_keys: list[str] = []
 
     def on_train_batch_start(self, trainer: L.Trainer, pl_module: Any, batch: Any, batch_idx: int) -> None:
         epoch = trainer.current_epoch
         self.steps[epoch] += 1
         self.sizes[epoch] = {name: len(part["__key__"]) for name, part in batch.items() if not name.startswith("__")}
-        self.train_keys += [key for name, part in batch.items() if not name.startswith("__") for key in part["__key__"]]
+        parts = {name: part for name, part in batch.items() if not name.startswith("__")}
+        drawn = [f"{name}/{key}" for name, part in parts.items() for key in part["__key__"]]
+        self.train_keys.setdefault(epoch, []).extend(drawn)
 
     def on_validation_epoch_start(self, trainer: L.Trainer, pl_module: Any) -> None:
         self.val_keys = []
@@ -57,7 +59,7 @@ class RankRecorder(L.Callback):
             "num_nodes": trainer.num_nodes,
             "steps": [self.steps[epoch] for epoch in sorted(self.steps)],
             "sizes": [self.sizes[epoch] for epoch in sorted(self.sizes)],
-            "train_keys": self.train_keys,
+            "train_keys": [self.train_keys[epoch] for epoch in sorted(self.train_keys)],
             "val_keys": self.val_keys,
             "metrics": {name: float(value) for name, value in trainer.callback_metrics.items()},
         }
@@ -131,7 +133,9 @@ def test_two_nodes_train_like_the_schedule_says_and_validate_like_one(data, tmp_
         for epoch, sizes in enumerate(rank["sizes"]):
             expected = {source: size for source, size in schedule.batch_sizes(epoch, world_size=2).items() if size}
             assert sizes == expected, (epoch, sizes, expected)
-    assert ranks[0]["train_keys"] != ranks[1]["train_keys"]  # each rank draws a stream of its own
+    for epoch in range(EPOCHS):  # each rank trains on samples of its own share of the epoch
+        drawn = [set(rank["train_keys"][epoch]) for rank in ranks]
+        assert drawn[0] and drawn[1] and not drawn[0] & drawn[1], epoch
     assert not set(ranks[0]["val_keys"]) & set(ranks[1]["val_keys"])  # validation split by sample
 
     checkpoints = sorted(path.name for path in (run / "checkpoints").iterdir())

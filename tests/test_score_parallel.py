@@ -1,9 +1,12 @@
 """``lead-s2r score --workers 2`` and ``--executor ray`` (a real two-node Ray cluster on this machine) write the
-bytes one process writes: PDMS and EPDMS on converted NAVSIM data, RFS on WOD-E2E; the reference cache is shared."""
+bytes one process writes: PDMS and EPDMS on converted NAVSIM data, RFS on WOD-E2E; the reference cache is shared; the
+samples, decoded by the workers in parts of a shard, are the ones one process decodes."""
 
 import json
-from collections.abc import Iterator
+import pickle
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,8 +15,11 @@ from test_pdms_navsim import CRUISE, MID_TURN
 from lead_s2r.cli import main
 from lead_s2r.convert import convert
 from lead_s2r.predictions import write_predictions
+from lead_s2r.processes import InlineExecutor, Job
+from lead_s2r.scoring import run
 from lead_s2r.scoring.baselines import predict_constant_velocity
-from lead_s2r.scoring.run import planner_predictions
+from lead_s2r.scoring.navsim import PDMSScorer
+from lead_s2r.scoring.run import planner_predictions, select_samples
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
@@ -94,3 +100,23 @@ def test_workers_share_the_reference_cache(navsim_data, tmp_path):
     assert len(references) == 14 and all(path.suffix == ".npy" for path in references)  # no partial file left
     one = score("pdms@navsim-1.1", navsim_data, tmp_path / "one", "--reference-cache", str(cache))
     assert one == two
+
+
+class CountingExecutor(InlineExecutor):
+    """This process, counting the jobs it is given."""
+
+    jobs = 0
+
+    def run(self, job: Job, arguments: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
+        self.jobs += len(arguments)
+        return super().run(job, arguments)
+
+
+def test_samples_decoded_in_parts_are_the_samples_one_process_decodes(navsim_data, monkeypatch):
+    folder, _ = navsim_data
+    whole = select_samples([folder], PDMSScorer.fields, None)
+    monkeypatch.setattr(run, "SAMPLES_PER_READ", 4)
+    executor = CountingExecutor()
+    parts = select_samples([folder], PDMSScorer.fields, None, executor)
+    assert executor.jobs == 4  # 14 samples of one shard in parts of 4
+    assert pickle.dumps(parts) == pickle.dumps(whole)  # the same samples, fields and arrays, in the same order

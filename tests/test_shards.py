@@ -20,7 +20,10 @@ from lead_s2r.shards import (
     ShardFile,
     decode_field,
     encode_field,
+    listed_keys,
+    read_part,
     read_samples,
+    sample_offsets,
     write_sample,
 )
 
@@ -174,3 +177,20 @@ def test_a_sample_the_manifest_does_not_list_is_an_error(one_log):
     pq.write_table(manifest.slice(0, 2), one_log / MANIFEST)  # as if the third sample came from elsewhere
     with pytest.raises(ShardError, match="sample 'toy_log000_000002' is not in the manifest"):
         list(read_samples(one_log, fields=()))
+
+
+def test_a_part_of_a_shard_decodes_what_reading_the_folder_gives(toy_data):
+    whole = {sample["__key__"]: sample for sample in read_samples(toy_data, fields=("future", "boxes"))}
+    shard = sorted(listed_keys(toy_data))[1]
+    keys = listed_keys(toy_data)[shard]
+    offsets = sample_offsets(shard)
+    assert list(offsets) == keys and offsets[keys[0]] == 0 and offsets[keys[2]] % 512 == 0
+    part = read_part(shard, keys[2:5], ("future", "boxes"), offsets[keys[2]])
+    assert [sample["__key__"] for sample in part] == keys[2:5]
+    for sample in part:
+        assert "lidar" not in sample and "cam_front" not in sample  # not asked for: not read
+        assert_same_sample(sample, whole[sample["__key__"]])
+    with pytest.raises(ShardError, match=f"sample {keys[1]!r}, which the manifest lists in it, is not in the tar"):
+        read_part(shard, keys[1:3], (), offsets[keys[2]])  # the part starts past its first sample
+    with pytest.raises(ShardError, match=f"sample {keys[2]!r}, which the manifest lists in it, is not in the tar"):
+        read_part(shard, keys[2:3], (), offsets[keys[2]] + 512)  # mid-member: tarfile sees no header, yields nothing

@@ -1,6 +1,7 @@
 """Per-source webdataset pipelines mixed by a :class:`MixingSchedule`: the training data of a sim-to-real run.
 
-Training: one infinite, shard-resampled pipeline per source whose scheduled batch size is non-zero, each cut to
+Training: one infinite, shard-resampled pipeline per source whose scheduled batch size is non-zero, over this rank's
+share of the source's samples in this epoch (disjoint from the other ranks' shares), each cut to
 ``steps_per_epoch`` batches, so every rank and every source yields the same number of steps (DDP never waits on an
 exhausted rank). Without ``steps_per_epoch`` an epoch is one pass over the training samples at the global batch
 (ceil(samples / global batch)), counted from the manifests, so it is the same on every rank. Lightning's
@@ -11,7 +12,6 @@ split over ranks and workers by sample (every sample read exactly once), whose b
 like the training ones. :mod:`lead_s2r.data.streams` says why webdataset's own splitting and seeding do not do.
 """
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -25,7 +25,7 @@ import webdataset as wds
 from lead_s2r.data.collate import collate
 from lead_s2r.data.device_inputs import RGB_JPEG, check_device_decode, decode_images, rasterize_points
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.streams import ResampledShards, SampleShare, SeededShuffle, StreamSeed, manifest_samples
+from lead_s2r.data.streams import SampleShare, SeededShuffle, StreamSeed, TrainShare, manifest_samples
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
 from lead_s2r.models.input_spec import InputSpec
@@ -57,16 +57,6 @@ class SourceSpec:
 
     def shards(self) -> list[str]:
         return [shard for path in self.paths for shard in shard_paths(path)]
-
-
-class _SplitFilter:
-    """Keeps raw samples of the wanted splits; a class (not a lambda) so dataloader workers can pickle it."""
-
-    def __init__(self, splits: list[str]) -> None:
-        self.splits = set(splits)
-
-    def __call__(self, raw: dict[str, Any]) -> bool:
-        return json.loads(raw["meta.json"])["split"] in self.splits
 
 
 class _Prepare:
@@ -264,18 +254,19 @@ class DriveDataModule(L.LightningDataModule):
     def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
         return _Prepare(SourceTransform(name, self.inputs, list(spec.cameras), self.inputs_on_device))
 
-    def _train_pipeline(self, name: str, spec: SourceSpec, batch_size: int) -> wds.DataPipeline:
-        epoch, rank, _ = self._where()
-        seed = StreamSeed(self.seed, epoch, rank, name)
-        stages: list[Any] = [ResampledShards(spec.shards(), seed), wds.tarfile_to_samples(handler=raise_shard_error)]
-        if spec.splits is not None:  # peeks at meta.json; everything else is decoded once, after shuffling
-            stages.append(wds.select(_SplitFilter(spec.splits)))
-        stages += [SeededShuffle(self.shuffle_buffer, seed), wds.map(self._decode(name, spec))]
-        return wds.DataPipeline(*stages, wds.batched(batch_size, collation_fn=collate, partial=False))
+    def _train_pipeline(self, name: str, share: TrainShare, batch_size: int) -> wds.DataPipeline:
+        return wds.DataPipeline(
+            share.shards,
+            wds.tarfile_to_samples(handler=raise_shard_error),
+            share,
+            SeededShuffle(self.shuffle_buffer, share.seed),
+            wds.map(self._decode(name, self.train_sources[name])),
+            wds.batched(batch_size, collation_fn=collate, partial=False),
+        )
 
     @staticmethod
-    def _eval_samples(spec: SourceSpec) -> tuple[list[tuple[str, str]], dict[str, list[str]]]:
-        """(shard, key) of every sample the source evaluates, and every key its manifests list per shard."""
+    def _samples(spec: SourceSpec) -> tuple[list[tuple[str, str]], dict[str, list[str]]]:
+        """(shard, key) of every sample of the source in its splits, and every key its manifests list per shard."""
         samples: list[tuple[str, str]] = []
         listed: dict[str, list[str]] = {}
         for path in spec.paths:
@@ -310,17 +301,24 @@ class DriveDataModule(L.LightningDataModule):
     def train_dataloader(self) -> dict[str, wds.WebLoader]:
         if not self.train_sources:
             raise ValueError("no training sources configured (data.train)")
+        epoch, rank, world_size = self._where()
         loaders = {}
         for name, size in self.current_batch_sizes().items():
             if size > 0:
-                pipeline = self._train_pipeline(name, self.train_sources[name], size)
-                loaders[name] = self._loader(pipeline).with_epoch(self.epoch_steps())
+                samples, _ = self._samples(self.train_sources[name])
+                if len(samples) < world_size:  # a rank without samples would wait for a shard forever
+                    raise UserError(
+                        f"data.train.{name}: {len(samples)} training sample(s) in its paths and splits for "
+                        f"{world_size} rank(s), and every rank needs samples of its own; add data or use fewer devices"
+                    )
+                share = TrainShare(samples, StreamSeed(self.seed, epoch, rank, name), world_size)
+                loaders[name] = self._loader(self._train_pipeline(name, share, size)).with_epoch(self.epoch_steps())
         return loaders
 
     def _eval_loaders(self, sources: dict[str, SourceSpec], what: str) -> list[wds.WebLoader]:
         if not sources:
             raise ValueError(f"no {what} sources configured (data.{what})")
-        found = {name: self._eval_samples(spec) for name, spec in sources.items()}
+        found = {name: self._samples(spec) for name, spec in sources.items()}
         world_size = self._where()[2]
         if world_size > 1 and all(len(samples) < world_size for samples, _ in found.values()):
             # the last rank's share would be empty: its DDP never runs the first forward, which syncs buffers

@@ -1,11 +1,20 @@
-"""Which samples each rank and dataloader worker reads, and in what order: seeded training streams, sample-split
-evaluation streams.
+"""Which samples each rank and dataloader worker reads, and in what order: seeded training streams over disjoint
+rank shares, sample-split evaluation streams.
 
-Training draws shards with replacement and shuffles samples in a buffer. Webdataset's own resampler mixes the
-clock, the pid and ``os.urandom`` into its seed, and its shuffle seeds from the clock, so two runs with the same
-``seed_everything`` draw different batches. Here both generators are seeded from (seed, epoch, rank, worker, source,
-purpose) and nothing else: the same seed gives the same batches, and a run resumed at an epoch boundary draws what
-the uninterrupted run would have drawn next (the epoch is part of the seed, not a counter that lives in memory).
+Training splits a source's samples over the ranks anew each epoch, then each rank draws shards with replacement from
+its own share and shuffles samples in a buffer: within an epoch no two ranks train on the same sample (drawing the
+whole source on every rank would let two ranks take the same sample into one optimizer step). Every rank computes
+the same split, from (seed, epoch, source) alone: the shard order is shuffled and the sample list rotated by a
+random offset, then cut into contiguous runs (:func:`share`), so a rank opens whole shards where a source has many
+and a part of each shard where it has few, and a one-shard source still gives each rank other samples each epoch.
+A rank draws a shard in proportion to the samples of its share in it, so each of those samples is equally likely.
+Dataloader workers of one rank draw from its share with seeds of their own.
+
+Webdataset's own resampler mixes the clock, the pid and ``os.urandom`` into its seed, and its shuffle seeds from the
+clock, so two runs with the same ``seed_everything`` draw different batches. Here both generators are seeded from
+(seed, epoch, rank, worker, source, purpose) and nothing else: the same seed gives the same batches, and a run
+resumed at an epoch boundary draws what the uninterrupted run would have drawn next (the epoch is part of the seed,
+not a counter that lives in memory).
 The rank is passed in from the trainer because dataloader workers do not always see ``torch.distributed`` or a
 ``RANK`` variable; the worker comes from ``torch.utils.data.get_worker_info`` when the stream starts.
 
@@ -16,8 +25,10 @@ selected samples (35 -> 18 + 17) and opens only the shards that hold it. The sam
 of every shard, which each opened tar is held to (a corrupt header mid-tar would otherwise end it silently).
 """
 
+import itertools
 import random
 import zlib
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,21 +65,6 @@ class StreamSeed:
     def rng(self, purpose: str) -> random.Random:
         """A generator for ``purpose`` ("shards", "shuffle") in the calling dataloader worker."""
         return random.Random(stream_seed(self.seed, self.epoch, self.rank, worker_info()[0], self.source, purpose))
-
-
-class ResampledShards:
-    """An endless stream of ``{"url": shard}`` drawn with replacement; the first stage of a training pipeline."""
-
-    def __init__(self, shards: Sequence[str], seed: StreamSeed) -> None:
-        if not shards:
-            raise ValueError(f"source {seed.source!r} has no shards to draw from")
-        self.shards = list(shards)
-        self.seed = seed
-
-    def __call__(self) -> Iterator[dict[str, str]]:
-        rng = self.seed.rng("shards")
-        while True:
-            yield {"url": rng.choice(self.shards)}
 
 
 class SeededShuffle:
@@ -127,3 +123,37 @@ class SampleShare:
     def __call__(self, samples: Iterator[dict[str, Any]]) -> Iterator[dict[str, Any]]:
         keys = {key for _, key in self.mine()}
         return (sample for sample in samples if sample["__key__"] in keys)
+
+
+class TrainShare:
+    """One rank's share of a source's training samples in one epoch, drawn with replacement.
+
+    :meth:`shards` starts a training pipeline (an endless stream of shards to open, each drawn in proportion to the
+    samples of this share it holds); calling the share on the opened samples keeps this share's.
+    """
+
+    def __init__(self, samples: Sequence[tuple[str, str]], seed: StreamSeed, world_size: int) -> None:
+        order = random.Random(stream_seed(seed.seed, seed.epoch, seed.source, "ranks"))  # the same on every rank
+        keys_by_shard: dict[str, list[str]] = {}
+        for shard, key in samples:
+            keys_by_shard.setdefault(shard, []).append(key)
+        shards = list(keys_by_shard)
+        order.shuffle(shards)
+        ordered = [(shard, key) for shard in shards for key in keys_by_shard[shard]]
+        offset = order.randrange(len(ordered)) if ordered else 0
+        self.samples = share(ordered[offset:] + ordered[:offset], seed.rank, world_size)
+        self.seed = seed
+        counts = Counter(shard for shard, _ in self.samples)
+        self.urls = list(counts)
+        self.cumulative = list(itertools.accumulate(counts.values()))
+
+    def shards(self) -> Iterator[dict[str, str]]:
+        if not self.urls:
+            raise ValueError(f"source {self.seed.source!r}: rank {self.seed.rank} has no training samples to draw")
+        rng = self.seed.rng("shards")
+        while True:
+            yield {"url": rng.choices(self.urls, cum_weights=self.cumulative)[0]}
+
+    def __call__(self, samples: Iterator[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        mine = set(self.samples)
+        return (sample for sample in samples if (sample["__url__"], sample["__key__"]) in mine)

@@ -5,6 +5,7 @@ others are counted in ``other_datasets``. Samples without a prediction are liste
 ``allow_missing=True`` (the CLI's default; ``--strict`` turns it off), left out of the scores.
 """
 
+import contextlib
 import inspect
 import json
 import time
@@ -20,10 +21,12 @@ from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
-from lead_s2r.shards import read_samples
+from lead_s2r.shards import check_listed_shards, listed_keys, read_part, read_samples, sample_offsets
 
 SCORES_TABLE = "scores.parquet"
 SCORES_JSON = "scores.json"
+#: Samples one job of a parallel read decodes: NAVSIM's take 4 ms each, a job's messages a few ms.
+SAMPLES_PER_READ = 64
 
 
 def planner_predictions(planner: str, data: Path | list[Path], path: Path, split: str | None = None) -> Path:
@@ -45,9 +48,16 @@ def _folders(data: Path | list[Path]) -> list[Path]:
     return [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
 
 
-def select_samples(folders: list[Path], fields: tuple[str, ...], split: str | None) -> list[dict[str, Any]]:
-    """The samples of ``folders`` (of ``split`` if given: a folder converted from a whole dataset holds several)."""
-    samples = [sample for folder in folders for sample in read_samples(folder, fields=fields)]
+def select_samples(
+    folders: list[Path], fields: tuple[str, ...], split: str | None, executor: Executor | None = None
+) -> list[dict[str, Any]]:
+    """The samples of ``folders`` (of ``split`` if given: a folder converted from a whole dataset holds several), in
+    shard order. ``executor`` decodes them in parts of :data:`SAMPLES_PER_READ` (decoding NAVSIM's scoring context
+    costs about a tenth of scoring it: left to the driver, it would bound what more workers gain)."""
+    if executor is None:
+        samples = [sample for folder in folders for sample in read_samples(folder, fields=fields)]
+    else:
+        samples = [sample for folder in folders for sample in _read_in_parts(folder, fields, executor)]
     if split is None:
         return samples
     chosen = [sample for sample in samples if sample["meta"]["split"] == split]
@@ -55,6 +65,20 @@ def select_samples(folders: list[Path], fields: tuple[str, ...], split: str | No
         held = sorted({sample["meta"]["split"] for sample in samples})
         raise UserError(f"--split {split}: {', '.join(map(str, folders))} holds no such split; it holds {held}")
     return chosen
+
+
+def _read_in_parts(folder: Path, fields: tuple[str, ...], executor: Executor) -> list[dict[str, Any]]:
+    """A converted folder's samples, as :func:`read_samples` yields them, decoded by ``executor``'s workers."""
+    listed = listed_keys(folder)
+    if listed is None:  # a folder of tars without a manifest: nothing says where to cut them
+        return list(read_samples(folder, fields=fields))
+    check_listed_shards(listed)
+    parts = []
+    for shard, keys in sorted(listed.items()):
+        offsets = sample_offsets(shard) if len(keys) > SAMPLES_PER_READ else {keys[0]: 0}
+        starts = range(0, len(keys), SAMPLES_PER_READ)
+        parts += [(shard, keys[start : start + SAMPLES_PER_READ], fields, offsets[keys[start]]) for start in starts]
+    return [sample for part in executor.map(read_part, parts, per_job=1) for sample in part]
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
@@ -103,17 +127,18 @@ def score_predictions(
     scorer.executor = executor
     folders = _folders(data)
     start = time.perf_counter()
-    samples = select_samples(folders, scorer.fields, split)
-    _check_metric_fits(scorer, folders, samples)
-    predicted = read_predictions(predictions)
-    covered = coverage(predicted, samples)
-    if len(covered["unpredicted"]) == len(samples):
-        datasets = sorted({sample["meta"]["dataset"] for sample in samples})
-        raise UserError(
-            f"{predictions}: no prediction for any sample of {', '.join(map(str, folders))} (datasets {datasets}); "
-            "check that --predictions and --data belong together"
-        )
-    result = scorer.score(predicted, samples)
+    with executor.session() if executor is not None else contextlib.nullcontext():  # one Ray connection
+        samples = select_samples(folders, scorer.fields, split, executor)
+        _check_metric_fits(scorer, folders, samples)
+        predicted = read_predictions(predictions)
+        covered = coverage(predicted, samples)
+        if len(covered["unpredicted"]) == len(samples):
+            datasets = sorted({sample["meta"]["dataset"] for sample in samples})
+            raise UserError(
+                f"{predictions}: no prediction for any sample of {', '.join(map(str, folders))} (datasets {datasets}); "
+                "check that --predictions and --data belong together"
+            )
+        result = scorer.score(predicted, samples)
     report = {
         "metric": scorer.name,
         "metric_version": scorer.version,
