@@ -45,13 +45,16 @@ class NavsimAdapter(Adapter):
     ``scene_filter`` a NAVSIM scene-filter yaml or token list (its frame counts apply unless given here);
     ``maps`` the nuPlan maps root, which adds ``scoring`` and ``bev_semantic``;
     ``two_stage_mapping`` a NAVSIM v2 train/test-split yaml with ``reactive_all_mapping`` (navhard two-stage): every
-    sample then records its stage and group in ``meta.extras.navsim`` and info.json keeps the whole mapping.
+    sample then records its stage and group in ``meta.extras.navsim`` and info.json keeps the whole mapping;
+    ``tag_filters`` scene filters (comma-separated paths) that name subsets: a sample whose token one of them lists
+    gets the tag ``scene_filter:<its file stem>`` (NAVSIM's format has no field for a scene's kind; its subsets are
+    scene filters, e.g. the synthetic world's ``pedestrians_ahead.yaml``).
     A split folder laid out as NAVSIM v2's two-stage splits (``<src>/<split>/openscene_meta_datas``, ...) is read
     with its synthetic scenes (:mod:`lead_s2r_adapters.navsim_synthetic`).
     """
 
     name = "navsim"
-    version = "1.1.0"
+    version = "1.2.0"
     extras = "navsim"
 
     def __init__(
@@ -64,6 +67,7 @@ class NavsimAdapter(Adapter):
         frame_interval: int | None = None,
         map_radius: float = 100.0,
         two_stage_mapping: str | None = None,
+        tag_filters: str | None = None,
     ) -> None:
         self.split = split
         self.filter = read_scene_filter(Path(scene_filter)) if scene_filter else None
@@ -79,6 +83,9 @@ class NavsimAdapter(Adapter):
             raise ValueError("need num_history_frames >= 2, num_future_frames >= 1 and frame_interval >= 1")
         self.mapping = read_two_stage_mapping(Path(two_stage_mapping)) if two_stage_mapping else None
         self._roles = two_stage_roles(self.mapping or [])
+        self.tag_filters = tag_filters
+        tagging = [read_scene_filter(Path(path)) for path in (tag_filters or "").split(",") if path]
+        self._tags = {f"scene_filter:{f.name}": f.tokens or frozenset() for f in tagging}
         self._filter_problems: list[dict[str, Any]] = []
 
     def options(self) -> dict[str, Any]:
@@ -90,6 +97,7 @@ class NavsimAdapter(Adapter):
             "num_future_frames": self.future,
             "frame_interval": self.interval,
             "map_radius": self.map_radius,
+            "tag_filters": self.tag_filters,
         }
 
     # ----------------------------------------------------------------------- logs
@@ -146,6 +154,10 @@ class NavsimAdapter(Adapter):
             refs += [LogRef(token, split, str(stems[token]), extra) for token in tokens if token in stems]
         self._filter_problems = self._check_filter([ref for ref in refs if SYNTHETIC not in ref.extra], missing)
         return refs
+
+    def tags(self, token: str) -> list[str]:
+        """The tags of scene ``token``: one per ``tag_filters`` scene filter that lists it."""
+        return [tag for tag, tokens in self._tags.items() if token in tokens]
 
     def two_stage_extras(self, token: str) -> dict[str, Any]:
         """``meta.extras.navsim`` fields of a token of the two-stage mapping: its stage (1 or 2), role and group."""

@@ -37,6 +37,8 @@ class SceneSource(Protocol):
 
     def two_stage_extras(self, token: str) -> dict[str, Any]: ...
 
+    def tags(self, token: str) -> list[str]: ...
+
 
 def ego_meta(velocity: list[float], acceleration: list[float], one_hot: np.ndarray, previous: np.ndarray) -> dict:
     """``meta.ego`` from a NAVSIM ego status; the yaw rate comes from the previous past pose ``[t < 0, x, y, yaw]``
@@ -89,6 +91,7 @@ def scene_meta(
         "ego": ego,
         "cameras": cameras,
         "has": {name: True for name in sample if name not in ("__key__", "meta")},
+        "tags": source.tags(extras["scene_token"]),
     }
     if "bev_semantic" in sample:
         meta["bev"] = navsim_map.BEV_META

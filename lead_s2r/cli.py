@@ -195,7 +195,8 @@ def cmd_score(args: argparse.Namespace) -> int:
         if predictions is None:
             path = out / f"predictions-{args.planner}.parquet"
             predictions = planner_predictions(args.planner, data, path, args.split)
-        summary = score_predictions(args.metric, predictions, data, out, split=args.split, executor=executor, **options)
+        selection = {"split": args.split, "tag": args.tag}
+        summary = score_predictions(args.metric, predictions, data, out, executor=executor, **selection, **options)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -385,6 +386,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", required=True)
     sub.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="scorer configuration")
     sub.add_argument("--split", default=None, help="score only this split of --data (e.g. val)")
+    sub.add_argument(
+        "--tag", default=None, help="score only the samples with this tag (e.g. scene_filter:pedestrians_ahead)"
+    )
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
     sub.add_argument("--json", action="store_true", help="print scores.json instead of the summary table")
     sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")

@@ -257,8 +257,8 @@ def test_hdmap_pixel_to_ego_matches_the_route(converted: tuple[Path, Path, list[
 
 def test_box_classes(converted: tuple[Path, Path, list[dict]]) -> None:
     _, _, samples = converted
-    classes = samples[0]["boxes"][:, 9].astype(int).tolist()
-    native = samples[0]["meta"]["extras"]["carla_lead"]["box_classes"]
+    classes = [c for sample in samples for c in sample["boxes"][:, 9].astype(int).tolist()]
+    native = [n for sample in samples for n in sample["meta"]["extras"]["carla_lead"]["box_classes"]]
     want = {"walker": BoxClass.PEDESTRIAN, "traffic_light": BoxClass.TRAFFIC_LIGHT, "static": BoxClass.TRAFFIC_CONE}
     for cls, name in zip(classes, native, strict=True):
         if name in want:

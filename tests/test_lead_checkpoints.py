@@ -109,6 +109,27 @@ def test_planner_overrides_shape_the_planner() -> None:
         LeadConfig.from_json({"waypoint_interval_s": 0})
 
 
+def test_camera_tile_size_shrinks_only_the_image_input() -> None:
+    """Our toy-size extension (the smoke twins' overlay): the image input and the parameters sized by its anchors
+    follow the tile; every other entry keeps LEAD's shape, and without the field the tile is LEAD's."""
+    small = LeadConfig.from_json({**CASES["tfv6_radar"], "camera_tile_size": [64, 32]})
+    assert (small.final_image_height, small.final_image_width) == (32, 192)
+    assert (small.img_vert_anchors, small.img_horz_anchors) == (1, 6)
+    assert LeadConfig.from_json(small.to_json()) == small
+    assert LeadConfig.from_json(CASES["tfv6_radar"]).final_image_width == 1152
+    full = lead.model_from_config(CASES["tfv6_radar"]).state_dict()
+    model = lead.model_from_config({**CASES["tfv6_radar"], "camera_tile_size": [64, 32]})
+    changed = {k for k, v in model.state_dict().items() if v.shape != full[k].shape}
+    assert model.state_dict().keys() == full.keys() and changed and all("pos_emb" in k for k in changed), changed
+    inputs = seeded_inputs(CASES["tfv6_radar"])
+    inputs["rgb"] = inputs["rgb"][:, :, :32, :192]
+    outputs = lead.forward(model.eval(), inputs)
+    assert outputs["pred_future_waypoints"].shape == (1, 8, 2)
+    for bad in ([64, 48], [64], [0, 64]):
+        with pytest.raises(UserError, match="camera_tile_size"):
+            LeadConfig.from_json({"camera_tile_size": bad})
+
+
 @pytest.fixture(scope="module")
 def tiny_case() -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     return (

@@ -14,7 +14,15 @@ from lead_s2r.predictions import read_predictions
 from lead_s2r.report.tables import MISSING, collect, to_markdown
 from lead_s2r.shards import load_manifest
 
-COLUMNS = ["NAVSIM PDMS", "NAVSIM EPDMS", "WOD-E2E RFS", "NAVSIM ADE", "WOD-E2E ADE"]
+COLUMNS = [
+    "NAVSIM PDMS",
+    "NAVSIM PDMS, needs perception",
+    "NAVSIM EPDMS",
+    "WOD-E2E RFS",
+    "WOD-E2E RFS, needs perception",
+    "NAVSIM ADE",
+    "WOD-E2E ADE",
+]
 ROWS = [
     qs.EXPERT,
     "Ego MLP",
@@ -76,11 +84,13 @@ def test_table_spec_is_table4_over_the_quickstart_rows():
 
 def _scores(pdms: float, ade: float) -> dict:
     navsim = {"pdms@navsim-1.1": {"pdms": pdms}, "epdms@navsim-2.2": {"epdms": pdms / 2}}
-    return {"navsim": {**navsim, "ade": {"ade": ade, "fde": 2 * ade}}}
+    needs = {"pdms@navsim-1.1#scene_filter:pedestrians_ahead": {"pdms": 0.8 * pdms}}  # the tagged subset's
+    return {"navsim": {**navsim, **needs, "ade": {"ade": ade, "fde": 2 * ade}}}
 
 
 def _wod(rfs: float, ade: float) -> dict:
-    return {"wod_e2e": {"rfs@wod-e2e-2025": {"rfs": rfs}, "ade": {"ade": ade, "fde": 2 * ade}}}
+    needs = {"rfs@wod-e2e-2025#cluster:Pedestrian": {"rfs": rfs - 1}}
+    return {"wod_e2e": {"rfs@wod-e2e-2025": {"rfs": rfs}, **needs, "ade": {"ade": ade, "fde": 2 * ade}}}
 
 
 RESULTS = {
@@ -95,35 +105,40 @@ def test_a_row_joins_the_navsim_and_wod_runs_of_one_model_over_seeds(tmp_path):
     spec = qs.table_spec()
     lines = to_markdown(spec, collect(spec, qs.table_runs(RESULTS, tmp_path))).splitlines()
     zero = "0.00 ± 0.00"
-    expert = f"| Expert (logged) | 93.75 ± 0.00 | 94.5 | 46.88 ± 0.00 | 51.3 | 8.00 ± 0.00 | 8.10 | {zero} | – |"
-    assert f"{expert} {zero} | – |" in lines  # deterministic: the same scores for every seed
-    ltfv6 = "| LTFv6 | 60.00 ± 10.00 | 85.4 | 30.00 ± 5.00 | 28.3 | 6.50 ± 0.50 | 7.51 | 1.50 ± 0.00 | – |"
-    assert f"{ltfv6} 1.25 ± 0.00 | – |" in lines
+    navsim = "| Expert (logged) | 93.75 ± 0.00 | 94.5 | 75.00 ± 0.00 | – | 46.88 ± 0.00 | 51.3 |"
+    wod = f"8.00 ± 0.00 | 8.10 | 7.00 ± 0.00 | – | {zero} | – | {zero} | – |"
+    assert f"{navsim} {wod}" in lines  # deterministic: the same scores for every seed
+    navsim = "| LTFv6 | 60.00 ± 10.00 | 85.4 | 48.00 ± 8.00 | – | 30.00 ± 5.00 | 28.3 |"
+    wod = "6.50 ± 0.50 | 7.51 | 5.50 ± 0.50 | – | 1.50 ± 0.00 | – | 1.25 ± 0.00 | – |"
+    assert f"{navsim} {wod}" in lines
     m = MISSING
-    assert f"| LTFv6, before training | 0.00* | – | 0.00* | – | {m} | – | 9.00* | – | {m} | – |" in lines
-    assert f"| Ego MLP | {m} | 65.6 | {m} | 12.7 | {m} | 7.31 |" in "\n".join(lines)
+    before = f"| LTFv6, before training | 0.00* | – | 0.00* | – | 0.00* | – | {m} | – | {m} | – | 9.00* | – | {m} | – |"
+    assert before in lines
+    assert f"| Ego MLP | {m} | 65.6 | {m} | – | {m} | 12.7 | {m} | 7.31 |" in "\n".join(lines)
 
 
 def test_console_shows_one_table_per_dataset_within_80_columns(tmp_path):
     spec = qs.table_spec()
     console = Console(file=io.StringIO(), width=80)
-    for grid in qs.tables(spec, collect(spec, qs.table_runs(RESULTS, tmp_path))):
+    widest = {f"navsim_ltfv6_lead/seed{seed}/trained": _scores(pdms, 10.5) for seed, pdms in enumerate((1, 0, 0.2))}
+    for grid in qs.tables(spec, collect(spec, qs.table_runs(RESULTS | widest, tmp_path))):
         console.print(grid)
     lines = console.file.getvalue().splitlines()
     assert max(len(line) for line in lines) <= 80 and "…" not in console.file.getvalue()
     rows = [" ".join(line.split()) for line in lines]
     assert "NAVSIM: held-out test logs" in rows and "WOD-E2E: held-out val logs" in rows
-    assert "model PDMS paper EPDMS paper ADE" in rows
-    assert "model RFS paper ADE" in rows
+    assert "PDMS, needs" in rows and "model PDMS paper perception EPDMS paper ADE" in rows
+    assert "RFS, needs" in rows and "model RFS paper perception ADE" in rows
     m = MISSING
     navsim = [
-        "Expert (logged) 93.75 ± 0.00 94.5 46.88 ± 0.00 51.3 0.00 ± 0.00",
-        f"Ego MLP {m} 65.6 {m} 12.7 {m}",
-        "LTFv6 60.00 ± 10.00 85.4 30.00 ± 5.00 28.3 1.50 ± 0.00",
+        "Expert 93.75 ± 0.00 94.5 75.00 ± 0.00 46.88 ± 0.00 51.3 0.00 ± 0.00",
+        f"Ego MLP {m} 65.6 {m} {m} 12.7 {m}",
+        "LTFv6 60.00 ± 10.00 85.4 48.00 ± 8.00 30.00 ± 5.00 28.3 1.50 ± 0.00",
+        "LTFv6 + LEAD 40.00 ± 52.92 86.4 32.00 ± 42.33 20.00 ± 26.46 31.4 10.50 ± 0.00",  # the widest: unwrapped
     ]
-    wod = ["Expert (logged) 8.00 ± 0.00 8.10 0.00 ± 0.00", f"Ego MLP {m} 7.31 {m}"]
-    wod.append("LTFv6 6.50 ± 0.50 7.51 1.25 ± 0.00")
-    before = ["untrained 0.00* – 0.00* – 9.00*", f"untrained {m} – {m}"]
+    wod = ["Expert 8.00 ± 0.00 8.10 7.00 ± 0.00 0.00 ± 0.00", f"Ego MLP {m} 7.31 {m} {m}"]
+    wod.append("LTFv6 6.50 ± 0.50 7.51 5.50 ± 0.50 1.25 ± 0.00")
+    before = ["untrained 0.00* – 0.00* 0.00* – 9.00*", f"untrained {m} – {m} {m}"]
     for row in navsim + wod + before:
         assert row in rows
     assert rows[rows.index(navsim[2]) + 1] == before[0]  # a model's untrained row sits under it
@@ -137,7 +152,8 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI reads it beside its args
     monkeypatch.setattr(qs, "STEPS", dict.fromkeys(qs.STEPS, (1, 2)))
     monkeypatch.setattr(qs, "SEEDS", (0, 1))
-    small = {"navsim": ({"trainval": 2, "test": 1}, {"maps": "maps"}), "wod_e2e": ({"train": 2, "val": 2}, {})}
+    # the held-out NAVSIM log 3 and WOD-E2E segment 1 have pedestrians ahead: the "needs perception" columns
+    small = {"navsim": ({"trainval": 3, "test": 1}, qs.PLAN["navsim"][1]), "wod_e2e": ({"train": 2, "val": 2}, {})}
     monkeypatch.setattr(qs, "PLAN", {**qs.PLAN, **small, "carla_lead": (None, {})})
     console = Console(file=io.StringIO(), width=80)
     results = qs.quickstart(tmp_path, workers=1, console=console)

@@ -3,6 +3,7 @@ numbers against scores.json, a named failure, a comparison of two runs, bad inpu
 
 import json
 import re
+import shutil
 import time
 from html.parser import HTMLParser
 from pathlib import Path
@@ -18,6 +19,7 @@ from lead_s2r import cli
 from lead_s2r.convert import convert
 from lead_s2r.predictions import Prediction, write_predictions
 from lead_s2r.registry import get_adapter
+from lead_s2r.report.run_outputs import load_run
 from lead_s2r.report.site import build_report
 from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.run import score_predictions
@@ -228,3 +230,16 @@ def test_report_in_headless_chromium(site: Path, tmp_path: Path) -> None:
             assert len(visit.images) >= fewest_images and all(width > 0 for _, _, width in visit.images), visit.images
             assert headings <= set(visit.headings), visit.headings
             assert cv2.imdecode(np.frombuffer(visit.screenshot, np.uint8), cv2.IMREAD_COLOR).shape[1] >= 1000
+
+
+def test_a_tagged_subset_beside_its_whole_set_is_left_out_of_the_report(runs: dict[str, Any], tmp_path: Path) -> None:
+    """`lead-s2r score --tag` rescoring a subset adds no second copy of its samples to the views; alone, it is read."""
+    run = tmp_path / "A"
+    shutil.copytree(runs["root"] / "A", run)
+    rfs = "rfs@wod-e2e-2025"
+    tagged = run / "scores" / "wod_e2e" / "rfs-construction"
+    data = runs["data"] / "wod_e2e"
+    score_predictions(rfs, run / "predictions.parquet", [data], tagged, tag="cluster:Construction", allow_missing=True)
+    assert [s.report.get("tag") for s in load_run(run).scores if s.metric == rfs] == [None]
+    shutil.rmtree(run / "scores" / "wod_e2e" / "rfs")
+    assert [s.report.get("tag") for s in load_run(run).scores if s.metric == rfs] == ["cluster:Construction"]

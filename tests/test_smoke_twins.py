@@ -8,8 +8,9 @@ says). The predict and score stages run the way the recipe headers do: a ``Predi
 line, then the recipe's metric (CARLA: ADE on the training routes, standing in for the closed loop; NAVSIM: PDMS on
 navtest and EPDMS on navhard two-stage; WOD-E2E: RFS on val).
 
-Slow (about three minutes on two busy CPU cores): the data are generated and converted once, then the twins run
-in their init_from order. Deselect with ``-m "not slow"``.
+Slow (about two minutes on two busy CPU cores; LEAD's networks run on 64x64 camera tiles, see
+``recipes/smoke/twin_lead.yaml``): the data are generated and converted once, then the twins run in their init_from
+order. Deselect with ``-m "not slow"``.
 """
 
 import math

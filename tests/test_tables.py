@@ -189,3 +189,26 @@ def test_any_subset_of_families_makes_a_table(tmp_path, runs, capsys):
     assert f"--runs: no run folder matches {patterns[0]}" in capsys.readouterr().err
     assert main(["table", "--spec", str(spec), "--runs", str(runs / "navsim")]) == 2
     assert f"--runs: no such directory {runs / 'navsim'}" in capsys.readouterr().err
+
+
+def test_a_tagged_column_reads_the_scores_of_its_tagged_subset_only(tmp_path):
+    """`lead-s2r score --tag` writes a second scores.json of the same metric; a column with `tag:` reads it, a
+    column without one the whole set's, and neither is "two scores.json for one metric"."""
+    root = tmp_path / "runs"
+    for seed, (whole, subset) in enumerate(((7.0, 5.0), (7.2, 5.5), (7.4, 6.0))):
+        run = make_run(root, "wod/ltfv6", seed, {RFS: {"rfs": whole}})
+        (run / "tagged").mkdir()
+        report = {"metric": RFS, "tag": "cluster:Pedestrian", "aggregates": {"rfs": subset}}
+        (run / "tagged" / "scores.json").write_text(json.dumps(report))
+    spec = {
+        "title": "t",
+        "columns": [
+            {"name": "RFS", "metric": RFS, "key": "rfs"},
+            {"name": "RFS, needs perception", "metric": RFS, "key": "rfs", "tag": "cluster:Pedestrian"},
+            {"name": "RFS, cyclists", "metric": RFS, "key": "rfs", "tag": "cluster:Cyclist"},
+        ],
+        "rows": [{"name": "LTFv6", "run": "wod/ltfv6"}],
+    }
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
+    cells = collect(load_spec(tmp_path / "spec.yaml"), find_runs([str(root / "*" / "*" / "seed*")]))[0]
+    assert [cell.values for cell in cells] == [(7.0, 7.2, 7.4), (5.0, 5.5, 6.0), ()]

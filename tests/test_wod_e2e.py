@@ -367,10 +367,15 @@ def rolled_forward(frame: SynthFrame) -> np.ndarray:
     return xy[49::50]
 
 
-def test_the_future_is_predictable_from_the_ego_state():
+def test_the_future_is_predictable_from_the_ego_state_but_where_pedestrians_stand_ahead():
+    """Every segment but those with pedestrians ahead (tests/test_perception_worlds.py): there the driver stops,
+    which only the cameras tell."""
     dataset = make_dataset(seed=3, splits={"train": 6})
-    errors = [np.abs(rolled_forward(f) - f.future[:, :2]).max() for f in dataset.frames]
-    assert max(errors) < 0.3
+    sequences = list(dict.fromkeys(f.sequence for f in dataset.frames))
+    errors = {s: max(np.abs(rolled_forward(f) - f.future[:, :2]).max() for f in dataset.frames if f.sequence == s)
+              for s in sequences}  # fmt: skip
+    assert {s for s, error in errors.items() if error > 0.3} == {s for i, s in enumerate(sequences) if i % 6 in (1, 3)}
+    assert max(error for error in errors.values() if error < 0.3) < 0.3 and min(errors.values()) < 0.05
 
 
 def test_each_val_segment_rates_one_frame_close_to_the_logged_future():

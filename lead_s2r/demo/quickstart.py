@@ -16,9 +16,9 @@ The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken o
 ``init_from`` of a CARLA pre-training), so the two rows differ in nothing else. Lightning talks a lot on the console
 (model summary, tips, deprecation warnings from its dependencies); the quickstart sends all of it to
 ``<out>/lightning.log`` so the console shows the stages and the table. Columns are :data:`METRICS`, one per metric and
-dataset, so a new metric is one line there. The files under ``<out>/table`` hold Table 4's single layout (every
-column, ours and the paper's); the console splits it into one table per dataset with short row names, because ten
-columns squeezed into an 80-column terminal cut every header and wrap every model name over four lines.
+dataset, so a new metric is one line there; a "needs perception" metric scores the held-out scenes with pedestrians
+ahead only (:data:`PERCEPTION_TAGS`), where the ego status cannot tell the driver to stop. ``<out>/table`` holds
+Table 4's single layout; the console has one table per dataset with short row names, to fit 80 columns.
 """
 
 import importlib
@@ -52,6 +52,7 @@ from lead_s2r.report.tables import (
     format_cell,
     format_paper,
     load_spec,
+    scores_key,
     to_csv,
     to_latex,
     to_markdown,
@@ -68,7 +69,7 @@ SMOKE = Path(__file__).resolve().parents[2] / "recipes" / "smoke"
 #: validation segment, as the real data does, so RFS is a mean over about as many frames as there are val segments.
 PLAN: dict[str, tuple[dict[str, int] | None, dict[str, str]]] = {
     "carla_lead": (None, {}),
-    "navsim": ({"trainval": 32, "test": 20}, {"maps": "maps"}),
+    "navsim": ({"trainval": 32, "test": 20}, {"maps": "maps", "tag_filters": "scene_filters/pedestrians_ahead.yaml"}),
     "wod_e2e": ({"train": 48, "val": 24}, {}),
 }
 #: Every trained row is the mean and sample std over these seeds (the paper's three); a seed sets the initial
@@ -81,6 +82,9 @@ EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
 LABELS = {"navsim": "NAVSIM", "wod_e2e": "WOD-E2E"}
 #: dataset -> the family folder its runs sit in (``runs/<family>/<name>/seed<k>``, as in the recipes and Table 4).
 FAMILIES = {"navsim": "navsim", "wod_e2e": "wod"}
+#: dataset -> the tag of its scenes that need perception (:mod:`lead_s2r.synthetic.pedestrians_ahead`): NAVSIM's
+#: from the generator's scene filter ``pedestrians_ahead.yaml`` (``tag_filters``), WOD-E2E's from its cluster file.
+PERCEPTION_TAGS = {"navsim": "scene_filter:pedestrians_ahead", "wod_e2e": "cluster:Pedestrian"}
 #: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
 HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: Training name -> its length in the quickstart: (epochs, optimizer steps per epoch). The Ego MLP's steps cost
@@ -130,34 +134,38 @@ TRAINED = "trained"
 
 @dataclass(frozen=True)
 class Metric:
-    """One metric of the table: the aggregate ``aggregate`` of scorer ``scorer`` times ``scale``, on ``datasets``
-    (None: every evaluated dataset); one column per dataset."""
+    """One metric of the table: the aggregate ``aggregate`` of scorer ``scorer`` times ``scale``, on ``datasets`` (None:
+    all), one column per dataset; ``needs_perception``: on the samples with the :data:`PERCEPTION_TAGS` tag only."""
 
     column: str
     scorer: str
     aggregate: str
     datasets: tuple[str, ...] | None = None
     scale: float = 1.0
+    needs_perception: bool = False
 
     def applies(self, dataset: str) -> bool:
         return self.datasets is None or dataset in self.datasets
 
+    def tag(self, dataset: str) -> str | None:  # of the samples scored on ``dataset`` (None: all of them)
+        return PERCEPTION_TAGS[dataset] if self.needs_perception else None
+
 
 METRICS = (
     Metric("PDMS", "pdms@navsim-1.1", "pdms", ("navsim",), scale=100.0),
+    Metric("PDMS, needs perception", "pdms@navsim-1.1", "pdms", ("navsim",), scale=100.0, needs_perception=True),
     Metric("EPDMS", "epdms@navsim-2.2", "epdms", ("navsim",), scale=100.0),
     Metric("RFS", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",)),
+    Metric("RFS, needs perception", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",), needs_perception=True),
     Metric("ADE", "ade", "ade"),
 )
-
-
 #: the scorers that plan a PDM-Closed reference per sample (``reference_cache`` option)
 REFERENCE_SCORERS = ("pdms@navsim-1.1", "epdms@navsim-2.2")
 
 
-def scorers_for(dataset: str) -> list[str]:
-    """The scorers the table needs on ``dataset``, each once."""
-    return list(dict.fromkeys(metric.scorer for metric in METRICS if metric.applies(dataset)))
+def scorings(dataset: str) -> list[tuple[str, str | None]]:
+    """The (scorer, tag) pairs the table needs on ``dataset``, each once (tag None: every held-out sample)."""
+    return list(dict.fromkeys((m.scorer, m.tag(dataset)) for m in METRICS if m.applies(dataset)))
 
 
 def _stage(console: Console, name: str, started: float) -> None:
@@ -266,15 +274,16 @@ def stage_folder(out: Path, training: Training, dataset: str, stage: str, seed: 
 
 
 def score(predictions: Path, data: Path, dataset: str, out: Path, references: ReferenceCache) -> dict[str, Any]:
-    """Every scorer the table needs on ``dataset`` (converted in ``data``): ``{scorer: aggregates}``; files under
-    ``out/<scorer>``. ``references``: the PDM-Closed references planned on ``data``; a reference depends on the
-    scene only, so PDMS and EPDMS, the expert and every model plan each sample's once (the slowest scoring step)."""
+    """Every scoring the table needs on ``dataset`` (converted in ``data``): ``{scores_key: aggregates}``; files
+    under ``out/<scorer>[-<tag>]``. ``references``: the PDM-Closed references planned on ``data``; a reference depends
+    on the scene only, so the expert and every model plan each sample's once (the slowest scoring step)."""
     results = {}
-    for scorer in scorers_for(dataset):
+    for scorer, tag in scorings(dataset):
         options = {"reference_cache": references} if scorer in REFERENCE_SCORERS else {}
+        folder = out / (scorer if tag is None else f"{scorer}-{tag.replace(':', '-')}")
         # allow_missing: only the held-out samples are predicted
-        report = score_predictions(scorer, predictions, [data], out / scorer, allow_missing=True, **options)
-        results[scorer] = report["aggregates"]
+        report = score_predictions(scorer, predictions, [data], folder, tag=tag, allow_missing=True, **options)
+        results[scores_key(scorer, tag)] = report["aggregates"]
     return results
 
 
@@ -410,10 +419,10 @@ def table_spec() -> TableSpec:
     """Table 4's layout over the quickstart's rows: a column per metric and dataset, the paper's numbers from
     ``recipes/paper/table4.yaml`` beside the trained models and the Expert where it has them."""
     columns = tuple(
-        Column(f"{LABELS[dataset]} {metric.column}", metric.scorer, f"{dataset}.{metric.aggregate}", metric.scale)
-        for metric in METRICS
-        for dataset in EVAL_SPLITS
-        if metric.applies(dataset)
+        Column(f"{LABELS[d]} {m.column}", m.scorer, f"{d}.{m.aggregate}", m.scale, m.tag(d))
+        for m in METRICS
+        for d in EVAL_SPLITS
+        if m.applies(d)
     )
     paper = load_spec("table4")
     rows = tuple(Row(name, name, paper_numbers(paper, name, columns)) for name in table_rows())
@@ -421,7 +430,9 @@ def table_spec() -> TableSpec:
         f"Mean ± sample std over seeds {', '.join(map(str, SEEDS))}; toy models, synthetic data: the numbers show "
         "what training changes and how models rank on these worlds, not what the models can do on real data. Before "
         "training: the initial weights (LTFv6 + LEAD on WOD-E2E: its CARLA pre-training). PDMS and EPDMS in percent, "
-        "ADE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner)."
+        "ADE in metres; paper: the paper's real-data table (its NAVSIM v2 Expert is a privileged planner). Needs "
+        "perception: the same metric on the held-out scenes with pedestrians in the lane ahead, which only the cameras "
+        "show (a third of the logs; the paper has no such column)."
     )
     return TableSpec("Table 4 on synthetic data (held-out logs)", columns, rows, seeds=SEEDS, digits=2, notes=notes)
 
@@ -434,7 +445,7 @@ def paper_numbers(paper: TableSpec, name: str, columns: tuple[Column, ...]) -> t
         dataset = column.key.split(".")[0]
         names = (f"{name} ({LABELS[dataset]})", f"{name.split(' (')[0]} ({LABELS[dataset]})", name)
         row = next((r for r in paper.rows if r.name in names), None)
-        index = next((i for i, c in enumerate(paper.columns) if c.metric == column.metric), None)
+        index = next((i for i, c in enumerate(paper.columns) if c.scores == column.scores), None)
         numbers.append(None if row is None or index is None else row.paper[index])
     return tuple(numbers)
 
@@ -460,11 +471,13 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
         label = LABELS[dataset]
         columns = [i for i, column in enumerate(spec.columns) if column.key.startswith(f"{dataset}.")]
         papers = {i for i in columns if any(row.paper[i] is not None for row in spec.rows)}
-        # no column rules: "mean ± std" cells and the paper's numbers beside them fit 80 columns
-        grid = Table(title=f"{label}: held-out {split} logs", title_justify="left", box=box.SIMPLE_HEAD)
+        # no padding, no edges: the box's one space between columns, so NAVSIM's six number columns fit 80 columns
+        title = f"{label}: held-out {split} logs"
+        grid = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, padding=0, show_edge=False)
         grid.add_column("model")
         for i in columns:
-            grid.add_column(spec.columns[i].name.removeprefix(f"{label} "), justify="right")
+            header = spec.columns[i].name.removeprefix(f"{label} ").replace(" perception", "\nperception")
+            grid.add_column(header, justify="right")
             if i in papers:
                 grid.add_column("paper", justify="right", style="dim")
         for row, row_cells in zip(spec.rows, cells, strict=True):
@@ -479,6 +492,8 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
 
 
 def console_name(row: str) -> str:
-    """A row's name on the console: a model's untrained row sits under its trained one as "untrained" (short, so
-    NAVSIM's five number columns fit 80 columns)."""
+    """A row's name on the console: a model's untrained row sits under its trained one as "untrained", the Expert
+    without "(logged)" (short, so NAVSIM's six number columns fit 80 columns; the notes say what the Expert is)."""
+    if row == EXPERT:
+        return EXPERT.split(" (")[0]
     return f"  {UNTRAINED}" if row.endswith(f", {BEFORE_TRAINING}") else row

@@ -13,6 +13,9 @@ Our extensions, where LEAD's code has no switch (docs/models.md, "LEAD's own arc
 :data:`CAMERA_TILE`), its past-state token slots stay off, and ``use_previous_tp`` / ``use_next_tp``,
 ``num_way_points_prediction`` and ``waypoint_interval_s`` may be set in a file. LEAD's loader recomputes these from
 its rules, so a network that overrides them loads in LEAD only where the rules give the same values.
+``camera_tile_size`` (width, height of one camera tile) replaces the target's :data:`CAMERA_TILE` for toy runs such as
+the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD always derives the size, so such a network does not load in
+LEAD.
 """
 
 from dataclasses import asdict, dataclass, fields
@@ -146,6 +149,7 @@ class LeadConfig:
     use_next_tp: bool | None = None
     num_way_points_prediction: int | None = None
     waypoint_interval_s: float | None = None  # ours: seconds between waypoints (LEAD: waypoints_spacing, in frames)
+    camera_tile_size: list[int] | None = None  # ours: (width, height) of a camera tile; None: the target's CAMERA_TILE
 
     def __post_init__(self) -> None:
         target = self.target_dataset
@@ -183,6 +187,9 @@ class LeadConfig:
                 f"config.json: num_way_points_prediction={self.num_way_points_prediction} and waypoint_interval_s="
                 f"{self.waypoint_interval_s} must be positive"
             )
+        size = self.camera_tile_size
+        if size is not None and (len(size) != 2 or any(int(n) != n or n < 32 or n % 32 for n in size)):
+            raise UserError(f"config.json: camera_tile_size={size} must be [width, height], multiples of 32 pixels")
         if len(self.used_cameras) != NUM_CAMERAS[target] or not any(self.used_cameras):
             raise UserError(
                 f"config.json: used_cameras={self.used_cameras} must hold {NUM_CAMERAS[target]} flags, one true"
@@ -316,12 +323,18 @@ class LeadConfig:
         return tuple(i for i, used in enumerate(self.used_cameras) if used)
 
     @property
+    def camera_tile(self) -> tuple[int, int]:
+        """(width, height) of one camera tile: the override, else the target's."""
+        size = self.camera_tile_size
+        return (int(size[0]), int(size[1])) if size is not None else CAMERA_TILE[self.target_dataset]
+
+    @property
     def final_image_width(self) -> int:
-        return self.num_used_cameras * CAMERA_TILE[self.target_dataset][0]
+        return self.num_used_cameras * self.camera_tile[0]
 
     @property
     def final_image_height(self) -> int:
-        return CAMERA_TILE[self.target_dataset][1]
+        return self.camera_tile[1]
 
     @property
     def img_vert_anchors(self) -> int:

@@ -90,10 +90,17 @@ def load_run(path: str | Path) -> RunOutputs:
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path}: no such run folder; give the folder `lead-s2r score --out` wrote into (or above it)")
-    scores = [_metric_scores(json_path) for json_path in sorted(path.rglob(SCORES_JSON))]
+    scores = _whole_sets([_metric_scores(json_path) for json_path in sorted(path.rglob(SCORES_JSON))])
     if not scores:
         raise UserError(f"{path}: no {SCORES_JSON} below it; score the run first (`lead-s2r score ... --out`)")
     return RunOutputs(path, scores, _predictions(path, scores), _config(path), training_curves(path))
+
+
+def _whole_sets(scores: list[MetricScores]) -> list[MetricScores]:
+    """The scores without those of a tagged subset (``lead-s2r score --tag``) whose metric was also scored on the
+    whole set: the subset's rows are the whole set's again, and a view would show each sample twice."""
+    whole = {entry.metric for entry in scores if not entry.report.get("tag")}
+    return [entry for entry in scores if not entry.report.get("tag") or entry.metric not in whole]
 
 
 def _metric_scores(json_path: Path) -> MetricScores:

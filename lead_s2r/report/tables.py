@@ -41,12 +41,25 @@ class TableError(UserError, ValueError):
 @dataclass(frozen=True)
 class Column:
     """One reported number: ``key`` (dots reach into nested aggregates) of the ``scores.json`` whose ``metric``
-    matches, times ``scale``."""
+    matches and that scored the samples with ``tag`` (``lead-s2r score --tag``; None: scored without one), times
+    ``scale``."""
 
     name: str
     metric: str
     key: str
     scale: float = 1.0
+    tag: str | None = None
+
+    @property
+    def scores(self) -> str:
+        """The key of this column's scores in :attr:`Run.scores`."""
+        return scores_key(self.metric, self.tag)
+
+
+def scores_key(metric: str, tag: str | None) -> str:
+    """How a run's scores of ``metric`` on the samples with ``tag`` are filed: ``pdms@navsim-1.1`` for all samples,
+    ``pdms@navsim-1.1#scene_filter:pedestrians_ahead`` for a tagged subset."""
+    return metric if tag is None else f"{metric}#{tag}"
 
 
 @dataclass(frozen=True)
@@ -136,7 +149,7 @@ def _check_figure(path: Path, figure: dict[str, Any] | None) -> None:
 
 @dataclass
 class Run:
-    """One trained seed: its id, seed and the aggregates of every scores.json below it, by metric."""
+    """One trained seed: its id, seed and the aggregates of every scores.json below it, by :func:`scores_key`."""
 
     path: Path
     run_id: str
@@ -200,7 +213,7 @@ def load_run(path: Path) -> Run:
             report = json.loads(scores.read_text())
         except (OSError, json.JSONDecodeError) as err:
             raise TableError(f"{scores}: cannot read scores: {err}") from None
-        metric = report.get("metric")
+        metric = scores_key(report.get("metric"), report.get("tag"))
         if metric in run.scores:
             raise TableError(f"{path}: two scores.json for metric {metric!r} (one is {scores}); keep one")
         run.scores[metric] = report.get("aggregates", {})
@@ -276,7 +289,7 @@ def collect(spec: TableSpec, runs: list[Run]) -> list[list[Cell]]:
             values, missing = [], []
             for seed in row.seeds or spec.seeds:
                 run = by_seed.get(seed)
-                value = None if run is None else _lookup(run.scores.get(column.metric, {}), column.key)
+                value = None if run is None else _lookup(run.scores.get(column.scores, {}), column.key)
                 if value is None:
                     missing.append(seed)
                 else:

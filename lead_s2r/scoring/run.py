@@ -2,7 +2,9 @@
 
 A predictions file may hold several datasets: each folder scores the predictions of its own dataset(s), the
 others are counted in ``other_datasets``. Samples without a prediction are listed in ``unpredicted`` and, with
-``allow_missing=True`` (the CLI's default; ``--strict`` turns it off), left out of the scores.
+``allow_missing=True`` (the CLI's default; ``--strict`` turns it off), left out of the scores. ``split`` and ``tag``
+choose the samples scored (a tag of ``meta.tags``, e.g. ``scene_filter:pedestrians_ahead``): one selection, before
+the scorer sees anything, so a subset's aggregates are computed exactly as the whole set's.
 """
 
 import contextlib
@@ -17,7 +19,7 @@ import pyarrow.parquet as pq
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.predictions import read_predictions, write_predictions
+from lead_s2r.predictions import Prediction, read_predictions, write_predictions
 from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
@@ -67,6 +69,19 @@ def select_samples(
     return chosen
 
 
+def tagged(
+    samples: list[dict[str, Any]], predictions: list[Prediction], tag: str, folders: list[Path]
+) -> tuple[list[dict[str, Any]], list[Prediction]]:
+    """The samples with ``tag`` in ``meta.tags`` and the predictions but those of the other samples: a prediction of
+    a sample left out is no sign of mismatched data (which a prediction of no sample at all still is)."""
+    chosen = [sample for sample in samples if tag in sample["meta"].get("tags", ())]
+    if not chosen:
+        held = sorted({t for sample in samples for t in sample["meta"].get("tags", ())})
+        raise UserError(f"--tag {tag}: no sample of {', '.join(map(str, folders))} has it; their tags: {held}")
+    left_out = {sample["__key__"] for sample in samples} - {sample["__key__"] for sample in chosen}
+    return chosen, [p for p in predictions if p.key not in left_out]
+
+
 def _read_in_parts(folder: Path, fields: tuple[str, ...], executor: Executor) -> list[dict[str, Any]]:
     """A converted folder's samples, as :func:`read_samples` yields them, decoded by ``executor``'s workers."""
     listed = listed_keys(folder)
@@ -112,6 +127,7 @@ def score_predictions(
     out: Path,
     split: str | None = None,
     executor: Executor | None = None,
+    tag: str | None = None,
     **config: Any,
 ) -> dict[str, Any]:
     """Score ``predictions`` (predictions.parquet) against one or more converted folders.
@@ -119,7 +135,8 @@ def score_predictions(
     Writes ``out/scores.parquet`` (one row per scored sample) and ``out/scores.json`` (aggregates, metric name
     and version, config, package version, inputs, ``unpredicted`` samples and predictions of ``other_datasets``)
     and returns the JSON content. ``config`` goes to the scorer; without ``allow_missing=True`` an unpredicted
-    sample is an error, as in :func:`~lead_s2r.scoring.base.join`. ``split`` scores only that split's samples.
+    sample is an error, as in :func:`~lead_s2r.scoring.base.join`. ``split`` scores only that split's samples,
+    ``tag`` only the samples with that tag (scores.json records both).
     ``executor`` spreads the per-sample work (:meth:`~lead_s2r.scoring.base.Scorer.map_samples`); the files are the
     same bytes without it, but the ``seconds`` of scores.json.
     """
@@ -129,8 +146,10 @@ def score_predictions(
     start = time.perf_counter()
     with executor.session() if executor is not None else contextlib.nullcontext():  # one Ray connection
         samples = select_samples(folders, scorer.fields, split, executor)
-        _check_metric_fits(scorer, folders, samples)
         predicted = read_predictions(predictions)
+        if tag is not None:
+            samples, predicted = tagged(samples, predicted, tag, folders)
+        _check_metric_fits(scorer, folders, samples)
         covered = coverage(predicted, samples)
         if len(covered["unpredicted"]) == len(samples):
             datasets = sorted({sample["meta"]["dataset"] for sample in samples})
@@ -147,6 +166,7 @@ def score_predictions(
         "predictions": str(predictions),
         "data": [str(folder) for folder in folders],
         "split": split,
+        "tag": tag,
         "aggregates": result.aggregates,
         "unpredicted": {"count": len(covered["unpredicted"]), "keys": covered["unpredicted"]},
         "other_datasets": covered["other_datasets"],

@@ -1,7 +1,11 @@
 """Write tiny LEAD CARLA route folders in the expert's true on-disk format (see ``docs/datasets/carla_lead.md``).
 
 Each route is a short, physically plausible drive in CARLA's left-handed world (x forward, y right, yaw
-clockwise): a left turn, a right turn, or a stop, cycled over the routes. Everything is written the way the LEAD
+clockwise): a left turn, a right turn, or a stop, cycled over the routes. The stop is the scene that needs perception
+in the synthetic NAVSIM and WOD-E2E worlds too (:mod:`~lead_s2r.synthetic.pedestrians_ahead`): a row of walkers
+stands across the ego lane, labelled as ``walker`` boxes and drawn in the front tile of the camera mosaic, and the
+expert brakes to a standstill behind them (``walker_hazard``), so LTFv6 + LEAD gets CARLA's perception labels of the
+object kind that the real-data worlds test. Everything is written the way the LEAD
 expert writes it: 4 Hz frames of a 20 Hz simulation, LZMA-compressed pickles for metas and boxes (ego-centre
 frame, y right), a JPEG camera mosaic at q=30 plus a perturbated-rig twin, 1/4-resolution 8-bit depth,
 256x256 hdmap at 2 px/m, LAZ LiDAR with a ``time`` extra dimension and float16 radar npz files.
@@ -24,6 +28,7 @@ import json
 import lzma
 import pickle
 import pickletools
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +37,7 @@ import numpy as np
 
 from lead_s2r.geometry import points_to_local, resample, to_global, wrap_angle
 from lead_s2r.synthetic import carla_lead_sensors as sensors
+from lead_s2r.synthetic import pedestrians_ahead
 
 SAVE_FREQ = 5
 DT = 1.0 / sensors.FPS
@@ -57,6 +63,11 @@ SCENARIOS = {
     "right": "SignalizedJunctionRightTurn",
     "stop": "PedestrianCrossing",
 }
+#: The stop's expert: cruise speed (m/s), when it brakes (s) and how hard (m/s^2); it stands still after
+#: STOP_SPEED * BRAKE_AT + STOP_SPEED^2 / (2 STOP_DECEL) metres.
+STOP_SPEED, BRAKE_AT, STOP_DECEL = 7.0, 0.5, 3.5
+#: The blueprint of the walkers the stop brakes for (the mosaic draws these).
+WALKER_AHEAD = "walker.pedestrian.0015"
 TOWNS = ("Town12", "Town13", "Town10HD")
 
 
@@ -96,7 +107,7 @@ def _speed_profile(kind: str, steps: int) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(steps) * DT
     if kind != "stop":
         return np.full(steps, 6.0), np.zeros(steps)
-    v0, brake_at, decel = 7.0, 0.5, 3.5
+    v0, brake_at, decel = STOP_SPEED, BRAKE_AT, STOP_DECEL
     speed = np.clip(v0 - decel * np.clip(t - brake_at, 0.0, None), 0.0, None)
     accel = np.where((t >= brake_at) & (speed > 0), -decel, 0.0)
     return speed, accel
@@ -170,8 +181,22 @@ class Actor:
         return np.stack([x, y, np.full_like(t, self.start[2])], -1)
 
 
+def walkers_ahead(at: Callable[[float, float], np.ndarray]) -> list[Actor]:
+    """The stop's row of walkers across the ego lane, ``GAP`` ahead of where the expert's front bumper stops
+    (``at(s, lateral)``: the route's world pose ``s`` metres along it, ``lateral`` to the side)."""
+    stop = STOP_SPEED * BRAKE_AT + STOP_SPEED**2 / (2 * STOP_DECEL)
+    distance = pedestrians_ahead.row_distance(stop, EGO_EXTENT[0])  # the ego's reference is its centre
+    length, width, height = pedestrians_ahead.SIZE
+    extent, across = (length / 2, width / 2, height / 2), np.array([0.0, 0.0, np.pi / 2])
+    return [
+        Actor("walker", 210 + i, WALKER_AHEAD, extent, at(distance, lateral) + across, 0.0)
+        for i, lateral in enumerate(pedestrians_ahead.ROW)
+    ]
+
+
 def make_actors(drive: Drive, rng: np.random.Generator) -> list[Actor]:
-    """A car ahead in the ego's lane, an oncoming car, a crossing pedestrian, a cone and a traffic light."""
+    """A car ahead in the ego's lane (a stop: walkers across it instead), an oncoming car, a crossing pedestrian, a
+    cone and a traffic light."""
 
     def at(s: float, lateral: float) -> np.ndarray:
         pose = drive.path[int(s / 0.1)]
@@ -180,8 +205,9 @@ def make_actors(drive: Drive, rng: np.random.Generator) -> list[Actor]:
     car = at(14.0, 0.0)
     oncoming = at(30.0, -3.5) + np.array([0.0, 0.0, np.pi])
     walker = at(20.0, 6.0) + np.array([0.0, 0.0, -np.pi / 2])
+    ahead = [Actor("car", 101, "vehicle.lincoln.mkz_2020", (2.45, 1.06, 0.76), car, 5.0 + rng.uniform(0, 1))]
     return [
-        Actor("car", 101, "vehicle.lincoln.mkz_2020", (2.45, 1.06, 0.76), car, 5.0 + rng.uniform(0, 1)),
+        *(walkers_ahead(at) if drive.kind == "stop" else ahead),
         Actor("car", 102, "vehicle.ford.ambulance", (3.2, 1.2, 1.2), oncoming, 4.0),
         Actor("walker", 201, "walker.pedestrian.0012", (0.3, 0.3, 0.9), walker, 1.2),
         Actor("static", 301, "static.prop.trafficcone01", (0.2, 0.2, 0.4), at(6.0, 2.5), 0.0),
@@ -240,7 +266,7 @@ def _box(actor: Actor, ego: np.ndarray, step: int, kind: str) -> dict:
         "visible_pixels": 500,
     }
     if actor.cls == "traffic_light":
-        box.update(state="Red" if kind == "stop" else "Green", affects_ego=True, same_lane_as_ego=True)
+        box.update(state="Green", affects_ego=True, same_lane_as_ego=True)
         return box
     if actor.cls == "static":
         box["mesh_path"] = "/Game/Carla/Static/TrafficCone/SM_TrafficCone.SM_TrafficCone"
@@ -303,8 +329,8 @@ def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict, 
         "past_yaws": wrap_angle(past[:, 2] - ego[2]),
         "past_speeds": drive.speed[max(step - PAST_STEPS, 0) : step + 1][::-1].copy(),
         "stop_sign_hazard": False,
-        "light_hazard": drive.kind == "stop",
-        "walker_hazard": False,
+        "light_hazard": False,
+        "walker_hazard": drive.kind == "stop",
         "vehicle_hazard": False,
         "dist_to_junction": None,
         "is_junction": TURN_START < s_now < TURN_START + np.pi / 2 * TURN_RADIUS and drive.kind != "stop",
@@ -382,10 +408,11 @@ def write_route(
         name = f"{frame:04d}"
         ego = drive.pose[step]
         boxes = [_ego_box(float(drive.speed[step]))] + [_box(actor, ego, step, kind) for actor in actors]
+        walkers = np.array([box["position"][:2] for box in boxes if box.get("type_id") == WALKER_AHEAD])
         write_pickle(folder / "bboxes" / f"{name}.pkl", boxes)
         write_pickle(folder / "metas" / f"{name}.pkl", _meta(drive, step, planners, extras, rig))
         for suffix, shift in (("", 0.0), ("_perturbated", translation)):
-            mosaic = sensors.mosaic(rig, frame, shift, rng)
+            mosaic = sensors.mosaic(rig, frame, shift, rng, walkers)
             jpeg = cv2.imencode(".jpg", mosaic, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
             (folder / f"rgb{suffix}" / f"{name}.jpg").write_bytes(jpeg.tobytes())
             cv2.imwrite(str(folder / f"semantics{suffix}" / f"{name}.png"), sensors.semantics(rig))

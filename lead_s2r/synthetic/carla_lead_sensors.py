@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 
 from lead_s2r.geometry import points_to_local, rotate
+from lead_s2r.synthetic import pedestrians_ahead
 
 #: CARLA's simulation rate, Hz (LiDAR sweeps come at this rate).
 FPS = 20
@@ -29,8 +30,15 @@ def mosaic_shape(rig: str) -> tuple[int, int]:
     return height, tiles * width
 
 
-def mosaic(rig: str, frame: int, shift: float, rng: np.random.Generator) -> np.ndarray:
-    """A cheap but frame-specific BGR scene: sky, road with lane lines in every tile, the frame number."""
+#: The front camera of the mosaic (its middle tile): horizontal field of view (deg) and height above the ground (m).
+FRONT_FOV, CAMERA_HEIGHT = 60.0, 2.0
+
+
+def mosaic(
+    rig: str, frame: int, shift: float, rng: np.random.Generator, walkers: np.ndarray | None = None
+) -> np.ndarray:
+    """A cheap but frame-specific BGR scene: sky, road with lane lines in every tile, the frame number, and the
+    ``walkers`` ahead ((N, 2) CARLA ego x forward, y right) in the middle tile as filled rectangles."""
     tiles, tile_width, _ = RIG_MOSAICS[rig]
     h, w = mosaic_shape(rig)
     image = np.empty((h, w, 3), np.uint8)
@@ -42,6 +50,15 @@ def mosaic(rig: str, frame: int, shift: float, rng: np.random.Generator) -> np.n
         cv2.line(image, (x0, h // 2), (x0 + 150, h - 1), (255, 255, 255), 4)
     cv2.putText(image, f"frame {frame}", (40, 60), cv2.FONT_HERSHEY_SIMPLEX, 1.5, (0, 0, 255), 3)
     image[h // 2 :] += rng.integers(0, 20, (h - h // 2, w, 3), dtype=np.uint8)
+    focal = tile_width / (2 * np.tan(np.radians(FRONT_FOV / 2)))
+    centre = (tiles // 2) * tile_width + tile_width / 2
+    half, tall = pedestrians_ahead.SIZE[1] / 2, pedestrians_ahead.SIZE[2]
+    for x, y in sorted(walkers if walkers is not None else [], key=lambda p: -p[0]):
+        if x < 1.0:
+            continue
+        u0, u1 = centre + focal * (y - half) / x, centre + focal * (y + half) / x
+        v0, v1 = h / 2 + focal * (CAMERA_HEIGHT - tall) / x, h / 2 + focal * CAMERA_HEIGHT / x
+        cv2.rectangle(image, (int(u0), int(v0)), (int(np.ceil(u1)), int(np.ceil(v1))), pedestrians_ahead.COLOUR, -1)
     return image
 
 

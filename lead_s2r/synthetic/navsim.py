@@ -8,6 +8,7 @@ Writes, under ``out``::
     sensor_blobs/mini/<log>/MergedPointCloud/<16hex>.pcd   binary PCD, fields x y z intensity ring lidar_info
     maps/us-nv-las-vegas-strip/9.15.1915/map.gpkg    the road network of :mod:`navsim_map`
     scene_filters/navmini.yaml                       NAVSIM SceneFilter yaml (log_names + tokens)
+    scene_filters/pedestrians_ahead.yaml             the same, of the scenes of pedestrian logs (below)
 
 Logs (2 Hz, 20 frames) are a competent driver's, so the logged human scores near the top of the PDM score, as
 NAVSIM's human agent does on real logs: a straight drive in the right lane, a left turn through the traffic-lit
@@ -19,6 +20,15 @@ pedestrian and a traffic cone on the walkway to the right, a car parked in the c
 in the other lane, seen only in frames 8-15: nothing overlaps the ego's path, so the logged trajectory has no
 collision and a time to collision above NAVSIM's bound. Boxes are written the way OpenScene does: centres and yaw
 in the ego frame of their frame, velocities rotated into the lidar frame.
+
+Worlds where perception matters: in a third of the fresh logs (:func:`is_pedestrian_log`, straight routes only) a
+group of pedestrians stands across the ego lane ahead instead of the lead vehicle, and the driver brakes smoothly to a
+stop behind them (:mod:`~lead_s2r.synthetic.pedestrians_ahead`). The braking starts after the last scene's current frame
+(:data:`BRAKE_AT`), and speed, acceleration and start are drawn as in the other logs, so no scene's ego status tells
+the two kinds apart: only the cameras (the pedestrians are drawn in them) and the boxes do. A model that drives on
+the status alone runs into them within its 4 s in the later scenes. NAVSIM's format has no field for such a label,
+so the scenes are listed in a second scene filter, ``pedestrians_ahead.yaml``, which the adapter's ``tag_filters``
+option turns into the tag ``scene_filter:pedestrians_ahead`` of each sample (docs/datasets/navsim.md).
 """
 
 import math
@@ -33,7 +43,7 @@ import shapely
 import yaml
 
 from lead_s2r.geometry import rotate, to_local
-from lead_s2r.synthetic import navsim_camera, navsim_map
+from lead_s2r.synthetic import navsim_camera, navsim_map, pedestrians_ahead
 
 DATA_SPLIT = "mini"
 FRAMES = 20
@@ -62,6 +72,8 @@ class LogSpec:
     command: tuple[int, int, int, int]
     map_location: str
     roadblocks: tuple[str, ...]
+    #: seconds after frame 0 when the ego starts braking for the pedestrians ahead; None: no pedestrians ahead
+    brake_at: float | None = None
 
 
 #: Rear axle to front bumper of nuPlan's Pacifica, the ego NAVSIM's scorer simulates (m).
@@ -115,17 +127,30 @@ class Agent:
         return np.array(self.velocity) + t * np.array(self.accel)
 
 
+#: Pedestrian logs start braking this many seconds after frame 0: after the last scene's current frame (4.5 s), so
+#: every scene's ego status is a cruise's (:mod:`pedestrians_ahead`).
+BRAKE_AT = (4.6, 5.4)
+PEDESTRIAN_TAG = "pedestrians_ahead"
+
+
 def lead_offset(speed: float) -> float:
     """How far the lead vehicle's centre is ahead of the ego's rear axle at t = 0 (m)."""
     return EGO_FRONT + STANDSTILL_GAP + TIME_GAP * speed + LEAD_SIZE[0] / 2
 
 
-def agents_for(start: np.ndarray, speed: float, accel: float) -> list[Agent]:
+def agents_for(start: np.ndarray, speed: float, accel: float, stop: float | None = None) -> list[Agent]:
     """The objects around a log whose ego starts at ``start`` heading east with ``speed`` and ``accel``: the lead
-    vehicle keeps its gap by driving the ego's speed profile (a turning ego leaves it going straight on)."""
+    vehicle keeps its gap by driving the ego's speed profile (a turning ego leaves it going straight on). With
+    ``stop`` (how far east of ``start`` the ego stops), pedestrians stand across the lane ahead of that point
+    instead of the lead vehicle."""
     x0, y0 = float(start[0]), float(start[1])
+    if stop is None:
+        ahead = [Agent("vehicle", (x0 + lead_offset(speed), y0), (speed, 0.0), 0.0, LEAD_SIZE, accel=(accel, 0.0))]
+    else:
+        x, size = x0 + pedestrians_ahead.row_distance(stop, EGO_FRONT), pedestrians_ahead.SIZE
+        ahead = [Agent("pedestrian", (x, y0 + dy), (0.0, 0.0), math.pi / 2, size) for dy in pedestrians_ahead.ROW]
     return [
-        Agent("vehicle", (x0 + lead_offset(speed), y0), (speed, 0.0), 0.0, LEAD_SIZE, accel=(accel, 0.0)),
+        *ahead,
         Agent("pedestrian", (x0 + 20.0, -4.5), (1.0, 0.0), 0.0, (0.6, 0.6, 1.8)),
         Agent("vehicle", (40.0, -10.0), (0.0, 0.0), math.pi / 2, (4.8, 2.0, 1.5)),
         Agent("traffic_cone", (x0 + 40.0, -3.9), (0.0, 0.0), 0.0, (0.4, 0.4, 0.7)),
@@ -147,8 +172,8 @@ def ego_states(spec: LogSpec) -> dict[str, np.ndarray]:
     """Poses (F,3) [x, y, yaw] in local map coordinates and ego-frame dynamics (F,4) [vx, vy, ax, ay]."""
     line = route_line(spec.lanes)
     t = np.arange(FRAMES) * DT_US / 1e6
-    s = spec.start + spec.speed * t + 0.5 * spec.accel * t**2
-    speed = spec.speed + spec.accel * t
+    travelled, speed, accel = pedestrians_ahead.motion(spec.speed, spec.accel, spec.brake_at, t)
+    s = spec.start + travelled
 
     def xy(at: np.ndarray) -> np.ndarray:
         return shapely.get_coordinates(shapely.line_interpolate_point(line, at))
@@ -159,7 +184,7 @@ def ego_states(spec: LogSpec) -> dict[str, np.ndarray]:
     after = xy(s + 2 * step) - xy(s)
     before = xy(s) - xy(s - 2 * step)
     curvature = np.unwrap(np.arctan2(after[:, 1], after[:, 0]) - np.arctan2(before[:, 1], before[:, 0])) / (2 * step)
-    dynamics = np.stack([speed, np.zeros_like(t), np.full_like(t, spec.accel), speed**2 * curvature], axis=1)
+    dynamics = np.stack([speed, np.zeros_like(t), accel, speed**2 * curvature], axis=1)
     return {"poses": np.column_stack([xy(s), yaw]), "dynamics": dynamics}
 
 
@@ -291,7 +316,8 @@ def write_log(
         (sensors / folder).mkdir(parents=True, exist_ok=True)
     states = ego_states(spec)
     poses, dynamics = states["poses"], states["dynamics"]
-    agents = agents_for(poses[0], spec.speed, spec.accel)
+    stop = None if spec.brake_at is None else pedestrians_ahead.stopping_distance(spec.speed, spec.accel, spec.brake_at)
+    agents = agents_for(poses[0], spec.speed, spec.accel, stop)
     track_tokens = [_hex(rng) for _ in agents]
     tokens = [_hex(rng) for _ in range(FRAMES)]
     lidar2ego = homogeneous(np.eye(3), LIDAR2EGO_TRANSLATION)
@@ -369,7 +395,7 @@ def scene_filter(
 
 
 def write_scene_filter(path: Path, logs: dict[str, list[dict]]) -> None:
-    """A NAVSIM SceneFilter yaml listing every scene with a full history and future."""
+    """A NAVSIM SceneFilter yaml listing every scene of ``logs`` with a full history and future."""
     tokens = [frames[i]["token"] for frames in logs.values() for i in range(HISTORY - 1, FRAMES - FUTURE)]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(scene_filter(logs, tokens), sort_keys=False))
@@ -398,9 +424,16 @@ def turn_start(speed: float, entry: float) -> float:
     return navsim_map.JUNCTION_X - EGO_FRONT - speed * entry
 
 
+def is_pedestrian_log(index: int) -> bool:
+    """Whether fresh log ``index`` has pedestrians ahead: one cruise and one slow drive in every six logs (a third
+    of the logs, half of those on straight routes), so every split of consecutive logs holds its share."""
+    return index >= len(LOGS) and index % 6 in (3, 5)
+
+
 def log_specs(count: int | None, seed: int = 0) -> list[LogSpec]:
     """``count`` logs (default 3): :data:`LOGS`, then fresh logs cycling over their routes, each drawing its speed,
-    acceleration and start from its route's :data:`RANGES` (so held-out logs look like training logs)."""
+    acceleration and start from its route's :data:`RANGES` (so held-out logs look like training logs); a pedestrian
+    log (:func:`is_pedestrian_log`) draws the same, then when it brakes (:data:`BRAKE_AT`)."""
     count = len(LOGS) if count is None else count
     specs = list(LOGS[:count])
     for i in range(len(LOGS), count):
@@ -408,22 +441,27 @@ def log_specs(count: int | None, seed: int = 0) -> list[LogSpec]:
         speed, accel = float(rng.uniform(*ranges.speed)), float(rng.uniform(*ranges.accel))
         offset = float(rng.uniform(*ranges.start))
         start = turn_start(speed, float(rng.uniform(*TURN_ENTRY))) if LEFT_TURN in base.lanes else base.start + offset
-        specs.append(replace(base, name=f"{base.name[:-11]}{i:05d}_{i + 1:05d}", start=start, speed=speed, accel=accel))
+        brake_at = float(rng.uniform(*BRAKE_AT)) if is_pedestrian_log(i) else None
+        name = f"{base.name[:-11]}{i:05d}_{i + 1:05d}"
+        specs.append(replace(base, name=name, start=start, speed=speed, accel=accel, brake_at=brake_at))
     return specs
 
 
 def generate(out: Path, count: int | None = None, seed: int = 0, splits: dict[str, int] | None = None) -> None:
     """Write the dataset described in the module docstring with ``count`` logs (default 3) in the ``mini`` split, or
     with ``splits`` (split folder -> logs, e.g. ``{"trainval": 12, "test": 4}``) the logs of :func:`log_specs` dealt
-    out to those folders in order, so every split holds logs of one distribution."""
+    out to those folders in order, so every split holds logs of one distribution (pedestrian logs included)."""
     out = Path(out)
     rng = np.random.default_rng(seed)
     navsim_map.write_map(out / "maps")
     splits = splits or {DATA_SPLIT: len(LOGS) if count is None else count}
     specs = iter(log_specs(sum(splits.values()), seed))
-    logs = {}
+    logs, pedestrian_logs = {}, {}
     for split, logs_in_split in splits.items():
         for spec in (next(specs) for _ in range(logs_in_split)):
             folders = {"logs": out / "navsim_logs" / split, "blobs": out / "sensor_blobs" / split}
             logs[spec.name] = write_log(out, spec, rng, **folders)
+            if spec.brake_at is not None:
+                pedestrian_logs[spec.name] = logs[spec.name]
     write_scene_filter(out / "scene_filters" / "navmini.yaml", logs)
+    write_scene_filter(out / "scene_filters" / f"{PEDESTRIAN_TAG}.yaml", pedestrian_logs)

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from lead_s2r.geometry import box_corners
-from lead_s2r.synthetic import navsim_map
+from lead_s2r.synthetic import navsim_map, pedestrians_ahead
 
 #: BGR colours.
 SKY, GRASS, MARKING = (205, 170, 130), (70, 115, 80), (235, 235, 235)
@@ -27,7 +27,7 @@ AREAS = (
     ((*navsim_map.WALKWAYS.values(),), (175, 175, 170)),
     ((*navsim_map.ROADBLOCKS.values(), *navsim_map.INTERSECTIONS.values()), (85, 85, 90)),
 )
-BOX_COLOURS = {"vehicle": (40, 40, 170), "pedestrian": (170, 80, 40), "bicycle": (40, 170, 200)}
+BOX_COLOURS = {"vehicle": (40, 40, 170), "pedestrian": pedestrians_ahead.COLOUR, "bicycle": (200, 60, 200)}
 OTHER_BOX = (20, 120, 240)
 MARKING_HALF_WIDTH = 0.1
 #: Cell size of the map raster (m).

@@ -8,7 +8,13 @@ some shorter than 20 points), ``timestamp_micros`` = 0 as in the real data, and 
 :func:`make_dataset` returns the ground truth that :func:`write_dataset` encodes, so tests can compare.
 
 The quickstart trains and scores on it, which sets two more constraints. The future must follow from what a model
-sees (speed, acceleration and intent; the images are noise), so each segment keeps its acceleration and yaw rate.
+sees (speed, acceleration and intent, and the cameras), so each segment keeps its acceleration and yaw rate, except
+where the cameras show why not: in a third of the segments (:func:`is_pedestrian_segment`, straight and left) a row
+of pedestrians stands in the lane ahead, drawn in the cameras (:mod:`~lead_s2r.synthetic.wod_e2e_camera`), and the
+driver brakes to a stop behind it (:mod:`~lead_s2r.synthetic.pedestrians_ahead`) after every frame of the segment
+(:data:`BRAKE_AT`), so no frame's ego status differs from a segment without them. Their validation segments are
+the scenario cluster ``Pedestrian`` in the cluster file, the one place the real data labels a segment's kind (the
+other segments cycle through the other clusters); the adapter tags their samples ``cluster:Pedestrian``.
 And RFS only means something if the raters behave like Waymo's: one rated frame per validation segment, and among
 its candidates one close to what was driven and mostly rated high, so the logged future scores about 8 (the paper's
 Expert: 8.10) and a model that learned the driving lands in that candidate's trust region. With random labels on
@@ -26,6 +32,7 @@ import cv2
 import numpy as np
 
 from lead_s2r.geometry import rotate
+from lead_s2r.synthetic import pedestrians_ahead, wod_e2e_camera
 from lead_s2r.synthetic.wod_e2e_proto import States, camera_calibration, camera_image, e2ed_frame
 
 SHARDS = 3
@@ -35,7 +42,12 @@ SHARD_STEMS = {
     "test": "test_202504211836-202504220845",
 }
 CLUSTER_FILE = "val_sequence_name_to_scenario_cluster.json"
-CLUSTERS = ("Construction", "Interections", "Pedestrian", "Cyclist", "Cut_ins", "Special Vehicles")
+CLUSTERS = ("Construction", "Interections", "Cyclist", "Cut_ins", "Special Vehicles")
+PEDESTRIAN_CLUSTER = "Pedestrian"
+#: A pedestrian segment brakes this many seconds after its drive starts: after its last frame (at most 5.1 s).
+BRAKE_AT = (5.2, 6.0)
+#: Rear axle to front bumper of the ego (:data:`lead_s2r_adapters.wod_e2e.VEHICLE`'s Jaguar I-Pace), m.
+EGO_FRONT = 1.51 + 4.682 / 2
 INTENT = {"straight": 1, "left": 2, "right": 3}
 FRAMES_PER_SEGMENT = 12
 #: Per segment, drawn uniformly: initial speed (m/s), acceleration (m/s^2), yaw rate per intent (rad/s).
@@ -96,18 +108,49 @@ class SynthDataset:
     clusters: dict[str, str]
 
 
-def _drive(duration: float, speed: float, accel: float, yaw_rate: float) -> np.ndarray:
-    """Global (t, x, y, heading, vx, vy, ax, ay) from t = 0 at ``_SIM_DT``: speed ramps, yaw rate constant."""
+def _cumulative(values: np.ndarray) -> np.ndarray:
+    """Trapezoidal integral over time at ``_SIM_DT``, 0 at the first row."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * _SIM_DT * (values[1:] + values[:-1]))])
+
+
+def _drive(duration: float, speed: float, accel: float, yaw_rate: float, brake_at: float | None = None) -> np.ndarray:
+    """Global (t, x, y, heading, vx, vy, ax, ay) from t = 0 at ``_SIM_DT``: speed ramps, yaw rate constant; from
+    ``brake_at`` a stop (:func:`~lead_s2r.synthetic.pedestrians_ahead.motion`) along the same curve (the yaw rate
+    falls with the speed)."""
     t = np.arange(round(duration / _SIM_DT) + 1) * _SIM_DT
-    v = np.maximum(speed + accel * t, 0.5)
-    dv = np.where(speed + accel * t > 0.5, accel, 0.0)
-    heading = yaw_rate * t
+    if brake_at is None:
+        v = np.maximum(speed + accel * t, 0.5)
+        dv = np.where(speed + accel * t > 0.5, accel, 0.0)
+        omega = np.full_like(t, yaw_rate)
+        heading = yaw_rate * t
+    else:
+        _, v, dv = pedestrians_ahead.motion(speed, accel, brake_at, t)
+        omega = yaw_rate * np.where(t > brake_at, v / (speed + accel * brake_at), 1.0)
+        heading = _cumulative(omega)
     vx, vy = v * np.cos(heading), v * np.sin(heading)
-    x = np.concatenate([[0.0], np.cumsum(0.5 * _SIM_DT * (vx[1:] + vx[:-1]))])
-    y = np.concatenate([[0.0], np.cumsum(0.5 * _SIM_DT * (vy[1:] + vy[:-1]))])
-    ax = dv * np.cos(heading) - vy * yaw_rate
-    ay = dv * np.sin(heading) + vx * yaw_rate
-    return np.stack([t, x, y, heading, vx, vy, ax, ay], axis=1)
+    ax = dv * np.cos(heading) - vy * omega
+    ay = dv * np.sin(heading) + vx * omega
+    return np.stack([t, _cumulative(vx), _cumulative(vy), heading, vx, vy, ax, ay], axis=1)
+
+
+def is_pedestrian_segment(index: int) -> bool:
+    """Whether segment ``index`` of a split has pedestrians ahead: every third, half of the straight and half of
+    the left turns (:func:`_segment` cycles left, straight, right), so the intent does not give them away."""
+    return index % 6 in (1, 3)
+
+
+def pedestrian_row(speed: float, accel: float, yaw_rate: float, brake_at: float) -> np.ndarray:
+    """Global ground positions (N, 2) of the pedestrians ahead of a drive (:func:`_drive` from the same values):
+    across its path, their centre :func:`~lead_s2r.synthetic.pedestrians_ahead.row_distance` along it."""
+    stop = pedestrians_ahead.stopping_distance(speed, accel, brake_at)
+    track = _drive(brake_at + pedestrians_ahead.brake_duration(speed + accel * brake_at) + 1.0, speed, accel,
+                   yaw_rate, brake_at)  # fmt: skip
+    arc = _cumulative(np.hypot(track[:, 4], track[:, 5]))
+    end = track[-1]
+    beyond = pedestrians_ahead.row_distance(stop, EGO_FRONT) - arc[-1]  # the path goes straight on after the stop
+    centre = end[1:3] + beyond * np.array([np.cos(end[3]), np.sin(end[3])])
+    left = np.array([-np.sin(end[3]), np.cos(end[3])])
+    return np.array([centre + dy * left for dy in pedestrians_ahead.ROW])
 
 
 def _local(track: np.ndarray, i0: int, rows: np.ndarray) -> np.ndarray:
@@ -117,11 +160,10 @@ def _local(track: np.ndarray, i0: int, rows: np.ndarray) -> np.ndarray:
     return np.concatenate([pos, rotate(sel[:, 4:6], -heading), rotate(sel[:, 6:8], -heading)], axis=1)
 
 
-def _camera(name: int, rng: np.random.Generator, scale: float) -> SynthCamera:
+def _camera(name: int, rng: np.random.Generator, scale: float, pedestrians: np.ndarray) -> SynthCamera:
+    """Camera ``name``'s calibration and image, ``pedestrians`` (N, 2) on the ground in the vehicle frame."""
     height, width, yaw_deg, (px, py, pz) = CAMERAS[name]
     height, width = round(height * scale), round(width * scale)
-    image = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
-    jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 70])[1].tobytes()
     f = 1112.18 * scale
     intrinsic = [f, f * 0.9999, width / 2 + 0.3, height * 0.66, -0.0736, -0.0366, 0.0, 0.0, 0.0]
     yaw, pitch = math.radians(yaw_deg), 0.02  # a slight downward pitch about the camera's y axis
@@ -130,7 +172,10 @@ def _camera(name: int, rng: np.random.Generator, scale: float) -> SynthCamera:
     matrix = np.eye(4)
     matrix[:3, :3] = rz @ ry
     matrix[:3, 3] = (px, py, pz)
-    return SynthCamera(name, jpeg, intrinsic, matrix.ravel().tolist(), width, height)
+    extrinsic = matrix.ravel().tolist()
+    image = wod_e2e_camera.render((height, width), intrinsic, extrinsic, pedestrians, rng)
+    jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 70])[1].tobytes()
+    return SynthCamera(name, jpeg, intrinsic, extrinsic, width, height)
 
 
 def _normals(xy: np.ndarray) -> np.ndarray:
@@ -184,7 +229,10 @@ def _segment(split: str, index: int, rng: np.random.Generator, scale: float) -> 
     yaw_rate = float(rng.uniform(*YAW_RATES[kind]))
     start = int(rng.integers(5, 40))
     frames = [f for f in range(start, start + FRAMES_PER_SEGMENT) if not (index == 0 and f == start + 5)]
-    track = _drive(0.1 * (frames[-1] - start) + 9.5, float(rng.uniform(*SPEEDS)), float(rng.uniform(*ACCELS)), yaw_rate)
+    speed, accel = float(rng.uniform(*SPEEDS)), float(rng.uniform(*ACCELS))
+    brake_at = float(rng.uniform(*BRAKE_AT)) if is_pedestrian_segment(index) else None
+    track = _drive(0.1 * (frames[-1] - start) + 9.5, speed, accel, yaw_rate, brake_at)
+    row = np.empty((0, 2)) if brake_at is None else pedestrian_row(speed, accel, yaw_rate, brake_at)
     rated = _rated_frames(split, index, frames, rng)
     out = []
     for frame_idx in frames:
@@ -197,7 +245,8 @@ def _segment(split: str, index: int, rng: np.random.Generator, scale: float) -> 
             preferences = _preferences(future, rng, variant=(rated.index(frame_idx) + index) % 3)
         elif split == "val" and index % 3 == 2:
             preferences = [(future[:, :2].astype(np.float32), -1.0)] * 3  # unrated frame carrying -1 labels
-        cameras = [_camera(name, rng, scale) for name in CAMERAS]
+        seen = rotate(row - track[i0, 1:3], -track[i0, 3])  # the pedestrians in the t0 vehicle frame
+        cameras = [_camera(name, rng, scale, seen) for name in CAMERAS]
         out.append(SynthFrame(split, sequence, frame_idx, cameras, past, future, INTENT[kind], preferences))
     return out
 
@@ -217,7 +266,8 @@ def make_dataset(
             segment = _segment(split, index, rng, image_scale)
             frames.extend(segment)
             if split == "val":
-                clusters[segment[0].sequence] = CLUSTERS[index % len(CLUSTERS)]
+                pedestrians = is_pedestrian_segment(index)
+                clusters[segment[0].sequence] = PEDESTRIAN_CLUSTER if pedestrians else CLUSTERS[index % len(CLUSTERS)]
     return SynthDataset(frames, clusters)
 
 
