@@ -158,7 +158,7 @@ def test_corrupt_header_mid_shard_names_the_tar(tmp_path, capsys):
     corrupt_header(shard, "toy_log000_000002.meta.json")
     argv = ["score", "--metric", "ade", "--predictions", "p", "--data", str(tmp_path / "data"), "--out", "o"]
     line = user_error(argv, capsys)
-    assert f"{shard}: read 2 of the 3 samples the manifest lists" in line
+    assert f"{shard}: sample 'toy_log000_000002', which the manifest lists in it, is not in the tar" in line
     assert not Path("o").exists()
 
 
