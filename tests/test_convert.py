@@ -136,21 +136,25 @@ convert(ToyAdapter(sleep=0.02), {src!r}, {out!r}, workers={workers}, shard_size=
 """
 
 
-@pytest.mark.parametrize("workers", [1, 2])
-def test_resume_after_kill_loses_and_duplicates_nothing(tmp_path, workers):
-    src, out = tmp_path / "src", tmp_path / "out"
-    write_toy_logs(src, n_logs=12, frames=5)
-    code = KILLABLE.format(tests=str(Path(__file__).parent), src=str(src), out=str(out), workers=workers)
-    proc = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
-    deadline = time.time() + 60
-    while time.time() < deadline:  # kill once some shards are recorded, mid-run
+def kill_mid_run(code: str, out: Path, timeout_s: float = 120) -> None:
+    """Run a converting driver (Python ``code``) and SIGKILL its process group once two logs are recorded."""
+    driver = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+    deadline = time.time() + timeout_s
+    while time.time() < deadline:
         progress = out / "progress.jsonl"
         if progress.exists() and len(progress.read_text().splitlines()) >= 2:
             break
         time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    assert not (out / "manifest.parquet").exists(), "the run should have been killed before finishing"
+    os.killpg(driver.pid, signal.SIGKILL)
+    driver.wait()
+    assert not (out / "manifest.parquet").exists(), "the driver should have been killed before finishing"
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_resume_after_kill_loses_and_duplicates_nothing(tmp_path, workers):
+    src, out = tmp_path / "src", tmp_path / "out"
+    write_toy_logs(src, n_logs=12, frames=5)
+    kill_mid_run(KILLABLE.format(tests=str(Path(__file__).parent), src=str(src), out=str(out), workers=workers), out)
     result = convert(ToyAdapter(), src, out, workers=workers, shard_size=8)
     assert result.ok and result.logs_resumed >= 2
     keys = keys_in_shards(out)

@@ -3,9 +3,7 @@ each): the bytes of one process for every adapter, a worker killed mid-log, a ki
 
 import os
 import signal
-import subprocess
 import sys
-import time
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_convert import digests, keys_in_shards
+from test_convert import digests, keys_in_shards, kill_mid_run
 from toy_adapter import ToyAdapter, write_toy_logs
 
 from lead_s2r.cli import main
@@ -101,17 +99,7 @@ convert(ToyAdapter(sleep=0.05), {src!r}, {out!r}, executor=RayExecutor({address!
 def test_a_killed_driver_resumes_without_loss_or_duplicate(cluster, tmp_path):
     src, out = tmp_path / "src", tmp_path / "out"
     write_toy_logs(src, n_logs=12, frames=5)
-    code = DRIVER.format(tests=TESTS, src=str(src), out=str(out), address=cluster.address)
-    driver = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
-    deadline = time.time() + 120
-    while time.time() < deadline:  # kill once some shards are recorded, mid-run
-        progress = out / "progress.jsonl"
-        if progress.exists() and len(progress.read_text().splitlines()) >= 2:
-            break
-        time.sleep(0.05)
-    os.killpg(driver.pid, signal.SIGKILL)
-    driver.wait()
-    assert not (out / "manifest.parquet").exists(), "the driver should have been killed before finishing"
+    kill_mid_run(DRIVER.format(tests=TESTS, src=str(src), out=str(out), address=cluster.address), out)
     result = convert(ToyAdapter(), src, out, executor=on_ray(cluster), shard_size=8)
     assert result.ok and result.logs_resumed >= 2
     counts = Counter(keys_in_shards(out))

@@ -43,17 +43,20 @@ MID_TURN = replace(
 )
 
 
-@pytest.fixture(scope="module")
-def converted(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    raw = tmp_path_factory.mktemp("pdms_raw")
+def convert_cruise_and_turn(raw: Path, out: Path) -> Path:
+    """A cruise and a mid-turn NAVSIM log (14 samples) written to ``raw`` and converted with maps into ``out``."""
     synth_map.write_map(raw / "maps")
     rng = np.random.default_rng(0)
     logs = {spec.name: synth.write_log(raw, spec, rng) for spec in (CRUISE, MID_TURN)}
     synth.write_scene_filter(raw / "scene_filters" / "navmini.yaml", logs)
-    out = tmp_path_factory.mktemp("pdms_out")
     adapter = NavsimAdapter(scene_filter=str(raw / "scene_filters" / "navmini.yaml"), maps=str(raw / "maps"))
     assert convert(adapter, raw, out).ok
     return out
+
+
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return convert_cruise_and_turn(tmp_path_factory.mktemp("pdms_raw"), tmp_path_factory.mktemp("pdms_out"))
 
 
 @pytest.fixture(scope="module")

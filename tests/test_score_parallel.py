@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_pdms_navsim import CRUISE, MID_TURN
+from test_pdms_navsim import convert_cruise_and_turn
 
 from lead_s2r.cli import main
 from lead_s2r.convert import convert
@@ -21,10 +21,7 @@ from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.navsim import PDMSScorer
 from lead_s2r.scoring.run import planner_predictions, select_samples
 from lead_s2r.shards import read_samples
-from lead_s2r.synthetic import navsim as synth
-from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r.synthetic import wod_e2e
-from lead_s2r_adapters.navsim import NavsimAdapter
 from lead_s2r_adapters.wod_e2e import WodE2EAdapter
 
 ray = pytest.importorskip("ray")
@@ -42,14 +39,7 @@ def cluster() -> Iterator[Cluster]:
 def navsim_data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """Two NAVSIM logs (a cruise and a turn, 14 samples) converted with maps, and the constant-velocity
     planner's predictions (it leaves the road in the turn: scores vary)."""
-    raw = tmp_path_factory.mktemp("navsim_raw")
-    synth_map.write_map(raw / "maps")
-    rng = np.random.default_rng(0)
-    logs = {spec.name: synth.write_log(raw, spec, rng) for spec in (CRUISE, MID_TURN)}
-    synth.write_scene_filter(raw / "scene_filters" / "navmini.yaml", logs)
-    out = tmp_path_factory.mktemp("navsim_out")
-    adapter = NavsimAdapter(scene_filter=str(raw / "scene_filters" / "navmini.yaml"), maps=str(raw / "maps"))
-    assert convert(adapter, raw, out).ok
+    out = convert_cruise_and_turn(tmp_path_factory.mktemp("navsim_raw"), tmp_path_factory.mktemp("navsim_out"))
     return out, planner_predictions("constant-velocity", out, out.parent / "navsim_predictions.parquet")
 
 
