@@ -179,6 +179,14 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     assert set(results) == {"expert"} | runs
     assert results["expert"]["wod_e2e"]["ade"]["ade"] == 0.0  # the logged future replayed
     assert json.loads((tmp_path / "summary.json").read_text()) == results
+    for run, by_dataset in results.items():  # the camera models' reliance on their cameras, beside their scores
+        for dataset, scores in by_dataset.items():
+            has_cameras = run != "expert" and not run.startswith("ego_mlp/")
+            assert (qs.CAMERA_RELIANCE in scores) == has_cameras, (run, dataset)
+            if has_cameras:
+                assert scores[qs.CAMERA_RELIANCE]["samples"] > 0 and scores[qs.CAMERA_RELIANCE]["mean_m"] >= 0
+    for label in qs.LABELS.values():
+        assert f"{label}: LTFv6 " in text and "; LTFv6 + LEAD " in text
 
     captured = capsys.readouterr()
     assert "Total params" not in text + captured.out + captured.err

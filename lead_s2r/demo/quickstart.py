@@ -61,6 +61,7 @@ from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.navsim.proposals import ReferenceCache
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import read_samples
+from lead_s2r.training import camera_reliance
 from lead_s2r.training.cli import run_lightning_cli
 
 SMOKE = Path(__file__).resolve().parents[2] / "recipes" / "smoke"
@@ -99,6 +100,9 @@ STEPS: dict[str, tuple[int, int]] = {
 }
 LIGHTNING_LOG = "lightning.log"
 LOSS_CURVES = "loss_curves.png"
+#: summary.json's key, beside a run's scores on a dataset, of its camera reliance
+#: (:mod:`lead_s2r.training.camera_reliance`): ``{"mean_m": ..., "samples": ...}``.
+CAMERA_RELIANCE = "camera_reliance"
 
 
 @dataclass(frozen=True)
@@ -194,6 +198,7 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
     for grid in tables(spec, cells):
         console.print(grid)
     console.print(spec.notes)
+    console.print(camera_use(results))
     console.print(
         f"Trained {steps_range()} optimizer steps, seeds {', '.join(map(str, SEEDS))}, on NAVSIM trainval / WOD-E2E "
         f"train logs, scored on the held-out NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; "
@@ -305,6 +310,7 @@ def smoke_config(training: Training, out: Path, seed: int = 0) -> Path:
         family, name = Path(init_from).relative_to(out / "runs").parts[:2]
         config["model"]["init_from"] = str(out / "runs" / family / name / f"seed{seed}" / "checkpoints" / "last.ckpt")
     if "predict" in config["data"]:
+        config["trainer"]["callbacks"].append({"class_path": f"{camera_reliance.__name__}.CameraReliance"})
         config["data"]["val"] = config["data"]["predict"]
         config["trainer"]["limit_val_batches"] = VAL_BATCHES
         config["model"]["log_val_losses"] = True
@@ -383,6 +389,8 @@ def predict_and_score(
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(args + (["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
     predictions = read_predictions(root / "predictions.parquet")
+    reliance_file = root / camera_reliance.FILENAME
+    reliance = json.loads(reliance_file.read_text()) if reliance_file.exists() else {}
     results = {}
     for dataset in scored_on(training):
         mine = [p for p in predictions if p.dataset == dataset]
@@ -391,6 +399,8 @@ def predict_and_score(
             folder.mkdir(parents=True, exist_ok=True)
             path = write_predictions(folder / f"predictions-{dataset}.parquet", mine)
             results[dataset] = score(path, out / "data" / dataset, dataset, folder / "scores", references[dataset])
+            if dataset in reliance:
+                results[dataset][CAMERA_RELIANCE] = reliance[dataset]
     return results
 
 
@@ -489,6 +499,35 @@ def tables(spec: TableSpec, cells: list[list[Cell]]) -> list[Table]:
             grid.add_row(console_name(row.name), *numbers)
         grids.append(grid)
     return grids
+
+
+def camera_use(results: dict[str, Any]) -> str:
+    """What the console says of each camera model's camera reliance on each dataset: mean ± std over the seeds after
+    training, then before, so a row that scores like the Ego MLP shows whether its plan ignores its cameras."""
+    lines = [
+        "Camera reliance (m): how far the held-out waypoints move, on average, when every sample is given another "
+        "sample's camera images (0: the plan ignores the cameras; docs/training.md, \"Does LTFv6 look at its "
+        'cameras?"):'
+    ]
+    for dataset in EVAL_SPLITS:
+        parts = []
+        for model, runs in MODELS.items():
+            cells = [
+                Cell(tuple(shifts), ())
+                for stage in (TRAINED, UNTRAINED)
+                if (shifts := camera_shifts(results, runs[dataset], stage, dataset))
+            ]
+            if len(cells) == 2:
+                parts.append(f"{model} {format_cell(cells[0], 2)} ({UNTRAINED} {format_cell(cells[1], 2)})")
+        if parts:
+            lines.append(f"  {LABELS[dataset]}: {'; '.join(parts)}")
+    return "\n".join(lines)
+
+
+def camera_shifts(results: dict[str, Any], run: str, stage: str, dataset: str) -> list[float]:
+    """The camera reliance of ``run`` at ``stage`` on ``dataset``, one per seed that measured it."""
+    found = (results.get(f"{run}/seed{seed}/{stage}", {}).get(dataset, {}).get(CAMERA_RELIANCE) for seed in SEEDS)
+    return [entry["mean_m"] for entry in found if entry]
 
 
 def console_name(row: str) -> str:
