@@ -10,6 +10,7 @@ from rich.console import Console
 
 from lead_s2r.cli import main
 from lead_s2r.demo import quickstart as qs
+from lead_s2r.demo import table4
 from lead_s2r.predictions import read_predictions
 from lead_s2r.report.tables import MISSING, collect, to_markdown
 from lead_s2r.shards import load_manifest
@@ -69,7 +70,7 @@ def test_twins_train_and_predict_on_disjoint_splits(tmp_path):
 
 
 def test_table_spec_is_table4_over_the_quickstart_rows():
-    spec = qs.table_spec()
+    spec = table4.table_spec(qs.SEEDS)
     assert [c.name for c in spec.columns] == COLUMNS
     assert [r.name for r in spec.rows] == ROWS
     papers = {  # recipes/paper/table4.yaml, as the paper prints them; none for the untrained rows
@@ -102,8 +103,8 @@ RESULTS = {
 
 
 def test_a_row_joins_the_navsim_and_wod_runs_of_one_model_over_seeds(tmp_path):
-    spec = qs.table_spec()
-    lines = to_markdown(spec, collect(spec, qs.table_runs(RESULTS, tmp_path))).splitlines()
+    spec = table4.table_spec(qs.SEEDS)
+    lines = to_markdown(spec, collect(spec, table4.table_runs(RESULTS, tmp_path, qs.SEEDS))).splitlines()
     zero = "0.00 ± 0.00"
     navsim = "| Expert (logged) | 93.75 ± 0.00 | 94.5 | 75.00 ± 0.00 | – | 46.88 ± 0.00 | 51.3 |"
     wod = f"8.00 ± 0.00 | 8.10 | 7.00 ± 0.00 | – | {zero} | – | {zero} | – |"
@@ -118,10 +119,10 @@ def test_a_row_joins_the_navsim_and_wod_runs_of_one_model_over_seeds(tmp_path):
 
 
 def test_console_shows_one_table_per_dataset_within_80_columns(tmp_path):
-    spec = qs.table_spec()
+    spec = table4.table_spec(qs.SEEDS)
     console = Console(file=io.StringIO(), width=80)
     widest = {f"navsim_ltfv6_lead/seed{seed}/trained": _scores(pdms, 10.5) for seed, pdms in enumerate((1, 0, 0.2))}
-    for grid in qs.tables(spec, collect(spec, qs.table_runs(RESULTS | widest, tmp_path))):
+    for grid in table4.tables(spec, collect(spec, table4.table_runs(RESULTS | widest, tmp_path, qs.SEEDS))):
         console.print(grid)
     lines = console.file.getvalue().splitlines()
     assert max(len(line) for line in lines) <= 80 and "…" not in console.file.getvalue()
@@ -185,7 +186,7 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
             assert (qs.CAMERA_RELIANCE in scores) == has_cameras, (run, dataset)
             if has_cameras:
                 assert scores[qs.CAMERA_RELIANCE]["samples"] > 0 and scores[qs.CAMERA_RELIANCE]["mean_m"] >= 0
-    for label in qs.LABELS.values():
+    for label in table4.LABELS.values():
         assert f"{label}: LTFv6 " in text and "; LTFv6 + LEAD " in text
 
     captured = capsys.readouterr()
@@ -193,7 +194,7 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
     assert "Total params" in (tmp_path / "lightning.log").read_text()  # the model summary, kept
     markdown = (tmp_path / "table" / "table4.md").read_text()
     for row in ROWS:
-        assert f"| {row} |" in markdown and qs.console_name(row) in text
+        assert f"| {row} |" in markdown and table4.console_name(row) in text
     assert max(len(line) for line in output.splitlines()) <= 80
     assert MISSING not in markdown  # every row scored on both datasets
     assert str(tmp_path / "table") in text and "lightning.log" in text
@@ -202,11 +203,11 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
 
     # the quickstart's runs are laid out as the recipes', so the paper's Table 4 spec reads them as they are
     assert main(["table", "--spec", "table4", "--runs", str(tmp_path / "runs" / "*" / "*" / "seed*")]) == 0
-    table4 = capsys.readouterr().out
+    printed = capsys.readouterr().out
     expert = results["expert"]
     rfs, pdms = expert["wod_e2e"]["rfs@wod-e2e-2025"]["rfs"], expert["navsim"]["pdms@navsim-1.1"]["pdms"]
     no_navsim = f"| {MISSING} | – " * 3  # NAVSIM PDMS, its needs-perception subset, EPDMS; one seed asked
-    assert f"| Expert (WOD-E2E) {no_navsim}| {rfs:.2f} | 8.10 |" in table4
-    assert f"| Expert (NAVSIM) | {100 * pdms:.2f} | 94.5 |" in table4
-    lead = next(line for line in table4.splitlines() if line.startswith("| LTFv6 + LEAD (WOD-E2E) |"))
+    assert f"| Expert (WOD-E2E) {no_navsim}| {rfs:.2f} | 8.10 |" in printed
+    assert f"| Expert (NAVSIM) | {100 * pdms:.2f} | 94.5 |" in printed
+    lead = next(line for line in printed.splitlines() if line.startswith("| LTFv6 + LEAD (WOD-E2E) |"))
     assert "* | 7.76 |" in lead and f"| {MISSING}* |" not in lead  # seed 0 of the three, scored
