@@ -180,17 +180,15 @@ def camera_use(results: dict[str, Any], seeds: tuple[int, ...]) -> str:
         'cameras?"):'
     ]
     for dataset in EVAL_SPLITS:
-        parts = []
         for model, runs in MODELS.items():
             cells = [
                 Cell(tuple(shifts), ())
                 for stage in (TRAINED, UNTRAINED)
                 if (shifts := camera_shifts(results, runs[dataset], stage, dataset, seeds))
             ]
-            if len(cells) == 2:
-                parts.append(f"{model} {format_cell(cells[0], 2)} ({UNTRAINED} {format_cell(cells[1], 2)})")
-        if parts:
-            lines.append(f"  {LABELS[dataset]}: {'; '.join(parts)}")
+            if len(cells) == 2:  # one line each, to fit 80 columns
+                trained, untrained = (format_cell(cell, 2) for cell in cells)
+                lines.append(f"  {LABELS[dataset]}, {model}: {trained} ({UNTRAINED} {untrained})")
     return "\n".join(lines)
 
 
