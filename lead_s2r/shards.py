@@ -347,7 +347,6 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
         yield decode_sample(raw, fields)
 
 
-
 def read_part(
     shard: str, keys: Sequence[str], fields: Iterable[str] | None = None, offset: int = 0
 ) -> list[dict[str, Any]]:

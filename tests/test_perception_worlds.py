@@ -15,7 +15,8 @@ import pytest
 from lead_s2r.cli import main
 from lead_s2r.convert import convert
 from lead_s2r.registry import get_adapter
-from lead_s2r.scoring.run import planner_predictions, score_predictions
+from lead_s2r.scoring import run
+from lead_s2r.scoring.run import planner_predictions, score_predictions, select_samples
 from lead_s2r.shards import load_manifest, read_samples
 from lead_s2r.synthetic import carla_lead, pedestrians_ahead, wod_e2e
 from lead_s2r.synthetic import navsim as synth
@@ -123,6 +124,25 @@ def test_needs_perception_scores_exactly_the_tagged_samples(navsim_world, tmp_pa
     assert means["human"]["pdms"] > 0.95 and means["human"]["no_at_fault_collisions"] == 1.0
     assert means["constant-velocity"]["no_at_fault_collisions"] < 0.75
     assert means["constant-velocity"]["pdms"] < means["human"]["pdms"] - 0.25
+
+
+def test_a_tag_decodes_only_the_tagged_samples_the_same_as_decoding_all(navsim_world, monkeypatch) -> None:
+    """The manifest says which samples carry the tag, so the others are never read from the tars."""
+    _, data = navsim_world
+    fields = ("future", "scoring")
+    everything = {sample["__key__"]: sample for sample in read_samples(data, fields=fields)}
+    decoded: list[str] = []
+    read_part = run.read_part
+
+    def counting(shard, keys, *args):
+        decoded.extend(keys)
+        return read_part(shard, keys, *args)
+
+    monkeypatch.setattr(run, "read_part", counting)
+    chosen = select_samples([data], fields, "test", tag=TAG)
+    tagged = [key for key, sample in everything.items() if TAG in sample["meta"]["tags"]]
+    assert [sample["__key__"] for sample in chosen] == decoded == tagged and 0 < len(tagged) < len(everything)
+    assert pickle.dumps(chosen) == pickle.dumps([everything[key] for key in tagged])  # decoded as read_samples does
 
 
 def test_score_cli_names_a_tag_no_sample_has(navsim_world, tmp_path: Path, capsys) -> None:

@@ -104,7 +104,7 @@ class CountingExecutor(InlineExecutor):
 
 def test_samples_decoded_in_parts_are_the_samples_one_process_decodes(navsim_data, monkeypatch):
     folder, _ = navsim_data
-    whole = select_samples([folder], PDMSScorer.fields, None)
+    whole = list(read_samples(folder, fields=PDMSScorer.fields))  # one process, webdataset's reader
     monkeypatch.setattr(run, "SAMPLES_PER_READ", 4)
     executor = CountingExecutor()
     parts = select_samples([folder], PDMSScorer.fields, None, executor)

@@ -19,11 +19,18 @@ import pyarrow.parquet as pq
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.predictions import Prediction, read_predictions, write_predictions
+from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
-from lead_s2r.shards import check_listed_shards, listed_keys, read_part, read_samples, sample_offsets
+from lead_s2r.shards import (
+    check_listed_shards,
+    listed_keys,
+    load_manifest,
+    read_part,
+    read_samples,
+    sample_offsets,
+)
 
 SCORES_TABLE = "scores.parquet"
 SCORES_JSON = "scores.json"
@@ -51,49 +58,77 @@ def _folders(data: Path | list[Path]) -> list[Path]:
 
 
 def select_samples(
-    folders: list[Path], fields: tuple[str, ...], split: str | None, executor: Executor | None = None
+    folders: list[Path],
+    fields: tuple[str, ...],
+    split: str | None,
+    executor: Executor | None = None,
+    tag: str | None = None,
 ) -> list[dict[str, Any]]:
-    """The samples of ``folders`` (of ``split`` if given: a folder converted from a whole dataset holds several), in
-    shard order. ``executor`` decodes them in parts of :data:`SAMPLES_PER_READ` (decoding NAVSIM's scoring context
-    costs about a tenth of scoring it: left to the driver, it would bound what more workers gain)."""
-    if executor is None:
-        samples = [sample for folder in folders for sample in read_samples(folder, fields=fields)]
-    else:
-        samples = [sample for folder in folders for sample in _read_in_parts(folder, fields, executor)]
-    if split is None:
-        return samples
-    chosen = [sample for sample in samples if sample["meta"]["split"] == split]
-    if not chosen:
-        held = sorted({sample["meta"]["split"] for sample in samples})
+    """The samples of ``folders`` of ``split`` (a folder converted from a whole dataset holds several) with ``tag`` in
+    ``meta.tags``, each if given, in shard order (:func:`choose_samples`, without what it passed over)."""
+    return choose_samples(folders, fields, split, executor, tag)[0]
+
+
+def choose_samples(
+    folders: list[Path],
+    fields: tuple[str, ...],
+    split: str | None,
+    executor: Executor | None = None,
+    tag: str | None = None,
+) -> tuple[list[dict[str, Any]], set[str]]:
+    """:func:`select_samples`, and the keys of ``split``'s samples it passed over for want of ``tag``.
+
+    A folder's manifest says which samples those are, so only they are decoded: NAVSIM's scoring context costs
+    about 4 ms a sample, and a held-out split or a tag is a fraction of a folder. ``executor`` decodes them in parts
+    of :data:`SAMPLES_PER_READ` (decoding costs about a tenth of scoring: left to the driver, it would bound what
+    more workers gain). A folder of tars without a manifest is decoded whole and chosen from after.
+    """
+    entries = [entry for folder in folders for entry in _listing(folder, fields)]
+    in_split = [entry for entry in entries if split is None or entry["split"] == split]
+    if not in_split:
+        held = sorted({entry["split"] for entry in entries})
         raise UserError(f"--split {split}: {', '.join(map(str, folders))} holds no such split; it holds {held}")
-    return chosen
-
-
-def tagged(
-    samples: list[dict[str, Any]], predictions: list[Prediction], tag: str, folders: list[Path]
-) -> tuple[list[dict[str, Any]], list[Prediction]]:
-    """The samples with ``tag`` in ``meta.tags`` and the predictions but those of the other samples: a prediction of
-    a sample left out is no sign of mismatched data (which a prediction of no sample at all still is)."""
-    chosen = [sample for sample in samples if tag in sample["meta"].get("tags", ())]
+    chosen = [entry for entry in in_split if tag is None or tag in entry["tags"]]
     if not chosen:
-        held = sorted({t for sample in samples for t in sample["meta"].get("tags", ())})
+        held = sorted({t for entry in in_split for t in entry["tags"]})
         raise UserError(f"--tag {tag}: no sample of {', '.join(map(str, folders))} has it; their tags: {held}")
-    left_out = {sample["__key__"] for sample in samples} - {sample["__key__"] for sample in chosen}
-    return chosen, [p for p in predictions if p.key not in left_out]
+    passed_over = {entry["key"] for entry in in_split} - {entry["key"] for entry in chosen}
+    return _decoded(chosen, fields, executor), passed_over
 
 
-def _read_in_parts(folder: Path, fields: tuple[str, ...], executor: Executor) -> list[dict[str, Any]]:
-    """A converted folder's samples, as :func:`read_samples` yields them, decoded by ``executor``'s workers."""
+def _listing(folder: Path, fields: tuple[str, ...]) -> list[dict[str, Any]]:
+    """A folder's samples as entries (``key``, ``split``, ``tags``, and ``shard`` or the decoded ``sample``): from
+    its manifest, or, for a folder of tars without one, from every sample decoded."""
     listed = listed_keys(folder)
-    if listed is None:  # a folder of tars without a manifest: nothing says where to cut them
-        return list(read_samples(folder, fields=fields))
+    if listed is None:
+        return [
+            {"key": s["__key__"], "split": s["meta"]["split"], "tags": s["meta"].get("tags") or (), "sample": s}
+            for s in read_samples(folder, fields=fields)
+        ]
     check_listed_shards(listed)
+    rows = {row["key"]: row for row in load_manifest(folder, columns=("key", "split", "tags")).to_pylist()}
+    return [
+        {"key": key, "split": rows[key]["split"], "tags": rows[key]["tags"] or (), "shard": shard}
+        for shard, keys in sorted(listed.items())
+        for key in keys
+    ]
+
+
+def _decoded(chosen: list[dict[str, Any]], fields: tuple[str, ...], executor: Executor | None) -> list[dict[str, Any]]:
+    """The samples of ``chosen`` entries, in their order: decoded already, or read from their shards in parts of
+    consecutive chosen samples (:func:`~lead_s2r.shards.read_part`), by ``executor``'s workers or here."""
+    if "sample" in chosen[0]:
+        return [entry["sample"] for entry in chosen]
+    by_shard: dict[str, list[str]] = {}
+    for entry in chosen:
+        by_shard.setdefault(entry["shard"], []).append(entry["key"])
     parts = []
-    for shard, keys in sorted(listed.items()):
-        offsets = sample_offsets(shard) if len(keys) > SAMPLES_PER_READ else {keys[0]: 0}
+    for shard, keys in by_shard.items():
+        offsets = sample_offsets(shard)  # one walk over the headers: where each part starts reading
         starts = range(0, len(keys), SAMPLES_PER_READ)
         parts += [(shard, keys[start : start + SAMPLES_PER_READ], fields, offsets[keys[start]]) for start in starts]
-    return [sample for part in executor.map(read_part, parts, per_job=1) for sample in part]
+    decoded = executor.map(read_part, parts, per_job=1) if executor is not None else (read_part(*p) for p in parts)
+    return [sample for part in decoded for sample in part]
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
@@ -145,10 +180,9 @@ def score_predictions(
     folders = _folders(data)
     start = time.perf_counter()
     with executor.session() if executor is not None else contextlib.nullcontext():  # one Ray connection
-        samples = select_samples(folders, scorer.fields, split, executor)
-        predicted = read_predictions(predictions)
-        if tag is not None:
-            samples, predicted = tagged(samples, predicted, tag, folders)
+        samples, passed_over = choose_samples(folders, scorer.fields, split, executor, tag)
+        # a prediction of a sample the tag passed over is no sign of mismatched data (one of no sample at all still is)
+        predicted = [p for p in read_predictions(predictions) if p.key not in passed_over]
         _check_metric_fits(scorer, folders, samples)
         covered = coverage(predicted, samples)
         if len(covered["unpredicted"]) == len(samples):

@@ -1,0 +1,50 @@
+"""How long ``lead-s2r score --split/--tag`` takes to get its samples: every sample of the folder decoded and the
+split kept after (the baseline, webdataset's reader), against the manifest choosing first and only those decoded.
+
+Run: ``.venv/bin/python benchmarks/score_select.py [--rounds 3]``. The quickstart's synthetic NAVSIM data (32
+trainval and 20 test logs, a third with pedestrians ahead) is generated and converted into a temporary folder; the
+samples are decoded with PDMS's fields, the quickstart's split (test) and tag (scene_filter:pedestrians_ahead).
+"""
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from rich.console import Console
+
+from lead_s2r.demo.quickstart import prepare
+from lead_s2r.demo.table4 import EVAL_SPLITS, PERCEPTION_TAGS
+from lead_s2r.scoring.run import make_scorer, select_samples
+from lead_s2r.shards import read_samples
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rounds", type=int, default=3)
+    args = parser.parse_args()
+    split, tag = EVAL_SPLITS["navsim"], PERCEPTION_TAGS["navsim"]
+    fields = make_scorer("pdms@navsim-1.1").fields
+    with tempfile.TemporaryDirectory() as tmp:
+        prepare("navsim", Path(tmp), 2, Console(quiet=True), time.perf_counter())  # as the quickstart
+        data = Path(tmp) / "data" / "navsim"
+        for round_ in range(args.rounds):
+            start = time.perf_counter()
+            baseline = [s for s in read_samples(data, fields=fields) if s["meta"]["split"] == split]
+            decode_all = time.perf_counter() - start
+            start = time.perf_counter()
+            chosen = select_samples([data], fields, split)
+            manifest_first = time.perf_counter() - start
+            start = time.perf_counter()
+            tagged = select_samples([data], fields, split, tag=tag)
+            with_tag = time.perf_counter() - start
+            assert [s["__key__"] for s in chosen] == [s["__key__"] for s in baseline]
+            print(
+                f"round {round_}: decode all, keep {split}: {len(baseline)} samples {decode_all:.2f} s; manifest "
+                f"first: {manifest_first:.2f} s ({decode_all / manifest_first:.1f}x); {split} + {tag}: "
+                f"{len(tagged)} samples {with_tag:.2f} s"
+            )
+
+
+if __name__ == "__main__":
+    main()
