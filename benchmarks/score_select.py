@@ -1,5 +1,6 @@
 """How long ``lead-s2r score --split/--tag`` takes to get its samples: every sample of the folder decoded and the
-split kept after (the baseline, webdataset's reader), against the manifest choosing first and only those decoded.
+split kept after (the baseline, webdataset's reader), against the manifest choosing first and only those decoded,
+and against a :class:`~lead_s2r.scoring.run.SampleCache` that decoded them for an earlier scoring (the quickstart's).
 
 Run: ``.venv/bin/python benchmarks/score_select.py [--rounds 3]``. The quickstart's synthetic NAVSIM data (32
 trainval and 20 test logs, a third with pedestrians ahead) is generated and converted into a temporary folder; the
@@ -15,7 +16,7 @@ from rich.console import Console
 
 from lead_s2r.demo.quickstart import prepare
 from lead_s2r.demo.table4 import EVAL_SPLITS, PERCEPTION_TAGS
-from lead_s2r.scoring.run import make_scorer, select_samples
+from lead_s2r.scoring.run import SampleCache, make_scorer, select_samples
 from lead_s2r.shards import read_samples
 
 
@@ -38,11 +39,16 @@ def main() -> None:
             start = time.perf_counter()
             tagged = select_samples([data], fields, split, tag=tag)
             with_tag = time.perf_counter() - start
-            assert [s["__key__"] for s in chosen] == [s["__key__"] for s in baseline]
+            cache = SampleCache()
+            cache.choose([data], fields, split)
+            start = time.perf_counter()
+            again = cache.choose([data], fields, split)[0]
+            cached = time.perf_counter() - start
+            assert [s["__key__"] for s in chosen] == [s["__key__"] for s in baseline] == [s["__key__"] for s in again]
             print(
                 f"round {round_}: decode all, keep {split}: {len(baseline)} samples {decode_all:.2f} s; manifest "
                 f"first: {manifest_first:.2f} s ({decode_all / manifest_first:.1f}x); {split} + {tag}: "
-                f"{len(tagged)} samples {with_tag:.2f} s"
+                f"{len(tagged)} samples {with_tag:.2f} s; {split} again from a SampleCache: {cached * 1e3:.2f} ms"
             )
 
 

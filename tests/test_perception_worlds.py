@@ -126,23 +126,49 @@ def test_needs_perception_scores_exactly_the_tagged_samples(navsim_world, tmp_pa
     assert means["constant-velocity"]["pdms"] < means["human"]["pdms"] - 0.25
 
 
-def test_a_tag_decodes_only_the_tagged_samples_the_same_as_decoding_all(navsim_world, monkeypatch) -> None:
+@pytest.fixture
+def decoded(monkeypatch) -> list[str]:
+    """The keys scoring decodes from the tars (:func:`~lead_s2r.shards.read_part`), in order."""
+    keys: list[str] = []
+    read_part = run.read_part
+
+    def counting(shard, part, *args):
+        keys.extend(part)
+        return read_part(shard, part, *args)
+
+    monkeypatch.setattr(run, "read_part", counting)
+    return keys
+
+
+def test_a_tag_decodes_only_the_tagged_samples_the_same_as_decoding_all(navsim_world, decoded) -> None:
     """The manifest says which samples carry the tag, so the others are never read from the tars."""
     _, data = navsim_world
     fields = ("future", "scoring")
     everything = {sample["__key__"]: sample for sample in read_samples(data, fields=fields)}
-    decoded: list[str] = []
-    read_part = run.read_part
-
-    def counting(shard, keys, *args):
-        decoded.extend(keys)
-        return read_part(shard, keys, *args)
-
-    monkeypatch.setattr(run, "read_part", counting)
     chosen = select_samples([data], fields, "test", tag=TAG)
     tagged = [key for key, sample in everything.items() if TAG in sample["meta"]["tags"]]
     assert [sample["__key__"] for sample in chosen] == decoded == tagged and 0 < len(tagged) < len(everything)
     assert pickle.dumps(chosen) == pickle.dumps([everything[key] for key in tagged])  # decoded as read_samples does
+
+
+def test_a_sample_cache_decodes_each_selection_once_and_scores_the_same_bytes(navsim_world, decoded, tmp_path) -> None:
+    """The quickstart scores some twenty prediction sets against the same held-out samples: a SampleCache decodes
+    each selection (fields, split, tag) once, and the samples it hands out again score as freshly decoded ones."""
+    _, data = navsim_world
+    predictions = planner_predictions("constant-velocity", data, tmp_path / "predictions.parquet")
+    keys = load_manifest(data).to_pylist()
+    decoded.clear()
+    cache = run.SampleCache()
+
+    def scored(name: str, **options) -> bytes:
+        score_predictions("pdms@navsim-1.1", predictions, data, tmp_path / name, allow_missing=True, **options)
+        return (tmp_path / name / "scores.parquet").read_bytes()
+
+    cached = {(tag, i): scored(f"cached-{i}-{tag}", tag=tag, sample_cache=cache) for i in (0, 1) for tag in (None, TAG)}
+    tagged = [row["key"] for row in keys if TAG in row["tags"]]
+    assert decoded == [row["key"] for row in keys] + tagged  # the whole split once, the tagged samples once
+    for tag in (None, TAG):
+        assert cached[tag, 0] == cached[tag, 1] == scored(f"fresh-{tag}", tag=tag)
 
 
 def test_score_cli_names_a_tag_no_sample_has(navsim_world, tmp_path: Path, capsys) -> None:

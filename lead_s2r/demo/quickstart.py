@@ -27,7 +27,7 @@ import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager, redirect_stderr, redirect_stdout
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +53,7 @@ from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import collect, scores_key, to_csv, to_latex, to_markdown
 from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.navsim.proposals import ReferenceCache
-from lead_s2r.scoring.run import score_predictions
+from lead_s2r.scoring.run import SampleCache, score_predictions
 from lead_s2r.shards import read_samples
 from lead_s2r.training import camera_reliance
 from lead_s2r.training.cli import run_lightning_cli
@@ -115,6 +115,15 @@ TRAININGS = (
 REFERENCE_SCORERS = ("pdms@navsim-1.1", "epdms@navsim-2.2")
 
 
+@dataclass
+class ScoringCaches:
+    """What every scoring of one dataset's held-out samples shares, the expert's and each model's: the PDM-Closed
+    references (one depends on the scene only; planning it is the slowest scoring step) and the decoded samples."""
+
+    references: ReferenceCache = field(default_factory=ReferenceCache)
+    samples: SampleCache = field(default_factory=SampleCache)
+
+
 def _stage(console: Console, name: str, started: float) -> None:
     console.print(f"[bold green]{name}[/] ({time.perf_counter() - started:.1f} s)")
 
@@ -126,12 +135,12 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
     started = time.perf_counter()
     for dataset in PLAN:
         prepare(dataset, out, workers, console, started)
-    references = {dataset: ReferenceCache() for dataset in PLAN}
-    results = {"expert": score_expert(out, references)}
+    caches = {dataset: ScoringCaches() for dataset in PLAN}
+    results = {"expert": score_expert(out, caches)}
     _stage(console, f"{EXPERT}: logged futures scored on the held-out logs", started)
     for seed in SEEDS:
         for training in TRAININGS:
-            results.update(train_and_score(training, seed, out, console, started, references))
+            results.update(train_and_score(training, seed, out, console, started, caches))
     (out / "summary.json").write_text(json.dumps(results, indent=2))
     spec = table_spec(SEEDS)
     cells = collect(spec, table_runs(results, out, SEEDS))
@@ -184,7 +193,7 @@ def prepare(dataset: str, out: Path, workers: int, console: Console, started: fl
     _stage(console, f"{dataset}: {converted.samples} samples converted -> {data}", started)
 
 
-def score_expert(out: Path, references: dict[str, ReferenceCache]) -> dict[str, Any]:
+def score_expert(out: Path, caches: dict[str, ScoringCaches]) -> dict[str, Any]:
     """The logged human trajectory (NAVSIM's HumanAgent) on every held-out sample, scored like a model."""
     results = {}
     for dataset, split in EVAL_SPLITS.items():
@@ -192,7 +201,7 @@ def score_expert(out: Path, references: dict[str, ReferenceCache]) -> dict[str, 
         run.mkdir(parents=True, exist_ok=True)
         held_out = (s for s in read_samples(data, fields=["future"]) if s["meta"]["split"] == split)
         path = write_predictions(run / "predictions.parquet", [predict_human(s, HORIZONS[dataset]) for s in held_out])
-        results[dataset] = score(path, data, dataset, run / "scores", references[dataset])
+        results[dataset] = score(path, data, dataset, run / "scores", caches[dataset])
     return results
 
 
@@ -221,16 +230,17 @@ def stage_folder(out: Path, training: Training, dataset: str, stage: str, seed: 
     return run_folder(out, dataset, name if stage == TRAINED else f"{name}_{UNTRAINED}", seed)
 
 
-def score(predictions: Path, data: Path, dataset: str, out: Path, references: ReferenceCache) -> dict[str, Any]:
+def score(predictions: Path, data: Path, dataset: str, out: Path, caches: ScoringCaches) -> dict[str, Any]:
     """Every scoring the table needs on ``dataset`` (converted in ``data``): ``{scores_key: aggregates}``; files
-    under ``out/<scorer>[-<tag>]``. ``references``: the PDM-Closed references planned on ``data``; a reference depends
-    on the scene only, so the expert and every model plan each sample's once (the slowest scoring step)."""
+    under ``out/<scorer>[-<tag>]``. ``caches``: what the scorings of ``data`` share."""
     results = {}
     for scorer, tag in scorings(dataset):
-        options = {"reference_cache": references} if scorer in REFERENCE_SCORERS else {}
+        options = {"reference_cache": caches.references} if scorer in REFERENCE_SCORERS else {}
         folder = out / (scorer if tag is None else f"{scorer}-{tag.replace(':', '-')}")
         # allow_missing: only the held-out samples are predicted
-        report = score_predictions(scorer, predictions, [data], folder, tag=tag, allow_missing=True, **options)
+        report = score_predictions(
+            scorer, predictions, [data], folder, tag=tag, sample_cache=caches.samples, allow_missing=True, **options
+        )
         results[scores_key(scorer, tag)] = report["aggregates"]
     return results
 
@@ -292,7 +302,7 @@ def lightning_output_to(log: Path) -> Iterator[None]:
 
 
 def train_and_score(
-    training: Training, seed: int, out: Path, console: Console, started: float, references: dict[str, ReferenceCache]
+    training: Training, seed: int, out: Path, console: Console, started: float, caches: dict[str, ScoringCaches]
 ) -> dict[str, Any]:
     """Fit the training's config with ``seed``; draw its loss curves; predict and score the held-out logs with the
     weights before and after training. Returns ``{"<name>/seed<N>/<stage>": {dataset: {scorer: aggregates}}}``."""
@@ -304,13 +314,13 @@ def train_and_score(
     results = {}
     key = f"{training.name}/seed{seed}"
     if training.predicts:
-        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, references)
+        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, caches)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
     curves = plot_loss_curves(run / "lightning_logs" / "version_0" / "metrics.csv", run / LOSS_CURVES, key)
     if training.predicts:
         checkpoint = run / "checkpoints" / "last.ckpt"
-        results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, references)
+        results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, caches)
     scored = ", scored before and after" if training.predicts else ""
     _stage(console, f"{key}: trained{scored}; loss curves -> {curves}", started)
     return results
@@ -323,7 +333,7 @@ def predict_and_score(
     seed: int,
     out: Path,
     checkpoint: Path | None,
-    references: dict[str, ReferenceCache],
+    caches: dict[str, ScoringCaches],
 ) -> dict[str, Any]:
     """Predict with ``config``'s model (``checkpoint``; None: its initial weights) and score each dataset's
     predictions against that dataset alone, in the stage's folder of that dataset's family."""
@@ -341,7 +351,7 @@ def predict_and_score(
             folder = stage_folder(out, training, dataset, stage, seed)
             folder.mkdir(parents=True, exist_ok=True)
             path = write_predictions(folder / f"predictions-{dataset}.parquet", mine)
-            results[dataset] = score(path, out / "data" / dataset, dataset, folder / "scores", references[dataset])
+            results[dataset] = score(path, out / "data" / dataset, dataset, folder / "scores", caches[dataset])
             if dataset in reliance:
                 results[dataset][CAMERA_RELIANCE] = reliance[dataset]
     return results

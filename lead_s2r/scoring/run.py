@@ -69,6 +69,31 @@ def select_samples(
     return choose_samples(folders, fields, split, executor, tag)[0]
 
 
+class SampleCache:
+    """The samples :func:`choose_samples` chose, kept for later scorings in this process: the quickstart scores some
+    twenty prediction sets against the same held-out samples, whose decoding would otherwise be a tenth of its time.
+
+    Keyed by folders, fields, split and tag; the folders must not change while the cache lives, and scorers share
+    the samples, so they read them and never write (as every registered scorer does)."""
+
+    def __init__(self) -> None:
+        self.chosen: dict[tuple[Any, ...], tuple[list[dict[str, Any]], set[str]]] = {}
+
+    def choose(
+        self,
+        folders: list[Path],
+        fields: tuple[str, ...],
+        split: str | None,
+        executor: Executor | None = None,
+        tag: str | None = None,
+    ) -> tuple[list[dict[str, Any]], set[str]]:
+        """:func:`choose_samples`, decoded at the first call of its kind only."""
+        key = (tuple(str(Path(folder).resolve()) for folder in folders), tuple(fields), split, tag)
+        if key not in self.chosen:
+            self.chosen[key] = choose_samples(folders, fields, split, executor, tag)
+        return self.chosen[key]
+
+
 def choose_samples(
     folders: list[Path],
     fields: tuple[str, ...],
@@ -163,6 +188,7 @@ def score_predictions(
     split: str | None = None,
     executor: Executor | None = None,
     tag: str | None = None,
+    sample_cache: SampleCache | None = None,
     **config: Any,
 ) -> dict[str, Any]:
     """Score ``predictions`` (predictions.parquet) against one or more converted folders.
@@ -173,14 +199,16 @@ def score_predictions(
     sample is an error, as in :func:`~lead_s2r.scoring.base.join`. ``split`` scores only that split's samples,
     ``tag`` only the samples with that tag (scores.json records both).
     ``executor`` spreads the per-sample work (:meth:`~lead_s2r.scoring.base.Scorer.map_samples`); the files are the
-    same bytes without it, but the ``seconds`` of scores.json.
+    same bytes without it, but the ``seconds`` of scores.json. ``sample_cache`` keeps the decoded samples for the next
+    scoring of the same data (:class:`SampleCache`).
     """
     scorer = make_scorer(metric, **config)
     scorer.executor = executor
     folders = _folders(data)
     start = time.perf_counter()
     with executor.session() if executor is not None else contextlib.nullcontext():  # one Ray connection
-        samples, passed_over = choose_samples(folders, scorer.fields, split, executor, tag)
+        choose = choose_samples if sample_cache is None else sample_cache.choose
+        samples, passed_over = choose(folders, scorer.fields, split, executor, tag)
         # a prediction of a sample the tag passed over is no sign of mismatched data (one of no sample at all still is)
         predicted = [p for p in read_predictions(predictions) if p.key not in passed_over]
         _check_metric_fits(scorer, folders, samples)
