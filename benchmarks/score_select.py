@@ -16,7 +16,7 @@ from rich.console import Console
 
 from lead_s2r.demo.quickstart import prepare
 from lead_s2r.demo.table4 import EVAL_SPLITS, PERCEPTION_TAGS
-from lead_s2r.scoring.run import SampleCache, make_scorer, select_samples
+from lead_s2r.scoring.run import SampleCache, choose_samples, make_scorer, select_samples
 from lead_s2r.shards import read_samples
 
 
@@ -40,9 +40,9 @@ def main() -> None:
             tagged = select_samples([data], fields, split, tag=tag)
             with_tag = time.perf_counter() - start
             cache = SampleCache()
-            cache.choose([data], fields, split)
+            choose_samples([data], fields, split, cache=cache)
             start = time.perf_counter()
-            again = cache.choose([data], fields, split)[0]
+            again = choose_samples([data], fields, split, cache=cache)[0]
             cached = time.perf_counter() - start
             assert [s["__key__"] for s in chosen] == [s["__key__"] for s in baseline] == [s["__key__"] for s in again]
             print(

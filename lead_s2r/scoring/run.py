@@ -69,30 +69,11 @@ def select_samples(
     return choose_samples(folders, fields, split, executor, tag)[0]
 
 
-class SampleCache:
-    """The samples :func:`choose_samples` chose, kept for later scorings in this process: the quickstart scores some
-    twenty prediction sets against the same held-out samples, whose decoding was a fifth of its time.
-
-    Keyed by folders, fields, split and tag; the folders must not change while the cache lives. Scorers share the
-    samples, so a scorer must only read them (the quickstart's PDMS, EPDMS, ADE and RFS print the same table with the
-    cache as without)."""
-
-    def __init__(self) -> None:
-        self.chosen: dict[tuple[Any, ...], tuple[list[dict[str, Any]], set[str]]] = {}
-
-    def choose(
-        self,
-        folders: list[Path],
-        fields: tuple[str, ...],
-        split: str | None,
-        executor: Executor | None = None,
-        tag: str | None = None,
-    ) -> tuple[list[dict[str, Any]], set[str]]:
-        """:func:`choose_samples`, decoded at the first call of its kind only."""
-        key = (tuple(str(Path(folder).resolve()) for folder in folders), tuple(fields), split, tag)
-        if key not in self.chosen:
-            self.chosen[key] = choose_samples(folders, fields, split, executor, tag)
-        return self.chosen[key]
+class SampleCache(dict[tuple[Any, ...], tuple[list[dict[str, Any]], set[str]]]):
+    """What :func:`choose_samples` chose, by folders, fields, split and tag, kept for later scorings in this process:
+    the quickstart scores some twenty prediction sets against the same held-out samples, whose decoding was a fifth
+    of its time. The folders must not change while the cache lives. Scorers share the samples, so a scorer must only
+    read them (the quickstart's PDMS, EPDMS, ADE and RFS print the same table with the cache as without)."""
 
 
 def choose_samples(
@@ -101,14 +82,19 @@ def choose_samples(
     split: str | None,
     executor: Executor | None = None,
     tag: str | None = None,
+    cache: SampleCache | None = None,
 ) -> tuple[list[dict[str, Any]], set[str]]:
-    """:func:`select_samples`, and the keys of ``split``'s samples it passed over for want of ``tag``.
+    """:func:`select_samples`, and the keys of ``split``'s samples it passed over for want of ``tag``; from ``cache``
+    when it holds them, else decoded (and kept there).
 
     A folder's manifest says which samples those are, so only they are decoded: NAVSIM's scoring context costs
     about 4 ms a sample, and a held-out split or a tag is a fraction of a folder. ``executor`` decodes them in parts
     of :data:`SAMPLES_PER_READ` (decoding costs about a tenth of scoring: left to the driver, it would bound what
     more workers gain). A folder of tars without a manifest is decoded whole and chosen from after.
     """
+    key = (tuple(str(Path(folder).resolve()) for folder in folders), tuple(fields), split, tag)
+    if cache is not None and key in cache:
+        return cache[key]
     entries = [entry for folder in folders for entry in _listing(folder, fields)]
     in_split = [entry for entry in entries if split is None or entry["split"] == split]
     if not in_split:
@@ -119,7 +105,10 @@ def choose_samples(
         held = sorted({t for entry in in_split for t in entry["tags"]})
         raise UserError(f"--tag {tag}: no sample of {', '.join(map(str, folders))} has it; their tags: {held}")
     passed_over = {entry["key"] for entry in in_split} - {entry["key"] for entry in chosen}
-    return _decoded(chosen, fields, executor), passed_over
+    result = _decoded(chosen, fields, executor), passed_over
+    if cache is not None:
+        cache[key] = result
+    return result
 
 
 def _listing(folder: Path, fields: tuple[str, ...]) -> list[dict[str, Any]]:
@@ -150,7 +139,8 @@ def _decoded(chosen: list[dict[str, Any]], fields: tuple[str, ...], executor: Ex
         by_shard.setdefault(entry["shard"], []).append(entry["key"])
     parts = []
     for shard, keys in by_shard.items():
-        offsets = sample_offsets(shard)  # one walk over the headers: where each part starts reading
+        # one walk over the headers says where each part starts; one part reads from the start, skipping the rest
+        offsets = sample_offsets(shard) if len(keys) > SAMPLES_PER_READ else {keys[0]: 0}
         starts = range(0, len(keys), SAMPLES_PER_READ)
         parts += [(shard, keys[start : start + SAMPLES_PER_READ], fields, offsets[keys[start]]) for start in starts]
     decoded = executor.map(read_part, parts, per_job=1) if executor is not None else (read_part(*p) for p in parts)
@@ -208,8 +198,7 @@ def score_predictions(
     folders = _folders(data)
     start = time.perf_counter()
     with executor.session() if executor is not None else contextlib.nullcontext():  # one Ray connection
-        choose = choose_samples if sample_cache is None else sample_cache.choose
-        samples, passed_over = choose(folders, scorer.fields, split, executor, tag)
+        samples, passed_over = choose_samples(folders, scorer.fields, split, executor, tag, sample_cache)
         # a prediction of a sample the tag passed over is no sign of mismatched data (one of no sample at all still is)
         predicted = [p for p in read_predictions(predictions) if p.key not in passed_over]
         _check_metric_fits(scorer, folders, samples)
