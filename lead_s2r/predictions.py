@@ -3,7 +3,9 @@
 One row per (sample, inference): ``key`` str, ``dataset`` str, ``t``/``x``/``y``/``yaw`` list<float32> in the ISO
 ego frame of the sample (rear axle at t0, x forward, y left), ``t`` > 0 in seconds and strictly increasing, and
 optionally ``probability`` float and ``inference`` int for multi-modal outputs. ``yaw`` may be NaN where a
-model predicts no heading; ``t``, ``x``, ``y`` must be finite.
+model predicts no heading; ``t``, ``x``, ``y`` must be finite. :func:`write_predictions` stores a CRC32 of every
+data page and :func:`read_predictions` checks those a file carries: parquet has no other guard, so a flipped bit
+in a coordinate would otherwise be scored as a slightly different prediction.
 
 :func:`on_grid` puts trajectories on a scorer's time grid. A prediction on another grid (e.g. 2 Hz x 10) is
 linearly interpolated, with the ego origin (0, 0) at t = 0 as the first knot, because the sample's ego frame
@@ -99,14 +101,14 @@ def write_predictions(path: str | Path, predictions: Iterable[Prediction]) -> Pa
         "inference": [int(p.inference) for p in predictions],
     }
     path = Path(path)
-    pq.write_table(pa.table(columns, schema=SCHEMA), path)
+    pq.write_table(pa.table(columns, schema=SCHEMA), path, write_page_checksum=True)
     return path
 
 
 def read_predictions(path: str | Path) -> list[Prediction]:
     """Read and check a predictions file; a single inference per key may omit ``probability``/``inference``."""
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(path, page_checksum_verification=True)
     except (OSError, pa.ArrowException) as err:
         raise PredictionError(
             f"{path}: not a readable parquet file ({err}); write it with lead_s2r.predictions.write_predictions"
