@@ -108,6 +108,14 @@ def corrupt(path: Path, kind: str, rng: np.random.Generator) -> str:
     return f"{kind} of {path} at byte {start}"
 
 
+def flip_in_value(path: Path, value: bytes) -> None:
+    """Flip the lowest bit of the first place ``path`` stores ``value`` (a number's bytes): a damaged digit that
+    leaves the file's structure whole, so only a checksum can tell."""
+    data = bytearray(path.read_bytes())
+    data[data.index(value)] ^= 1
+    _replace(path, bytes(data))
+
+
 def pick_file(root: Path, rng: np.random.Generator, weight: Callable[[Path], float] = lambda p: 1.0) -> Path:
     """One file under ``root``, drawn with probability proportional to ``weight`` (e.g. rare kinds up-weighted)."""
     files = sorted(p for p in root.rglob("*") if p.is_file())

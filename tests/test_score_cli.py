@@ -10,6 +10,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import torch
+from corruptions import flip_in_value
 
 from lead_s2r import __version__, cli
 from lead_s2r.predictions import Prediction, PredictionError, read_predictions, write_predictions
@@ -226,6 +227,15 @@ def test_predictions_round_trip(tmp_path: Path) -> None:
     for a, b in zip(written, read, strict=True):
         assert (a.key, a.dataset, a.probability, a.inference) == (b.key, b.dataset, b.probability, b.inference)
         assert a.t.tobytes() == b.t.tobytes() and a.xy.tobytes() == b.xy.tobytes()
+
+
+def test_a_flipped_coordinate_fails_its_page_checksum(tmp_path: Path) -> None:
+    """Without the CRC write_predictions stores, the file would read back with x[3] = 1234.5001."""
+    xy = np.column_stack([np.where(np.arange(20) == 3, 1234.5, 1.0), np.zeros(20)])
+    path = write_predictions(tmp_path / "p.parquet", [prediction("k0", xy)])
+    flip_in_value(path, np.float32(1234.5).tobytes())
+    with pytest.raises(PredictionError, match=r"p\.parquet: not a readable parquet file.*(CRC|checksum)"):
+        read_predictions(path)
 
 
 def _raw_table(path: Path, **columns: list[Any]) -> Path:
