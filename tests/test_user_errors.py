@@ -261,3 +261,17 @@ def test_fit_missing_config_file_or_bad_value(tmp_path, plain_argv, capsys):
     config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path)], "cameras": ["front"]}})
     line = user_error(["fit", "--config", str(config), "--trainer.max_epochs", "many"], capsys)
     assert 'Parser key "trainer.max_epochs"' in line and "Given value: many" in line
+
+
+def test_fit_config_with_a_wrong_typed_value_or_bytes_not_utf8_names_the_file(tmp_path, plain_argv, capsys):
+    """jsonargparse names the key but not the file (a recipe may be one of several --config), and raised the
+    decoder's own error for bytes that are not UTF-8."""
+    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path)], "cameras": ["front"]}})
+    values = yaml.safe_load(config.read_text())
+    values["data"]["schedule"]["global_batch_size"] = "x"
+    config.write_text(yaml.safe_dump(values))
+    line = user_error(["fit", "--config", str(config)], capsys)
+    assert 'Parser key "data.schedule"' in line and f"--config {config}; see lead-s2r fit --help" in line
+    config.write_bytes(config.read_bytes().replace(b"accelerator: cpu", b"accelerator: \xffcpu"))
+    line = user_error(["fit", f"--config={config}"], capsys)
+    assert line.startswith(f"error: --config {config}: not UTF-8 text ('utf-8' codec can't decode byte 0xff")
