@@ -87,6 +87,7 @@ def test_a_scores_table_keyed_by_numbers_is_named(tmp_path: Path) -> None:
         (b"epoch,step,train/loss\n0,1,2.5\x00\n", "could not convert string to float"),  # was a ValueError traceback
         (b"epoch,step,train/loss\n0,1,2.5,7\n", "line 2 has more cells than the header"),  # was a TypeError
         (b"epoch,step,train/loss\n0,1,\xff\n", "'utf-8' codec"),  # was a UnicodeDecodeError traceback
+        (b"epoch,spep,train/loss\n0,1,2.5\n", "no step column"),  # was a log without curves
     ],
 )
 def test_a_damaged_training_log_is_named(tmp_path: Path, log: bytes, message: str) -> None:

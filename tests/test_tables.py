@@ -256,13 +256,20 @@ def test_a_spec_that_is_not_utf8_is_named(tmp_path):
         (b'{"metric": "m", "aggregates": "x"}', "not the scores.json of lead-s2r score"),
         (b"[]", "not the scores.json of lead-s2r score"),  # was an AttributeError
         (b'{"metric": "\xff"}', "cannot read scores: 'utf-8' codec"),
-        (json.dumps({"metric": RFS, "aggregates": {"rfs": "x"}}).encode(), r"aggregates\.rfs is 'x', not a number"),
+        (
+            json.dumps({"metric": B2D, "aggregates": {"infractions_per_100km": 7}}).encode(),
+            r"aggregates\.infractions_per_100km is 7, not a mapping",
+        ),
+        (
+            json.dumps({"metric": B2D, "aggregates": {"infractions_per_100km": {"red_light": "x"}}}).encode(),
+            r"aggregates\.infractions_per_100km\.red_light is .x., not a number",
+        ),
     ],
 )
 def test_a_damaged_scores_json_is_named(tmp_path, runs, report, message):
-    """A value that is no number was a seed marked missing, as if never scored."""
-    (runs / "wod" / "ltfv6" / "seed1" / "scores0" / "scores.json").write_bytes(report)
-    with pytest.raises(TableError, match=r"seed1/scores0/scores\.json: " + message):
+    """A value that is no number, or no mapping where the column's key goes on, was a seed marked missing."""
+    (runs / "wod" / "ltfv6" / "seed1" / "scores1" / "scores.json").write_bytes(report)
+    with pytest.raises(TableError, match=r"seed1/scores1/scores\.json: " + message):
         build_table(write_spec(tmp_path), [str(runs / "*" / "*" / "seed*")])
 
 

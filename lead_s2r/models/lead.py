@@ -11,6 +11,7 @@
 import json
 import pickle
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -94,20 +95,30 @@ def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Modul
     return members[0] if len(members) == 1 else LeadEnsemble(members).eval()
 
 
+#: What zipfile raises on a damaged archive: a bad directory (BadZipFile), a member name that is not UTF-8
+#: (UnicodeDecodeError), an offset before the file's start (OSError) or data past its end (EOFError), the flag of
+#: an encrypted member (RuntimeError), a member marked compressed (zlib.error) or by an unknown method
+#: (NotImplementedError).
+ZIP_DAMAGE = (zipfile.BadZipFile, UnicodeDecodeError, OSError, EOFError, RuntimeError, zlib.error, NotImplementedError)
+#: What torch.load raises on an archive whose CRCs hold but which is no checkpoint: no zip directory (RuntimeError), a
+#: bad pickle (UnpicklingError), no bytes (EOFError), a record that is no number or text (ValueError).
+TORCH_DAMAGE = (RuntimeError, pickle.UnpicklingError, EOFError, ValueError)
+
+
 def read_weights(file: Path) -> dict[str, Tensor]:
     """The state_dict of one ``model*.pth``. torch reads a zip archive (``torch.save``'s format) without checking its
     CRC32s, so a flipped bit inside a tensor would load as another weight: the archive is checked first (zipfile)."""
-    if zipfile.is_zipfile(file):  # else a legacy or truncated file, for torch.load to judge
-        try:  # a damaged directory may name a member in bad UTF-8, an unknown compression, encryption or version
+    try:
+        if zipfile.is_zipfile(file):  # else a legacy or truncated file, for torch.load to judge
             with zipfile.ZipFile(file) as archive:
                 damaged = archive.testzip()
-        except (zipfile.BadZipFile, UnicodeDecodeError, NotImplementedError) as err:
-            raise UserError(f"{file}: a damaged zip archive ({err}); copy the checkpoint again") from None
-        if damaged is not None:
-            raise UserError(f"{file}: its member {damaged} fails its CRC check; the file is damaged, copy it again")
+            if damaged is not None:
+                raise UserError(f"{file}: its member {damaged} fails its CRC check; the file is damaged, copy it again")
+    except ZIP_DAMAGE as err:
+        raise UserError(f"{file}: a damaged zip archive ({err!r}); copy the checkpoint again") from None
     try:
         state = torch.load(file, map_location="cpu", weights_only=True)
-    except (RuntimeError, pickle.UnpicklingError, EOFError) as err:
+    except TORCH_DAMAGE as err:
         raise UserError(f"{file}: not a readable torch checkpoint ({' '.join(str(err).split())[:200]})") from None
     if not isinstance(state, dict):
         raise UserError(f"{file}: holds a {type(state).__name__}, not the state_dict LEAD saves")

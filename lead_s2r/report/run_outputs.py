@@ -183,6 +183,8 @@ def _logged_values(log: Path) -> Iterable[tuple[str, float, float]]:
     """(column, step, value) of every filled cell of a Lightning CSV log but its step and epoch columns."""
     with log.open(newline="") as file:
         reader = csv.DictReader(file)
+        if reader.fieldnames is not None and "step" not in reader.fieldnames:
+            raise ValueError(f"no step column in its header {reader.fieldnames}")
         for row in reader:
             if None in row:  # DictReader files the cells past the header's under None
                 raise ValueError(f"line {reader.line_num} has more cells than the header")

@@ -278,15 +278,18 @@ def _literal(pattern: str) -> list[str]:
 def _lookup(run: Run, column: Column) -> float | None:
     """The column's number in the run's scores; None where the run has no such scores or key, or where the value is
     null (a metric undefined on the data). Anything else there is no result: an error naming the scores.json."""
+    where = run.sources.get(column.scores, run.path)
     value: Any = run.scores.get(column.scores, {})
-    for part in column.key.split("."):
-        if not isinstance(value, dict) or part not in value:
+    parts = column.key.split(".")
+    for depth, part in enumerate(parts):
+        if value is not None and not isinstance(value, dict):
+            raise TableError(f"{where}: aggregates.{'.'.join(parts[:depth])} is {value!r}, not a mapping of {part!r}")
+        if value is None or part not in value:
             return None
         value = value[part]
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, int | float):
-        where = run.sources.get(column.scores, run.path)
         raise TableError(f"{where}: aggregates.{column.key} is {value!r}, not a number")
     return float(value)
 

@@ -58,6 +58,15 @@ class DrivingCLI(LightningCLI):
                 "model's initial weights"
             )
 
+    def instantiate_classes(self) -> None:
+        """Build the model, data and trainer the config describes. A value of the right type but no use to a
+        constructor (``decoder_heads: 7`` for a token width of 32) fails there: jsonargparse re-raises it as a
+        ValueError, a constructor's own type check as a TypeError; either is the config's mistake."""
+        try:
+            super().instantiate_classes()
+        except (TypeError, ValueError) as err:
+            raise UserError(f"cannot build what the config describes: {' '.join(str(err).split())}") from err
+
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
         if isinstance(self.datamodule, DriveDataModule) and isinstance(self.model, DrivingModule):
             self.datamodule.check_sources(self.model.input_spec())
@@ -95,6 +104,10 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
     except argparse.ArgumentError as err:
         where = f"--config {', '.join(map(str, configs))}; " if configs else ""
         raise UserError(f"{err} ({where}see lead-s2r {verb} --help)") from None
+    except UserError as err:
+        if not configs:
+            raise
+        raise UserError(f"{err} (--config {', '.join(map(str, configs))})") from err
 
 
 def config_files(argv: list[str]) -> list[Path]:
