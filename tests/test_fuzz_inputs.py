@@ -1,12 +1,15 @@
 """Fuzz of the files users hand us besides raw data: one random corruption (tests/corruptions.py) per trial of a
-predictions file, a LEAD checkpoint folder, leaderboard results and routes, a table's spec and runs, a scored run
-folder and a LightningCLI config, each read through the public function or verb that takes it.
+predictions file, a LEAD checkpoint folder, the closed-loop agent's config, leaderboard results and routes, a table's
+spec and runs, a scored run folder and a LightningCLI config, each read through the public function or verb that
+takes it.
 
 The contract (as tests/test_fuzz.py's): the call gives the pristine result, or raises :class:`UserError` naming the
-file (a verb: exit status 2 and one stderr line naming it); never another exception. A different result is allowed
-only where the reader cannot know: a byte changed inside a value of a text file (a digit of a number), or a
-line-based file (YAML, CSV) cut at a line. ``LEAD_S2R_FUZZ_TRIALS`` sets the trials per target (default 8: about
-30 s for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed.
+file (a verb: exit status 2 and one ``error:`` line on stderr naming it, after any library warning); never another
+exception. A different result is allowed only where the reader cannot know: a byte changed inside a value of a text
+file (a digit of a number), a line-based file (YAML, CSV) cut at a line, a value replaced by null or by another of
+its own type, what a report shows as it is (the saved config, aggregates), and a deleted training log. A table whose
+scores.json was deleted must list that seed as missing. ``LEAD_S2R_FUZZ_TRIALS`` sets the trials per target (default
+8: about 30 s for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed.
 """
 
 import json
@@ -29,6 +32,7 @@ from test_tables import make_run, write_spec
 from test_user_errors import fit_config
 
 from lead_s2r import cli
+from lead_s2r.closed_loop.agent import ClosedLoopConfig
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.models import lead
@@ -52,7 +56,24 @@ WOD_METADATA = wod_submit.WodMetadata("a@b.c", "m", ["A. Driver"], "1K", False)
 #: Corruptions that may change a value of a text file and leave it valid: the reader cannot know.
 VALUE_CHANGES = ("flip", "zero_span", "random_span")
 LINE_FORMATS = (".yaml", ".csv")
-TARGETS = ("predictions-navsim", "predictions-wod", "lead-checkpoint", "carla-metrics", "table", "report", "fit")
+TARGETS = (
+    "predictions-navsim",
+    "predictions-wod",
+    "lead-checkpoint",
+    "agent-config",
+    "carla-metrics",
+    "table",
+    "report",
+    "fit",
+)
+#: An agent config YAML of the closed-loop agent (the leaderboard's --agent-config) with a field of every type.
+AGENT_CONFIG = {
+    "checkpoint": "runs/a/seed0",
+    "controller": "waypoint",
+    "rig": None,
+    "creeping": True,
+    "jpeg_quality": 80,
+}
 
 
 #: What a report shows as it is: its saved config, the aggregates of a scores.json (any value of any metric); and
@@ -86,6 +107,8 @@ def _replaced(pristine: Path, corrupted: Path) -> tuple[list[Any], Any, Any]:
     where: list[Any] = []
     while type(old) is type(new) and isinstance(old, dict | list) and len(old) == len(new):
         keys = list(old) if isinstance(old, dict) else range(len(old))
+        if keys != (list(new) if isinstance(new, dict) else keys):  # a mapping put in place of another
+            break
         key = next(key for key in keys if old[key] != new[key])
         where.append(key)
         old, new = old[key], new[key]
@@ -212,6 +235,21 @@ def checkpoint_trial(made: tuple, trial: Path, rng: np.random.Generator) -> str:
     pristine, expected = made
     corrupted = corrupt_one(pristine, trial, rng)
     return keeps_contract(lambda: _state(lead.load_checkpoint(corrupted[0])), expected, corrupted, pristine)
+
+
+@pytest.fixture(scope="module")
+def agent_config(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("fuzz_agent") / "agent"
+    folder.mkdir()
+    (folder / "drive.yaml").write_text(yaml.safe_dump(AGENT_CONFIG))
+    return folder
+
+
+def agent_config_trial(pristine: Path, trial: Path, rng: np.random.Generator) -> str:
+    corrupted = corrupt_one(pristine, trial, rng)
+    expected = ClosedLoopConfig.from_agent_config(str(pristine / "drive.yaml"), {})
+    read = lambda: ClosedLoopConfig.from_agent_config(str(corrupted[0] / "drive.yaml"), {})  # noqa: E731
+    return keeps_contract(read, expected, corrupted, pristine)
 
 
 @pytest.fixture(scope="module")
@@ -344,7 +382,7 @@ def test_every_corruption_keeps_the_contract(target, request, tmp_path, capsys, 
     rng = np.random.default_rng([SEED, TARGETS.index(target)])
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI warns when the process has other arguments
     expected = None
-    if target not in ("predictions-navsim", "predictions-wod", "lead-checkpoint"):
+    if target not in ("predictions-navsim", "predictions-wod", "lead-checkpoint", "agent-config"):
         pristine, argv = _verb(target, request)
         expected = _verb_output(argv(pristine, tmp_path / "out"), pristine, tmp_path / "out", capsys)
         assert expected[0] == (2 if target == "fit" else 0), expected[1]
@@ -357,6 +395,8 @@ def test_every_corruption_keeps_the_contract(target, request, tmp_path, capsys, 
             outcome = predictions_trial(request.getfixturevalue("predictions")[dataset], trial, rng)
         elif target == "lead-checkpoint":
             outcome = checkpoint_trial(request.getfixturevalue("lead_checkpoint"), trial, rng)
+        elif target == "agent-config":
+            outcome = agent_config_trial(request.getfixturevalue("agent_config"), trial, rng)
         else:
             outcome = verb_trial(target, request, trial, rng, capsys, expected)
         outcomes[outcome] += 1

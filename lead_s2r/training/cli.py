@@ -2,9 +2,8 @@
 
 Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overridden on the command line
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
-missing config file, a value of the wrong type) become a :class:`UserError`, one line like every other verb's that
-names the ``--config`` files; a config file that is not UTF-8 text is one too (jsonargparse would raise the decoder's
-error).
+missing config file, a value of the wrong type), values no constructor can use and a config file that is not UTF-8
+text become a :class:`UserError`, one line like every other verb's, that names the ``--config`` files.
 
 A run's outputs share one root, ``trainer.default_root_dir`` (``runs/<family>/<name>/seed<k>`` in the recipes):
 checkpoints in ``<root>/checkpoints`` (a ``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in
