@@ -256,6 +256,13 @@ def _last_data_past_the_end(data: bytes) -> bytes:
     return data[:at] + extra.to_bytes(2, "little") + data[at + 2 :]
 
 
+def _large_and_cut(data: bytes) -> bytes:
+    """A 40 kB checkpoint cut at 20 kB: torch seeks before its start looking for the directory."""
+    buffer = io.BytesIO()
+    torch.save({"w": torch.zeros(10000)}, buffer)
+    return buffer.getvalue()[:20000]
+
+
 def _with_record(data: bytes, suffix: str, content: bytes) -> bytes:
     """A whole archive (valid CRCs) whose member ending in ``suffix`` holds ``content``."""
     source, out = zipfile.ZipFile(io.BytesIO(data)), io.BytesIO()
@@ -277,6 +284,7 @@ def _with_record(data: bytes, suffix: str, content: bytes) -> bytes:
         (lambda data: _directory_entry(data, 10, b"\x08\x00"), "damaged zip.*error.*decompressing"),  # zlib.error
         (lambda data: _directory_entry(data, 10, (99).to_bytes(2, "little")), "damaged zip.*NotImplementedError"),
         (lambda data: data[: len(data) // 2], "not a readable torch checkpoint.*central directory"),  # RuntimeError
+        (_large_and_cut, "not a readable torch checkpoint.*Invalid argument"),  # OSError
         (lambda data: b"garbage", "not a readable torch checkpoint.*Weights only load failed"),  # UnpicklingError
         (lambda data: b"", r"not a readable torch checkpoint \(\)"),  # EOFError
         (lambda data: _with_record(data, "/.storage_alignment", b"x"), "torch checkpoint.*invalid literal for int"),

@@ -100,9 +100,10 @@ def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Modul
 #: an encrypted member (RuntimeError), a member marked compressed (zlib.error) or by an unknown method
 #: (NotImplementedError).
 ZIP_DAMAGE = (zipfile.BadZipFile, UnicodeDecodeError, OSError, EOFError, RuntimeError, zlib.error, NotImplementedError)
-#: What torch.load raises on an archive whose CRCs hold but which is no checkpoint: no zip directory (RuntimeError), a
-#: bad pickle (UnpicklingError), no bytes (EOFError), a record that is no number or text (ValueError).
-TORCH_DAMAGE = (RuntimeError, pickle.UnpicklingError, EOFError, ValueError)
+#: What torch.load raises on a file that is no zip archive or whose CRCs hold but which is no checkpoint: no zip
+#: directory in a small file (RuntimeError) or a seek before the start of a larger cut one (OSError), a bad pickle
+#: (UnpicklingError), no bytes (EOFError), a record that is no number or text (ValueError).
+TORCH_DAMAGE = (RuntimeError, OSError, pickle.UnpicklingError, EOFError, ValueError)
 
 
 def read_weights(file: Path) -> dict[str, Tensor]:
