@@ -9,7 +9,7 @@ exception. A different result is allowed only where the reader cannot know: a by
 file (a digit of a number), a line-based file (YAML, CSV) cut at a line, a value replaced by null or by another of
 its own type, what a report shows as it is (the saved config, aggregates), and a deleted training log. A table whose
 scores.json was deleted must list that seed as missing. ``LEAD_S2R_FUZZ_TRIALS`` sets the trials per target (default
-8: about 30 s for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed.
+12: about 20 s for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed.
 """
 
 import json
@@ -48,7 +48,7 @@ from lead_s2r.synthetic import navsim as navsim_synth
 from lead_s2r.synthetic import wod_e2e as wod_synth
 from lead_s2r.training import cli as training_cli  # noqa: F401 - Lightning's log handler binds at collection
 
-TRIALS = int(os.environ.get("LEAD_S2R_FUZZ_TRIALS", "8"))
+TRIALS = int(os.environ.get("LEAD_S2R_FUZZ_TRIALS", "12"))
 SEED = int(os.environ.get("LEAD_S2R_FUZZ_SEED", "0"))
 TINY_LEAD = Path(__file__).parent / "data" / "lead_tfv6" / "tiny_ltfv6_navsim" / "config.json"
 NAVSIM_METADATA = navsim_submit.NavsimMetadata("fuzz", "A. Driver", "a@b.c", "Uni", "DE")
