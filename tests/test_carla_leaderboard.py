@@ -248,6 +248,7 @@ def _with(path: tuple[str, ...], value: Any) -> dict[str, Any]:
         (("infractions",), None, r"\[0\]\.infractions: expected a dict of message lists"),
         (("infractions", "red_light"), 7, r"\[0\]\.infractions\.red_light: expected a list of messages"),
         (("infractions", "red_light"), [7], r"\[0\]\.infractions\.red_light: expected a list of messages"),
+        (("infractions", "min_speed_infractions"), ["slow"], r"\[0\]\.infractions\.min_speed_infractions: .*X%"),
         (
             ("infractions", "outside_route_lanes"),
             ["off for about 12 m"],

@@ -27,7 +27,7 @@ import pytest
 import torch
 import yaml
 from corruptions import KINDS, corrupt, hardlink_copy, pick_file
-from test_carla_leaderboard import VEHICLE_HIT, off_lane, record, results_file
+from test_carla_leaderboard import VEHICLE_HIT, off_lane, record, results_file, slow
 from test_tables import make_run, write_spec
 from test_user_errors import fit_config
 
@@ -254,12 +254,13 @@ def agent_config_trial(pristine: Path, trial: Path, rng: np.random.Generator) ->
 
 @pytest.fixture(scope="module")
 def leaderboard_results(tmp_path_factory) -> Path:
-    """Two results files of a longest6-like benchmark (a hit, an off-lane stretch) and its routes XML."""
+    """Two results files of Town13 routes (a hit, an off-lane stretch, a slow drive) and its routes XML."""
     folder = tmp_path_factory.mktemp("fuzz_results") / "results"
     folder.mkdir()
     results_file(folder, [record(0, infractions={"collisions_vehicle": [VEHICLE_HIT]}), record(1, rc=62.5)], "a.json")
     off_lane_record = record(2, infractions={"outside_route_lanes": [off_lane(12.5, 3.1)]})
-    results_file(folder, [off_lane_record, record(3, length=700.0)], "b.json")
+    slow_record = record(3, length=700.0, infractions={"min_speed_infractions": [slow(62.5)]})
+    results_file(folder, [off_lane_record, slow_record], "b.json")
     routes = "".join(f'<route id="{i}" town="Town13"/>' for i in range(6))
     (folder / "routes.xml").write_text(f"<routes>{routes}</routes>")
     return folder

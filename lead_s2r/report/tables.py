@@ -156,7 +156,10 @@ def _row(path: Path, index: int, row: Any, columns: int) -> Row:
     paper = row.get("paper")
     seeds = row.get("seeds")
     return Row(
-        row["name"], row.get("run"), (None,) * columns if paper is None else tuple(paper), seeds and tuple(seeds)
+        row["name"],
+        row.get("run"),
+        (None,) * columns if paper is None else tuple(paper),
+        None if seeds is None else tuple(seeds),
     )
 
 
@@ -244,8 +247,8 @@ def load_run(path: Path) -> Run:
             report = json.loads(scores.read_bytes())
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
             raise TableError(f"{scores}: cannot read scores: {err}") from None
-        fields = (report.get(name) if isinstance(report, dict) else None for name in ("metric", "tag", "aggregates"))
-        metric, tag, aggregates = fields
+        report = report if isinstance(report, dict) else {}
+        metric, tag, aggregates = report.get("metric"), report.get("tag"), report.get("aggregates", {})
         if not isinstance(metric, str) or not isinstance(tag, str | None) or not isinstance(aggregates, dict):
             raise TableError(
                 f"{scores}: not the scores.json of lead-s2r score or carla-metrics (metric, tag, aggregates)"

@@ -177,7 +177,8 @@ def _field(container: dict[str, Any], name: str, kind: type, where: str) -> Any:
 
 
 def _infractions(raw: dict[str, Any], where: str) -> dict[str, list[str]]:
-    """The infraction messages by type, each message checked where its percentage is read (off-lane, min speed)."""
+    """The infraction messages by type; those whose percentage the scores read (off-lane, min speed) are parsed here,
+    where the file and record are known."""
     infractions = raw.get("infractions", {})
     if not isinstance(infractions, dict):
         raise ResultsError(f"{where}.infractions: expected a dict of message lists, got {infractions!r}")
