@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import yaml
 
 KINDS = ("flip", "truncate", "zero_span", "random_span", "delete", "append", "wrong_type")
@@ -114,6 +115,24 @@ def flip_in_value(path: Path, value: bytes) -> None:
     data = bytearray(path.read_bytes())
     data[data.index(value)] ^= 1
     _replace(path, bytes(data))
+
+
+def parquet_footer(data: bytes) -> int:
+    """Where a parquet file's footer (its thrift FileMetaData) starts: its length sits before the closing magic."""
+    return len(data) - 8 - int.from_bytes(data[-8:-4], "little")
+
+
+def flip_footer_byte(path: Path, wanted: Callable[[Path], bool]) -> None:
+    """Flip bit 1 of the first footer byte for which ``wanted(path)`` holds (thrift keeps no offsets to look up)."""
+    data = path.read_bytes()
+    for at in range(parquet_footer(data), len(data) - 8):
+        _replace(path, data[:at] + bytes([data[at] ^ 2]) + data[at + 1 :])
+        try:
+            if wanted(path):
+                return
+        except (OSError, pa.ArrowException):
+            pass
+    raise AssertionError("no such footer byte")
 
 
 def pick_file(root: Path, rng: np.random.Generator, weight: Callable[[Path], float] = lambda p: 1.0) -> Path:

@@ -7,8 +7,9 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
-from corruptions import flip_in_value
+from corruptions import flip_footer_byte, flip_in_value
 
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import Prediction, write_predictions
@@ -45,6 +46,14 @@ def test_a_flipped_score_fails_its_page_checksum(tmp_path: Path) -> None:
     flip_in_value(run / "ade" / "scores.parquet", np.float64(1234.5).tobytes())
     with pytest.raises(UserError, match=r"ade: cannot read scores\.json / scores\.parquet .*(CRC|checksum)"):
         load_run(run)
+
+
+def test_a_column_renamed_in_the_scores_footer_is_named(tmp_path: Path) -> None:
+    """The footer's names carry no checksum: 'ade' renamed by a flip read as a metric without its headline."""
+    table = scored_run(tmp_path) / "ade" / "scores.parquet"
+    flip_footer_byte(table, lambda path: "ade" not in pq.read_schema(path).names)
+    with pytest.raises(UserError, match=r"ade: cannot read scores\.json / scores\.parquet .*footer names the columns"):
+        load_run(tmp_path / "run")
 
 
 def test_a_truncated_scores_table_is_named(tmp_path: Path) -> None:

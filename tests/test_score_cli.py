@@ -10,7 +10,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import torch
-from corruptions import flip_in_value
+from corruptions import flip_footer_byte, flip_in_value
 
 from lead_s2r import __version__, cli
 from lead_s2r.predictions import Prediction, PredictionError, read_predictions, write_predictions
@@ -235,6 +235,20 @@ def test_a_flipped_coordinate_fails_its_page_checksum(tmp_path: Path) -> None:
     path = write_predictions(tmp_path / "p.parquet", [prediction("k0", xy)])
     flip_in_value(path, np.float32(1234.5).tobytes())
     with pytest.raises(PredictionError, match=r"p\.parquet: not a readable parquet file.*(CRC|checksum)"):
+        read_predictions(path)
+
+
+def test_a_flipped_row_count_or_column_name_in_the_footer_is_named(tmp_path: Path) -> None:
+    """No checksum covers the footer: a row group's count cut by a flip read 1 of 2 predictions, a renamed 'inference'
+    column read as absent, both without a word (a single inference per key needs neither column)."""
+    rows = [prediction(f"k{i}", np.zeros((20, 2)), inference=1) for i in range(2)]
+    path = write_predictions(tmp_path / "p.parquet", rows)
+    flip_footer_byte(path, lambda p: pq.read_metadata(p).num_rows == 2 != pq.read_metadata(p).row_group(0).num_rows)
+    with pytest.raises(PredictionError, match=r"p\.parquet: .*footer counts 2 rows, its row groups \d"):
+        read_predictions(path)
+    path = write_predictions(tmp_path / "p.parquet", rows)
+    flip_footer_byte(path, lambda p: "inference" not in pq.read_schema(p).names)
+    with pytest.raises(PredictionError, match=r"p\.parquet: .*footer names the columns .*written as .*'inference'"):
         read_predictions(path)
 
 

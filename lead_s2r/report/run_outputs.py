@@ -19,10 +19,9 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.predictions import Prediction, group_by_key, read_predictions
+from lead_s2r.predictions import Prediction, group_by_key, read_parquet, read_predictions
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
 
 SCORES_JSON = "scores.json"
@@ -117,8 +116,8 @@ def _metric_scores(json_path: Path) -> MetricScores:
     table_path = json_path.with_name(SCORES_TABLE)
     try:
         report = json.loads(json_path.read_bytes())
-        table = pq.read_table(table_path, page_checksum_verification=True)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, pa.ArrowException) as err:
+        table = read_parquet(table_path)
+    except (OSError, ValueError, pa.ArrowException) as err:  # ValueError: UTF-8, JSON, base64 (read_parquet)
         raise UserError(f"{json_path.parent}: cannot read {SCORES_JSON} / {SCORES_TABLE} ({err})") from None
     if not isinstance(report, dict) or "metric" not in report or "key" not in table.column_names:
         raise UserError(f"{json_path}: not a `lead-s2r score` output (no 'metric', or no 'key' column in the table)")
