@@ -61,14 +61,24 @@ def unpack(blob: bytes) -> Any:
 
 
 def read_table(path: Path) -> pa.Table:
-    """One Arrow IPC file, whole; a truncated or foreign file is a :class:`Py123dFormatError` naming it."""
+    """One Arrow IPC file, whole; a missing, truncated, foreign or damaged file is a :class:`Py123dFormatError`.
+
+    pyarrow's IPC reader checks the file's framing but not the offsets and UTF-8 inside its buffers: a damaged list
+    offset crashes the process later, when a value is read (Arrow's C++ aborts or segfaults). Full validation
+    checks every offset first, in about a millisecond for a log's file, and decodes the column names. A damaged
+    schema raises any of pyarrow's errors (an invalid type is ``ArrowNotImplementedError``).
+    """
     try:
         with pa.memory_map(str(path), "r") as source:
-            return pa.ipc.open_file(source).read_all()
-    except (pa.ArrowInvalid, OSError) as err:
+            table = pa.ipc.open_file(source).read_all()
+        table.validate(full=True)
+    except FileNotFoundError:
+        raise Py123dFormatError(path, "missing; copy or convert this log again") from None
+    except (pa.ArrowException, OSError, UnicodeDecodeError) as err:
         raise Py123dFormatError(
             path, f"not a readable Arrow IPC file ({err}); copy or convert this log again"
         ) from None
+    return table
 
 
 def table_metadata(table: pa.Table, path: Path) -> dict[str, Any]:
@@ -122,15 +132,17 @@ class LogFiles:
         for name in ("dataset", "split", "log_name"):
             if name not in log:
                 raise Py123dFormatError(path, "log metadata lacks this entry", f"metadata.{name}")
-        stamps = column(table, path, "sync.timestamp_us").to_numpy().astype(np.int64)
+        stamps = _timestamps(column(table, path, "sync.timestamp_us").combine_chunks(), path)
         sync = {}
         for name in table.column_names:
             if not name.startswith("sync."):
                 sync[name] = _row_indices(table[name].combine_chunks(), path, name)
+                if not (folder / f"{name}.arrow").is_file():  # py123d writes a sync column per file it writes
+                    raise Py123dFormatError(folder / f"{name}.arrow", "missing (sync.arrow lists it)")
         return cls(folder, log, stamps, sync)
 
     def has(self, key: str) -> bool:
-        return key in self.sync and (self.folder / f"{key}.arrow").is_file()
+        return key in self.sync
 
     def keys(self, prefix: str) -> list[str]:
         """Modality keys of one type (``camera.``, ``lidar.``) present in the sync table, sorted."""
@@ -141,6 +153,10 @@ class LogFiles:
         if key not in self._tables:
             path = self.path(key)
             table = read_table(path)
+            last = int(self.sync[key].max(initial=-1))
+            if last >= table.num_rows:
+                problem = f"row index {last} past the {table.num_rows} rows of {path.name}"
+                raise Py123dFormatError(self.folder / SYNC_FILE, problem, key)
             self._tables[key] = table, table_metadata(table, path)
         return self._tables[key]
 
@@ -153,16 +169,31 @@ class LogFiles:
         return column(table, self.path(key), f"{key}.{name}")[row].as_py()
 
 
+def _timestamps(values: pa.Array, path: Path) -> np.ndarray:
+    """The iterations' int64 microseconds, which must increase (every trajectory's times come from them)."""
+    if not pa.types.is_integer(values.type) or values.null_count:
+        raise Py123dFormatError(path, f"expected one integer per iteration, got {values.type}", "sync.timestamp_us")
+    stamps = np.asarray(values.to_numpy(zero_copy_only=False), np.int64)
+    if (np.diff(stamps) <= 0).any():
+        at = int(np.argmax(np.diff(stamps) <= 0)) + 1
+        raise Py123dFormatError(path, f"timestamps do not increase at iteration {at}", "sync.timestamp_us")
+    return stamps
+
+
 def _row_indices(values: pa.Array, path: Path, name: str) -> np.ndarray:
-    """A sync column as one row index per iteration (-1 where absent). py123d 0.7 writes one int64 per
+    """A sync column as one row index per iteration (-1 where absent: null). py123d 0.7 writes one int64 per
     iteration; earlier versions wrote a list of the rows within the iteration, of which we take the first."""
     if pa.types.is_list(values.type) or pa.types.is_large_list(values.type):
         if not pa.types.is_integer(values.type.value_type):
             raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)
-        return np.array([rows[0] if rows else -1 for rows in values.to_pylist()], np.int64)  # a few thousand rows
+        values = pa.array([rows[0] if rows else None for rows in values.to_pylist()], pa.int64())  # a few thousand
     if not pa.types.is_integer(values.type):
         raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)
-    return np.asarray(values.fill_null(-1).to_numpy(zero_copy_only=False), np.int64)
+    rows = np.asarray(values.fill_null(-1).to_numpy(zero_copy_only=False)).astype(np.int64)
+    negative = np.asarray(values.is_valid()) & (rows < 0)  # a uint64 past int64 wraps round to negative too
+    if negative.any():
+        raise Py123dFormatError(path, f"negative row index {rows[negative][0]}", name)
+    return rows
 
 
 def decode_points(blob: bytes, path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -170,6 +201,7 @@ def decode_points(blob: bytes, path: Path) -> tuple[np.ndarray, dict[str, np.nda
     if blob[:4] == b"\xff\xff\xff\xff":  # Arrow IPC stream (codecs ipc, ipc_zstd, ipc_lz4)
         try:
             batch = pa.ipc.open_stream(pa.BufferReader(blob)).read_next_batch()
+            batch.validate(full=True)  # as in read_table: unchecked offsets crash the process
         except (pa.ArrowInvalid, OSError) as err:
             raise Py123dFormatError(path, f"LiDAR payload is not an Arrow stream ({err})", "data") from None
         columns = {name: batch.column(i).to_numpy(zero_copy_only=False) for i, name in enumerate(batch.schema.names)}

@@ -17,6 +17,7 @@ from lead_s2r_adapters.py123d_arrow import (
     BOX_KEY,
     EGO_KEY,
     LIGHT_KEY,
+    SYNC_FILE,
     LogFiles,
     Py123dFormatError,
     column,
@@ -47,6 +48,8 @@ def camera_id(key: str) -> str:
     return CAMERA_IDS.get(native, native)
 
 
+#: m/s no ego reaches (the fastest road cars: about 140)
+MAX_SPEED = 200.0
 LIGHT_STATUS = ("GREEN", "YELLOW", "RED", "OFF", "UNKNOWN")
 RED = 2
 
@@ -78,15 +81,32 @@ class LogData:
         name = f"{EGO_KEY}.dynamic_state_se3"
         self.ego_dynamics = fixed_rows(table, path, name, 9) if name in table.column_names else None
         rows = files.sync[EGO_KEY]
-        self.valid = (rows >= 0) & np.isfinite(imu[np.maximum(rows, 0), 0])
+        self.valid = rows >= 0  # an iteration without an ego state has no sample
         self.ego_rows = np.where(self.valid, rows, 0)
-        self.world = rear_axle_poses(imu[self.ego_rows], self.rear_axle_to_imu)  # (I, 4, 4) per iteration
+        with np.errstate(invalid="ignore"):  # a zero quaternion: NaN, refused below
+            self.world = rear_axle_poses(imu[self.ego_rows], self.rear_axle_to_imu)  # (I, 4, 4) per iteration
+        broken = self.valid & ~np.isfinite(self.world).all(axis=(1, 2))
+        if broken.any():  # dropping the iteration would lose its sample without a word
+            problem = f"row {self.ego_rows[broken][0]}: the pose is null, not finite or has a zero quaternion"
+            raise Py123dFormatError(path, problem, f"{EGO_KEY}.imu_se3")
         self.pose2d = np.column_stack([self.world[:, :2, 3], np.arctan2(self.world[:, 1, 0], self.world[:, 0, 0])])
         self.t_us = files.timestamps_us
+        self._check_speed(path)
         self._box_cache: dict[int, tuple | None] = {}
         self._light_cache: dict[int, list[tuple[int, int]]] = {}
 
     # ------------------------------------------------------------------ ego
+
+    def _check_speed(self, path: Path) -> None:
+        """A pose the ego cannot have reached from the one before is damaged: one flipped exponent bit moves it by
+        1e9 m, and the route built along the driven path (a point a metre) would fill the memory."""
+        valid = np.flatnonzero(self.valid)
+        moved = np.hypot(*np.diff(self.pose2d[valid, :2], axis=0).T)
+        fast = moved > MAX_SPEED * np.diff(self.t_us[valid]) / 1e6
+        if fast.any():
+            k = int(np.argmax(fast))
+            problem = f"row {self.ego_rows[valid[k + 1]]}: the ego moved {moved[k]:.3g} m since the iteration before"
+            raise Py123dFormatError(path, f"{problem}, faster than {MAX_SPEED:g} m/s", f"{EGO_KEY}.imu_se3")
 
     def trajectory(self, i: int, span: np.ndarray) -> np.ndarray:
         """[t, x, y, yaw] of iterations ``span`` in the frame of iteration ``i``."""
@@ -269,6 +289,7 @@ class LogData:
 
 
 def log_folders(src: Path) -> list[Path]:
-    """Folders holding a ``sync.arrow`` under ``src`` (a 123D data root, its ``logs/`` or one split), sorted."""
+    """Folders holding a ``sync.arrow`` or an ego state file under ``src`` (a 123D data root, its ``logs/`` or one
+    split), sorted: a log that lost one of the two is still listed, and fails naming the missing file."""
     root = src / "logs" if (src / "logs").is_dir() else src
-    return sorted(path.parent for path in root.rglob("sync.arrow"))
+    return sorted({path.parent for name in (SYNC_FILE, f"{EGO_KEY}.arrow") for path in root.rglob(name)})

@@ -4,12 +4,15 @@ through ``convert`` / ``read_samples`` / ``inspect`` / ``score``; every trial mu
 The contract: an error is a :class:`UserError` (one line, naming the file) or, in ``convert``, an errors.jsonl line
 naming the file; never another exception. No sample goes missing without a report, and logs whose files were not
 touched convert exactly as before. ``LEAD_S2R_FUZZ_TRIALS`` sets the number of trials per target (default 40:
-about a minute for the six targets); ``LEAD_S2R_FUZZ_SEED`` the seed.
+about a minute for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed. The py123d targets need py123d's writers
+(``lead_s2r.synthetic.py123d``) and are skipped without them.
 """
 
 import json
 import os
 from collections import Counter
+from collections.abc import Callable
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +30,9 @@ from lead_s2r.shards import ERRORS, load_manifest, read_samples
 
 TRIALS = int(os.environ.get("LEAD_S2R_FUZZ_TRIALS", "40"))
 SEED = int(os.environ.get("LEAD_S2R_FUZZ_SEED", "0"))
-RAW = ("carla_lead", "navsim", "wod_e2e")
+RAW = ("carla_lead", "navsim", "wod_e2e", "py123d")
+#: per adapter: the raw folder, its conversion and the keys of every log
+Made = tuple[Path, Path, dict[str, set[str]]]
 
 
 def _generate(name: str, out: Path) -> None:
@@ -39,6 +44,12 @@ def _generate(name: str, out: Path) -> None:
         from lead_s2r.synthetic.navsim import generate
 
         generate(out, count=2, seed=3)
+    elif name == "py123d":  # every reader: IPC and LAZ LiDAR, nuPlan-style logs with their maps, a LEAD recording
+        from lead_s2r.synthetic import py123d
+
+        py123d.write_log(out, "log-ipc", index=0, frames=6)  # 43 iterations: 3 samples with a 4 s future
+        py123d.write_log(out, "log-laz", index=1, frames=6, codec="laz")
+        py123d.write_lead_log(out, index=2, frames=6)
     else:
         from lead_s2r.synthetic.wod_e2e import generate
 
@@ -60,15 +71,17 @@ def _keys_by_log(folder: Path) -> dict[str, set[str]]:
 
 
 @pytest.fixture(scope="module")
-def pristine(tmp_path_factory) -> dict[str, tuple[Path, Path, dict[str, set[str]]]]:
-    """Per adapter: raw folder, its conversion and the keys of every log."""
+def pristine(tmp_path_factory) -> Callable[[str], Made]:
+    """Per adapter, made when a target first asks for it (a skipped target makes nothing)."""
     root = tmp_path_factory.mktemp("fuzz")
-    made = {}
-    for name in RAW:
+
+    @cache
+    def made(name: str) -> Made:
         _generate(name, root / name)
         result = convert(_adapter(name, root / name), root / name, root / f"{name}-out", shard_size=8)
         assert result.ok, result.errors
-        made[name] = (root / name, root / f"{name}-out", _keys_by_log(root / f"{name}-out"))
+        return root / name, root / f"{name}-out", _keys_by_log(root / f"{name}-out")
+
     return made
 
 
@@ -84,7 +97,7 @@ def _names_file(message: str, target: Path) -> bool:
     return target.name in message or target.parent.name in message
 
 
-def raw_trial(name: str, made: tuple[Path, Path, dict[str, set[str]]], trial: Path, rng: np.random.Generator) -> str:
+def raw_trial(name: str, made: Made, trial: Path, rng: np.random.Generator) -> str:
     """Corrupt one raw file, convert, and check the contract; returns the outcome."""
     pristine_src, _, before = made
     src, out = trial / "src", trial / "out"
@@ -118,7 +131,7 @@ def check_converted(folder: Path, count: int) -> None:
 
 
 def converted_trial(
-    name: str, made: tuple[Path, Path, dict[str, set[str]]], trial: Path, rng: np.random.Generator
+    name: str, made: Made, trial: Path, rng: np.random.Generator
 ) -> str:
     """Corrupt one file of a converted folder, then read, inspect and score it: the whole data or a UserError.
 
@@ -156,10 +169,12 @@ def converted_trial(
 @pytest.mark.parametrize("target", [*RAW, *(f"{name}-converted" for name in RAW)])
 def test_every_corruption_keeps_the_contract(target, pristine, tmp_path):
     name = target.removesuffix("-converted")
+    if name == "py123d":
+        pytest.importorskip("py123d", reason="py123d is installed with --no-deps in CI (docs/datasets/py123d.md)")
     rng = np.random.default_rng([SEED, RAW.index(name), target.endswith("-converted")])
     outcomes: Counter[str] = Counter()
     for trial in range(TRIALS):
         folder = tmp_path / f"trial{trial}"
         run = converted_trial if target.endswith("-converted") else raw_trial
-        outcomes[run(name, pristine[name], folder, rng)] += 1
+        outcomes[run(name, pristine(name), folder, rng)] += 1
     print(target, dict(outcomes))
