@@ -19,7 +19,7 @@ from lead_s2r.geometry import points_to_local
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
 from lead_s2r_adapters import navsim_map, py123d_lead, py123d_map
-from lead_s2r_adapters.py123d_arrow import ROUTE_KEY, LogFiles, Py123dFormatError
+from lead_s2r_adapters.py123d_arrow import ROUTE_KEY, LogFiles
 from lead_s2r_adapters.py123d_log import LIGHT_STATUS, RED, LogData, camera_id, log_folders
 
 OPTIONAL = ("future", "lidar", "target_points", "route", "boxes", "agents_future", "scoring", "bev_semantic")
