@@ -13,6 +13,7 @@ adapter then needs only pyarrow, msgpack and, for LAZ-coded LiDAR, laspy.
 """
 
 import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,9 +56,33 @@ def _ndarray_hook(obj: dict) -> Any:
     return obj
 
 
-def unpack(blob: bytes) -> Any:
-    """py123d's msgpack (schema metadata, map features) with its numpy arrays restored."""
-    return _msgpack().unpackb(blob, raw=False, strict_map_key=False, object_hook=_ndarray_hook)
+def unpack(blob: bytes, path: Path, field_name: str) -> dict[str, Any]:
+    """py123d's msgpack map (schema metadata, a map object's fields) with its numpy arrays restored; a damaged blob
+    is a :class:`Py123dFormatError` naming ``field_name``."""
+    msgpack = _msgpack()
+    try:
+        value = msgpack.unpackb(blob, raw=False, strict_map_key=False, object_hook=_ndarray_hook)
+    except (msgpack.exceptions.UnpackException, ValueError, TypeError, KeyError) as err:
+        # UnpackException: cut or malformed msgpack (ValueError: bad UTF-8, extra data); TypeError: an unhashable
+        # map key or dtype; KeyError / ValueError: an array map without its data or of the wrong size
+        raise Py123dFormatError(path, f"not py123d msgpack ({type(err).__name__}: {err})", field_name) from None
+    if not isinstance(value, dict):
+        raise Py123dFormatError(path, f"expected a msgpack map, got {type(value).__name__}", field_name)
+    return value
+
+
+def meta_array(meta: dict[str, Any], path: Path, name: str, shape: tuple[int | None, ...]) -> np.ndarray:
+    """A numeric entry of a file's metadata (an SE3 pose, a polyline) as float64 of ``shape`` (None: any length),
+    finite: a wrong-typed entry is a :class:`Py123dFormatError`, not a numpy error some lines later."""
+    try:
+        value = np.asarray(meta[name], np.float64)
+    except (KeyError, TypeError, ValueError):
+        value = np.empty(0)
+    fits = value.ndim == len(shape) and all(want in (None, got) for want, got in zip(shape, value.shape, strict=False))
+    if not fits or not np.isfinite(value).all():
+        size = "x".join("N" if n is None else str(n) for n in shape)
+        raise Py123dFormatError(path, f"expected {size} finite numbers", f"metadata.{name}")
+    return value
 
 
 def read_table(path: Path) -> pa.Table:
@@ -84,21 +109,52 @@ def read_table(path: Path) -> pa.Table:
 def table_metadata(table: pa.Table, path: Path) -> dict[str, Any]:
     """The msgpack metadata of a file's schema ({} where the writer stored none)."""
     raw = (table.schema.metadata or {}).get(METADATA_KEY)
-    if raw is None:
-        return {}
-    try:
-        meta = unpack(raw)
-    except Exception as err:  # msgpack raises several unrelated types for corrupt input
-        raise Py123dFormatError(path, f"schema metadata is not py123d msgpack ({err})", "metadata") from None
-    if not isinstance(meta, dict):
-        raise Py123dFormatError(path, "schema metadata must be a map", "metadata")
-    return meta
+    return {} if raw is None else unpack(raw, path, "metadata")
 
 
 def column(table: pa.Table, path: Path, name: str) -> pa.ChunkedArray:
     if name not in table.column_names:
         raise Py123dFormatError(path, f"column missing (has {', '.join(table.column_names)})", name)
     return table[name]
+
+
+def _numbers(kind: pa.DataType) -> bool:
+    return pa.types.is_integer(kind) or pa.types.is_floating(kind)
+
+
+def _lists_of(item: Callable[[pa.DataType], bool]) -> Callable[[pa.DataType], bool]:
+    def check(kind: pa.DataType) -> bool:
+        lists = pa.types.is_list(kind) or pa.types.is_large_list(kind) or pa.types.is_fixed_size_list(kind)
+        return lists and item(kind.value_type)
+
+    return check
+
+
+def _bytes_or_path(kind: pa.DataType) -> bool:
+    return pa.types.is_binary(kind) or pa.types.is_large_binary(kind) or pa.types.is_string(kind)
+
+
+#: The columns we read (by the name after the modality key) and the Arrow types they may have; checked when a file
+#: is read, so that a value of another writer's type is an error naming the column, not a numpy error in a sample.
+COLUMN_TYPES: dict[str, tuple[str, Callable[[pa.DataType], bool]]] = {
+    "imu_se3": ("a list of numbers", _lists_of(_numbers)),
+    "dynamic_state_se3": ("a list of numbers", _lists_of(_numbers)),
+    "bounding_box_se3": ("lists of number lists", _lists_of(_lists_of(_numbers))),
+    "velocity_3d": ("lists of number lists", _lists_of(_lists_of(_numbers))),
+    "track_token": ("a list of strings", _lists_of(pa.types.is_string)),
+    "label": ("a list of integers", _lists_of(pa.types.is_integer)),
+    "lane_id": ("a list of integers", _lists_of(pa.types.is_integer)),
+    "status": ("a list of integers", _lists_of(pa.types.is_integer)),
+    "data": ("bytes or a path", _bytes_or_path),
+}
+
+
+def check_columns(table: pa.Table, path: Path, key: str) -> None:
+    """Every column of :data:`COLUMN_TYPES` that the file of modality ``key`` has is of its type."""
+    for name, kind in zip(table.column_names, table.schema.types, strict=True):
+        expected = COLUMN_TYPES.get(name.removeprefix(f"{key}."))
+        if expected is not None and not expected[1](kind):
+            raise Py123dFormatError(path, f"expected {expected[0]} per row, got {kind}", name)
 
 
 def fixed_rows(table: pa.Table, path: Path, name: str, width: int) -> np.ndarray:
@@ -157,6 +213,7 @@ class LogFiles:
             if last >= table.num_rows:
                 problem = f"row index {last} past the {table.num_rows} rows of {path.name}"
                 raise Py123dFormatError(self.folder / SYNC_FILE, problem, key)
+            check_columns(table, path, key)
             self._tables[key] = table, table_metadata(table, path)
         return self._tables[key]
 

@@ -48,11 +48,9 @@ def to_rear_axle(imu_to_x: np.ndarray, rear_axle_to_imu: np.ndarray) -> np.ndarr
     return np.linalg.inv(pose_matrix(rear_axle_to_imu)) @ imu_to_x
 
 
-def vehicle(meta: dict[str, Any]) -> dict[str, float]:
-    """``meta.vehicle`` from py123d's ego metadata: the centre's offset ahead of the rear axle is
-    ``center_to_imu.x - rear_axle_to_imu.x``."""
-    centre = np.asarray(meta["center_to_imu_se3"], np.float64)
-    rear = np.asarray(meta["rear_axle_to_imu_se3"], np.float64)
+def vehicle(meta: dict[str, Any], centre: np.ndarray, rear: np.ndarray) -> dict[str, float]:
+    """``meta.vehicle`` from py123d's ego metadata and its ``center_to_imu_se3`` and ``rear_axle_to_imu_se3``: the
+    centre's offset ahead of the rear axle is ``center_to_imu.x - rear_axle_to_imu.x``."""
     return {
         "length": float(meta["length"]),
         "width": float(meta["width"]),

@@ -23,6 +23,7 @@ from lead_s2r_adapters.py123d_arrow import (
     column,
     decode_points,
     fixed_rows,
+    meta_array,
 )
 from lead_s2r_adapters.py123d_frames import pose_matrix, rear_axle_poses, to_rear_axle, vehicle
 from lead_s2r_adapters.py123d_labels import box_class
@@ -72,11 +73,12 @@ class LogData:
             raise Py123dFormatError(files.folder, f"no {EGO_KEY}.arrow: a 123D log without ego states has no samples")
         table, self.ego_meta = files.table(EGO_KEY)
         path = files.path(EGO_KEY)
+        self.rear_axle_to_imu = meta_array(self.ego_meta, path, "rear_axle_to_imu_se3", (7,))
+        centre_to_imu = meta_array(self.ego_meta, path, "center_to_imu_se3", (7,))
         try:
-            self.vehicle = vehicle(self.ego_meta)
-            self.rear_axle_to_imu = np.asarray(self.ego_meta["rear_axle_to_imu_se3"], np.float64)
+            self.vehicle = vehicle(self.ego_meta, centre_to_imu, self.rear_axle_to_imu)
         except (KeyError, TypeError, ValueError):
-            raise Py123dFormatError(path, "ego metadata lacks the vehicle size or extrinsics", "metadata") from None
+            raise Py123dFormatError(path, "ego metadata lacks the vehicle size", "metadata") from None
         imu = fixed_rows(table, path, f"{EGO_KEY}.imu_se3", 7)
         name = f"{EGO_KEY}.dynamic_state_se3"
         self.ego_dynamics = fixed_rows(table, path, name, 9) if name in table.column_names else None
@@ -153,21 +155,28 @@ class LogData:
             return None
         table, meta = self.files.table(BOX_KEY)
         path, row = self.files.path(BOX_KEY), int(self.files.sync[BOX_KEY][j])
-        boxes = np.asarray(column(table, path, f"{BOX_KEY}.bounding_box_se3")[row].as_py() or [], np.float64)
         tokens = [str(t) for t in column(table, path, f"{BOX_KEY}.track_token")[row].as_py() or []]
-        labels = column(table, path, f"{BOX_KEY}.label")[row].as_py() or []
         velocity = column(table, path, f"{BOX_KEY}.velocity_3d")[row].as_py() or [None] * len(tokens)
-        if boxes.reshape(-1, 10).shape != (len(tokens), 10) or len(labels) != len(tokens):
+        try:  # the column types are checked (LogFiles.table); a null inside a list is not
+            boxes = np.asarray(column(table, path, f"{BOX_KEY}.bounding_box_se3")[row].as_py() or [], np.float64)
+            labels = [int(label) for label in column(table, path, f"{BOX_KEY}.label")[row].as_py() or []]
+            moving = [[0.0, 0.0, 0.0] if v is None else v for v in velocity]
+            moving = np.asarray(moving, np.float64).reshape(-1, 3)
+        except (TypeError, ValueError):
+            raise Py123dFormatError(path, f"row {row}: a null inside a list of boxes", "bounding_box_se3") from None
+        if boxes.reshape(-1, 10).shape != (len(tokens), 10) or len(labels) != len(tokens) != len(moving):
             raise Py123dFormatError(path, f"row {row}: boxes, tokens and labels disagree in length", "bounding_box_se3")
+        if not (np.isfinite(boxes).all() and np.isfinite(moving).all()):
+            raise Py123dFormatError(path, f"row {row}: a box or velocity is not finite", "bounding_box_se3")
         qualified = str(meta.get("box_detection_label_class", "unknown"))
-        classes = [box_class(qualified, int(label)) for label in labels]
+        classes = [box_class(qualified, label) for label in labels]
         keep = [k for k, (cls, _) in enumerate(classes) if cls is not None]
         boxes = boxes.reshape(-1, 10)[keep]
-        moving = np.array([velocity[k] if velocity[k] is not None else [0.0, 0.0, 0.0] for k in keep], np.float64)
+        moving = moving[keep]
         self._box_cache[j] = (
             pose_matrix(boxes[:, :7]),
             boxes[:, 7:10],
-            moving.reshape(-1, 3),
+            moving,
             np.array([int(classes[k][0]) for k in keep], np.float64),
             [tokens[k] for k in keep],
             [classes[k][1] for k in keep],
@@ -218,7 +227,7 @@ class LogData:
             row = int(self.files.sync[key][i])
             if row < 0:
                 continue
-            data = self.files.value(key, "data", row)
+            data = self.files.value(key, "data", row)  # bytes, or a path (a str) into the source dataset
             if not isinstance(data, bytes) or data[:2] != b"\xff\xd8":
                 skipped[cam_id] = "stored as a path, PNG or video frame, not JPEG bytes"
                 continue
@@ -228,9 +237,9 @@ class LogData:
 
     def _calibration(self, cam_id: str, native: str, meta: dict[str, Any]) -> dict[str, Any]:
         path = self.files.path(f"camera.{native}")
+        extrinsic = pose_matrix(meta_array(meta, path, "camera_to_imu_se3", (7,)))
         try:
             fx, fy, cx, cy, skew = (float(v) for v in meta["intrinsics"])
-            extrinsic = pose_matrix(np.asarray(meta["camera_to_imu_se3"], np.float64))
             distortion = [float(v) for v in (meta.get("distortion") or [0.0] * 5)]
             width, height = int(meta["width"]), int(meta["height"])
         except (KeyError, TypeError, ValueError):
@@ -281,9 +290,11 @@ class LogData:
                 row = int(self.files.sync[LIGHT_KEY][i])
                 lanes = self.files.value(LIGHT_KEY, "lane_id", row) or []
                 status = self.files.value(LIGHT_KEY, "status", row) or []
+                path = self.files.path(LIGHT_KEY)
                 if len(lanes) != len(status):
-                    path = self.files.path(LIGHT_KEY)
                     raise Py123dFormatError(path, f"row {row}: lane ids and statuses differ", "status")
+                if None in lanes or None in status:  # the column types are checked (LogFiles.table)
+                    raise Py123dFormatError(path, f"row {row}: a null lane id or status", "status")
                 self._light_cache[i] = [(int(lane), int(s)) for lane, s in zip(lanes, status, strict=True)]
         return self._light_cache[i]
 

@@ -130,9 +130,7 @@ def check_converted(folder: Path, count: int) -> None:
     assert report["samples"] == report["checked"] == count and not report["invalid"]
 
 
-def converted_trial(
-    name: str, made: Made, trial: Path, rng: np.random.Generator
-) -> str:
+def converted_trial(name: str, made: Made, trial: Path, rng: np.random.Generator) -> str:
     """Corrupt one file of a converted folder, then read, inspect and score it: the whole data or a UserError.
 
     A flipped bit inside an array changes a value and nothing else (shards carry no checksums); where the value breaks
