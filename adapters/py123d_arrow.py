@@ -77,9 +77,9 @@ def meta_array(meta: dict[str, Any], path: Path, name: str, shape: tuple[int | N
     try:
         value = np.asarray(meta[name], np.float64)
     except (KeyError, TypeError, ValueError):
-        value = np.empty(0)
-    fits = value.ndim == len(shape) and all(want in (None, got) for want, got in zip(shape, value.shape, strict=False))
-    if not fits or not np.isfinite(value).all():
+        value = np.full(1, np.nan)  # refused below
+    shaped = value.ndim == len(shape) and all(n in (None, m) for n, m in zip(shape, value.shape, strict=False))
+    if not shaped or not np.isfinite(value).all():
         size = "x".join("N" if n is None else str(n) for n in shape)
         raise Py123dFormatError(path, f"expected {size} finite numbers", f"metadata.{name}")
     return value

@@ -51,6 +51,9 @@ def camera_id(key: str) -> str:
 
 #: m/s no ego reaches (the fastest road cars: about 140)
 MAX_SPEED = 200.0
+#: metres from the world origin no box is (UTM northings reach 1e7; a damaged double can reach 1e308, whose product
+#: with the ego pose overflows)
+MAX_COORDINATE = 1e8
 LIGHT_STATUS = ("GREEN", "YELLOW", "RED", "OFF", "UNKNOWN")
 RED = 2
 
@@ -173,8 +176,13 @@ class LogData:
         keep = [k for k, (cls, _) in enumerate(classes) if cls is not None]
         boxes = boxes.reshape(-1, 10)[keep]
         moving = moving[keep]
+        with np.errstate(invalid="ignore"):  # a zero quaternion: NaN, refused below
+            poses = pose_matrix(boxes[:, :7])
+        if not (np.isfinite(poses).all() and (np.abs(boxes[:, :3]) < MAX_COORDINATE).all()):
+            problem = f"row {row}: a box is {MAX_COORDINATE:g} m or more away or has a zero quaternion"
+            raise Py123dFormatError(path, problem, "bounding_box_se3")
         self._box_cache[j] = (
-            pose_matrix(boxes[:, :7]),
+            poses,
             boxes[:, 7:10],
             moving,
             np.array([int(classes[k][0]) for k in keep], np.float64),

@@ -22,7 +22,7 @@ import shapely
 
 from lead_s2r.schema import MapKind
 from lead_s2r_adapters.navsim_map import NuplanMap
-from lead_s2r_adapters.py123d_arrow import Py123dFormatError, column, read_table, unpack
+from lead_s2r_adapters.py123d_arrow import SYNC_FILE, Py123dFormatError, column, read_table, unpack
 
 #: py123d's MapLayer numbers (0.7).
 LANE, LANE_GROUP, INTERSECTION, WALKWAY, CARPARK, GENERIC_DRIVABLE = 0, 1, 2, 4, 5, 6
@@ -36,6 +36,9 @@ def find_map(folder: Path, maps_root: Path | None, log: dict[str, Any]) -> Path 
     if own.is_file():
         return own
     meta = log.get("map_metadata") or {}
+    if not isinstance(meta, dict):
+        problem = f"expected a map, got {type(meta).__name__}"
+        raise Py123dFormatError(folder / SYNC_FILE, problem, "metadata.map_metadata")
     dataset, location = meta.get("dataset") or log.get("dataset"), meta.get("location") or log.get("location")
     if maps_root is None or not dataset or not location:
         return None

@@ -1,0 +1,275 @@
+"""Damaged 123D logs and maps, one test per kind the fuzz (tests/test_fuzz.py) found: each was a crash of the
+process, a traceback or a log that vanished, and each is now one errors.jsonl line naming the file and field.
+
+Every damage is made here from a log py123d's own writer wrote, with pyarrow (a table re-written with one value,
+column or metadata entry changed) or by patching the file's bytes where pyarrow cannot write the damage.
+"""
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from corruptions import hardlink_copy
+
+pytest.importorskip("py123d", reason="py123d is installed with --no-deps in CI (docs/datasets/py123d.md)")
+import msgpack
+
+from lead_s2r.convert import convert
+from lead_s2r.synthetic import py123d as synth
+from lead_s2r_adapters.py123d import Py123dAdapter
+
+LOG = Path("logs") / "nuplan_test" / "log-left"
+MAP = Path("maps") / "nuplan" / "nuplan_synthetic-log-left.arrow"
+LIGHTS = LOG / "traffic_light_detections.arrow"
+EGO = LOG / "ego_state_se3.arrow"
+SYNC = LOG / "sync.arrow"
+
+
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One log of 43 iterations (3 samples) and its map, never written by a test."""
+    root = tmp_path_factory.mktemp("py123d")
+    synth.write_log(root, "log-left", index=0, frames=6)
+    return root
+
+
+def read(path: Path) -> pa.Table:
+    with pa.memory_map(str(path)) as source:
+        return pa.ipc.open_file(source).read_all()
+
+
+def write(path: Path, table: pa.Table) -> None:
+    """Replace a hard-linked file by ``table`` written as an Arrow IPC file."""
+    path.unlink()
+    with pa.OSFile(str(path), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
+        writer.write_table(table)
+
+
+def patch_bytes(path: Path, change: Callable[[bytes], bytes]) -> None:
+    data = path.read_bytes()
+    path.unlink()
+    path.write_bytes(change(data))
+
+
+def set_column(path: Path, name: str, values: pa.Array | list) -> None:
+    table = read(path)
+    write(path, table.set_column(table.column_names.index(name), name, values))
+
+
+def set_metadata(path: Path, entry: str, value: object) -> None:
+    """One entry of the file's msgpack schema metadata replaced by ``value``."""
+    table = read(path)
+    meta = msgpack.unpackb(table.schema.metadata[b"metadata"], strict_map_key=False)
+    meta[entry] = value
+    write(path, table.replace_schema_metadata({b"metadata": msgpack.packb(meta)}))
+
+
+def convert_error(src: Path, out: Path) -> str:
+    """The one error line of converting ``src``, whose one log is damaged."""
+    result = convert(Py123dAdapter(), src, out)
+    assert result.samples == 0 and len(result.errors) == 1, result.errors
+    (line,) = (out / "errors.jsonl").read_text().splitlines()
+    return json.loads(line)["error"]
+
+
+def offsets_past_values(src: Path) -> None:
+    """The lane ids' last list offset (the file's first run of int32 0..43) moved far past the values: pyarrow writes
+    no such file, and read it aborted or segfaulted the process."""
+    run = np.arange(44, dtype="<i4").tobytes()
+    at = (src / LIGHTS).read_bytes().index(run) + 43 * 4
+    patch_bytes(src / LIGHTS, lambda d: d[:at] + np.int32(2_000_000_000).tobytes() + d[at + 4 :])
+
+
+def ego_row(src: Path, row: int, values: list[float]) -> None:
+    table = read(src / EGO)
+    poses = table["ego_state_se3.imu_se3"].to_pylist()
+    poses[row] = values
+    set_column(src / EGO, "ego_state_se3.imu_se3", pa.array(poses, table.schema.field(1).type))
+
+
+def box_row(src: Path, box: list[float]) -> None:
+    """The first box of the first row replaced by ``box``."""
+    path, name = src / LOG / "box_detections_se3.arrow", "box_detections_se3.bounding_box_se3"
+    values = read(path)[name]
+    rows = values.to_pylist()
+    rows[0][0] = box
+    set_column(path, name, pa.array(rows, values.type))
+
+
+def sync_row(src: Path, column: str, row: int, value: int) -> None:
+    rows = read(src / SYNC)[column].to_pylist()
+    rows[row] = value
+    set_column(src / SYNC, column, pa.array(rows, pa.int64()))
+
+
+def swap_timestamps(src: Path) -> None:
+    stamps = read(src / SYNC)["sync.timestamp_us"].to_pylist()
+    stamps[4], stamps[5] = stamps[5], stamps[4]
+    set_column(src / SYNC, "sync.timestamp_us", pa.array(stamps, pa.int64()))
+
+
+def null_in_list(src: Path, path: Path, name: str) -> None:
+    values = read(src / path)[name]
+    rows = values.to_pylist()
+    rows[0] = [None, *rows[0][1:]]
+    set_column(src / path, name, pa.array(rows, values.type))
+
+
+def map_object_field(src: Path) -> None:
+    """The first lane's centreline replaced by a number."""
+    table = read(src / MAP)
+    features = table["features"].to_pylist()
+    lane = int(np.flatnonzero(np.asarray(table["map_layer"]) == 0)[0])
+    fields = msgpack.unpackb(features[lane], strict_map_key=False)
+    features[lane] = msgpack.packb({**fields, "centerline": 7})
+    set_column(src / MAP, "features", pa.array(features, pa.binary()))
+
+
+def last_replaced(data: bytes, old: bytes, new: bytes) -> bytes:
+    """``data`` with the last occurrence of ``old`` (in the file's footer schema, which the reader reads) replaced."""
+    at = data.rindex(old)
+    return data[:at] + new + data[at + len(old) :]
+
+
+QUATERNION_ZERO = [10.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
+    "list offsets past the values": (
+        offsets_past_values,
+        LIGHTS,
+        "Column 1: In chunk 0: Invalid: Length spanned by list offsets",
+    ),
+    "a column name not UTF-8": (
+        lambda src: patch_bytes(
+            src / LIGHTS, lambda d: last_replaced(d, b"light_detections.status", b"light\xffdetections.status")
+        ),
+        LIGHTS,
+        "not a readable Arrow IPC file ('utf-8' codec can't decode",
+    ),
+    "an int type of 4 bits": (  # flatbuffer Int table: is_signed True, then bitWidth 64 ('@')
+        lambda src: patch_bytes(src / SYNC, lambda d: last_replaced(d, b"\x01@\x00\x00\x00", b"\x01\x04\x00\x00\x00")),
+        SYNC,
+        "Integers with less than 8 bits not implemented",
+    ),
+    "sync.arrow deleted": (lambda src: (src / SYNC).unlink(), SYNC, "missing; copy or convert this log again"),
+    "a modality file deleted": (
+        lambda src: (src / LOG / "camera.pcam_f0.arrow").unlink(),
+        LOG / "camera.pcam_f0.arrow",
+        "missing (sync.arrow lists it)",
+    ),
+    "a sync row past the file": (
+        lambda src: sync_row(src, "box_detections_se3", 2, 1_000_000),
+        SYNC,
+        "field 'box_detections_se3': row index 1000000 past the 43 rows of box_detections_se3.arrow",
+    ),
+    "a negative sync row": (
+        lambda src: sync_row(src, "ego_state_se3", 2, -5),
+        SYNC,
+        "field 'ego_state_se3': negative row index -5",
+    ),
+    "timestamps out of order": (swap_timestamps, SYNC, "timestamps do not increase at iteration 5"),
+    "a NaN ego pose": (
+        lambda src: ego_row(src, 3, [np.nan] * 7),
+        EGO,
+        "field 'ego_state_se3.imu_se3': row 3: the pose is null, not finite or has a zero quaternion",
+    ),
+    "a zero quaternion": (lambda src: ego_row(src, 3, QUATERNION_ZERO), EGO, "row 3: the pose is null, not finite"),
+    "an ego pose a flipped exponent away": (
+        lambda src: ego_row(src, 3, [1e9, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]),
+        EGO,
+        "row 3: the ego moved 1e+09 m since the iteration before, faster than 200 m/s",
+    ),
+    "a column of another type": (
+        lambda src: set_column(src / EGO, "ego_state_se3.imu_se3", pa.array(["x"] * 43)),
+        EGO,
+        "field 'ego_state_se3.imu_se3': expected a list of numbers per row, got string",
+    ),
+    "a wrong-typed metadata pose": (
+        lambda src: set_metadata(src / EGO, "rear_axle_to_imu_se3", "x"),
+        EGO,
+        "field 'metadata.rear_axle_to_imu_se3': expected 7 finite numbers",
+    ),
+    "a wrong-typed vehicle size": (
+        lambda src: set_metadata(src / EGO, "width", {"k": None}),
+        EGO,
+        "field 'metadata': ego metadata lacks the vehicle size",
+    ),
+    "a null inside a list of box labels": (
+        lambda src: null_in_list(src, LOG / "box_detections_se3.arrow", "box_detections_se3.label"),
+        LOG / "box_detections_se3.arrow",
+        "row 0: a null inside a list of boxes",
+    ),
+    "a box 1e300 m away": (
+        lambda src: box_row(src, [1e300, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 4.0, 2.0, 1.5]),
+        LOG / "box_detections_se3.arrow",
+        "row 0: a box is 1e+08 m or more away or has a zero quaternion",
+    ),
+    "a box with a zero quaternion": (
+        lambda src: box_row(src, [5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 4.0, 2.0, 1.5]),
+        LOG / "box_detections_se3.arrow",
+        "row 0: a box is 1e+08 m or more away or has a zero quaternion",
+    ),
+    "a null lane id of a traffic light": (
+        lambda src: null_in_list(src, LIGHTS, "traffic_light_detections.lane_id"),
+        LIGHTS,
+        "row 0: a null lane id or status",
+    ),
+    "a wrong-typed map entry of the log": (
+        lambda src: set_metadata(src / SYNC, "map_metadata", True),
+        SYNC,
+        "field 'metadata.map_metadata': expected a map, got bool",
+    ),
+    "a wrong-typed route polyline": (
+        lambda src: set_metadata(src / LOG / "route_position.arrow", "polyline_x", "x"),
+        LOG / "route_position.arrow",
+        "field 'metadata.polyline_x': expected N finite numbers",
+    ),
+    "a map object's field of a wrong type": (map_object_field, MAP, "a field is missing or of a wrong type"),
+    "a map geometry that is not WKB": (
+        lambda src: set_column(src / MAP, "wkb", pa.array([b"\x01\x03garbage"] * read(src / MAP).num_rows)),
+        MAP,
+        "field 'wkb': not a WKB geometry",
+    ),
+    "map ids of another type": (
+        lambda src: set_column(src / MAP, "object_id", pa.array(["x"] * read(src / MAP).num_rows)),
+        MAP,
+        "field 'object_id': expected an integer per map object, got string",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_damaged_file_is_one_error_line_naming_it(pristine: Path, tmp_path: Path, case: str) -> None:
+    damage, damaged, message = CASES[case]
+    src = tmp_path / "src"
+    hardlink_copy(pristine, src)
+    damage(src)
+    error = convert_error(src, tmp_path / "out")
+    assert error.startswith(f"Py123dFormatError: {src / damaged}") and message in error, error
+
+
+def test_msgpack_metadata_that_is_not_a_map_or_not_msgpack(pristine: Path, tmp_path: Path) -> None:
+    for blob, message in ((msgpack.packb([1, 2]), "expected a msgpack map, got list"), (b"\xc1", "not py123d msgpack")):
+        src = tmp_path / f"src-{len(blob)}"
+        hardlink_copy(pristine, src)
+        write(src / EGO, read(src / EGO).replace_schema_metadata({b"metadata": blob}))
+        error = convert_error(src, tmp_path / f"out-{len(blob)}")
+        assert error.startswith(f"Py123dFormatError: {src / EGO}, field 'metadata': {message}"), error
+
+
+def test_the_fuzz_wrong_type_rewrites_an_arrow_file_with_one_value_changed(pristine: Path, tmp_path: Path) -> None:
+    """corruptions.corrupt's wrong_type on 123D files: the file stays readable Arrow and one value (a metadata entry,
+    a map object's field or a column) differs, so a fuzz trial tests a reader, not the IPC framing."""
+    from corruptions import corrupt
+
+    rng = np.random.default_rng(0)
+    for trial in range(6):
+        for name in (EGO, MAP):
+            path = tmp_path / f"{trial}-{name.name}"
+            path.write_bytes((pristine / name).read_bytes())
+            corrupt(path, "wrong_type", rng)
+            before, after = read(pristine / name), read(path)
+            assert after.num_rows == before.num_rows
+            assert not after.equals(before, check_metadata=True)
