@@ -12,7 +12,8 @@ We read this layout directly (pinned to py123d 0.7's schema by the tests, which 
 adapter then needs only pyarrow, msgpack and, for LAZ-coded LiDAR, laspy.
 """
 
-import io
+import importlib.util
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.errors import UserError
+from lead_s2r_adapters.laz_decoder import LazDecodeError, decode_every
 
 METADATA_KEY = b"metadata"
 SYNC_FILE = "sync.arrow"
@@ -276,15 +278,16 @@ def decode_points(blob: bytes, path: Path) -> tuple[np.ndarray, dict[str, np.nda
 
 
 def _laz_columns(blob: bytes, path: Path) -> dict[str, np.ndarray]:
-    try:
-        import laspy
-    except ImportError:
-        raise UserError(f"{path}: LAZ-coded LiDAR needs laspy[lazrs]: {INSTALL}") from None
-    try:
-        las = laspy.read(io.BytesIO(blob))
-    except Exception as err:  # laspy raises its own and lazrs errors
-        raise Py123dFormatError(path, f"LiDAR payload is not valid LAZ ({err})", "data") from None
-    columns = {"x": np.asarray(las.x), "y": np.asarray(las.y), "z": np.asarray(las.z)}
-    for dim in las.point_format.extra_dimension_names:  # py123d's features, ``extra_`` where a LAS name clashed
-        columns[dim.removeprefix(LAZ_PREFIX)] = np.asarray(las[dim])
-    return columns
+    """A LAZ payload's columns, decoded in the LAZ helper process: a damaged chunk table aborts lazrs' process
+    (:mod:`lead_s2r_adapters.laz_decoder`), so the payload goes to the helper as a temporary file."""
+    if importlib.util.find_spec("laspy") is None or importlib.util.find_spec("lazrs") is None:
+        raise UserError(f"{path}: LAZ-coded LiDAR needs laspy[lazrs]: {INSTALL}")
+    with tempfile.NamedTemporaryFile(suffix=".laz") as file:
+        file.write(blob)
+        file.flush()
+        try:
+            columns = decode_every(Path(file.name))
+        except LazDecodeError as err:
+            raise Py123dFormatError(path, f"LiDAR payload is not valid LAZ ({err})", "data") from None
+    # py123d's features, ``extra_`` where a LAS name clashed
+    return {name if name in ("x", "y", "z") else name.removeprefix(LAZ_PREFIX): v for name, v in columns.items()}

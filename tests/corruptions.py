@@ -3,7 +3,8 @@
 A trial copies a pristine folder as hard links (cheap) and replaces one file by a corrupted copy, so the pristine
 folder is never written. The corruptions are the ones disks, copies and people cause: flipped bytes, a truncated
 file, a zeroed or random span, a deleted file, garbage appended, and a structured file (JSON, YAML, LEAD's LZMA
-pickles, 123D's Arrow IPC files) re-written with one value of the wrong type.
+pickles, 123D's Arrow IPC files) re-written with one value of the wrong type; and damages that regression tests
+share (:func:`aborting_laz`).
 """
 
 import json
@@ -11,6 +12,7 @@ import lzma
 import os
 import pickle
 import shutil
+import struct
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -140,6 +142,15 @@ def corrupt(path: Path, kind: str, rng: np.random.Generator) -> str:
         data[start : start + span] = rng.bytes(span)
     _replace(path, bytes(data))
     return f"{kind} of {path} at byte {start}"
+
+
+def aborting_laz(data: bytes) -> bytes:
+    """A LAZ file whose chunk table claims 2**31 - 1 chunks: lazrs asks for 34 GB and aborts its process."""
+    out = bytearray(data)
+    points_at = struct.unpack_from("<I", out, 96)[0]  # LAS header: offset to point data
+    table_at = struct.unpack_from("<q", out, points_at)[0]  # LAZ: the chunk table's offset comes first
+    struct.pack_into("<I", out, table_at + 4, 0x7FFFFFFF)  # chunk table: version, number of chunks
+    return bytes(out)
 
 
 def pick_file(root: Path, rng: np.random.Generator, weight: Callable[[Path], float] = lambda p: 1.0) -> Path:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
-from corruptions import hardlink_copy
+from corruptions import aborting_laz, hardlink_copy
 
 pytest.importorskip("py123d", reason="py123d is installed with --no-deps in CI (docs/datasets/py123d.md)")
 import msgpack
@@ -273,3 +273,18 @@ def test_the_fuzz_wrong_type_rewrites_an_arrow_file_with_one_value_changed(prist
             before, after = read(pristine / name), read(path)
             assert after.num_rows == before.num_rows
             assert not after.equals(before, check_metadata=True)
+
+
+def test_a_laz_payload_that_aborts_the_decoder_fails_its_log_only(tmp_path: Path) -> None:
+    """A LAZ chunk table claiming 2**31 - 1 chunks makes lazrs abort its process (issue 26's LEAD files); 123D's
+    LAZ payloads are decoded in the same helper process, so only the log is lost, with a line naming its file."""
+    synth.write_log(tmp_path / "src", "log-left", index=0, frames=6, codec="laz")
+    synth.write_log(tmp_path / "src", "log-good", index=1, frames=6, codec="laz")
+    path = tmp_path / "src" / LOG / "lidar.lidar_top.arrow"
+    blobs = read(path)["lidar.lidar_top.data"].to_pylist()
+    set_column(path, "lidar.lidar_top.data", pa.array([blobs[0], aborting_laz(blobs[1]), *blobs[2:]], pa.binary()))
+    result = convert(Py123dAdapter(), tmp_path / "src", tmp_path / "out")
+    (error,) = result.errors
+    assert error["log"] == "nuplan_test/log-left" and result.samples == 3  # log-good, whole
+    assert error["error"].startswith(f"Py123dFormatError: {path}, field 'data': LiDAR payload is not valid LAZ")
+    assert "the LAZ decoder died on it" in error["error"]
