@@ -258,12 +258,7 @@ def _row_indices(values: pa.Array, path: Path, name: str) -> np.ndarray:
 def decode_points(blob: bytes, path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """A LiDAR payload -> (N, 3) float64 xyz and per-point features, for py123d's three binary codecs."""
     if blob[:4] == b"\xff\xff\xff\xff":  # Arrow IPC stream (codecs ipc, ipc_zstd, ipc_lz4)
-        try:
-            batch = pa.ipc.open_stream(pa.BufferReader(blob)).read_next_batch()
-            batch.validate(full=True)  # as in read_table: unchecked offsets crash the process
-        except (pa.ArrowInvalid, OSError) as err:
-            raise Py123dFormatError(path, f"LiDAR payload is not an Arrow stream ({err})", "data") from None
-        columns = {name: batch.column(i).to_numpy(zero_copy_only=False) for i, name in enumerate(batch.schema.names)}
+        columns = _ipc_columns(blob, path)
     elif blob[:4] == b"LASF":
         columns = _laz_columns(blob, path)
     else:
@@ -275,6 +270,20 @@ def decode_points(blob: bytes, path: Path) -> tuple[np.ndarray, dict[str, np.nda
     except KeyError:
         raise Py123dFormatError(path, "LiDAR payload lacks x, y or z", "data") from None
     return xyz, columns
+
+
+def _ipc_columns(blob: bytes, path: Path) -> dict[str, np.ndarray]:
+    """An Arrow IPC stream payload's columns, each of numbers; validated in full as :func:`read_table` does."""
+    try:
+        batch = pa.ipc.open_stream(pa.BufferReader(blob)).read_next_batch()  # StopIteration: a stream of no batch
+        batch.validate(full=True)
+        names = batch.schema.names
+    except (pa.ArrowException, OSError, UnicodeDecodeError, StopIteration) as err:
+        raise Py123dFormatError(path, f"LiDAR payload is not an Arrow stream ({err!r})", "data") from None
+    for name, kind in zip(names, batch.schema.types, strict=True):
+        if not _numbers(kind):
+            raise Py123dFormatError(path, f"LiDAR payload column {name!r} is {kind}, not numbers", "data")
+    return {name: batch.column(i).to_numpy(zero_copy_only=False) for i, name in enumerate(names)}
 
 
 def _laz_columns(blob: bytes, path: Path) -> dict[str, np.ndarray]:

@@ -167,7 +167,7 @@ class LogData:
             moving = np.asarray(moving, np.float64).reshape(-1, 3)
         except (TypeError, ValueError):
             raise Py123dFormatError(path, f"row {row}: a null inside a list of boxes", "bounding_box_se3") from None
-        if boxes.reshape(-1, 10).shape != (len(tokens), 10) or len(labels) != len(tokens) != len(moving):
+        if boxes.reshape(-1, 10).shape != (len(tokens), 10) or not len(labels) == len(moving) == len(tokens):
             raise Py123dFormatError(path, f"row {row}: boxes, tokens and labels disagree in length", "bounding_box_se3")
         if not (np.isfinite(boxes).all() and np.isfinite(moving).all()):
             raise Py123dFormatError(path, f"row {row}: a box or velocity is not finite", "bounding_box_se3")

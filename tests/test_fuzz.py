@@ -44,12 +44,11 @@ def _generate(name: str, out: Path) -> None:
         from lead_s2r.synthetic.navsim import generate
 
         generate(out, count=2, seed=3)
-    elif name == "py123d":  # every reader: IPC and LAZ LiDAR, nuPlan-style logs with their maps, a LEAD recording
+    elif name == "py123d":  # every reader: a nuPlan-style log with IPC LiDAR and its map, a LEAD one with LAZ LiDAR
         from lead_s2r.synthetic import py123d
 
         py123d.write_log(out, "log-ipc", index=0, frames=6)  # 43 iterations: 3 samples with a 4 s future
-        py123d.write_log(out, "log-laz", index=1, frames=6, codec="laz")
-        py123d.write_lead_log(out, index=2, frames=6)
+        py123d.write_lead_log(out, index=1, frames=6)
     else:
         from lead_s2r.synthetic.wod_e2e import generate
 
@@ -87,9 +86,12 @@ def pristine(tmp_path_factory) -> Callable[[str], Made]:
 
 def _weight(path: Path) -> float:
     """Files of which a dataset holds one or a few (scene filters, cluster maps, manifests) are drawn as often as
-    a kind of which it holds hundreds (camera JPEGs), so every reader is hit."""
+    a kind of which it holds hundreds (camera JPEGs), so every reader is hit; 123D's one map as often as each of
+    its logs' two files of a modality."""
     if path.suffix in (".jpg", ".png", ".pcd"):
         return 0.05
+    if path.suffix == ".arrow" and path.parent.parent.name == "maps":
+        return 2.0
     return 1.0
 
 

@@ -6,6 +6,7 @@ column or metadata entry changed) or by patching the file's bytes where pyarrow 
 """
 
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import msgpack
 from lead_s2r.convert import convert
 from lead_s2r.synthetic import py123d as synth
 from lead_s2r_adapters.py123d import Py123dAdapter
+from lead_s2r_adapters.py123d_arrow import Py123dFormatError, decode_points
 
 LOG = Path("logs") / "nuplan_test" / "log-left"
 MAP = Path("maps") / "nuplan" / "nuplan_synthetic-log-left.arrow"
@@ -288,3 +290,32 @@ def test_a_laz_payload_that_aborts_the_decoder_fails_its_log_only(tmp_path: Path
     assert error["log"] == "nuplan_test/log-left" and result.samples == 3  # log-good, whole
     assert error["error"].startswith(f"Py123dFormatError: {path}, field 'data': LiDAR payload is not valid LAZ")
     assert "the LAZ decoder died on it" in error["error"]
+
+
+def ipc_stream(batch: pa.RecordBatch | None, schema: pa.Schema) -> bytes:
+    """An Arrow IPC stream as py123d's ipc codec writes a LiDAR payload (``batch`` None: the schema alone)."""
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_stream(sink, schema) as writer:
+        if batch is not None:
+            writer.write_batch(batch)
+    return sink.getvalue().to_pybytes()
+
+
+def test_a_damaged_ipc_lidar_payload_is_refused(tmp_path: Path) -> None:
+    xyz = {axis: pa.array([1.0, 2.0]) for axis in "xyz"}
+    not_utf8 = pa.array([b"\xff", b"a"], pa.binary()).view(pa.string())  # pyarrow writes it unchecked
+    bad = pa.RecordBatch.from_pydict({**xyz, "label": not_utf8})
+    words = pa.RecordBatch.from_pydict({**xyz, "label": pa.array(["car", "bus"])})
+    cases = [
+        (ipc_stream(bad, bad.schema), "Invalid UTF8"),
+        (ipc_stream(None, words.schema), "not an Arrow stream (StopIteration"),
+        (ipc_stream(words, words.schema), "column 'label' is string, not numbers"),
+    ]
+    for blob, message in cases:
+        with pytest.raises(
+            Py123dFormatError, match=rf"^{tmp_path}, field 'data': LiDAR payload .*{re.escape(message)}"
+        ):
+            decode_points(blob, tmp_path)
+    good = pa.RecordBatch.from_pydict(xyz)
+    points, features = decode_points(ipc_stream(good, good.schema), tmp_path)
+    assert points.tolist() == [[1.0, 1.0, 1.0], [2.0, 2.0, 2.0]] and features == {}
