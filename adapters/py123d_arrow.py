@@ -187,9 +187,11 @@ class LogFiles:
         path = folder / SYNC_FILE
         table = read_table(path)
         log = table_metadata(table, path)
-        for name in ("dataset", "split", "log_name"):
-            if name not in log:
+        for name in ("dataset", "split", "log_name", "location"):  # the log's identity, copied into every sample
+            if name not in log and name != "location":
                 raise Py123dFormatError(path, "log metadata lacks this entry", f"metadata.{name}")
+            if not isinstance(log.get(name), str | None if name == "location" else str):
+                raise Py123dFormatError(path, f"expected a string, got {log[name]!r:.60}", f"metadata.{name}")
         stamps = _timestamps(column(table, path, "sync.timestamp_us").combine_chunks(), path)
         sync = {}
         for name in table.column_names:

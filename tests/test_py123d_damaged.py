@@ -218,6 +218,11 @@ CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
         LIGHTS,
         "row 0: a null lane id or status",
     ),
+    "a wrong-typed name of the log": (
+        lambda src: set_metadata(src / SYNC, "log_name", [1, "a"]),
+        SYNC,
+        "field 'metadata.log_name': expected a string, got [1, 'a']",
+    ),
     "a wrong-typed map entry of the log": (
         lambda src: set_metadata(src / SYNC, "map_metadata", True),
         SYNC,
