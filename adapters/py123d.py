@@ -19,7 +19,7 @@ from lead_s2r.geometry import points_to_local
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
 from lead_s2r_adapters import navsim_map, py123d_lead, py123d_map
-from lead_s2r_adapters.py123d_arrow import ROUTE_KEY, LogFiles, Py123dFormatError, meta_array
+from lead_s2r_adapters.py123d_arrow import ROUTE_KEY, LogFiles, Py123dFormatError, meta_array, meta_pose
 from lead_s2r_adapters.py123d_log import LIGHT_STATUS, RED, LogData, camera_id, log_folders
 
 OPTIONAL = ("future", "lidar", "target_points", "route", "boxes", "agents_future", "scoring", "bev_semantic")
@@ -196,7 +196,7 @@ class _Builder:
         if not self.lead or not keys:
             return 0.0
         meta, path, name = self.data.files.table(keys[0])[1], self.data.files.path(keys[0]), "lidar_to_imu_se3"
-        return py123d_lead.lidar_z_offset(meta_array(meta, path, name, (7,)) if name in meta else np.zeros(7))
+        return py123d_lead.lidar_z_offset(meta_pose(meta, path, name) if name in meta else np.zeros(7))
 
     def _route_ahead(self, i: int) -> np.ndarray:
         """The route's next :data:`ROUTE_POINTS` metres from the point nearest the ego, in the ego frame."""

@@ -87,6 +87,14 @@ def meta_array(meta: dict[str, Any], path: Path, name: str, shape: tuple[int | N
     return value
 
 
+def meta_pose(meta: dict[str, Any], path: Path, name: str) -> np.ndarray:
+    """An SE3 pose of a file's metadata (x, y, z, qw, qx, qy, qz): :func:`meta_array` with a non-zero quaternion."""
+    pose = meta_array(meta, path, name, (7,))
+    if not pose[3:].any():
+        raise Py123dFormatError(path, "the rotation is a zero quaternion", f"metadata.{name}")
+    return pose
+
+
 def read_table(path: Path) -> pa.Table:
     """One Arrow IPC file, whole; a missing, truncated, foreign or damaged file is a :class:`Py123dFormatError`.
 

@@ -23,7 +23,7 @@ from lead_s2r_adapters.py123d_arrow import (
     column,
     decode_points,
     fixed_rows,
-    meta_array,
+    meta_pose,
 )
 from lead_s2r_adapters.py123d_frames import pose_matrix, rear_axle_poses, to_rear_axle, vehicle
 from lead_s2r_adapters.py123d_labels import box_class
@@ -76,8 +76,8 @@ class LogData:
             raise Py123dFormatError(files.folder, f"no {EGO_KEY}.arrow: a 123D log without ego states has no samples")
         table, self.ego_meta = files.table(EGO_KEY)
         path = files.path(EGO_KEY)
-        self.rear_axle_to_imu = meta_array(self.ego_meta, path, "rear_axle_to_imu_se3", (7,))
-        centre_to_imu = meta_array(self.ego_meta, path, "center_to_imu_se3", (7,))
+        self.rear_axle_to_imu = meta_pose(self.ego_meta, path, "rear_axle_to_imu_se3")
+        centre_to_imu = meta_pose(self.ego_meta, path, "center_to_imu_se3")
         try:
             self.vehicle = vehicle(self.ego_meta, centre_to_imu, self.rear_axle_to_imu)
         except (KeyError, TypeError, ValueError):
@@ -88,7 +88,7 @@ class LogData:
         rows = files.sync[EGO_KEY]
         self.valid = rows >= 0  # an iteration without an ego state has no sample
         self.ego_rows = np.where(self.valid, rows, 0)
-        with np.errstate(invalid="ignore"):  # a zero quaternion: NaN, refused below
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero quaternion: NaN, refused below
             self.world = rear_axle_poses(imu[self.ego_rows], self.rear_axle_to_imu)  # (I, 4, 4) per iteration
         broken = self.valid & ~np.isfinite(self.world).all(axis=(1, 2))
         if broken.any():  # dropping the iteration would lose its sample without a word
@@ -176,7 +176,7 @@ class LogData:
         keep = [k for k, (cls, _) in enumerate(classes) if cls is not None]
         boxes = boxes.reshape(-1, 10)[keep]
         moving = moving[keep]
-        with np.errstate(invalid="ignore"):  # a zero quaternion: NaN, refused below
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero quaternion: NaN, refused below
             poses = pose_matrix(boxes[:, :7])
         if not (np.isfinite(poses).all() and (np.abs(boxes[:, :3]) < MAX_COORDINATE).all()):
             problem = f"row {row}: a box is {MAX_COORDINATE:g} m or more away or has a zero quaternion"
@@ -245,7 +245,7 @@ class LogData:
 
     def _calibration(self, cam_id: str, native: str, meta: dict[str, Any]) -> dict[str, Any]:
         path = self.files.path(f"camera.{native}")
-        extrinsic = pose_matrix(meta_array(meta, path, "camera_to_imu_se3", (7,)))
+        extrinsic = pose_matrix(meta_pose(meta, path, "camera_to_imu_se3"))
         try:
             fx, fy, cx, cy, skew = (float(v) for v in meta["intrinsics"])
             distortion = [float(v) for v in (meta.get("distortion") or [0.0] * 5)]

@@ -193,6 +193,11 @@ CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
         EGO,
         "field 'metadata.rear_axle_to_imu_se3': expected 7 finite numbers",
     ),
+    "a zero quaternion in a camera's extrinsic": (
+        lambda src: set_metadata(src / LOG / "camera.pcam_f0.arrow", "camera_to_imu_se3", [1.0, 0, 0, 0, 0, 0, 0]),
+        LOG / "camera.pcam_f0.arrow",
+        "field 'metadata.camera_to_imu_se3': the rotation is a zero quaternion",
+    ),
     "a wrong-typed vehicle size": (
         lambda src: set_metadata(src / EGO, "width", {"k": None}),
         EGO,
