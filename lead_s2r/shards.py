@@ -314,7 +314,8 @@ def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
         value = decode_field(name, data)
     except KeyError:
         raise ShardError(f"{where}: not a schema v1 field; {_REDO}") from None
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as err:  # .npz: a zip of deflated .npy
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError) as err:
+        # .npz: a zip of deflated .npy, whose damaged flags or method zipfile refuses as NotImplementedError
         raise ShardError(f"{where}: cannot be decoded as .{spec.ext} ({err}); {_REDO}") from None
     if spec.ext == "npy" and spec.dtype is not None and value.dtype != np.dtype(spec.dtype):
         raise ShardError(f"{where}: dtype {value.dtype}, but schema v1 stores {spec.dtype}; {_REDO}")
