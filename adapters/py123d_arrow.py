@@ -24,6 +24,7 @@ import pyarrow as pa
 
 from lead_s2r.errors import UserError
 from lead_s2r_adapters.laz_decoder import LazDecodeError, decode_every
+from lead_s2r_adapters.py123d_frames import MAX_COORDINATE
 
 METADATA_KEY = b"metadata"
 SYNC_FILE = "sync.arrow"
@@ -92,6 +93,8 @@ def meta_pose(meta: dict[str, Any], path: Path, name: str) -> np.ndarray:
     pose = meta_array(meta, path, name, (7,))
     if not pose[3:].any():
         raise Py123dFormatError(path, "the rotation is a zero quaternion", f"metadata.{name}")
+    if (np.abs(pose[:3]) >= MAX_COORDINATE).any():
+        raise Py123dFormatError(path, f"the position is {MAX_COORDINATE:g} m or more away", f"metadata.{name}")
     return pose
 
 

@@ -15,6 +15,10 @@ import numpy as np
 
 from lead_s2r.geometry import quaternion_matrix, wrap_angle
 
+#: metres from the world origin (and m/s) that nothing in a log reaches: UTM northings reach 1e7, while a damaged
+#: double reaches 1e308, which overflows float32 on the way to a sample and the products of transforms
+MAX_COORDINATE = 1e8
+
 
 def pose_matrix(pose: np.ndarray) -> np.ndarray:
     """(..., 7) SE3 rows -> (..., 4, 4) homogeneous transforms."""

@@ -25,7 +25,7 @@ from lead_s2r_adapters.py123d_arrow import (
     fixed_rows,
     meta_pose,
 )
-from lead_s2r_adapters.py123d_frames import pose_matrix, rear_axle_poses, to_rear_axle, vehicle
+from lead_s2r_adapters.py123d_frames import MAX_COORDINATE, pose_matrix, rear_axle_poses, to_rear_axle, vehicle
 from lead_s2r_adapters.py123d_labels import box_class
 
 #: py123d's CameraID names -> our ``cam_<id>`` (L0/R0 are the front-most side cameras, L2/R2 the rear-most).
@@ -51,9 +51,6 @@ def camera_id(key: str) -> str:
 
 #: m/s no ego reaches (the fastest road cars: about 140)
 MAX_SPEED = 200.0
-#: metres from the world origin no box is (UTM northings reach 1e7; a damaged double can reach 1e308, whose product
-#: with the ego pose overflows)
-MAX_COORDINATE = 1e8
 LIGHT_STATUS = ("GREEN", "YELLOW", "RED", "OFF", "UNKNOWN")
 RED = 2
 
@@ -90,9 +87,11 @@ class LogData:
         self.ego_rows = np.where(self.valid, rows, 0)
         with np.errstate(divide="ignore", invalid="ignore"):  # a zero quaternion: NaN, refused below
             self.world = rear_axle_poses(imu[self.ego_rows], self.rear_axle_to_imu)  # (I, 4, 4) per iteration
-        broken = self.valid & ~np.isfinite(self.world).all(axis=(1, 2))
+        near = (np.abs(self.world[:, :3, 3]) < MAX_COORDINATE).all(axis=1)
+        broken = self.valid & ~(np.isfinite(self.world).all(axis=(1, 2)) & near)
         if broken.any():  # dropping the iteration would lose its sample without a word
-            problem = f"row {self.ego_rows[broken][0]}: the pose is null, not finite or has a zero quaternion"
+            problem = f"row {self.ego_rows[broken][0]}: the pose is null, not finite, {MAX_COORDINATE:g} m or more away"
+            problem += " or has a zero quaternion"
             raise Py123dFormatError(path, problem, f"{EGO_KEY}.imu_se3")
         self.pose2d = np.column_stack([self.world[:, :2, 3], np.arctan2(self.world[:, 1, 0], self.world[:, 0, 0])])
         self.t_us = files.timestamps_us
@@ -169,8 +168,6 @@ class LogData:
             raise Py123dFormatError(path, f"row {row}: a null inside a list of boxes", "bounding_box_se3") from None
         if boxes.reshape(-1, 10).shape != (len(tokens), 10) or not len(labels) == len(moving) == len(tokens):
             raise Py123dFormatError(path, f"row {row}: boxes, tokens and labels disagree in length", "bounding_box_se3")
-        if not (np.isfinite(boxes).all() and np.isfinite(moving).all()):
-            raise Py123dFormatError(path, f"row {row}: a box or velocity is not finite", "bounding_box_se3")
         qualified = str(meta.get("box_detection_label_class", "unknown"))
         classes = [box_class(qualified, label) for label in labels]
         keep = [k for k, (cls, _) in enumerate(classes) if cls is not None]
@@ -178,8 +175,9 @@ class LogData:
         moving = moving[keep]
         with np.errstate(divide="ignore", invalid="ignore"):  # a zero quaternion: NaN, refused below
             poses = pose_matrix(boxes[:, :7])
-        if not (np.isfinite(poses).all() and (np.abs(boxes[:, :3]) < MAX_COORDINATE).all()):
-            problem = f"row {row}: a box is {MAX_COORDINATE:g} m or more away or has a zero quaternion"
+        near = (np.abs(np.column_stack([boxes, moving])) < MAX_COORDINATE).all()  # False for NaN
+        if not (near and np.isfinite(poses).all()):
+            problem = f"row {row}: a box value is not finite or {MAX_COORDINATE:g} or more, or a quaternion is zero"
             raise Py123dFormatError(path, problem, "bounding_box_se3")
         self._box_cache[j] = (
             poses,

@@ -23,6 +23,7 @@ import shapely
 from lead_s2r.schema import MapKind
 from lead_s2r_adapters.navsim_map import NuplanMap
 from lead_s2r_adapters.py123d_arrow import SYNC_FILE, Py123dFormatError, column, read_table, unpack
+from lead_s2r_adapters.py123d_frames import MAX_COORDINATE
 
 #: py123d's MapLayer numbers (0.7).
 LANE, LANE_GROUP, INTERSECTION, WALKWAY, CARPARK, GENERIC_DRIVABLE = 0, 1, 2, 4, 5, 6
@@ -74,6 +75,7 @@ def load_map(path: Path) -> NuplanMap:
             centerlines[object_id] = centerline
         (lane_edges if layer == LANE else group_edges).extend(edges)
     exteriors = [shapely.get_coordinates(shapely.get_exterior_ring(_one(p)))[:, :2] for p in polygons]
+    _check_coordinates(path, ids, exteriors, centerlines)
     return NuplanMap(
         path=path,
         polygons=polygons,
@@ -87,6 +89,16 @@ def load_map(path: Path) -> NuplanMap:
         connectors=np.array(lane_edges, np.int64).reshape(-1, 3),
         roadblock_connectors=np.array(group_edges, np.int64).reshape(-1, 3),
     )
+
+
+def _check_coordinates(path: Path, ids: np.ndarray, exteriors: list[np.ndarray], centerlines: dict) -> None:
+    """Every outline and centreline point finite and within :data:`MAX_COORDINATE` (a damaged double reaches 1e308,
+    which overflows the float32 of a sample's map context)."""
+    for object_id, outline in zip(ids.tolist(), exteriors, strict=True):
+        points = np.concatenate([outline, centerlines.get(object_id, np.zeros((0, 2)))])
+        if not (np.abs(points) < MAX_COORDINATE).all():
+            problem = f"map object {object_id}: a point is not finite or {MAX_COORDINATE:g} m or more away"
+            raise Py123dFormatError(path, problem, "wkb")
 
 
 def _object(

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
+import shapely
 from corruptions import aborting_laz, hardlink_copy
 
 pytest.importorskip("py123d", reason="py123d is installed with --no-deps in CI (docs/datasets/py123d.md)")
@@ -175,13 +176,18 @@ CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
     "a NaN ego pose": (
         lambda src: ego_row(src, 3, [np.nan] * 7),
         EGO,
-        "field 'ego_state_se3.imu_se3': row 3: the pose is null, not finite or has a zero quaternion",
+        "field 'ego_state_se3.imu_se3': row 3: the pose is null, not finite, 1e+08 m or more away or has a zero",
     ),
     "a zero quaternion": (lambda src: ego_row(src, 3, QUATERNION_ZERO), EGO, "row 3: the pose is null, not finite"),
     "an ego pose a flipped exponent away": (
-        lambda src: ego_row(src, 3, [1e9, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]),
+        lambda src: ego_row(src, 3, [1e300, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]),
         EGO,
-        "row 3: the ego moved 1e+09 m since the iteration before, faster than 200 m/s",
+        "row 3: the pose is null, not finite, 1e+08 m or more away",
+    ),
+    "an ego pose 50 km from the one before": (
+        lambda src: ego_row(src, 3, [5e4, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]),
+        EGO,
+        "row 3: the ego moved 4.99e+04 m since the iteration before, faster than 200 m/s",
     ),
     "a column of another type": (
         lambda src: set_column(src / EGO, "ego_state_se3.imu_se3", pa.array(["x"] * 43)),
@@ -211,12 +217,12 @@ CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
     "a box 1e300 m away": (
         lambda src: box_row(src, [1e300, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 4.0, 2.0, 1.5]),
         LOG / "box_detections_se3.arrow",
-        "row 0: a box is 1e+08 m or more away or has a zero quaternion",
+        "row 0: a box value is not finite or 1e+08 or more, or a quaternion is zero",
     ),
     "a box with a zero quaternion": (
         lambda src: box_row(src, [5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 4.0, 2.0, 1.5]),
         LOG / "box_detections_se3.arrow",
-        "row 0: a box is 1e+08 m or more away or has a zero quaternion",
+        "row 0: a box value is not finite or 1e+08 or more, or a quaternion is zero",
     ),
     "a null lane id of a traffic light": (
         lambda src: null_in_list(src, LIGHTS, "traffic_light_detections.lane_id"),
@@ -243,6 +249,18 @@ CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
         lambda src: set_column(src / MAP, "wkb", pa.array([b"\x01\x03garbage"] * read(src / MAP).num_rows)),
         MAP,
         "field 'wkb': not a WKB geometry",
+    ),
+    "a map point 1e300 m away": (
+        lambda src: set_column(
+            src / MAP, "wkb", pa.array([shapely.box(0, 0, 1e300, 1).wkb] * read(src / MAP).num_rows)
+        ),
+        MAP,
+        "field 'wkb': map object 1: a point is not finite or 1e+08 m or more away",
+    ),
+    "a metadata pose 1e300 m away": (
+        lambda src: set_metadata(src / EGO, "center_to_imu_se3", [1e300, 0, 0, 1, 0, 0, 0]),
+        EGO,
+        "field 'metadata.center_to_imu_se3': the position is 1e+08 m or more away",
     ),
     "map ids of another type": (
         lambda src: set_column(src / MAP, "object_id", pa.array(["x"] * read(src / MAP).num_rows)),
