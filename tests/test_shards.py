@@ -80,6 +80,18 @@ def test_an_npz_member_with_a_damaged_zip_flag_is_a_shard_error(tmp_path):
         list(read_samples(tmp_path))
 
 
+def test_an_npy_header_numpy_cannot_tokenize_is_a_shard_error(tmp_path):
+    """A bracket in the padding of future.npy's header: numpy's Python 2 fallback raised tokenize.TokenError."""
+    sample = toy_sample("log000", 0)
+    path = write_shard(tmp_path / "a-000000.tar", [sample])
+    data = path.read_bytes()
+    header = data.index(b"{'descr'", data.index(b"future.npy"))
+    padding = data.index(b"}", header) + 2
+    path.write_bytes(data[:padding] + b"(" + data[padding + 1 :])
+    with pytest.raises(ShardError, match=r"field 'future': cannot be decoded as \.npy \(\('EOF in multi-line"):
+        list(read_samples(tmp_path))
+
+
 def test_jpeg_bytes_are_stored_untouched(tmp_path):
     sample = toy_sample("log000", 0)
     path = write_shard(tmp_path / "a-000000.tar", [sample])
