@@ -119,7 +119,7 @@ def _object(
     return SURFACE_KINDS[layer], -1, np.nan, None, np.zeros((0, 3), np.int64)
 
 
-def _integers(table: Any, path: Path, name: str) -> np.ndarray:
+def _integers(table: pa.Table, path: Path, name: str) -> np.ndarray:
     """An integer column without nulls as int64."""
     values = column(table, path, name).combine_chunks()
     if not pa.types.is_integer(values.type) or values.null_count:
@@ -127,7 +127,7 @@ def _integers(table: Any, path: Path, name: str) -> np.ndarray:
     return np.asarray(values.to_numpy(), np.int64)
 
 
-def _blobs(table: Any, path: Path, name: str, wanted: np.ndarray) -> np.ndarray:
+def _blobs(table: pa.Table, path: Path, name: str, wanted: np.ndarray) -> np.ndarray:
     """The ``wanted`` rows of a binary column without nulls, as an object array of bytes."""
     values = column(table, path, name).combine_chunks().filter(pa.array(wanted))
     if not pa.types.is_binary(values.type) or values.null_count:

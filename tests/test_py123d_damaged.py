@@ -121,13 +121,17 @@ def null_in_list(src: Path, path: Path, name: str) -> None:
     set_column(src / path, name, pa.array(rows, values.type))
 
 
-def map_object_field(src: Path) -> None:
-    """The first lane's centreline replaced by a number."""
+def map_object_field(src: Path, object_id: int, field: str, value: object) -> None:
+    """One field of a map object's msgpack replaced by ``value`` (``...``: deleted)."""
     table = read(src / MAP)
     features = table["features"].to_pylist()
-    lane = int(np.flatnonzero(np.asarray(table["map_layer"]) == 0)[0])
-    fields = msgpack.unpackb(features[lane], strict_map_key=False)
-    features[lane] = msgpack.packb({**fields, "centerline": 7})
+    at = table["object_id"].to_pylist().index(object_id)
+    fields = msgpack.unpackb(features[at], strict_map_key=False)
+    if value is ...:
+        del fields[field]
+    else:
+        fields[field] = value
+    features[at] = msgpack.packb(fields)
     set_column(src / MAP, "features", pa.array(features, pa.binary()))
 
 
@@ -244,7 +248,31 @@ CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
         LOG / "route_position.arrow",
         "field 'metadata.polyline_x': expected N finite numbers",
     ),
-    "a map object's field of a wrong type": (map_object_field, MAP, "a field is missing or of a wrong type"),
+    "a map lane's centreline a number": (
+        lambda src: map_object_field(src, synth.LANES["approach"][0], "centerline", 7),
+        MAP,
+        "map object 1: a field is missing or of a wrong type (IndexError",
+    ),
+    "a map lane without its centreline": (
+        lambda src: map_object_field(src, synth.LANES["approach"][0], "centerline", ...),
+        MAP,
+        "map object 1: a field is missing or of a wrong type (KeyError",
+    ),
+    "a map lane's group a word": (
+        lambda src: map_object_field(src, synth.LANES["approach"][0], "lane_group_id", "x"),
+        MAP,
+        "map object 1: a field is missing or of a wrong type (ValueError",
+    ),
+    "a map lane's speed limit a list": (
+        lambda src: map_object_field(src, synth.LANES["approach"][0], "speed_limit_mps", []),
+        MAP,
+        "map object 1: a field is missing or of a wrong type (TypeError",
+    ),
+    "a connector's predecessor past int64": (
+        lambda src: map_object_field(src, synth.LANES["turn"][0], "predecessor_ids", [2**64 - 1]),
+        MAP,
+        "map object 2: a field is missing or of a wrong type (OverflowError",
+    ),
     "a map geometry that is not WKB": (
         lambda src: set_column(src / MAP, "wkb", pa.array([b"\x01\x03garbage"] * read(src / MAP).num_rows)),
         MAP,
