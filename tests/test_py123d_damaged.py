@@ -309,11 +309,19 @@ def test_a_damaged_file_is_one_error_line_naming_it(pristine: Path, tmp_path: Pa
 
 
 def test_msgpack_metadata_that_is_not_a_map_or_not_msgpack(pristine: Path, tmp_path: Path) -> None:
-    for blob, message in ((msgpack.packb([1, 2]), "expected a msgpack map, got list"), (b"\xc1", "not py123d msgpack")):
-        src = tmp_path / f"src-{len(blob)}"
+    """Each error msgpack and py123d's array maps raise on a damaged blob is the file's format error."""
+    no_data = {"width": {"__ndarray__": True, "dtype": "<f8", "shape": [1]}}  # an array map without its bytes
+    cases = [
+        (msgpack.packb([1, 2]), "expected a msgpack map, got list"),
+        (b"\xc1", "not py123d msgpack (FormatError"),
+        (msgpack.packb({(1, 2): 3}), "not py123d msgpack (TypeError: unhashable type: 'list'"),
+        (msgpack.packb(no_data), "not py123d msgpack (KeyError"),
+    ]
+    for k, (blob, message) in enumerate(cases):
+        src = tmp_path / f"src-{k}"
         hardlink_copy(pristine, src)
         write(src / EGO, read(src / EGO).replace_schema_metadata({b"metadata": blob}))
-        error = convert_error(src, tmp_path / f"out-{len(blob)}")
+        error = convert_error(src, tmp_path / f"out-{k}")
         assert error.startswith(f"Py123dFormatError: {src / EGO}, field 'metadata': {message}"), error
 
 
