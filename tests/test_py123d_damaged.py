@@ -176,6 +176,11 @@ CASES: dict[str, tuple[Callable[[Path], None], Path, str]] = {
         SYNC,
         "field 'ego_state_se3': negative row index -5",
     ),
+    "timestamps of another type": (
+        lambda src: set_column(src / SYNC, "sync.timestamp_us", pa.array([1.5] * 43)),
+        SYNC,
+        "field 'sync.timestamp_us': expected one integer per iteration, got double",
+    ),
     "timestamps out of order": (swap_timestamps, SYNC, "timestamps do not increase at iteration 5"),
     "a NaN ego pose": (
         lambda src: ego_row(src, 3, [np.nan] * 7),
