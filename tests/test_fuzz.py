@@ -3,8 +3,8 @@ through ``convert`` / ``read_samples`` / ``inspect`` / ``score``; every trial mu
 
 The contract: an error is a :class:`UserError` (one line, naming the file) or, in ``convert``, an errors.jsonl line
 naming the file; never another exception. No sample goes missing without a report, and logs whose files were not
-touched convert exactly as before. ``LEAD_S2R_FUZZ_TRIALS`` sets the number of trials per target (default 40:
-about a minute for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed. The py123d targets need py123d's writers
+touched convert exactly as before. ``LEAD_S2R_FUZZ_TRIALS`` sets the number of trials per target (default 30:
+240 trials, about 35 s for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed. The py123d targets need py123d's writers
 (``lead_s2r.synthetic.py123d``) and are skipped without them.
 """
 
@@ -28,7 +28,7 @@ from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.run import score_predictions
 from lead_s2r.shards import ERRORS, load_manifest, read_samples
 
-TRIALS = int(os.environ.get("LEAD_S2R_FUZZ_TRIALS", "40"))
+TRIALS = int(os.environ.get("LEAD_S2R_FUZZ_TRIALS", "30"))
 SEED = int(os.environ.get("LEAD_S2R_FUZZ_SEED", "0"))
 RAW = ("carla_lead", "navsim", "wod_e2e", "py123d")
 #: per adapter: the raw folder, its conversion and the keys of every log
