@@ -19,7 +19,7 @@ from lead_s2r.geometry import points_to_local
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
 from lead_s2r_adapters import navsim_map, py123d_lead, py123d_map
-from lead_s2r_adapters.py123d_arrow import ROUTE_KEY, LogFiles, Py123dFormatError
+from lead_s2r_adapters.py123d_arrow import ROUTE_KEY, LogFiles, Py123dFormatError, meta_array, meta_pose
 from lead_s2r_adapters.py123d_log import LIGHT_STATUS, RED, LogData, camera_id, log_folders
 
 OPTIONAL = ("future", "lidar", "target_points", "route", "boxes", "agents_future", "scoring", "bev_semantic")
@@ -101,9 +101,7 @@ class _Builder:
     def __init__(self, adapter: Py123dAdapter, log: LogRef, data: LogData, lead: bool) -> None:
         self.adapter, self.log, self.data, self.lead = adapter, log, data, lead
         stamps = data.t_us
-        step_s = float(np.median(np.diff(stamps))) / 1e6 if len(stamps) > 1 else 0.1
-        if step_s <= 0:
-            raise Py123dFormatError(data.files.path("sync"), "timestamps do not increase", "sync.timestamp_us")
+        step_s = float(np.median(np.diff(stamps))) / 1e6 if len(stamps) > 1 else 0.1  # they increase (LogFiles)
         self.past_n = round(adapter.past_s / step_s)
         self.future_n = round(adapter.future_s / step_s)
         self.route = self._route()
@@ -128,7 +126,11 @@ class _Builder:
         _, meta = files.table(ROUTE_KEY)
         if "polyline_x" not in meta or "polyline_y" not in meta:
             return None
-        return np.column_stack([meta["polyline_x"], meta["polyline_y"]]).astype(np.float64)
+        path = files.path(ROUTE_KEY)
+        x, y = (meta_array(meta, path, name, (None,)) for name in ("polyline_x", "polyline_y"))
+        if len(x) != len(y) or not len(x):
+            raise Py123dFormatError(path, f"{len(x)} x but {len(y)} y coordinates", "metadata.polyline_y")
+        return np.column_stack([x, y])
 
     def _plan(self) -> list[tuple[np.ndarray, int]]:
         """LEAD's route planner stepped over every iteration from the log's start, on the centre's driven path:
@@ -193,7 +195,8 @@ class _Builder:
         keys = self.data.files.keys("lidar.")
         if not self.lead or not keys:
             return 0.0
-        return py123d_lead.lidar_z_offset(self.data.files.table(keys[0])[1])
+        meta, path, name = self.data.files.table(keys[0])[1], self.data.files.path(keys[0]), "lidar_to_imu_se3"
+        return py123d_lead.lidar_z_offset(meta_pose(meta, path, name) if name in meta else np.zeros(7))
 
     def _route_ahead(self, i: int) -> np.ndarray:
         """The route's next :data:`ROUTE_POINTS` metres from the point nearest the ego, in the ego frame."""

@@ -15,6 +15,10 @@ import numpy as np
 
 from lead_s2r.geometry import quaternion_matrix, wrap_angle
 
+#: metres from the world origin (and m/s) that nothing in a log reaches: UTM northings reach 1e7, while a damaged
+#: double reaches 1e308, which overflows float32 on the way to a sample and the products of transforms
+MAX_COORDINATE = 1e8
+
 
 def pose_matrix(pose: np.ndarray) -> np.ndarray:
     """(..., 7) SE3 rows -> (..., 4, 4) homogeneous transforms."""
@@ -48,11 +52,9 @@ def to_rear_axle(imu_to_x: np.ndarray, rear_axle_to_imu: np.ndarray) -> np.ndarr
     return np.linalg.inv(pose_matrix(rear_axle_to_imu)) @ imu_to_x
 
 
-def vehicle(meta: dict[str, Any]) -> dict[str, float]:
-    """``meta.vehicle`` from py123d's ego metadata: the centre's offset ahead of the rear axle is
-    ``center_to_imu.x - rear_axle_to_imu.x``."""
-    centre = np.asarray(meta["center_to_imu_se3"], np.float64)
-    rear = np.asarray(meta["rear_axle_to_imu_se3"], np.float64)
+def vehicle(meta: dict[str, Any], centre: np.ndarray, rear: np.ndarray) -> dict[str, float]:
+    """``meta.vehicle`` from py123d's ego metadata and its ``center_to_imu_se3`` and ``rear_axle_to_imu_se3``: the
+    centre's offset ahead of the rear axle is ``center_to_imu.x - rear_axle_to_imu.x``."""
     return {
         "length": float(meta["length"]),
         "width": float(meta["width"]),

@@ -58,9 +58,9 @@ def lights(detections: list[tuple[int, int]]) -> dict[str, Any]:
     return {"carla_lane_index": [lane for lane, _ in detections], "status": [status for _, status in detections]}
 
 
-def lidar_z_offset(lidar_meta: dict[str, Any]) -> float:
-    """Departure 3: how far LEAD raised its points (half the LiDAR's mounting height)."""
-    return float(np.asarray(lidar_meta.get("lidar_to_imu_se3", [0.0] * 7), np.float64)[2]) / 2
+def lidar_z_offset(lidar_to_imu: np.ndarray) -> float:
+    """Departure 3: how far LEAD raised its points (half the LiDAR's mounting height, from its ``lidar_to_imu_se3``)."""
+    return float(lidar_to_imu[2]) / 2
 
 
 def centre_path(poses: np.ndarray, rear_axle_to_center: float, spacing: float = 1.0) -> np.ndarray:

@@ -17,13 +17,15 @@ from lead_s2r_adapters.py123d_arrow import (
     BOX_KEY,
     EGO_KEY,
     LIGHT_KEY,
+    SYNC_FILE,
     LogFiles,
     Py123dFormatError,
     column,
     decode_points,
     fixed_rows,
+    meta_pose,
 )
-from lead_s2r_adapters.py123d_frames import pose_matrix, rear_axle_poses, to_rear_axle, vehicle
+from lead_s2r_adapters.py123d_frames import MAX_COORDINATE, pose_matrix, rear_axle_poses, to_rear_axle, vehicle
 from lead_s2r_adapters.py123d_labels import box_class
 
 #: py123d's CameraID names -> our ``cam_<id>`` (L0/R0 are the front-most side cameras, L2/R2 the rear-most).
@@ -47,6 +49,8 @@ def camera_id(key: str) -> str:
     return CAMERA_IDS.get(native, native)
 
 
+#: m/s no ego reaches (the fastest road cars: about 140)
+MAX_SPEED = 200.0
 LIGHT_STATUS = ("GREEN", "YELLOW", "RED", "OFF", "UNKNOWN")
 RED = 2
 
@@ -69,24 +73,44 @@ class LogData:
             raise Py123dFormatError(files.folder, f"no {EGO_KEY}.arrow: a 123D log without ego states has no samples")
         table, self.ego_meta = files.table(EGO_KEY)
         path = files.path(EGO_KEY)
+        self.rear_axle_to_imu = meta_pose(self.ego_meta, path, "rear_axle_to_imu_se3")
+        centre_to_imu = meta_pose(self.ego_meta, path, "center_to_imu_se3")
         try:
-            self.vehicle = vehicle(self.ego_meta)
-            self.rear_axle_to_imu = np.asarray(self.ego_meta["rear_axle_to_imu_se3"], np.float64)
+            self.vehicle = vehicle(self.ego_meta, centre_to_imu, self.rear_axle_to_imu)
         except (KeyError, TypeError, ValueError):
-            raise Py123dFormatError(path, "ego metadata lacks the vehicle size or extrinsics", "metadata") from None
+            raise Py123dFormatError(path, "ego metadata lacks the vehicle size", "metadata") from None
         imu = fixed_rows(table, path, f"{EGO_KEY}.imu_se3", 7)
         name = f"{EGO_KEY}.dynamic_state_se3"
         self.ego_dynamics = fixed_rows(table, path, name, 9) if name in table.column_names else None
         rows = files.sync[EGO_KEY]
-        self.valid = (rows >= 0) & np.isfinite(imu[np.maximum(rows, 0), 0])
+        self.valid = rows >= 0  # an iteration without an ego state has no sample
         self.ego_rows = np.where(self.valid, rows, 0)
-        self.world = rear_axle_poses(imu[self.ego_rows], self.rear_axle_to_imu)  # (I, 4, 4) per iteration
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero quaternion: NaN, refused below
+            self.world = rear_axle_poses(imu[self.ego_rows], self.rear_axle_to_imu)  # (I, 4, 4) per iteration
+        near = (np.abs(self.world[:, :3, 3]) < MAX_COORDINATE).all(axis=1)
+        broken = self.valid & ~(np.isfinite(self.world).all(axis=(1, 2)) & near)
+        if broken.any():  # dropping the iteration would lose its sample without a word
+            problem = f"row {self.ego_rows[broken][0]}: the pose is null, not finite, {MAX_COORDINATE:g} m or more away"
+            problem += " or has a zero quaternion"
+            raise Py123dFormatError(path, problem, f"{EGO_KEY}.imu_se3")
         self.pose2d = np.column_stack([self.world[:, :2, 3], np.arctan2(self.world[:, 1, 0], self.world[:, 0, 0])])
         self.t_us = files.timestamps_us
+        self._check_speed(path)
         self._box_cache: dict[int, tuple | None] = {}
         self._light_cache: dict[int, list[tuple[int, int]]] = {}
 
     # ------------------------------------------------------------------ ego
+
+    def _check_speed(self, path: Path) -> None:
+        """A pose the ego cannot have reached from the one before is damaged: one flipped exponent bit moves it by
+        1e9 m, and the route built along the driven path (a point a metre) would fill the memory."""
+        valid = np.flatnonzero(self.valid)
+        moved = np.hypot(*np.diff(self.pose2d[valid, :2], axis=0).T)
+        fast = moved > MAX_SPEED * np.diff(self.t_us[valid]) / 1e6
+        if fast.any():
+            k = int(np.argmax(fast))
+            problem = f"row {self.ego_rows[valid[k + 1]]}: the ego moved {moved[k]:.3g} m since the iteration before"
+            raise Py123dFormatError(path, f"{problem}, faster than {MAX_SPEED:g} m/s", f"{EGO_KEY}.imu_se3")
 
     def trajectory(self, i: int, span: np.ndarray) -> np.ndarray:
         """[t, x, y, yaw] of iterations ``span`` in the frame of iteration ``i``."""
@@ -133,21 +157,32 @@ class LogData:
             return None
         table, meta = self.files.table(BOX_KEY)
         path, row = self.files.path(BOX_KEY), int(self.files.sync[BOX_KEY][j])
-        boxes = np.asarray(column(table, path, f"{BOX_KEY}.bounding_box_se3")[row].as_py() or [], np.float64)
         tokens = [str(t) for t in column(table, path, f"{BOX_KEY}.track_token")[row].as_py() or []]
-        labels = column(table, path, f"{BOX_KEY}.label")[row].as_py() or []
         velocity = column(table, path, f"{BOX_KEY}.velocity_3d")[row].as_py() or [None] * len(tokens)
-        if boxes.reshape(-1, 10).shape != (len(tokens), 10) or len(labels) != len(tokens):
+        try:  # the column types are checked (LogFiles.table); a null inside a list is not
+            boxes = np.asarray(column(table, path, f"{BOX_KEY}.bounding_box_se3")[row].as_py() or [], np.float64)
+            labels = [int(label) for label in column(table, path, f"{BOX_KEY}.label")[row].as_py() or []]
+            moving = [[0.0, 0.0, 0.0] if v is None else v for v in velocity]
+            moving = np.asarray(moving, np.float64).reshape(-1, 3)
+        except (TypeError, ValueError):
+            raise Py123dFormatError(path, f"row {row}: a null inside a list of boxes", "bounding_box_se3") from None
+        if boxes.reshape(-1, 10).shape != (len(tokens), 10) or not len(labels) == len(moving) == len(tokens):
             raise Py123dFormatError(path, f"row {row}: boxes, tokens and labels disagree in length", "bounding_box_se3")
         qualified = str(meta.get("box_detection_label_class", "unknown"))
-        classes = [box_class(qualified, int(label)) for label in labels]
+        classes = [box_class(qualified, label) for label in labels]
         keep = [k for k, (cls, _) in enumerate(classes) if cls is not None]
         boxes = boxes.reshape(-1, 10)[keep]
-        moving = np.array([velocity[k] if velocity[k] is not None else [0.0, 0.0, 0.0] for k in keep], np.float64)
+        moving = moving[keep]
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero quaternion: NaN, refused below
+            poses = pose_matrix(boxes[:, :7])
+        near = (np.abs(np.column_stack([boxes, moving])) < MAX_COORDINATE).all()  # False for NaN
+        if not (near and np.isfinite(poses).all()):
+            problem = f"row {row}: a box value is not finite or {MAX_COORDINATE:g} or more, or a quaternion is zero"
+            raise Py123dFormatError(path, problem, "bounding_box_se3")
         self._box_cache[j] = (
-            pose_matrix(boxes[:, :7]),
+            poses,
             boxes[:, 7:10],
-            moving.reshape(-1, 3),
+            moving,
             np.array([int(classes[k][0]) for k in keep], np.float64),
             [tokens[k] for k in keep],
             [classes[k][1] for k in keep],
@@ -198,7 +233,7 @@ class LogData:
             row = int(self.files.sync[key][i])
             if row < 0:
                 continue
-            data = self.files.value(key, "data", row)
+            data = self.files.value(key, "data", row)  # bytes, or a path (a str) into the source dataset
             if not isinstance(data, bytes) or data[:2] != b"\xff\xd8":
                 skipped[cam_id] = "stored as a path, PNG or video frame, not JPEG bytes"
                 continue
@@ -208,9 +243,9 @@ class LogData:
 
     def _calibration(self, cam_id: str, native: str, meta: dict[str, Any]) -> dict[str, Any]:
         path = self.files.path(f"camera.{native}")
+        extrinsic = pose_matrix(meta_pose(meta, path, "camera_to_imu_se3"))
         try:
             fx, fy, cx, cy, skew = (float(v) for v in meta["intrinsics"])
-            extrinsic = pose_matrix(np.asarray(meta["camera_to_imu_se3"], np.float64))
             distortion = [float(v) for v in (meta.get("distortion") or [0.0] * 5)]
             width, height = int(meta["width"]), int(meta["height"])
         except (KeyError, TypeError, ValueError):
@@ -261,14 +296,17 @@ class LogData:
                 row = int(self.files.sync[LIGHT_KEY][i])
                 lanes = self.files.value(LIGHT_KEY, "lane_id", row) or []
                 status = self.files.value(LIGHT_KEY, "status", row) or []
+                path = self.files.path(LIGHT_KEY)
                 if len(lanes) != len(status):
-                    path = self.files.path(LIGHT_KEY)
                     raise Py123dFormatError(path, f"row {row}: lane ids and statuses differ", "status")
+                if None in lanes or None in status:  # the column types are checked (LogFiles.table)
+                    raise Py123dFormatError(path, f"row {row}: a null lane id or status", "status")
                 self._light_cache[i] = [(int(lane), int(s)) for lane, s in zip(lanes, status, strict=True)]
         return self._light_cache[i]
 
 
 def log_folders(src: Path) -> list[Path]:
-    """Folders holding a ``sync.arrow`` under ``src`` (a 123D data root, its ``logs/`` or one split), sorted."""
+    """Folders holding a ``sync.arrow`` or an ego state file under ``src`` (a 123D data root, its ``logs/`` or one
+    split), sorted: a log that lost one of the two is still listed, and fails naming the missing file."""
     root = src / "logs" if (src / "logs").is_dir() else src
-    return sorted(path.parent for path in root.rglob("sync.arrow"))
+    return sorted({path.parent for name in (SYNC_FILE, f"{EGO_KEY}.arrow") for path in root.rglob(name)})

@@ -17,11 +17,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import shapely
 
 from lead_s2r.schema import MapKind
 from lead_s2r_adapters.navsim_map import NuplanMap
-from lead_s2r_adapters.py123d_arrow import Py123dFormatError, column, read_table, unpack
+from lead_s2r_adapters.py123d_arrow import SYNC_FILE, Py123dFormatError, column, read_table, unpack
+from lead_s2r_adapters.py123d_frames import MAX_COORDINATE
 
 #: py123d's MapLayer numbers (0.7).
 LANE, LANE_GROUP, INTERSECTION, WALKWAY, CARPARK, GENERIC_DRIVABLE = 0, 1, 2, 4, 5, 6
@@ -35,6 +37,9 @@ def find_map(folder: Path, maps_root: Path | None, log: dict[str, Any]) -> Path 
     if own.is_file():
         return own
     meta = log.get("map_metadata") or {}
+    if not isinstance(meta, dict):
+        problem = f"expected a map, got {type(meta).__name__}"
+        raise Py123dFormatError(folder / SYNC_FILE, problem, "metadata.map_metadata")
     dataset, location = meta.get("dataset") or log.get("dataset"), meta.get("location") or log.get("location")
     if maps_root is None or not dataset or not location:
         return None
@@ -46,38 +51,31 @@ def find_map(folder: Path, maps_root: Path | None, log: dict[str, Any]) -> Path 
 def load_map(path: Path) -> NuplanMap:
     """Every surface the scorer reads, with lane topology; cached, so a worker reads a location once."""
     table = read_table(path)
-    ids = column(table, path, "object_id").to_numpy().astype(np.int64)
-    layers = column(table, path, "map_layer").to_numpy().astype(np.int64)
+    ids, layers = _integers(table, path, "object_id"), _integers(table, path, "map_layer")
     wanted = np.isin(layers, [LANE, LANE_GROUP, *SURFACE_KINDS])
+    features = [unpack(blob, path, "features") for blob in _blobs(table, path, "features", wanted)]
     try:
-        features = [unpack(blob) for blob in column(table, path, "features").filter(wanted).to_pylist()]
-        polygons = shapely.from_wkb(column(table, path, "wkb").filter(wanted).to_numpy(zero_copy_only=False))
-    except Exception as err:  # msgpack and GEOS raise many types on corrupt blobs
-        raise Py123dFormatError(path, f"map objects are not py123d msgpack + WKB ({err})", "features") from None
+        polygons = shapely.from_wkb(_blobs(table, path, "wkb", wanted))
+    except shapely.errors.GEOSException as err:
+        raise Py123dFormatError(path, f"not a WKB geometry ({err})", "wkb") from None
     ids, layers = ids[wanted], layers[wanted]
     group_fields = {int(i): f for i, layer, f in zip(ids, layers, features, strict=True) if layer == LANE_GROUP}
     connector_groups = {i for i, f in group_fields.items() if f.get("intersection_id") is not None}
     kinds, parents, limits, centerlines, lane_edges, group_edges = [], [], [], {}, [], []
     for object_id, layer, fields in zip(ids.tolist(), layers.tolist(), features, strict=True):
-        parent, limit = -1, np.nan
-        if layer == LANE:
-            parent = int(fields.get("lane_group_id") if fields.get("lane_group_id") is not None else -1)
-            connector = parent in connector_groups
-            kinds.append(MapKind.LANE_CONNECTOR if connector else MapKind.LANE)
-            limit = np.nan if fields.get("speed_limit_mps") is None else float(fields["speed_limit_mps"])
-            centerlines[object_id] = np.asarray(fields["centerline"], np.float64)[:, :2]
-            if connector:
-                lane_edges += _edges(object_id, fields)
-        elif layer == LANE_GROUP:
-            connector = object_id in connector_groups
-            kinds.append(MapKind.ROADBLOCK_CONNECTOR if connector else MapKind.ROADBLOCK)
-            if connector:
-                group_edges += _edges(object_id, fields)
-        else:
-            kinds.append(SURFACE_KINDS[layer])
+        try:
+            kind, parent, limit, centerline, edges = _object(object_id, layer, fields, connector_groups)
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as err:
+            problem = f"map object {object_id}: a field is missing or of a wrong type ({type(err).__name__}: {err})"
+            raise Py123dFormatError(path, problem, "features") from None
+        kinds.append(kind)
         parents.append(parent)
         limits.append(limit)
+        if centerline is not None:
+            centerlines[object_id] = centerline
+        (lane_edges if layer == LANE else group_edges).extend(edges)
     exteriors = [shapely.get_coordinates(shapely.get_exterior_ring(_one(p)))[:, :2] for p in polygons]
+    _check_coordinates(path, ids, exteriors, centerlines)
     return NuplanMap(
         path=path,
         polygons=polygons,
@@ -93,18 +91,63 @@ def load_map(path: Path) -> NuplanMap:
     )
 
 
+def _check_coordinates(path: Path, ids: np.ndarray, exteriors: list[np.ndarray], centerlines: dict) -> None:
+    """Every outline and centreline point finite and within :data:`MAX_COORDINATE` (a damaged double reaches 1e308,
+    which overflows the float32 of a sample's map context)."""
+    for object_id, outline in zip(ids.tolist(), exteriors, strict=True):
+        points = np.concatenate([outline, centerlines.get(object_id, np.zeros((0, 2)))])
+        if not (np.abs(points) < MAX_COORDINATE).all():
+            problem = f"map object {object_id}: a point is not finite or {MAX_COORDINATE:g} m or more away"
+            raise Py123dFormatError(path, problem, "wkb")
+
+
+def _object(
+    object_id: int, layer: int, fields: dict[str, Any], connector_groups: set[int]
+) -> tuple[MapKind, int, float, np.ndarray | None, np.ndarray]:
+    """One map object's kind, parent lane group, speed limit, centreline (lanes) and connector edges (connectors)."""
+    if layer == LANE:
+        parent = int(fields.get("lane_group_id") if fields.get("lane_group_id") is not None else -1)
+        connector = parent in connector_groups
+        limit = np.nan if fields.get("speed_limit_mps") is None else float(fields["speed_limit_mps"])
+        centerline = np.asarray(fields["centerline"], np.float64)[:, :2]
+        edges = _edges(object_id, fields) if connector else np.zeros((0, 3), np.int64)
+        return MapKind.LANE_CONNECTOR if connector else MapKind.LANE, parent, limit, centerline, edges
+    if layer == LANE_GROUP:
+        connector = object_id in connector_groups
+        edges = _edges(object_id, fields) if connector else np.zeros((0, 3), np.int64)
+        return MapKind.ROADBLOCK_CONNECTOR if connector else MapKind.ROADBLOCK, -1, np.nan, None, edges
+    return SURFACE_KINDS[layer], -1, np.nan, None, np.zeros((0, 3), np.int64)
+
+
+def _integers(table: pa.Table, path: Path, name: str) -> np.ndarray:
+    """An integer column without nulls as int64."""
+    values = column(table, path, name).combine_chunks()
+    if not pa.types.is_integer(values.type) or values.null_count:
+        raise Py123dFormatError(path, f"expected an integer per map object, got {values.type}", name)
+    return np.asarray(values.to_numpy(), np.int64)
+
+
+def _blobs(table: pa.Table, path: Path, name: str, wanted: np.ndarray) -> np.ndarray:
+    """The ``wanted`` rows of a binary column without nulls, as an object array of bytes."""
+    values = column(table, path, name).combine_chunks().filter(pa.array(wanted))
+    if not pa.types.is_binary(values.type) or values.null_count:
+        raise Py123dFormatError(path, f"expected bytes per map object, got {values.type}", name)
+    return values.to_numpy(zero_copy_only=False)
+
+
 def _one(polygon: Any) -> Any:
     """A polygon, or the convex hull of a multipolygon (the scorer reads one ring per object)."""
     return shapely.convex_hull(polygon) if shapely.get_type_id(polygon) == 6 else polygon
 
 
-def _edges(object_id: int, fields: dict[str, Any]) -> list[tuple[int, int, int]]:
-    """(connector, from, to) for every predecessor-successor pair of a connector lane or lane group."""
-    return [
+def _edges(object_id: int, fields: dict[str, Any]) -> np.ndarray:
+    """(connector, from, to) rows for every predecessor-successor pair of a connector lane or lane group."""
+    pairs = [
         (object_id, int(before), int(after))
         for before in fields.get("predecessor_ids") or []
         for after in fields.get("successor_ids") or []
     ]
+    return np.array(pairs, np.int64).reshape(-1, 3)
 
 
 def route_roadblocks(nuplan_map: NuplanMap, route: np.ndarray) -> list[str]:

@@ -26,6 +26,7 @@ import zipfile
 import zlib
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+from tokenize import TokenError
 from typing import Any, BinaryIO
 
 import cv2
@@ -314,7 +315,9 @@ def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
         value = decode_field(name, data)
     except KeyError:
         raise ShardError(f"{where}: not a schema v1 field; {_REDO}") from None
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as err:  # .npz: a zip of deflated .npy
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, TokenError) as err:
+        # .npz: a zip of deflated .npy, whose damaged flags or method zipfile refuses as NotImplementedError; a .npy
+        # header numpy cannot parse is retried as Python 2's, whose tokenizer raises TokenError
         raise ShardError(f"{where}: cannot be decoded as .{spec.ext} ({err}); {_REDO}") from None
     if spec.ext == "npy" and spec.dtype is not None and value.dtype != np.dtype(spec.dtype):
         raise ShardError(f"{where}: dtype {value.dtype}, but schema v1 stores {spec.dtype}; {_REDO}")

@@ -3,7 +3,8 @@
 A trial copies a pristine folder as hard links (cheap) and replaces one file by a corrupted copy, so the pristine
 folder is never written. The corruptions are the ones disks, copies and people cause: flipped bytes, a truncated
 file, a zeroed or random span, a deleted file, garbage appended, and a structured file (JSON, YAML, LEAD's LZMA
-pickles) re-written with one value of the wrong type.
+pickles, 123D's Arrow IPC files) re-written with one value of the wrong type; and damages that regression tests
+share (:func:`aborting_laz`, :func:`flip_in_value`, :func:`flip_footer_byte`).
 """
 
 import json
@@ -11,6 +12,7 @@ import lzma
 import os
 import pickle
 import shutil
+import struct
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -73,9 +75,43 @@ def _retype(path: Path, data: bytes, rng: np.random.Generator) -> bytes | None:
             return lzma.compress(pickle.dumps(_wrong_typed(pickle.loads(lzma.decompress(data)), rng)))
         if suffix == ".pkl":  # OpenScene logs: a plain pickle of a list of frame dicts
             return pickle.dumps(_wrong_typed(pickle.loads(data), rng))
+        if suffix == ".arrow":
+            return _retyped_arrow(data, rng)
     except (ValueError, yaml.YAMLError, lzma.LZMAError, pickle.UnpicklingError):
         return None
     return None
+
+
+def _retyped_arrow(data: bytes, rng: np.random.Generator) -> bytes:
+    """A 123D Arrow IPC file re-written with one wrong-typed value: in the msgpack metadata of its schema, in the
+    msgpack fields of one map object, or a whole column replaced by one of another type (another writer's file)."""
+    import msgpack
+    import pyarrow as pa
+
+    table = pa.ipc.open_file(pa.BufferReader(data)).read_all()
+    metadata = dict(table.schema.metadata or {})
+    places = ["column", *(["metadata"] if b"metadata" in metadata else []), *(["map"] if "features" in table else [])]
+    place = places[int(rng.integers(len(places)))]
+    if place == "metadata":
+        meta = msgpack.unpackb(metadata[b"metadata"], raw=False, strict_map_key=False)
+        metadata[b"metadata"] = msgpack.packb(_wrong_typed(meta, rng))
+    elif place == "map":
+        features = table["features"].to_pylist()
+        at = int(rng.integers(len(features)))
+        features[at] = msgpack.packb(_wrong_typed(msgpack.unpackb(features[at], strict_map_key=False), rng))
+        table = table.set_column(table.column_names.index("features"), "features", pa.array(features, pa.binary()))
+    else:
+        at = int(rng.integers(table.num_columns))
+        wrong = WRONG_VALUES[int(rng.integers(len(WRONG_VALUES)))]
+        try:
+            values = pa.array([wrong] * table.num_rows)
+        except pa.ArrowInvalid:  # [1, "a"]: no Arrow type holds it
+            values = pa.array(["x"] * table.num_rows)
+        table = table.set_column(at, table.column_names[at], values)
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_file(sink, table.schema.with_metadata(metadata)) as writer:
+        writer.write_table(table)
+    return sink.getvalue().to_pybytes()
 
 
 def corrupt(path: Path, kind: str, rng: np.random.Generator) -> str:
@@ -133,6 +169,15 @@ def flip_footer_byte(path: Path, wanted: Callable[[Path], bool]) -> None:
         except (OSError, pa.ArrowException):
             pass
     raise AssertionError("no such footer byte")
+
+
+def aborting_laz(data: bytes) -> bytes:
+    """A LAZ file whose chunk table claims 2**31 - 1 chunks: lazrs asks for 34 GB and aborts its process."""
+    out = bytearray(data)
+    points_at = struct.unpack_from("<I", out, 96)[0]  # LAS header: offset to point data
+    table_at = struct.unpack_from("<q", out, points_at)[0]  # LAZ: the chunk table's offset comes first
+    struct.pack_into("<I", out, table_at + 4, 0x7FFFFFFF)  # chunk table: version, number of chunks
+    return bytes(out)
 
 
 def pick_file(root: Path, rng: np.random.Generator, weight: Callable[[Path], float] = lambda p: 1.0) -> Path:

@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from corruptions import hardlink_copy
+from corruptions import aborting_laz, hardlink_copy
 from test_user_errors import fit_config, plain_argv, user_error  # noqa: F401 - plain_argv is a fixture
 from toy_adapter import ToyAdapter, write_toy_logs
 
@@ -160,19 +160,10 @@ def test_inspect_checks_every_sample_unless_quick(tmp_path, capsys):
 # --------------------------------------------------------------------------- crash
 
 
-def aborting_laz(path: Path) -> None:
-    """Make the LAZ chunk table claim 2**31 - 1 chunks: lazrs asks for 34 GB and aborts its process."""
-    data = bytearray(path.read_bytes())
-    points_at = struct.unpack_from("<I", data, 96)[0]  # LAS header: offset to point data
-    table_at = struct.unpack_from("<q", data, points_at)[0]  # LAZ: the chunk table's offset comes first
-    struct.pack_into("<I", data, table_at + 4, 0x7FFFFFFF)  # chunk table: version, number of chunks
-    rewrite(path, bytes(data))
-
-
 def test_laz_that_aborts_the_decoder_fails_one_log(raw, tmp_path):
     src = copy_of(raw["carla_lead"], tmp_path)
     first, second = routes(src)
-    aborting_laz(first / "lidar" / "0001.laz")
+    rewrite(first / "lidar" / "0001.laz", aborting_laz((first / "lidar" / "0001.laz").read_bytes()))
     result = convert(get_adapter("carla_lead"), src, tmp_path / "out")
     assert [error["log"] for error in result.errors] == [f"{first.parent.name}/{first.name}"]
     assert f"{first / 'lidar' / '0001.laz'}: corrupt LAZ file (the LAZ decoder died on it" in result.errors[0]["error"]

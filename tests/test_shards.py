@@ -69,6 +69,29 @@ def test_round_trip_is_bit_exact(tmp_path):
         assert_same_sample(original, decoded)
 
 
+def test_an_npz_member_with_a_damaged_zip_flag_is_a_shard_error(tmp_path):
+    """Flag bit 5 (compressed patched data) of an .npz's zip entry: zipfile raised NotImplementedError."""
+    path = write_shard(tmp_path / "a-000000.tar", [special_sample(0)])
+    data = bytearray(path.read_bytes())
+    entry = data.index(b"PK\x01\x02")  # the first central directory entry: raters.npz's first array
+    data[entry + 8] |= 1 << 5  # its general purpose bit flags, which zipfile checks
+    path.write_bytes(bytes(data))
+    with pytest.raises(ShardError, match=r"field 'raters': cannot be decoded as \.npz \(compressed patched data"):
+        list(read_samples(tmp_path))
+
+
+def test_an_npy_header_numpy_cannot_tokenize_is_a_shard_error(tmp_path):
+    """A bracket in the padding of future.npy's header: numpy's Python 2 fallback raised tokenize.TokenError."""
+    sample = toy_sample("log000", 0)
+    path = write_shard(tmp_path / "a-000000.tar", [sample])
+    data = path.read_bytes()
+    header = data.index(b"{'descr'", data.index(b"future.npy"))
+    padding = data.index(b"}", header) + 2
+    path.write_bytes(data[:padding] + b"(" + data[padding + 1 :])
+    with pytest.raises(ShardError, match=r"field 'future': cannot be decoded as \.npy \(\('EOF in multi-line"):
+        list(read_samples(tmp_path))
+
+
 def test_jpeg_bytes_are_stored_untouched(tmp_path):
     sample = toy_sample("log000", 0)
     path = write_shard(tmp_path / "a-000000.tar", [sample])
