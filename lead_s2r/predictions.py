@@ -3,7 +3,10 @@
 One row per (sample, inference): ``key`` str, ``dataset`` str, ``t``/``x``/``y``/``yaw`` list<float32> in the ISO
 ego frame of the sample (rear axle at t0, x forward, y left), ``t`` > 0 in seconds and strictly increasing, and
 optionally ``probability`` float and ``inference`` int for multi-modal outputs. ``yaw`` may be NaN where a
-model predicts no heading; ``t``, ``x``, ``y`` must be finite.
+model predicts no heading; ``t``, ``x``, ``y`` must be finite. :func:`write_predictions` stores a CRC32 of every
+data page and :func:`read_predictions` checks those a file carries, and the column names against the copy of the
+schema pyarrow keeps beside them (:func:`read_parquet`): parquet has no other guard, so a flipped bit in a
+coordinate or a column name would otherwise be scored as a slightly different prediction or a missing column.
 
 :func:`on_grid` puts trajectories on a scorer's time grid. A prediction on another grid (e.g. 2 Hz x 10) is
 linearly interpolated, with the ego origin (0, 0) at t = 0 as the first knot, because the sample's ego frame
@@ -11,6 +14,7 @@ puts the ego there. It never extrapolates: a target time after the last predicte
 checkpoint is never filled by copying the 4.75 s point.
 """
 
+import base64
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -99,15 +103,15 @@ def write_predictions(path: str | Path, predictions: Iterable[Prediction]) -> Pa
         "inference": [int(p.inference) for p in predictions],
     }
     path = Path(path)
-    pq.write_table(pa.table(columns, schema=SCHEMA), path)
+    pq.write_table(pa.table(columns, schema=SCHEMA), path, write_page_checksum=True)
     return path
 
 
 def read_predictions(path: str | Path) -> list[Prediction]:
     """Read and check a predictions file; a single inference per key may omit ``probability``/``inference``."""
     try:
-        table = pq.read_table(path)
-    except (OSError, pa.ArrowException) as err:
+        table = read_parquet(path)
+    except (OSError, pa.ArrowException, ValueError) as err:  # ValueError: a name that is not UTF-8 or base64
         raise PredictionError(
             f"{path}: not a readable parquet file ({err}); write it with lead_s2r.predictions.write_predictions"
         ) from None
@@ -152,6 +156,28 @@ def read_predictions(path: str | Path) -> list[Prediction]:
         if multi:
             raise PredictionError(f"{path}: several inferences for {multi[0]!r} but no 'probability' column")
     return predictions
+
+
+def read_parquet(path: str | Path) -> pa.Table:
+    """A parquet table, checked as far as the file allows: the CRC of every page that carries one, then what no
+    checksum covers: the row counts of the footer and of its row groups (a flipped bit there drops rows unseen), and
+    the columns' names and types against the Arrow schema pyarrow stores beside them. Raises OSError or
+    ArrowException for a damaged file (ArrowInvalid for counts or columns that disagree), ValueError for a name that
+    is no longer UTF-8 or a stored schema that is no longer base64."""
+    table = pq.read_table(path, page_checksum_verification=True)
+    metadata = pq.read_metadata(path)
+    grouped = sum(metadata.row_group(i).num_rows for i in range(metadata.num_row_groups))
+    if not metadata.num_rows == grouped == table.num_rows:
+        raise pa.ArrowInvalid(f"its footer counts {metadata.num_rows} rows, its row groups {grouped}")
+    stored = (metadata.metadata or {}).get(b"ARROW:schema")
+    if stored is not None:
+        written = pa.ipc.read_schema(pa.py_buffer(base64.b64decode(stored, validate=True)))
+        if table.schema.names != written.names:
+            raise pa.ArrowInvalid(f"its footer names the columns {table.schema.names}, written as {written.names}")
+        retyped = [f"{a.name}: {a.type}" for a, b in zip(table.schema, written, strict=True) if not a.equals(b)]
+        if retyped:
+            raise pa.ArrowInvalid(f"its footer types the columns {retyped} otherwise than they were written")
+    return table
 
 
 def _check_unique(predictions: Sequence[Prediction]) -> None:

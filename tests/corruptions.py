@@ -4,7 +4,7 @@ A trial copies a pristine folder as hard links (cheap) and replaces one file by 
 folder is never written. The corruptions are the ones disks, copies and people cause: flipped bytes, a truncated
 file, a zeroed or random span, a deleted file, garbage appended, and a structured file (JSON, YAML, LEAD's LZMA
 pickles, 123D's Arrow IPC files) re-written with one value of the wrong type; and damages that regression tests
-share (:func:`aborting_laz`).
+share (:func:`aborting_laz`, :func:`flip_in_value`, :func:`flip_footer_byte`).
 """
 
 import json
@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import yaml
 
 KINDS = ("flip", "truncate", "zero_span", "random_span", "delete", "append", "wrong_type")
@@ -142,6 +143,32 @@ def corrupt(path: Path, kind: str, rng: np.random.Generator) -> str:
         data[start : start + span] = rng.bytes(span)
     _replace(path, bytes(data))
     return f"{kind} of {path} at byte {start}"
+
+
+def flip_in_value(path: Path, value: bytes) -> None:
+    """Flip the lowest bit of the first place ``path`` stores ``value`` (a number's bytes): a damaged digit that
+    leaves the file's structure whole, so only a checksum can tell."""
+    data = bytearray(path.read_bytes())
+    data[data.index(value)] ^= 1
+    _replace(path, bytes(data))
+
+
+def parquet_footer(data: bytes) -> int:
+    """Where a parquet file's footer (its thrift FileMetaData) starts: its length sits before the closing magic."""
+    return len(data) - 8 - int.from_bytes(data[-8:-4], "little")
+
+
+def flip_footer_byte(path: Path, wanted: Callable[[Path], bool]) -> None:
+    """Flip bit 1 of the first footer byte for which ``wanted(path)`` holds (thrift keeps no offsets to look up)."""
+    data = path.read_bytes()
+    for at in range(parquet_footer(data), len(data) - 8):
+        _replace(path, data[:at] + bytes([data[at] ^ 2]) + data[at + 1 :])
+        try:
+            if wanted(path):
+                return
+        except (OSError, pa.ArrowException):
+            pass
+    raise AssertionError("no such footer byte")
 
 
 def aborting_laz(data: bytes) -> bytes:

@@ -16,6 +16,7 @@ from lead_s2r.scoring.carla_leaderboard import (
     normalised_infraction_score,
     parse_record,
     read_results,
+    read_route_ids,
     score_records,
 )
 
@@ -222,3 +223,64 @@ def test_bad_results_name_the_file_and_field(tmp_path):
         read_results(tmp_path / "empty.json")
     with pytest.raises(ResultsError, match="36"):
         score([record(i) for i in range(37)], "longest6")
+
+
+def _with(path: tuple[str, ...], value: Any) -> dict[str, Any]:
+    """A record with the field at ``path`` set to ``value``."""
+    raw = record(0, infractions={"outside_route_lanes": [off_lane(12.5, 3.1)]})
+    node = raw
+    for name in path[:-1]:
+        node = node[name]
+    node[path[-1]] = value
+    return raw
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        (("route_id",), 7, r"\[0\]\.route_id: expected a str, got 7"),
+        (("route_id",), "", r"\[0\]\.route_id: '' names no route"),
+        (("scores",), [], r"\[0\]\.scores: expected a dict, got \[\]"),
+        (("scores", "score_route"), "x", r"\[0\]\.scores\.score_route: expected a finite number"),
+        (("scores", "score_composed"), "x", r"\[0\]\.scores\.score_composed: expected a finite number"),
+        (("meta", "duration_game"), None, r"\[0\]\.meta\.duration_game: expected a finite number"),
+        (("status",), 7, r"\[0\]\.status: expected a string, got 7"),
+        (("infractions",), None, r"\[0\]\.infractions: expected a dict of message lists"),
+        (("infractions", "red_light"), 7, r"\[0\]\.infractions\.red_light: expected a list of messages"),
+        (("infractions", "red_light"), [7], r"\[0\]\.infractions\.red_light: expected a list of messages"),
+        (("infractions", "min_speed_infractions"), ["slow"], r"\[0\]\.infractions\.min_speed_infractions: .*X%"),
+        (
+            ("infractions", "outside_route_lanes"),
+            ["off for about 12 m"],
+            r"\[0\]\.infractions\.outside_route_lanes: .*X meters",
+        ),
+    ],
+)
+def test_a_wrong_typed_field_is_named_with_its_file_and_record(tmp_path, path, value, message):
+    """Each was a traceback (AttributeError, TypeError) or a silently different score: a status of 7 read as "7"
+    (no success), null infractions as none, an unparsable off-lane message failed later without its file."""
+    results = results_file(tmp_path, [_with(path, value)])
+    with pytest.raises(ResultsError, match=r"results\.json: _checkpoint\.records" + message):
+        read_results(results)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b'{"_checkpoint": {"records": [\xff]}}', "cannot read results JSON: 'utf-8' codec"),
+        (b'{"_checkpoint": 7}', r"no _checkpoint\.records list"),
+        (b'{"_checkpoint": {"records": [7]}}', r"_checkpoint\.records\[0\]: expected a record \(a dict\), got 7"),
+    ],
+)
+def test_an_unreadable_results_file_is_named(tmp_path, content, message):
+    (tmp_path / "results.json").write_bytes(content)
+    with pytest.raises(ResultsError, match=r"results\.json: " + message):
+        read_results(tmp_path / "results.json")
+
+
+def test_a_route_id_listed_twice_in_the_routes_xml_is_refused(tmp_path):
+    """A damaged id that repeats another would shrink the benchmark's route count: the denominator of every mean."""
+    xml = tmp_path / "routes.xml"
+    xml.write_text('<routes><route id="0"/><route id="1"/><route id="1"/></routes>')
+    with pytest.raises(ResultsError, match=r"routes\.xml: route id\(s\) \['1'\] appear more than once"):
+        read_route_ids(xml)

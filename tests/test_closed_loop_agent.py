@@ -14,7 +14,7 @@ from closed_loop_scene import global_plan, sensor_data
 from tiny_models import TINY
 
 from lead_s2r.closed_loop import agent as agent_module
-from lead_s2r.closed_loop.agent import ClosedLoopConfig, LeadS2RAgent, parse_bool
+from lead_s2r.closed_loop.agent import AgentConfigError, ClosedLoopConfig, LeadS2RAgent, parse_bool
 from lead_s2r.closed_loop.checkpoint import (
     UnsupportedCheckpoint,
     check_drivable,
@@ -265,3 +265,22 @@ def test_closed_loop_check_drives_a_carla_run_offline_and_refuses_a_navsim_model
     assert main(["closed-loop", "check", str(ltf)]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "reads no route target points" in error and error.startswith("error: ")
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"checkpoint: runs/a\ncreeping: 7\n", "creeping is 7, not bool"),  # drove as True
+        (b"checkpoint: runs/a\njpeg_quality: true\n", "jpeg_quality is True, not int"),  # encoded at quality 1
+        (b"checkpoint: runs/a\ndevice: 7\n", r"device is 7, not str \| None"),  # was a torch error at setup
+        (b"checkpoint: runs/a\ncontroller: x\n", r"controller is 'x', not typing.Literal\['route', 'waypoint'\]"),
+        (b"checkpoint: runs/a\nrig: NOPE\n", "rig 'NOPE' is not a LEAD camera rig"),
+        (b"- checkpoint\n", r"unknown keys \['checkpoint'\] or no 'checkpoint'"),  # was a TypeError
+        (b"checkpoint: \xff\n", "cannot read the agent config"),  # was a UnicodeDecodeError
+    ],
+)
+def test_a_damaged_agent_config_is_named(tmp_path, content, message):
+    path = tmp_path / "drive.yaml"
+    path.write_bytes(content)
+    with pytest.raises(AgentConfigError, match=r"drive\.yaml: " + message):
+        ClosedLoopConfig.from_agent_config(str(path), {})

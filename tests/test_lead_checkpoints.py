@@ -1,10 +1,13 @@
 """LEAD's checkpoints in our models: parameter tables of eight LEAD configurations, output parity with a case computed
 by LEAD's own code (tests/data/lead_tfv6/, copied from the golden folder), config derivation, ensembles, export."""
 
+import io
 import json
 import shutil
+import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from lead_reference import CASES, seeded_inputs, seeded_state
@@ -227,6 +230,101 @@ def test_bad_folders_are_user_errors(tmp_path: Path) -> None:
     shutil.copy(TINY / "model_0000.pth", tmp_path / "model_0000.pth")
     with pytest.raises(UserError, match=r"model_0000\.pth: does not match"):
         lead.load_checkpoint(tmp_path)
+
+
+def _directory_entry(data: bytes, offset: int, value: bytes) -> bytes:
+    """``data`` (a zip) with ``value`` written at ``offset`` in the central-directory entry of its first member."""
+    at = data.index(b"PK\x01\x02") + offset
+    return data[:at] + value + data[at + len(value) :]
+
+
+def _utf8_flagged_name(data: bytes) -> bytes:
+    """The first member's name marked UTF-8 (flag bit 11) and made of a byte that is not."""
+    return _directory_entry(_directory_entry(data, 8, (0x800).to_bytes(2, "little")), 46, b"\xff")
+
+
+def _directory_far_ahead(data: bytes) -> bytes:
+    """The zip64 end record's offset of the central directory moved 1 TB on: members before the file's start."""
+    at = data.rindex(b"PK\x06\x06") + 48
+    return data[:at] + (2**40).to_bytes(8, "little") + data[at + 8 :]
+
+
+def _last_data_past_the_end(data: bytes) -> bytes:
+    """The last member's local header with 32 kB more of "extra field": its data starts past the file's end."""
+    at = zipfile.ZipFile(io.BytesIO(data)).infolist()[-1].header_offset + 28
+    extra = int.from_bytes(data[at : at + 2], "little") + 0x8000
+    return data[:at] + extra.to_bytes(2, "little") + data[at + 2 :]
+
+
+def _large_and_cut(data: bytes) -> bytes:
+    """A 40 kB checkpoint cut at 20 kB: torch seeks before its start looking for the directory."""
+    buffer = io.BytesIO()
+    torch.save({"w": torch.zeros(10000)}, buffer)
+    return buffer.getvalue()[:20000]
+
+
+def _with_record(data: bytes, suffix: str, content: bytes) -> bytes:
+    """A whole archive (valid CRCs) whose member ending in ``suffix`` holds ``content``."""
+    source, out = zipfile.ZipFile(io.BytesIO(data)), io.BytesIO()
+    with zipfile.ZipFile(out, "w") as archive:
+        for name in source.namelist():
+            archive.writestr(name, content if name.endswith(suffix) else source.read(name))
+    return out.getvalue()
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda data: data.replace(np.float32(1234.5).tobytes(), np.float32(1234.75).tobytes()), "fails its CRC"),
+        (lambda data: _directory_entry(data, 0, b"PK\x01\x03"), "damaged zip.*BadZipFile"),
+        (_utf8_flagged_name, "damaged zip.*UnicodeDecodeError"),
+        (_directory_far_ahead, "damaged zip.*OSError"),
+        (_last_data_past_the_end, "damaged zip.*EOFError"),
+        (lambda data: _directory_entry(data, 8, b"\x01\x00"), "damaged zip.*RuntimeError.*encrypted"),
+        (lambda data: _directory_entry(data, 10, b"\x08\x00"), "damaged zip.*error.*decompressing"),  # zlib.error
+        (lambda data: _directory_entry(data, 10, (99).to_bytes(2, "little")), "damaged zip.*NotImplementedError"),
+        (lambda data: data[: len(data) // 2], "not a readable torch checkpoint.*central directory"),  # RuntimeError
+        (_large_and_cut, "not a readable torch checkpoint.*Invalid argument"),  # OSError
+        (lambda data: b"garbage", "not a readable torch checkpoint.*Weights only load failed"),  # UnpicklingError
+        (lambda data: b"", r"not a readable torch checkpoint \(\)"),  # EOFError
+        (lambda data: _with_record(data, "/.storage_alignment", b"x"), "torch checkpoint.*invalid literal for int"),
+        (lambda data: _with_record(data, "/byteorder", b"\xff"), "torch checkpoint.*'utf-8' codec"),  # ValueError
+    ],
+)
+def test_a_damaged_weight_file_is_named(tmp_path: Path, damage, message: str) -> None:
+    """torch reads a zip without checking its CRCs: a bit flipped in a weight would load as another weight; zipfile
+    and torch raise each of these on some damage of the archive's directory or records."""
+    path = tmp_path / "model_0000.pth"
+    torch.save({"w": torch.tensor([1.0, 1234.5])}, path)
+    assert lead.read_weights(path)["w"][1] == 1234.5
+    path.write_bytes(damage(path.read_bytes()))
+    with pytest.raises(UserError, match=rf"model_0000\.pth: .*{message}"):
+        lead.read_weights(path)
+
+
+def test_a_weight_file_of_something_else_is_named(tmp_path: Path) -> None:
+    torch.save([torch.zeros(2)], tmp_path / "model_0000.pth")
+    with pytest.raises(UserError, match=r"model_0000\.pth: holds a list, not the state_dict"):
+        lead.read_weights(tmp_path / "model_0000.pth")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "expected"),
+    [("n_layer", "x", "int"), ("use_depth", 7, "bool"), ("used_cameras", [1], "list\\[bool\\]"),
+     ("pixels_per_meter", True, "float"), ("carla_root", None, "str")],
+)  # fmt: skip
+def test_a_wrong_typed_config_field_is_named(tmp_path: Path, field: str, value, expected: str) -> None:
+    """LEAD's cast would read 7 as True, and "x" fails deep in a constructor."""
+    values = json.loads((TINY / "config.json").read_text())
+    (tmp_path / "config.json").write_text(json.dumps(dict(values, **{field: value})))
+    with pytest.raises(UserError, match=rf"config\.json: {field} is .*; LEAD writes it as {expected}"):
+        lead.read_config(tmp_path)
+
+
+def test_a_config_that_is_not_utf8_is_named(tmp_path: Path) -> None:
+    (tmp_path / "config.json").write_bytes(b'{"n_layer": "\xff"}')
+    with pytest.raises(UserError, match=r"config\.json: not valid JSON"):
+        lead.read_config(tmp_path)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

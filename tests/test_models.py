@@ -104,7 +104,7 @@ def test_ltfv6_reads_no_lidar_and_latent_option_learns_its_input():
 def test_staged_encoder_rejects_unstageable_architecture():
     with pytest.raises(ValueError, match="test_efficientnet"):
         StagedEncoder("test_efficientnet", False, 3)
-    with pytest.raises(RuntimeError, match="no_such_net"):
+    with pytest.raises(ValueError, match="'no_such_net' is no timm architecture"):  # a config's typo
         StagedEncoder("no_such_net", False, 3)
 
 

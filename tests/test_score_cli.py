@@ -10,6 +10,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import torch
+from corruptions import flip_footer_byte, flip_in_value
 
 from lead_s2r import __version__, cli
 from lead_s2r.predictions import Prediction, PredictionError, read_predictions, write_predictions
@@ -226,6 +227,29 @@ def test_predictions_round_trip(tmp_path: Path) -> None:
     for a, b in zip(written, read, strict=True):
         assert (a.key, a.dataset, a.probability, a.inference) == (b.key, b.dataset, b.probability, b.inference)
         assert a.t.tobytes() == b.t.tobytes() and a.xy.tobytes() == b.xy.tobytes()
+
+
+def test_a_flipped_coordinate_fails_its_page_checksum(tmp_path: Path) -> None:
+    """Without the CRC write_predictions stores, the file would read back with x[3] = 1234.5001."""
+    xy = np.column_stack([np.where(np.arange(20) == 3, 1234.5, 1.0), np.zeros(20)])
+    path = write_predictions(tmp_path / "p.parquet", [prediction("k0", xy)])
+    flip_in_value(path, np.float32(1234.5).tobytes())
+    with pytest.raises(PredictionError, match=r"p\.parquet: not a readable parquet file.*(CRC|checksum)"):
+        read_predictions(path)
+
+
+def test_a_flipped_row_count_or_column_name_in_the_footer_is_named(tmp_path: Path) -> None:
+    """No checksum covers the footer: a row group's count cut by a flip read 1 of 2 predictions, a renamed 'inference'
+    column read as absent, both without a word (a single inference per key needs neither column)."""
+    rows = [prediction(f"k{i}", np.zeros((20, 2)), inference=1) for i in range(2)]
+    path = write_predictions(tmp_path / "p.parquet", rows)
+    flip_footer_byte(path, lambda p: pq.read_metadata(p).num_rows == 2 != pq.read_metadata(p).row_group(0).num_rows)
+    with pytest.raises(PredictionError, match=r"p\.parquet: .*footer counts 2 rows, its row groups \d"):
+        read_predictions(path)
+    path = write_predictions(tmp_path / "p.parquet", rows)
+    flip_footer_byte(path, lambda p: "inference" not in pq.read_schema(p).names)
+    with pytest.raises(PredictionError, match=r"p\.parquet: .*footer names the columns .*written as .*'inference'"):
+        read_predictions(path)
 
 
 def _raw_table(path: Path, **columns: list[Any]) -> Path:

@@ -212,3 +212,78 @@ def test_a_tagged_column_reads_the_scores_of_its_tagged_subset_only(tmp_path):
     (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
     cells = collect(load_spec(tmp_path / "spec.yaml"), find_runs([str(root / "*" / "*" / "seed*")]))[0]
     assert [cell.values for cell in cells] == [(7.0, 7.2, 7.4), (5.0, 5.5, 6.0), ()]
+
+
+def _edited_spec(folder: Path, path: tuple[Any, ...], value: Any) -> Path:
+    """write_spec's table with the field at ``path`` (keys and indices) set to ``value``."""
+    spec = yaml.safe_load(write_spec(folder).read_text())
+    node = spec
+    for name in path[:-1]:
+        node = node[name]
+    node[path[-1]] = value
+    (folder / "table4.yaml").write_text(yaml.safe_dump(spec))
+    return folder / "table4.yaml"
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        (("digits",), "x", r"the spec\.digits is 'x'"),  # was int("x"): a ValueError traceback
+        (("seeds",), ["a"], r"the spec\.seeds is \['a'\]"),
+        (("title",), None, r"the spec\.title is None"),
+        (("columns", 0), 7, r"columns\[0\] is 7, not a mapping"),
+        (("columns", 0, "name"), 7, r"columns\[0\]\.name is 7"),  # was printed as a column named 7
+        (("rows", 1, "paper"), {}, r"rows\[1\]\.paper is \{\}"),  # was read as no paper numbers
+        (("rows", 1, "paper"), [True, None], r"row .LTFv6 \+ LEAD.: paper numbers are numbers"),  # was printed as 1.00
+        (("rows", 1, "seeds"), [0.5], r"rows\[1\]\.seeds is \[0\.5\]"),
+    ],
+)
+def test_a_wrong_typed_spec_field_is_named(tmp_path, path, value, message):
+    with pytest.raises(TableError, match=r"table4\.yaml: " + message):
+        load_spec(_edited_spec(tmp_path, path, value))
+
+
+def test_a_spec_that_is_not_utf8_is_named(tmp_path):
+    (tmp_path / "table4.yaml").write_bytes(b"title: \xff\n")
+    with pytest.raises(TableError, match=r"table4\.yaml: cannot read table spec"):
+        load_spec(tmp_path / "table4.yaml")
+
+
+@pytest.mark.parametrize(
+    ("report", "message"),
+    [
+        (b'{"metric": 7, "aggregates": {}}', "not the scores.json of lead-s2r score"),  # was the key 7: a seed missing
+        (b'{"metric": "m", "aggregates": "x"}', "not the scores.json of lead-s2r score"),
+        (b"[]", "not the scores.json of lead-s2r score"),  # was an AttributeError
+        (b'{"metric": "\xff"}', "cannot read scores: 'utf-8' codec"),
+        (
+            json.dumps({"metric": B2D, "aggregates": {"infractions_per_100km": 7}}).encode(),
+            r"aggregates\.infractions_per_100km is 7, not a mapping",
+        ),
+        (
+            json.dumps({"metric": B2D, "aggregates": {"infractions_per_100km": {"red_light": "x"}}}).encode(),
+            r"aggregates\.infractions_per_100km\.red_light is .x., not a number",
+        ),
+    ],
+)
+def test_a_damaged_scores_json_is_named(tmp_path, runs, report, message):
+    """A value that is no number, or no mapping where the column's key goes on, was a seed marked missing."""
+    (runs / "wod" / "ltfv6" / "seed1" / "scores1" / "scores.json").write_bytes(report)
+    with pytest.raises(TableError, match=r"seed1/scores1/scores\.json: " + message):
+        build_table(write_spec(tmp_path), [str(runs / "*" / "*" / "seed*")])
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        (b"[1, 2]", "holds \\[1, 2\\], not the mapping"),
+        (b"seed_everything: 0\ntrainer: 7\n", "trainer.default_root_dir is not set"),
+    ],
+)
+def test_a_damaged_saved_config_is_named(tmp_path, config, message):
+    """A run folder not named seed<k> takes its identity from the config: a list or a trainer of 7 crashed."""
+    logs = tmp_path / "somewhere" / "lightning_logs" / "version_0"
+    logs.mkdir(parents=True)
+    (logs / "config.yaml").write_bytes(config)
+    with pytest.raises(TableError, match=r"config\.yaml: " + message):
+        find_runs([str(tmp_path / "somewhere")])

@@ -4,6 +4,7 @@ Lightning is imported at collection so that its log handler binds to pytest's st
 first fit test (closed when that test ends, after which every Lightning log line would be a logging traceback).
 """
 
+import re
 import sys
 from pathlib import Path
 
@@ -261,3 +262,43 @@ def test_fit_missing_config_file_or_bad_value(tmp_path, plain_argv, capsys):
     config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path)], "cameras": ["front"]}})
     line = user_error(["fit", "--config", str(config), "--trainer.max_epochs", "many"], capsys)
     assert 'Parser key "trainer.max_epochs"' in line and "Given value: many" in line
+
+
+def test_fit_config_with_a_wrong_typed_value_or_bytes_not_utf8_names_the_file(tmp_path, plain_argv, capsys):
+    """jsonargparse names the key but not the file (a recipe may be one of several --config), and raised the
+    decoder's own error for bytes that are not UTF-8."""
+    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path)], "cameras": ["front"]}})
+    values = yaml.safe_load(config.read_text())
+    values["data"]["schedule"]["global_batch_size"] = "x"
+    config.write_text(yaml.safe_dump(values))
+    line = user_error(["fit", "--config", str(config)], capsys)
+    assert 'Parser key "data.schedule"' in line and f"--config {config}; see lead-s2r fit --help" in line
+    config.write_bytes(config.read_bytes().replace(b"accelerator: cpu", b"accelerator: \xffcpu"))
+    line = user_error(["fit", f"--config={config}"], capsys)
+    assert line.startswith(f"error: --config {config}: not UTF-8 text ('utf-8' codec can't decode byte 0xff")
+
+
+MODEL_CONFIG = ("model", "model", "init_args", "config")
+
+
+@pytest.mark.parametrize(
+    ("where", "value", "message"),
+    [
+        ((*MODEL_CONFIG, "decoder_heads"), 7, "embed_dim must be divisible by num_heads"),  # jsonargparse's ValueError
+        ((*MODEL_CONFIG, "token_dim"), None, r"TFv6Config\.token_dim is None, not int"),  # was a TypeError in torch
+        ((*MODEL_CONFIG, "image_architecture"), "x", "'x' is no timm architecture"),  # was a RuntimeError
+        (("data",), 7, "argument after \\*\\* must be a mapping, not int"),  # jsonargparse's own TypeError
+        (("data", "train"), {}, r"no training sources configured \(data\.train\)"),  # was a ValueError at fit
+    ],
+)
+def test_fit_config_value_no_constructor_can_use_names_the_file(tmp_path, plain_argv, capsys, where, value, message):
+    """Values of the right YAML type for jsonargparse that the classes cannot be built with: each was a traceback."""
+    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path / "no-data")], "cameras": ["front"]}})
+    values = yaml.safe_load(config.read_text())
+    node = values
+    for name in where[:-1]:
+        node = node[name]
+    node[where[-1]] = value
+    config.write_text(yaml.safe_dump(values))
+    line = user_error(["fit", "--config", str(config)], capsys)
+    assert re.search(message, line) and line.endswith(f"(--config {config})"), line

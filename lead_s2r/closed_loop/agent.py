@@ -16,9 +16,10 @@ here it is a real boolean (``1/true/yes/on`` or ``0/false/no/off``, anything els
 import json
 import math
 import os
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from types import UnionType
+from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 import numpy as np
 import torch
@@ -49,6 +50,7 @@ from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_s
 from lead_s2r.data.collate import collate
 from lead_s2r.data.targets import CENTERNET_STRIDE, bev_cell_centres
 from lead_s2r.data.transforms import SourceTransform
+from lead_s2r.errors import UserError
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 from lead_s2r.models.input_spec import InputSpec
@@ -133,18 +135,47 @@ class ClosedLoopConfig:
         if bench2drive:
             agent_config = agent_config.split("+", 1)[0]  # Bench2Drive appends "+<save name>"
         if agent_config.endswith((".yaml", ".yml")):
-            values = yaml.safe_load(Path(agent_config).read_text()) or {}
-            known = {f.name for f in fields(cls)}
-            unknown = set(values) - known
-            if unknown or "checkpoint" not in values:
-                raise ValueError(f"{agent_config}: unknown keys {sorted(unknown)} or no 'checkpoint'; known: "
-                                 f"{sorted(known)}")  # fmt: skip
-            config = cls(**values)
+            config = read_agent_yaml(Path(agent_config))
         else:
             config = cls(checkpoint=agent_config)
         if bench2drive is not None:
             config.bench2drive = bench2drive
         return config
+
+
+class AgentConfigError(UserError, ValueError):
+    """An agent config YAML the agent cannot drive with; the message names the file and the field."""
+
+
+def read_agent_yaml(path: Path) -> ClosedLoopConfig:
+    """An agent config YAML whose every field has its type (``creeping: 7`` would drive as True)."""
+    try:
+        values = yaml.safe_load(path.read_bytes()) or {}
+    except (OSError, yaml.YAMLError) as err:  # YAMLError covers bytes that are not UTF-8
+        raise AgentConfigError(f"{path}: cannot read the agent config ({err})") from None
+    hints = get_type_hints(ClosedLoopConfig)
+    if not isinstance(values, dict) or set(values) - set(hints) or "checkpoint" not in values:
+        unknown = sorted(set(values) - set(hints)) if isinstance(values, dict) else values
+        raise AgentConfigError(f"{path}: unknown keys {unknown} or no 'checkpoint'; known: {sorted(hints)}")
+    for name, value in values.items():
+        if not _fits(value, hints[name]):
+            expected = str(hints[name]) if get_origin(hints[name]) else hints[name].__name__
+            raise AgentConfigError(f"{path}: {name} is {value!r}, not {expected}")
+    try:
+        return ClosedLoopConfig(**values)
+    except ValueError as err:  # its own checks: the controller, the rig
+        raise AgentConfigError(f"{path}: {err}") from None
+
+
+def _fits(value: Any, hint: Any) -> bool:
+    """Whether a YAML value is of the type ``hint`` (a Literal's values, a union's members; bool is no int here)."""
+    if get_origin(hint) is Literal:
+        return value in get_args(hint)
+    kinds = get_args(hint) if isinstance(hint, UnionType) else (hint,)
+    return any(
+        value is None if kind is type(None) else isinstance(value, kind) and (kind is bool) == isinstance(value, bool)
+        for kind in kinds
+    )
 
 
 class _StandInAgent:

@@ -300,7 +300,7 @@ class DriveDataModule(L.LightningDataModule):
 
     def train_dataloader(self) -> dict[str, wds.WebLoader]:
         if not self.train_sources:
-            raise ValueError("no training sources configured (data.train)")
+            raise UserError("no training sources configured (data.train); name one or more sources and their paths")
         epoch, rank, world_size = self._where()
         loaders = {}
         for name, size in self.current_batch_sizes().items():

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import timm
 import torch
 import torch.nn.functional as F
+from timm.models import parse_model_name
 from torch import Tensor, nn
 
 from lead_s2r.models.config import TFv6Config
@@ -20,6 +21,9 @@ class StagedEncoder(nn.Module):
 
     def __init__(self, architecture: str, pretrained: bool, in_chans: int) -> None:
         super().__init__()
+        hub = isinstance(architecture, str) and parse_model_name(architecture)[0] is not None  # hf-hub:org/name
+        if not isinstance(architecture, str) or not (hub or timm.is_model(architecture)):
+            raise ValueError(f"{architecture!r} is no timm architecture; see timm.list_models() for the names")
         try:
             net = timm.create_model(architecture, features_only=True, pretrained=pretrained, in_chans=in_chans)
         except Exception as err:  # timm raises several types for unknown names and unreachable weights

@@ -6,8 +6,9 @@ with token dim 256), :func:`ltfv6_config` (no LiDAR: a fixed coordinate grid fee
 """
 
 import math
-from dataclasses import dataclass, field, replace
-from typing import Literal, NamedTuple
+from dataclasses import dataclass, field, fields, replace
+from numbers import Integral, Real
+from typing import Literal, NamedTuple, get_type_hints
 
 #: LEAD's target-speed bins, m/s (``target_speed_classes``); a label is two-hot encoded between neighbours.
 TARGET_SPEED_CLASSES = (0.0, 4.0, 8.0, 10.0, 13.89, 16.0, 17.78, 20.0)
@@ -64,6 +65,10 @@ NAVSIM_BEV = BEVGrid(-32.0, 32.0, -32.0, 32.0)
 def default_grids() -> dict[str, TrajectoryGrid]:
     """LEAD's output grids: CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz."""
     return {"carla": TrajectoryGrid(8, 0.25), "navsim": TrajectoryGrid(8, 0.5), "wod": TrajectoryGrid(10, 0.5)}
+
+
+#: The scalar field types :class:`TFv6Config` checks, and what passes for each (numpy's numbers too).
+SCALARS: dict[type, type | tuple[type, ...]] = {int: Integral, float: Real, bool: bool, str: str}
 
 
 @dataclass
@@ -149,6 +154,15 @@ class TFv6Config:
     semantic_classes: dict[str, int] = field(default_factory=lambda: {"carla": 10})
     depth_sources: tuple[str, ...] = ("carla",)
     max_depth: float = 50.0
+
+    def __post_init__(self) -> None:
+        """A scalar of another type than its field's (a YAML null or string where a size goes) is named here, not
+        met as a TypeError deep in a torch constructor."""
+        hints = get_type_hints(type(self))
+        for name in (f.name for f in fields(self) if hints[f.name] in SCALARS):
+            value, kind = getattr(self, name), hints[name]
+            if not isinstance(value, SCALARS[kind]) or (kind is not bool and isinstance(value, bool)):
+                raise ValueError(f"TFv6Config.{name} is {value!r}, not {kind.__name__}")
 
     def space(self, source: str) -> str:
         """The label space a source's perception targets live in."""

@@ -2,12 +2,16 @@
 
 - :func:`load_checkpoint` reads a folder as LEAD's ``OpenLoopInference`` does: the config through LEAD's rules
   (:meth:`LeadConfig.from_json`), one network per matching file, each loaded strictly; several files make an ensemble.
+  A damaged file is an error naming it (:func:`read_weights` checks the archive's CRCs, which torch does not).
 - :func:`forward` runs LEAD's input contract (x forward, y right) and returns LEAD's ``Prediction`` fields, flat.
 - :func:`model_from_config` builds a randomly initialised network from a config.json dict.
 - :func:`export_checkpoint` writes a folder LEAD's own loader reads with ``strict=True``.
 """
 
 import json
+import pickle
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -58,8 +62,8 @@ def read_config(folder: Path) -> LeadConfig:
     if not path.is_file():
         raise UserError(f"{folder}: no config.json; give a LEAD checkpoint folder (config.json + model*.pth)")
     try:
-        values = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
+        values = json.loads(path.read_bytes())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UserError(f"{path}: not valid JSON ({err})") from err
     if not isinstance(values, dict):
         raise UserError(f"{path}: expected a JSON object of LEAD TrainingConfig fields")
@@ -82,13 +86,44 @@ def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Modul
     members = []
     for file in files:
         model = LeadTFv6(config)
-        state = torch.load(file, map_location="cpu", weights_only=True)
+        state = read_weights(file)
         try:
             model.load_state_dict(state, strict=True)
         except RuntimeError as err:
             raise UserError(f"{file}: does not match the architecture config.json describes: {err}") from err
         members.append(model.eval())
     return members[0] if len(members) == 1 else LeadEnsemble(members).eval()
+
+
+#: What zipfile raises on a damaged archive: a bad directory (BadZipFile), a member name that is not UTF-8
+#: (UnicodeDecodeError), an offset before the file's start (OSError) or data past its end (EOFError), the flag of
+#: an encrypted member (RuntimeError), a member marked compressed (zlib.error) or by an unknown method
+#: (NotImplementedError).
+ZIP_DAMAGE = (zipfile.BadZipFile, UnicodeDecodeError, OSError, EOFError, RuntimeError, zlib.error, NotImplementedError)
+#: What torch.load raises on a file that is no zip archive or whose CRCs hold but which is no checkpoint: no zip
+#: directory in a small file (RuntimeError) or a seek before the start of a larger cut one (OSError), a bad pickle
+#: (UnpicklingError), no bytes (EOFError), a record that is no number or text (ValueError).
+TORCH_DAMAGE = (RuntimeError, OSError, pickle.UnpicklingError, EOFError, ValueError)
+
+
+def read_weights(file: Path) -> dict[str, Tensor]:
+    """The state_dict of one ``model*.pth``. torch reads a zip archive (``torch.save``'s format) without checking its
+    CRC32s, so a flipped bit inside a tensor would load as another weight: the archive is checked first (zipfile)."""
+    try:
+        if zipfile.is_zipfile(file):  # else a legacy or truncated file, for torch.load to judge
+            with zipfile.ZipFile(file) as archive:
+                damaged = archive.testzip()
+            if damaged is not None:
+                raise UserError(f"{file}: its member {damaged} fails its CRC check; the file is damaged, copy it again")
+    except ZIP_DAMAGE as err:
+        raise UserError(f"{file}: a damaged zip archive ({err!r}); copy the checkpoint again") from None
+    try:
+        state = torch.load(file, map_location="cpu", weights_only=True)
+    except TORCH_DAMAGE as err:
+        raise UserError(f"{file}: not a readable torch checkpoint ({' '.join(str(err).split())[:200]})") from None
+    if not isinstance(state, dict):
+        raise UserError(f"{file}: holds a {type(state).__name__}, not the state_dict LEAD saves")
+    return state
 
 
 def forward(model: nn.Module, inputs: dict[str, Tensor]) -> dict[str, Tensor]:

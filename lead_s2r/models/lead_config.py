@@ -6,7 +6,9 @@ back, LEAD takes class attributes from the file, casts "overridable" properties 
 recomputes plain properties (BEV extent, image size, anchors, status-token switches ...) from the target dataset, so the
 derived numbers in a file are informational. :meth:`LeadConfig.from_json` does the same, which is why a config.json
 edited by hand must change the *switch* (``use_navsim_data``, ``used_cameras``, ``pixels_per_meter``), not the derived
-value. Keys this class does not model are ignored, as LEAD ignores keys it does not know.
+value. Keys this class does not model are ignored, as LEAD ignores keys it does not know. A value of another JSON type
+than its field's (``"n_layer": "x"``, ``"use_depth": 7``) is an error naming the field: LEAD's cast would turn 7 into
+True and a string into a traceback deep in the network's constructor.
 
 Our extensions, where LEAD's code has no switch (docs/models.md, "LEAD's own architecture"): the WOD-E2E target builds
 (LEAD's own cannot: its camera calibration imports a function missing from its public code, see
@@ -18,9 +20,11 @@ the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD always derives the size
 LEAD.
 """
 
+import math
 from dataclasses import asdict, dataclass, fields
 from enum import IntEnum
-from typing import Any
+from types import UnionType
+from typing import Any, get_args, get_origin, get_type_hints
 
 from lead_s2r.errors import UserError
 
@@ -57,23 +61,6 @@ NAVSIM_BEV_SEMANTIC_CLASSES = 7
 NAVSIM_BOX_CLASSES = 1
 #: ``training_used_lidar_steps`` is a fixed property (> 1 adds the CenterNet velocity head).
 TRAINING_USED_LIDAR_STEPS = 10
-#: Overridable properties and the type a file value is cast to; None in the dataclass means "LEAD's rule decides".
-#: The last four are our extension (see the module docstring): LEAD computes the first three as plain properties and
-#: has no fourth (its ``waypoints_spacing`` counts frames of each dataset's own rate).
-OVERRIDABLE = {
-    "used_cameras": list,
-    "use_depth": bool,
-    "radar_detection": bool,
-    "use_radar_detection": bool,
-    "use_discrete_command": bool,
-    "use_past_positions": bool,
-    "use_past_speeds": bool,
-    "num_past_samples_used": int,
-    "use_previous_tp": bool,
-    "use_next_tp": bool,
-    "num_way_points_prediction": int,
-    "waypoint_interval_s": float,
-}
 #: WOD-E2E's maximum speed for the speed token, m/s (LEAD's ``max_speed``).
 WOD_MAX_SPEED = 33.33
 
@@ -198,14 +185,8 @@ class LeadConfig:
     @classmethod
     def from_json(cls, values: dict[str, Any]) -> "LeadConfig":
         """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored)."""
-        kwargs: dict[str, Any] = {}
-        for f in fields(cls):
-            if f.name not in values:
-                continue
-            value = values[f.name]
-            if f.name in OVERRIDABLE and value is not None:
-                value = OVERRIDABLE[f.name](value)
-            kwargs[f.name] = value
+        hints = get_type_hints(cls)
+        kwargs = {f.name: _typed(f.name, values[f.name], hints[f.name]) for f in fields(cls) if f.name in values}
         return cls(**kwargs)
 
     def to_json(self) -> dict[str, Any]:
@@ -433,3 +414,28 @@ class LeadConfig:
     def planner_radar_tokens(self) -> bool:
         """Whether the planner has radar query tokens; it reads them only with CARLA data (LEAD's TFv6.forward)."""
         return bool(self.use_radars and self.radar_detection and self.use_radar_detection)
+
+
+def _typed(name: str, value: Any, hint: Any) -> Any:
+    """``value`` of the config.json field ``name`` when it has the JSON type of the field's ``hint`` (an int stands
+    for a float, null for an optional field's "LEAD's rule decides"), else a :class:`UserError` naming the field."""
+    kinds = get_args(hint) if isinstance(hint, UnionType) else (hint,)
+    if value is None and type(None) in kinds:
+        return None
+    kind = next(k for k in kinds if k is not type(None))
+    if get_origin(kind) is list:
+        if isinstance(value, list) and all(_is_json(item, get_args(kind)[0]) for item in value):
+            return value
+    elif _is_json(value, kind):
+        return float(value) if kind is float else value
+    expected = str(kind) if get_origin(kind) else kind.__name__
+    raise UserError(f"config.json: {name} is {value!r}; LEAD writes it as {expected}")
+
+
+def _is_json(value: Any, kind: type) -> bool:
+    """Whether a JSON value is a ``kind`` (bool is no number here, a float must be finite)."""
+    if kind is float:
+        return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, kind)

@@ -4,7 +4,8 @@ A run is a folder holding ``scores.json`` / ``scores.parquet`` pairs anywhere be
 ``lead-s2r score --out`` writes them). Each scores.json records the predictions file and the converted folders it
 was scored on, so a run whose predictions sit elsewhere (the quickstart's expert keeps one file per dataset) is
 found all the same; ``predictions.parquet`` in the run folder is the fallback. Every problem a user can fix (no
-scores, predictions gone, a ``--data`` folder without the run's samples) is a :class:`UserError` naming the path.
+scores, predictions gone, a ``--data`` folder without the run's samples, a damaged scores file or training log) is a
+:class:`UserError` naming the path.
 """
 
 import csv
@@ -18,10 +19,9 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.predictions import Prediction, group_by_key, read_predictions
+from lead_s2r.predictions import Prediction, group_by_key, read_parquet, read_predictions
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
 
 SCORES_JSON = "scores.json"
@@ -29,6 +29,15 @@ SCORES_TABLE = "scores.parquet"
 PREDICTIONS = "predictions.parquet"
 #: metric family -> (the per-sample headline column, True when higher is better): what "worst" and "wins" mean
 HEADLINES = {"pdms": ("score", True), "epdms": ("score", True), "rfs": ("rfs", True), "ade": ("ade", False)}
+#: The scores.json fields a report reads and the JSON type `lead-s2r score` writes for each (``metric`` is required).
+REPORT_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "metric": str,
+    "tag": (str, type(None)),
+    "predictions": str,
+    "data": list,
+    "config": dict,
+    "aggregates": dict,
+}
 
 
 @dataclass
@@ -106,13 +115,28 @@ def _whole_sets(scores: list[MetricScores]) -> list[MetricScores]:
 def _metric_scores(json_path: Path) -> MetricScores:
     table_path = json_path.with_name(SCORES_TABLE)
     try:
-        report = json.loads(json_path.read_text())
-        table = pq.read_table(table_path)
-    except (OSError, json.JSONDecodeError) as err:
+        report = json.loads(json_path.read_bytes())
+        table = read_parquet(table_path)
+    except (OSError, ValueError, pa.ArrowException) as err:  # ValueError: UTF-8, JSON, base64 (read_parquet)
         raise UserError(f"{json_path.parent}: cannot read {SCORES_JSON} / {SCORES_TABLE} ({err})") from None
-    if "metric" not in report or "key" not in table.column_names:
+    if not isinstance(report, dict) or "metric" not in report or "key" not in table.column_names:
         raise UserError(f"{json_path}: not a `lead-s2r score` output (no 'metric', or no 'key' column in the table)")
+    _check_report(json_path, report)
+    if not pa.types.is_string(table.schema.field("key").type):
+        raise UserError(f"{table_path}: its key column holds {table.schema.field('key').type}, not sample keys")
     return MetricScores(json_path.parent, report, {row["key"]: row for row in table.to_pylist()})
+
+
+def _check_report(json_path: Path, report: dict[str, Any]) -> None:
+    """The fields a report reads have the types `lead-s2r score` writes (a damaged one is named, not a traceback)."""
+    for name, kind in REPORT_FIELDS.items():
+        if name in report and not isinstance(report[name], kind):
+            raise UserError(f"{json_path}: {name} is {report[name]!r}, not what `lead-s2r score` writes there")
+    if not all(isinstance(folder, str) for folder in report.get("data", [])):
+        raise UserError(f"{json_path}: data is {report['data']!r}, not a list of converted folders")
+    cache = report.get("config", {}).get("reference_cache")
+    if not isinstance(cache, str | None):
+        raise UserError(f"{json_path}: config.reference_cache is {cache!r}, not a folder")
 
 
 def _predictions(path: Path, scores: list[MetricScores]) -> dict[str, list[Prediction]]:
@@ -131,7 +155,12 @@ def _predictions(path: Path, scores: list[MetricScores]) -> dict[str, list[Predi
 
 def _config(path: Path) -> str | None:
     configs = sorted(path.rglob("config.yaml"))
-    return configs[0].read_text() if configs else None
+    if not configs:
+        return None
+    try:
+        return configs[0].read_text()
+    except UnicodeDecodeError as err:
+        raise UserError(f"{configs[0]}: not UTF-8 text ({err}); the report shows the run's saved config") from None
 
 
 def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
@@ -141,13 +170,27 @@ def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
     curves: dict[str, list[tuple[float, float]]] = defaultdict(list)
     logs = sorted(path.rglob("metrics.csv")) or sorted((path.parent / "lightning_logs").rglob("metrics.csv"))
     for log in logs:
-        with log.open(newline="") as file:
-            for row in csv.DictReader(file):
-                step = row.get("step")
-                for name, value in row.items():
-                    if name not in ("step", "epoch") and value not in (None, "") and step not in (None, ""):
-                        curves[name].append((float(step), float(value)))
+        try:
+            for name, step, value in _logged_values(log):
+                curves[name].append((step, value))
+        except (ValueError, csv.Error) as err:  # ValueError: bytes that are not UTF-8, or a cell that is no number
+            raise UserError(f"{log}: not a Lightning CSV log ({err})") from None
     return dict(curves)
+
+
+def _logged_values(log: Path) -> Iterable[tuple[str, float, float]]:
+    """(column, step, value) of every filled cell of a Lightning CSV log but its step and epoch columns."""
+    with log.open(newline="") as file:
+        reader = csv.DictReader(file)
+        if reader.fieldnames is not None and "step" not in reader.fieldnames:
+            raise ValueError(f"no step column in its header {reader.fieldnames}")
+        for row in reader:
+            if None in row:  # DictReader files the cells past the header's under None
+                raise ValueError(f"line {reader.line_num} has more cells than the header")
+            step = row.get("step")
+            for name, value in row.items():
+                if name not in ("step", "epoch") and value not in (None, "") and step not in (None, ""):
+                    yield name, float(step), float(value)
 
 
 def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict[str, Any]]:

@@ -94,30 +94,47 @@ def spec_path(spec: str | Path) -> Path:
     return path
 
 
+#: The JSON/YAML type of each field of a spec, a column and a row (``bool`` is no number here).
+SPEC_FIELDS = {"title": str, "columns": list, "rows": list, "seeds": list, "digits": int, "notes": str}
+COLUMN_FIELDS = {"name": str, "metric": str, "key": str, "scale": int | float, "tag": str | None}
+ROW_FIELDS = {"name": str, "run": str | None, "paper": list | None, "seeds": list}
+
+
+def _typed(path: Path, where: str, mapping: Any, kinds: dict[str, Any]) -> dict[str, Any]:
+    """``mapping`` when it is a mapping whose fields have the types ``kinds`` gives (and integer seed lists)."""
+    if not isinstance(mapping, dict):
+        raise TableError(f"{path}: {where} is {mapping!r}, not a mapping; see docs/reproducing.md")
+    for name, kind in kinds.items():
+        value = mapping.get(name)
+        wrong = name in mapping and (not isinstance(value, kind) or isinstance(value, bool))
+        if wrong or (name == "seeds" and value is not None and not all(_is_int(seed) for seed in value)):
+            raise TableError(f"{path}: {where}.{name} is {value!r}; see docs/reproducing.md for the spec's fields")
+    return mapping
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def load_spec(path: str | Path) -> TableSpec:
     """Read and check a table spec (a path or a shipped name, see :func:`spec_path`); errors name file and field."""
     path = spec_path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
+        raw = yaml.safe_load(path.read_bytes())
+    except (OSError, yaml.YAMLError) as err:  # YAMLError covers bytes that are not UTF-8
         raise TableError(f"{path}: cannot read table spec: {err}") from None
+    _typed(path, "the spec", raw, SPEC_FIELDS)
     try:
-        columns = tuple(Column(**column) for column in raw["columns"])
-        rows = tuple(
-            Row(
-                row["name"],
-                row.get("run"),
-                tuple(row.get("paper") or [None] * len(columns)),
-                tuple(row["seeds"]) if "seeds" in row else None,
-            )
-            for row in raw["rows"]
+        columns = tuple(
+            Column(**_typed(path, f"columns[{i}]", column, COLUMN_FIELDS)) for i, column in enumerate(raw["columns"])
         )
+        rows = tuple(_row(path, i, row, len(columns)) for i, row in enumerate(raw["rows"]))
         spec = TableSpec(
             title=raw["title"],
             columns=columns,
             rows=rows,
             seeds=tuple(raw.get("seeds", (0, 1, 2))),
-            digits=int(raw.get("digits", 2)),
+            digits=raw.get("digits", 2),
             notes=raw.get("notes", ""),
             figure=raw.get("figure"),
         )
@@ -125,13 +142,25 @@ def load_spec(path: str | Path) -> TableSpec:
         raise TableError(f"{path}: bad table spec ({type(err).__name__}: {err}); see docs/reproducing.md") from None
     _check_figure(path, spec.figure)
     for row in spec.rows:
-        if not all(p is None or isinstance(p, int | float | str) for p in row.paper):
+        if not all(p is None or (isinstance(p, int | float | str) and not isinstance(p, bool)) for p in row.paper):
             raise TableError(f"{path}: row {row.name!r}: paper numbers are numbers, strings as printed, or null")
         if len(row.paper) != len(spec.columns):
             raise TableError(
                 f"{path}: row {row.name!r} lists {len(row.paper)} paper numbers for {len(columns)} columns"
             )
     return spec
+
+
+def _row(path: Path, index: int, row: Any, columns: int) -> Row:
+    row = _typed(path, f"rows[{index}]", row, ROW_FIELDS)
+    paper = row.get("paper")
+    seeds = row.get("seeds")
+    return Row(
+        row["name"],
+        row.get("run"),
+        (None,) * columns if paper is None else tuple(paper),
+        None if seeds is None else tuple(seeds),
+    )
 
 
 def _check_figure(path: Path, figure: dict[str, Any] | None) -> None:
@@ -155,14 +184,18 @@ class Run:
     run_id: str
     seed: int
     scores: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: the scores.json each entry of ``scores`` was read from, to name it in an error
+    sources: dict[str, Path] = field(default_factory=dict)
 
 
 def _saved_config(config_path: Path) -> tuple[dict[str, Any], int]:
     """A LightningCLI ``config.yaml`` and its seed."""
     try:
-        config = yaml.safe_load(config_path.read_text()) or {}
+        config = yaml.safe_load(config_path.read_bytes()) or {}
     except (OSError, yaml.YAMLError) as err:
         raise TableError(f"{config_path}: cannot read the saved config: {err}") from None
+    if not isinstance(config, dict):
+        raise TableError(f"{config_path}: holds {config!r}, not the mapping lead-s2r fit saves")
     seed = config.get("seed_everything")
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise TableError(f"{config_path}: seed_everything is {seed!r}; train with a fixed integer seed")
@@ -172,8 +205,9 @@ def _saved_config(config_path: Path) -> tuple[dict[str, Any], int]:
 def run_identity(config_path: Path) -> tuple[str, int]:
     """(run id, seed) from a LightningCLI ``config.yaml``."""
     config, seed = _saved_config(config_path)
-    root = (config.get("trainer") or {}).get("default_root_dir")
-    if not root:
+    trainer = config.get("trainer") or {}
+    root = trainer.get("default_root_dir") if isinstance(trainer, dict) else None
+    if not root or not isinstance(root, str):
         raise TableError(f"{config_path}: trainer.default_root_dir is not set; recipes name the run there")
     path = Path(root)
     return str(path.parent if SEED_FOLDER.match(path.name) else path), seed
@@ -210,13 +244,20 @@ def load_run(path: Path) -> Run:
     run = Run(path, *identity)
     for scores in sorted(path.rglob("scores.json")):
         try:
-            report = json.loads(scores.read_text())
-        except (OSError, json.JSONDecodeError) as err:
+            report = json.loads(scores.read_bytes())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
             raise TableError(f"{scores}: cannot read scores: {err}") from None
-        metric = scores_key(report.get("metric"), report.get("tag"))
-        if metric in run.scores:
-            raise TableError(f"{path}: two scores.json for metric {metric!r} (one is {scores}); keep one")
-        run.scores[metric] = report.get("aggregates", {})
+        report = report if isinstance(report, dict) else {}
+        metric, tag, aggregates = report.get("metric"), report.get("tag"), report.get("aggregates", {})
+        if not isinstance(metric, str) or not isinstance(tag, str | None) or not isinstance(aggregates, dict):
+            raise TableError(
+                f"{scores}: not the scores.json of lead-s2r score or carla-metrics (metric, tag, aggregates)"
+            )
+        key = scores_key(metric, tag)
+        if key in run.scores:
+            raise TableError(f"{path}: two scores.json for metric {key!r} (one is {scores}); keep one")
+        run.scores[key] = aggregates
+        run.sources[key] = scores
     return run
 
 
@@ -237,13 +278,23 @@ def _literal(pattern: str) -> list[str]:
     return [] if glob.has_magic(pattern) else [pattern]
 
 
-def _lookup(aggregates: dict[str, Any], key: str) -> float | None:
-    value: Any = aggregates
-    for part in key.split("."):
-        if not isinstance(value, dict) or part not in value:
+def _lookup(run: Run, column: Column) -> float | None:
+    """The column's number in the run's scores; None where the run has no such scores or key, or where the value is
+    null (a metric undefined on the data). Anything else there is no result: an error naming the scores.json."""
+    where = run.sources.get(column.scores, run.path)
+    value: Any = run.scores.get(column.scores, {})
+    parts = column.key.split(".")
+    for depth, part in enumerate(parts):
+        if value is not None and not isinstance(value, dict):
+            raise TableError(f"{where}: aggregates.{'.'.join(parts[:depth])} is {value!r}, not a mapping of {part!r}")
+        if value is None or part not in value:
             return None
         value = value[part]
-    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise TableError(f"{where}: aggregates.{column.key} is {value!r}, not a number")
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -289,7 +340,7 @@ def collect(spec: TableSpec, runs: list[Run]) -> list[list[Cell]]:
             values, missing = [], []
             for seed in row.seeds or spec.seeds:
                 run = by_seed.get(seed)
-                value = None if run is None else _lookup(run.scores.get(column.scores, {}), column.key)
+                value = None if run is None else _lookup(run, column)
                 if value is None:
                     missing.append(seed)
                 else:
@@ -408,8 +459,12 @@ def build_table(spec_name: str | Path, run_patterns: list[str], out: str | Path 
 
 def mean_infractions(spec: TableSpec, row: Row, runs: list[Run]) -> dict[str, float] | None:
     """Per-100-km rate of each figure infraction, averaged over the row's seeds (None: no run found)."""
-    metric = spec.figure["metric"]
-    rates = [run.scores[metric]["infractions_per_100km"] for run in runs if matches(run, row) and metric in run.scores]
+    metric, names = spec.figure["metric"], spec.figure["infractions"]
+    rates = [
+        {name: _lookup(run, Column(name, metric, f"infractions_per_100km.{name}")) or 0.0 for name in names}
+        for run in runs
+        if matches(run, row) and metric in run.scores
+    ]
     if not rates:
         return None
-    return {name: sum(r.get(name, 0.0) for r in rates) / len(rates) for name in spec.figure["infractions"]}
+    return {name: sum(r[name] for r in rates) / len(rates) for name in names}

@@ -162,31 +162,69 @@ def _number(value: Any, where: str) -> float:
     return float(value)
 
 
-def parse_record(raw: dict[str, Any], source: str, position: int) -> RouteRecord:
-    """One entry of ``_checkpoint.records``; errors name the file, record and field."""
-    where = f"{source}: _checkpoint.records[{position}]"
-    try:
-        route_id, scores, meta = str(raw["route_id"]), raw["scores"], raw["meta"]
-        completion, length = scores["score_route"], meta["route_length"]
-    except (KeyError, TypeError) as err:
-        raise ResultsError(f"{where}: missing field {err}; is this a leaderboard 2.0 results file?") from None
-    match = _ROUTE_ID.match(route_id)
-    infractions = raw.get("infractions") or {}
+def _number_or_none(value: Any, where: str) -> float | None:
+    return None if value is None else _number(value, where)
+
+
+def _field(container: dict[str, Any], name: str, kind: type, where: str) -> Any:
+    """``container[name]`` when it is a ``kind``; a missing or other-typed field names itself."""
+    value = container.get(name)
+    if not isinstance(value, kind):
+        raise ResultsError(
+            f"{where}.{name}: expected a {kind.__name__}, got {value!r}; is this a leaderboard 2.0 results file?"
+        )
+    return value
+
+
+def _infractions(raw: dict[str, Any], where: str) -> dict[str, list[str]]:
+    """The infraction messages by type; those whose percentage the scores read (off-lane, min speed) are parsed here,
+    where the file and record are known."""
+    infractions = raw.get("infractions", {})
+    if not isinstance(infractions, dict):
+        raise ResultsError(f"{where}.infractions: expected a dict of message lists, got {infractions!r}")
     unknown = set(infractions) - set(INFRACTIONS)
     if unknown:
         raise ResultsError(f"{where}: unknown infraction type(s) {sorted(unknown)}; known: {list(INFRACTIONS)}")
+    parsers = {"outside_route_lanes": outside_lane_event, "min_speed_infractions": min_speed_percentage}
+    for name, messages in infractions.items():
+        if not isinstance(messages, list) or not all(isinstance(m, str) for m in messages):
+            raise ResultsError(f"{where}.infractions.{name}: expected a list of messages, got {messages!r}")
+        for message in messages if name in parsers else ():
+            try:
+                parsers[name](message)
+            except ResultsError as err:
+                raise ResultsError(f"{where}.infractions.{name}: {err}") from None
+    return {name: list(messages) for name, messages in infractions.items()}
+
+
+def parse_record(raw: dict[str, Any], source: str, position: int) -> RouteRecord:
+    """One entry of ``_checkpoint.records``; errors name the file, record and field."""
+    where = f"{source}: _checkpoint.records[{position}]"
+    if not isinstance(raw, dict):
+        raise ResultsError(f"{where}: expected a record (a dict), got {raw!r}")
+    for name in ("route_id", "scores", "meta"):
+        if name not in raw:
+            raise ResultsError(f"{where}: missing field {name!r}; is this a leaderboard 2.0 results file?")
+    route_id = _field(raw, "route_id", str, where)
+    scores, meta = _field(raw, "scores", dict, where), _field(raw, "meta", dict, where)
+    match = _ROUTE_ID.match(route_id)
+    if match is None:
+        raise ResultsError(f"{where}.route_id: {route_id!r} names no route")
+    status = raw.get("status", "")
+    if not isinstance(status, str):
+        raise ResultsError(f"{where}.status: expected a string, got {status!r}")
     return RouteRecord(
         source=source,
         route_id=route_id,
         route=match.group(1),
         repetition=int(match.group(2) or 0),
-        status=str(raw.get("status", "")).split(" - ")[0],
-        route_completion=_number(completion, f"{where}.scores.score_route"),
-        route_length=_number(length, f"{where}.meta.route_length"),
-        duration_game=float(meta.get("duration_game") or 0.0),
-        infractions={name: list(messages) for name, messages in infractions.items()},
-        reported_ds=scores.get("score_composed"),
-        reported_is=scores.get("score_penalty"),
+        status=status.split(" - ")[0],
+        route_completion=_number(scores.get("score_route"), f"{where}.scores.score_route"),
+        route_length=_number(meta.get("route_length"), f"{where}.meta.route_length"),
+        duration_game=_number(meta.get("duration_game", 0.0), f"{where}.meta.duration_game"),
+        infractions=_infractions(raw, where),
+        reported_ds=_number_or_none(scores.get("score_composed"), f"{where}.scores.score_composed"),
+        reported_is=_number_or_none(scores.get("score_penalty"), f"{where}.scores.score_penalty"),
     )
 
 
@@ -194,13 +232,18 @@ def read_results(path: str | Path) -> list[RouteRecord]:
     """The route records of one leaderboard results JSON (``_checkpoint.records``)."""
     path = Path(path)
     try:
-        content = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+        content = json.loads(path.read_bytes())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise ResultsError(f"{path}: cannot read results JSON: {err}") from None
-    records = content.get("_checkpoint", {}).get("records") if isinstance(content, dict) else None
+    checkpoint = content.get("_checkpoint") if isinstance(content, dict) else None
+    records = checkpoint.get("records") if isinstance(checkpoint, dict) else None
     if not isinstance(records, list):
         raise ResultsError(f"{path}: no _checkpoint.records list; pass the leaderboard's --checkpoint JSON")
-    return [parse_record(raw, str(path), i) for i, raw in enumerate(records) if raw.get("index", 0) != -1]
+    return [
+        parse_record(raw, str(path), i)
+        for i, raw in enumerate(records)
+        if not isinstance(raw, dict) or raw.get("index", 0) != -1
+    ]
 
 
 def read_route_ids(path: str | Path) -> list[str]:
@@ -214,6 +257,9 @@ def read_route_ids(path: str | Path) -> list[str]:
     ids = [route.get("id") for route in root.iter("route")]
     if not ids or None in ids:
         raise ResultsError(f"{path}: expected <route id=...> elements, found {len(ids)} (some without id)")
+    repeated = sorted(name for name, count in Counter(ids).items() if count > 1)
+    if repeated:
+        raise ResultsError(f"{path}: route id(s) {repeated[:5]} appear more than once; each route has its own id")
     return [str(i) for i in ids]
 
 

@@ -244,9 +244,10 @@ def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[s
 
 
 def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
-    """Write ``out/scores.parquet`` and ``out/scores.json`` (strict JSON: no NaN) and return the JSON content."""
+    """Write ``out/scores.parquet`` (with a CRC32 per data page, which ``lead-s2r report`` checks) and
+    ``out/scores.json`` (strict JSON: no NaN) and return the JSON content."""
     out.mkdir(parents=True, exist_ok=True)
-    pq.write_table(table, out / SCORES_TABLE)
+    pq.write_table(table, out / SCORES_TABLE, write_page_checksum=True)
     text = json.dumps(report, indent=2, allow_nan=False)
     (out / SCORES_JSON).write_text(text + "\n")
     return json.loads(text)

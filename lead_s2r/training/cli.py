@@ -2,7 +2,8 @@
 
 Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overridden on the command line
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
-missing config file, a value of the wrong type) become a :class:`UserError`, one line like every other verb's.
+missing config file, a value of the wrong type), values no constructor can use and a config file that is not UTF-8
+text become a :class:`UserError`, one line like every other verb's, that names the ``--config`` files.
 
 A run's outputs share one root, ``trainer.default_root_dir`` (``runs/<family>/<name>/seed<k>`` in the recipes):
 checkpoints in ``<root>/checkpoints`` (a ``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in
@@ -12,6 +13,8 @@ from fit, ``predict_config.yaml`` from predict), predictions in ``<root>/predict
 """
 
 import argparse
+import itertools
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -54,6 +57,15 @@ class DrivingCLI(LightningCLI):
                 "model's initial weights"
             )
 
+    def instantiate_classes(self) -> None:
+        """Build the model, data and trainer the config describes. A value of the right type but no use to a
+        constructor (``decoder_heads: 7`` for a token width of 32) fails there: jsonargparse re-raises it as a
+        ValueError, a constructor's own type check as a TypeError; either is the config's mistake."""
+        try:
+            super().instantiate_classes()
+        except (TypeError, ValueError) as err:
+            raise UserError(f"cannot build what the config describes: {' '.join(str(err).split())}") from err
+
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
         if isinstance(self.datamodule, DriveDataModule) and isinstance(self.model, DrivingModule):
             self.datamodule.check_sources(self.model.input_spec())
@@ -76,7 +88,9 @@ class DrivingCLI(LightningCLI):
 
 def run_lightning_cli(args: list[str] | None = None) -> None:
     """Run a LightningCLI subcommand with ``args`` (e.g. ``["fit", "--config", "recipes/..."]``; None: sys.argv)."""
-    verb = next(iter(sys.argv[1:] if args is None else args), "fit")
+    argv = sys.argv[1:] if args is None else args
+    verb = next(iter(argv), "fit")
+    configs = config_files(argv)
     try:
         DrivingCLI(
             DrivingModule,
@@ -87,7 +101,26 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
             parser_kwargs=PARSER_KWARGS,
         )
     except argparse.ArgumentError as err:
-        raise UserError(f"{err} (see lead-s2r {verb} --help)") from None
+        where = f"--config {', '.join(map(str, configs))}; " if configs else ""
+        raise UserError(f"{err} ({where}see lead-s2r {verb} --help)") from None
+    except UserError as err:
+        if not configs:
+            raise
+        raise UserError(f"{err} (--config {', '.join(map(str, configs))})") from err
+
+
+def config_files(argv: list[str]) -> list[Path]:
+    """The existing files given as ``--config``, each checked to be UTF-8 text (an inline YAML string is left to
+    jsonargparse)."""
+    values = [value for flag, value in itertools.pairwise(argv) if flag == "--config"]
+    values += [arg.removeprefix("--config=") for arg in argv if arg.startswith("--config=")]
+    files = [Path(value) for value in values if os.path.isfile(value)]  # False, not an error, for a long YAML string
+    for file in files:
+        try:
+            file.read_bytes().decode()
+        except UnicodeDecodeError as err:
+            raise UserError(f"--config {file}: not UTF-8 text ({err})") from None
+    return files
 
 
 def config_filename(verb: str) -> str:
