@@ -1,36 +1,38 @@
 """Conversion driver: raw logs -> validated schema v1 samples in webdataset shards, resumable, fault-isolated and
 deterministic.
 
-The same raw data and options give the same bytes in every file of the folder, whatever the number of workers:
-seeded training draws shards by name, so shards whose contents hung on which worker finished first would make two
-identical runs train on different data. Logs are converted in any order and assembled in the order of the log list.
-Each log is one job of an executor (:mod:`lead_s2r.processes`: this process alone for ``workers <= 1``, else
-``workers`` processes of a ``concurrent.futures`` pool, or Ray tasks on a cluster whose nodes all see ``out``), so a
-long log holds up no other; a job writes its log to a fragment of its own (``shards/log-<position>.partial``: its
-tar members, no end-of-archive blocks). The driver appends the fragments to shards in list order, skipping failed
-and skipped logs, and closes a shard at the first log boundary after ``shard_size`` samples: a log never straddles
-two shards, and names and contents are those one process converting the logs in turn writes. Appending is
-``copy_file_range`` in the kernel (45 MB, 1000 CARLA samples, in 15 ms). A slow log holds back assembly, not
-conversion: the logs after it wait on disk as fragments. A job run again (Ray retries a job whose worker or node
-died) truncates its fragment first, so no partial fragment of the lost attempt remains.
+The same raw data and options give the same bytes in every file of the folder, whatever the number of workers: seeded
+training draws shards by name, so shards whose contents hung on which worker finished first would make two identical
+runs train on different data. Logs are converted in any order and assembled in the order of the log list. Each log is
+one job of an executor (:mod:`lead_s2r.processes`: this process alone for ``workers <= 1``, else ``workers`` processes
+of a ``concurrent.futures`` pool, or Ray tasks on a cluster whose nodes all see ``out``), so a long log holds up no
+other; a job writes its log to a fragment of its own (``shards/log-<position>.<run>.partial``: its tar members, no
+end-of-archive blocks; ``<run>`` is new for every call). The driver appends the fragments to shards in list order,
+skipping failed and skipped logs, and closes a shard at the first log boundary after ``shard_size`` samples: a log never
+straddles two shards, and names and contents are those one process converting the logs in turn writes. Appending is
+``copy_file_range`` in the kernel (45 MB, 1000 CARLA samples, in 15 ms). A slow log holds back assembly, not conversion:
+the logs after it wait on disk as fragments. A job run again (Ray retries a job whose worker or node died) truncates its
+fragment first, so no partial fragment of the lost attempt remains.
 
-A closed shard is fsynced and renamed from ``.partial`` before the driver records it (with its logs and manifest
-rows) in ``progress.jsonl``; a fragment is deleted once appended. After a kill, a rerun deletes fragments, partial
-and unrecorded shards and converts exactly the logs no recorded shard holds: nothing is lost or duplicated, and as
-recorded shards hold a prefix of the list (less failed and skipped logs, which the rerun tries again), the rerun
-ends with the folder an uninterrupted run writes. A log that raises loses its fragment and is reported in
-``errors.jsonl``; the others go on, and so do records the adapter's ``list_logs`` found unreadable
+A closed shard is fsynced and renamed from ``.partial`` before the driver records it (with its logs and manifest rows)
+in ``progress.jsonl``; a fragment is deleted once appended. After a kill, a rerun deletes fragments, partial and
+unrecorded shards (when it starts and again when it ends) and converts exactly the logs no recorded shard holds: nothing
+is lost or duplicated, and as recorded shards hold a prefix of the list (less failed and skipped logs, which the rerun
+tries again), the rerun ends with the folder an uninterrupted run writes. A log that raises loses its fragment and is
+reported in ``errors.jsonl``; the others go on, and so do records the adapter's ``list_logs`` found unreadable
 (``Adapter.bad_records``); both make ``ok`` False. Errors and skipped logs are reported in list order too.
 
-A folder belongs to one adapter, version and set of options (``convert.json``, written before the first shard):
-resuming with others would mix two conversions in one manifest, so it is refused unless ``force``. Inputs are
-checked (``src`` exists, holds logs) before ``out`` is created. Local workers end with their driver
+A folder belongs to one adapter, version and set of options (``convert.json``, written before the first shard): resuming
+with others would mix two conversions in one manifest, so it is refused unless ``force``. Inputs are checked (``src``
+exists, holds logs) before ``out`` is created. Local workers end with their driver
 (:func:`lead_s2r.processes.exit_with_parent`) and Ray cancels a dead driver's tasks, so a killed driver leaves no
-orphans converting into the folder.
+orphans converting into the folder. Ray's cancelling takes a moment: a task of the dead run that is still ending writes
+or deletes only its own run's fragments, never the rerun's, and what it leaves is gone when the rerun ends.
 """
 
 import json
 import os
+import secrets
 import shutil
 import time
 import traceback
@@ -104,10 +106,10 @@ def _in_shard(row: dict[str, Any], shard: str) -> dict[str, Any]:
 # --------------------------------------------------------------------------- worker side
 
 
-def _fragment_path(out: Path, position: int) -> Path:
-    """Where the log at ``position`` of this run's list is written before it joins a shard; a ``.partial`` name that
-    no recorded shard has, so the cleanup of a rerun deletes it."""
-    return out / SHARD_DIR / f"log-{position:06d}.partial"
+def _fragment_path(out: Path, run: str, position: int) -> Path:
+    """Where the log at ``position`` of run ``run``'s list is written before it joins a shard; a ``.partial`` name
+    that no recorded shard has, so the cleanup of a rerun deletes it."""
+    return out / SHARD_DIR / f"log-{position:06d}.{run}.partial"
 
 
 def _convert_log(adapter: Adapter, log: LogRef, fragment: Path) -> list[dict[str, Any]]:
@@ -125,11 +127,11 @@ def _convert_log(adapter: Adapter, log: LogRef, fragment: Path) -> list[dict[str
     return rows
 
 
-def _run_log(adapter: Adapter, out: Path, position: int, log: LogRef) -> tuple[str, int, Any]:
+def _run_log(adapter: Adapter, out: Path, run: str, position: int, log: LogRef) -> tuple[str, int, Any]:
     """Convert one log into its fragment: ``("done", position, rows)``, ``("skipped", position, reason)`` or
     ``("error", position, message)``."""
     try:
-        return "done", position, _convert_log(adapter, log, _fragment_path(out, position))
+        return "done", position, _convert_log(adapter, log, _fragment_path(out, run, position))
     except SkipLog as reason:
         return "skipped", position, str(reason)
     except UserError as err:  # a bad source file: the adapter's message names it; a SchemaError names a sample only
@@ -181,13 +183,19 @@ def _prepare(out: Path, force: bool, identity: dict[str, Any]) -> list[dict[str,
     except OSError as err:
         raise UserError(f"--out {out}: cannot write there ({err.strerror or err}); choose a writable folder") from None
     records = _read_progress(out)
-    recorded = {record["shard"] for record in records}
-    for path in (out / SHARD_DIR).iterdir():
-        if path.name not in recorded:
-            path.unlink()
+    _drop_unrecorded(out, records)
     with open(out / PROGRESS, "w") as file:  # rewrite without a torn tail
         file.writelines(json.dumps(record) + "\n" for record in records)
     return records
+
+
+def _drop_unrecorded(out: Path, records: list[dict[str, Any]]) -> None:
+    """Delete every file of the shard folder that no record names; one may vanish meanwhile (a task of a killed run,
+    ending, deletes its own fragment)."""
+    recorded = {record["shard"] for record in records}
+    for path in (out / SHARD_DIR).iterdir():
+        if path.name not in recorded:
+            path.unlink(missing_ok=True)
 
 
 def identity_of(adapter: Adapter) -> dict[str, Any]:
@@ -255,10 +263,12 @@ def conversion_executor(workers: int = 1, executor: str = "processes", address: 
     return make_executor(workers, executor, address, preload=[__name__], initializer=one_thread_per_worker)
 
 
-def _messages(adapter: Adapter, logs: list[LogRef], out: Path, executor: Executor) -> Iterator[tuple[str, int, Any]]:
+def _messages(
+    adapter: Adapter, logs: list[LogRef], out: Path, run: str, executor: Executor
+) -> Iterator[tuple[str, int, Any]]:
     """Convert ``logs`` into fragments with ``executor`` and yield :func:`_run_log`'s messages in the order the logs
     finish. A worker that died for good (a crash, or Ray's retries spent) ends the run: a rerun resumes it."""
-    jobs = [(adapter, out, position, log) for position, log in enumerate(logs)]
+    jobs = [(adapter, out, run, position, log) for position, log in enumerate(logs)]
     try:
         for _, message in executor.run(_run_log, jobs):
             yield message
@@ -340,6 +350,7 @@ def convert(
     src, out = Path(src), Path(out)
     logs = _list_logs(adapter, src, limit_logs)
     records = _prepare(out, force, identity_of(adapter))
+    run = secrets.token_hex(4)
     done = {log_id for record in records for log_id, _ in record["logs"]}
     todo = [log for log in logs if log.log_id not in done]
     result = ConvertResult(out=out, logs_resumed=len(logs) - len(todo), bad_records=adapter.bad_records())
@@ -367,7 +378,7 @@ def convert(
 
         assembler = _Assembler(out, adapter.name, shard_size, _next_shard_index(records), record)
         try:
-            messages = _messages(adapter, todo, out, executor or conversion_executor(workers))
+            messages = _messages(adapter, todo, out, run, executor or conversion_executor(workers))
             for arrived, (kind, position, payload) in _in_list_order(messages):
                 if arrived:
                     result.samples += len(payload) if kind == "done" else 0
@@ -377,7 +388,7 @@ def convert(
                 log_id = todo[position].log_id
                 if kind == "done":
                     result.logs_converted += 1
-                    assembler.add(_fragment_path(out, position), log_id, payload)
+                    assembler.add(_fragment_path(out, run, position), log_id, payload)
                 elif kind == "skipped":
                     result.skipped.append({"log": log_id, "reason": payload})
                 else:
@@ -388,6 +399,7 @@ def convert(
             assembler.flush()
         finally:
             assembler.abort()
+    _drop_unrecorded(out, records)
     _finish(adapter, src, out, records, result)
     return result
 

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ from toy_adapter import InterruptedToy, ToyAdapter, write_toy_logs
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.models.inputs import target_point_range
-from lead_s2r.registry import Adapter
+from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.shards import load_info, load_manifest, read_samples
 
 
@@ -163,6 +164,32 @@ def test_resume_after_kill_loses_and_duplicates_nothing(tmp_path, workers):
     assert sorted(load_manifest(out)["key"].to_pylist()) == sorted(keys)
     assert not list((out / "shards").glob("*.partial"))
     convert(ToyAdapter(), src, tmp_path / "whole", workers=1, shard_size=8)  # one process, never interrupted
+    assert digests(out) == digests(tmp_path / "whole")
+
+
+class HauntedToy(ToyAdapter):
+    """Converts as the toy does while a task of a killed run, still ending (Ray cancels a dead driver's tasks after
+    a moment), writes its fragment of a log this run converts too."""
+
+    def __init__(self, out: str) -> None:
+        super().__init__()
+        self.out = out
+
+    def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
+        shards = Path(self.out) / "shards"
+        if log.log_id == "log001":
+            (shards / "log-000001.dead.partial").write_bytes(b"half a tar member of the killed run")
+        yield from super().iter_samples(log)
+
+
+def test_a_killed_runs_ending_task_neither_disturbs_nor_litters_the_rerun(tmp_path):
+    src, out = tmp_path / "src", tmp_path / "out"
+    write_toy_logs(src, n_logs=4, frames=3)
+    (out / "shards").mkdir(parents=True)
+    (out / "shards" / "log-000002.dead.partial").write_bytes(b"left by the killed run")
+    result = convert(HauntedToy(str(out)), src, out, shard_size=4)
+    assert result.ok and result.logs_converted == 4
+    convert(ToyAdapter(), src, tmp_path / "whole", shard_size=4)
     assert digests(out) == digests(tmp_path / "whole")
 
 
