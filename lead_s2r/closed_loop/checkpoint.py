@@ -22,11 +22,11 @@ import math
 from pathlib import Path
 from typing import Any
 
-import torch
 import yaml
 from torch import nn
 
 from lead_s2r.data.camera_layout import camera_layout, camera_tiles
+from lead_s2r.formats import torch_file
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
 from lead_s2r.models.config import TFv6Config
 from lead_s2r.models.input_spec import InputSpec, input_spec
@@ -98,7 +98,9 @@ def load_model(checkpoint: Path, device: str = "cpu") -> nn.Module:
 
     from lead_s2r.training.module import DrivingModule
 
-    saved = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    saved = torch_file.load(checkpoint)
+    if not isinstance(saved, dict):
+        raise UnsupportedCheckpoint(f"{checkpoint}: holds a {type(saved).__name__}, not a Lightning checkpoint")
     arguments, described_by = module_arguments(checkpoint, saved)
     module = instantiate_module(DrivingModule, {**arguments, "init_from": None, "compile": False})
     try:

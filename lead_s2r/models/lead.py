@@ -9,9 +9,6 @@
 """
 
 import json
-import pickle
-import zipfile
-import zlib
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +16,7 @@ import torch
 from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
+from lead_s2r.formats import torch_file
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_planner import expected_speed
 from lead_s2r.models.lead_tfv6 import LeadTFv6
@@ -95,32 +93,9 @@ def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Modul
     return members[0] if len(members) == 1 else LeadEnsemble(members).eval()
 
 
-#: What zipfile raises on a damaged archive: a bad directory (BadZipFile), a member name that is not UTF-8
-#: (UnicodeDecodeError), an offset before the file's start (OSError) or data past its end (EOFError), the flag of
-#: an encrypted member (RuntimeError), a member marked compressed (zlib.error) or by an unknown method
-#: (NotImplementedError).
-ZIP_DAMAGE = (zipfile.BadZipFile, UnicodeDecodeError, OSError, EOFError, RuntimeError, zlib.error, NotImplementedError)
-#: What torch.load raises on a file that is no zip archive or whose CRCs hold but which is no checkpoint: no zip
-#: directory in a small file (RuntimeError) or a seek before the start of a larger cut one (OSError), a bad pickle
-#: (UnpicklingError), no bytes (EOFError), a record that is no number or text (ValueError).
-TORCH_DAMAGE = (RuntimeError, OSError, pickle.UnpicklingError, EOFError, ValueError)
-
-
 def read_weights(file: Path) -> dict[str, Tensor]:
-    """The state_dict of one ``model*.pth``. torch reads a zip archive (``torch.save``'s format) without checking its
-    CRC32s, so a flipped bit inside a tensor would load as another weight: the archive is checked first (zipfile)."""
-    try:
-        if zipfile.is_zipfile(file):  # else a legacy or truncated file, for torch.load to judge
-            with zipfile.ZipFile(file) as archive:
-                damaged = archive.testzip()
-            if damaged is not None:
-                raise UserError(f"{file}: its member {damaged} fails its CRC check; the file is damaged, copy it again")
-    except ZIP_DAMAGE as err:
-        raise UserError(f"{file}: a damaged zip archive ({err!r}); copy the checkpoint again") from None
-    try:
-        state = torch.load(file, map_location="cpu", weights_only=True)
-    except TORCH_DAMAGE as err:
-        raise UserError(f"{file}: not a readable torch checkpoint ({' '.join(str(err).split())[:200]})") from None
+    """The state_dict of one ``model*.pth``, its archive's CRCs checked (:mod:`lead_s2r.formats.torch_file`)."""
+    state = torch_file.load(file)
     if not isinstance(state, dict):
         raise UserError(f"{file}: holds a {type(state).__name__}, not the state_dict LEAD saves")
     return state

@@ -3,7 +3,8 @@
 Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overridden on the command line
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
 missing config file, a value of the wrong type), values no constructor can use and a config file that is not UTF-8
-text become a :class:`UserError`, one line like every other verb's, that names the ``--config`` files.
+text become a :class:`UserError`, one line like every other verb's, that names the ``--config`` files; a damaged
+``--ckpt_path`` file is named before Lightning loads it (:mod:`lead_s2r.formats.torch_file`).
 
 A run's outputs share one root, ``trainer.default_root_dir`` (``runs/<family>/<name>/seed<k>`` in the recipes):
 checkpoints in ``<root>/checkpoints`` (a ``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in
@@ -24,6 +25,7 @@ from lightning.pytorch.cli import LightningCLI
 
 from lead_s2r.data.datamodule import DriveDataModule
 from lead_s2r.errors import UserError
+from lead_s2r.formats import torch_file
 from lead_s2r.training.feedback import fit_summary, run_loggers
 from lead_s2r.training.module import DrivingModule
 
@@ -91,6 +93,8 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
     argv = sys.argv[1:] if args is None else args
     verb = next(iter(argv), "fit")
     configs = config_files(argv)
+    for checkpoint in given_files(argv, "--ckpt_path"):  # Lightning's torch.load, while parsing, checks no CRC
+        torch_file.check_archive(checkpoint, zip_only=True)
     try:
         DrivingCLI(
             DrivingModule,
@@ -112,15 +116,21 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
 def config_files(argv: list[str]) -> list[Path]:
     """The existing files given as ``--config``, each checked to be UTF-8 text (an inline YAML string is left to
     jsonargparse)."""
-    values = [value for flag, value in itertools.pairwise(argv) if flag == "--config"]
-    values += [arg.removeprefix("--config=") for arg in argv if arg.startswith("--config=")]
-    files = [Path(value) for value in values if os.path.isfile(value)]  # False, not an error, for a long YAML string
+    files = given_files(argv, "--config")
     for file in files:
         try:
             file.read_bytes().decode()
         except UnicodeDecodeError as err:
             raise UserError(f"--config {file}: not UTF-8 text ({err})") from None
     return files
+
+
+def given_files(argv: list[str], flag: str) -> list[Path]:
+    """The existing files given as ``flag VALUE`` or ``flag=VALUE`` (a value that is no file, such as an inline YAML
+    string or Lightning's ``last``, is left to jsonargparse and Lightning)."""
+    values = [value for name, value in itertools.pairwise(argv) if name == flag]
+    values += [arg.removeprefix(f"{flag}=") for arg in argv if arg.startswith(f"{flag}=")]
+    return [Path(value) for value in values if os.path.isfile(value)]
 
 
 def config_filename(verb: str) -> str:

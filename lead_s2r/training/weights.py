@@ -14,6 +14,7 @@ import torch
 from torch import nn
 
 from lead_s2r.errors import UserError
+from lead_s2r.formats import torch_file
 from lead_s2r.models.lead import read_config, weight_files
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
@@ -83,13 +84,10 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
         path = lead_folder_weights(path)
     if not path.is_file():
         raise FileNotFoundError(f"init_from: no checkpoint at {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises UnpicklingError and friends for non-tensor payloads
-        raise ValueError(f"init_from: {path} is not a weights-only torch checkpoint: {err}") from err
+    ckpt = torch_file.load(path)
     state = ckpt.get("state_dict", ckpt) if isinstance(ckpt, dict) else None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise ValueError(f"init_from: {path} holds no state dict of tensors (looked at 'state_dict' and the top level)")
+        raise UserError(f"init_from: {path} holds no state dict of tensors (looked at 'state_dict' and the top level)")
     return {_strip(k): v for k, v in state.items()}
 
 
