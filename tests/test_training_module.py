@@ -15,6 +15,7 @@ from torch.utils.data import DataLoader
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.errors import UserError
 from lead_s2r.models.config import TrajectoryGrid, ltfv6_config, tfv6_config
 from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.tfv6 import TFv6
@@ -197,7 +198,7 @@ def test_init_from_rejects_missing_and_foreign_files(tmp_path):
         DrivingModule(TFv6(config), init_from=str(tmp_path / "nope.ckpt"))
     bad = tmp_path / "bad.ckpt"
     torch.save({"state_dict": {"a": "not a tensor"}}, bad)
-    with pytest.raises(ValueError, match=r"bad\.ckpt"):
+    with pytest.raises(UserError, match=r"bad\.ckpt holds no state dict of tensors"):
         DrivingModule(TFv6(config), init_from=str(bad))
 
 
