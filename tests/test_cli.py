@@ -7,21 +7,22 @@ import pytest
 from toy_adapter import ToyAdapter, write_toy_logs
 
 from lead_s2r import cli
+from lead_s2r.cli import data as cli_data
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 
 
 @pytest.fixture
 def toy_registered(monkeypatch):
-    monkeypatch.setattr(cli, "load", lambda name: ToyAdapter)
+    monkeypatch.setattr(cli_data, "load", lambda name: ToyAdapter)
 
 
 def test_adapter_options_are_typed_by_the_constructor():
-    assert cli.adapter_options(ToyAdapter, ["--sleep", "0.5"]) == {"sleep": 0.5}
+    assert cli_data.adapter_options(ToyAdapter, ["--sleep", "0.5"]) == {"sleep": 0.5}
     with pytest.raises(UserError, match=r"unknown option '--rig'.*--sleep"):
-        cli.adapter_options(ToyAdapter, ["--rig", "both"])
+        cli_data.adapter_options(ToyAdapter, ["--rig", "both"])
     with pytest.raises(UserError, match="needs a value"):
-        cli.adapter_options(ToyAdapter, ["--sleep"])
+        cli_data.adapter_options(ToyAdapter, ["--sleep"])
 
 
 def test_convert_verb_exit_status_reports_failed_logs(tmp_path, toy_registered, capsys):
@@ -101,5 +102,5 @@ def test_adapters_says_which_extras_are_installed(monkeypatch, capsys):
     monkeypatch.setattr(importlib.metadata, "requires", lambda distribution: listed)
     assert missing_requirements("a") == ["surely-not-installed-xyz"]
     assert missing_requirements("b") == ["surely-not-installed-abc"] and missing_requirements("c") == []
-    assert cli._extra_state("b") == "b (missing surely-not-installed-abc: pip install 'lead-s2r[b]')"
-    assert cli._extra_state(None) == "- (none needed)" and cli._extra_state("c") == "c (installed)"
+    assert cli_data._extra_state("b") == "b (missing surely-not-installed-abc: pip install 'lead-s2r[b]')"
+    assert cli_data._extra_state(None) == "- (none needed)" and cli_data._extra_state("c") == "c (installed)"

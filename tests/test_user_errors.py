@@ -17,6 +17,7 @@ from tiny_models import TINY
 from toy_adapter import ToyAdapter, corrupt_header, toy_sample, write_toy_logs
 
 from lead_s2r import cli
+from lead_s2r.cli import data as cli_data
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import Prediction, write_predictions
@@ -38,7 +39,7 @@ def user_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 
 @pytest.fixture
 def toy_registered(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(cli, "load", lambda name: ToyAdapter)
+    monkeypatch.setattr(cli_data, "load", lambda name: ToyAdapter)
 
 
 def convert_argv(src: Path, out: Path, *options: str) -> list[str]:

@@ -1,8 +1,58 @@
-"""The arguments of ``lead-s2r submit`` (navsim, wod-e2e, --check), apart from cli.py to keep it one screen per verb."""
+"""``lead-s2r submit``: NAVSIM and WOD-E2E leaderboard files, validated before anything is written, or ``--check``."""
 
 import argparse
-from collections.abc import Callable
+import json
+from pathlib import Path
 from typing import Any
+
+from lead_s2r.errors import UserError
+
+
+def cmd_submit(args: argparse.Namespace) -> int:
+    """Write a leaderboard submission (``navsim``, ``wod-e2e``) or, with ``--check``, re-read one."""
+    if args.check:
+        report = _check_submission(Path(args.check))
+    elif args.target == "navsim":
+        from lead_s2r.submit.navsim import NavsimMetadata, write_navsim
+
+        metadata = NavsimMetadata(args.team, args.authors, args.email, args.institution, args.country)
+        predictions = [Path(p) for p in args.predictions]
+        report = write_navsim(Path(args.out), metadata, predictions, [Path(d) for d in args.data], args.two_stage)
+    elif args.target == "wod-e2e":
+        from lead_s2r.submit.wod_e2e import WodMetadata, write_wod
+
+        metadata = WodMetadata(
+            account_name=args.account,
+            unique_method_name=args.method,
+            authors=args.authors,
+            num_model_parameters=args.num_params,
+            uses_public_model_pretraining=args.pretrained,
+            affiliation=args.affiliation,
+            description=args.description,
+            method_link=args.method_link,
+            public_model_names=args.public_models,
+        )
+        data = [Path(d) for d in args.data]
+        report = write_wod(Path(args.out), metadata, Path(args.predictions), data, args.split, args.shards)
+    else:
+        raise UserError("lead-s2r submit needs navsim, wod-e2e or --check FILE (see lead-s2r submit --help)")
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+def _check_submission(path: Path) -> dict[str, Any]:
+    """A ``.pkl`` is a NAVSIM submission; a tar.gz, a folder or a ``.binproto-*`` shard is WOD-E2E's."""
+    from lead_s2r.submit.common import SubmissionError
+
+    if not path.exists():
+        raise SubmissionError(f"{path}: no such submission file (--check)")
+    if path.suffix == ".pkl":
+        from lead_s2r.submit.navsim import check_navsim
+
+        return check_navsim(path)
+    from lead_s2r.submit.wod_e2e import check_wod
+
+    return check_wod(path)
 
 
 def _boolean(value: str) -> bool:
@@ -11,15 +61,14 @@ def _boolean(value: str) -> bool:
     return value.lower() == "true"
 
 
-def add_submit_parser(verbs: Any, run: Callable[[argparse.Namespace], int]) -> None:
-    """``lead-s2r submit``'s arguments (``run``: the verb's body in cli.py)."""
+def add_verbs(verbs: Any) -> None:
     sub = verbs.add_parser(
         "submit",
         help="write a NAVSIM or WOD-E2E leaderboard submission (validated first), or --check one",
         description="Steps for both leaderboards: docs/submitting.md.",
     )
     sub.add_argument("--check", metavar="FILE", help="re-read a written submission and report what it holds")
-    sub.set_defaults(run=run, target=None)
+    sub.set_defaults(run=cmd_submit, target=None)
     targets = sub.add_subparsers(dest="target", metavar="LEADERBOARD")
 
     navsim = targets.add_parser("navsim", help="submission.pkl for NAVSIM v1.1 (navtest) or v2 two-stage (navhard)")
