@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 from PIL import Image
 
+from lead_s2r.fields import fits
 from lead_s2r.formats.carla_rig import (
     CAMERA_RIGS,
     DEFAULT_TARGET_DATASET,
@@ -41,7 +42,7 @@ from lead_s2r.geometry import (
     to_local,
 )
 from lead_s2r.registry import Adapter, LogRef, SkipLog
-from lead_s2r.schema import SCHEMA_VERSION, BoxClass, Command, make_key
+from lead_s2r.schema import SCHEMA_VERSION, TARGET_DATASET_BEFORE_ONE_CAMERA, BoxClass, Command, make_key
 from lead_s2r_adapters.carla_lead_io import (
     RADAR_KEYS,
     LeadFormatError,
@@ -60,9 +61,6 @@ from lead_s2r_adapters.carla_lead_io import (
 
 FPS = 20.0  # simulator and future-label rate
 FRAME_STEP = 5  # a frame is saved every 5th 20 Hz tick: 4 Hz
-#: ``target_dataset`` stored as the number of LEAD's ``TargetDataset`` IntEnum (the snapshot's numbering; a wrong
-#: guess is caught by the mosaic-width check).
-TARGET_DATASET_NUMBERS = {1: "CARLA_LEADERBOARD2_3CAMERAS", 2: "CARLA_LEADERBOARD2_6CAMERAS", 3: "NAVSIM_4CAMERAS"}
 DEPTH_MAX_M, DEPTH_RATIO = 50.0, 4
 HDMAP_PX_PER_M, HDMAP_SIZE = 2.0, 256
 EMERGENCY_TYPES = ("ambulance", "firetruck", "police")
@@ -95,10 +93,13 @@ def target_dataset(meta: dict[str, Any], path: Path) -> str:
     if info is None:
         return DEFAULT_TARGET_DATASET
     value = field(info, "target_dataset", path)
-    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-        name = TARGET_DATASET_NUMBERS.get(int(value))
+    # a number in the expert's numbering of its time (a wrong guess is caught by the mosaic-width check), or
+    # "TargetDataset.NAVSIM_4CAMERAS" as str() of the enum writes it
+    if fits(value, int):
+        code = TARGET_DATASET_BEFORE_ONE_CAMERA.get(int(value))
+        name = code.name if code is not None else None
     else:
-        name = str(value).rsplit(".", 1)[-1]  # "TargetDataset.NAVSIM_4CAMERAS" as str() of the enum writes it
+        name = str(value).rsplit(".", 1)[-1]
     if name not in CAMERA_RIGS:
         raise LeadFormatError(
             path, f"unknown camera rig {value!r}; known: {', '.join(CAMERA_RIGS)}", "dataset_information.target_dataset"

@@ -21,6 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
+from lead_s2r.files import write_atomically
 from lead_s2r.processes import exit_with_parent
 
 HEADER = 12  # uint64 length + uint32 crc of the length
@@ -197,7 +198,5 @@ def cached_index(
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         metadata = {_STAMP_KEY: stamp.encode(), b"lead_s2r.skipped": json.dumps(index.skipped).encode()}
-        partial = cache.with_name(cache.name + ".partial")
-        pq.write_table(index.table.replace_schema_metadata(metadata), partial)
-        os.replace(partial, cache)
+        write_atomically(cache, lambda partial: pq.write_table(index.table.replace_schema_metadata(metadata), partial))
     return index

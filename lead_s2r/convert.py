@@ -46,6 +46,7 @@ import numpy as np
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
+from lead_s2r.files import write_atomically, write_text
 from lead_s2r.processes import Executor, WorkerDied, make_executor
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, SchemaError, validate
@@ -179,7 +180,7 @@ def _prepare(out: Path, force: bool, identity: dict[str, Any]) -> list[dict[str,
     _check_identity(out, identity)
     try:
         (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
-        (out / IDENTITY).write_text(json.dumps(identity, indent=2) + "\n")
+        write_text(out / IDENTITY, json.dumps(identity, indent=2) + "\n")
     except OSError as err:
         raise UserError(f"--out {out}: cannot write there ({err.strerror or err}); choose a writable folder") from None
     records = _read_progress(out)
@@ -418,7 +419,7 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         for name in flags:
             row.setdefault(name, False)
     table = pa.Table.from_pylist(rows) if rows else pa.table({"key": pa.array([], pa.string())})
-    pq.write_table(table, out / MANIFEST)
+    write_atomically(out / MANIFEST, lambda partial: pq.write_table(table, partial))
     info = {
         "schema_version": SCHEMA_VERSION,
         "lead_s2r_version": __version__,
@@ -434,7 +435,7 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         "bad_records": len(result.bad_records),
         **adapter.describe(),
     }
-    (out / INFO).write_text(json.dumps(info, indent=2, allow_nan=False))
+    write_text(out / INFO, json.dumps(info, indent=2, allow_nan=False))
 
 
 def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:

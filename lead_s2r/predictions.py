@@ -26,6 +26,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
+from lead_s2r.files import write_atomically
 
 #: Seconds within which two time stamps are the same grid point.
 TIME_TOLERANCE = 1e-3
@@ -102,9 +103,8 @@ def write_predictions(path: str | Path, predictions: Iterable[Prediction]) -> Pa
         "probability": [float(p.probability) for p in predictions],
         "inference": [int(p.inference) for p in predictions],
     }
-    path = Path(path)
-    pq.write_table(pa.table(columns, schema=SCHEMA), path, write_page_checksum=True)
-    return path
+    table = pa.table(columns, schema=SCHEMA)
+    return write_atomically(Path(path), lambda partial: pq.write_table(table, partial, write_page_checksum=True))
 
 
 def read_predictions(path: str | Path) -> list[Prediction]:

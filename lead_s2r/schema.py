@@ -45,6 +45,27 @@ def command4(command: int) -> Command:
     return _COMMAND4.get(command, command)
 
 
+class TargetDataset(IntEnum):
+    """LEAD's camera rig codes (``lead/common/constants.py`` at 4489176), as LEAD's config.json stores them."""
+
+    UNKNOWN = 0
+    CARLA_LEADERBOARD2_3CAMERAS = 1
+    CARLA_LEADERBOARD2_6CAMERAS = 2
+    CARLA_LEADERBOARD2_1CAMERA = 3
+    NAVSIM_4CAMERAS = 4
+    WAYMO_E2E_2025_3CAMERAS = 5
+    CARLA_PY123D_1CAMERA = 6
+
+
+#: The numbering before LEAD added its one-camera rig (2026-01-11), which frames its expert wrote then may carry.
+TARGET_DATASET_BEFORE_ONE_CAMERA = {
+    1: TargetDataset.CARLA_LEADERBOARD2_3CAMERAS,
+    2: TargetDataset.CARLA_LEADERBOARD2_6CAMERAS,
+    3: TargetDataset.NAVSIM_4CAMERAS,
+    4: TargetDataset.WAYMO_E2E_2025_3CAMERAS,
+}
+
+
 class BoxClass(IntEnum):
     """Unified object classes of the ``boxes`` field (column 9)."""
 

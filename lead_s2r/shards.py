@@ -35,6 +35,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
+from lead_s2r.files import move_into_place
 from lead_s2r.schema import REQUIRED_FIELDS, field_spec
 
 MANIFEST = "manifest.parquet"
@@ -159,7 +160,7 @@ class ShardFile:
         self._file.flush()
         os.fsync(self._file.fileno())
         self._file.close()
-        os.replace(self.partial, self.path)
+        move_into_place(self.partial, self.path)
         return self.path
 
     def abort(self) -> None:

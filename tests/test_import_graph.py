@@ -12,7 +12,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 #: (folder, import name) of every package we check; adapters/ installs as ``lead_s2r_adapters``.
 PACKAGES = ((ROOT / "lead_s2r", "lead_s2r"), (ROOT / "adapters", "lead_s2r_adapters"))
-CONTRACTS = ("lead_s2r.schema", "lead_s2r.geometry", "lead_s2r.errors")
+CONTRACTS = ("lead_s2r.schema", "lead_s2r.geometry", "lead_s2r.errors", "lead_s2r.fields", "lead_s2r.files")
 LIGHTNING = ("lightning", "pytorch_lightning")
 
 

@@ -310,7 +310,7 @@ def test_a_weight_file_of_something_else_is_named(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("field", "value", "expected"),
-    [("n_layer", "x", "int"), ("use_depth", 7, "bool"), ("used_cameras", [1], "list\\[bool\\]"),
+    [("n_layer", "x", "int"), ("use_depth", 7, "bool"), ("used_cameras", [1], "a list of bool"),
      ("pixels_per_meter", True, "float"), ("carla_root", None, "str")],
 )  # fmt: skip
 def test_a_wrong_typed_config_field_is_named(tmp_path: Path, field: str, value, expected: str) -> None:

@@ -18,8 +18,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from types import UnionType
-from typing import Any, Literal, get_args, get_origin, get_type_hints
+from typing import Any, Literal, get_type_hints
 
 import numpy as np
 import torch
@@ -51,6 +50,7 @@ from lead_s2r.data.collate import collate
 from lead_s2r.data.targets import CENTERNET_STRIDE, bev_cell_centres
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
+from lead_s2r.fields import check_fields
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 from lead_s2r.models.input_spec import InputSpec
@@ -157,25 +157,11 @@ def read_agent_yaml(path: Path) -> ClosedLoopConfig:
     if not isinstance(values, dict) or set(values) - set(hints) or "checkpoint" not in values:
         unknown = sorted(set(values) - set(hints)) if isinstance(values, dict) else values
         raise AgentConfigError(f"{path}: unknown keys {unknown} or no 'checkpoint'; known: {sorted(hints)}")
-    for name, value in values.items():
-        if not _fits(value, hints[name]):
-            expected = str(hints[name]) if get_origin(hints[name]) else hints[name].__name__
-            raise AgentConfigError(f"{path}: {name} is {value!r}, not {expected}")
+    check_fields(values, hints, str(path), AgentConfigError)
     try:
         return ClosedLoopConfig(**values)
     except ValueError as err:  # its own checks: the controller, the rig
         raise AgentConfigError(f"{path}: {err}") from None
-
-
-def _fits(value: Any, hint: Any) -> bool:
-    """Whether a YAML value is of the type ``hint`` (a Literal's values, a union's members; bool is no int here)."""
-    if get_origin(hint) is Literal:
-        return value in get_args(hint)
-    kinds = get_args(hint) if isinstance(hint, UnionType) else (hint,)
-    return any(
-        value is None if kind is type(None) else isinstance(value, kind) and (kind is bool) == isinstance(value, bool)
-        for kind in kinds
-    )
 
 
 class _StandInAgent:

@@ -20,23 +20,12 @@ the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD always derives the size
 LEAD.
 """
 
-import math
 from dataclasses import asdict, dataclass, fields
-from enum import IntEnum
-from types import UnionType
-from typing import Any, get_args, get_origin, get_type_hints
+from typing import Any, get_args, get_type_hints
 
 from lead_s2r.errors import UserError
-
-
-class TargetDataset(IntEnum):
-    """LEAD's ``TargetDataset`` codes (``lead/common/constants.py``), as stored in config.json."""
-
-    CARLA_LEADERBOARD2_3CAMERAS = 0
-    CARLA_LEADERBOARD2_6CAMERAS = 2
-    NAVSIM_4CAMERAS = 4
-    WAYMO_E2E_2025_3CAMERAS = 5
-
+from lead_s2r.fields import describe, fits
+from lead_s2r.schema import TargetDataset
 
 #: Camera tile of each target: (width, cropped height) in pixels (``BaseConfig.camera_calibration``). WOD-E2E's is
 #: ours: LEAD's constants give each front camera 972 x 1080 (cropped) and a down-sample factor of 3, but the function
@@ -419,23 +408,7 @@ class LeadConfig:
 def _typed(name: str, value: Any, hint: Any) -> Any:
     """``value`` of the config.json field ``name`` when it has the JSON type of the field's ``hint`` (an int stands
     for a float, null for an optional field's "LEAD's rule decides"), else a :class:`UserError` naming the field."""
-    kinds = get_args(hint) if isinstance(hint, UnionType) else (hint,)
-    if value is None and type(None) in kinds:
-        return None
-    kind = next(k for k in kinds if k is not type(None))
-    if get_origin(kind) is list:
-        if isinstance(value, list) and all(_is_json(item, get_args(kind)[0]) for item in value):
-            return value
-    elif _is_json(value, kind):
-        return float(value) if kind is float else value
-    expected = str(kind) if get_origin(kind) else kind.__name__
-    raise UserError(f"config.json: {name} is {value!r}; LEAD writes it as {expected}")
-
-
-def _is_json(value: Any, kind: type) -> bool:
-    """Whether a JSON value is a ``kind`` (bool is no number here, a float must be finite)."""
-    if kind is float:
-        return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-    if kind is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    return isinstance(value, kind)
+    if not fits(value, hint):
+        raise UserError(f"config.json: {name} is {value!r}; LEAD writes it as {describe(hint)}")
+    kinds = get_args(hint) or (hint,)
+    return float(value) if float in kinds and int not in kinds and fits(value, int) else value

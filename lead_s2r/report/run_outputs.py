@@ -21,6 +21,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from lead_s2r.errors import UserError
+from lead_s2r.fields import check_fields
 from lead_s2r.predictions import Prediction, group_by_key, read_parquet, read_predictions
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
 
@@ -30,11 +31,11 @@ PREDICTIONS = "predictions.parquet"
 #: metric family -> (the per-sample headline column, True when higher is better): what "worst" and "wins" mean
 HEADLINES = {"pdms": ("score", True), "epdms": ("score", True), "rfs": ("rfs", True), "ade": ("ade", False)}
 #: The scores.json fields a report reads and the JSON type `lead-s2r score` writes for each (``metric`` is required).
-REPORT_FIELDS: dict[str, type | tuple[type, ...]] = {
+REPORT_FIELDS: dict[str, Any] = {
     "metric": str,
-    "tag": (str, type(None)),
+    "tag": str | None,
     "predictions": str,
-    "data": list,
+    "data": list[str],
     "config": dict,
     "aggregates": dict,
 }
@@ -129,14 +130,8 @@ def _metric_scores(json_path: Path) -> MetricScores:
 
 def _check_report(json_path: Path, report: dict[str, Any]) -> None:
     """The fields a report reads have the types `lead-s2r score` writes (a damaged one is named, not a traceback)."""
-    for name, kind in REPORT_FIELDS.items():
-        if name in report and not isinstance(report[name], kind):
-            raise UserError(f"{json_path}: {name} is {report[name]!r}, not what `lead-s2r score` writes there")
-    if not all(isinstance(folder, str) for folder in report.get("data", [])):
-        raise UserError(f"{json_path}: data is {report['data']!r}, not a list of converted folders")
-    cache = report.get("config", {}).get("reference_cache")
-    if not isinstance(cache, str | None):
-        raise UserError(f"{json_path}: config.reference_cache is {cache!r}, not a folder")
+    check_fields(report, REPORT_FIELDS, str(json_path), advice="not what `lead-s2r score` writes there")
+    check_fields(report.get("config", {}), {"reference_cache": str | None}, str(json_path), at="config")
 
 
 def _predictions(path: Path, scores: list[MetricScores]) -> dict[str, list[Prediction]]:

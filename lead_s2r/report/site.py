@@ -9,7 +9,6 @@ Shown by default: per metric with a headline (``run_outputs.HEADLINES``) the ``w
 temporary sibling folder and renamed into place at the end, so a failed report leaves ``DIR`` as it was.
 """
 
-import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -19,6 +18,7 @@ import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from lead_s2r.errors import UserError
+from lead_s2r.files import replace_folder
 from lead_s2r.report.comparison import Difference, differences, pair_view, unmatched
 from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run, load_samples
 from lead_s2r.report.sample_page import sample_view
@@ -90,23 +90,12 @@ def build_report(
         pages.summary(a, shown, loaded, None if b is None else b.name)
         if b is not None:
             pages.comparison(a, b, changed, loaded, threshold)
-        _replace(staging, out)
+        replace_folder(staging, out)
+        out.chmod(0o755)  # mkdtemp's 0700 would hide the site from a web server
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return out / "index.html"
-
-
-def _replace(staging: Path, out: Path) -> None:
-    """Move the finished site to ``out``; an older report there is removed only once the new one is complete."""
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}-old-", dir=out.parent))
-        os.replace(out, old / out.name)
-        os.replace(staging, out)
-        shutil.rmtree(old)
-    else:
-        os.replace(staging, out)
-    out.chmod(0o755)  # mkdtemp's 0700 would hide the site from a web server
 
 
 class Pages:

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from lead_s2r.fields import is_number
 from lead_s2r.report.bev import save_figure
 from lead_s2r.report.run_outputs import MetricScores
 from lead_s2r.report.sample_page import is_score
@@ -27,7 +28,7 @@ def flat_numbers(aggregates: dict[str, Any], prefix: str = "") -> list[tuple[str
         key = f"{prefix}{name}"
         if isinstance(value, dict):
             numbers += flat_numbers(value, f"{key}.")
-        elif isinstance(value, int | float) and not isinstance(value, bool):
+        elif is_number(value, finite=False):
             numbers.append((key, float(value)))
     return numbers
 

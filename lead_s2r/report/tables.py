@@ -26,6 +26,7 @@ from typing import Any
 import yaml
 
 from lead_s2r.errors import UserError
+from lead_s2r.fields import check_fields, fits, is_number
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
 
 #: The table specs of the paper (Tables 1-5), next to the recipes they read.
@@ -95,25 +96,14 @@ def spec_path(spec: str | Path) -> Path:
 
 
 #: The JSON/YAML type of each field of a spec, a column and a row (``bool`` is no number here).
-SPEC_FIELDS = {"title": str, "columns": list, "rows": list, "seeds": list, "digits": int, "notes": str}
+SPEC_FIELDS = {"title": str, "columns": list, "rows": list, "seeds": list[int], "digits": int, "notes": str}
 COLUMN_FIELDS = {"name": str, "metric": str, "key": str, "scale": int | float, "tag": str | None}
-ROW_FIELDS = {"name": str, "run": str | None, "paper": list | None, "seeds": list}
+ROW_FIELDS = {"name": str, "run": str | None, "paper": list | None, "seeds": list[int]}
 
 
 def _typed(path: Path, where: str, mapping: Any, kinds: dict[str, Any]) -> dict[str, Any]:
-    """``mapping`` when it is a mapping whose fields have the types ``kinds`` gives (and integer seed lists)."""
-    if not isinstance(mapping, dict):
-        raise TableError(f"{path}: {where} is {mapping!r}, not a mapping; see docs/reproducing.md")
-    for name, kind in kinds.items():
-        value = mapping.get(name)
-        wrong = name in mapping and (not isinstance(value, kind) or isinstance(value, bool))
-        if wrong or (name == "seeds" and value is not None and not all(_is_int(seed) for seed in value)):
-            raise TableError(f"{path}: {where}.{name} is {value!r}; see docs/reproducing.md for the spec's fields")
-    return mapping
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
+    """``mapping`` when it is a mapping whose fields have the types ``kinds`` gives."""
+    return check_fields(mapping, kinds, str(path), TableError, "see docs/reproducing.md for the spec's fields", where)
 
 
 def load_spec(path: str | Path) -> TableSpec:
@@ -142,7 +132,7 @@ def load_spec(path: str | Path) -> TableSpec:
         raise TableError(f"{path}: bad table spec ({type(err).__name__}: {err}); see docs/reproducing.md") from None
     _check_figure(path, spec.figure)
     for row in spec.rows:
-        if not all(p is None or (isinstance(p, int | float | str) and not isinstance(p, bool)) for p in row.paper):
+        if not all(p is None or isinstance(p, str) or is_number(p, finite=False) for p in row.paper):
             raise TableError(f"{path}: row {row.name!r}: paper numbers are numbers, strings as printed, or null")
         if len(row.paper) != len(spec.columns):
             raise TableError(
@@ -197,7 +187,7 @@ def _saved_config(config_path: Path) -> tuple[dict[str, Any], int]:
     if not isinstance(config, dict):
         raise TableError(f"{config_path}: holds {config!r}, not the mapping lead-s2r fit saves")
     seed = config.get("seed_everything")
-    if isinstance(seed, bool) or not isinstance(seed, int):
+    if not fits(seed, int):
         raise TableError(f"{config_path}: seed_everything is {seed!r}; train with a fixed integer seed")
     return config, seed
 
@@ -292,7 +282,7 @@ def _lookup(run: Run, column: Column) -> float | None:
         value = value[part]
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    if not is_number(value, finite=False):
         raise TableError(f"{where}: aggregates.{column.key} is {value!r}, not a number")
     return float(value)
 

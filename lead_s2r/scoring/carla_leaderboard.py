@@ -21,7 +21,6 @@ Traps this module exists to get right:
 """
 
 import json
-import math
 import re
 from collections import Counter
 from collections.abc import Iterable, Sequence
@@ -32,6 +31,7 @@ from typing import Any
 import pyarrow as pa
 
 from lead_s2r.errors import UserError
+from lead_s2r.fields import fits
 from lead_s2r.scoring.base import ScoreResult
 
 METRIC_VERSION = "1"
@@ -157,7 +157,7 @@ def is_success(record: RouteRecord) -> bool:
 
 
 def _number(value: Any, where: str) -> float:
-    if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+    if not fits(value, float):
         raise ResultsError(f"{where}: expected a finite number, got {value!r}")
     return float(value)
 
@@ -169,7 +169,7 @@ def _number_or_none(value: Any, where: str) -> float | None:
 def _field(container: dict[str, Any], name: str, kind: type, where: str) -> Any:
     """``container[name]`` when it is a ``kind``; a missing or other-typed field names itself."""
     value = container.get(name)
-    if not isinstance(value, kind):
+    if not fits(value, kind):
         raise ResultsError(
             f"{where}.{name}: expected a {kind.__name__}, got {value!r}; is this a leaderboard 2.0 results file?"
         )

@@ -19,6 +19,7 @@ import pyarrow.parquet as pq
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
+from lead_s2r.files import write_atomically, write_text
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
@@ -246,8 +247,7 @@ def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[s
 def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
     """Write ``out/scores.parquet`` (with a CRC32 per data page, which ``lead-s2r report`` checks) and
     ``out/scores.json`` (strict JSON: no NaN) and return the JSON content."""
-    out.mkdir(parents=True, exist_ok=True)
-    pq.write_table(table, out / SCORES_TABLE, write_page_checksum=True)
     text = json.dumps(report, indent=2, allow_nan=False)
-    (out / SCORES_JSON).write_text(text + "\n")
+    write_atomically(out / SCORES_TABLE, lambda partial: pq.write_table(table, partial, write_page_checksum=True))
+    write_text(out / SCORES_JSON, text + "\n")
     return json.loads(text)

@@ -6,8 +6,7 @@ whose one-line message names the file, token or field. Files are written to a te
 failed run never leaves a half-written submission behind.
 """
 
-import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -62,17 +61,6 @@ def best_inferences(path: Path) -> dict[str, Prediction]:
         raise SubmissionError(f"{path}: no such predictions file (--predictions)")
     groups = group_by_key(read_predictions(path))
     return {key: max(group, key=lambda p: p.probability) for key, group in groups.items()}
-
-
-def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    """Run ``write(temporary)`` next to ``path``, then rename it to ``path``; nothing is left if ``write`` fails."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + ".partial")
-    try:
-        write(partial)
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
 
 
 def require_text(value: str | None, field: str, option: str) -> str:

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from lead_s2r.files import write_atomically
 from lead_s2r.formats import restricted_pickle
 from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps, numpy1_array
 from lead_s2r.geometry import resample
@@ -39,7 +40,6 @@ from lead_s2r.submit.common import (
     require_coverage,
     require_text,
     split_metas,
-    write_atomically,
 )
 
 TRAJECTORY = ForeignClass("navsim.common.dataclasses", "Trajectory")

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from google.protobuf.message import DecodeError
 
+from lead_s2r.files import replace_folder, write_atomically
 from lead_s2r.predictions import PredictionError, on_grid, regular_grid
 from lead_s2r.submit.common import (
     SubmissionError,
@@ -32,7 +33,6 @@ from lead_s2r.submit.common import (
     require_coverage,
     require_text,
     split_metas,
-    write_atomically,
 )
 from lead_s2r.submit.wod_e2e_proto import E2ED_SUBMISSION, E2EDChallengeSubmission
 
@@ -242,7 +242,7 @@ def write_wod(
         raise
     if out.exists():
         out.rmdir()
-    partial.rename(out)
+    replace_folder(partial, out)
     return check_wod(tar_path(out))
 
 

@@ -1,13 +1,13 @@
 """What every NAVSIM scorer does per sample before scoring: the scene token, the most probable inference put on
 NAVSIM's input grid, and PDM-Closed's reference (planned once per scene and cached)."""
 
-import os
-import threading
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from lead_s2r.files import write_atomically
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
@@ -80,14 +80,12 @@ class ReferenceCache:
         else:
             reference = plan_reference(scene)
             if path is not None:
-                _save_atomically(path, reference)
+                write_atomically(path, partial(_save_npy, reference))
         self.memory[key] = reference
         return reference
 
 
-def _save_atomically(path: Path, array: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}-{threading.get_ident()}.partial")
-    with open(partial, "wb") as file:
+def _save_npy(array: np.ndarray, path: Path) -> None:
+    """``np.save`` to exactly ``path`` (given a name, np.save appends ``.npy`` to it)."""
+    with open(path, "wb") as file:
         np.save(file, array)
-    os.replace(partial, path)
