@@ -85,16 +85,8 @@ def score_vocabulary(
         shared["observation"] = log_observation(scene)
     wants_masked = progress == PROGRESS_VOCABULARY
     parts = [
-        score_proposals(
-            scene,
-            vocabulary[start : start + chunk],
-            interval,
-            reference,
-            metric,
-            with_masked_progress=wants_masked,
-            **shared,
-        )  # fmt: skip
-        for start in range(0, len(vocabulary), chunk)
+        score_proposals(scene, entries, interval, reference, metric, with_masked_progress=wants_masked, **shared)
+        for entries in (vocabulary[start : start + chunk] for start in range(0, len(vocabulary), chunk))
     ]
     columns = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
     if not wants_masked:
