@@ -2,7 +2,8 @@
 NC and TTC check (ego box against agent box, ego front edge against agent box), GEOS for the few that floats cannot
 decide.
 
-Two convex outlines are disjoint exactly when the projections on one of their edge normals leave a gap. Computed
+Two convex outlines are disjoint exactly when the projections on one of their edge normals leave a gap (a box has
+two edge directions, a segment one). Computed
 in floats, a projection is off by far less than :data:`MARGIN`, so a gap wider than it on some axis means disjoint
 and an overlap deeper than it on every axis means intersecting, whatever the rounding; a pair within the margin
 (touching, or degenerate with a zero-length edge) goes to ``shapely.intersects`` on the same corners, which is what
@@ -19,17 +20,19 @@ MARGIN = 1e-7
 
 
 def _unit_normals(outline: np.ndarray) -> np.ndarray:
-    """``(P, E, 2)`` unit normals of the edges of outlines ``(P, K, 2)`` (closed; a segment, K = 2, has one edge)."""
-    edges = (np.roll(outline, -1, axis=1) - outline) if outline.shape[1] > 2 else outline[:, 1:] - outline[:, :1]
-    normals = np.stack([edges[..., 1], -edges[..., 0]], axis=-1)
+    """``(P, E, 2)`` unit normals of the edges of outlines ``(P, K, 2)`` that can separate: a box's first two edges
+    (its other two are parallel to them, to rounding far below :data:`MARGIN`), a segment's (K = 2) one edge."""
+    edges = outline[:, 1:3] - outline[:, :2] if outline.shape[1] > 2 else outline[:, 1:] - outline[:, :1]
+    length = np.hypot(edges[..., 0], edges[..., 1])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+        return np.stack([edges[..., 1] / length, -edges[..., 0] / length], axis=-1)
 
 
 def _gaps(first: np.ndarray, second: np.ndarray, axes: np.ndarray) -> np.ndarray:
     """``(P, A)``: how far apart the projections of the two outlines on each axis are (negative: overlap depth)."""
-    p1 = np.einsum("pkd,pad->pak", first, axes)
-    p2 = np.einsum("pkd,pad->pak", second, axes)
+    ax, ay = axes[:, :, None, 0], axes[:, :, None, 1]
+    p1 = first[:, None, :, 0] * ax + first[:, None, :, 1] * ay
+    p2 = second[:, None, :, 0] * ax + second[:, None, :, 1] * ay
     return np.maximum(p2.min(-1) - p1.max(-1), p1.min(-1) - p2.max(-1))
 
 
