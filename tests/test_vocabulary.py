@@ -11,20 +11,24 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+import torch
 
 from lead_s2r.cli import main
 from lead_s2r.convert import convert
+from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabScores
 from lead_s2r.errors import UserError
+from lead_s2r.gtrs_targets import read_targets
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
-from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures, read_targets
+from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim
 from lead_s2r_adapters.navsim import NavsimAdapter
 
 METRICS = ("pdms@navsim-1.1", "epdms@navsim-2.2")
+EP = "ego_progress"
 GTRS_EPDMS_NAMES = [
     "no_at_fault_collisions",
     "drivable_area_compliance",
@@ -209,3 +213,23 @@ def test_executor_ray_writes_the_bytes_of_one_process(scored, vocab_file, conver
     with two_node_cluster() as cluster:
         ray = vocab_score(vocab_file, converted, tmp_path / "ray", "--executor", "ray", "--address", cluster.address)
     assert ray == scored
+
+
+def test_navsim_samples_get_their_scenes_vocabulary_targets(scored, converted, tmp_path) -> None:
+    """``SourceSpec(vocab_scores=...)``: each sample gets its scene's (M, V) targets, masked where the pickle has none;
+    the pickle is not shipped to loader workers with the pipeline."""
+    path = tmp_path / PICKLE
+    path.write_bytes(scored[PICKLE])
+    targets = pickle.loads(scored[PICKLE])
+    attach = VocabScores(path)
+    sample = next(iter(read_samples(converted, fields=())))
+    out = attach(sample, {})
+    columns = targets[sample["meta"]["extras"]["navsim"]["scene_token"]]
+    assert out[VOCAB_SCORES].dtype == torch.float32 and out[VOCAB_SCORES].shape == (len(columns), len(columns[EP]))
+    np.testing.assert_array_equal(out[VOCAB_SCORES][GTRS_EPDMS_NAMES.index(EP)].numpy(), columns[EP])
+    assert bool(out[VOCAB_SCORES_MASK])
+    stranger = {"__key__": "x", "meta": {"extras": {"navsim": {"scene_token": "not-scored"}}}}
+    missing = pickle.loads(pickle.dumps(attach))(stranger, {})
+    assert not bool(missing[VOCAB_SCORES_MASK]) and not missing[VOCAB_SCORES].any()
+    assert missing[VOCAB_SCORES].shape == out[VOCAB_SCORES].shape
+    assert len(pickle.dumps(attach)) < 1000  # the path, not the targets

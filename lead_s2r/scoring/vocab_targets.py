@@ -26,7 +26,6 @@ import hashlib
 import io
 import json
 import os
-import pickle
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,11 +38,10 @@ import pyarrow.parquet as pq
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.formats import restricted_pickle
 from lead_s2r.geometry import resample
+from lead_s2r.gtrs_targets import EPDMS_NAMES, PDMS_NAMES, targets_bytes
 from lead_s2r.processes import Executor, InlineExecutor
 from lead_s2r.scoring.navsim.proposals import navsim_token
-from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import NEEDS_MAPS, scene_from_sample
@@ -62,16 +60,8 @@ SCENES_PER_JOB = 4
 FIELDS = ("scoring", "boxes", "agents_future", "future")
 #: our column -> GTRS's metric name, per metric (SimScale's ``pdm_score_full_v2`` keys; ``pdm_score`` = final score)
 GTRS_NAMES = {
-    METRIC: {
-        epdms.NC: epdms.NC,
-        epdms.DAC: epdms.DAC,
-        epdms.DDC: epdms.DDC,
-        epdms.EP: epdms.EP,
-        epdms.TTC: epdms.TTC,
-        "comfort": "comfort",
-        "score": "pdm_score",
-    },
-    EPDMS_METRIC: {name: name for name in epdms.FILTERED} | {"score": "pdm_score"},
+    METRIC: {name: name for name in PDMS_NAMES[:-1]} | {"score": "pdm_score"},
+    EPDMS_METRIC: {name: name for name in EPDMS_NAMES[:-1]} | {"score": "pdm_score"},
 }
 
 
@@ -258,7 +248,7 @@ def _assemble(out: Path, samples: list[dict[str, Any]], parts: list[Path], manif
     tokens = {sample["__key__"]: navsim_token(sample) for sample in samples}
     keys = [sample["__key__"] for sample in samples if sample["__key__"] in scores]
     targets = {tokens[key]: {name: scores[key][name] for name in names} for key in keys}
-    _write_atomically(out / PICKLE, pickle.dumps(targets, protocol=4))
+    _write_atomically(out / PICKLE, targets_bytes(targets))
     columns = {"key": pa.array(keys, pa.string()), "token": pa.array([tokens[key] for key in keys], pa.string())}
     for name in names:
         columns[name] = pa.array([scores[key][name].astype(np.float32) for key in keys], pa.list_(pa.float32()))
@@ -269,29 +259,6 @@ def _assemble(out: Path, samples: list[dict[str, Any]], parts: list[Path], manif
     manifest["failed"] = [{"key": key, "error": failed[key]} for key in tokens if key in failed]
     _write_atomically(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
     return manifest
-
-
-def read_targets(path: Path) -> dict[str, dict[str, np.ndarray]]:
-    """A GTRS targets pickle (``{token: {metric: float16[V]}}``), read without running code; a file of another
-    layout is a UserError naming it."""
-    try:
-        with open(path, "rb") as file:
-            targets = restricted_pickle.load(file)
-    except FileNotFoundError:
-        raise UserError(f"{path}: no such file; give the {PICKLE} of lead-s2r vocab score") from None
-    except (pickle.UnpicklingError, EOFError, ValueError) as err:
-        raise UserError(f"{path}: not a vocabulary-targets pickle ({err})") from None
-    if not isinstance(targets, dict):
-        raise UserError(f"{path}: not a vocabulary-targets pickle (a {type(targets).__name__}, not a dict by token)")
-    sizes = set()
-    for token, columns in targets.items():
-        arrays = columns.values() if isinstance(columns, dict) else [None]
-        if not isinstance(token, str) or not all(isinstance(a, np.ndarray) and a.ndim == 1 for a in arrays):
-            raise UserError(f"{path}: entry {token!r} is not {{metric: 1-D array}}; not a vocabulary-targets pickle")
-        sizes |= {len(array) for array in arrays}
-    if len(sizes) > 1:
-        raise UserError(f"{path}: arrays of {sorted(sizes)} entries; one vocabulary has one size")
-    return targets
 
 
 def logged_futures(samples: list[dict[str, Any]]) -> np.ndarray:
