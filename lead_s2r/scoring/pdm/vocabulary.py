@@ -29,7 +29,7 @@ from lead_s2r.scoring.pdm.traffic_lights import red_light_polygons
 
 #: entries simulated and scored together: big enough that numpy's per-call cost vanishes, small enough that the
 #: TTC boxes of a chunk (chunk x 41 x 4 boxes) stay a few tens of MB
-CHUNK = 1024
+CHUNK = 256
 PROGRESS_PAIR = "pair"
 PROGRESS_VOCABULARY = "vocabulary"
 PROGRESS_MODES = (PROGRESS_PAIR, PROGRESS_VOCABULARY)
