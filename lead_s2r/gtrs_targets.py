@@ -24,16 +24,8 @@ EPDMS_NAMES = (
     "history_comfort",
     "pdm_score",
 )
-#: the same for PDMS v1.1 targets: no TLC, LK or HC; v1.1's comfort
-PDMS_NAMES = (
-    "no_at_fault_collisions",
-    "drivable_area_compliance",
-    "driving_direction_compliance",
-    "ego_progress",
-    "time_to_collision_within_bound",
-    "comfort",
-    "pdm_score",
-)
+#: the same for PDMS v1.1 targets: NC, DAC, DDC, EP, TTC, v1.1's comfort and the score (no TLC, LK or HC)
+PDMS_NAMES = (*EPDMS_NAMES[:3], *EPDMS_NAMES[4:6], "comfort", EPDMS_NAMES[-1])
 Targets = dict[str, dict[str, np.ndarray]]
 
 

@@ -17,7 +17,7 @@ from lead_s2r.cli import main
 from lead_s2r.convert import convert
 from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabScores
 from lead_s2r.errors import UserError
-from lead_s2r.gtrs_targets import read_targets
+from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
@@ -29,17 +29,8 @@ from lead_s2r_adapters.navsim import NavsimAdapter
 
 METRICS = ("pdms@navsim-1.1", "epdms@navsim-2.2")
 EP = "ego_progress"
-GTRS_EPDMS_NAMES = [
-    "no_at_fault_collisions",
-    "drivable_area_compliance",
-    "driving_direction_compliance",
-    "traffic_light_compliance",
-    "ego_progress",
-    "time_to_collision_within_bound",
-    "lane_keeping",
-    "history_comfort",
-    "pdm_score",
-]
+#: GTRS's names (its ``gtrs_agent.py`` losses read them), in SimScale's order
+GTRS_EPDMS_NAMES = list(EPDMS_NAMES)
 
 
 @pytest.fixture(scope="module")
@@ -135,6 +126,8 @@ def test_vocab_score_writes_gtrs_pickle_parquet_and_manifest(scored, vocab_file,
     samples = list(read_samples(converted, fields=()))
     tokens = [sample["meta"]["extras"]["navsim"]["scene_token"] for sample in samples]
     assert list(targets) == tokens  # NAVSIM's scene tokens, in data order
+    assert {"traffic_light_compliance", "lane_keeping", "history_comfort", "pdm_score"} <= set(GTRS_EPDMS_NAMES)
+    assert len(GTRS_EPDMS_NAMES) == 9 and GTRS_EPDMS_NAMES[-1] == "pdm_score"
     for columns in targets.values():
         assert list(columns) == GTRS_EPDMS_NAMES
         assert all(values.dtype == np.float16 and values.shape == (size,) for values in columns.values())
