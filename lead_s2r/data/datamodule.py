@@ -27,6 +27,7 @@ from lead_s2r.data.device_inputs import RGB_JPEG, check_device_decode, decode_im
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.streams import SampleShare, SeededShuffle, StreamSeed, TrainShare, manifest_samples
 from lead_s2r.data.transforms import SourceTransform
+from lead_s2r.data.vocab_scores import VocabScores
 from lead_s2r.errors import UserError
 from lead_s2r.models.input_spec import InputSpec
 from lead_s2r.models.inputs import Batch, target_point_range
@@ -49,11 +50,14 @@ class SourceSpec:
         paths: converted folders (``lead-s2r convert`` outputs).
         splits: keep samples whose ``meta.split`` is listed (None keeps all).
         cameras: camera fields stitched left to right (without the ``cam_`` prefix).
+        vocab_scores: a ``vocab_scores.pkl`` of ``lead-s2r vocab score``: each sample gets its scene's vocabulary
+            targets (``vocab_scores``, ``vocab_scores_mask``; :mod:`lead_s2r.data.vocab_scores`).
     """
 
     paths: list[str]
     splits: list[str] | None = None
     cameras: list[str] = field(default_factory=lambda: ["carla_mosaic"])
+    vocab_scores: str | None = None
 
     def shards(self) -> list[str]:
         return [shard for path in self.paths for shard in shard_paths(path)]
@@ -62,11 +66,14 @@ class SourceSpec:
 class _Prepare:
     """Decode the fields the transform reads from a raw webdataset sample and turn them into tensors."""
 
-    def __init__(self, transform: SourceTransform) -> None:
+    def __init__(self, transform: SourceTransform, vocab_scores: VocabScores | None = None) -> None:
         self.transform = transform
+        self.vocab_scores = vocab_scores
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, Any]:
-        return self.transform(decode_sample(raw, self.transform.fields))
+        sample = decode_sample(raw, self.transform.fields)
+        out = self.transform(sample)
+        return out if self.vocab_scores is None else self.vocab_scores(sample, out)
 
 
 class _Tag:
@@ -252,7 +259,8 @@ class DriveDataModule(L.LightningDataModule):
         return decoded
 
     def _decode(self, name: str, spec: SourceSpec) -> _Prepare:
-        return _Prepare(SourceTransform(name, self.inputs, list(spec.cameras), self.inputs_on_device))
+        vocab_scores = VocabScores(spec.vocab_scores) if spec.vocab_scores else None
+        return _Prepare(SourceTransform(name, self.inputs, list(spec.cameras), self.inputs_on_device), vocab_scores)
 
     def _train_pipeline(self, name: str, share: TrainShare, batch_size: int) -> wds.DataPipeline:
         return wds.DataPipeline(

@@ -7,5 +7,6 @@ in ``docs/metrics.md``; the facts come from NAVSIM's own code (see the module do
 
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 from lead_s2r.scoring.pdm.score import score_proposals, score_states, score_states_v2
+from lead_s2r.scoring.pdm.vocabulary import score_vocabulary
 
-__all__ = ["PDMScene", "PreviousFrame", "score_proposals", "score_states", "score_states_v2"]
+__all__ = ["PDMScene", "PreviousFrame", "score_proposals", "score_states", "score_states_v2", "score_vocabulary"]

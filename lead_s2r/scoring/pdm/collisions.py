@@ -20,8 +20,9 @@ overlap with the same object". Official behaviours reproduced on purpose:
   while the ego is in MULTIPLE_LANES, NON_DRIVABLE_AREA or has its rear axle inside an INTERSECTION. TTC's ignore
   list is its own (NC's does not carry over).
 * NAVSIM queries an STRtree per step with predicate "intersects"; here candidate pairs come from overlapping
-  enclosing circles (a superset of the intersecting pairs) and the same GEOS ``intersects`` decides, so the pairs
-  are the same and polygons are built only for ego boxes that come near an object.
+  enclosing circles (a superset of the intersecting pairs), red lights and ignored objects are dropped (NC and TTC
+  skip them), and the separating-axis test decides, GEOS ``intersects`` where floats cannot (``overlap``), so the
+  pairs are the same and polygons are built only for the few pairs that touch within rounding.
 * The relative angle is ``arccos`` of the dot product without clipping; a centroid exactly at the rear axle gives
   NaN, which is neither ahead nor behind.
 """
@@ -33,6 +34,7 @@ import shapely
 
 from lead_s2r.scoring.pdm.footprint import Corner, box_polygons
 from lead_s2r.scoring.pdm.observation import Observation
+from lead_s2r.scoring.pdm.overlap import convex_intersects
 from lead_s2r.scoring.pdm.state import StateIndex
 
 STOPPED_EGO_SPEED = 5e-2  # [m/s] get_collision_type
@@ -58,9 +60,6 @@ class Hits:
     row: np.ndarray
     order: np.ndarray
     geom: np.ndarray
-
-    def select(self, keep: np.ndarray) -> "Hits":
-        return Hits(self.row[keep], self.order[keep], self.geom[keep])
 
 
 def candidate_pairs(
@@ -94,8 +93,14 @@ def find_hits(
     """Geometries that intersect query boxes ``coords (Q, 5, 2)`` at observation steps ``obs_steps (Q,)``; polygons
     are built only for boxes with a candidate."""
     query, geom = candidate_pairs(observation, coords[:, Corner.CENTER], obs_steps, radius)
-    boxes, inverse = np.unique(query, return_inverse=True)
-    intersects = shapely.intersects(box_polygons(coords[boxes])[inverse.reshape(-1)], observation.polygons[geom])
+    obj = observation.objects[geom]
+    usable = ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
+    query, geom = query[usable], geom[usable]
+
+    def exact(pairs: np.ndarray) -> np.ndarray:
+        return shapely.intersects(box_polygons(coords[query[pairs]]), observation.polygons[geom[pairs]])
+
+    intersects = convex_intersects(coords[query, : Corner.CENTER], observation.corners[geom], exact)
     query, geom = query[intersects], geom[intersects]
     return Hits(rows[query], order[query], geom)
 
@@ -139,11 +144,6 @@ def _first_hit(
     return first, np.where(first >= 0, hit, -1)
 
 
-def _usable(hits: Hits, observation: Observation) -> np.ndarray:
-    obj = observation.objects[hits.geom]
-    return ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
-
-
 def enclosing_radius(length: float, width: float) -> float:
     """Radius of the circle about a box's centre that holds the box."""
     return float(np.hypot(length / 2.0, width / 2.0))
@@ -162,14 +162,17 @@ def no_at_fault_collisions(
     num_rows, num_steps = ego_coords.shape[:2]
     row, step = np.divmod(np.arange(num_rows * num_steps), num_steps)
     hits = find_hits(observation, ego_coords.reshape(-1, 5, 2), step, row, step, ego_radius)
-    hits = hits.select(_usable(hits, observation))
     row, step, obj = hits.row, hits.order, observation.objects[hits.geom]
     ego = states[row, step]
     ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
     track_stopped = ~observation.object_is_agent[obj] | (observation.object_speed[obj] <= STOPPED_TRACK_SPEED)
     behind = relative_angle(ego[:, : StateIndex.HEADING + 1], observation.centroids[hits.geom]) > np.deg2rad(BEHIND_DEG)
     front = ego_coords[row, step][:, [Corner.FRONT_LEFT, Corner.FRONT_RIGHT]]
-    front_hit = shapely.intersects(shapely.linestrings(front), observation.polygons[hits.geom])
+
+    def exact(pairs: np.ndarray) -> np.ndarray:
+        return shapely.intersects(shapely.linestrings(front[pairs]), observation.polygons[hits.geom[pairs]])
+
+    front_hit = convex_intersects(front, observation.corners[hits.geom], exact)
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
     at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
     counted = counted_before_release(row, obj, step, at_fault)
@@ -213,7 +216,6 @@ def time_to_collision(
     obs_step = step + np.asarray(offsets)[k]
     order = step * len(offsets) + k
     hits = find_hits(observation, coords[row, step, k], obs_step, row, order, ego_radius)
-    hits = hits.select(_usable(hits, observation))
     step = hits.order // len(offsets)
     rear_axle = states[hits.row, step, : StateIndex.HEADING + 1]
     angle = relative_angle(rear_axle, observation.centroids[hits.geom])

@@ -26,8 +26,8 @@ feature is rounded to 8 decimals. Official behaviours reproduced on purpose:
 * The derivative step is the mean of the time differences (``np.diff(t).mean()``).
 
 A Savitzky-Golay filter of fixed length, window, order and step is a linear map, so it is taken once from scipy as a
-``(T, T)`` matrix (the filter applied to the identity) and then applied to all proposals by one product: the same
-operator as ``savgol_filter`` row by row, up to the order of floating-point additions.
+``(T, T)`` matrix (the filter applied to the identity) and then applied to every proposal by its own product
+(``row_products``): the same operator as ``savgol_filter`` row by row, up to the order of floating-point additions.
 """
 
 from functools import lru_cache
@@ -35,6 +35,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.signal import savgol_filter
 
+from lead_s2r.scoring.pdm.elementwise import row_products
 from lead_s2r.scoring.pdm.interpolation import interpolate_knots
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
@@ -61,7 +62,7 @@ def _savgol_matrix(length: int, window_length: int, polyorder: int, deriv: int, 
 
 def savgol(values: np.ndarray, window_length: int, polyorder: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
     """``scipy.signal.savgol_filter(values, ..., axis=-1, mode="interp")`` for a batch ``(..., T)`` of signals."""
-    return values @ _savgol_matrix(values.shape[-1], window_length, polyorder, deriv, delta).T
+    return row_products(values, _savgol_matrix(values.shape[-1], window_length, polyorder, deriv, delta).T)
 
 
 def acceleration(states: np.ndarray, coordinate: str, window: int = ACCEL_WINDOW, poly_order: int = 2) -> np.ndarray:

@@ -37,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from lead_s2r.scoring.pdm.elementwise import NUMPY, Elementwise, Values
+from lead_s2r.scoring.pdm.elementwise import NUMPY, Elementwise, Values, row_products
 
 Q_LONGITUDINAL = 10.0
 R_LONGITUDINAL = 1.0
@@ -180,12 +180,12 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     headings = targets[:, :-1, 2]
     projected = np.cos(headings) * steps[..., 0] + np.sin(headings) * steps[..., 1]
     num_fits = steps.shape[1]
-    speed = projected @ speed_fit_matrix(num_fits, dt).T
+    speed = row_products(projected, speed_fit_matrix(num_fits, dt).T)
     curvature = curvature_profile(normalize_angle(steps[..., 2]), speed, dt)
     ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
     reference_speed = speed[:, ahead[:, -1]].T  # (S, N)
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
-    moments = np.moveaxis(curvature[:, ahead[:, :-1]] @ weights, -1, 0).transpose(0, 2, 1)  # (5, S, N)
+    moments = np.moveaxis(row_products(curvature[:, ahead[:, :-1]], weights), -1, 0).transpose(0, 2, 1)  # (5, S, N)
 
     horizon_time = TRACKING_HORIZON * dt
     gain = -1.0 / (horizon_time * Q_LONGITUDINAL * horizon_time + R_LONGITUDINAL) * horizon_time * Q_LONGITUDINAL

@@ -52,6 +52,7 @@ class Observation:
     the first appearance."""
 
     polygons: np.ndarray  # (G,) shapely Polygons
+    corners: np.ndarray  # (G, 4, 2) a box's corners in ring order (NaN for red-light polygons)
     objects: np.ndarray  # (G,) int64 object index
     centroids: np.ndarray  # (G, 2)
     radius: np.ndarray  # (G,)
@@ -182,7 +183,8 @@ def dense_observation(
     size = np.asarray(size, np.float64).reshape(num_tracks, 3)
     coords = box_coords(poses[..., :2], poses[..., 2], size[:, None, 0], size[:, None, 1])
     step_of, track_of = np.nonzero(valid.T)  # sorted by step
-    track_polygons = box_polygons(coords[track_of, step_of])
+    track_corners = coords[track_of, step_of]
+    track_polygons = box_polygons(track_corners)
     red = red_light_polygons if red_light_polygons is not None else [[] for _ in range(num_steps)]
     if len(red) != num_steps:
         raise ValueError(f"red_light_polygons has {len(red)} steps, the boxes {num_steps}: give one list per step")
@@ -192,6 +194,7 @@ def dense_observation(
     step_of = np.concatenate([step_of, red_of])
     order = np.argsort(step_of, kind="stable")
     polygons = np.concatenate([track_polygons, *lights])[order] if num_red else track_polygons
+    corners = np.concatenate([track_corners[:, :4], np.full((num_red, 4, 2), np.nan)])[order]
     objects = np.concatenate([track_of, num_tracks + np.arange(num_red)])[order]
     step_of = step_of[order]
     first = np.argmax(valid, axis=1)
@@ -202,6 +205,7 @@ def dense_observation(
     step_offsets, step_geoms = _step_layout(step_of, num_steps)
     return Observation(
         polygons=polygons,
+        corners=corners,
         objects=objects.astype(np.int64),
         centroids=centroids,
         radius=_enclosing_radius(polygons, centroids),

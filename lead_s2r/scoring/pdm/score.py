@@ -291,14 +291,19 @@ def score_proposals(
     *,
     observation: Observation | None = None,
     drivable_map: DrivableMap | None = None,
+    red_lights: list[list[shapely.Polygon]] | None = None,
     with_states: bool = False,
+    with_masked_progress: bool = False,
 ) -> dict[str, np.ndarray]:
     """``metric`` (PDMS v1.1 or EPDMS v2.2) of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``),
     one row each, with the columns of :data:`COLUMNS` or :data:`EPDMS_COLUMNS`. ``reference (M, 3)``: the EP
     normaliser's trajectory at 0.1 s steps from t = 0 (row 0 is the initial pose), e.g. PDM-Closed's
     (:func:`~lead_s2r.scoring.pdm.pdm_closed.plan_reference`, which scores its own candidates with this module).
     ``previous`` (EPDMS only): per proposal the frame before it for EC, or None (EC NaN). ``with_states`` adds the
-    proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``).
+    proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``);
+    ``with_masked_progress`` adds EP's masked progress [m] of each proposal and of the reference (before the human
+    filter) as ``masked_progress_m`` and ``reference_masked_progress_m`` (what a vocabulary-wide EP needs,
+    ``vocabulary``). ``observation``, ``drivable_map`` and ``red_lights`` (EPDMS) are built from the scene when None.
     The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
     ``interpolation``)."""
     if metric not in METRICS:
@@ -321,9 +326,15 @@ def score_proposals(
     if metric == METRIC:
         observation = log_observation(scene) if observation is None else observation
         scores = score_states(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
+        if with_masked_progress:
+            extra |= _masked_progress(scores, scores[epdms.NC] * scores[epdms.DAC], agents)
         return {name: scores[name][agents] for name in COLUMNS} | extra
     observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
-    scores = score_states_v2(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
+    scores = score_states_v2(
+        scene, states, observation, ep_reference=0, drivable_map=drivable_map, red_lights=red_lights
+    )
+    if with_masked_progress:
+        extra |= _masked_progress(scores, scores["multiplicative_metrics_prod"], agents)
     human_row = (
         None if human is None else {name: scores[name][-1] for name in epdms.FILTERED} | {epdms.EP: 1.0, epdms.HC: 1.0}
     )
@@ -331,6 +342,13 @@ def score_proposals(
     columns[epdms.EC] = extended_comfort(scene, states[agents], previous)
     columns["score"] = epdms.epdms(columns)
     return columns | {name: scores[name][agents] for name in EPDMS_COLUMNS[len(epdms.SUB_SCORES) + 1 :]} | extra
+
+
+def _masked_progress(scores: dict[str, np.ndarray], multiplier: np.ndarray, agents: slice) -> dict[str, np.ndarray]:
+    """EP's masked progress of the proposals, and the reference's (row 0) repeated beside them."""
+    masked = scores["progress_m"] * multiplier
+    count = agents.stop - agents.start
+    return {"masked_progress_m": masked[agents], "reference_masked_progress_m": np.full(count, masked[0])}
 
 
 def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:

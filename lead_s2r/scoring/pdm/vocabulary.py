@@ -1,0 +1,118 @@
+"""Every sub-score of a trajectory vocabulary (V entries, thousands) in one scene: the training targets of
+Hydra-MDP / GTRS-style planners, exact and in one pass.
+
+``score_vocabulary`` is ``score_proposals`` over the whole vocabulary, with what the scene shares built once
+(observation, drivable map and its tree, red-light polygons) and the entries simulated and scored in chunks of
+``chunk`` rows, so memory stays bounded (16,384 entries take well under 2 GB). Row v is bit for bit
+``score_proposals(scene, vocabulary[v:v + 1], ...)``: every step of the pipeline computes a row without looking at
+the others (``elementwise``), so a chunk's neighbours change nothing; ``tests/test_vocabulary.py`` checks it on
+random entries, every column.
+
+EP has two definitions. The default (``progress="pair"``) is NAVSIM's for one agent trajectory: each entry's
+progress is normalised over ``[PDM-Closed, entry]``, as ``pdm_score`` scores a submitted trajectory. GTRS's targets
+(SimScale's ``gen_vocab_score.py`` calls ``pdm_score_full_v2``, which scores PDM-Closed and all V entries in one
+``PDMScorer.score_proposals`` call) normalise over ``[PDM-Closed, entry 0, ..., entry V-1]``: the normaliser is the
+largest masked progress of the reference and the whole vocabulary (``progress="vocabulary"``), and the score is
+recomputed from that EP. Masking, the 5 m threshold and the formulas are v1.1's or v2.2's as the metric says
+(``metrics.ego_progress`` / ``ego_progress_v2``).
+"""
+
+import numpy as np
+
+from lead_s2r.scoring.pdm import epdms
+from lead_s2r.scoring.pdm.map_flags import DrivableMap
+from lead_s2r.scoring.pdm.metrics import PROGRESS_THRESHOLD_M, pdms_v11
+from lead_s2r.scoring.pdm.observation import V2_STEPS, log_observation
+from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.score import EPDMS_METRIC, INTERVAL_S, METRIC, METRICS, score_proposals
+from lead_s2r.scoring.pdm.traffic_lights import red_light_polygons
+
+#: entries simulated and scored together: big enough that numpy's per-call cost vanishes, small enough that the
+#: TTC boxes of a chunk (chunk x 41 x 4 boxes) stay a few tens of MB
+CHUNK = 256
+PROGRESS_PAIR = "pair"
+PROGRESS_VOCABULARY = "vocabulary"
+PROGRESS_MODES = (PROGRESS_PAIR, PROGRESS_VOCABULARY)
+#: GTRS's vocabulary layout: (V, 40, 3) poses (x, y, heading) every 0.1 s
+GTRS_POSES = 40
+GTRS_INTERVAL_S = 0.1
+
+
+def check_vocabulary(vocabulary: np.ndarray, name: str = "vocabulary") -> np.ndarray:
+    """``vocabulary`` as float64 ``(V, K, 3)`` with only finite values, or a ValueError naming what is wrong."""
+    array = np.asarray(vocabulary)
+    if array.ndim != 3 or array.shape[-1] != 3 or array.shape[0] < 1 or array.shape[1] < 1:
+        raise ValueError(f"{name}: expected (V, K, 3) ego-frame poses (x, y, heading), got shape {array.shape}")
+    if not np.issubdtype(array.dtype, np.floating):
+        raise ValueError(f"{name}: expected floating-point poses, got dtype {array.dtype}")
+    bad = ~np.isfinite(array).all(axis=(1, 2))
+    if bad.any():
+        raise ValueError(
+            f"{name}: {int(bad.sum())} entries hold NaN or inf (first: entry {int(np.argmax(bad))}); remove them"
+        )
+    return array.astype(np.float64)
+
+
+def score_vocabulary(
+    scene: PDMScene,
+    vocabulary: np.ndarray,
+    interval: float,
+    reference: np.ndarray,
+    metric: str = METRIC,
+    *,
+    progress: str = PROGRESS_PAIR,
+    chunk: int = CHUNK,
+) -> dict[str, np.ndarray]:
+    """``metric`` of every entry of ``vocabulary (V, K, 3)`` (ego-frame poses at ``interval * (k + 1)``): one
+    ``(V,)`` array per column of ``score_proposals`` (``COLUMNS`` or ``EPDMS_COLUMNS``), row v equal to scoring
+    entry v alone. ``reference``: PDM-Closed's ``(M, 3)`` as ``score_proposals`` takes it. ``progress``: EP over
+    ``[reference, entry]`` (``"pair"``, NAVSIM's definition) or over the reference and the whole vocabulary
+    (``"vocabulary"``, GTRS's targets; the module docstring). EC needs a previous frame and stays NaN."""
+    if metric not in METRICS:
+        raise ValueError(f"metric {metric!r} is not scored here; score_vocabulary computes {' and '.join(METRICS)}")
+    if progress not in PROGRESS_MODES:
+        raise ValueError(f"progress {progress!r}: choose {' or '.join(PROGRESS_MODES)}")
+    if chunk < 1:
+        raise ValueError(f"chunk {chunk}: give at least 1 entry per chunk")
+    vocabulary = check_vocabulary(vocabulary)
+    shared = {"drivable_map": DrivableMap.from_scene(scene)}
+    if metric == EPDMS_METRIC:
+        shared |= {
+            "observation": log_observation(scene, V2_STEPS, replay=True),
+            "red_lights": red_light_polygons(scene, V2_STEPS, INTERVAL_S),
+        }
+    else:
+        shared["observation"] = log_observation(scene)
+    wants_masked = progress == PROGRESS_VOCABULARY
+    parts = [
+        score_proposals(scene, entries, interval, reference, metric, with_masked_progress=wants_masked, **shared)
+        for entries in (vocabulary[start : start + chunk] for start in range(0, len(vocabulary), chunk))
+    ]
+    columns = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+    if not wants_masked:
+        return columns
+    masked, reference_masked = columns.pop("masked_progress_m"), columns.pop("reference_masked_progress_m")
+    return _normalised_over_vocabulary(columns, masked, float(reference_masked[0]), metric)
+
+
+def _normalised_over_vocabulary(
+    columns: dict[str, np.ndarray], masked: np.ndarray, reference_masked: float, metric: str
+) -> dict[str, np.ndarray]:
+    """The columns with EP (and the score) recomputed over one group: the reference and every entry."""
+    normaliser = max(reference_masked, float(masked.max()))
+    raw = columns["progress_m"]
+    if normaliser > PROGRESS_THRESHOLD_M:
+        ep = np.clip(raw / normaliser, 0.0, 1.0) if metric == EPDMS_METRIC else masked / normaliser
+    elif metric == EPDMS_METRIC:
+        ep = np.ones(len(raw))
+    else:
+        multiplier = columns[epdms.NC] * columns[epdms.DAC]
+        ep = np.where(multiplier == 0.0, 0.0, 1.0)
+    out = dict(columns)
+    out[epdms.EP] = ep
+    out["ep_normaliser_m"] = np.full(len(raw), normaliser)
+    if metric == EPDMS_METRIC:
+        out["score"] = epdms.epdms(out)
+    else:
+        out["score"] = pdms_v11(out[epdms.NC], out[epdms.DAC], ep, out[epdms.TTC], out["comfort"], out[epdms.DDC])
+    return out

@@ -1,0 +1,302 @@
+"""Vocabulary targets on converted NAVSIM data: the bodies of ``lead-s2r vocab score`` and ``lead-s2r vocab build``.
+
+``score_data`` scores every entry of a vocabulary in every scene (:func:`~lead_s2r.scoring.pdm.score_vocabulary`,
+PDM-Closed planned per scene as ``score`` plans it) and writes, in ``out``:
+
+- ``vocab_scores.pkl``: GTRS's targets, ``{token: {metric: float16[V]}}`` with GTRS's metric names
+  (:data:`GTRS_NAMES`; ``pdm_score`` is the final score), keyed by NAVSIM's scene token, in data order, so GTRS's
+  training code loads it as it is;
+- ``vocab_scores.parquet``: one row per scene (``key``, ``token``), one list column per metric (float32 holding the
+  float16 values, so both files carry the same numbers);
+- ``vocab_manifest.json``: what was scored with what (vocabulary file and SHA-256, shape, interval, metric, EP
+  normalisation, data folders, split, package version), the scenes scored and those that failed (no route
+  PDM-Closed can follow), with their error.
+
+Deterministic and resumable like ``convert``: scenes are scored in jobs of :data:`SCENES_PER_JOB` consecutive
+samples, on any executor; each finished job is written to ``parts/<job>.npz`` (renamed into place whole) and the
+files are assembled from the parts in data order, so any number of workers, Ray or a rerun after a kill write the
+same bytes. A rerun with the same inputs scores only the jobs without a part; a folder holding another run's parts
+(another vocabulary, metric or data) is refused, as is a ``vocab_scores.pkl`` without our manifest.
+
+``build_vocabulary`` clusters the logged futures of converted samples (resampled to GTRS's 40 poses at 0.1 s) with
+scipy's k-means (``kmeans2``, k-means++ start, seeded): the same data, size and seed give the same array.
+"""
+
+import hashlib
+import io
+import json
+import os
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from lead_s2r import __version__
+from lead_s2r.errors import UserError
+from lead_s2r.geometry import resample
+from lead_s2r.gtrs_targets import EPDMS_NAMES, PDMS_NAMES, targets_bytes
+from lead_s2r.processes import Executor, InlineExecutor
+from lead_s2r.scoring.navsim.proposals import navsim_token
+from lead_s2r.scoring.pdm.pdm_closed import plan_reference
+from lead_s2r.scoring.pdm.route import RouteError
+from lead_s2r.scoring.pdm.sample import NEEDS_MAPS, scene_from_sample
+from lead_s2r.scoring.pdm.score import EPDMS_METRIC, METRIC, METRICS
+from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES, PROGRESS_MODES, check_vocabulary
+from lead_s2r.scoring.pdm.vocabulary import score_vocabulary as score_entries
+from lead_s2r.scoring.run import select_samples
+
+PICKLE = "vocab_scores.pkl"
+PARQUET = "vocab_scores.parquet"
+MANIFEST = "vocab_manifest.json"
+PARTS = "parts"
+#: scenes per job: one scene of 8,192 entries takes about a second, a job's messages (the vocabulary) a few ms
+SCENES_PER_JOB = 4
+#: the sample fields a scene is built from
+FIELDS = ("scoring", "boxes", "agents_future", "future")
+#: our column -> GTRS's metric name, per metric (SimScale's ``pdm_score_full_v2`` keys; ``pdm_score`` = final score)
+GTRS_NAMES = {
+    METRIC: {name: name for name in PDMS_NAMES[:-1]} | {"score": "pdm_score"},
+    EPDMS_METRIC: {name: name for name in EPDMS_NAMES[:-1]} | {"score": "pdm_score"},
+}
+
+
+@dataclass(frozen=True)
+class VocabRun:
+    """What a ``vocab score`` folder was scored with: its manifest's identity (a rerun must match it)."""
+
+    vocabulary: str
+    vocabulary_sha256: str
+    shape: tuple[int, ...]
+    interval: float
+    metric: str
+    progress: str
+    data: tuple[str, ...]
+    split: str | None
+
+    def identity(self) -> dict[str, Any]:
+        return {
+            "vocabulary_sha256": self.vocabulary_sha256,
+            "shape": list(self.shape),
+            "interval": self.interval,
+            "metric": self.metric,
+            "progress": self.progress,
+            "data": list(self.data),
+            "split": self.split,
+        }
+
+
+def _write_atomically(path: Path, data: bytes) -> None:
+    """``data`` at ``path``, written under a temporary name and renamed: a reader sees the whole file or none."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    partial.write_bytes(data)
+    os.replace(partial, path)
+
+
+def load_vocabulary(path: Path) -> np.ndarray:
+    """The ``(V, K, 3)`` vocabulary in ``path`` (a .npy file), or a UserError naming the file and what is wrong."""
+    if not path.is_file():
+        raise UserError(f"--vocab {path}: no such file; give a (V, 40, 3) .npy (lead-s2r vocab build makes one)")
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as err:
+        raise UserError(f"--vocab {path}: not a .npy array ({err})") from None
+    try:
+        return check_vocabulary(array, f"--vocab {path}")
+    except ValueError as err:
+        raise UserError(str(err)) from None
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def score_scenes(
+    samples: list[dict[str, Any]], vocabulary: np.ndarray, interval: float, metric: str, progress: str
+) -> dict[str, Any]:
+    """One job: every scene's GTRS columns as float16 ``(V,)`` arrays by sample key, and the scenes that failed."""
+    scores, failed = {}, {}
+    for sample in samples:
+        try:
+            scene = scene_from_sample(sample)
+        except RouteError as err:
+            failed[sample["__key__"]] = str(err)
+            continue
+        columns = score_entries(scene, vocabulary, interval, plan_reference(scene), metric, progress=progress)
+        scores[sample["__key__"]] = {
+            gtrs: columns[ours].astype(np.float16) for ours, gtrs in GTRS_NAMES[metric].items()
+        }
+    return {"scores": scores, "failed": failed}
+
+
+def _part_bytes(result: dict[str, Any]) -> bytes:
+    """A job's result as a .npz (arrays ``<key>/<metric>``) with the failures as JSON: no pickle on disk."""
+    arrays = {f"{key}/{name}": values for key, columns in result["scores"].items() for name, values in columns.items()}
+    arrays["failed.json"] = np.frombuffer(json.dumps(result["failed"]).encode(), np.uint8)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def _read_part(path: Path) -> dict[str, Any]:
+    with np.load(path, allow_pickle=False) as npz:
+        failed = json.loads(npz["failed.json"].tobytes())
+        scores: dict[str, dict[str, np.ndarray]] = {}
+        for name in npz.files:
+            if name != "failed.json":
+                key, metric = name.rsplit("/", 1)
+                scores.setdefault(key, {})[metric] = npz[name]
+    return {"scores": scores, "failed": failed}
+
+
+def _check_folder(out: Path, run: VocabRun) -> None:
+    """``out`` is new, or holds parts of this same run (resume); anything else is another run's and is refused."""
+    manifest = out / MANIFEST
+    if manifest.is_file():
+        try:
+            held = json.loads(manifest.read_text()).get("identity")
+        except (json.JSONDecodeError, AttributeError):
+            held = None
+        if held != run.identity():
+            raise UserError(
+                f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, data or split differ); "
+                "choose another --out or delete it"
+            )
+    elif (out / PICKLE).exists():
+        raise UserError(f"--out {out}: {PICKLE} is not ours (no {MANIFEST} beside it); choose another --out")
+
+
+def score_data(
+    vocab_path: Path,
+    data: list[Path],
+    out: Path,
+    metric: str = METRIC,
+    interval: float = GTRS_INTERVAL_S,
+    progress: str = "pair",
+    split: str | None = None,
+    executor: Executor | None = None,
+    on_job: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Score ``vocab_path``'s vocabulary on the samples of ``data`` and write the files of the module docstring;
+    return the manifest. ``on_job(scenes, entries)`` is called as each job ends (a progress bar)."""
+    if metric not in METRICS:
+        raise UserError(f"--metric {metric}: choose {' or '.join(METRICS)}")
+    if progress not in PROGRESS_MODES:
+        raise UserError(f"--progress {progress}: choose {' or '.join(PROGRESS_MODES)}")
+    if not interval > 0:
+        raise UserError(f"--interval {interval}: give the seconds between two poses of an entry (GTRS: 0.1)")
+    vocabulary = load_vocabulary(vocab_path)
+    for folder in data:
+        if not folder.is_dir():
+            raise UserError(f"--data {folder}: no such folder; give a converted NAVSIM folder")
+    executor = executor or InlineExecutor()
+    with executor.session():
+        samples = select_samples(data, FIELDS, split, executor)
+    missing = [sample["__key__"] for sample in samples if "scoring" not in sample]
+    if missing:
+        folders = ", ".join(map(str, data))
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise UserError(f"--data {folders}: sample {missing[0]!r} has no field 'scoring'{more}; {NEEDS_MAPS}")
+    run = VocabRun(str(vocab_path), _sha256(vocab_path), vocabulary.shape, interval, metric, progress,
+                   tuple(str(folder.resolve()) for folder in data), split)  # fmt: skip
+    _check_folder(out, run)
+    manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
+    manifest |= {"package_version": __version__, "gtrs_metrics": list(GTRS_NAMES[metric].values())}
+    _write_atomically(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+    jobs = [samples[start : start + SCENES_PER_JOB] for start in range(0, len(samples), SCENES_PER_JOB)]
+    parts = [out / PARTS / f"{index:06d}.npz" for index in range(len(jobs))]
+    todo = [index for index, path in enumerate(parts) if not _readable(path)]
+    for index in set(range(len(jobs))) - set(todo):
+        if on_job is not None:
+            on_job(len(jobs[index]), len(jobs[index]) * len(vocabulary))
+    arguments = [(jobs[index], vocabulary, interval, metric, progress) for index in todo]
+    with executor.session():
+        for position, result in executor.run(score_scenes, arguments):
+            _write_atomically(parts[todo[position]], _part_bytes(result))
+            if on_job is not None:
+                on_job(len(jobs[todo[position]]), len(jobs[todo[position]]) * len(vocabulary))
+    return _assemble(out, samples, parts, manifest)
+
+
+def _readable(path: Path) -> bool:
+    """A part written whole (a kill leaves only ``.partial`` files, but a damaged disk may leave worse)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return archive.testzip() is None
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+def _assemble(out: Path, samples: list[dict[str, Any]], parts: list[Path], manifest: dict[str, Any]) -> dict[str, Any]:
+    """The pickle, the Parquet table and the finished manifest, from the parts, in data order."""
+    scores: dict[str, dict[str, np.ndarray]] = {}
+    failed: dict[str, str] = {}
+    for path in parts:
+        part = _read_part(path)
+        scores |= part["scores"]
+        failed |= part["failed"]
+    names = manifest["gtrs_metrics"]
+    tokens = {sample["__key__"]: navsim_token(sample) for sample in samples}
+    keys = [sample["__key__"] for sample in samples if sample["__key__"] in scores]
+    targets = {tokens[key]: {name: scores[key][name] for name in names} for key in keys}
+    _write_atomically(out / PICKLE, targets_bytes(targets))
+    columns = {"key": pa.array(keys, pa.string()), "token": pa.array([tokens[key] for key in keys], pa.string())}
+    for name in names:
+        columns[name] = pa.array([scores[key][name].astype(np.float32) for key in keys], pa.list_(pa.float32()))
+    buffer = pa.BufferOutputStream()
+    pq.write_table(pa.table(columns), buffer, write_page_checksum=True)
+    _write_atomically(out / PARQUET, buffer.getvalue().to_pybytes())
+    manifest = manifest | {"complete": True, "scenes": len(keys), "entries": int(manifest["identity"]["shape"][0])}
+    manifest["failed"] = [{"key": key, "error": failed[key]} for key in tokens if key in failed]
+    _write_atomically(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+    return manifest
+
+
+def logged_futures(samples: list[dict[str, Any]]) -> np.ndarray:
+    """The logged futures reaching 4 s, resampled to GTRS's layout: ``(N, 40, 3)`` at 0.1 s (x, y, heading)."""
+    grid = GTRS_INTERVAL_S * np.arange(1, GTRS_POSES + 1)
+    out = []
+    for sample in samples:
+        future = np.asarray(sample.get("future", np.zeros((0, 4))), np.float64)
+        if len(future) == 0 or np.isnan(future[:, 3]).any():
+            continue
+        knots = np.vstack([np.zeros(4), future])
+        values, inside = resample(knots[:, 0], knots[:, 1:4], grid, angle_columns=(2,))
+        if inside.all():
+            out.append(values)
+    return np.asarray(out, np.float64).reshape(-1, GTRS_POSES, 3)
+
+
+def build_vocabulary(
+    data: list[Path], size: int, out: Path, seed: int = 0, split: str | None = None, iterations: int = 25
+) -> np.ndarray:
+    """k-means centres of the logged futures of ``data`` as a float32 ``(size, 40, 3)`` .npy at ``out``."""
+    from scipy.cluster.vq import kmeans2
+
+    if size < 1:
+        raise UserError(f"--size {size}: give at least 1 entry")
+    for folder in data:
+        if not folder.is_dir():
+            raise UserError(f"--data {folder}: no such folder; give a converted folder")
+    futures = logged_futures(select_samples(data, ("future",), split))
+    if len(futures) < size:
+        raise UserError(
+            f"--data {', '.join(map(str, data))}: {len(futures)} logged futures reach 4 s, fewer than --size {size}; "
+            "ask for fewer entries or give more data"
+        )
+    points = futures.reshape(len(futures), -1)
+    centres, _ = kmeans2(points, size, iter=iterations, minit="++", seed=np.random.default_rng(seed))
+    vocabulary = centres.reshape(size, GTRS_POSES, 3).astype(np.float32)
+    buffer = io.BytesIO()
+    np.save(buffer, vocabulary)
+    _write_atomically(out, buffer.getvalue())
+    return vocabulary

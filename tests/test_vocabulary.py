@@ -1,0 +1,228 @@
+"""Trajectory vocabularies on NAVSIM data made by our synthetic generator and converted with maps:
+``score_vocabulary`` gives every entry, in every column, the bits it gets scored alone (PDMS and EPDMS);
+``lead-s2r vocab score`` writes GTRS's pickle, Parquet and a manifest, the same bytes with workers, on Ray and after
+a resumed run; ``vocab build`` is deterministic; bad input is one line, exit 2, nothing written."""
+
+import json
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import torch
+
+from lead_s2r.cli import main
+from lead_s2r.convert import convert
+from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabScores
+from lead_s2r.errors import UserError
+from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
+from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
+from lead_s2r.scoring.pdm.pdm_closed import plan_reference
+from lead_s2r.scoring.pdm.sample import scene_from_sample
+from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
+from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures
+from lead_s2r.shards import read_samples
+from lead_s2r.synthetic import navsim
+from lead_s2r_adapters.navsim import NavsimAdapter
+
+METRICS = ("pdms@navsim-1.1", "epdms@navsim-2.2")
+EP = "ego_progress"
+#: GTRS's names (its ``gtrs_agent.py`` losses read them), in SimScale's order
+GTRS_EPDMS_NAMES = list(EPDMS_NAMES)
+
+
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One synthetic NAVSIM log (7 scenes), converted with maps: ``lead-s2r synth navsim`` + ``convert navsim``."""
+    raw, out = tmp_path_factory.mktemp("vocab_raw"), tmp_path_factory.mktemp("vocab_data") / "navsim"
+    navsim.generate(raw, count=1, seed=0)
+    assert convert(NavsimAdapter(maps=str(raw / "maps")), raw, out).ok
+    return out
+
+
+def arcs(speeds: np.ndarray, curvatures: np.ndarray) -> np.ndarray:
+    """Constant-speed arcs in GTRS's layout ``(len(speeds) * len(curvatures), 40, 3)``: stops, crawls, turns that
+    leave the road, fast runs into the car ahead."""
+    t = GTRS_INTERVAL_S * np.arange(1, GTRS_POSES + 1)
+    speed, curvature = np.meshgrid(speeds, curvatures, indexing="ij")
+    s = speed.reshape(-1, 1) * t
+    k = curvature.reshape(-1, 1) + 1e-9
+    heading = k * s
+    return np.stack([np.sin(heading) / k, (1 - np.cos(heading)) / k, heading], -1).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def vocabulary(converted: Path) -> np.ndarray:
+    futures = logged_futures(list(read_samples(converted, fields=("future",))))
+    return np.concatenate([arcs(np.array([0.0, 2.0, 6.0, 10.0, 16.0]), np.linspace(-0.12, 0.12, 9)), futures])
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_random_entries_equal_scoring_each_alone(converted: Path, vocabulary: np.ndarray, metric: str) -> None:
+    """Every column, every sub-score and the final score included, bit for bit (NaN where alone is NaN), with
+    chunks of 16 so entries sit at every position of a chunk."""
+    rng = np.random.default_rng(0)
+    varied = set()
+    for sample in list(read_samples(converted, fields=("scoring", "boxes", "agents_future", "future")))[:3]:
+        scene = scene_from_sample(sample)
+        reference = plan_reference(scene)
+        together = score_vocabulary(scene, vocabulary, 0.1, reference, metric, chunk=16)
+        for v in rng.choice(len(vocabulary), size=6, replace=False):
+            alone = score_proposals(scene, vocabulary[v : v + 1], 0.1, reference, metric)
+            assert together.keys() == alone.keys()
+            for name, values in alone.items():
+                np.testing.assert_array_equal(together[name][v : v + 1], values, err_msg=f"{name}, entry {v}")
+        varied |= {name for name, values in together.items() if len(np.unique(values[np.isfinite(values)])) > 1}
+    # the vocabulary exercises the sub-scores: they pass for some entries and fail for others
+    assert {"no_at_fault_collisions", "drivable_area_compliance", "ego_progress", "score"} <= varied
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_vocabulary_wide_progress_is_gtrs_normalisation(converted: Path, vocabulary: np.ndarray, metric: str) -> None:
+    sample = next(iter(read_samples(converted, fields=("scoring", "boxes", "agents_future", "future"))))
+    scene = scene_from_sample(sample)
+    reference = plan_reference(scene)
+    pair = score_vocabulary(scene, vocabulary, 0.1, reference, metric)
+    wide = score_vocabulary(scene, vocabulary, 0.1, reference, metric, progress="vocabulary", chunk=10)
+    normaliser = wide["ep_normaliser_m"]
+    assert len(np.unique(normaliser)) == 1 and normaliser[0] == pair["ep_normaliser_m"].max() > 5.0
+    raw = pair["progress_m"]
+    if metric == "epdms@navsim-2.2":
+        np.testing.assert_array_equal(wide["ego_progress"], np.clip(raw / normaliser, 0.0, 1.0))
+    else:
+        masked = raw * pair["no_at_fault_collisions"] * pair["drivable_area_compliance"]
+        np.testing.assert_array_equal(wide["ego_progress"], masked / normaliser)
+    assert (wide["ego_progress"] <= pair["ego_progress"]).all()
+    assert (wide["score"] <= pair["score"] + 1e-12).all() and (wide["score"] < pair["score"]).any()
+    unchanged = set(pair) - {"ego_progress", "ep_normaliser_m", "score"}
+    for name in unchanged:
+        np.testing.assert_array_equal(wide[name], pair[name], err_msg=name)
+
+
+def vocab_score(vocab: Path, data: Path, out: Path, *options: str) -> dict[str, bytes]:
+    """Every file ``vocab score`` writes, by name."""
+    args = ["vocab", "score", "--vocab", str(vocab), "--data", str(data), "--out", str(out), "--quiet"]
+    assert main([*args, "--metric", "epdms@navsim-2.2", *options]) == 0
+    return {path.name: path.read_bytes() for path in sorted(out.iterdir()) if path.is_file()}
+
+
+@pytest.fixture(scope="module")
+def vocab_file(tmp_path_factory: pytest.TempPathFactory, vocabulary: np.ndarray) -> Path:
+    path = tmp_path_factory.mktemp("vocab") / "vocab.npy"
+    np.save(path, vocabulary[::4])
+    return path
+
+
+@pytest.fixture(scope="module")
+def scored(tmp_path_factory: pytest.TempPathFactory, vocab_file: Path, converted: Path) -> dict[str, bytes]:
+    return vocab_score(vocab_file, converted, tmp_path_factory.mktemp("scored") / "one")
+
+
+def test_vocab_score_writes_gtrs_pickle_parquet_and_manifest(scored, vocab_file, converted, tmp_path) -> None:
+    size = len(np.load(vocab_file))
+    targets = pickle.loads(scored[PICKLE])
+    samples = list(read_samples(converted, fields=()))
+    tokens = [sample["meta"]["extras"]["navsim"]["scene_token"] for sample in samples]
+    assert list(targets) == tokens  # NAVSIM's scene tokens, in data order
+    assert {"traffic_light_compliance", "lane_keeping", "history_comfort", "pdm_score"} <= set(GTRS_EPDMS_NAMES)
+    assert len(GTRS_EPDMS_NAMES) == 9 and GTRS_EPDMS_NAMES[-1] == "pdm_score"
+    for columns in targets.values():
+        assert list(columns) == GTRS_EPDMS_NAMES
+        assert all(values.dtype == np.float16 and values.shape == (size,) for values in columns.values())
+    (tmp_path / PICKLE).write_bytes(scored[PICKLE])
+    assert read_targets(tmp_path / PICKLE).keys() == targets.keys()
+    table = pq.read_table(pa.BufferReader(scored[PARQUET]))
+    assert table.column_names == ["key", "token", *GTRS_EPDMS_NAMES] and table.num_rows == len(tokens)
+    first = table.slice(0, 1).to_pylist()[0]
+    np.testing.assert_array_equal(np.float16(first["pdm_score"]), targets[first["token"]]["pdm_score"])
+    manifest = json.loads(scored[MANIFEST])
+    assert manifest["complete"] and manifest["scenes"] == len(tokens) and manifest["entries"] == size
+    assert manifest["identity"]["metric"] == "epdms@navsim-2.2" and manifest["failed"] == []
+    assert manifest["identity"]["shape"] == [size, GTRS_POSES, 3] and manifest["gtrs_metrics"] == GTRS_EPDMS_NAMES
+
+
+def test_workers_and_a_resumed_run_write_the_same_bytes(scored, vocab_file, converted, tmp_path) -> None:
+    assert vocab_score(vocab_file, converted, tmp_path / "two", "--workers", "2") == scored
+    resumed = tmp_path / "resumed"
+    vocab_score(vocab_file, converted, resumed)
+    parts = sorted((resumed / PARTS).iterdir())
+    parts[1].unlink()  # as if killed before that job ended
+    (resumed / PICKLE).unlink()
+    before = {path: path.stat().st_mtime_ns for path in parts if path.exists()}
+    assert vocab_score(vocab_file, converted, resumed) == scored
+    assert all(path.stat().st_mtime_ns == mtime for path, mtime in before.items())  # finished jobs not redone
+
+
+def test_vocab_build_is_seeded_and_in_gtrs_layout(converted: Path, tmp_path: Path) -> None:
+    paths = [tmp_path / f"{name}.npy" for name in ("a", "b", "c")]
+    for path, seed in zip(paths, (0, 0, 1), strict=True):
+        args = ["vocab", "build", "--data", str(converted), "--size", "4", "--out", str(path), "--seed", str(seed)]
+        assert main(args) == 0
+    a = np.load(paths[0])
+    assert a.shape == (4, GTRS_POSES, 3) and a.dtype == np.float32 and np.isfinite(a).all()
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    futures = logged_futures(list(read_samples(converted, fields=("future",))))
+    assert np.abs(a[:, -1, 0]).max() <= np.abs(futures[:, -1, 0]).max() + 1e-3  # centres of the logged futures
+
+
+def expect_user_error(args: list[str], out: Path, capsys: pytest.CaptureFixture[str], match: str) -> None:
+    """One line on stderr naming the problem, exit status 2, nothing written to ``out``."""
+    before = sorted(out.rglob("*")) if out.exists() else None
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and match in err, err
+    assert (sorted(out.rglob("*")) if out.exists() else None) == before
+
+
+def test_bad_input_is_one_line_and_writes_nothing(converted, vocab_file, toy_data, tmp_path, capsys) -> None:
+    out = tmp_path / "out"
+    score = ["vocab", "score", "--data", str(converted), "--out", str(out), "--quiet", "--vocab"]
+    wrong_shape = tmp_path / "wrong.npy"
+    np.save(wrong_shape, np.zeros((8, 40, 2), np.float32))
+    expect_user_error([*score, str(wrong_shape)], out, capsys, "(V, K, 3)")
+    with_nan = tmp_path / "nan.npy"
+    poses = np.load(vocab_file)
+    poses[2, 5, 1] = np.nan
+    np.save(with_nan, poses)
+    expect_user_error([*score, str(with_nan)], out, capsys, "entry 2")
+    no_scoring = ["vocab", "score", "--vocab", str(vocab_file), "--data", toy_data, "--out", str(out), "--quiet"]
+    expect_user_error(no_scoring, out, capsys, "no field 'scoring'")
+    out.mkdir()
+    (out / PICKLE).write_bytes(pickle.dumps({"not": "ours"}))
+    expect_user_error([*score, str(vocab_file)], out, capsys, "not ours")
+    with pytest.raises(UserError, match="1-D array"):
+        read_targets(out / PICKLE)
+    (out / "list.pkl").write_bytes(pickle.dumps([1, 2]))
+    with pytest.raises(UserError, match="not a dict by token"):
+        read_targets(out / "list.pkl")
+
+
+def test_executor_ray_writes_the_bytes_of_one_process(scored, vocab_file, converted, tmp_path) -> None:
+    pytest.importorskip("ray")
+    from ray_cluster import two_node_cluster
+
+    with two_node_cluster() as cluster:
+        ray = vocab_score(vocab_file, converted, tmp_path / "ray", "--executor", "ray", "--address", cluster.address)
+    assert ray == scored
+
+
+def test_navsim_samples_get_their_scenes_vocabulary_targets(scored, converted, tmp_path) -> None:
+    """``SourceSpec(vocab_scores=...)``: each sample gets its scene's (M, V) targets, masked where the pickle has none;
+    the pickle is not shipped to loader workers with the pipeline."""
+    path = tmp_path / PICKLE
+    path.write_bytes(scored[PICKLE])
+    targets = pickle.loads(scored[PICKLE])
+    attach = VocabScores(path)
+    sample = next(iter(read_samples(converted, fields=())))
+    out = attach(sample, {})
+    columns = targets[sample["meta"]["extras"]["navsim"]["scene_token"]]
+    assert out[VOCAB_SCORES].dtype == torch.float32 and out[VOCAB_SCORES].shape == (len(columns), len(columns[EP]))
+    np.testing.assert_array_equal(out[VOCAB_SCORES][GTRS_EPDMS_NAMES.index(EP)].numpy(), columns[EP])
+    assert bool(out[VOCAB_SCORES_MASK])
+    stranger = {"__key__": "x", "meta": {"extras": {"navsim": {"scene_token": "not-scored"}}}}
+    missing = pickle.loads(pickle.dumps(attach))(stranger, {})
+    assert not bool(missing[VOCAB_SCORES_MASK]) and not missing[VOCAB_SCORES].any()
+    assert missing[VOCAB_SCORES].shape == out[VOCAB_SCORES].shape
+    assert len(pickle.dumps(attach)) < 1000  # the path, not the targets
