@@ -132,7 +132,8 @@ def measure(name: str, config: LeadConfig, steps: int) -> None:
     print(f"{name}: image {spec.image_size[1]}x{spec.image_size[0]}, {len(slots)} cameras, {steps} drives")
     print(f"  drive                         {stats(drives)}")
     print(f"  network forward               {stats(forward)}")
-    print(f"  outside the network           {stats(outside)}  ({statistics.median(outside) / statistics.median(drives):.0%} of the median drive)")  # fmt: skip
+    share = statistics.median(outside) / statistics.median(drives)
+    print(f"  outside the network           {stats(outside)}  ({share:.0%} of the median drive)")
     print(f"  ... of which JPEG decode      {stats(decode)}")
     print(f"  outside, without JPEG decode  {stats([o - d for o, d in zip(outside, decode, strict=True)])}")
 

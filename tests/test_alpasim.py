@@ -11,8 +11,9 @@ import socket
 import subprocess
 import sys
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import grpc
 import numpy as np
@@ -31,6 +32,8 @@ from lead_s2r.closed_loop.alpasim import (
 )
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
+from lead_s2r.geometry import wrap_angle
+from lead_s2r.models import lead
 from lead_s2r.predictions import read_predictions
 from lead_s2r.schema import Command
 from lead_s2r.shards import read_samples
@@ -39,9 +42,9 @@ from lead_s2r.training.cli import run_lightning_cli
 from lead_s2r_adapters.navsim import NavsimAdapter
 
 pytest.importorskip("carla_driver_interface", reason="the AlpaSim extra: pip install 'lead-s2r[alpasim]'")
-from carla_driver_interface import protocol  # noqa: E402
-from carla_driver_interface.geometry import Pose, Trajectory, waypoints_to_proto  # noqa: E402
-from carla_driver_interface.testing import FakeCamera, FakeLoop  # noqa: E402
+from carla_driver_interface import protocol
+from carla_driver_interface.geometry import Pose, Trajectory, waypoints_to_proto
+from carla_driver_interface.testing import FakeCamera, FakeLoop
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -102,8 +105,11 @@ def run(navsim_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     path.write_text(yaml.safe_dump(json.loads(json.dumps(config))))
     run_lightning_cli(["fit", "--config", str(path)])
     writer = "lead_s2r.training.prediction_writer.PredictionWriter"
-    run_lightning_cli(["predict", "--config", str(path), "--ckpt_path", str(root / "checkpoints" / "last.ckpt"),
-                       f"--trainer.callbacks+={writer}", f"--trainer.callbacks.output={root / 'predictions.parquet'}"])  # fmt: skip
+    output = f"--trainer.callbacks.output={root / 'predictions.parquet'}"
+    checkpoint = str(root / "checkpoints" / "last.ckpt")
+    run_lightning_cli(
+        ["predict", "--config", str(path), "--ckpt_path", checkpoint, f"--trainer.callbacks+={writer}", output]
+    )
     return root
 
 
@@ -131,7 +137,7 @@ class DriveRecorder(grpc.UnaryUnaryClientInterceptor):
     def __init__(self) -> None:
         self.drives: list[tuple[object, object]] = []
 
-    def intercept_unary_unary(self, continuation, client_call_details, request):  # noqa: ANN001, ANN201
+    def intercept_unary_unary(self, continuation: Callable, client_call_details: Any, request: Any) -> Any:
         outcome = continuation(client_call_details, request)
         if client_call_details.method.endswith("/drive"):
             self.drives.append((request, outcome.result()))
@@ -208,7 +214,7 @@ def test_service_trajectories_equal_lead_s2r_predict_on_converted_navsim_samples
         expected = predicted[sample["__key__"]]
         np.testing.assert_allclose(times, expected.t, atol=1e-6)
         np.testing.assert_allclose(plan[:, :2], expected.xy, atol=1e-5)
-        np.testing.assert_allclose(plan[:, 2], expected.yaw, atol=1e-5)
+        np.testing.assert_allclose(wrap_angle(plan[:, 2] - expected.yaw), 0.0, atol=1e-5)  # a quaternion wraps yaw
 
 
 def navsim_folder(run: Path) -> Path:
@@ -313,7 +319,7 @@ class Client:
         return self.stub.drive(protocol.DriveRequest(session_uuid=self.session, time_now_us=self.now_us))
 
 
-def refused(call, code: grpc.StatusCode, field: str) -> str:  # noqa: ANN001
+def refused(call: Callable[[], object], code: grpc.StatusCode, field: str) -> str:
     with pytest.raises(grpc.RpcError) as info:
         call()
     assert info.value.code() == code, info.value.details()
@@ -336,6 +342,9 @@ def test_a_camera_the_model_needs_but_the_scene_lacks_is_failed_precondition(lea
     message = refused(lambda: Client(lead_server).start((rear,)), grpc.StatusCode.FAILED_PRECONDITION,
                       "rollout_spec.vehicle.available_cameras")  # fmt: skip
     assert "front camera" in message and "camera_front (180 deg" in message
+    message = refused(lambda: Client(lead_server).start(()), grpc.StatusCode.FAILED_PRECONDITION,
+                      "rollout_spec.vehicle.available_cameras")  # fmt: skip
+    assert "(cameras: none)" in message
 
 
 def test_unknown_session_is_not_found(lead_server: str, bystander) -> None:
@@ -394,6 +403,23 @@ def test_serving_a_missing_folder_is_a_user_error(tmp_path: Path, capsys: pytest
     assert "error:" in capsys.readouterr().err
     with pytest.raises(UserError, match="--source 'carla'"):
         load_served_model(LEAD_FOLDER, "carla", "model*.pth", "cpu")
+
+
+def test_a_model_reading_sensors_alpasim_lacks_is_refused_and_an_ensemble_serves(tmp_path: Path) -> None:
+    from lead_reference import TINY_CARLA
+
+    lead.export_checkpoint(lead.model_from_config(TINY_CARLA), tmp_path / "carla")
+    with pytest.raises(UserError, match="reads LiDAR, which AlpaSim"):
+        load_served_model(tmp_path / "carla", None, "model*.pth", "cpu")
+    ensemble = tmp_path / "ensemble"
+    shutil.copytree(LEAD_FOLDER, ensemble)
+    shutil.copy(ensemble / "model_0000.pth", ensemble / "model_0001.pth")
+    served = load_served_model(ensemble, None, "model*.pth", "cpu")
+    assert isinstance(served.model.network, lead.LeadEnsemble)
+    target = running(served)
+    client = Client(next(target)).start()
+    assert all(len(in_rig(client.step())[0]) == 8 for _ in range(3))
+    target.close()
 
 
 def free_port() -> int:
