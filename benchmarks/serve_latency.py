@@ -127,7 +127,7 @@ def measure(name: str, config: LeadConfig, steps: int) -> None:
         forward.clear(), decode.clear()
         drives = drive_times(f"127.0.0.1:{port}", steps)
     finally:
-        server.stop(0)
+        server.stop(0).wait()
     outside = [d - f for d, f in zip(drives, forward, strict=True)]
     print(f"{name}: image {spec.image_size[1]}x{spec.image_size[0]}, {len(slots)} cameras, {steps} drives")
     print(f"  drive                         {stats(drives)}")

@@ -118,7 +118,7 @@ def running(served: ServedModel) -> Iterator[str]:
     try:
         yield f"127.0.0.1:{port}"
     finally:
-        server.stop(0)
+        server.stop(0).wait()
 
 
 @pytest.fixture(scope="module")

@@ -49,6 +49,7 @@ from lead_s2r import __version__
 from lead_s2r.closed_loop.checkpoint import (
     LEAD_CONFIG_NAME,
     UnsupportedCheckpoint,
+    family_spec,
     load_driving_model,
     rig_for,
     saved_config,
@@ -58,8 +59,7 @@ from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
 from lead_s2r.formats.carla_rig import CAMERA_RIGS
 from lead_s2r.geometry import to_global, to_local, wrap_angle
-from lead_s2r.models.config import TFv6Config
-from lead_s2r.models.input_spec import InputSpec, input_spec
+from lead_s2r.models.input_spec import InputSpec
 from lead_s2r.models.lead_config import LeadConfig, TargetDataset
 from lead_s2r.schema import SCHEMA_VERSION, Command
 
@@ -175,15 +175,9 @@ def load_served_model(path: str | Path, source: str | None, pattern: str, device
     """A run (folder or checkpoint) or a LEAD checkpoint folder, checked to be drivable from AlpaSim's sensors."""
     try:
         model, found = load_driving_model(path, pattern, device)
+        spec = family_spec(model, found, "from AlpaSim's cameras")
     except (UnsupportedCheckpoint, FileNotFoundError) as err:
         raise UserError(f"serve alpasim: {err}") from None
-    config = getattr(model, "config", None)
-    if not isinstance(config, TFv6Config | LeadConfig):
-        raise UserError(
-            f"{found}: {type(model).__name__} reads no camera (AlpaSim provides cameras, egomotion and a route "
-            "only); serve a camera model of the TFv6 / LTFv6 family"
-        )
-    spec = input_spec(config)
     if spec.lidar_raster or spec.radar:
         sensor = "LiDAR" if spec.lidar_raster else "radar"
         raise UserError(f"{found}: the model reads {sensor}, which AlpaSim's driver contract does not provide; serve "
@@ -193,7 +187,7 @@ def load_served_model(path: str | Path, source: str | None, pattern: str, device
         source = "navsim" if "navsim" in sources else (sources or [""])[0]
     if source not in sources:
         raise UserError(f"{found}: --source {source!r}: the model plans for {sources}; pick one of them")
-    slots = camera_slots(model, config, spec, source, found)
+    slots = camera_slots(model, model.config, spec, source, found)
     return ServedModel(model, source, spec, slots, torch.device(device), found)
 
 
@@ -561,15 +555,15 @@ def local_trajectory(plan: np.ndarray, times: np.ndarray, anchor: tuple[int, np.
     """The rig-frame plan (T, 3) at ``times`` as AlpaSim's driver answers: poses in the local frame, led by the anchor
     (the latest ego pose), timestamped ``time_now_us + t``."""
     _, pose = anchor
-    rotation = Rotation.from_matrix(pose[:3, :3])
+    rig = np.vstack([np.zeros((1, 3)), plan])  # the anchor itself leads
+    offsets_us = np.r_[0, np.round(np.asarray(times) * 1e6)].astype(np.int64)
+    positions = pose[:3, 3] + np.column_stack([rig[:, :2], np.zeros(len(rig))]) @ pose[:3, :3].T
+    quats = (Rotation.from_matrix(pose[:3, :3]) * Rotation.from_euler("z", rig[:, 2])).as_quat()  # x, y, z, w
     trajectory = protocol.Trajectory()
-    offsets = [(0, np.zeros(3))] + [(round(t * 1e6), row) for t, row in zip(times, plan, strict=True)]
-    for offset_us, (x, y, yaw) in offsets:
-        position = pose[:3, 3] + pose[:3, :3] @ np.array([x, y, 0.0])
-        quat = (rotation * Rotation.from_euler("z", yaw)).as_quat()  # x, y, z, w
-        entry = trajectory.poses.add(timestamp_us=int(time_now_us + offset_us))
-        entry.pose.vec.x, entry.pose.vec.y, entry.pose.vec.z = (float(v) for v in position)
-        entry.pose.quat.x, entry.pose.quat.y, entry.pose.quat.z, entry.pose.quat.w = (float(v) for v in quat)
+    for offset_us, position, quat in zip(offsets_us.tolist(), positions.tolist(), quats.tolist(), strict=True):
+        entry = trajectory.poses.add(timestamp_us=int(time_now_us) + offset_us)
+        entry.pose.vec.x, entry.pose.vec.y, entry.pose.vec.z = position
+        entry.pose.quat.x, entry.pose.quat.y, entry.pose.quat.z, entry.pose.quat.w = quat
     return trajectory
 
 
