@@ -558,7 +558,7 @@ def local_trajectory(plan: np.ndarray, times: np.ndarray, anchor: tuple[int, np.
     rig = np.vstack([np.zeros((1, 3)), plan])  # the anchor itself leads
     offsets_us = np.r_[0, np.round(np.asarray(times) * 1e6)].astype(np.int64)
     positions = pose[:3, 3] + np.column_stack([rig[:, :2], np.zeros(len(rig))]) @ pose[:3, :3].T
-    quats = (Rotation.from_matrix(pose[:3, :3]) * Rotation.from_euler("z", rig[:, 2])).as_quat()  # x, y, z, w
+    quats = (Rotation.from_matrix(pose[:3, :3]) * Rotation.from_euler("z", rig[:, 2:3])).as_quat()  # x, y, z, w
     trajectory = protocol.Trajectory()
     for offset_us, position, quat in zip(offsets_us.tolist(), positions.tolist(), quats.tolist(), strict=True):
         entry = trajectory.poses.add(timestamp_us=int(time_now_us) + offset_us)
