@@ -12,6 +12,7 @@ import subprocess
 import sys
 import uuid
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -186,6 +187,26 @@ def test_fakeloop_drives_a_run_of_ours_with_cameras_matched_by_pose_not_name(run
         for (_, yaw, _), name in zip(RUN_CAMERAS, ("front", "left", "CAM_F0"), strict=True)
     )
     drive_fake_loop(run_server, cameras[::-1], (8, 0.5))
+
+
+def test_sessions_drive_at_once_each_with_its_own_state(lead_server: str) -> None:
+    camera = FakeCamera("camera_front", width=480, height=270, fov_deg=63.7)
+
+    def loop(offset: float) -> tuple[np.ndarray, np.ndarray]:
+        """The session's ego positions and the positions its answers were anchored at."""
+        recorder = DriveRecorder()
+        channel = grpc.intercept_channel(grpc.insecure_channel(lead_server), recorder)
+        with FakeLoop(channel, (camera,), initial_lateral_offset_m=offset, initial_speed_mps=5.0) as fake:
+            ego = fake.run(10).ego.positions
+        channel.close()
+        anchors = [Trajectory.from_proto(response.trajectory).poses[0].position for _, response in recorder.drives]
+        return ego, np.array(anchors)
+
+    with ThreadPoolExecutor(3) as pool:
+        results = list(pool.map(loop, (0.0, 1.5, -1.5)))
+    for (ego, anchors), offset in zip(results, (0.0, 1.5, -1.5), strict=True):
+        assert len(ego) == 10 and ego[0, 1] == offset
+        np.testing.assert_allclose(anchors, ego, atol=1e-5)  # every answer planned from this session's own ego
 
 
 def test_camera_matching_follows_direction_and_field_of_view() -> None:
