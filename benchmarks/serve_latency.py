@@ -30,7 +30,8 @@ from carla_driver_interface.testing import FakeCamera, render_road
 from PIL import Image
 from torch import nn
 
-from lead_s2r.closed_loop.alpasim import ServedModel, camera_slots, serve
+from lead_s2r.closed_loop.alpasim import serve
+from lead_s2r.closed_loop.alpasim_model import ServedModel, camera_slots
 from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver

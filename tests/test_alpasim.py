@@ -22,15 +22,9 @@ import pytest
 import yaml
 
 from lead_s2r.cli import main as cli_main
-from lead_s2r.closed_loop.alpasim import (
-    CameraSlot,
-    SceneCamera,
-    ServedModel,
-    load_served_model,
-    match_cameras,
-    route_command,
-    serve,
-)
+from lead_s2r.closed_loop.alpasim import serve
+from lead_s2r.closed_loop.alpasim_messages import SceneCamera, match_cameras, route_command
+from lead_s2r.closed_loop.alpasim_model import CameraSlot, ServedModel, load_served_model
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
 from lead_s2r.geometry import wrap_angle

@@ -9,6 +9,8 @@ from lead_s2r.errors import UserError
 
 #: AlpaSim's challenge starter kit reads these (default port 6789); the flags override them.
 HOST_ENV, PORT_ENV, DEFAULT_PORT = "ALPASIM_DRIVER_HOST", "ALPASIM_DRIVER_PORT", 6789
+#: What ``pip install 'lead-s2r[alpasim]'`` brings.
+EXTRA_MODULES = ("carla_driver_interface", "grpc")
 
 
 def environment_port() -> int:
@@ -22,7 +24,13 @@ def environment_port() -> int:
 def cmd_serve_alpasim(args: argparse.Namespace) -> int:
     import torch
 
-    from lead_s2r.closed_loop.alpasim import load_served_model, serve
+    try:
+        from lead_s2r.closed_loop.alpasim import serve
+    except ModuleNotFoundError as err:  # the extra is not installed
+        if err.name not in EXTRA_MODULES:
+            raise
+        raise UserError(f"serve alpasim needs {err.name}: pip install 'lead-s2r[alpasim]'") from None
+    from lead_s2r.closed_loop.alpasim_model import load_served_model
 
     port = environment_port() if args.port is None else args.port
     device = args.device or ("cuda" if torch.cuda.is_available() else "cpu")
