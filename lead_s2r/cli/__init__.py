@@ -12,7 +12,7 @@ import sys
 from typing import NoReturn
 
 from lead_s2r import __version__
-from lead_s2r.cli import closed_loop, data, demo, report, scoring, submit, training, vocab
+from lead_s2r.cli import closed_loop, data, demo, report, scoring, serve, submit, training, vocab
 from lead_s2r.errors import UserError
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")
@@ -21,7 +21,7 @@ USER_ERROR_STATUS = 2
 #: A closed stdout: the status a shell gives a process ended by SIGPIPE (128 + 13).
 BROKEN_PIPE_STATUS = 141
 #: The verb groups, in the order ``lead-s2r --help`` lists them.
-VERB_GROUPS = (data, scoring, vocab, submit, closed_loop, report, training, demo)
+VERB_GROUPS = (data, scoring, vocab, submit, closed_loop, serve, report, training, demo)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -120,16 +120,22 @@ def load_driving_model(path: str | Path, pattern: str, device: str) -> tuple[nn.
     return load_model(checkpoint, device), checkpoint
 
 
-def check_drivable(model: nn.Module, source: str, path: Path) -> InputSpec:
-    """What the model reads (:class:`InputSpec`), or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route
-    as ``source``."""
+def family_spec(model: nn.Module, path: Path, where: str) -> InputSpec:
+    """What a TFv6-family model reads; :class:`UnsupportedCheckpoint` for any other network (the ego-status MLP reads
+    no sensor), which cannot drive ``where``."""
     config = getattr(model, "config", None)
     if not isinstance(config, TFv6Config | LeadConfig):
         raise UnsupportedCheckpoint(
             f"{path}: {type(model).__name__} is not a TFv6-family model (no TFv6Config or LeadConfig); only "
-            "camera(+LiDAR) models with a planning decoder can drive in CARLA"
+            f"camera(+LiDAR) models with a planning decoder can drive {where}"
         )
-    spec = input_spec(config)
+    return input_spec(config)
+
+
+def check_drivable(model: nn.Module, source: str, path: Path) -> InputSpec:
+    """What the model reads (:class:`InputSpec`), or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route
+    as ``source``."""
+    spec = family_spec(model, path, "in CARLA")
     if source not in spec.trajectory_grids or "waypoints" not in model.tasks(source):
         raise UnsupportedCheckpoint(
             f"{path}: the model plans for no source {source!r} (output grids: {sorted(spec.trajectory_grids)}); set "
