@@ -34,6 +34,11 @@ def write_text(path: Path, text: str) -> Path:
     return write_atomically(path, lambda partial: partial.write_text(text, encoding="utf-8"))
 
 
+def write_bytes(path: Path, data: bytes) -> Path:
+    """:func:`write_atomically` for bytes."""
+    return write_atomically(path, lambda partial: partial.write_bytes(data))
+
+
 def move_into_place(partial: Path, path: Path) -> None:
     """Give a file written piece by piece under a temporary name (a shard being filled) its final name."""
     os.replace(partial, path)

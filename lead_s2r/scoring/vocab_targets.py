@@ -25,7 +25,6 @@ scipy's k-means (``kmeans2``, k-means++ start, seeded): the same data, size and 
 import hashlib
 import io
 import json
-import os
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,6 +37,7 @@ import pyarrow.parquet as pq
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
+from lead_s2r.files import write_bytes
 from lead_s2r.geometry import resample
 from lead_s2r.gtrs_targets import EPDMS_NAMES, PDMS_NAMES, targets_bytes
 from lead_s2r.processes import Executor, InlineExecutor
@@ -88,14 +88,6 @@ class VocabRun:
             "data": list(self.data),
             "split": self.split,
         }
-
-
-def _write_atomically(path: Path, data: bytes) -> None:
-    """``data`` at ``path``, written under a temporary name and renamed: a reader sees the whole file or none."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    partial.write_bytes(data)
-    os.replace(partial, path)
 
 
 def load_vocabulary(path: Path) -> np.ndarray:
@@ -211,7 +203,7 @@ def score_data(
     _check_folder(out, run)
     manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
     manifest |= {"package_version": __version__, "gtrs_metrics": list(GTRS_NAMES[metric].values())}
-    _write_atomically(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+    write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
     jobs = [samples[start : start + SCENES_PER_JOB] for start in range(0, len(samples), SCENES_PER_JOB)]
     parts = [out / PARTS / f"{index:06d}.npz" for index in range(len(jobs))]
     todo = [index for index, path in enumerate(parts) if not _readable(path)]
@@ -221,7 +213,7 @@ def score_data(
     arguments = [(jobs[index], vocabulary, interval, metric, progress) for index in todo]
     with executor.session():
         for position, result in executor.run(score_scenes, arguments):
-            _write_atomically(parts[todo[position]], _part_bytes(result))
+            write_bytes(parts[todo[position]], _part_bytes(result))
             if on_job is not None:
                 on_job(len(jobs[todo[position]]), len(jobs[todo[position]]) * len(vocabulary))
     return _assemble(out, samples, parts, manifest)
@@ -248,16 +240,16 @@ def _assemble(out: Path, samples: list[dict[str, Any]], parts: list[Path], manif
     tokens = {sample["__key__"]: navsim_token(sample) for sample in samples}
     keys = [sample["__key__"] for sample in samples if sample["__key__"] in scores]
     targets = {tokens[key]: {name: scores[key][name] for name in names} for key in keys}
-    _write_atomically(out / PICKLE, targets_bytes(targets))
+    write_bytes(out / PICKLE, targets_bytes(targets))
     columns = {"key": pa.array(keys, pa.string()), "token": pa.array([tokens[key] for key in keys], pa.string())}
     for name in names:
         columns[name] = pa.array([scores[key][name].astype(np.float32) for key in keys], pa.list_(pa.float32()))
     buffer = pa.BufferOutputStream()
     pq.write_table(pa.table(columns), buffer, write_page_checksum=True)
-    _write_atomically(out / PARQUET, buffer.getvalue().to_pybytes())
+    write_bytes(out / PARQUET, buffer.getvalue().to_pybytes())
     manifest = manifest | {"complete": True, "scenes": len(keys), "entries": int(manifest["identity"]["shape"][0])}
     manifest["failed"] = [{"key": key, "error": failed[key]} for key in tokens if key in failed]
-    _write_atomically(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+    write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
     return manifest
 
 
@@ -298,5 +290,5 @@ def build_vocabulary(
     vocabulary = centres.reshape(size, GTRS_POSES, 3).astype(np.float32)
     buffer = io.BytesIO()
     np.save(buffer, vocabulary)
-    _write_atomically(out, buffer.getvalue())
+    write_bytes(out, buffer.getvalue())
     return vocabulary
