@@ -10,6 +10,7 @@ the samples are built by :mod:`lead_s2r_adapters.navsim_log` (logged scenes) and
 ``docs/datasets/navsim.md``.
 """
 
+import statistics
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -207,13 +208,14 @@ class NavsimAdapter(Adapter):
             names = ", ".join(missing_synthetic[:20])
             problems.append(f"{where}: {len(missing_synthetic)} synthetic scene tokens with no pickle: {names}")
         if self.filter.tokens is not None:
-            found, unreadable = set(), []
+            scenes, unreadable = {}, []
             for ref in logs:
                 try:
                     frames = load_log(Path(ref.path))
-                    found.update(str(frames[current].get("token")) for _, current in self.windows(frames, ref.path))
+                    scenes[ref.log_id] = {str(frames[c].get("token")) for _, c in self.windows(frames, ref.path)}
                 except (OSError, ValueError):
                     unreadable.append(ref.log_id)
+            found = set().union(*scenes.values())
             missing = sorted(self.filter.tokens - found)
             if missing:
                 problems.append(
@@ -222,6 +224,7 @@ class NavsimAdapter(Adapter):
                     + (" ..." if len(missing) > 20 else "")
                     + (f" (unreadable logs: {', '.join(unreadable)})" if unreadable else "")
                 )
+            problems += [f"{where}: {problem}" for problem in cut_short(scenes, self.filter)]
         return [{"scene_filter": str(self.filter_path), "error": problem} for problem in problems]
 
     def describe(self) -> dict[str, Any]:
@@ -243,6 +246,33 @@ class NavsimAdapter(Adapter):
                 "reactive_all_mapping": [[g.original, g.previous, [list(p) for p in g.pairs]] for g in self.mapping],
             },
         }
+
+
+def cut_short(scenes: dict[str, set[str]], scene_filter: SceneFilter) -> list[str]:
+    """Signs of a scene filter cut short at a line, which parses and drops scenes without a word: logs its
+    ``log_names`` names but none of whose scenes its ``tokens`` select (the logs after the cut), and the log of the
+    list's last token when the list holds under half the share of its scenes that it holds of the other logs' (the
+    log the cut fell in). ``scenes``: each readable log's scene tokens. A filter that lists few scenes of every log
+    (navtrain) shows neither."""
+    tokens = scene_filter.tokens or frozenset()
+    problems = []
+    unselected = [log for log in sorted(scene_filter.log_names or ()) if scenes.get(log) and not scenes[log] & tokens]
+    if unselected:
+        problems.append(
+            f"field 'log_names' names {len(unselected)} logs none of whose scenes field 'tokens' selects (cut short?): "
+            + ", ".join(unselected[:20])
+            + (" ..." if len(unselected) > 20 else "")
+        )
+    last = next((log for log, windows in scenes.items() if scene_filter.last_token in windows), None)
+    others = [len(w & tokens) / len(w) for log, w in scenes.items() if log != last and w & tokens]
+    if last is not None and others:
+        listed, total, typical = len(scenes[last] & tokens), len(scenes[last]), statistics.median(others)
+        if listed / total < typical / 2:
+            problems.append(
+                f"field 'tokens' ends with {listed} of the {total} scenes of log {last}, and lists {typical:.0%} of "
+                "a typical other log's (cut short?)"
+            )
+    return problems
 
 
 def _scene(scenes: LogScenes, start: int, current: int, where: str) -> dict[str, Any]:

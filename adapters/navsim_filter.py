@@ -34,6 +34,7 @@ class SceneFilter:
     has_route: bool = True
     include_synthetic: bool = False
     synthetic_tokens: frozenset[str] | None = None  # v2 synthetic (stage-2) scenes to convert; None = all
+    last_token: str | None = None  # the list's last entry: where a file cut short at a line ends
 
 
 def _text(path: Path) -> str:
@@ -57,7 +58,8 @@ def read_scene_filter(path: Path) -> SceneFilter:
         raise NavsimFormatError(f"scene filter {path} does not exist")
     if path.suffix not in (".yaml", ".yml"):
         lines = [line.strip() for line in _text(path).splitlines()]
-        return SceneFilter(path.stem, tokens=frozenset(t for t in lines if t and not t.startswith("#")))
+        listed = [t for t in lines if t and not t.startswith("#")]
+        return SceneFilter(path.stem, tokens=frozenset(listed), last_token=listed[-1] if listed else None)
     config = _yaml(path) or {}
     if not isinstance(config, dict):
         raise NavsimFormatError(f"{path}: a scene filter must be a mapping")
@@ -77,6 +79,7 @@ def read_scene_filter(path: Path) -> SceneFilter:
     return SceneFilter(
         name=path.stem,
         tokens=None if tokens is None else frozenset(map(str, tokens)),
+        last_token=str(tokens[-1]) if tokens else None,
         log_names=None if logs is None else frozenset(map(str, logs)),
         num_history_frames=history,
         num_future_frames=future,

@@ -1,15 +1,16 @@
 """Fuzz of the files users hand us besides raw data: one random corruption (tests/corruptions.py) per trial of a
 predictions file, a LEAD checkpoint folder, the closed-loop agent's config, leaderboard results and routes, a table's
-spec and runs, a scored run folder and a LightningCLI config, each read through the public function or verb that
-takes it.
+spec and runs, a scored run folder, a LightningCLI config and the run folder the CARLA agent drives (``closed-loop
+check``), each read through the public function or verb that takes it.
 
 The contract (as tests/test_fuzz.py's): the call gives the pristine result, or raises :class:`UserError` naming the
 file (a verb: exit status 2 and one ``error:`` line on stderr naming it, after any library warning); never another
 exception. A different result is allowed only where the reader cannot know: a byte changed inside a value of a text
 file (a digit of a number), a line-based file (YAML, CSV) cut at a line, a value replaced by null or by another of
 its own type, a null by a number or text, what a report shows as it is (the saved config, aggregates), and a deleted
-training log. A table whose scores.json was deleted must list that seed as missing. ``LEAD_S2R_FUZZ_TRIALS`` sets
-the trials per target (default 12: about 20 s for the eight targets); ``LEAD_S2R_FUZZ_SEED`` the seed.
+training log. A table whose scores.json was deleted must list that seed as missing. ``LEAD_S2R_FUZZ_TRIALS`` sets the
+trials per target (default 12: about 20 s for the first eight targets, and a minute for the agent's run folder);
+``LEAD_S2R_FUZZ_SEED`` the seed.
 """
 
 import json
@@ -65,6 +66,7 @@ TARGETS = (
     "table",
     "report",
     "fit",
+    "closed-loop-check",
 )
 #: An agent config YAML of the closed-loop agent (the leaderboard's --agent-config) with a field of every type.
 AGENT_CONFIG = {
@@ -330,6 +332,29 @@ def fit_yaml(tmp_path_factory) -> Path:
     return folder
 
 
+@pytest.fixture(scope="module")
+def agent_run(tmp_path_factory) -> Path:
+    """The run folder the CARLA agent drives (its config.yaml and checkpoints): a tiny TFv6 fitted for 2 steps on a
+    synthetic LEAD route, as tests/test_closed_loop_agent.py makes it, checked as ``lead-s2r closed-loop check``."""
+    pytest.importorskip("carla", reason="the CARLA client (pip install 'lead-s2r[carla]') builds CARLA's types")
+    from test_closed_loop_agent import MODEL
+    from test_closed_loop_agent import fit_config as agent_fit_config
+
+    from lead_s2r.synthetic import carla_lead as carla_synth
+    from lead_s2r.training.cli import run_lightning_cli
+
+    root = tmp_path_factory.mktemp("fuzz_agent_run")
+    carla_synth.generate(root / "src", count=1, frames=4)
+    assert convert(get_adapter("carla_lead"), root / "src", root / "data", shard_size=8, progress=False).ok
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        run_lightning_cli(["fit", "--config", str(agent_fit_config(root / "run", root / "data", MODEL, steps=2))])
+    finally:
+        torch.set_num_threads(threads)
+    return root / "run"
+
+
 def _verb(target: str, request: Any) -> tuple[Path, Callable[[Path, Path], list[str]]]:
     """The pristine input folder of a verb target and its command line for an input folder and an output folder."""
     if target == "carla-metrics":
@@ -340,6 +365,8 @@ def _verb(target: str, request: Any) -> tuple[Path, Callable[[Path, Path], list[
         run, data = request.getfixturevalue("scored_run")
         key = sorted(load_run(run).scores[0].rows)[0]
         return run, lambda folder, out: _report_argv(folder, data, out, key)
+    if target == "closed-loop-check":
+        return request.getfixturevalue("agent_run"), lambda folder, out: ["closed-loop", "check", str(folder)]
     return request.getfixturevalue("fit_yaml"), lambda folder, out: ["fit", "--config", str(folder / "fit.yaml")]
 
 

@@ -2,6 +2,7 @@
 
 import pytest
 
+from lead_s2r.errors import UserError
 from lead_s2r.report.loss_curves import plot_loss_curves, read_curves
 
 #: Lightning's CSV logger layout: a row per logged step, a column per metric, blank where it was not logged.
@@ -31,5 +32,26 @@ def test_curves_keep_loss_terms_by_step_and_drop_batch_sizes_and_displacements(t
 def test_a_log_without_loss_terms_is_an_error_naming_the_file(tmp_path):
     path = tmp_path / "metrics.csv"
     path.write_text("epoch,step,val/navsim/ade\n0,0,1.0\n")
-    with pytest.raises(ValueError, match=r"metrics\.csv: no train/ or val/ loss terms"):
+    with pytest.raises(UserError, match=r"metrics\.csv: no train/ or val/ loss terms"):
         plot_loss_curves(path, tmp_path / "out.png")
+
+
+@pytest.mark.parametrize(
+    ("log", "message"),
+    [
+        (b"epoch,step,train/loss\n0,1,2.5\x00\n", "could not convert string to float"),  # was a ValueError traceback
+        (b"epoch,step,train/loss\n0,x,2.5\n", "could not convert string to float: 'x'"),  # was int('x')
+        (b"epoch,step,train/loss\n0,1,2.5,7\n", "line 2 has more cells than the header"),  # was read as 2.5
+        (b"epoch,step,train/loss\n0,1,\xff\n", "'utf-8' codec"),  # was a UnicodeDecodeError traceback
+        (b"epoch,spep,train/loss\n0,1,2.5\n", "no step column"),  # was a KeyError traceback
+        (None, "No such file"),  # was a FileNotFoundError traceback
+    ],
+)
+def test_a_damaged_log_is_named_by_the_one_reader(tmp_path, log, message):
+    """The quickstart's loss curves read metrics.csv as the report does (run_outputs.logged_values)."""
+    path = tmp_path / "metrics.csv"
+    if log is not None:
+        path.write_bytes(log)
+    with pytest.raises(UserError, match=rf"metrics\.csv: not a Lightning CSV log \(.*{message}"):
+        plot_loss_curves(path, tmp_path / "out.png")
+    assert not (tmp_path / "out.png").exists()

@@ -283,6 +283,26 @@ def test_broken_inputs_are_isolated(raw: Path, tmp_path: Path) -> None:
     assert {s["meta"]["log_id"] for s in read_samples(tmp_path / "out")} == {names[2]}
 
 
+def test_a_scene_filter_cut_at_a_line_names_the_logs_it_drops(raw: Path, tmp_path: Path) -> None:
+    """Fuzzing found it: navmini.yaml cut short still parses, and the scenes of the last log it reaches vanished."""
+    src = tmp_path / "src"
+    shutil.copytree(raw, src)
+    filter_path = src / "scene_filters" / "navmini.yaml"
+    lines = filter_path.read_text().splitlines(keepends=True)
+    first_token = lines.index("tokens:\n") + 1
+    kept = first_token + SCENES_PER_LOG + 1  # the first log's scenes and one of the second's
+    filter_path.write_text("".join(lines[:kept]).rstrip("\n"))  # cut inside the list, at the end of a token
+    result = convert(NavsimAdapter(scene_filter=str(filter_path)), src, tmp_path / "out")
+    records = [json.loads(line) for line in (tmp_path / "out" / "errors.jsonl").read_text().splitlines()]
+    unselected, last = [e["error"] for e in records if "scene_filter" in e]
+    names = [spec.name for spec in synth.LOGS]
+    assert f"field 'log_names' names {len(names) - 2} logs none of whose scenes field 'tokens' selects" in unselected
+    assert names[2] in unselected and names[1] not in unselected
+    assert f"field 'tokens' ends with 1 of the {SCENES_PER_LOG} scenes of log {names[1]}" in last
+    assert "lists 100% of a typical other log's (cut short?)" in last and not result.ok
+    assert result.samples == SCENES_PER_LOG + 1
+
+
 def test_bad_pickle_and_token_list(tmp_path: Path, raw: Path) -> None:
     (tmp_path / "garbage.pkl").write_bytes(b"not a pickle")
     with pytest.raises(NavsimFormatError, match=r"garbage\.pkl"):

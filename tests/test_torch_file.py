@@ -1,5 +1,5 @@
 """Damaged ``torch.save`` files are named, not loaded as other weights: LEAD weights, ``init_from``, the closed-loop
-agent's checkpoint and ``--ckpt_path`` all read through :mod:`lead_s2r.formats.torch_file`.
+agent's checkpoint and ``ckpt_path`` (flag or config file) all read through :mod:`lead_s2r.formats.torch_file`.
 
 Lightning is imported at collection, as in test_user_errors.py, so that its log handler binds to pytest's stderr.
 """
@@ -61,14 +61,19 @@ def test_init_from_and_the_agent_name_a_damaged_checkpoint(tmp_path):
         read_state_dict(tmp_path / "list.ckpt")
 
 
+@pytest.mark.parametrize("given", ["flag", "config"])  # --ckpt_path, or ckpt_path: in a config file
 @pytest.mark.parametrize("damage", ["flip", "cut"])
-def test_predict_with_a_damaged_ckpt_path_is_one_line(tmp_path, toy_data, plain_argv, capsys, damage):  # noqa: F811
+def test_predict_with_a_damaged_ckpt_path_is_one_line(tmp_path, toy_data, plain_argv, capsys, damage, given):  # noqa: F811
     config = fit_config(tmp_path, {"carla": {"paths": [toy_data], "cameras": ["front"]}})
     path = checkpoint(tmp_path / "last.ckpt")
     if damage == "flip":
         flipped(path)
     else:
         path.write_bytes(path.read_bytes()[:5000])
-    line = user_error(["predict", "--config", str(config), "--ckpt_path", str(path)], capsys)
+    weights = ["--ckpt_path", str(path)]
+    if given == "config":
+        (tmp_path / "weights.yaml").write_text(f"ckpt_path: {path}\n")
+        weights = ["--config", str(tmp_path / "weights.yaml")]
+    line = user_error(["predict", "--config", str(config), *weights], capsys)
     assert str(path) in line and ("CRC" in line if damage == "flip" else "not a torch checkpoint archive" in line)
     assert not (tmp_path / "run").exists()

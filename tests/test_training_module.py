@@ -194,8 +194,12 @@ def test_a_network_without_a_dataclass_config_is_not_described():
 
 def test_init_from_rejects_missing_and_foreign_files(tmp_path):
     config = tfv6_config(**TINY)
-    with pytest.raises(FileNotFoundError, match=r"nope\.ckpt"):
+    with pytest.raises(UserError, match=r"init_from: no checkpoint at .*nope\.ckpt"):
         DrivingModule(TFv6(config), init_from=str(tmp_path / "nope.ckpt"))
+    reshaped = tmp_path / "reshaped.ckpt"  # every name of the model, no shape: nothing would load
+    torch.save({k: torch.zeros(1, 1, 1, 1, 1) for k in TFv6(config).state_dict()}, reshaped)
+    with pytest.raises(UserError, match=r"reshaped\.ckpt: no tensor matches the model's shape"):
+        DrivingModule(TFv6(config), init_from=str(reshaped))
     bad = tmp_path / "bad.ckpt"
     torch.save({"state_dict": {"a": "not a tensor"}}, bad)
     with pytest.raises(UserError, match=r"bad\.ckpt holds no state dict of tensors"):

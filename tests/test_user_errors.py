@@ -288,7 +288,6 @@ MODEL_CONFIG = ("model", "model", "init_args", "config")
         ((*MODEL_CONFIG, "decoder_heads"), 7, "embed_dim must be divisible by num_heads"),  # jsonargparse's ValueError
         ((*MODEL_CONFIG, "token_dim"), None, r"TFv6Config\.token_dim is None, not int"),  # was a TypeError in torch
         ((*MODEL_CONFIG, "image_architecture"), "x", "'x' is no timm architecture"),  # was a RuntimeError
-        (("data",), 7, "argument after \\*\\* must be a mapping, not int"),  # jsonargparse's own TypeError
         (("data", "train"), {}, r"no training sources configured \(data\.train\)"),  # was a ValueError at fit
     ],
 )
@@ -303,3 +302,42 @@ def test_fit_config_value_no_constructor_can_use_names_the_file(tmp_path, plain_
     config.write_text(yaml.safe_dump(values))
     line = user_error(["fit", "--config", str(config)], capsys)
     assert re.search(message, line) and line.endswith(f"(--config {config})"), line
+
+
+@pytest.mark.parametrize(
+    ("where", "value"),
+    [
+        (("data",), 7),  # was jsonargparse's "argument after ** must be a mapping, not int"
+        (("data",), [1]),
+        (("trainer",), 7),  # was dropped unread: the run trained with the default trainer
+        (("model", "model", "init_args"), True),  # was "'bool' object has no attribute 'keys'"
+    ],
+)
+def test_fit_config_section_that_is_no_mapping_is_named_in_our_words(tmp_path, plain_argv, capsys, where, value):
+    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path / "no-data")], "cameras": ["front"]}})
+    values = yaml.safe_load(config.read_text())
+    node = values
+    for name in where[:-1]:
+        node = node[name]
+    node[where[-1]] = value
+    config.write_text(yaml.safe_dump(values))
+    line = user_error(["fit", "--config", str(config)], capsys)
+    assert (
+        line
+        == f"error: --config {config}: {'.'.join(where)} is {value!r}, not a mapping of its settings (key: value lines)"
+    )
+    assert not (tmp_path / "run").exists()
+
+
+def test_init_from_matching_no_tensor_is_refused_not_trained_from_random_weights(tmp_path, plain_argv, capsys):
+    import torch
+
+    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path / "no-data")], "cameras": ["front"]}})
+    other = tmp_path / "other.ckpt"
+    torch.save({"state_dict": {"encoder.weight": torch.zeros(3), "encoder.bias": torch.zeros(3)}}, other)
+    line = user_error(["fit", "--config", str(config), f"--model.init_from={other}"], capsys)
+    assert f"init_from: {other}: no tensor name matches the model" in line and "['encoder.']" in line
+    assert "'backbone.'" in line and "'planner.'" in line  # TFv6's own names: the prefixes the file should have
+    line = user_error(["fit", "--config", str(config), f"--model.init_from={tmp_path / 'gone.ckpt'}"], capsys)
+    assert f"init_from: no checkpoint at {tmp_path / 'gone.ckpt'}" in line
+    assert not (tmp_path / "run").exists()

@@ -402,3 +402,43 @@ def test_each_val_segment_rates_one_frame_close_to_the_logged_future():
     expert = rater_feedback_score(np.array(logged)[:, None], np.ones((len(frames), 1)), raters, padded, speed)
     assert expert.fully_within.all()
     assert 7.5 < expert.score.mean() < 9.0  # the paper's Expert: 8.10
+
+
+def framed_ends(data: bytes) -> list[int]:
+    """Byte offsets where each TFRecord record of ``data`` ends (length u64, its CRC, payload, payload CRC)."""
+    ends, offset = [], 0
+    while offset < len(data):
+        offset += 8 + 4 + int.from_bytes(data[offset : offset + 8], "little") + 4
+        ends.append(offset)
+    return ends
+
+
+@pytest.mark.parametrize("damage", ["empty", "short"])
+def test_an_empty_or_short_shard_of_a_set_fails_its_segments_naming_the_file(tmp_path, damage):
+    """Fuzzing found it: a training shard emptied to 0 bytes framed cleanly, and its frames vanished unreported."""
+    from lead_s2r.synthetic.wod_e2e import generate
+
+    generate(tmp_path / "src", seed=3, splits={"train": 1, "val": 2})
+    shard = sorted((tmp_path / "src").glob("val_*.tfrecord-00000-of-00003"))[0]
+    data = shard.read_bytes()
+    shard.write_bytes(b"" if damage == "empty" else data[: framed_ends(data)[1]])  # cut at a record: frames cleanly
+    out = tmp_path / "out"
+    assert cli_main(["convert", "wod_e2e", "--src", str(tmp_path / "src"), "--out", str(out), "--quiet"]) == 1
+    errors = [json.loads(line)["error"] for line in (out / "errors.jsonl").read_text().splitlines()]
+    held = 0 if damage == "empty" else 2
+    assert len(errors) == 2 and all(f"{shard} (holds {held} records, its set's shards a median of" in e for e in errors)
+    assert {row["split"] for row in load_manifest(out).to_pylist()} == {"train"}  # no val segment lost frames quietly
+
+
+def test_frame_gaps_are_named_in_info(converted, dataset):
+    """WOD-E2E's own segments skip frames of the 10 Hz grid (the generator drops one inside segment 0 of each split):
+    named per segment in info.json, not failed."""
+    root, _ = converted
+    expected = {}
+    for frame in dataset.frames:
+        expected.setdefault(f"{frame.split}/{frame.sequence}", []).append(frame.frame_idx)
+    gaps = {
+        name: [str(i) for i in range(min(frames), max(frames)) if i not in frames] for name, frames in expected.items()
+    }
+    assert load_info(root / "out")["frame_gaps"] == {name: found for name, found in gaps.items() if found}
+    assert load_info(root / "out")["frame_gaps"]  # the generator's gaps are there

@@ -5,7 +5,6 @@ curves show it. Read from ``metrics.csv`` (one row per logged step, a column per
 logged that step), so they work for any run with Lightning's default logger.
 """
 
-import csv
 import math
 from pathlib import Path
 
@@ -14,19 +13,20 @@ import matplotlib
 matplotlib.use("Agg")  # files only: no display on a training node
 import matplotlib.pyplot as plt
 
+from lead_s2r.errors import UserError
+from lead_s2r.report.run_outputs import logged_values
+
 #: Path components of logged metrics that are not loss terms (validation displacement errors, batch sizes).
 NOT_LOSSES = frozenset({"ade", "fde", "batch_size"})
 
 
 def read_curves(metrics_csv: Path) -> dict[str, list[tuple[int, float]]]:
-    """``{metric: [(step, value), ...]}`` for every ``train/`` and ``val/`` loss term in ``metrics_csv``."""
+    """``{metric: [(step, value), ...]}`` for every ``train/`` and ``val/`` loss term in ``metrics_csv`` (read by
+    :func:`~lead_s2r.report.run_outputs.logged_values`, which names a damaged file)."""
     curves: dict[str, list[tuple[int, float]]] = {}
-    with metrics_csv.open(newline="") as file:
-        for row in csv.DictReader(file):
-            for name, value in row.items():
-                if not value or not name.startswith(("train/", "val/")) or NOT_LOSSES & set(name.split("/")):
-                    continue
-                curves.setdefault(name.removesuffix("_epoch"), []).append((int(row["step"]), float(value)))
+    for name, step, value in logged_values(metrics_csv):
+        if name.startswith(("train/", "val/")) and not NOT_LOSSES & set(name.split("/")):
+            curves.setdefault(name.removesuffix("_epoch"), []).append((int(step), value))
     return {name: points for name, points in curves.items() if not name.endswith("_step")}
 
 
@@ -35,7 +35,7 @@ def plot_loss_curves(metrics_csv: Path, out: Path, title: str = "") -> Path:
     curves = read_curves(metrics_csv)
     terms = sorted({name.split("/", 1)[1] for name in curves})
     if not terms:
-        raise ValueError(f"{metrics_csv}: no train/ or val/ loss terms logged")
+        raise UserError(f"{metrics_csv}: no train/ or val/ loss terms logged")
     columns = min(3, len(terms))
     rows = math.ceil(len(terms) / columns)
     figure, axes = plt.subplots(rows, columns, figsize=(4 * columns, 3 * rows), squeeze=False)

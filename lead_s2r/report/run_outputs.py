@@ -12,7 +12,7 @@ import csv
 import json
 import math
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -165,27 +165,30 @@ def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
     curves: dict[str, list[tuple[float, float]]] = defaultdict(list)
     logs = sorted(path.rglob("metrics.csv")) or sorted((path.parent / "lightning_logs").rglob("metrics.csv"))
     for log in logs:
-        try:
-            for name, step, value in _logged_values(log):
-                curves[name].append((step, value))
-        except (ValueError, csv.Error) as err:  # ValueError: bytes that are not UTF-8, or a cell that is no number
-            raise UserError(f"{log}: not a Lightning CSV log ({err})") from None
+        for name, step, value in logged_values(log):
+            curves[name].append((step, value))
     return dict(curves)
 
 
-def _logged_values(log: Path) -> Iterable[tuple[str, float, float]]:
-    """(column, step, value) of every filled cell of a Lightning CSV log but its step and epoch columns."""
-    with log.open(newline="") as file:
-        reader = csv.DictReader(file)
-        if reader.fieldnames is not None and "step" not in reader.fieldnames:
-            raise ValueError(f"no step column in its header {reader.fieldnames}")
-        for row in reader:
-            if None in row:  # DictReader files the cells past the header's under None
-                raise ValueError(f"line {reader.line_num} has more cells than the header")
-            step = row.get("step")
-            for name, value in row.items():
-                if name not in ("step", "epoch") and value not in (None, "") and step not in (None, ""):
-                    yield name, float(step), float(value)
+def logged_values(log: Path) -> Iterator[tuple[str, float, float]]:
+    """(column, step, value) of every filled cell of a Lightning CSV log (``metrics.csv``) but its step and epoch
+    columns: the one reader of that file (the report's curves, the quickstart's loss curves). A file that is gone,
+    not UTF-8, not CSV, without a step column, with a row longer than its header or a cell that is no number is a
+    :class:`UserError` naming it."""
+    try:
+        with log.open(newline="") as file:
+            reader = csv.DictReader(file)
+            if reader.fieldnames is not None and "step" not in reader.fieldnames:
+                raise ValueError(f"no step column in its header {reader.fieldnames}")
+            for row in reader:
+                if None in row:  # DictReader files the cells past the header's under None
+                    raise ValueError(f"line {reader.line_num} has more cells than the header")
+                step = row.get("step")
+                for name, value in row.items():
+                    if name not in ("step", "epoch") and value not in (None, "") and step not in (None, ""):
+                        yield name, float(step), float(value)
+    except (OSError, ValueError, csv.Error) as err:  # ValueError: bytes that are not UTF-8, or a cell that is no number
+        raise UserError(f"{log}: not a Lightning CSV log ({err})") from None
 
 
 def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict[str, Any]]:

@@ -2,9 +2,10 @@
 
 Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overridden on the command line
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
-missing config file, a value of the wrong type), values no constructor can use and a config file that is not UTF-8
-text become a :class:`UserError`, one line like every other verb's, that names the ``--config`` files; a damaged
-``--ckpt_path`` file is named before Lightning loads it (:mod:`lead_s2r.formats.torch_file`).
+missing config file, a value of the wrong type, a section such as ``data: 7`` that is no mapping), values no
+constructor can use and a config file that is not UTF-8 text become a :class:`UserError`, one line like every other
+verb's, that names the ``--config`` files; a damaged ``ckpt_path`` (on the command line or in a config file) is named
+before Lightning loads it (:mod:`lead_s2r.formats.torch_file`).
 
 A run's outputs share one root, ``trainer.default_root_dir`` (``runs/<family>/<name>/seed<k>`` in the recipes):
 checkpoints in ``<root>/checkpoints`` (a ``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in
@@ -17,9 +18,11 @@ import argparse
 import itertools
 import os
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import yaml
 from lightning.pytorch import Trainer
 from lightning.pytorch.cli import LightningCLI
 
@@ -32,6 +35,8 @@ from lead_s2r.training.module import DrivingModule
 #: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
 TRAINER_DEFAULTS = {"reload_dataloaders_every_n_epochs": 1, "use_distributed_sampler": False}
 VERBS = ("fit", "validate", "test", "predict")
+#: The config sections LightningCLI builds a class from.
+SECTIONS = ("trainer", "model", "data")
 #: Parsers raise instead of printing the whole usage and exiting, so the message reaches ``main()``.
 PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_error": False} for verb in VERBS}}
 
@@ -46,6 +51,15 @@ class DrivingCLI(LightningCLI):
         parser.add_argument(
             "--untrained", action="store_true", help="predict: use the model's initial weights (no --ckpt_path)"
         )
+
+    def parse_arguments(self, parser: Any, args: Any) -> None:
+        """Parse, then check the CRCs of the checkpoint given as ``ckpt_path``, on the command line or in a config
+        file: Lightning's ``torch.load`` of it, right after parsing, checks none."""
+        super().parse_arguments(parser, args)
+        subcommand = self.config.get("subcommand")
+        ckpt_path = subcommand and self.config[subcommand].get("ckpt_path")
+        if ckpt_path and Path(ckpt_path).is_file():
+            torch_file.check_archive(Path(ckpt_path), zip_only=True)
 
     def before_instantiate_classes(self) -> None:
         if self.subcommand != "predict":
@@ -93,8 +107,6 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
     argv = sys.argv[1:] if args is None else args
     verb = next(iter(argv), "fit")
     configs = config_files(argv)
-    for checkpoint in given_files(argv, "--ckpt_path"):  # Lightning's torch.load, while parsing, checks no CRC
-        torch_file.check_archive(checkpoint, zip_only=True)
     try:
         DrivingCLI(
             DrivingModule,
@@ -114,15 +126,34 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
 
 
 def config_files(argv: list[str]) -> list[Path]:
-    """The existing files given as ``--config``, each checked to be UTF-8 text (an inline YAML string is left to
-    jsonargparse)."""
+    """The existing files given as ``--config``, each checked to be UTF-8 text whose sections are mappings (an inline
+    YAML string, or YAML that does not parse, is left to jsonargparse)."""
     files = given_files(argv, "--config")
     for file in files:
         try:
-            file.read_bytes().decode()
+            text = file.read_bytes().decode()
         except UnicodeDecodeError as err:
             raise UserError(f"--config {file}: not UTF-8 text ({err})") from None
+        try:
+            config = yaml.safe_load(text)
+        except yaml.YAMLError:
+            continue
+        for key, value in misshapen_sections(config):
+            raise UserError(f"--config {file}: {key} is {value!r}, not a mapping of its settings (key: value lines)")
     return files
+
+
+def misshapen_sections(node: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
+    """The sections (``trainer``, ``model``, ``data``) and nested ``init_args`` whose value is a number, a boolean or
+    a list. jsonargparse hands such a value to the class as ``**value`` ("argument after ** must be a mapping") or
+    drops it unread (``trainer: 7``); a mapping, a file name (a string) or nothing is what it reads."""
+    children = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
+    for key, value in children:
+        name = f"{prefix}{key}" if isinstance(node, dict) else f"{prefix.removesuffix('.')}[{key}]"
+        section = (not prefix and key in SECTIONS) or key in ("init_args", "dict_kwargs")
+        if section and not (value is None or isinstance(value, dict | str)):
+            yield name, value
+        yield from misshapen_sections(value, f"{name}.")
 
 
 def given_files(argv: list[str], flag: str) -> list[Path]:

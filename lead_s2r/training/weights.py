@@ -83,7 +83,7 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     if path.is_dir():
         path = lead_folder_weights(path)
     if not path.is_file():
-        raise FileNotFoundError(f"init_from: no checkpoint at {path}")
+        raise UserError(f"init_from: no checkpoint at {path}; give a .ckpt, a LEAD model*.pth or a LEAD folder")
     ckpt = torch_file.load(path)
     state = ckpt.get("state_dict", ckpt) if isinstance(ckpt, dict) else None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
@@ -108,8 +108,23 @@ def load_matching(model: nn.Module, path: str | Path) -> LoadReport:
             matched[key] = value
             report.loaded.append(key)
     report.missing = [k for k in target if k not in source]
+    if not matched:
+        raise UserError(no_match_message(path, source, target))
     model.load_state_dict(matched, strict=False)
     folder = Path(path) if Path(path).is_dir() else Path(path).parent
     if isinstance(model, LeadDriver) and (folder / "config.json").is_file():  # a LEAD folder, or one file of it
         report.config_changes = config_changes(read_config(folder), model.config)
     return report
+
+
+def no_match_message(path: str | Path, source: dict[str, torch.Tensor], target: dict[str, torch.Tensor]) -> str:
+    """Why ``init_from`` would start from random weights: the names (or shapes) of the file's tensors and the
+    model's, by their first component; the usual cause is a checkpoint of another model or a wrapper's prefix."""
+    theirs, ours = (sorted({key.split(".")[0] + "." for key in keys}) for keys in (source, target))
+    if set(source) & set(target):
+        return f"init_from: {path}: no tensor matches the model's shape (another model size?); model prefixes {ours}"
+    shown = theirs[:8] + ["..."] * (len(theirs) > 8)
+    return (
+        f"init_from: {path}: no tensor name matches the model; the model expects names under {ours}, the file has"
+        f" {shown} (after dropping {', '.join(map(repr, PREFIXES))}); pass the checkpoint of this model"
+    )
