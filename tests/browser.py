@@ -123,7 +123,9 @@ class Chromium:
 
     def _evaluate(self, expression: str, session: str) -> Any:
         answer = self.call("Runtime.evaluate", {"expression": expression, "returnByValue": True}, session)
-        return _evaluate_result(answer, expression)
+        if "exceptionDetails" in answer:
+            raise RuntimeError(f"{expression}: {answer['exceptionDetails'].get('text')}")
+        return answer["result"].get("value")
 
     def visit(self, page: Path, steps: tuple[str, ...] = ()) -> PageVisit:
         """Open ``page`` from the file system, wait for its load event, run each JavaScript expression of ``steps``
@@ -145,12 +147,6 @@ class Chromium:
         visit.errors = [_error(event) for event in self._events if _error(event)]
         self.call("Target.closeTarget", {"targetId": target})
         return visit
-
-
-def _evaluate_result(answer: dict[str, Any], expression: str) -> Any:
-    if "exceptionDetails" in answer:
-        raise RuntimeError(f"{expression}: {answer['exceptionDetails'].get('text')}")
-    return answer["result"].get("value")
 
 
 def _error(event: dict[str, Any]) -> str:

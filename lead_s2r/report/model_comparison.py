@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from lead_s2r.errors import UserError
+from lead_s2r.report.comparison import paired_metrics
 from lead_s2r.report.run_outputs import HEADLINES, MetricScores, RunOutputs
 from lead_s2r.report.sample_page import NAVSIM_FAILURES, is_score, named_failures
 from lead_s2r.report.tables import id_ends_with
@@ -58,21 +59,18 @@ class SceneDelta:
     failures: tuple[str, ...]
 
 
-def _paired(a: RunOutputs, b: RunOutputs) -> list[tuple[MetricScores, MetricScores]]:
-    theirs = {scores.label: scores for scores in b.scores}
-    return [(mine, theirs[mine.label]) for mine in a.scores if mine.label in theirs and mine.family in HEADLINES]
-
-
 def scene_deltas(a: Model, b: Model, tags: dict[str, list[str]]) -> list[SceneDelta]:
-    """Every (metric, scene) both models scored on a shared seed: tagged scenes first, B's largest losses first."""
+    """Every (metric, scene) both models scored on a shared seed: the scenes of the subsets the runs scored on their
+    own first (:func:`subset_tags`), then per metric B's largest losses first."""
+    subsets = set(subset_tags([a, b]))
     by_scene: dict[tuple[str, str], list[tuple[int, MetricScores, MetricScores]]] = {}
     for seed, mine in sorted(a.runs, key=lambda entry: entry[0]):
-        for scores_a, scores_b in (pair for s, theirs in b.runs if s == seed for pair in _paired(mine, theirs)):
+        for scores_a, scores_b in (pair for s, theirs in b.runs if s == seed for pair in paired_metrics(mine, theirs)):
             for key in sorted(scores_a.rows.keys() & scores_b.rows.keys()):
                 if scores_a.headline(key) is not None and scores_b.headline(key) is not None:
                     by_scene.setdefault((scores_a.label, key), []).append((seed, scores_a, scores_b))
     deltas = [_delta(label, key, seeds, tags.get(key, [])) for (label, key), seeds in by_scene.items()]
-    return sorted(deltas, key=lambda d: (not d.tags, d.gain, d.metric, d.key))
+    return sorted(deltas, key=lambda d: (not subsets & set(d.tags), d.metric, d.gain, d.key))
 
 
 def sub_scores(family: str) -> tuple[str, ...]:

@@ -173,13 +173,11 @@ def _scored_keys(models: list[Model]) -> set[str]:
 
 
 def _pair_keys(deltas: list[Any], worst: int, threshold: float) -> list[tuple[str, str]]:
-    """(metric, key) of the scenes drawn side by side: per metric, the ``worst`` scenes B loses most, tagged
-    scenes first."""
+    """(metric, key) of the scenes drawn side by side: per metric, the first ``worst`` scenes B loses (in
+    :func:`scene_deltas`'s order: the scored subsets' scenes first, largest losses first)."""
     drawn: list[tuple[str, str]] = []
     for metric in dict.fromkeys(d.metric for d in deltas):
-        losses = sorted((d for d in deltas if d.metric == metric and d.gain < -threshold),
-                        key=lambda d: (not d.tags, d.gain))  # fmt: skip
-        drawn += [(metric, d.key) for d in losses[:worst]]
+        drawn += [(metric, d.key) for d in deltas if d.metric == metric and d.gain < -threshold][:worst]
     return drawn
 
 
