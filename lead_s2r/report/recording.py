@@ -18,18 +18,21 @@ axle on the ground), so the view follows the car:
 Rerun (``rerun-sdk``, the ``viewer`` extra) writes the ``.rrd`` file; its viewer opens it (``rerun FILE.rrd``).
 """
 
+import subprocess
+import sys
 from collections.abc import Iterable
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow.compute as pc
 
 from lead_s2r.errors import UserError
 from lead_s2r.report.run_outputs import RunOutputs, load_run
 from lead_s2r.report.sample_page import is_score, top_xy
 from lead_s2r.schema import BoxClass
-from lead_s2r.shards import MANIFEST, load_manifest, read_samples
+from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
 
 APPLICATION = "lead_s2r"
 #: the extras fields that name each box's track, by source (the first one present is used)
@@ -69,14 +72,8 @@ def find_log(target: Path, log: str | None) -> tuple[Path, str, RunOutputs | Non
 def log_samples(folder: Path, log: str) -> list[dict[str, Any]]:
     """The samples of ``log`` in ``folder``, in frame order (only the shards that hold them are read)."""
     manifest = load_manifest(folder)
-    shards = sorted(
-        {
-            s
-            for s, row_log in zip(manifest["shard"].to_pylist(), manifest["log"].to_pylist(), strict=True)
-            if row_log == log
-        }
-    )
-    samples = [s for shard in shards for s in read_samples(folder / "shards" / shard) if s["meta"]["log_id"] == log]
+    shards = sorted(set(manifest.filter(pc.equal(manifest["log"], log))["shard"].to_pylist()))
+    samples = [s for shard in shards for s in read_samples(folder / SHARD_DIR / shard) if s["meta"]["log_id"] == log]
     return sorted(samples, key=lambda s: s["meta"]["frame_idx"])
 
 
@@ -89,7 +86,7 @@ def write_recording(target: str | Path, rrd: str | Path, log: str | None = None,
         raise UserError(f"--rrd {rrd}: a Rerun recording file ends in .rrd")
     folder, log, run = find_log(Path(target), log)
     samples = log_samples(folder, log)
-    recording = rr.RecordingStream(APPLICATION, recording_id=f"{log}")
+    recording = rr.RecordingStream(APPLICATION, recording_id=log)
     rrd.parent.mkdir(parents=True, exist_ok=True)
     partial = rrd.with_name(f".{rrd.name}.partial")
     recording.save(partial)
@@ -102,10 +99,8 @@ def write_recording(target: str | Path, rrd: str | Path, log: str | None = None,
     except BaseException:
         partial.unlink(missing_ok=True)
         raise
-    if spawn:
-        recording = rr.RecordingStream(APPLICATION, recording_id=f"{log}")
-        recording.spawn()
-        recording.log_file_from_path(rrd)
+    if spawn:  # the viewer ships in the rerun-sdk wheel; `python -m rerun FILE` is its `rerun FILE`
+        subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True)
     return rrd
 
 

@@ -18,7 +18,7 @@ temporary sibling folder and renamed into place at the end, so a failed report l
 import os
 import shutil
 import tempfile
-from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from importlib import resources
 from pathlib import Path
@@ -29,12 +29,19 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from lead_s2r.errors import UserError
 from lead_s2r.report.comparison import Difference, differences, pair_view, unmatched
-from lead_s2r.report.model_comparison import Model, scene_deltas, select_model, subset_summaries, subset_tags
+from lead_s2r.report.model_comparison import (
+    Model,
+    SceneDelta,
+    scene_deltas,
+    select_model,
+    subset_summaries,
+    subset_tags,
+)
 from lead_s2r.report.overview import headline_tables
 from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run, load_samples, sample_tags
 from lead_s2r.report.sample_page import draw_sample, named_failures, sample_view
 from lead_s2r.report.summary import curves_figure, flat_numbers, histograms
-from lead_s2r.report.tables import find_runs
+from lead_s2r.report.tables import Run, find_runs
 
 RANDOM_SHOWN = 3
 DEFAULT_WORST = 5
@@ -72,9 +79,14 @@ def choose_samples(
 def data_folders(run: RunOutputs, data: list[Path] | None) -> list[Path]:
     """``--data`` when given, else the folders the run's scores.json record (each must exist)."""
     folders = [Path(folder) for folder in data] if data else run.data_folders()
+    return existing(folders, "pass the run's converted data with --data")
+
+
+def existing(folders: list[Path], fix: str) -> list[Path]:
+    """``folders``, each checked to exist (``fix``: what the error tells the user to do)."""
     missing = [folder for folder in folders if not folder.is_dir()]
     if missing:
-        raise UserError(f"converted folder {missing[0]} does not exist; pass the run's converted data with --data")
+        raise UserError(f"converted folder {missing[0]} does not exist; {fix}")
     return folders
 
 
@@ -127,14 +139,12 @@ def build_site(
     loaded = load_samples(folders, sorted(keys))
     tags = sample_tags(folders, keys)
     with _staging(Path(out)) as staging:
-        listed = []
         for path, run in runs.items():
             Pages(staging / "runs" / run.slug, home="../../").summary(run, shown[path], loaded, tags, None)
-            listed.append(run)
         pages = Pages(staging)
         if models is not None:
             pages.models(models, deltas, drawn, loaded, threshold)
-        pages.overview(table_runs, listed, models)
+        pages.overview(table_runs, list(runs.values()), models)
     return Path(out) / "index.html"
 
 
@@ -156,23 +166,15 @@ def same_data(runs: Collection[RunOutputs]) -> list[Path]:
                     f"{run.path}: scored {scores.label} on {sorted(map(str, folders))}, but "
                     f"{first[1].path} on {sorted(map(str, first[0]))}; report runs scored on the same data"
                 )
-    return data_folders_of(runs)
-
-
-def data_folders_of(runs: Iterable[RunOutputs]) -> list[Path]:
-    """Every converted folder the runs' scores record, once, each checked to exist."""
     folders = list(dict.fromkeys(folder for run in runs for folder in run.data_folders()))
-    missing = [folder for folder in folders if not folder.is_dir()]
-    if missing:
-        raise UserError(f"converted folder {missing[0]} does not exist; the runs' scores.json name it as their data")
-    return folders
+    return existing(folders, "the runs' scores.json name it as the data they were scored on")
 
 
 def _scored_keys(models: list[Model]) -> set[str]:
     return {key for model in models for _, run in model.runs for scores in run.scores for key in scores.rows}
 
 
-def _pair_keys(deltas: list[Any], worst: int, threshold: float) -> list[tuple[str, str]]:
+def _pair_keys(deltas: list[SceneDelta], worst: int, threshold: float) -> list[tuple[str, str]]:
     """(metric, key) of the scenes drawn side by side: per metric, the first ``worst`` scenes B loses (in
     :func:`scene_deltas`'s order: the scored subsets' scenes first, largest losses first)."""
     drawn: list[tuple[str, str]] = []
@@ -280,7 +282,7 @@ class Pages:
                    losses=[d for d in changed if d.gain < 0])  # fmt: skip
 
     def models(
-        self, models: list[Model], deltas: list[Any], drawn: list[tuple[str, str]], loaded: dict[str, Any],
+        self, models: list[Model], deltas: list[SceneDelta], drawn: list[tuple[str, str]], loaded: dict[str, Any],
         threshold: float,
     ) -> None:  # fmt: skip
         """``models.html``: model B against model A per subset and scene; ``models/<key>.html`` for the scenes B
@@ -304,7 +306,7 @@ class Pages:
         self.write("models.html", "models.html", title=f"{b.name} against {a.name}", a=_model_title(a),
                    b=_model_title(b), summaries=summaries, deltas=deltas, pages=pages, threshold=threshold)  # fmt: skip
 
-    def overview(self, table_runs: list[Any], listed: list[RunOutputs], models: list[Model] | None) -> None:
+    def overview(self, table_runs: list[Run], listed: list[RunOutputs], models: list[Model] | None) -> None:
         """``index.html`` over many runs: headline scores per model, the runs with links, the comparison."""
         self.write(
             "overview.html",
