@@ -39,6 +39,8 @@ class PageVisit:
     images: list[tuple[str, bool, int]] = field(default_factory=list)
     headings: list[str] = field(default_factory=list)
     screenshot: bytes = b""
+    #: what each of ``visit``'s ``steps`` returned, in order
+    results: list[Any] = field(default_factory=list)
 
 
 class Chromium:
@@ -119,8 +121,15 @@ class Chromium:
         while not any(e.get("method") == method and e.get("sessionId") == session for e in self._events):
             self._events.append(self._receive(deadline))
 
-    def visit(self, page: Path) -> PageVisit:
-        """Open ``page`` from the file system, wait for its load event, probe it and take a full-page screenshot."""
+    def _evaluate(self, expression: str, session: str) -> Any:
+        answer = self.call("Runtime.evaluate", {"expression": expression, "returnByValue": True}, session)
+        if "exceptionDetails" in answer:
+            raise RuntimeError(f"{expression}: {answer['exceptionDetails'].get('text')}")
+        return answer["result"].get("value")
+
+    def visit(self, page: Path, steps: tuple[str, ...] = ()) -> PageVisit:
+        """Open ``page`` from the file system, wait for its load event, run each JavaScript expression of ``steps``
+        in turn (a click, a query; their JSON-able values are kept), probe it and take a full-page screenshot."""
         target = self.call("Target.createTarget", {"url": "about:blank"})["targetId"]
         session = self.call("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
         for domain in ("Runtime", "Log", "Page"):
@@ -128,9 +137,10 @@ class Chromium:
         self._events.clear()
         self.call("Page.navigate", {"url": page.resolve().as_uri()}, session)
         self._wait_for("Page.loadEventFired", session)
+        results = [self._evaluate(step, session) for step in steps]
         probe = self.call("Runtime.evaluate", {"expression": PAGE_PROBE, "returnByValue": True}, session)
         shot = self.call("Page.captureScreenshot", {"format": "png", "captureBeyondViewport": True}, session)
-        visit = PageVisit(screenshot=base64.b64decode(shot["data"]))
+        visit = PageVisit(screenshot=base64.b64decode(shot["data"]), results=results)
         found = json.loads(probe["result"]["value"])
         visit.images = [tuple(image) for image in found["images"]]
         visit.headings = found["headings"]

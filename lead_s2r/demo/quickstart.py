@@ -164,13 +164,11 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
 
 
 def write_report(out: Path) -> Path:
-    """The web report of the Ego MLP on NAVSIM against the logged human (the Expert row) as baseline: where the model
-    loses to the human, sample by sample, PDMS and EPDMS sub-scores included. Returns its ``index.html``. (A run
-    folder holds one family, ``runs/<family>/<name>/seed0``; the WOD-E2E half is ``runs/wod/ego_mlp/seed0``.)"""
-    from lead_s2r.report.site import build_report
+    """The web report of every run (headline scores, each run's worst samples) and of LTFv6 against the Ego MLP on
+    both datasets, scene by scene, the needs-perception scenes first: the table's question. Returns its index.html."""
+    from lead_s2r.report.site import build_site
 
-    run, baseline = run_folder(out, "navsim", "ego_mlp", 0), run_folder(out, "navsim", "expert", 0)
-    return build_report(run, out / "report", baseline=baseline, worst=4)
+    return build_site([str(out / "runs" / "*" / "*" / "seed*")], out / "report", compare=("ego_mlp", "ltfv6"))
 
 
 def steps_range() -> str:

@@ -23,6 +23,7 @@ import pyarrow.compute as pc
 from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields
 from lead_s2r.predictions import Prediction, group_by_key, read_parquet, read_predictions
+from lead_s2r.report.tables import TableError, folder_identity, run_identity
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
 
 SCORES_JSON = "scores.json"
@@ -84,10 +85,18 @@ class RunOutputs:
     predictions: dict[str, list[Prediction]]
     config: str | None = None
     logs: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    #: the tags of the subsets scored on their own (``lead-s2r score --tag``), whole set or not
+    subsets: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
-        return self.path.resolve().name  # "." is a run too
+        """What the run is: ``navsim / ltfv6 / seed0`` (see :func:`run_name`)."""
+        return run_name(self.path)
+
+    @property
+    def slug(self) -> str:
+        """The run's name as a folder or file name: ``navsim-ltfv6-seed0``."""
+        return "-".join(self.name.split(" / "))
 
     def data_folders(self) -> list[Path]:
         """The converted folders the scores.json files record, in first-seen order."""
@@ -95,15 +104,35 @@ class RunOutputs:
         return list(dict.fromkeys(folders))
 
 
+def run_name(path: Path) -> str:
+    """``<family> / <name> / seed<k>`` from the run layout ``runs/<family>/<name>/seed<k>``, else from the
+    ``config.yaml`` ``lead-s2r fit`` saved (``trainer.default_root_dir``, ``seed_everything``: what ``lead-s2r table``
+    reads), else the folder's own name: a run is named by what it is, never by its last folder alone."""
+    path = path.resolve()  # "." is a run too
+    identity = folder_identity(path)
+    configs = sorted(path.rglob("config.yaml"))
+    if identity is None and configs:
+        try:
+            identity = run_identity(configs[0])
+        except TableError:  # a config without the run's identity (hand-written): the folder names the run
+            identity = None
+    if identity is None:
+        return path.name
+    run_id, seed = identity
+    return " / ".join([*Path(run_id).parts[-2:], f"seed{seed}"])
+
+
 def load_run(path: str | Path) -> RunOutputs:
     """Read a run folder (see the module docstring)."""
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path}: no such run folder; give the folder `lead-s2r score --out` wrote into (or above it)")
-    scores = _whole_sets([_metric_scores(json_path) for json_path in sorted(path.rglob(SCORES_JSON))])
+    every = [_metric_scores(json_path) for json_path in sorted(path.rglob(SCORES_JSON))]
+    scores = _whole_sets(every)
     if not scores:
         raise UserError(f"{path}: no {SCORES_JSON} below it; score the run first (`lead-s2r score ... --out`)")
-    return RunOutputs(path, scores, _predictions(path, scores), _config(path), training_curves(path))
+    subsets = tuple(dict.fromkeys(entry.report["tag"] for entry in every if entry.report.get("tag")))
+    return RunOutputs(path, scores, _predictions(path, scores), _config(path), training_curves(path), subsets)
 
 
 def _whole_sets(scores: list[MetricScores]) -> list[MetricScores]:
@@ -217,3 +246,16 @@ def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict
             if sample["__key__"] in shard_keys:
                 samples[sample["__key__"]] = sample
     return samples
+
+
+def sample_tags(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, list[str]]:
+    """The manifest's tags (``scene_filter:pedestrians_ahead``) of each of ``keys`` the converted ``folders`` hold."""
+    wanted = pa.array(sorted(set(keys)), pa.string())
+    tags: dict[str, list[str]] = {}
+    for folder in folders:
+        manifest = load_manifest(folder)
+        if "tags" not in manifest.column_names:
+            continue
+        rows = manifest.filter(pc.is_in(manifest["key"], value_set=wanted))
+        tags.update(zip(rows["key"].to_pylist(), (t or [] for t in rows["tags"].to_pylist()), strict=True))
+    return tags

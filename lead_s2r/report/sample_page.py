@@ -35,10 +35,11 @@ NAVSIM_FAILURES = {
 NOT_SCORES = {"key", "dataset", "token", "valid", "error", "previous_key", "cluster", "stage", "two_stage_role"}
 
 
-def failures(scores: MetricScores, row: dict[str, Any]) -> list[str]:
-    """The sub-scores ``row`` lost, named, with the time they were lost where the scorer records it."""
+def named_failures(scores: MetricScores, row: dict[str, Any]) -> list[tuple[str, str]]:
+    """``(kind, words)`` of each sub-score ``row`` lost: the kind (``DAC``) is what a listing filters on, the words
+    name it with the time it was lost where the scorer records it."""
     if row.get("valid") is False:
-        return [f"not scored: {row.get('error')}"]
+        return [("not scored", f"not scored: {row.get('error')}")]
     named = []
     if scores.family in ("pdms", "epdms"):
         for column, (short, what, step_column) in NAVSIM_FAILURES.items():
@@ -49,13 +50,18 @@ def failures(scores: MetricScores, row: dict[str, Any]) -> list[str]:
             when = f" at t = {step * STEP_S:.1f} s" if step is not None and step >= 0 else ""
             hit = row.get("collision_object_idx") if column == "no_at_fault_collisions" else None
             whom = f" with agent {hit}" if hit is not None and hit >= 0 else ""
-            named.append(f"{short} {value:g}: {what}{whom}{when}")
+            named.append((short, f"{short} {value:g}: {what}{whom}{when}"))
     elif scores.family == "rfs" and row.get("rfs") is not None:
         if not row.get("fully_within"):
-            named.append(f"RFS {row['rfs']:.2f}: outside every rater's trust region (raised to the floor)")
+            named.append(("RFS", f"RFS {row['rfs']:.2f}: outside every rater's trust region (raised to the floor)"))
         elif row["rfs"] < (row.get("best_label") or 0.0):
-            named.append(f"RFS {row['rfs']:.2f}: below the best rater's score {row['best_label']:g}")
+            named.append(("RFS", f"RFS {row['rfs']:.2f}: below the best rater's score {row['best_label']:g}"))
     return named
+
+
+def failures(scores: MetricScores, row: dict[str, Any]) -> list[str]:
+    """The sub-scores ``row`` lost, named, with the time they were lost where the scorer records it."""
+    return [words for _, words in named_failures(scores, row)]
 
 
 def is_score(name: str, value: object) -> bool:

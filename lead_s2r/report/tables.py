@@ -308,10 +308,13 @@ class Cell:
 
 def matches(run: Run, row: Row) -> bool:
     """Whether ``run`` is one of ``row``'s seeds: its id ends with the row's run path (whole components)."""
-    if row.run is None:
-        return False
-    wanted = Path(row.run).parts
-    return Path(run.run_id).parts[-len(wanted) :] == wanted
+    return row.run is not None and id_ends_with(run.run_id, row.run)
+
+
+def id_ends_with(run_id: str, wanted: str) -> bool:
+    """Whether run id ``runs/navsim/ltfv6`` ends with the path ``wanted`` (``ltfv6``, ``navsim/ltfv6``), whole parts."""
+    parts = Path(wanted).parts
+    return Path(run_id).parts[-len(parts) :] == parts
 
 
 def collect(spec: TableSpec, runs: list[Run]) -> list[list[Cell]]:
