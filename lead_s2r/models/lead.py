@@ -6,6 +6,7 @@
 - :func:`forward` runs LEAD's input contract (x forward, y right) and returns LEAD's ``Prediction`` fields, flat.
 - :func:`model_from_config` builds a randomly initialised network from a config.json dict.
 - :func:`export_checkpoint` writes a folder LEAD's own loader reads with ``strict=True``.
+- :func:`loss`, :func:`optimizer` and :func:`scheduler` train it as LEAD's Trainer does (:mod:`.lead_loss`).
 """
 
 import json
@@ -18,6 +19,7 @@ from torch import Tensor, nn
 from lead_s2r.errors import UserError
 from lead_s2r.formats import torch_file
 from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_loss import loss, optimizer, scheduler
 from lead_s2r.models.lead_planner import expected_speed
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
@@ -25,6 +27,8 @@ from lead_s2r.models.lead_tfv6 import LeadTFv6
 #: scalar speed is recomputed from the averaged logits). Semantic maps merge as LEAD does: background channel min,
 #: other channels max. Everything else (CenterNet maps, radar) is averaged as maps: LEAD merges decoded boxes by NMS,
 #: which is post-processing outside the network.
+__all__ = ["loss", "optimizer", "scheduler"]  # re-exported: LEAD's training computation
+
 MAX_MERGED = ("pred_bev_semantic", "pred_bev_semantic_navsim", "pred_semantic")
 
 

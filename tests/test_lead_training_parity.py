@@ -1,0 +1,144 @@
+"""LEAD's training step: our ``lead.loss`` / ``lead.optimizer`` against LEAD's own training code on the tiny NAVSIM
+LTFv6 (tests/data/lead_tfv6/tiny_ltfv6_navsim/training/, copied from the golden folder; TRAINING.md there): every loss
+term and the total, every gradient and the parameters after one optimizer step, in eval mode and in train mode with
+dropout off (BatchNorm on batch statistics)."""
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from torch import Tensor, nn
+
+from lead_s2r.models import lead
+from lead_s2r.models.lead_backbone import SelfAttention
+from lead_s2r.models.lead_loss import loss_weights, visible_bev_pixels
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+TINY = Path(__file__).parent / "data" / "lead_tfv6" / "tiny_ltfv6_navsim"
+CASE = TINY / "training"
+TOL = 1e-5
+
+
+def load(path: Path) -> dict[str, Tensor]:
+    return torch.load(path, weights_only=True)
+
+
+def without_dropout(model: nn.Module) -> nn.Module:
+    """``model`` in train mode with every dropout probability 0, as LEAD's train_nodropout case was made."""
+    model.train()
+    for module in model.modules():
+        if isinstance(module, nn.Dropout):
+            module.p = 0.0
+        elif isinstance(module, nn.MultiheadAttention | SelfAttention):
+            module.dropout = 0.0
+    return model
+
+
+def loss_and_grads(mode: str) -> tuple[nn.Module, dict[str, Tensor], dict[str, Tensor]]:
+    model = lead.load_checkpoint(TINY)
+    if mode == "train_nodropout":
+        without_dropout(model)
+    losses = lead.loss(model, load(TINY / "inputs.pt"), load(CASE / "targets.pt"))
+    losses["total"].backward()
+    return model, losses, {name: p.grad for name, p in model.named_parameters()}
+
+
+@pytest.fixture(scope="module", params=["eval", "train_nodropout"])
+def step(request: pytest.FixtureRequest) -> tuple[str, nn.Module, dict[str, Tensor], dict[str, Tensor]]:
+    torch.set_num_threads(1)
+    return request.param, *loss_and_grads(request.param)
+
+
+def case(mode: str) -> Path:
+    return CASE if mode == "eval" else CASE / mode
+
+
+def test_every_term_and_the_total_are_leads(step) -> None:
+    mode, _, losses, _ = step
+    want = load(case(mode) / "losses.pt")
+    assert list(losses) == list(want)  # LEAD's names, in compute_loss's order, then total
+    for key, value in want.items():
+        torch.testing.assert_close(losses[key].detach().reshape(value.shape), value, rtol=TOL, atol=TOL, msg=key)
+
+
+def test_every_gradient_is_leads(step) -> None:
+    """Tolerance relative to the largest gradient: the attention key biases' exact gradient is 0 (softmax ignores a
+    shift along keys), so theirs is rounding noise (1e-11) on both sides."""
+    mode, _, _, grads = step
+    want = load(case(mode) / "grads.pt")
+    assert set(grads) == set(want)
+    largest = max(g.abs().max().item() for g in want.values())
+    for name, grad in grads.items():
+        torch.testing.assert_close(grad, want[name], rtol=TOL, atol=TOL * largest, msg=name)
+
+
+def test_weights_are_normalised_over_leads_whole_table() -> None:
+    """A NAVSIM LTFv6: nine non-zero weights, two of them for terms NAVSIM never produces, so each term weighs 1/9."""
+    model = lead.load_checkpoint(TINY)
+    want = json.loads((CASE / "losses.json").read_text())["all_detailed_loss_weights_normalised"]
+    got = loss_weights(model.config)
+    assert {k: got[k] for k in want} == pytest.approx(want, rel=1e-12)
+    assert set(got) - set(want) == {"loss_tf", "loss_tfpp_speed", "loss_tfpp"}
+
+
+def test_visibility_mask_is_leads_frustum() -> None:
+    model = lead.load_checkpoint(TINY)
+    want = load(CASE / "derived.pt")["bev_semantic_decoder_navsim.valid_bev_pixels"][0]
+    assert torch.equal(visible_bev_pixels(model.config), want)
+
+
+def test_one_optimizer_step_gives_leads_parameters() -> None:
+    """Equal to 1e-5 wherever LEAD's gradient is at least Adam's eps (1e-8). Below it the first step,
+    lr * g / (|g| + eps), follows rounding noise: the attention key biases' exact gradient is 0 and both sides hold
+    noise of 1e-9 there (about 70 of 384 planner in_proj_bias entries step differently, by at most 6e-5 < lr)."""
+    model, _, _ = loss_and_grads("eval")
+    optimizer = lead.optimizer(model, json.loads((TINY / "config.json").read_text()))
+    settings = json.loads((CASE / "optimizer.json").read_text())
+    assert len(optimizer.param_groups) == settings["param_groups"]
+    group = optimizer.param_groups[0]
+    for key in ("lr", "eps", "weight_decay", "amsgrad"):
+        assert group[key] == settings["settings"][key], key
+    assert list(group["betas"]) == settings["settings"]["betas"]
+    optimizer.step()
+    want, grads = load(CASE / "params_after_step.pt"), load(CASE / "grads.pt")
+    got = model.state_dict()
+    assert set(got) == set(want)
+    for name, value in want.items():
+        settled = grads[name].abs() >= group["eps"] if name in grads else torch.ones_like(value, dtype=torch.bool)
+        torch.testing.assert_close(got[name][settled], value[settled], rtol=TOL, atol=TOL, msg=name)
+        assert (got[name] - value).abs().max() < group["lr"], name
+
+
+def test_batch_statistics_after_train_forwards_are_leads() -> None:
+    """BatchNorm's running statistics (momentum 0.1) match LEAD's file after two train-mode forwards from the loaded
+    checkpoint: the file's ``num_batches_tracked`` is 2 although TRAINING.md speaks of one forward (the harness's
+    second, other-seed run evidently went through the same model)."""
+    model = without_dropout(lead.load_checkpoint(TINY))
+    inputs, targets = load(TINY / "inputs.pt"), load(CASE / "targets.pt")
+    for _ in range(2):
+        lead.loss(model, inputs, targets)
+    want = load(CASE / "train_nodropout" / "buffers_after_forward.pt")
+    buffers = dict(model.named_buffers())
+    assert set(want) == set(buffers)
+    for name, value in want.items():
+        torch.testing.assert_close(buffers[name], value, rtol=TOL, atol=TOL, msg=name)
+
+
+def test_schedule_is_leads() -> None:
+    """Cosine with warm restarts after 1, 2, 4 ... epochs (T_0 = steps per epoch), stepped after the optimizer step,
+    so the first step uses lr 3e-4; WOD-E2E decays once over its 20 epochs."""
+    model = lead.load_checkpoint(TINY)
+    optimizer = lead.optimizer(model)
+    schedule = lead.scheduler(optimizer, model.config, steps_per_epoch=10)
+    assert type(schedule).__name__ == json.loads((CASE / "optimizer.json").read_text())["scheduler"]
+    lrs = []
+    for _ in range(31):
+        lrs.append(optimizer.param_groups[0]["lr"])
+        optimizer.step()
+        schedule.step()
+    assert lrs[0] == lrs[10] == lrs[30] == pytest.approx(3e-4) and lrs[9] < 1e-5 and lrs[20] < lrs[10]
+    wod = lead.model_from_config({"use_waymo_e2e_data": True, "use_carla_data": False, "use_planning_decoder": True})
+    wod_schedule = lead.scheduler(lead.optimizer(wod), wod.config, steps_per_epoch=10)
+    assert type(wod_schedule).__name__ == "CosineAnnealingLR" and wod_schedule.T_max == 200
