@@ -12,7 +12,10 @@ from torch import Tensor, nn
 
 from lead_s2r.models import lead
 from lead_s2r.models.lead_backbone import SelfAttention
+from lead_s2r.models.lead_driver import LeadDriver
+from lead_s2r.models.lead_frame import NAVSIM_COMMAND_INDEX, bev_map_from_lead, flip_y
 from lead_s2r.models.lead_loss import loss_weights, visible_bev_pixels
+from lead_s2r.training.module import DrivingModule
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -142,3 +145,57 @@ def test_schedule_is_leads() -> None:
     wod = lead.model_from_config({"use_waymo_e2e_data": True, "use_carla_data": False, "use_planning_decoder": True})
     wod_schedule = lead.scheduler(lead.optimizer(wod), wod.config, steps_per_epoch=10)
     assert type(wod_schedule).__name__ == "CosineAnnealingLR" and wod_schedule.T_max == 200
+
+
+def our_navsim_batch() -> dict[str, Tensor]:
+    """The golden case's inputs and targets in our batch contract (ISO frame, our names): the y flip and LEAD's
+    raster orientation undone, CenterNet labels moved as :func:`boxes_from_lead` moves the head's maps (mirrored yaw
+    bins, lateral offset from the other cell edge), no speed map (NAVSIM's loader gives none)."""
+    inputs, targets = load(TINY / "inputs.pt"), load(CASE / "targets.pt")
+    command = inputs["command"].argmax(1)
+    ours = {lead_index: ours for ours, lead_index in NAVSIM_COMMAND_INDEX.items()}
+    speed = inputs["speed"]
+    batch = {
+        "rgb": inputs["rgb"],
+        "speed": speed,
+        "acceleration": torch.stack([inputs["acceleration"], torch.zeros_like(speed)], dim=1),
+        "command": torch.tensor([int(ours[int(c)]) for c in command]),
+        "waypoints": flip_y(targets["future_waypoints"]),
+        "headings": -targets["future_yaws"],
+        "bev_semantic": bev_map_from_lead(targets["navsim_bev_semantic"][:, None])[:, 0],
+    }
+    maps = {key: bev_map_from_lead(targets[f"navsim_center_net_{key}"]) for key in ("heatmap", "wh", "offset")}
+    offset = torch.cat([maps["offset"][:, :1], 1 - maps["offset"][:, 1:]], dim=1)
+    weight = bev_map_from_lead(targets["navsim_center_net_pixel_weight"])[:, 0]
+    yaw_class = bev_map_from_lead(targets["navsim_center_net_yaw_class"][:, None])[:, 0].long()
+    batch.update(
+        lead_box_heatmap=maps["heatmap"],
+        lead_box_size=maps["wh"],
+        lead_box_offset=torch.where(weight[:, None] > 0, offset, 0.0),
+        lead_box_yaw_class=(-yaw_class) % 12,
+        lead_box_yaw_residual=-bev_map_from_lead(targets["navsim_center_net_yaw_res"])[:, 0],
+        lead_box_weight=weight > 0,
+        lead_box_count=targets["navsim_center_net_avg_factor"].float(),
+    )
+    return batch
+
+
+def test_the_lightning_module_trains_a_lead_network_with_leads_total_and_gradients() -> None:
+    """Our training path (DrivingModule on LeadDriver, our batch and names) backpropagates LEAD's total: the same
+    terms through the same definitions, LEAD's normalised weights, and LEAD's optimizer settings."""
+    module = DrivingModule(LeadDriver(checkpoint=str(TINY)), supervise={"navsim": ["planning", "perception"]}).eval()
+    total, terms = module.compute_losses({"navsim": our_navsim_batch()})
+    assert set(terms) == {"navsim/waypoints", "navsim/headings", "navsim/bev_semantic", "navsim/lead_boxes"}
+    want = load(CASE / "losses.pt")
+    torch.testing.assert_close(total.reshape(1), want["total"], rtol=TOL, atol=TOL)
+    total.backward()
+    grads = load(CASE / "grads.pt")
+    largest = max(g.abs().max().item() for g in grads.values())
+    for name, p in module.model.network.named_parameters():
+        grad = p.grad if p.grad is not None else torch.zeros_like(p)  # NAVSIM's speed head: LEAD's 0-weighted term
+        torch.testing.assert_close(grad, grads[name], rtol=TOL, atol=TOL * largest, msg=name)
+    optimizer = module.configure_optimizers()
+    reference = lead.optimizer(module.model.network, module.model.config)
+    assert len(optimizer.param_groups) == 1
+    for key in ("lr", "betas", "eps", "weight_decay", "amsgrad", "fused"):
+        assert optimizer.param_groups[0][key] == reference.param_groups[0][key], key

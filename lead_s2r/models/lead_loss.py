@@ -107,8 +107,9 @@ def source_mean(per_sample: Tensor, source_mask: Tensor) -> Tensor:
 
 
 def semantic_loss(logits: Tensor, label: Tensor, source_mask: Tensor) -> Tensor:
-    """Image-space semantic cross-entropy, mean over pixels per sample."""
-    per_pixel = F.cross_entropy(logits.float(), label.long(), reduction="none")
+    """Image-space semantic cross-entropy, mean over pixels per sample (a -1 pixel adds 0 and still counts; LEAD's
+    labels have none)."""
+    per_pixel = F.cross_entropy(logits.float(), label.long(), reduction="none", ignore_index=-1)
     return source_mean(per_pixel.mean(dim=(1, 2)), source_mask)
 
 
@@ -229,11 +230,12 @@ def radar_loss(pred: Tensor, detections: Tensor, scale: tuple[float, float, floa
 
 
 # --- planning terms --------------------------------------------------------------------------------------------------
-def two_hot(speed: Tensor, brake: Tensor, classes: Iterable[float] = TARGET_SPEED_CLASSES) -> Tensor:
+def two_hot(speed: Tensor, brake: Tensor, classes: Iterable[float] | Tensor = TARGET_SPEED_CLASSES) -> Tensor:
     """(B,) target speeds -> (B, C) probabilities on the two neighbouring classes (linear split); a braking sample is
     class 0 and a speed at or above the last class is the last class (LEAD's ``encode_two_hot``)."""
     speed = speed.float()
-    bins = torch.tensor(list(classes), dtype=speed.dtype, device=speed.device)
+    bins = classes if isinstance(classes, Tensor) else torch.tensor(list(classes))
+    bins = bins.to(speed.device, speed.dtype)
     clamped = speed.clamp(bins[0], bins[-1])
     upper = torch.searchsorted(bins, clamped, right=False).clamp(1, len(bins) - 1)
     lower_value, upper_value = bins[upper - 1], bins[upper]
@@ -398,14 +400,14 @@ def optimizer(model: nn.Module, config: LeadConfig | Mapping | None = None) -> t
 
 
 def cosine_schedule(
-    optimizer: torch.optim.Optimizer, steps_per_epoch: int, epochs: int, restarts: bool
+    optimizer: torch.optim.Optimizer, steps_per_epoch: int, epochs: int, restarts: bool, skipped_steps: int = 0
 ) -> torch.optim.lr_scheduler.LRScheduler:
     """LEAD's schedule, stepped after every optimizer step: a cosine restarting after 1, 2, 4 ... epochs, or one
-    cosine over ``epochs`` epochs."""
+    cosine over ``epochs`` epochs, less ``skipped_steps`` spent before it (ours: a warm-up; LEAD has none)."""
     schedules = torch.optim.lr_scheduler
     if restarts:
         return schedules.CosineAnnealingWarmRestarts(optimizer, T_0=steps_per_epoch, T_mult=2)
-    return schedules.CosineAnnealingLR(optimizer, T_max=steps_per_epoch * epochs)
+    return schedules.CosineAnnealingLR(optimizer, T_max=max(1, steps_per_epoch * epochs - skipped_steps))
 
 
 def scheduler(
