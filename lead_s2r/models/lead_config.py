@@ -402,7 +402,7 @@ class LeadConfig:
             tasks.add("lead_boxes")
         if source == "carla" and self.use_carla_data and self.use_semantic:
             tasks.add("semantic")
-        if source == "carla" and self.use_carla_data and self.use_depth:
+        if source == "carla" and self.use_carla_data and self.use_semantic and self.use_depth:
             tasks.add("depth")
         if source == "carla" and self.has_radar_detector:
             tasks.add("radar")
