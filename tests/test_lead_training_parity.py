@@ -104,6 +104,8 @@ def test_one_optimizer_step_gives_leads_parameters() -> None:
     for key in ("lr", "eps", "weight_decay", "amsgrad"):
         assert group[key] == settings["settings"][key], key
     assert list(group["betas"]) == settings["settings"]["betas"]
+    from_file = lead.optimizer(model, TINY / "config.json").defaults
+    assert from_file == lead.optimizer(model, TINY).defaults == optimizer.defaults
     optimizer.step()
     want, grads = load(CASE / "params_after_step.pt"), load(CASE / "grads.pt")
     got = model.state_dict()
@@ -184,6 +186,7 @@ def test_the_lightning_module_trains_a_lead_network_with_leads_total_and_gradien
     """Our training path (DrivingModule on LeadDriver, our batch and names) backpropagates LEAD's total: the same
     terms through the same definitions, LEAD's normalised weights, and LEAD's optimizer settings."""
     module = DrivingModule(LeadDriver(checkpoint=str(TINY)), supervise={"navsim": ["planning", "perception"]}).eval()
+    module.setup("fit")  # channels-last, as a fit starts
     total, terms = module.compute_losses({"navsim": our_navsim_batch()})
     assert set(terms) == {"navsim/waypoints", "navsim/headings", "navsim/bev_semantic", "navsim/lead_boxes"}
     want = load(CASE / "losses.pt")

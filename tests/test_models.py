@@ -14,9 +14,9 @@ from lead_s2r.models.config import EgoMLPConfig, ltfv6_config, tfv5_config, tfv6
 from lead_s2r.models.ego_mlp import EgoStatusMLP
 from lead_s2r.models.embeddings import grid_embedding, sine_embedding
 from lead_s2r.models.inputs import target_point_range
+from lead_s2r.models.lead_loss import two_hot
 from lead_s2r.models.planning_decoder import TargetPointNorm
 from lead_s2r.models.tfv6 import TFv6, count_parameters
-from lead_s2r.models.lead_loss import two_hot
 from lead_s2r.training.losses import focal_heatmap_loss, heading_loss, radar_loss, segmentation_loss
 
 SOURCES = ("carla", "navsim", "wod")

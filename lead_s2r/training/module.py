@@ -113,8 +113,6 @@ class DrivingModule(L.LightningModule):
         if init_from is not None:
             self.init_report = load_matching(self.model, init_from)
             rank_zero_info(self.init_report.summary())
-        if isinstance(model, LeadDriver):
-            training_layout(model)
         if compile:
             self.model.compile()
 
@@ -143,13 +141,16 @@ class DrivingModule(L.LightningModule):
         return datamodule if isinstance(datamodule, TrainingData) else None
 
     def setup(self, stage: str) -> None:
-        """At the start of a fit, normalise target points by the training data's statistics.
+        """At the start of a fit, normalise target points by the training data's statistics (and put a LEAD network's
+        weights in LEAD's channels-last layout).
 
         Lightning restores a checkpoint after ``setup``, so a resumed fit, validation and prediction keep the range
         the weights were trained with (it is saved in the state dict), whatever data the run is given.
         """
         if stage == "fit":
             self._resolve_target_point_range()
+            if isinstance(self.model, LeadDriver):
+                training_layout(self.model)  # LEAD trains channels-last; prediction keeps the loaded layout
 
     def _resolve_target_point_range(self) -> None:
         model = self.model
