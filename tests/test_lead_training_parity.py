@@ -8,10 +8,12 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 from torch import Tensor, nn
 
 from lead_s2r.models import lead
 from lead_s2r.models.lead_backbone import SelfAttention
+from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_frame import NAVSIM_COMMAND_INDEX, bev_map_from_lead, flip_y
 from lead_s2r.models.lead_loss import loss_weights, visible_bev_pixels
@@ -202,3 +204,26 @@ def test_the_lightning_module_trains_a_lead_network_with_leads_total_and_gradien
     assert len(optimizer.param_groups) == 1
     for key in ("lr", "betas", "eps", "weight_decay", "amsgrad", "fused"):
         assert optimizer.param_groups[0][key] == reference.param_groups[0][key], key
+
+
+RECIPES = Path(__file__).parents[1] / "recipes"
+LEAD_RECIPES = sorted(
+    path
+    for family in ("carla", "navsim", "wod")
+    for path in (RECIPES / family).glob("*.yaml")
+    if "LeadDriver" in path.read_text()
+)
+
+
+@pytest.mark.parametrize("recipe", LEAD_RECIPES, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_lead_recipes_configure_leads_optimizer_and_schedule(recipe: Path) -> None:
+    """Every full-scale LEAD recipe: LEAD's AdamW settings, no warm-up, no gradient clipping, and LEAD's schedule for
+    its config (cosine restarts; one cosine for WOD-E2E)."""
+    spec = yaml.safe_load(recipe.read_text())
+    module = spec["model"]
+    config = LeadConfig.from_json(module["model"]["init_args"]["config"])
+    assert module.get("lr", 3e-4) == config.lr and module.get("weight_decay", 0.01) == config.weight_decay
+    assert module.get("amsgrad", True) is True and tuple(module.get("betas", (0.9, 0.999))) == (0.9, 0.999)
+    assert module.get("warmup_steps", 0) == 0
+    assert spec["trainer"].get("gradient_clip_val") is None
+    assert module["lr_schedule"] == ("cosine_restarts" if config.use_cosine_annealing_with_restarts else "cosine")
