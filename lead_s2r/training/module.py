@@ -33,7 +33,8 @@ from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.prediction_writer import to_predictions
 from lead_s2r.training.weights import LoadReport, load_matching
 
-#: LEAD's weights (``detailed_loss_weights``): all 1 except depth.
+#: Unnormalised weights (all 1 except depth, as LEAD's table before it divides by the sum); a LEAD network uses LEAD's
+#: normalised weights (``LeadDriver.loss_weights``).
 DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in TASK_TARGETS} | {"depth": 1e-5}
 
 #: Lightning's allow-listed instantiator (LightningCLI's); ``load_from_checkpoint`` builds the module with it.
