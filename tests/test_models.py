@@ -14,9 +14,10 @@ from lead_s2r.models.config import EgoMLPConfig, ltfv6_config, tfv5_config, tfv6
 from lead_s2r.models.ego_mlp import EgoStatusMLP
 from lead_s2r.models.embeddings import grid_embedding, sine_embedding
 from lead_s2r.models.inputs import target_point_range
+from lead_s2r.models.lead_loss import two_hot
 from lead_s2r.models.planning_decoder import TargetPointNorm
 from lead_s2r.models.tfv6 import TFv6, count_parameters
-from lead_s2r.training.losses import focal_heatmap_loss, heading_loss, radar_loss, segmentation_loss, two_hot
+from lead_s2r.training.losses import focal_heatmap_loss, heading_loss, radar_loss, segmentation_loss
 
 SOURCES = ("carla", "navsim", "wod")
 VARIANTS = {"tfv6": tfv6_config, "ltfv6": ltfv6_config, "tfv5": tfv5_config}
@@ -208,7 +209,7 @@ def test_masked_target_points_do_not_change_the_plan():
 @given(st.floats(-5.0, 30.0))
 def test_two_hot_decodes_to_the_clamped_value(speed):
     classes = torch.tensor(tfv6_config().target_speed_classes)
-    encoded = two_hot(torch.tensor([speed]), classes)
+    encoded = two_hot(torch.tensor([speed]), torch.tensor([False]), classes)
     assert encoded.sum().item() == pytest.approx(1.0)
     assert (encoded > 0).sum() <= 2
     assert (encoded * classes).sum().item() == pytest.approx(min(max(speed, 0.0), 20.0), abs=1e-4)
@@ -240,7 +241,8 @@ def test_radar_loss_is_permutation_invariant_and_zero_l1_on_perfect_match():
 
 
 def test_radar_loss_matches_within_each_sample_of_a_batch():
-    """Sample 0 has no object; sample 1 has two, in slots 0 and 2 (slot 1 is padding holding junk)."""
+    """Sample 0 has no object; sample 1 has two, in slots 0 and 2 (slot 1 is padding holding junk). LEAD averages the
+    per-sample losses: sample 0 adds 0, sample 1 its 5 x 0.1."""
     targets = torch.tensor([[[0.0, 0.0, 0.0]] * 3, [[10.0, 2.0, 5.0], [99.0, 99.0, 9.0], [-3.0, 4.0, 1.0]]])
     valid = torch.tensor([[False, False, False], [True, False, True]])
     pred = {
@@ -249,7 +251,7 @@ def test_radar_loss_matches_within_each_sample_of_a_batch():
         "radar_logit": torch.tensor([[-20.0, -20.0], [20.0, 20.0]]),
     }
     batch = {"radar_targets": targets, "radar_targets_valid": valid}
-    assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(5 * 0.1, abs=1e-5)
+    assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(5 * 0.1 / 2, abs=1e-5)
 
 
 def test_segmentation_loss_is_the_mean_over_labelled_pixels():

@@ -6,9 +6,11 @@
 - :func:`forward` runs LEAD's input contract (x forward, y right) and returns LEAD's ``Prediction`` fields, flat.
 - :func:`model_from_config` builds a randomly initialised network from a config.json dict.
 - :func:`export_checkpoint` writes a folder LEAD's own loader reads with ``strict=True``.
+- :func:`loss`, :func:`optimizer` and :func:`scheduler` train it as LEAD's Trainer does (:mod:`.lead_loss`).
 """
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +19,10 @@ from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats import torch_file
+from lead_s2r.models import lead_loss
 from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_loss import loss as loss  # re-exported: LEAD's training computation
+from lead_s2r.models.lead_loss import scheduler as scheduler
 from lead_s2r.models.lead_planner import expected_speed
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
@@ -105,6 +110,15 @@ def forward(model: nn.Module, inputs: dict[str, Tensor]) -> dict[str, Tensor]:
     """LEAD's input dict -> LEAD's ``Prediction`` fields as a flat dict, in inference mode (float32)."""
     with torch.inference_mode():
         return model(inputs)
+
+
+def optimizer(model: nn.Module, config: LeadConfig | Mapping | str | Path | None = None) -> torch.optim.AdamW:
+    """LEAD's optimizer (:func:`lead_loss.optimizer`) with the settings of ``config``: a :class:`LeadConfig`, a
+    config.json dict, the path of a config.json or of its checkpoint folder; default: the model's."""
+    if isinstance(config, str | Path):
+        path = Path(config)
+        config = read_config(path if path.is_dir() else path.parent)
+    return lead_loss.optimizer(model, config)
 
 
 def export_checkpoint(model: nn.Module, folder: str | Path) -> Path:

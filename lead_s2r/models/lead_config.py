@@ -56,7 +56,8 @@ WOD_MAX_SPEED = 33.33
 
 @dataclass
 class LeadConfig:
-    """The architecture-relevant part of LEAD's ``TrainingConfig`` (defaults = LEAD main at 4489176)."""
+    """The architecture-relevant part of LEAD's ``TrainingConfig`` and its optimizer settings (defaults = LEAD main at
+    4489176)."""
 
     image_architecture: str = "resnet34"
     lidar_architecture: str = "resnet34"
@@ -112,6 +113,8 @@ class LeadConfig:
     predict_temporal_spatial_waypoints: bool = True
     num_route_points_prediction: int = 10
     use_mixed_precision_training: bool = True
+    lr: float = 3e-4  # LEAD's optimizer settings (models/lead_loss.py)
+    weight_decay: float = 0.01
     # overridable properties (None: derived by LEAD's rule)
     used_cameras: list[bool] | None = None
     use_depth: bool | None = None
@@ -126,6 +129,8 @@ class LeadConfig:
     num_way_points_prediction: int | None = None
     waypoint_interval_s: float | None = None  # ours: seconds between waypoints (LEAD: waypoints_spacing, in frames)
     camera_tile_size: list[int] | None = None  # ours: (width, height) of a camera tile; None: the target's CAMERA_TILE
+    use_cosine_annealing_with_restarts: bool | None = None  # LEAD's schedule: restarts except for WOD-E2E
+    epochs: int | None = None  # LEAD's run length: CARLA 31, NAVSIM 61, WOD-E2E 20
 
     def __post_init__(self) -> None:
         target = self.target_dataset
@@ -142,6 +147,8 @@ class LeadConfig:
             "use_next_tp": self.use_tp,
             "num_way_points_prediction": 10 if wod else 8,  # CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz
             "waypoint_interval_s": 0.25 if self.carla_leaderboard_mode else 0.5,
+            "use_cosine_annealing_with_restarts": not wod,
+            "epochs": 31 if self.carla_leaderboard_mode else 20 if wod else 61,
         }
         for name, default in defaults.items():
             if getattr(self, name) is None:
@@ -384,7 +391,7 @@ class LeadConfig:
             tasks.add("lead_boxes")
         if source == "carla" and self.use_carla_data and self.use_semantic:
             tasks.add("semantic")
-        if source == "carla" and self.use_carla_data and self.use_depth:
+        if source == "carla" and self.use_carla_data and self.use_semantic and self.use_depth:
             tasks.add("depth")
         if source == "carla" and self.has_radar_detector:
             tasks.add("radar")

@@ -25,7 +25,8 @@ from lead_s2r.models.input_spec import lead_grids
 from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
 from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
-from lead_s2r.models.lead_frame import from_lead_outputs, to_lead_inputs
+from lead_s2r.models.lead_frame import bev_map_from_lead, from_lead_outputs, to_lead_inputs
+from lead_s2r.models.lead_loss import loss_weights, radar_feature_scale, visible_bev_pixels
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
 
@@ -60,6 +61,8 @@ class LeadDriver(nn.Module):
         self.camera_select = CameraSelect(len(config.used_cameras), tiles, 1.0)  # also crops perspective labels
         speeds = torch.tensor(TARGET_SPEED_CLASSES)
         self.register_buffer("target_speed_classes", speeds, persistent=False)  # the target-speed loss's bins
+        visible = bev_map_from_lead(visible_bev_pixels(config)[None, None])[0, 0]
+        self.register_buffer("bev_visible", visible, persistent=False)  # LEAD's camera frustum on our BEV grid
 
     @property
     def reads_target_points(self) -> bool:
@@ -74,9 +77,31 @@ class LeadDriver(nn.Module):
 
     @property
     def radar_scale(self) -> tuple[float, float, float]:
-        """What the radar detection loss divides (x, y, speed) by: LEAD's BEV half extents and its maximum speed."""
-        c = self.config
-        return (c.max_x_meter - c.min_x_meter) / 2, (c.max_y_meter - c.min_y_meter) / 2, c.max_speed
+        """What the radar detection loss divides (x, y, speed) by: LEAD's BEV extents and its maximum speed."""
+        return radar_feature_scale(self.config)
+
+    @property
+    def loss_weights(self) -> dict[str, float]:
+        """Each task's weight: LEAD's normalised weight of the term it computes (:func:`lead_loss.loss_weights`,
+        normalised over LEAD's whole table). A perception term weighs the same for every source that has it, and the
+        headings share the waypoint term's weight (LEAD adds them into it)."""
+        weights = loss_weights(self.config)
+
+        def term(name: str) -> float:
+            return max(weights.get(f"{prefix}{name}", 0.0) for prefix in ("", "navsim_", "waymo_e2e_2025_"))
+
+        planning = weights["loss_spatio_temporal_waypoints"]
+        return {
+            "waypoints": planning,
+            "headings": planning,
+            "route": weights["loss_spatial_route"],
+            "target_speed": weights["loss_target_speed"],
+            "bev_semantic": term("loss_bev_semantic"),
+            "lead_boxes": term("loss_center_net_heatmap"),
+            "semantic": term("loss_semantic"),
+            "depth": term("loss_depth"),
+            "radar": term("radar_loss"),
+        }
 
     def grid(self, source: str) -> TrajectoryGrid:
         return lead_grids(self.config)[source]

@@ -1,17 +1,20 @@
 """Loss terms, one function per task (keyed by task in :mod:`lead_s2r.training.loss_table`). Each returns a scalar
-mean over the labelled entries of one source's batch.
+for one source's batch.
 
-Predictions are cast to float32 first, so the terms are stable under bf16 autocast.
+LEAD's terms (perspective semantics and depth, BEV semantics, CenterNet boxes, radar detection, the two-hot target
+speed) are computed by LEAD's own definitions in :mod:`lead_s2r.models.lead_loss`; the functions here only carry our
+batch (our names, the ISO frame, label masks) into them. Waypoints, headings and route are masked means, equal to
+LEAD's plain means where every pose is labelled. Predictions are cast to float32 first, so the terms are stable under
+bf16 autocast.
 """
 
 import math
 
-import numpy as np
 import torch
 import torch.nn.functional as F
-from scipy.optimize import linear_sum_assignment
 from torch import Tensor
 
+from lead_s2r.models import lead_loss
 from lead_s2r.models.inputs import Batch, class_ids
 
 
@@ -60,22 +63,12 @@ def route_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
     return masked_mean(err, valid) + masked_mean(err[rows, last], valid.any(1))
 
 
-def two_hot(values: Tensor, classes: Tensor) -> Tensor:
-    """Encode scalars as weights on the two neighbouring classes (linear interpolation); clamps to the ends."""
-    values = values.float().clamp(classes[0], classes[-1])
-    upper = torch.searchsorted(classes, values, right=False).clamp(1, len(classes) - 1)
-    lower = upper - 1
-    frac = (values - classes[lower]) / (classes[upper] - classes[lower])
-    encoded = torch.zeros(*values.shape, len(classes), device=values.device)
-    encoded.scatter_(-1, lower[..., None], (1 - frac)[..., None])
-    encoded.scatter_add_(-1, upper[..., None], frac[..., None])
-    return encoded
-
-
 def target_speed_loss(pred: dict[str, Tensor], batch: Batch, classes: Tensor) -> Tensor:
-    """Cross-entropy against the two-hot encoded target speed."""
-    target = two_hot(batch["target_speed"], classes.to(batch["target_speed"].device))
-    ce = -(target * F.log_softmax(pred["target_speed_logits"].float(), dim=-1)).sum(-1)
+    """Cross-entropy against LEAD's two-hot target speed (a braking sample is class 0), over labelled samples."""
+    speed = batch["target_speed"]
+    brake = batch.get("brake", torch.zeros_like(speed, dtype=torch.bool))
+    target = lead_loss.two_hot(speed, brake, classes)
+    ce = F.cross_entropy(pred["target_speed_logits"].float(), target, reduction="none")
     valid = batch.get("target_speed_valid", torch.ones_like(ce, dtype=torch.bool))
     return masked_mean(ce, valid)
 
@@ -141,61 +134,75 @@ def box_loss(pred: dict[str, Tensor], batch: Batch, yaw_bins: int) -> Tensor:
 
 
 def lead_box_loss(pred: dict[str, Tensor], batch: Batch, velocity: bool) -> Tensor:
-    """LEAD's CenterNet loss (``center_net_decoder.compute_loss``) on LEAD-encoded targets
-    (``lead_s2r.data.lead_centernet``): per sample, the Gaussian focal loss of the heatmap summed over cells, L1 of
-    size and offset (per channel), yaw-bin cross-entropy, yaw-residual smooth L1 and (``velocity``, where the batch has
-    a speed label: CARLA's) speed L1 at the
-    weighted cells, each divided by the sample's peak count; the terms summed, then the mean over labelled samples
-    (a sample without boxes carries the collate filler, a heatmap of -1)."""
-    target = batch["lead_box_heatmap"].float()
-    labelled = (target >= 0).flatten(1).all(dim=1)
-    count = batch["lead_box_count"].float() + torch.finfo(torch.float32).eps
-    weight = batch["lead_box_weight"].float()
-    prob = pred["box_heatmap"].float().sigmoid()
-    eps = 1e-12  # LEAD's gaussian_focal_loss
-    pos = -(prob + eps).log() * (1 - prob).pow(2) * target.eq(1)
-    neg = -(1 - prob + eps).log() * prob.pow(2) * (1 - target).pow(4)
-    per_sample = (pos + neg).sum(dim=(1, 2, 3))
+    """LEAD's CenterNet terms (:func:`~lead_s2r.models.lead_loss.center_net_losses`) on LEAD-encoded targets
+    (``lead_s2r.data.lead_centernet``), summed: they all weigh the same in LEAD's table. The speed term only with
+    ``velocity`` and a speed label (CARLA's; LEAD weighs NAVSIM's and LTF's 0). A sample without boxes carries the
+    collate filler (a heatmap of -1) and is left out, as LEAD leaves out another source's samples."""
+    heatmap = batch["lead_box_heatmap"].float()
+    labelled = (heatmap >= 0).flatten(1).all(dim=1)
+    head = {
+        "center_heatmap_pred": pred["box_heatmap"].float().sigmoid(),
+        "wh_pred": pred["box_size"],
+        "offset_pred": pred["box_offset"],
+        "yaw_class_pred": pred["box_yaw_class"],
+        "yaw_res_pred": pred["box_yaw_residual"],
+    }
+    weight = batch["lead_box_weight"].float()[:, None]
+    target = {
+        "center_net_heatmap": heatmap,
+        "center_net_wh": batch["lead_box_size"],
+        "center_net_offset": batch["lead_box_offset"],
+        "center_net_yaw_class": batch["lead_box_yaw_class"],
+        "center_net_yaw_res": batch["lead_box_yaw_residual"][:, None],
+        "center_net_pixel_weight": torch.cat([weight, weight], dim=1),
+        "center_net_avg_factor": batch["lead_box_count"],
+    }
+    velocity = velocity and "lead_box_velocity" in batch
+    if velocity:
+        head["velocity_pred"] = pred["box_velocity"]
+        target["center_net_velocity"] = batch["lead_box_velocity"][:, None]
+    terms = lead_loss.center_net_losses(head, target, labelled, velocity=velocity)
+    if not velocity:
+        del terms["loss_center_net_velocity"]
+    return sum(terms.values())
 
-    def at_boxes(values: Tensor) -> Tensor:
-        return (values * weight).flatten(1).sum(dim=1)
 
-    for name in ("size", "offset"):
-        l1 = (pred[f"box_{name}"].float() - batch[f"lead_box_{name}"].float()).abs().sum(dim=1)
-        per_sample = per_sample + at_boxes(l1) / 2
-    yaw_class = batch["lead_box_yaw_class"].long()
-    per_sample = per_sample + at_boxes(F.cross_entropy(pred["box_yaw_class"].float(), yaw_class, reduction="none"))
-    residual = pred["box_yaw_residual"].float()[:, 0]
-    per_sample = per_sample + at_boxes(F.smooth_l1_loss(residual, batch["lead_box_yaw_residual"], reduction="none"))
-    if velocity and "lead_box_velocity" in batch:
-        per_sample = per_sample + at_boxes((pred["box_velocity"].float()[:, 0] - batch["lead_box_velocity"]).abs())
-    return masked_mean(per_sample / count, labelled)
+def radar_slots(targets: Tensor, valid: Tensor, queries: int) -> Tensor:
+    """Our radar targets (B, R, 3) and mask -> LEAD's (B, queries, 4) label slots (x, y, v, valid): labelled rows
+    first, in their order, then padding, cut or padded to one slot per query (LEAD's loader pads to the query count)."""
+    order = torch.sort((~valid.bool()).to(torch.uint8), dim=1, stable=True).indices
+    slots = torch.cat([targets.float(), valid.float()[..., None]], dim=-1)
+    slots = slots.gather(1, order[..., None].expand(-1, -1, 4))[:, :queries]
+    return F.pad(slots, (0, 0, 0, queries - slots.shape[1]))
 
 
 def radar_loss(pred: dict[str, Tensor], batch: Batch, scale: tuple[float, float, float]) -> Tensor:
-    """Hungarian-matched detection loss: ``5 * L1`` of scaled (x, y, speed) for matched queries + ``BCE`` validity.
+    """LEAD's radar detection term (:func:`~lead_s2r.models.lead_loss.radar_loss`: Hungarian matching of queries to
+    label slots, 5 x scaled L1 of matched (x, y, speed) per labelled slot + BCE of validity, mean over samples)."""
+    xyv = torch.cat([pred["radar_xy"], pred["radar_speed"][..., None], pred["radar_logit"][..., None]], dim=-1)
+    slots = radar_slots(batch["radar_targets"], batch["radar_targets_valid"], xyv.shape[1])
+    return lead_loss.radar_loss(xyv, slots.to(xyv.device), scale)
 
-    Matching cost is the same combination, solved per sample with scipy on CPU (LEAD's RadarDetector loss); the
-    costs of the whole batch go to the CPU in one transfer.
-    """
-    norm = torch.tensor(scale, device=pred["radar_xy"].device)
-    xyv = torch.cat([pred["radar_xy"], pred["radar_speed"][..., None]], dim=-1).float() / norm
-    targets = batch["radar_targets"].float() / norm
-    logits = pred["radar_logit"].float()
-    dist = torch.cdist(xyv, targets, p=1)  # (B, Q, R)
-    cost = 5.0 * dist + F.softplus(-logits)[..., None]  # softplus(-logit): BCE of calling the query valid
-    cost_np = cost.detach().cpu().numpy().astype(np.float64)
-    valid_np = batch["radar_targets_valid"].bool().cpu().numpy()
-    samples, queries, objects = [], [], []
-    for i, (sample_cost, valid) in enumerate(zip(cost_np, valid_np, strict=True)):
-        columns = np.flatnonzero(valid)
-        rows, cols = linear_sum_assignment(sample_cost[:, columns])
-        samples.append(np.full(len(rows), i))
-        queries.append(rows)
-        objects.append(columns[cols])
-    matches = np.stack([np.concatenate(v) for v in (samples, queries, objects)])
-    b, q, r = torch.as_tensor(matches, device=xyv.device)
-    label = torch.zeros_like(logits)
-    label[b, q] = 1.0
-    l1 = dist[b, q, r].mean() if len(b) else xyv.sum() * 0.0
-    return 5.0 * l1 + F.binary_cross_entropy_with_logits(logits, label)
+
+def labelled_samples(ids: Tensor) -> Tensor:
+    """(B,) whether a sample's class map holds any label (a sample without one is left out, as another source's)."""
+    return (ids >= 0).flatten(1).any(dim=1)
+
+
+def lead_bev_semantic_loss(logits: Tensor, labels: Tensor, visible: Tensor) -> Tensor:
+    """LEAD's BEV term (:func:`~lead_s2r.models.lead_loss.bev_semantic_loss`): pixels outside ``visible`` (LEAD's
+    camera frustum, on our grid) or without a label are ignored yet counted in each sample's mean."""
+    ids = class_ids(labels)
+    return lead_loss.bev_semantic_loss(logits, ids, visible, labelled_samples(ids))
+
+
+def lead_semantic_loss(logits: Tensor, labels: Tensor) -> Tensor:
+    """LEAD's perspective semantic term, mean over every pixel of each labelled sample (unlabelled pixels add 0)."""
+    ids = class_ids(labels)
+    return lead_loss.semantic_loss(_resize_logits(logits, tuple(ids.shape[-2:])), ids, labelled_samples(ids))
+
+
+def lead_depth_loss(pred: Tensor, depth: Tensor) -> Tensor:
+    """LEAD's depth term: L1 against the depth truncated to whole metres, mean over every pixel of each sample."""
+    pred = _resize_logits(pred[:, None], tuple(depth.shape[-2:]))[:, 0]
+    return lead_loss.depth_loss(pred, depth, torch.ones(len(depth), dtype=torch.bool, device=depth.device))

@@ -24,14 +24,17 @@ from torch.optim.lr_scheduler import LRScheduler
 from torchmetrics import MeanMetric
 
 from lead_s2r.models.input_spec import InputSpec, input_spec
-from lead_s2r.models.inputs import Batch
+from lead_s2r.models.inputs import PLANNING_TASKS, Batch
+from lead_s2r.models.lead_driver import LeadDriver
+from lead_s2r.models.lead_loss import adamw, cosine_schedule, training_layout
 from lead_s2r.training.data_contract import TrainingData
 from lead_s2r.training.loss_table import TASK_TARGETS, task_loss
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.prediction_writer import to_predictions
 from lead_s2r.training.weights import LoadReport, load_matching
 
-#: LEAD's weights (``detailed_loss_weights``): all 1 except depth.
+#: Unnormalised weights (all 1 except depth, as LEAD's table before it divides by the sum); a LEAD network uses LEAD's
+#: normalised weights (``LeadDriver.loss_weights``).
 DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in TASK_TARGETS} | {"depth": 1e-5}
 
 #: Lightning's allow-listed instantiator (LightningCLI's); ``load_from_checkpoint`` builds the module with it.
@@ -55,14 +58,18 @@ class DrivingModule(L.LightningModule):
     """Trains any model with the TFv6 interface (``tasks(source)``, ``grid(source)``, ``forward(batch, source,
     tasks)``) on ``{source: batch}`` inputs.
 
-    Each loss term is the mean over the samples of every source that supervises it, so a source's influence grows
-    with its share of the batch (the mixing schedule's knob), then terms are weighted and summed.
+    A planning term is the mean over the samples of every source that supervises it, so a source's influence grows
+    with its share of the batch (the mixing schedule's knob); a perception term is one per source (each source has
+    its own head, as in LEAD); terms are weighted and summed. A LEAD network (:class:`LeadDriver`) trains as LEAD's
+    Trainer does (docs/training.md, "Training as LEAD trains"): LEAD's term definitions, its weights normalised over
+    its whole table, channels-last weights, and LEAD's optimizer and schedule from :mod:`lead_s2r.models.lead_loss`.
 
     Args:
         model: the network, e.g. ``TFv6(ltfv6_config())`` or ``EgoStatusMLP()``.
         supervise: per source, task groups ("planning", "perception") or task names it supervises; default
             sim-to-real (CARLA perception only, NAVSIM planning + perception, WOD planning).
-        loss_weights: per-task weights over :data:`DEFAULT_LOSS_WEIGHTS`.
+        loss_weights: per-task weights over :data:`DEFAULT_LOSS_WEIGHTS` (a LEAD network's: LEAD's normalised
+            weights, ``LeadDriver.loss_weights``).
         lr, weight_decay, betas, amsgrad: AdamW settings (LEAD: 3e-4, 0.01, AMSGrad).
         lr_schedule: stepped every optimizer step. "cosine_restarts" is LEAD's CARLA/NAVSIM schedule (warm
             restarts after 1, 2, 4, 8... epochs, so cycles end at epochs 1, 3, 7, 15, 31, the mixing anchors);
@@ -97,7 +104,8 @@ class DrivingModule(L.LightningModule):
         self.save_hyperparameters(ignore=["model"])
         self.model = model
         self.supervise = {k: list(v) for k, v in (SIM_TO_REAL if supervise is None else supervise).items()}
-        self.loss_weights = DEFAULT_LOSS_WEIGHTS | (loss_weights or {})
+        model_weights = model.loss_weights if isinstance(model, LeadDriver) else {}
+        self.loss_weights = DEFAULT_LOSS_WEIGHTS | model_weights | (loss_weights or {})
         unknown = set(self.loss_weights) - set(TASK_TARGETS)
         if unknown:
             raise ValueError(f"loss_weights: unknown tasks {sorted(unknown)}; known: {sorted(TASK_TARGETS)}")
@@ -134,13 +142,16 @@ class DrivingModule(L.LightningModule):
         return datamodule if isinstance(datamodule, TrainingData) else None
 
     def setup(self, stage: str) -> None:
-        """At the start of a fit, normalise target points by the training data's statistics.
+        """At the start of a fit, normalise target points by the training data's statistics (and put a LEAD network's
+        weights in LEAD's channels-last layout).
 
         Lightning restores a checkpoint after ``setup``, so a resumed fit, validation and prediction keep the range
         the weights were trained with (it is saved in the state dict), whatever data the run is given.
         """
         if stage == "fit":
             self._resolve_target_point_range()
+            if isinstance(self.model, LeadDriver):
+                training_layout(self.model)  # LEAD trains channels-last; prediction keeps the loaded layout
 
     def _resolve_target_point_range(self) -> None:
         model = self.model
@@ -164,7 +175,7 @@ class DrivingModule(L.LightningModule):
     # --- losses
     def compute_losses(self, batch: Mapping[str, Batch]) -> tuple[Tensor | None, dict[str, tuple[Tensor, int]]]:
         """Weighted total (None when nothing is supervised) and every per-source term with its batch size."""
-        per_task: dict[str, list[tuple[Tensor, int]]] = {}
+        per_term: dict[str, list[tuple[Tensor, int]]] = {}
         terms: dict[str, tuple[Tensor, int]] = {}
         for source, source_batch in batch.items():
             tasks = active_tasks(source, source_batch, self.model.tasks(source), self.supervise)
@@ -175,12 +186,13 @@ class DrivingModule(L.LightningModule):
             for task in sorted(tasks):
                 value = task_loss(task, pred, source_batch, self.model)
                 terms[f"{source}/{task}"] = (value, n)
-                per_task.setdefault(task, []).append((value, n))
-        if not per_task:
+                term = task if task in PLANNING_TASKS else f"{source}/{task}"
+                per_term.setdefault(term, []).append((value, n))
+        if not per_term:
             return None, terms
         total = sum(
-            self.loss_weights[task] * sum(v * n for v, n in values) / sum(n for _, n in values)
-            for task, values in per_task.items()
+            self.loss_weights[term.split("/")[-1]] * sum(v * n for v, n in values) / sum(n for _, n in values)
+            for term, values in per_term.items()
         )
         return total, terms
 
@@ -293,7 +305,7 @@ class DrivingModule(L.LightningModule):
 
     def configure_optimizers(self) -> Any:
         hp = self.hparams
-        optimizer = torch.optim.AdamW(
+        optimizer = adamw(
             self.model.parameters(), lr=hp.lr, weight_decay=hp.weight_decay, betas=tuple(hp.betas), amsgrad=hp.amsgrad
         )
         scheduler = self._warmed_up(optimizer, self._schedule(optimizer))
@@ -303,14 +315,12 @@ class DrivingModule(L.LightningModule):
 
     def _schedule(self, optimizer: torch.optim.Optimizer) -> LRScheduler | None:
         """``lr_schedule`` after the warm-up; None for a constant rate."""
-        hp, lr = self.hparams, torch.optim.lr_scheduler
+        hp = self.hparams
         if hp.lr_schedule == "constant":
             return None
-        steps = self._steps_per_epoch()
-        if hp.lr_schedule == "cosine_restarts":
-            return lr.CosineAnnealingWarmRestarts(optimizer, T_0=steps, T_mult=2)
         epochs = max(1, self.trainer.max_epochs or 1)
-        return lr.CosineAnnealingLR(optimizer, T_max=max(1, steps * epochs - hp.warmup_steps))
+        restarts = hp.lr_schedule == "cosine_restarts"
+        return cosine_schedule(optimizer, self._steps_per_epoch(), epochs, restarts, skipped_steps=hp.warmup_steps)
 
     def _warmed_up(self, optimizer: torch.optim.Optimizer, schedule: LRScheduler | None) -> LRScheduler | None:
         """``schedule`` behind a linear warm-up of ``warmup_steps`` (lr / n on the first step, lr on the n-th)."""
