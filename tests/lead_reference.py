@@ -10,9 +10,8 @@ import torch
 
 from lead_s2r.models.lead_config import LeadConfig
 
-#: Small CARLA networks (timm test encoders, 2 px/m BEV, token dim 32) so LEAD's TFv6 with LiDAR and radar, and TFv5,
-#: run in seconds; the perspective and BEV-semantic heads off (other tests build on it).
-TINY_CARLA = {
+#: Toy widths and depths (timm test encoders, 2 px/m BEV, token dim 32) so LEAD's networks run in seconds on a CPU.
+TINY_SIZE = {
     "use_mixed_precision_training": False,
     "image_architecture": "test_convnext",
     "lidar_architecture": "test_resnet",
@@ -20,14 +19,19 @@ TINY_CARLA = {
     "pixels_per_meter": 2.0,
     "bev_features_chanels": 16,
     "bb_input_channel": 16,
+    "transfuser_token_dim": 32,
+    "transfuser_num_bev_cross_attention_layers": 2,
+    "transfuser_num_bev_cross_attention_heads": 4,
+}
+#: Small CARLA networks (LEAD's TFv6 with LiDAR and radar; TFv5), the perspective and BEV-semantic heads off (other
+#: tests build on it).
+TINY_CARLA = {
+    **TINY_SIZE,
     "radar_token_dim": 32,
     "radar_hidden_dim_tokenizer": 64,
     "radar_tf_dim_ff": 64,
     "radar_hidden_dim_decoder": 64,
     "radar_num_layers": 2,
-    "transfuser_num_bev_cross_attention_layers": 2,
-    "transfuser_num_bev_cross_attention_heads": 4,
-    "transfuser_token_dim": 32,
     "deconv_channel_num_0": 16,
     "deconv_channel_num_1": 16,
     "deconv_channel_num_2": 8,
@@ -50,21 +54,12 @@ ALL_HEADS = {
 }
 #: The small NAVSIM LTFv6 of recipes/smoke/navsim_lead_ltfv6.yaml (the smoke run export-lead is shown on).
 TINY_NAVSIM = {
+    **TINY_SIZE,
     "use_navsim_data": True,
     "use_carla_data": False,
     "LTF": True,
     "use_planning_decoder": True,
-    "use_mixed_precision_training": False,
     "used_cameras": [False, True, False, False],
-    "image_architecture": "test_convnext",
-    "lidar_architecture": "test_resnet",
-    "n_layer": 1,
-    "pixels_per_meter": 2.0,
-    "bev_features_chanels": 16,
-    "bb_input_channel": 16,
-    "transfuser_token_dim": 32,
-    "transfuser_num_bev_cross_attention_layers": 2,
-    "transfuser_num_bev_cross_attention_heads": 4,
 }
 #: Forward parity with every head: TFv6 with LiDAR and radar; TFv5 (only its planner differs, so its perspective
 #: heads, pinned by the first case, stay off to keep the stored file small).

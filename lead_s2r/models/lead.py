@@ -35,9 +35,10 @@ class LeadEnsemble(nn.Module):
     - always: waypoints, route, (NAVSIM) headings and target-speed logits are averaged and the scalar speed is
       recomputed from the averaged logits (LEAD returns their softmax; we keep logits, as a single network does);
     - CARLA leaderboard mode only: the CARLA BEV and perspective semantic maps merge background-min / others-max, depth
-      is averaged;
-    - never: NAVSIM's BEV and box maps, CARLA's outside leaderboard mode, the radar detector's queries, and the raw
-      CenterNet maps (LEAD decodes each member's boxes and merges them by NMS, post-processing we do not run here).
+      is averaged; LEAD decodes each member's boxes and merges them by NMS, post-processing we do not run here, so
+      the CARLA CenterNet maps are averaged instead (what box consumers such as the agent's stop-sign slowdown read;
+      not LEAD's merge);
+    - never: NAVSIM's BEV and box maps, CARLA's maps outside leaderboard mode, the radar detector's queries.
 
     LEAD's brake override (speed 0 when the 0 m/s class's probability is over ``brake_threshold``) belongs to its
     driving config, not to the merge.
@@ -58,8 +59,9 @@ class LeadEnsemble(nn.Module):
                 if key in outputs[0]:
                     stacked = torch.stack([o[key] for o in outputs])
                     merged[key] = torch.cat([stacked[:, :, :1].min(0).values, stacked[:, :, 1:].max(0).values], 1)
-            if "pred_depth" in outputs[0]:
-                merged["pred_depth"] = torch.stack([o["pred_depth"] for o in outputs]).mean(0)
+            for key in outputs[0]:
+                if key == "pred_depth" or key.startswith("pred_bounding_box."):
+                    merged[key] = torch.stack([o[key] for o in outputs]).mean(0)
         return merged
 
 
