@@ -81,7 +81,7 @@ def read_network(checkpoint: Path) -> LeadTFv6:
     saved = torch_file.load(checkpoint)
     hparams = saved.get("hyper_parameters") if isinstance(saved, dict) else None
     model: Any = hparams.get("model") if isinstance(hparams, dict) else None
-    class_path = model.get("class_path") if isinstance(model, dict) else type(model).__name__
+    class_path = model.get("class_path") if isinstance(model, dict) else "not named in its hyper_parameters"
     if class_path != f"{LeadDriver.__module__}.{LeadDriver.__name__}" or not isinstance(saved.get("state_dict"), dict):
         raise UserError(
             f"{checkpoint}: its network is {class_path}, not one LEAD network; only runs trained with "
