@@ -1,7 +1,7 @@
 """Fuzz of the files users hand us besides raw data: one random corruption (tests/corruptions.py) per trial of a
 predictions file, a LEAD checkpoint folder, the closed-loop agent's config, leaderboard results and routes, a table's
-spec and runs, a scored run folder, a LightningCLI config and the run folder the CARLA agent drives (``closed-loop
-check``), each read through the public function or verb that takes it.
+spec and runs, a scored run folder, a LightningCLI config, the run folder the CARLA agent drives (``closed-loop
+check``) and a run folder export-lead reads, each read through the public function or verb that takes it.
 
 The contract (as tests/test_fuzz.py's): the call gives the pristine result, or raises :class:`UserError` naming the
 file (a verb: exit status 2 and one ``error:`` line on stderr naming it, after any library warning); never another
@@ -9,7 +9,7 @@ exception. A different result is allowed only where the reader cannot know: a by
 file (a digit of a number), a line-based file (YAML, CSV) cut at a line, a value replaced by null or by another of
 its own type, a null by a number or text, what a report shows as it is (the saved config, aggregates), and a deleted
 training log. A table whose scores.json was deleted must list that seed as missing. ``LEAD_S2R_FUZZ_TRIALS`` sets the
-trials per target (default 12: about 20 s for the first eight targets, and a minute for the agent's run folder);
+trials per target (default 12: about 20 s for the first nine targets, and a minute for the agent's run folder);
 ``LEAD_S2R_FUZZ_SEED`` the seed.
 """
 
@@ -28,7 +28,9 @@ import pytest
 import torch
 import yaml
 from corruptions import KINDS, corrupt, hardlink_copy, pick_file
+from lead_reference import TINY_NAVSIM
 from test_carla_leaderboard import VEHICLE_HIT, off_lane, record, results_file, slow
+from test_lead_checkpoints import lead_run
 from test_tables import make_run, write_spec
 from test_user_errors import fit_config
 
@@ -67,6 +69,7 @@ TARGETS = (
     "report",
     "fit",
     "closed-loop-check",
+    "export-lead",
 )
 #: An agent config YAML of the closed-loop agent (the leaderboard's --agent-config) with a field of every type.
 AGENT_CONFIG = {
@@ -355,6 +358,14 @@ def agent_run(tmp_path_factory) -> Path:
     return root / "run"
 
 
+@pytest.fixture(scope="module")
+def lead_run_folder(tmp_path_factory) -> Path:
+    """A run folder of the smoke recipe's tiny NAVSIM LTFv6 (seeded weights) with the config LightningCLI saves."""
+    run = lead_run(tmp_path_factory.mktemp("fuzz_export") / "run", TINY_NAVSIM)
+    (run / "config.yaml").write_text(yaml.safe_dump({"seed_everything": 0, "trainer": {"max_epochs": 1}}))
+    return run
+
+
 def _verb(target: str, request: Any) -> tuple[Path, Callable[[Path, Path], list[str]]]:
     """The pristine input folder of a verb target and its command line for an input folder and an output folder."""
     if target == "carla-metrics":
@@ -367,6 +378,13 @@ def _verb(target: str, request: Any) -> tuple[Path, Callable[[Path, Path], list[
         return run, lambda folder, out: _report_argv(folder, data, out, key)
     if target == "closed-loop-check":
         return request.getfixturevalue("agent_run"), lambda folder, out: ["closed-loop", "check", str(folder)]
+    if target == "export-lead":
+        return request.getfixturevalue("lead_run_folder"), lambda folder, out: [
+            "export-lead",
+            str(folder),
+            "--out",
+            str(out),
+        ]
     return request.getfixturevalue("fit_yaml"), lambda folder, out: ["fit", "--config", str(folder / "fit.yaml")]
 
 
@@ -375,12 +393,14 @@ def _verb_output(argv: list[str], folder: Path, out: Path, capsys: Any) -> tuple
     input and output folders' paths named alike in every trial."""
     status = cli.main(argv)
     captured = capsys.readouterr()
-    written = sorted(path for path in out.rglob("*") if path.suffix in (".json", ".html", ".parquet"))
+    written = sorted(path for path in out.rglob("*") if path.suffix in (".json", ".html", ".parquet", ".pth"))
     output = captured.out + "".join(_content(path) for path in written)
     return status, captured.err.replace(str(folder), "IN"), output.replace(str(folder), "IN").replace(str(out), "OUT")
 
 
 def _content(path: Path) -> str:
+    if path.suffix == ".pth":  # exported weights: each tensor's bytes
+        return str({name: tensor.numpy().tobytes() for name, tensor in torch.load(path, weights_only=True).items()})
     return str(pq.read_table(path).to_pylist()) if path.suffix == ".parquet" else path.read_text()
 
 

@@ -1,5 +1,7 @@
-"""LEAD's checkpoints in our models: parameter tables of eight LEAD configurations, output parity with a case computed
-by LEAD's own code (tests/data/lead_tfv6/, copied from the golden folder), config derivation, ensembles, export."""
+"""LEAD's checkpoints in our models: parameter tables of eight LEAD configurations, forward parity (every head and every
+intermediate stage) with cases computed by LEAD's own code (tests/data/lead_tfv6/, README there), config derivation,
+ensembles merged as LEAD's inference merges them, and export-lead: what it writes LEAD's own loader read strictly and
+ran to our outputs; what LEAD cannot represent, or a damaged run checkpoint, is one line and nothing written."""
 
 import io
 import json
@@ -10,11 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from lead_reference import CASES, seeded_inputs, seeded_state
+from lead_reference import CASES, ENSEMBLES, EXPORTS, TINY_CARLA, TINY_NAVSIM, seeded_inputs, seeded_state, thinned
+from lightning import __version__ as lightning_version
+from torch import Tensor
 
+from lead_s2r import cli
 from lead_s2r.errors import UserError
 from lead_s2r.models import lead
 from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_driver import LeadDriver
+from lead_s2r.training.lead_export import check_lead_reads
+from lead_s2r.training.module import DrivingModule
 
 DATA = Path(__file__).parent / "data" / "lead_tfv6"
 TINY = DATA / "tiny_ltfv6_navsim"
@@ -115,16 +123,16 @@ def test_planner_overrides_shape_the_planner() -> None:
 def test_camera_tile_size_shrinks_only_the_image_input() -> None:
     """Our toy-size extension (the smoke twins' overlay): the image input and the parameters sized by its anchors
     follow the tile; every other entry keeps LEAD's shape, and without the field the tile is LEAD's."""
-    small = LeadConfig.from_json({**CASES["tfv6_radar"], "camera_tile_size": [64, 32]})
+    small = LeadConfig.from_json({**TINY_CARLA, "camera_tile_size": [64, 32]})
     assert (small.final_image_height, small.final_image_width) == (32, 192)
     assert (small.img_vert_anchors, small.img_horz_anchors) == (1, 6)
     assert LeadConfig.from_json(small.to_json()) == small
-    assert LeadConfig.from_json(CASES["tfv6_radar"]).final_image_width == 1152
-    full = lead.model_from_config(CASES["tfv6_radar"]).state_dict()
-    model = lead.model_from_config({**CASES["tfv6_radar"], "camera_tile_size": [64, 32]})
+    assert LeadConfig.from_json(TINY_CARLA).final_image_width == 1152
+    full = lead.model_from_config(TINY_CARLA).state_dict()
+    model = lead.model_from_config({**TINY_CARLA, "camera_tile_size": [64, 32]})
     changed = {k for k, v in model.state_dict().items() if v.shape != full[k].shape}
     assert model.state_dict().keys() == full.keys() and changed and all("pos_emb" in k for k in changed), changed
-    inputs = seeded_inputs(CASES["tfv6_radar"])
+    inputs = seeded_inputs(TINY_CARLA)
     inputs["rgb"] = inputs["rgb"][:, :, :32, :192]
     outputs = lead.forward(model.eval(), inputs)
     assert outputs["pred_future_waypoints"].shape == (1, 8, 2)
@@ -160,19 +168,59 @@ def test_tiny_ltfv6_reproduces_leads_outputs(tiny_case) -> None:
         torch.testing.assert_close(got[key], value, rtol=1e-5, atol=1e-5, msg=key)
 
 
+def recorded_forward(
+    model: torch.nn.Module, inputs: dict[str, Tensor], names: list[str]
+) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """Our outputs and the stages LEAD's intermediates name: a module's output (``name``, or ``name[i]`` of a tuple)
+    and ``backbone.top_down`` (a method, as in LEAD)."""
+    stages: dict[str, Tensor] = {}
+    modules = dict(model.named_modules())
+
+    def keep(name: str):
+        def hook(_module, _inputs, output) -> None:
+            items = [output] if isinstance(output, Tensor) else list(output)
+            for i, item in enumerate(items):
+                stages[name if isinstance(output, Tensor) else f"{name}[{i}]"] = item
+
+        return hook
+
+    hooked = {name.split("[")[0] for name in names} - {"backbone.top_down"}
+    handles = [modules[name].register_forward_hook(keep(name)) for name in hooked]
+    top_down = model.backbone.top_down
+    if "backbone.top_down" in names:
+        model.backbone.top_down = lambda bev: stages.setdefault("backbone.top_down", top_down(bev))
+    try:
+        return single_thread_forward(model, inputs), stages
+    finally:
+        vars(model.backbone).pop("top_down", None)
+        for handle in handles:
+            handle.remove()
+
+
+def assert_all_close(got: dict[str, Tensor], expected: dict[str, Tensor]) -> None:
+    assert set(got) == set(expected), set(got) ^ set(expected)
+    for key, value in expected.items():
+        torch.testing.assert_close(got[key], value, rtol=1e-5, atol=1e-5, msg=key)
+
+
 def test_tiny_ltfv6_intermediates(tiny_case) -> None:
+    """Every stage LEAD's hooks recorded, the planner's transformer decoder included."""
     inputs, _ = tiny_case
     stages = torch.load(TINY / "intermediates.pt", weights_only=True)
-    model = lead.load_checkpoint(TINY)
-    with torch.inference_mode():
-        bev, image = model.backbone(inputs)
-        context = model.planning_decoder.planning_context_encoder(bev, inputs)
-    torch.testing.assert_close(bev, stages["backbone[0]"], rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(image, stages["backbone[1]"], rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(context, stages["planning_decoder.planning_context_encoder"], rtol=1e-5, atol=1e-5)
+    assert "planning_decoder.transformer_decoder" in stages
+    _, got = recorded_forward(lead.load_checkpoint(TINY), inputs, list(stages))
+    assert_all_close(got, stages)
 
 
-def test_ensemble_merges_as_lead(tmp_path: Path, tiny_case) -> None:
+def seeded_model(overrides: dict, seed: int = 0) -> torch.nn.Module:
+    model = lead.model_from_config(overrides)
+    model.load_state_dict(seeded_state(model.state_dict(), seed), strict=True)
+    return model.eval()
+
+
+def test_ensemble_of_a_folder_merges_navsim_as_lead(tmp_path: Path, tiny_case) -> None:
+    """A folder with two model files is an ensemble; in NAVSIM mode LEAD keeps waypoints and headings (averaged) and
+    drops the BEV and box maps."""
     inputs, _ = tiny_case
     shutil.copy(TINY / "config.json", tmp_path / "config.json")
     shutil.copy(TINY / "model_0000.pth", tmp_path / "model_0030_0.pth")
@@ -184,20 +232,33 @@ def test_ensemble_merges_as_lead(tmp_path: Path, tiny_case) -> None:
     assert isinstance(ensemble, lead.LeadEnsemble) and len(ensemble.members) == 2
     merged = lead.forward(ensemble, inputs)
     a, b = (lead.forward(m, inputs) for m in ensemble.members)
+    assert "pred_bev_semantic_navsim" in a and set(merged) == {"pred_future_waypoints", "pred_headings"}
     assert not torch.equal(a["pred_future_waypoints"], b["pred_future_waypoints"])
-    torch.testing.assert_close(
-        merged["pred_future_waypoints"], (a["pred_future_waypoints"] + b["pred_future_waypoints"]) / 2
-    )
-    torch.testing.assert_close(merged["pred_headings"], (a["pred_headings"] + b["pred_headings"]) / 2)
-    bev = merged["pred_bev_semantic_navsim"]
-    torch.testing.assert_close(
-        bev[:, 0], torch.minimum(a["pred_bev_semantic_navsim"][:, 0], b["pred_bev_semantic_navsim"][:, 0])
-    )
-    torch.testing.assert_close(
-        bev[:, 1:], torch.maximum(a["pred_bev_semantic_navsim"][:, 1:], b["pred_bev_semantic_navsim"][:, 1:])
-    )
+    for key in merged:
+        torch.testing.assert_close(merged[key], (a[key] + b[key]) / 2)
     single = lead.load_checkpoint(tmp_path, pattern="model_0030_0.pth")
     torch.testing.assert_close(lead.forward(single, inputs)["pred_future_waypoints"], a["pred_future_waypoints"])
+
+
+@pytest.mark.parametrize("name", sorted(ENSEMBLES))
+def test_ensemble_merges_as_leads_inference_per_mode(name: str) -> None:
+    """Two seeded members merged by LEAD's own ``OpenLoopInference.ensemble`` (ensemble_<name>.pt): CARLA leaderboard
+    mode merges the semantic maps (background min, others max) and averages depth (its CenterNet maps, averaged, stand
+    in for LEAD's NMS of decoded boxes); NAVSIM keeps only the planner.
+    LEAD returns the averaged target-speed logits' softmax (we keep the logits) and forces the speed to 0 above its
+    brake threshold, which these members do not reach."""
+    golden = torch.load(DATA / f"ensemble_{name}.pt", weights_only=True)
+    members = [seeded_model(ENSEMBLES[name], seed) for seed in (0, 1)]
+    got = thinned(single_thread_forward(lead.LeadEnsemble(members), seeded_inputs(ENSEMBLES[name])))
+    expected = {("pred_headings" if k == "pred_future_headings" else k): v for k, v in golden["outputs"].items()}
+    if "pred_target_speed_distribution" in expected:
+        probabilities = expected.pop("pred_target_speed_distribution")
+        assert probabilities[0, 0] <= golden["brake_threshold"]
+        torch.testing.assert_close(got.pop("pred_target_speed_distribution").softmax(-1), probabilities)
+        expected["pred_target_speed_scalar"] = expected["pred_target_speed_scalar"].reshape(-1)
+    boxes = {key: got.pop(key) for key in list(got) if key.startswith("pred_bounding_box")}  # LEAD: NMS of boxes
+    assert_all_close(got, expected)
+    assert ("pred_bev_semantic" in got) == bool(boxes) == (name == "carla")
 
 
 def test_export_round_trip(tmp_path: Path, tiny_case) -> None:
@@ -217,6 +278,89 @@ def test_export_round_trip(tmp_path: Path, tiny_case) -> None:
     expected = lead.forward(model, inputs)
     got = lead.forward(again, inputs)
     assert all(torch.equal(got[k], expected[k]) for k in expected)
+
+
+@pytest.mark.parametrize("name", sorted(EXPORTS))
+def test_an_export_is_what_leads_loader_read_and_ran(tmp_path: Path, name: str) -> None:
+    """LEAD's own loader read this export (config.json -> TrainingConfig -> TFv6, strict load of model_0000.pth) and
+    its forward gave export_<name>.pt; the same export reloaded by ours gives the same outputs."""
+    golden = torch.load(DATA / f"export_{name}.pt", weights_only=True)
+    assert json.loads(golden["overrides"]) == EXPORTS[name]
+    model = seeded_model(EXPORTS[name])
+    check_lead_reads(model.config, tmp_path)
+    lead.export_checkpoint(model, tmp_path / "out")
+    got = single_thread_forward(lead.load_checkpoint(tmp_path / "out"), seeded_inputs(EXPORTS[name]))
+    assert_all_close(thinned(got), golden["outputs"])
+
+
+def test_fields_at_leads_own_values_are_exported() -> None:
+    """Our extension fields set to what LEAD's rules derive anyway are no obstacle."""
+    same = {**TINY_CARLA, "num_way_points_prediction": 8, "waypoint_interval_s": 0.25, "camera_tile_size": [384, 384]}
+    check_lead_reads(LeadConfig.from_json({**same, "use_previous_tp": True, "use_next_tp": True}), Path("run"))
+
+
+def lead_run(root: Path, overrides: dict) -> Path:
+    """A run folder as LightningCLI leaves it: checkpoints/last.ckpt whose hyper_parameters name the LeadDriver and
+    its config, with seeded weights."""
+    driver = LeadDriver(LeadConfig.from_json(overrides))
+    driver.network.load_state_dict(seeded_state(driver.network.state_dict()), strict=True)
+    model = {"class_path": "lead_s2r.models.lead_driver.LeadDriver", "init_args": {"config": overrides}}
+    hyper_parameters = {"_instantiator": "lightning.pytorch.cli.instantiate_module", "model": model}
+    saved = {"state_dict": DrivingModule(model=driver).state_dict(), "hyper_parameters": hyper_parameters}
+    (root / "checkpoints").mkdir(parents=True)
+    torch.save({**saved, "pytorch-lightning_version": lightning_version}, root / "checkpoints" / "last.ckpt")
+    return root
+
+
+def test_export_lead_of_a_smoke_run_writes_what_lead_read(tmp_path: Path, capsys) -> None:
+    run = lead_run(tmp_path / "run", EXPORTS["navsim_smoke"])
+    assert cli.main(["export-lead", str(run), "--out", str(tmp_path / "lead")]) == 0
+    assert "LEAD ignores our keys waypoint_interval_s, camera_tile_size" in capsys.readouterr().out
+    golden = torch.load(DATA / "export_navsim_smoke.pt", weights_only=True)
+    got = single_thread_forward(lead.load_checkpoint(tmp_path / "lead"), seeded_inputs(EXPORTS["navsim_smoke"]))
+    assert_all_close(thinned(got), golden["outputs"])
+
+
+def assert_refused(argv: list[str], out: Path, capsys, *words: str) -> None:
+    """Exit status 2, one stderr line naming each of ``words``, nothing written."""
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and all(word in err for word in words), err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "field"),
+    [
+        # recipes/carla/tfv6_one_tp.yaml
+        ({**TINY_CARLA, "use_previous_tp": False, "use_next_tp": False}, "use_previous_tp"),
+        ({**TINY_CARLA, "use_next_tp": False}, "use_next_tp"),
+        ({**TINY_CARLA, "camera_tile_size": [64, 64]}, "camera_tile_size"),  # the smoke twins' overlay
+        ({**TINY_NAVSIM, "num_way_points_prediction": 12}, "num_way_points_prediction"),
+        ({**TINY_NAVSIM, "waypoint_interval_s": 0.25}, "waypoint_interval_s"),  # loads in LEAD, means 0.5 s there
+        ({**TINY_NAVSIM, "use_navsim_data": False, "use_waymo_e2e_data": True, "used_cameras": [True] * 3},
+         "use_waymo_e2e_data"),
+    ],
+)  # fmt: skip
+def test_export_lead_refuses_what_lead_cannot_represent(tmp_path: Path, capsys, overrides: dict, field: str) -> None:
+    run = lead_run(tmp_path / "run", overrides)
+    argv = ["export-lead", str(run), "--out", str(tmp_path / "lead")]
+    assert_refused(argv, tmp_path / "lead", capsys, field, "last.ckpt", "nothing written")
+
+
+def _flip_a_weight_bit(data: bytes, weight: Tensor) -> bytes:
+    at = data.index(weight.flatten()[:4].numpy().tobytes())
+    return data[:at] + bytes([data[at] ^ 1]) + data[at + 1 :]
+
+
+@pytest.mark.parametrize("damage", ["flipped bit", "cut"])
+def test_export_lead_of_a_damaged_checkpoint_is_one_line(tmp_path: Path, capsys, damage: str) -> None:
+    run = lead_run(tmp_path / "run", EXPORTS["navsim_smoke"])
+    last = run / "checkpoints" / "last.ckpt"
+    data = last.read_bytes()
+    weight = torch.load(last, weights_only=True)["state_dict"]["model.network.planning_decoder.query"]
+    last.write_bytes(_flip_a_weight_bit(data, weight) if damage == "flipped bit" else data[: len(data) // 2])
+    assert_refused(["export-lead", str(run), "--out", str(tmp_path / "lead")], tmp_path / "lead", capsys, "last.ckpt")
 
 
 def test_bad_folders_are_user_errors(tmp_path: Path) -> None:
@@ -328,13 +472,29 @@ def test_a_config_that_is_not_utf8_is_named(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_carla_tfv6_with_radar_and_tfv5_reproduce_leads_outputs(name: str) -> None:
-    """LEAD's TFv6 with LiDAR and radar, and TFv5, on seeded weights: outputs computed by LEAD's code (README)."""
-    model = lead.model_from_config(CASES[name])
-    model.load_state_dict(seeded_state(model.state_dict()), strict=True)
-    expected = torch.load(DATA / f"reference_{name}.pt", weights_only=True)
-    got = single_thread_forward(model.eval(), seeded_inputs(CASES[name]))
-    assert set(got) == set(expected)
+def test_carla_cases_reproduce_every_head_and_stage_of_leads_forward(name: str) -> None:
+    """LEAD's TFv6 with LiDAR, radar and every head, and TFv5, on seeded weights: every output and every stage LEAD's
+    forward passes through (backbone fusion per scale, BEV grid, planner context, decoder), computed by LEAD's code."""
+    reference = torch.load(DATA / f"reference_{name}.pt", weights_only=True)
+    expected, stages = reference["outputs"], reference["intermediates"]
+    got, got_stages = recorded_forward(seeded_model(CASES[name]), seeded_inputs(CASES[name]), list(stages))
     assert expected["pred_radar_predictions"][..., :2].abs().max() > 1.0
-    for key, value in expected.items():
-        torch.testing.assert_close(got[key], value, rtol=1e-5, atol=1e-5, msg=key)
+    assert_all_close(got, expected)
+    assert_all_close(got_stages, stages)
+
+
+def test_every_head_and_stage_is_pinned() -> None:
+    """The LEAD-computed cases together hold every output head and the decoder stage."""
+    outputs = {key.split(".")[0] for key in torch.load(TINY / "outputs.pt", weights_only=True)}
+    stages: set[str] = set()
+    for name in CASES:
+        reference = torch.load(DATA / f"reference_{name}.pt", weights_only=True)
+        outputs |= {key.split(".")[0] for key in reference["outputs"]}
+        stages |= set(reference["intermediates"])
+    heads = {"pred_semantic", "pred_depth", "pred_bev_semantic", "pred_bev_semantic_navsim", "pred_bounding_box",
+             "pred_bounding_box_navsim", "pred_radar_features", "pred_radar_predictions", "pred_route",
+             "pred_future_waypoints", "pred_headings", "pred_target_speed_distribution",
+             "pred_target_speed_scalar"}  # fmt: skip
+    assert heads <= outputs, heads - outputs
+    decoders = {"planning_decoder.transformer_decoder", "planning_decoder.wp_gru[0]", "planning_decoder.route_gru[0]"}
+    assert decoders | {"backbone.top_down", "backbone.transformers.3[1]"} <= stages

@@ -6,9 +6,13 @@ from typing import Any
 
 
 def cmd_export_lead(args: argparse.Namespace) -> int:
-    from lead_s2r.training.lead_export import export_run
+    from lead_s2r.training.lead_export import OUR_KEYS, export_run
 
-    print(f"wrote {export_run(Path(args.run_dir), Path(args.out))} (config.json + model_0000.pth, LEAD's format)")
+    folder = export_run(Path(args.run_dir), Path(args.out))
+    print(
+        f"wrote {folder} (config.json + model_0000.pth, LEAD's format; LEAD ignores our keys {', '.join(OUR_KEYS)}, "
+        "which hold what its rules derive)"
+    )
     return 0
 
 

@@ -26,15 +26,28 @@ from lead_s2r.models.lead_loss import scheduler as scheduler
 from lead_s2r.models.lead_planner import expected_speed
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
-#: Fields averaged over ensemble members (LEAD averages waypoints, route, headings and target-speed logits; the
-#: scalar speed is recomputed from the averaged logits). Semantic maps merge as LEAD does: background channel min,
-#: other channels max. Everything else (CenterNet maps, radar) is averaged as maps: LEAD merges decoded boxes by NMS,
-#: which is post-processing outside the network.
-MAX_MERGED = ("pred_bev_semantic", "pred_bev_semantic_navsim", "pred_semantic")
+#: Planner outputs averaged over ensemble members in every mode, as LEAD's ``OpenLoopInference.ensemble`` does
+#: (target-speed logits averaged; the scalar speed recomputed from them).
+AVERAGED = ("pred_future_waypoints", "pred_route", "pred_headings", "pred_target_speed_distribution")
+#: Semantic maps LEAD merges in CARLA leaderboard mode only: background channel min, the other channels max.
+MAX_MERGED = ("pred_bev_semantic", "pred_semantic")
 
 
 class LeadEnsemble(nn.Module):
-    """Several LEAD networks with one config; ``forward`` merges their outputs as LEAD's open-loop inference."""
+    """Several LEAD networks with one config; ``forward`` merges their outputs as LEAD's open-loop inference
+    (``OpenLoopInference.ensemble``, lead/inference/open_loop_inference.py at 4489176), per mode:
+
+    - always: waypoints, route, (NAVSIM) headings and target-speed logits are averaged and the scalar speed is
+      recomputed from the averaged logits (LEAD returns their softmax; we keep logits, as a single network does);
+    - CARLA leaderboard mode only: the CARLA BEV and perspective semantic maps merge background-min / others-max, depth
+      is averaged; LEAD decodes each member's boxes and merges them by NMS, post-processing we do not run here, so
+      the CARLA CenterNet maps are averaged instead (what box consumers such as the agent's stop-sign slowdown read;
+      not LEAD's merge);
+    - never: NAVSIM's BEV and box maps, CARLA's maps outside leaderboard mode, the radar detector's queries.
+
+    LEAD's brake override (speed 0 when the 0 m/s class's probability is over ``brake_threshold``) belongs to its
+    driving config, not to the merge.
+    """
 
     def __init__(self, members: list[LeadTFv6]) -> None:
         super().__init__()
@@ -43,15 +56,17 @@ class LeadEnsemble(nn.Module):
 
     def forward(self, data: dict[str, Tensor]) -> dict[str, Tensor]:
         outputs = [member(data) for member in self.members]
-        merged: dict[str, Tensor] = {}
-        for key in outputs[0]:
-            stacked = torch.stack([o[key] for o in outputs])
-            if key in MAX_MERGED:
-                merged[key] = torch.cat([stacked[:, :, :1].min(0).values, stacked[:, :, 1:].max(0).values], dim=1)
-            else:
-                merged[key] = stacked.mean(0)
+        merged = {key: torch.stack([o[key] for o in outputs]).mean(0) for key in AVERAGED if key in outputs[0]}
         if "pred_target_speed_distribution" in merged:
             merged["pred_target_speed_scalar"] = expected_speed(merged["pred_target_speed_distribution"])
+        if self.config.carla_leaderboard_mode:
+            for key in MAX_MERGED:
+                if key in outputs[0]:
+                    stacked = torch.stack([o[key] for o in outputs])
+                    merged[key] = torch.cat([stacked[:, :, :1].min(0).values, stacked[:, :, 1:].max(0).values], 1)
+            for key in outputs[0]:
+                if key == "pred_depth" or key.startswith("pred_bounding_box."):
+                    merged[key] = torch.stack([o[key] for o in outputs]).mean(0)
         return merged
 
 
