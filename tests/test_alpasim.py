@@ -360,6 +360,13 @@ def test_a_camera_the_model_needs_but_the_scene_lacks_is_failed_precondition(lea
     message = refused(lambda: Client(lead_server).start(()), grpc.StatusCode.FAILED_PRECONDITION,
                       "rollout_spec.vehicle.available_cameras")  # fmt: skip
     assert "(cameras: none)" in message
+    client = Client(lead_server)
+    request = protocol.DriveSessionRequest(session_uuid=client.session)
+    request.rollout_spec.vehicle.available_cameras.append(client.camera.available_camera())
+    request.rollout_spec.vehicle.available_cameras[0].intrinsics.ftheta_param.SetInParent()  # the front one, f-theta
+    message = refused(lambda: client.stub.start_session(request), grpc.StatusCode.FAILED_PRECONDITION,
+                      "rollout_spec.vehicle.available_cameras")  # fmt: skip
+    assert "camera_front (not a pinhole camera)" in message
 
 
 def test_unknown_session_is_not_found(lead_server: str, bystander) -> None:

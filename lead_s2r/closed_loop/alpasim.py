@@ -103,8 +103,10 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
             declared = list(request.rollout_spec.vehicle.available_cameras)
             revision = contract.client_revision(context, CONTRACT_REVISION)
             declared = contract.cameras_to_revision(declared, revision, CONTRACT_REVISION)
-            cameras = [scene_camera(camera, index) for index, camera in enumerate(declared)]
-            slot_of = match_cameras(self.served.slots, cameras)
+            read = [scene_camera(camera, index) for index, camera in enumerate(declared)]
+            cameras = [camera for camera in read if camera is not None]
+            unread = [camera.logical_id for camera, seen in zip(declared, read, strict=True) if seen is None]
+            slot_of = match_cameras(self.served.slots, cameras, unread)
             used = {c.logical_id: c for c in cameras if c.logical_id in slot_of}
             with self.sessions_lock:
                 if request.session_uuid in self.sessions:
