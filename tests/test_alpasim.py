@@ -19,6 +19,7 @@ from typing import Any
 import grpc
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from lead_s2r.cli import main as cli_main
@@ -442,6 +443,19 @@ def test_a_model_reading_sensors_alpasim_lacks_is_refused_and_an_ensemble_serves
     client = Client(next(target)).start()
     assert all(len(in_rig(client.step())[0]) == 8 for _ in range(3))
     target.close()
+
+
+def test_a_model_without_cameras_is_refused(tmp_path: Path) -> None:
+    """The ego-status MLP reads no camera, and cameras are what AlpaSim provides: a user error at start."""
+    from lightning.pytorch.cli import instantiate_module
+
+    from lead_s2r.training.module import DrivingModule
+
+    arguments = {"model": {"class_path": "lead_s2r.models.ego_mlp.EgoStatusMLP", "init_args": {}}}
+    module = instantiate_module(DrivingModule, {**arguments, "init_from": None, "compile": False})
+    torch.save({"hyper_parameters": arguments, "state_dict": module.state_dict()}, tmp_path / "ego_mlp.ckpt")
+    with pytest.raises(UserError, match=r"EgoStatusMLP is not a TFv6-family model .* from AlpaSim's cameras"):
+        load_served_model(tmp_path / "ego_mlp.ckpt", None, "model*.pth", "cpu")
 
 
 def free_port() -> int:
