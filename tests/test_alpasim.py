@@ -382,6 +382,7 @@ def test_out_of_order_timestamps_are_invalid_argument(lead_server: str, bystande
     client.step()
     refused(lambda: client.egomotion(Pose.identity(), 50_000), grpc.StatusCode.INVALID_ARGUMENT,
             "trajectory.poses[0].timestamp_us")  # fmt: skip
+    client.egomotion(Pose.from_xyz_yaw(0.5, 0.0, 0.0, 0.0), client.now_us)  # history sent again: accepted
     refused(lambda: client.image(b"", 50_000), grpc.StatusCode.INVALID_ARGUMENT, "camera_image.frame_end_us")
     refused(lambda: client.stub.drive(protocol.DriveRequest(session_uuid=client.session, time_now_us=50_000)),
             grpc.StatusCode.INVALID_ARGUMENT, "time_now_us")  # fmt: skip

@@ -154,13 +154,17 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
                 (p.timestamp_us, pose_matrix(p.pose, f"trajectory.poses[{i}].pose")) for i, p in enumerate(poses)
             ]
             with session.lock:
-                last = session.poses[-1][0] if session.poses else -(2**63)
-                for index, (timestamp, _) in enumerate(entries):
+                known = {timestamp for timestamp, _ in session.poses}  # a runtime may send its history again
+                last, new = (session.poses[-1][0] if session.poses else -(2**63)), []
+                for index, (timestamp, pose) in enumerate(entries):
+                    if timestamp in known:
+                        continue
                     if timestamp <= last:
                         raise invalid(f"trajectory.poses[{index}].timestamp_us: {timestamp} is not after the "
                                       f"previous pose's {last}")  # fmt: skip
                     last = timestamp
-                session.poses.extend(entries)
+                    new.append((timestamp, pose))
+                session.poses.extend(new)
                 if states:
                     session.dynamics = states[-1]
             return protocol.Empty()
