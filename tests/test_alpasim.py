@@ -19,6 +19,7 @@ from typing import Any
 import grpc
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from lead_s2r.cli import main as cli_main
@@ -360,6 +361,13 @@ def test_a_camera_the_model_needs_but_the_scene_lacks_is_failed_precondition(lea
     message = refused(lambda: Client(lead_server).start(()), grpc.StatusCode.FAILED_PRECONDITION,
                       "rollout_spec.vehicle.available_cameras")  # fmt: skip
     assert "(cameras: none)" in message
+    client = Client(lead_server)
+    request = protocol.DriveSessionRequest(session_uuid=client.session)
+    request.rollout_spec.vehicle.available_cameras.append(client.camera.available_camera())
+    request.rollout_spec.vehicle.available_cameras[0].intrinsics.ftheta_param.SetInParent()  # the front one, f-theta
+    message = refused(lambda: client.stub.start_session(request), grpc.StatusCode.FAILED_PRECONDITION,
+                      "rollout_spec.vehicle.available_cameras")  # fmt: skip
+    assert "camera_front (not a pinhole camera)" in message
 
 
 def test_unknown_session_is_not_found(lead_server: str, bystander) -> None:
@@ -374,6 +382,7 @@ def test_out_of_order_timestamps_are_invalid_argument(lead_server: str, bystande
     client.step()
     refused(lambda: client.egomotion(Pose.identity(), 50_000), grpc.StatusCode.INVALID_ARGUMENT,
             "trajectory.poses[0].timestamp_us")  # fmt: skip
+    client.egomotion(Pose.from_xyz_yaw(0.5, 0.0, 0.0, 0.0), client.now_us)  # history sent again: accepted
     refused(lambda: client.image(b"", 50_000), grpc.StatusCode.INVALID_ARGUMENT, "camera_image.frame_end_us")
     refused(lambda: client.stub.drive(protocol.DriveRequest(session_uuid=client.session, time_now_us=50_000)),
             grpc.StatusCode.INVALID_ARGUMENT, "time_now_us")  # fmt: skip
@@ -435,6 +444,19 @@ def test_a_model_reading_sensors_alpasim_lacks_is_refused_and_an_ensemble_serves
     client = Client(next(target)).start()
     assert all(len(in_rig(client.step())[0]) == 8 for _ in range(3))
     target.close()
+
+
+def test_a_model_without_cameras_is_refused(tmp_path: Path) -> None:
+    """The ego-status MLP reads no camera, and cameras are what AlpaSim provides: a user error at start."""
+    from lightning.pytorch.cli import instantiate_module
+
+    from lead_s2r.training.module import DrivingModule
+
+    arguments = {"model": {"class_path": "lead_s2r.models.ego_mlp.EgoStatusMLP", "init_args": {}}}
+    module = instantiate_module(DrivingModule, {**arguments, "init_from": None, "compile": False})
+    torch.save({"hyper_parameters": arguments, "state_dict": module.state_dict()}, tmp_path / "ego_mlp.ckpt")
+    with pytest.raises(UserError, match=r"EgoStatusMLP is not a TFv6-family model .* from AlpaSim's cameras"):
+        load_served_model(tmp_path / "ego_mlp.ckpt", None, "model*.pth", "cpu")
 
 
 def free_port() -> int:

@@ -103,8 +103,10 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
             declared = list(request.rollout_spec.vehicle.available_cameras)
             revision = contract.client_revision(context, CONTRACT_REVISION)
             declared = contract.cameras_to_revision(declared, revision, CONTRACT_REVISION)
-            cameras = [scene_camera(camera, index) for index, camera in enumerate(declared)]
-            slot_of = match_cameras(self.served.slots, cameras)
+            read = [scene_camera(camera, index) for index, camera in enumerate(declared)]
+            cameras = [camera for camera in read if camera is not None]
+            unread = [camera.logical_id for camera, seen in zip(declared, read, strict=True) if seen is None]
+            slot_of = match_cameras(self.served.slots, cameras, unread)
             used = {c.logical_id: c for c in cameras if c.logical_id in slot_of}
             with self.sessions_lock:
                 if request.session_uuid in self.sessions:
@@ -152,13 +154,17 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
                 (p.timestamp_us, pose_matrix(p.pose, f"trajectory.poses[{i}].pose")) for i, p in enumerate(poses)
             ]
             with session.lock:
-                last = session.poses[-1][0] if session.poses else -(2**63)
-                for index, (timestamp, _) in enumerate(entries):
+                known = {timestamp for timestamp, _ in session.poses}  # a runtime may send its history again
+                last, new = (session.poses[-1][0] if session.poses else -(2**63)), []
+                for index, (timestamp, pose) in enumerate(entries):
+                    if timestamp in known:
+                        continue
                     if timestamp <= last:
                         raise invalid(f"trajectory.poses[{index}].timestamp_us: {timestamp} is not after the "
                                       f"previous pose's {last}")  # fmt: skip
                     last = timestamp
-                session.poses.extend(entries)
+                    new.append((timestamp, pose))
+                session.poses.extend(new)
                 if states:
                     session.dynamics = states[-1]
             return protocol.Empty()

@@ -7,6 +7,7 @@ naming its field.
 import math
 import threading
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -68,13 +69,13 @@ def pose_matrix(pose: Any, name: str) -> np.ndarray:
     return matrix
 
 
-def scene_camera(camera: Any, index: int) -> SceneCamera:
-    """One ``AvailableCamera`` (pinhole intrinsics) as a calibration in our schema's terms."""
+def scene_camera(camera: Any, index: int) -> SceneCamera | None:
+    """One ``AvailableCamera`` as a calibration in our schema's terms; None for a camera model other than OpenCV's
+    pinhole (f-theta, fisheye: the layout's crop assumes a pinhole), which then serves no model camera."""
     name = f"rollout_spec.vehicle.available_cameras[{index}]"
     intrinsics = camera.intrinsics
     if intrinsics.WhichOneof("camera_param") != "opencv_pinhole_param":
-        raise invalid(f"{name}.intrinsics: {intrinsics.WhichOneof('camera_param')} cameras are not supported; "
-                      "declare an opencv_pinhole_param (rectified) camera")  # fmt: skip
+        return None
     pinhole = intrinsics.opencv_pinhole_param
     width, height = intrinsics.resolution_w, intrinsics.resolution_h
     focal = (pinhole.focal_length_x, pinhole.focal_length_y)
@@ -96,9 +97,12 @@ def scene_camera(camera: Any, index: int) -> SceneCamera:
     return SceneCamera(camera.logical_id, calibration, yaw, fov)
 
 
-def match_cameras(slots: tuple[CameraSlot, ...], cameras: list[SceneCamera]) -> dict[str, str]:
+def match_cameras(
+    slots: tuple[CameraSlot, ...], cameras: list[SceneCamera], unread: Sequence[str] = ()
+) -> dict[str, str]:
     """Scene camera logical id -> model camera id: each model camera gets the scene camera looking nearest its
-    direction (within half its field of view; fields of view within :data:`FOV_FACTOR`); else an error."""
+    direction (within half its field of view; fields of view within :data:`FOV_FACTOR`); else an error naming
+    the scene's cameras, ``unread`` ones (not pinhole) among them."""
     matched: dict[str, str] = {}
     for slot in slots:
         candidates = [
@@ -110,6 +114,7 @@ def match_cameras(slots: tuple[CameraSlot, ...], cameras: list[SceneCamera]) -> 
         ]
         if not candidates:
             seen = ", ".join(f"{c.logical_id} ({c.yaw_deg:.0f} deg, fov {c.fov_deg:.0f})" for c in cameras) or "none"
+            seen += "".join(f", {logical_id} (not a pinhole camera)" for logical_id in unread)
             raise precondition(
                 f"rollout_spec.vehicle.available_cameras: the model reads a {slot.id} camera (looking "
                 f"{slot.yaw_deg:.0f} deg, fov {slot.fov_deg:.0f}) and no camera of the scene looks that way with a "
