@@ -26,7 +26,7 @@ from lead_s2r.models.inputs import Batch
 from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
 from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
 from lead_s2r.models.lead_frame import bev_map_from_lead, from_lead_outputs, to_lead_inputs
-from lead_s2r.models.lead_loss import loss_weights, radar_feature_scale, visible_bev_pixels
+from lead_s2r.models.lead_loss import SourceDataset, loss_weights, prefix, radar_feature_scale, visible_bev_pixels
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
 
@@ -88,7 +88,7 @@ class LeadDriver(nn.Module):
         weights = loss_weights(self.config)
 
         def term(name: str) -> float:
-            return max(weights.get(f"{prefix}{name}", 0.0) for prefix in ("", "navsim_", "waymo_e2e_2025_"))
+            return max(weights.get(f"{prefix(source)}{name}", 0.0) for source in SourceDataset)
 
         planning = weights["loss_spatio_temporal_waypoints"]
         return {
