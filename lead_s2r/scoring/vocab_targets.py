@@ -75,6 +75,7 @@ class VocabRun:
     interval: float
     metric: str
     progress: str
+    human_filter: bool
     data: tuple[str, ...]
     split: str | None
 
@@ -85,6 +86,7 @@ class VocabRun:
             "interval": self.interval,
             "metric": self.metric,
             "progress": self.progress,
+            "human_filter": self.human_filter,
             "data": list(self.data),
             "split": self.split,
         }
@@ -121,7 +123,12 @@ def _sha256(path: Path) -> str:
 
 
 def score_scenes(
-    samples: list[dict[str, Any]], vocabulary: np.ndarray, interval: float, metric: str, progress: str
+    samples: list[dict[str, Any]],
+    vocabulary: np.ndarray,
+    interval: float,
+    metric: str,
+    progress: str,
+    human_filter: bool = True,
 ) -> dict[str, Any]:
     """One job: every scene's GTRS columns as float16 ``(V,)`` arrays by sample key, and the scenes that failed."""
     scores, failed = {}, {}
@@ -131,7 +138,10 @@ def score_scenes(
         except RouteError as err:
             failed[sample["__key__"]] = str(err)
             continue
-        columns = score_entries(scene, vocabulary, interval, plan_reference(scene), metric, progress=progress)
+        reference = plan_reference(scene)
+        columns = score_entries(
+            scene, vocabulary, interval, reference, metric, progress=progress, human_filter=human_filter
+        )
         scores[sample["__key__"]] = {
             gtrs: columns[ours].astype(np.float16) for ours, gtrs in GTRS_NAMES[metric].items()
         }
@@ -182,6 +192,7 @@ def score_data(
     metric: str = METRIC,
     interval: float = GTRS_INTERVAL_S,
     progress: str = "pair",
+    human_filter: bool = True,
     split: str | None = None,
     executor: Executor | None = None,
     on_job: Callable[[int, int], None] | None = None,
@@ -206,7 +217,7 @@ def score_data(
         folders = ", ".join(map(str, data))
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
         raise UserError(f"--data {folders}: sample {missing[0]!r} has no field 'scoring'{more}; {NEEDS_MAPS}")
-    run = VocabRun(str(vocab_path), _sha256(vocab_path), vocabulary.shape, interval, metric, progress,
+    run = VocabRun(str(vocab_path), _sha256(vocab_path), vocabulary.shape, interval, metric, progress, human_filter,
                    tuple(str(folder.resolve()) for folder in data), split)  # fmt: skip
     _check_folder(out, run)
     manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
@@ -218,7 +229,7 @@ def score_data(
     for index in set(range(len(jobs))) - set(todo):
         if on_job is not None:
             on_job(len(jobs[index]), len(jobs[index]) * len(vocabulary))
-    arguments = [(jobs[index], vocabulary, interval, metric, progress) for index in todo]
+    arguments = [(jobs[index], vocabulary, interval, metric, progress, human_filter) for index in todo]
     with executor.session():
         for position, result in executor.run(score_scenes, arguments):
             _write_atomically(parts[todo[position]], _part_bytes(result))
