@@ -24,12 +24,12 @@ def cmd_vocab_score(args: argparse.Namespace) -> int:
     with Progress(*columns, disable=args.quiet) as progress:
         task = progress.add_task("scenes", total=None, rate="")
 
-        def on_job(scenes: int, entries: int) -> None:
+        def on_job(scenes: int, entries: int, total: int) -> None:
             done["scenes"] += scenes
             done["entries"] += entries
             seconds = max(time.perf_counter() - start, 1e-9)
             rate = f"{done['scenes'] / seconds:.2f} scenes/s, {done['entries'] / seconds:,.0f} entries/s"
-            progress.update(task, completed=done["scenes"], rate=rate)
+            progress.update(task, completed=done["scenes"], total=total, rate=rate)
 
         manifest = vocab_targets.score_data(
             Path(args.vocab), [Path(folder) for folder in args.data], Path(args.out), args.metric, args.interval,
