@@ -13,7 +13,7 @@ PDM-Closed planned per scene as ``score`` plans it) and writes, in ``out``:
   PDM-Closed can follow), with their error.
 
 Deterministic and resumable like ``convert``: scenes are scored in jobs of :data:`SCENES_PER_JOB` consecutive
-samples, on any executor; each finished job is written to ``parts/<job>.npz`` (renamed into place whole) and the
+samples of a shard, on any executor, each job reading its own samples (the driver decodes none); each finished job is written to ``parts/<job>.npz`` (renamed into place whole) and the
 files are assembled from the parts in data order, so any number of workers, Ray or a rerun after a kill write the
 same bytes. A rerun with the same inputs scores only the jobs without a part; a folder holding another run's parts
 (another vocabulary, metric or data) is refused, as is a ``vocab_scores.pkl`` without our manifest.
