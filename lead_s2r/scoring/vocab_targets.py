@@ -9,14 +9,15 @@ PDM-Closed planned per scene as ``score`` plans it) and writes, in ``out``:
 - ``vocab_scores.parquet``: one row per scene (``key``, ``token``), one list column per metric (float32 holding the
   float16 values, so both files carry the same numbers);
 - ``vocab_manifest.json``: what was scored with what (vocabulary file and SHA-256, shape, interval, metric, EP
-  normalisation, data folders, split, package version), the scenes scored and those that failed (no route
+  normalisation, human filter, data folders, split, package version), the scenes scored and those that failed (no route
   PDM-Closed can follow), with their error.
 
 Deterministic and resumable like ``convert``: scenes are scored in jobs of :data:`SCENES_PER_JOB` consecutive
-samples of a shard, on any executor, each job reading its own samples (the driver decodes none); each finished job is written to ``parts/<job>.npz`` (renamed into place whole) and the
-files are assembled from the parts in data order, so any number of workers, Ray or a rerun after a kill write the
-same bytes. A rerun with the same inputs scores only the jobs without a part; a folder holding another run's parts
-(another vocabulary, metric or data) is refused, as is a ``vocab_scores.pkl`` without our manifest.
+samples of a shard, on any executor, each job reading its own samples (the driver decodes none); each finished job
+is written to ``parts/<job>.npz`` (renamed into place whole) and the files are assembled from the parts in data
+order, so any number of workers, Ray or a rerun after a kill write the same bytes. A rerun with the same inputs
+scores only the jobs without a part; a folder holding another run's manifest (another vocabulary, metric, EP mode,
+human filter, data or split) is refused, as is a ``vocab_scores.pkl`` without our manifest.
 
 ``build_vocabulary`` clusters the logged futures of converted samples (resampled to GTRS's 40 poses at 0.1 s) with
 scipy's k-means (``kmeans2``, k-means++ start, seeded): the same data, size and seed give the same array.
