@@ -193,7 +193,7 @@ def _check_folder(out: Path, run: VocabRun) -> None:
             held = None
         if held != run.identity():
             raise UserError(
-                f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, data or split differ); "
+                f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, human filter, data or split differ); "
                 "choose another --out or delete it"
             )
     elif (out / PICKLE).exists():
