@@ -193,8 +193,8 @@ def _check_folder(out: Path, run: VocabRun) -> None:
             held = None
         if held != run.identity():
             raise UserError(
-                f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, human filter, data or split differ); "
-                "choose another --out or delete it"
+                f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, human filter, data or "
+                "split differ); choose another --out or delete it"
             )
     elif (out / PICKLE).exists():
         raise UserError(f"--out {out}: {PICKLE} is not ours (no {MANIFEST} beside it); choose another --out")
