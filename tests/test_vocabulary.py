@@ -99,6 +99,11 @@ def test_vocabulary_wide_progress_is_gtrs_normalisation(converted: Path, vocabul
     unchanged = set(pair) - {"ego_progress", "ep_normaliser_m", "score"}
     for name in unchanged:
         np.testing.assert_array_equal(wide[name], pair[name], err_msg=name)
+    unfiltered = score_vocabulary(scene, vocabulary, 0.1, reference, metric, human_filter=False)
+    for v in (0, len(vocabulary) - 1):
+        alone = score_proposals(scene, vocabulary[v : v + 1], 0.1, reference, metric, human_filter=False)
+        for name, values in alone.items():
+            np.testing.assert_array_equal(unfiltered[name][v : v + 1], values, err_msg=f"{name}, entry {v}")
 
 
 def vocab_score(vocab: Path, data: Path, out: Path, *options: str) -> dict[str, bytes]:

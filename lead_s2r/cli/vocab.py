@@ -24,16 +24,16 @@ def cmd_vocab_score(args: argparse.Namespace) -> int:
     with Progress(*columns, disable=args.quiet) as progress:
         task = progress.add_task("scenes", total=None, rate="")
 
-        def on_job(scenes: int, entries: int) -> None:
+        def on_job(scenes: int, entries: int, total: int) -> None:
             done["scenes"] += scenes
             done["entries"] += entries
             seconds = max(time.perf_counter() - start, 1e-9)
             rate = f"{done['scenes'] / seconds:.2f} scenes/s, {done['entries'] / seconds:,.0f} entries/s"
-            progress.update(task, completed=done["scenes"], rate=rate)
+            progress.update(task, completed=done["scenes"], total=total, rate=rate)
 
         manifest = vocab_targets.score_data(
             Path(args.vocab), [Path(folder) for folder in args.data], Path(args.out), args.metric, args.interval,
-            args.progress, args.split, executor, on_job,
+            args.progress, not args.no_human_filter, args.split, executor, on_job,
         )  # fmt: skip
     failed = f", {len(manifest['failed'])} failed (see {vocab_targets.MANIFEST})" if manifest["failed"] else ""
     print(f"scored {manifest['entries']} entries in {manifest['scenes']} scenes{failed} -> {args.out}")
@@ -61,6 +61,10 @@ def add_verbs(verbs: Any) -> None:
     sub.add_argument(
         "--progress", default="pair", choices=("pair", "vocabulary"),
         help="EP normalised over [PDM-Closed, entry] (NAVSIM's) or over the whole vocabulary (GTRS's targets)",
+    )  # fmt: skip
+    sub.add_argument(
+        "--no-human-filter", action="store_true",
+        help="EPDMS without v2.2's human penalty filter (SimScale's GTRS targets: with --progress vocabulary)",
     )  # fmt: skip
     sub.add_argument("--split", default=None, help="score only this split of --data")
     sub.add_argument(

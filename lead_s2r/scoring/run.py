@@ -96,7 +96,7 @@ def choose_samples(
     key = (tuple(str(Path(folder).resolve()) for folder in folders), tuple(fields), split, tag)
     if cache is not None and key in cache:
         return cache[key]
-    entries = [entry for folder in folders for entry in _listing(folder, fields)]
+    entries = [entry for folder in folders for entry in sample_listing(folder, fields)]
     in_split = [entry for entry in entries if split is None or entry["split"] == split]
     if not in_split:
         held = sorted({entry["split"] for entry in entries})
@@ -112,7 +112,7 @@ def choose_samples(
     return result
 
 
-def _listing(folder: Path, fields: tuple[str, ...]) -> list[dict[str, Any]]:
+def sample_listing(folder: Path, fields: tuple[str, ...]) -> list[dict[str, Any]]:
     """A folder's samples as entries (``key``, ``split``, ``tags``, and ``shard`` or the decoded ``sample``): from
     its manifest, or, for a folder of tars without one, from every sample decoded."""
     listed = listed_keys(folder)

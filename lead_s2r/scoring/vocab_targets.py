@@ -9,14 +9,15 @@ PDM-Closed planned per scene as ``score`` plans it) and writes, in ``out``:
 - ``vocab_scores.parquet``: one row per scene (``key``, ``token``), one list column per metric (float32 holding the
   float16 values, so both files carry the same numbers);
 - ``vocab_manifest.json``: what was scored with what (vocabulary file and SHA-256, shape, interval, metric, EP
-  normalisation, data folders, split, package version), the scenes scored and those that failed (no route
+  normalisation, human filter, data folders, split, package version), the scenes scored and those that failed (no route
   PDM-Closed can follow), with their error.
 
 Deterministic and resumable like ``convert``: scenes are scored in jobs of :data:`SCENES_PER_JOB` consecutive
-samples, on any executor; each finished job is written to ``parts/<job>.npz`` (renamed into place whole) and the
-files are assembled from the parts in data order, so any number of workers, Ray or a rerun after a kill write the
-same bytes. A rerun with the same inputs scores only the jobs without a part; a folder holding another run's parts
-(another vocabulary, metric or data) is refused, as is a ``vocab_scores.pkl`` without our manifest.
+samples of a shard, on any executor, each job reading its own samples (the driver decodes none); each finished job
+is written to ``parts/<job>.npz`` (renamed into place whole) and the files are assembled from the parts in data
+order, so any number of workers, Ray or a rerun after a kill write the same bytes. A rerun with the same inputs
+scores only the jobs without a part; a folder holding another run's manifest (another vocabulary, metric, EP mode,
+human filter, data or split) is refused, as is a ``vocab_scores.pkl`` without our manifest.
 
 ``build_vocabulary`` clusters the logged futures of converted samples (resampled to GTRS's 40 poses at 0.1 s) with
 scipy's k-means (``kmeans2``, k-means++ start, seeded): the same data, size and seed give the same array.
@@ -48,12 +49,15 @@ from lead_s2r.scoring.pdm.sample import NEEDS_MAPS, scene_from_sample
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC, METRIC, METRICS
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES, PROGRESS_MODES, check_vocabulary
 from lead_s2r.scoring.pdm.vocabulary import score_vocabulary as score_entries
-from lead_s2r.scoring.run import select_samples
+from lead_s2r.scoring.run import sample_listing, select_samples
+from lead_s2r.shards import load_manifest, read_part, sample_offsets
 
 PICKLE = "vocab_scores.pkl"
 PARQUET = "vocab_scores.parquet"
 MANIFEST = "vocab_manifest.json"
 PARTS = "parts"
+#: the member of a part holding its scenes' tokens and failures
+PART_LISTING = "listing.json"
 #: scenes per job: one scene of 8,192 entries takes about a second, a job's messages (the vocabulary) a few ms
 SCENES_PER_JOB = 4
 #: the sample fields a scene is built from
@@ -75,6 +79,7 @@ class VocabRun:
     interval: float
     metric: str
     progress: str
+    human_filter: bool
     data: tuple[str, ...]
     split: str | None
 
@@ -85,6 +90,7 @@ class VocabRun:
             "interval": self.interval,
             "metric": self.metric,
             "progress": self.progress,
+            "human_filter": self.human_filter,
             "data": list(self.data),
             "split": self.split,
         }
@@ -112,28 +118,47 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def job_samples(source: list[dict[str, Any]] | tuple[str, list[str], int]) -> list[dict[str, Any]]:
+    """A job's samples: given decoded (a folder without a manifest), or ``(shard, keys, offset)`` read by the job
+    itself, so the driver holds no scene and a worker reads only its own."""
+    if isinstance(source, tuple):
+        shard, keys, offset = source
+        return read_part(shard, keys, FIELDS, offset)
+    return source
+
+
 def score_scenes(
-    samples: list[dict[str, Any]], vocabulary: np.ndarray, interval: float, metric: str, progress: str
+    source: list[dict[str, Any]] | tuple[str, list[str], int],
+    vocabulary: np.ndarray,
+    interval: float,
+    metric: str,
+    progress: str,
+    human_filter: bool = True,
 ) -> dict[str, Any]:
-    """One job: every scene's GTRS columns as float16 ``(V,)`` arrays by sample key, and the scenes that failed."""
-    scores, failed = {}, {}
-    for sample in samples:
+    """One job: every scene's GTRS columns as float16 ``(V,)`` arrays by sample key, the scenes' NAVSIM tokens and
+    the scenes that failed."""
+    scores, tokens, failed = {}, {}, {}
+    for sample in job_samples(source):
+        key = sample["__key__"]
+        tokens[key] = navsim_token(sample)
         try:
             scene = scene_from_sample(sample)
         except RouteError as err:
-            failed[sample["__key__"]] = str(err)
+            failed[key] = str(err)
             continue
-        columns = score_entries(scene, vocabulary, interval, plan_reference(scene), metric, progress=progress)
-        scores[sample["__key__"]] = {
-            gtrs: columns[ours].astype(np.float16) for ours, gtrs in GTRS_NAMES[metric].items()
-        }
-    return {"scores": scores, "failed": failed}
+        reference = plan_reference(scene)
+        columns = score_entries(
+            scene, vocabulary, interval, reference, metric, progress=progress, human_filter=human_filter
+        )
+        scores[key] = {gtrs: columns[ours].astype(np.float16) for ours, gtrs in GTRS_NAMES[metric].items()}
+    return {"scores": scores, "tokens": tokens, "failed": failed}
 
 
 def _part_bytes(result: dict[str, Any]) -> bytes:
-    """A job's result as a .npz (arrays ``<key>/<metric>``) with the failures as JSON: no pickle on disk."""
+    """A job's result as a .npz (arrays ``<key>/<metric>``) with tokens and failures as JSON: no pickle on disk."""
     arrays = {f"{key}/{name}": values for key, columns in result["scores"].items() for name, values in columns.items()}
-    arrays["failed.json"] = np.frombuffer(json.dumps(result["failed"]).encode(), np.uint8)
+    listing = {"tokens": result["tokens"], "failed": result["failed"]}
+    arrays[PART_LISTING] = np.frombuffer(json.dumps(listing).encode(), np.uint8)
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     return buffer.getvalue()
@@ -141,13 +166,13 @@ def _part_bytes(result: dict[str, Any]) -> bytes:
 
 def _read_part(path: Path) -> dict[str, Any]:
     with np.load(path, allow_pickle=False) as npz:
-        failed = json.loads(npz["failed.json"].tobytes())
+        listing = json.loads(npz[PART_LISTING].tobytes())
         scores: dict[str, dict[str, np.ndarray]] = {}
         for name in npz.files:
-            if name != "failed.json":
+            if name != PART_LISTING:
                 key, metric = name.rsplit("/", 1)
                 scores.setdefault(key, {})[metric] = npz[name]
-    return {"scores": scores, "failed": failed}
+    return {"scores": scores, **listing}
 
 
 def _check_folder(out: Path, run: VocabRun) -> None:
@@ -160,8 +185,8 @@ def _check_folder(out: Path, run: VocabRun) -> None:
             held = None
         if held != run.identity():
             raise UserError(
-                f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, data or split differ); "
-                "choose another --out or delete it"
+                f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, human filter, data or "
+                "split differ); choose another --out or delete it"
             )
     elif (out / PICKLE).exists():
         raise UserError(f"--out {out}: {PICKLE} is not ours (no {MANIFEST} beside it); choose another --out")
@@ -174,12 +199,13 @@ def score_data(
     metric: str = METRIC,
     interval: float = GTRS_INTERVAL_S,
     progress: str = "pair",
+    human_filter: bool = True,
     split: str | None = None,
     executor: Executor | None = None,
-    on_job: Callable[[int, int], None] | None = None,
+    on_job: Callable[[int, int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Score ``vocab_path``'s vocabulary on the samples of ``data`` and write the files of the module docstring;
-    return the manifest. ``on_job(scenes, entries)`` is called as each job ends (a progress bar)."""
+    return the manifest. ``on_job(scenes, entries, total_scenes)`` is called as each job ends (a progress bar)."""
     if metric not in METRICS:
         raise UserError(f"--metric {metric}: choose {' or '.join(METRICS)}")
     if progress not in PROGRESS_MODES:
@@ -190,33 +216,72 @@ def score_data(
     for folder in data:
         if not folder.is_dir():
             raise UserError(f"--data {folder}: no such folder; give a converted NAVSIM folder")
+    jobs = _jobs(data, split)
     executor = executor or InlineExecutor()
-    with executor.session():
-        samples = select_samples(data, FIELDS, split, executor)
-    missing = [sample["__key__"] for sample in samples if "scoring" not in sample]
-    if missing:
-        folders = ", ".join(map(str, data))
-        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
-        raise UserError(f"--data {folders}: sample {missing[0]!r} has no field 'scoring'{more}; {NEEDS_MAPS}")
-    run = VocabRun(str(vocab_path), _sha256(vocab_path), vocabulary.shape, interval, metric, progress,
+    run = VocabRun(str(vocab_path), _sha256(vocab_path), vocabulary.shape, interval, metric, progress, human_filter,
                    tuple(str(folder.resolve()) for folder in data), split)  # fmt: skip
     _check_folder(out, run)
     manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
     manifest |= {"package_version": __version__, "gtrs_metrics": list(GTRS_NAMES[metric].values())}
     write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
-    jobs = [samples[start : start + SCENES_PER_JOB] for start in range(0, len(samples), SCENES_PER_JOB)]
     parts = [out / PARTS / f"{index:06d}.npz" for index in range(len(jobs))]
+    for partial in (out / PARTS).glob(".*.partial"):  # a killed run's unfinished writes
+        partial.unlink()
     todo = [index for index, path in enumerate(parts) if not _readable(path)]
+    total = sum(_job_size(job) for job in jobs)
     for index in set(range(len(jobs))) - set(todo):
         if on_job is not None:
-            on_job(len(jobs[index]), len(jobs[index]) * len(vocabulary))
-    arguments = [(jobs[index], vocabulary, interval, metric, progress) for index in todo]
+            on_job(_job_size(jobs[index]), _job_size(jobs[index]) * len(vocabulary), total)
+    arguments = [(jobs[index], vocabulary, interval, metric, progress, human_filter) for index in todo]
     with executor.session():
         for position, result in executor.run(score_scenes, arguments):
             write_bytes(parts[todo[position]], _part_bytes(result))
             if on_job is not None:
-                on_job(len(jobs[todo[position]]), len(jobs[todo[position]]) * len(vocabulary))
-    return _assemble(out, samples, parts, manifest)
+                size = _job_size(jobs[todo[position]])
+                on_job(size, size * len(vocabulary), total)
+    return _assemble(out, parts, manifest)
+
+
+def _jobs(data: list[Path], split: str | None) -> list[list[dict[str, Any]] | tuple[str, list[str], int]]:
+    """The jobs of :func:`score_scenes` in data order: up to :data:`SCENES_PER_JOB` consecutive samples of one shard
+    (read by the job), or decoded samples of a folder without a manifest. Data converted without maps (no
+    ``scoring``) is a UserError here, before anything is written."""
+    jobs: list[list[dict[str, Any]] | tuple[str, list[str], int]] = []
+    for folder in data:
+        entries = [entry for entry in sample_listing(folder, FIELDS) if split is None or entry["split"] == split]
+        if entries and "sample" in entries[0]:
+            without = [entry["key"] for entry in entries if "scoring" not in entry["sample"]]
+            samples = [entry["sample"] for entry in entries]
+            jobs += [samples[start : start + SCENES_PER_JOB] for start in range(0, len(samples), SCENES_PER_JOB)]
+        else:
+            table = load_manifest(folder)  # a dataset without the field has no has_scoring column
+            flags = table["has_scoring"].to_pylist() if "has_scoring" in table.column_names else [False] * len(table)
+            scoring = dict(zip(table["key"].to_pylist(), flags, strict=True))
+            without = [entry["key"] for entry in entries if not scoring.get(entry["key"])]
+            jobs += _shard_jobs(entries)
+        if without:
+            more = f" (and {len(without) - 1} more)" if len(without) > 1 else ""
+            raise UserError(f"--data {folder}: sample {without[0]!r} has no field 'scoring'{more}; {NEEDS_MAPS}")
+    if not jobs:
+        raise UserError(f"--split {split}: {', '.join(map(str, data))} holds no sample of it")
+    return jobs
+
+
+def _shard_jobs(entries: list[dict[str, Any]]) -> list[tuple[str, list[str], int]]:
+    by_shard: dict[str, list[str]] = {}
+    for entry in entries:
+        by_shard.setdefault(entry["shard"], []).append(entry["key"])
+    jobs = []
+    for shard, keys in by_shard.items():
+        offsets = sample_offsets(shard)
+        for start in range(0, len(keys), SCENES_PER_JOB):
+            part = keys[start : start + SCENES_PER_JOB]
+            jobs.append((shard, part, offsets[part[0]]))
+    return jobs
+
+
+def _job_size(job: list[dict[str, Any]] | tuple[str, list[str], int]) -> int:
+    return len(job[1]) if isinstance(job, tuple) else len(job)
 
 
 def _readable(path: Path) -> bool:
@@ -228,17 +293,19 @@ def _readable(path: Path) -> bool:
         return False
 
 
-def _assemble(out: Path, samples: list[dict[str, Any]], parts: list[Path], manifest: dict[str, Any]) -> dict[str, Any]:
-    """The pickle, the Parquet table and the finished manifest, from the parts, in data order."""
+def _assemble(out: Path, parts: list[Path], manifest: dict[str, Any]) -> dict[str, Any]:
+    """The pickle, the Parquet table and the finished manifest, from the parts, in data order (the parts' order,
+    and each part's)."""
     scores: dict[str, dict[str, np.ndarray]] = {}
+    tokens: dict[str, str] = {}
     failed: dict[str, str] = {}
     for path in parts:
         part = _read_part(path)
         scores |= part["scores"]
+        tokens |= part["tokens"]
         failed |= part["failed"]
     names = manifest["gtrs_metrics"]
-    tokens = {sample["__key__"]: navsim_token(sample) for sample in samples}
-    keys = [sample["__key__"] for sample in samples if sample["__key__"] in scores]
+    keys = [key for key in tokens if key in scores]
     targets = {tokens[key]: {name: scores[key][name] for name in names} for key in keys}
     write_bytes(out / PICKLE, targets_bytes(targets))
     columns = {"key": pa.array(keys, pa.string()), "token": pa.array([tokens[key] for key in keys], pa.string())}

@@ -77,22 +77,15 @@ class DrivableMap:
 
     def locate(self, points: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon; every point of row b
-        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grown-box query to polygons
-        whose bounding box meets the row's, then to points inside the polygon's bounding box."""
+        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grown-box query to points inside
+        the polygon's bounding box, one ``(pairs, P)`` comparison per coordinate."""
         box, polygon = self.tree.query(shapely.points(centers))
-        low, high = points.min(axis=1), points.max(axis=1)  # (B, 2) each
-        near = np.all((low[box] <= self.bounds[polygon, 2:]) & (high[box] >= self.bounds[polygon, :2]), axis=1)
-        box, polygon = box[near], polygon[near]
-        num_points = points.shape[1]
-        box, point, polygon = (
-            np.repeat(box, num_points),
-            np.tile(np.arange(num_points), len(box)),
-            np.repeat(polygon, num_points),
-        )
-        xy = points[box, point]
-        near = np.all((xy >= self.bounds[polygon, :2]) & (xy <= self.bounds[polygon, 2:]), axis=1)
-        box, point, polygon, xy = box[near], point[near], polygon[near], xy[near]
-        inside = shapely.contains_xy(self.polygons[polygon], xy[:, 0], xy[:, 1])
+        bounds = self.bounds[polygon]
+        x, y = points[box, :, 0], points[box, :, 1]
+        near = (x >= bounds[:, :1]) & (x <= bounds[:, 2:3]) & (y >= bounds[:, 1:2]) & (y <= bounds[:, 3:])
+        pair, point = np.nonzero(near)
+        box, polygon = box[pair], polygon[pair]
+        inside = shapely.contains_xy(self.polygons[polygon], x[pair, point], y[pair, point])
         return box[inside], point[inside], polygon[inside]
 
 

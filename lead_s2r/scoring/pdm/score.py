@@ -294,6 +294,7 @@ def score_proposals(
     red_lights: list[list[shapely.Polygon]] | None = None,
     with_states: bool = False,
     with_masked_progress: bool = False,
+    human_filter: bool = True,
 ) -> dict[str, np.ndarray]:
     """``metric`` (PDMS v1.1 or EPDMS v2.2) of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``),
     one row each, with the columns of :data:`COLUMNS` or :data:`EPDMS_COLUMNS`. ``reference (M, 3)``: the EP
@@ -303,7 +304,9 @@ def score_proposals(
     proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``);
     ``with_masked_progress`` adds EP's masked progress [m] of each proposal and of the reference (before the human
     filter) as ``masked_progress_m`` and ``reference_masked_progress_m`` (what a vocabulary-wide EP needs,
-    ``vocabulary``). ``observation``, ``drivable_map`` and ``red_lights`` (EPDMS) are built from the scene when None.
+    ``vocabulary``). ``human_filter=False`` (EPDMS) leaves v2.2's human penalty filter out, as SimScale's
+    vocabulary targets do. ``observation``, ``drivable_map`` and ``red_lights`` (EPDMS) are built from the scene
+    when None.
     The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
     ``interpolation``)."""
     if metric not in METRICS:
@@ -315,7 +318,7 @@ def score_proposals(
         interpolate_reference(_reference(scene, reference), REFERENCE_INTERVAL_S, scene.t0_us)[None],
         interpolate_proposals(proposals, interval, scene.t0_us),
     ]
-    human = _human(scene) if metric == EPDMS_METRIC else None
+    human = _human(scene) if metric == EPDMS_METRIC and human_filter else None
     if human is not None:
         targets.append(interpolate_proposals(human[None], scene.human_interval, scene.t0_us))
     states = simulate_proposals(

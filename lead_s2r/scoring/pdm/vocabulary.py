@@ -14,7 +14,9 @@ progress is normalised over ``[PDM-Closed, entry]``, as ``pdm_score`` scores a s
 ``PDMScorer.score_proposals`` call) normalise over ``[PDM-Closed, entry 0, ..., entry V-1]``: the normaliser is the
 largest masked progress of the reference and the whole vocabulary (``progress="vocabulary"``), and the score is
 recomputed from that EP. Masking, the 5 m threshold and the formulas are v1.1's or v2.2's as the metric says
-(``metrics.ego_progress`` / ``ego_progress_v2``).
+(``metrics.ego_progress`` / ``ego_progress_v2``). SimScale's script also turns v2.2's human penalty filter off
+(``human_penalty_filter=False``): ``human_filter=False`` does the same; GTRS's targets are
+``progress="vocabulary", human_filter=False``.
 """
 
 import numpy as np
@@ -61,13 +63,15 @@ def score_vocabulary(
     metric: str = METRIC,
     *,
     progress: str = PROGRESS_PAIR,
+    human_filter: bool = True,
     chunk: int = CHUNK,
 ) -> dict[str, np.ndarray]:
     """``metric`` of every entry of ``vocabulary (V, K, 3)`` (ego-frame poses at ``interval * (k + 1)``): one
     ``(V,)`` array per column of ``score_proposals`` (``COLUMNS`` or ``EPDMS_COLUMNS``), row v equal to scoring
     entry v alone. ``reference``: PDM-Closed's ``(M, 3)`` as ``score_proposals`` takes it. ``progress``: EP over
     ``[reference, entry]`` (``"pair"``, NAVSIM's definition) or over the reference and the whole vocabulary
-    (``"vocabulary"``, GTRS's targets; the module docstring). EC needs a previous frame and stays NaN."""
+    (``"vocabulary"``, GTRS's targets; the module docstring). ``human_filter=False``: EPDMS without v2.2's human
+    penalty filter (SimScale's targets run without it). EC needs a previous frame and stays NaN."""
     if metric not in METRICS:
         raise ValueError(f"metric {metric!r} is not scored here; score_vocabulary computes {' and '.join(METRICS)}")
     if progress not in PROGRESS_MODES:
@@ -75,17 +79,18 @@ def score_vocabulary(
     if chunk < 1:
         raise ValueError(f"chunk {chunk}: give at least 1 entry per chunk")
     vocabulary = check_vocabulary(vocabulary)
-    shared = {"drivable_map": DrivableMap.from_scene(scene)}
+    arguments = {"drivable_map": DrivableMap.from_scene(scene)}
     if metric == EPDMS_METRIC:
-        shared |= {
+        arguments |= {
             "observation": log_observation(scene, V2_STEPS, replay=True),
             "red_lights": red_light_polygons(scene, V2_STEPS, INTERVAL_S),
         }
     else:
-        shared["observation"] = log_observation(scene)
+        arguments["observation"] = log_observation(scene)
     wants_masked = progress == PROGRESS_VOCABULARY
+    arguments |= {"with_masked_progress": wants_masked, "human_filter": human_filter}
     parts = [
-        score_proposals(scene, entries, interval, reference, metric, with_masked_progress=wants_masked, **shared)
+        score_proposals(scene, entries, interval, reference, metric, **arguments)
         for entries in (vocabulary[start : start + chunk] for start in range(0, len(vocabulary), chunk))
     ]
     columns = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
