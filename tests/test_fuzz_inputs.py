@@ -13,6 +13,8 @@ trials per target (default 12: about 20 s for the first nine targets, and a minu
 ``LEAD_S2R_FUZZ_SEED`` the seed.
 """
 
+import contextlib
+import io
 import json
 import os
 import re
@@ -351,8 +353,9 @@ def agent_run(tmp_path_factory) -> Path:
     assert convert(get_adapter("carla_lead"), root / "src", root / "data", shard_size=8, progress=False).ok
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
-    try:
-        run_lightning_cli(["fit", "--config", str(agent_fit_config(root / "run", root / "data", MODEL, steps=2))])
+    try:  # fit's summary kept out of the output the first trial compares (the fixture runs inside the test)
+        with contextlib.redirect_stdout(io.StringIO()):
+            run_lightning_cli(["fit", "--config", str(agent_fit_config(root / "run", root / "data", MODEL, steps=2))])
     finally:
         torch.set_num_threads(threads)
     return root / "run"

@@ -282,6 +282,18 @@ def test_fit_config_with_a_wrong_typed_value_or_bytes_not_utf8_names_the_file(tm
 MODEL_CONFIG = ("model", "model", "init_args", "config")
 
 
+def fit_config_with(tmp_path: Path, where: tuple, value: object) -> Path:
+    """:func:`fit_config` (of a data folder that does not exist) with the value at keys ``where`` replaced."""
+    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path / "no-data")], "cameras": ["front"]}})
+    values = yaml.safe_load(config.read_text())
+    node = values
+    for name in where[:-1]:
+        node = node[name]
+    node[where[-1]] = value
+    config.write_text(yaml.safe_dump(values))
+    return config
+
+
 @pytest.mark.parametrize(
     ("where", "value", "message"),
     [
@@ -293,13 +305,7 @@ MODEL_CONFIG = ("model", "model", "init_args", "config")
 )
 def test_fit_config_value_no_constructor_can_use_names_the_file(tmp_path, plain_argv, capsys, where, value, message):
     """Values of the right YAML type for jsonargparse that the classes cannot be built with: each was a traceback."""
-    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path / "no-data")], "cameras": ["front"]}})
-    values = yaml.safe_load(config.read_text())
-    node = values
-    for name in where[:-1]:
-        node = node[name]
-    node[where[-1]] = value
-    config.write_text(yaml.safe_dump(values))
+    config = fit_config_with(tmp_path, where, value)
     line = user_error(["fit", "--config", str(config)], capsys)
     assert re.search(message, line) and line.endswith(f"(--config {config})"), line
 
@@ -314,13 +320,7 @@ def test_fit_config_value_no_constructor_can_use_names_the_file(tmp_path, plain_
     ],
 )
 def test_fit_config_section_that_is_no_mapping_is_named_in_our_words(tmp_path, plain_argv, capsys, where, value):
-    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path / "no-data")], "cameras": ["front"]}})
-    values = yaml.safe_load(config.read_text())
-    node = values
-    for name in where[:-1]:
-        node = node[name]
-    node[where[-1]] = value
-    config.write_text(yaml.safe_dump(values))
+    config = fit_config_with(tmp_path, where, value)
     line = user_error(["fit", "--config", str(config)], capsys)
     assert (
         line
