@@ -17,7 +17,7 @@ import numpy as np
 from lead_s2r.errors import UserError
 from lead_s2r.report.comparison import paired_metrics
 from lead_s2r.report.run_outputs import HEADLINES, MetricScores, RunOutputs
-from lead_s2r.report.sample_page import NAVSIM_FAILURES, is_score, named_failures
+from lead_s2r.report.sample_page import is_score, named_failures, sub_scores
 from lead_s2r.report.tables import id_ends_with
 
 ALL_SCENES = "all scenes"
@@ -71,14 +71,6 @@ def scene_deltas(a: Model, b: Model, tags: dict[str, list[str]]) -> list[SceneDe
                     by_scene.setdefault((scores_a.label, key), []).append((seed, scores_a, scores_b))
     deltas = [_delta(label, key, seeds, tags.get(key, [])) for (label, key), seeds in by_scene.items()]
     return sorted(deltas, key=lambda d: (not subsets & set(d.tags), d.metric, d.gain, d.key))
-
-
-def sub_scores(family: str) -> tuple[str, ...]:
-    """The columns of a family's per-sample table that are its sub-scores (NAVSIM's multipliers and weighted terms;
-    another family's headline alone): progress in metres or a normaliser is no sub-score to compare."""
-    if family in ("pdms", "epdms"):
-        return (*NAVSIM_FAILURES, "ego_progress")
-    return (HEADLINES[family][0],)
 
 
 def _delta(label: str, key: str, seeds: list[tuple[int, MetricScores, MetricScores]], tags: list[str]) -> SceneDelta:
