@@ -3,6 +3,7 @@ the pages in a real browser (sorting and filtering in the page), ``lead-s2r view
 Rerun's own reader, and bad input."""
 
 import json
+import re
 import shutil
 from collections import defaultdict
 from pathlib import Path
@@ -10,6 +11,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 from browser import Chromium, find_chromium
 
@@ -75,6 +77,11 @@ def site(runs: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> Path
     return out
 
 
+def _row(root: Path, model: str, seed: int, key: str) -> dict[str, Any]:
+    table = pq.read_table(root / "runs" / "navsim" / model / f"seed{seed}" / "scores" / "pdms" / "scores.parquet")
+    return next(row for row in table.to_pylist() if row["key"] == key)
+
+
 def _headline(run: Path, folder: str, key: str) -> float:
     return json.loads((run / "scores" / folder / "scores.json").read_text())["aggregates"][key]
 
@@ -101,6 +108,12 @@ def test_comparison_puts_the_tagged_scenes_first_with_what_b_loses_there(runs: d
     assert set(pdms_keys[: len(runs["tagged"])]) == runs["tagged"]  # tagged scenes first
     first = next(row for row in rows if f"<td>{PDMS} on navsim</td>" in row)
     assert "drivable_area_compliance" in first and "DAC" in first and 'class="number loss"' in first
+    key = first.split('"')[1]
+    means = [
+        np.mean([_row(runs["root"], model, seed, key)["score"] for seed in SEEDS]) for model in ("ego_mlp", "ltfv6")
+    ]
+    shown = [float(v) for v in re.findall(r'class="number[^"]*" data-value="([^"]+)"', first)[:3]]
+    np.testing.assert_allclose(shown, [means[0], means[1], means[1] - means[0]], rtol=1e-12)  # A, B, B's gain
     assert (site / "models" / f"{keys[0]}.html").is_file()
 
 
@@ -146,11 +159,21 @@ def test_site_in_headless_chromium_sorts_filters_and_names_runs(
         assert shot.shape[1] >= 1000
 
 
-def test_a_glob_that_matches_no_run_is_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_glob_that_matches_no_run_is_one_line_exit_2(
+    runs: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "site"
-    assert cli.main(["report", "--runs", str(tmp_path / "runs" / "*" / "*" / "seed*"), "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert "no run folder matches" in err and err.count("\n") == 1 and not out.exists()
+    pattern = str(runs["root"] / "runs" / "*" / "*" / "seed*")
+    cases = {
+        "no run folder matches": ["--runs", str(tmp_path / "runs" / "*" / "*" / "seed*")],
+        "--compare tfv6: no scored run of that name": ["--runs", pattern, "--compare", "ego_mlp", "tfv6"],
+        "--compare A B compares models of --runs": [str(runs["root"] / "runs" / "navsim" / "ltfv6" / "seed0"),
+                                                    "--compare", "ego_mlp", "ltfv6"],
+    }  # fmt: skip
+    for message, argv in cases.items():
+        assert cli.main(["report", *argv, "--out", str(out)]) == 2, message
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1 and not out.exists() and list(tmp_path.iterdir()) == []
 
 
 def test_runs_scored_on_different_data_are_one_line_exit_2(

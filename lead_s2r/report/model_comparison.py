@@ -17,7 +17,7 @@ import numpy as np
 from lead_s2r.errors import UserError
 from lead_s2r.report.comparison import paired_metrics
 from lead_s2r.report.run_outputs import HEADLINES, MetricScores, RunOutputs
-from lead_s2r.report.sample_page import NAVSIM_FAILURES, is_score, named_failures
+from lead_s2r.report.sample_page import is_score, named_failures, sub_scores
 from lead_s2r.report.tables import id_ends_with
 
 ALL_SCENES = "all scenes"
@@ -47,6 +47,7 @@ class SceneDelta:
     the sub-score B loses most on and by how much (its gain, negative), and what B's runs failed on."""
 
     metric: str
+    family: str
     dataset: str
     key: str
     tags: tuple[str, ...]
@@ -61,7 +62,8 @@ class SceneDelta:
 
 def scene_deltas(a: Model, b: Model, tags: dict[str, list[str]]) -> list[SceneDelta]:
     """Every (metric, scene) both models scored on a shared seed: the scenes of the subsets the runs scored on their
-    own first (:func:`subset_tags`), then per metric B's largest losses first."""
+    own first (:func:`subset_tags`), scores before errors (PDMS before ADE), then per metric B's largest losses
+    first."""
     subsets = set(subset_tags([a, b]))
     by_scene: dict[tuple[str, str], list[tuple[int, MetricScores, MetricScores]]] = {}
     for seed, mine in sorted(a.runs, key=lambda entry: entry[0]):
@@ -70,15 +72,9 @@ def scene_deltas(a: Model, b: Model, tags: dict[str, list[str]]) -> list[SceneDe
                 if scores_a.headline(key) is not None and scores_b.headline(key) is not None:
                     by_scene.setdefault((scores_a.label, key), []).append((seed, scores_a, scores_b))
     deltas = [_delta(label, key, seeds, tags.get(key, [])) for (label, key), seeds in by_scene.items()]
-    return sorted(deltas, key=lambda d: (not subsets & set(d.tags), d.metric, d.gain, d.key))
-
-
-def sub_scores(family: str) -> tuple[str, ...]:
-    """The columns of a family's per-sample table that are its sub-scores (NAVSIM's multipliers and weighted terms;
-    another family's headline alone): progress in metres or a normaliser is no sub-score to compare."""
-    if family in ("pdms", "epdms"):
-        return (*NAVSIM_FAILURES, "ego_progress")
-    return (HEADLINES[family][0],)
+    return sorted(
+        deltas, key=lambda d: (not subsets & set(d.tags), not HEADLINES[d.family][1], d.metric, d.gain, d.key)
+    )
 
 
 def _delta(label: str, key: str, seeds: list[tuple[int, MetricScores, MetricScores]], tags: list[str]) -> SceneDelta:
@@ -100,6 +96,7 @@ def _delta(label: str, key: str, seeds: list[tuple[int, MetricScores, MetricScor
     sub_gain = mean_gains.get(column, 0.0)
     return SceneDelta(
         label,
+        first.family,
         first.dataset,
         key,
         tuple(tags),

@@ -26,7 +26,8 @@ class FamilyTable:
 
 
 def headline_columns(runs: list[Run]) -> list[Column]:
-    """One column per (metric, tag) the runs scored, each with its family's headline aggregate (``pdms``)."""
+    """One column per (metric, tag) the runs scored, each with its family's headline aggregate (``pdms``); scores
+    before errors (PDMS before ADE), as the comparison orders them."""
     columns = {}
     for run in runs:
         for key, aggregates in run.scores.items():
@@ -35,7 +36,7 @@ def headline_columns(runs: list[Run]) -> list[Column]:
             if family in HEADLINES and family in aggregates:
                 name = metric if not tag else f"{metric} on {tag}"
                 columns.setdefault(key, Column(name, metric, family, tag=tag or None))
-    return list(columns.values())
+    return sorted(columns.values(), key=lambda column: not HEADLINES[column.metric.split("@")[0]][1])
 
 
 def headline_tables(runs: list[Run]) -> list[FamilyTable]:

@@ -12,15 +12,15 @@ axle on the ground), so the view follows the car:
 ``/map/lanes``            lane centrelines of the PDMS context (``scoring``); ``/map/areas``: polygon outlines
 ``/plan/logged``          the logged future
 ``/plan/predicted``       the run's most probable plan for the sample (with a run)
-``/scores/<metric>/<c>``  each sub-score ``c`` of each metric family the run scored (``pdms``, ``rfs``, ...)
+``/scores/<metric>/<c>``  the headline and each sub-score ``c`` of each metric family the run scored (``pdms``, ...)
 ========================  ======================================================================================
 
-Rerun (``rerun-sdk``, the ``viewer`` extra) writes the ``.rrd`` file; its viewer opens it (``rerun FILE.rrd``).
+Rerun (``rerun-sdk``, the ``viewer`` extra) writes the ``.rrd`` file with a default layout (the scene in 3D, the front
+cameras, the sub-scores' curves); its viewer opens it (``rerun FILE.rrd``).
 """
 
 import subprocess
 import sys
-from collections.abc import Iterable
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -29,8 +29,8 @@ import numpy as np
 import pyarrow.compute as pc
 
 from lead_s2r.errors import UserError
-from lead_s2r.report.run_outputs import RunOutputs, load_run
-from lead_s2r.report.sample_page import is_score, top_xy
+from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run
+from lead_s2r.report.sample_page import is_score, sub_scores, top_xy
 from lead_s2r.schema import BoxClass
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
 
@@ -89,7 +89,7 @@ def write_recording(target: str | Path, rrd: str | Path, log: str | None = None,
     recording = rr.RecordingStream(APPLICATION, recording_id=log)
     rrd.parent.mkdir(parents=True, exist_ok=True)
     partial = rrd.with_name(f".{rrd.name}.partial")
-    recording.save(partial)
+    recording.save(partial, default_blueprint=layout(rr, samples))
     try:
         for sample in samples:
             log_frame(rr, recording, sample, run)
@@ -102,6 +102,18 @@ def write_recording(target: str | Path, rrd: str | Path, log: str | None = None,
     if spawn:  # the viewer ships in the rerun-sdk wheel; `python -m rerun FILE` is its `rerun FILE`
         subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True)
     return rrd
+
+
+def layout(rr: Any, samples: list[dict[str, Any]]) -> Any:
+    """The view the viewer opens with: the scene in 3D beside the front camera(s) over the sub-scores' curves."""
+    import rerun.blueprint as rrb
+
+    cameras = [c["id"] for c in (samples[0]["meta"].get("cameras", []) if samples else [])]
+    shown = [c for c in cameras if c.startswith("front")][:3] or cameras[:1]
+    views = [rrb.Spatial2DView(origin=f"/cameras/{camera}", name=camera) for camera in shown]
+    side = rrb.Vertical(rrb.Horizontal(*views), rrb.TimeSeriesView(origin="/scores", name="sub-scores"))
+    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="/", name="scene (ego frame)"), side),
+                         collapse_panels=True)  # fmt: skip
 
 
 def log_frame(rr: Any, recording: Any, sample: dict[str, Any], run: RunOutputs | None) -> None:
@@ -201,12 +213,8 @@ def _run(rr: Any, recording: Any, key: str, run: RunOutputs) -> None:
             "/plan/predicted", rr.LineStrips3D([_on_ground(top_xy(run.predictions[key]))], colors=[[228, 0, 124]])
         )
     for scores in run.scores:
-        row = scores.rows.get(key)
-        for name, value in _sub_scores(row or {}):
-            recording.log(f"/scores/{scores.family}/{name}", rr.Scalars(value))
-
-
-def _sub_scores(row: dict[str, Any]) -> Iterable[tuple[str, float]]:
-    for name, value in row.items():
-        if is_score(name, value) and value is not None and np.isfinite(value):
-            yield name, float(value)
+        row = scores.rows.get(key) or {}
+        for name in dict.fromkeys([*HEADLINES.get(scores.family, ())[:1], *sub_scores(scores.family)]):
+            value = row.get(name)
+            if is_score(name, value) and value is not None and np.isfinite(value):
+                recording.log(f"/scores/{scores.family}/{name}", rr.Scalars(float(value)))

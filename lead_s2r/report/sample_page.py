@@ -31,6 +31,8 @@ NAVSIM_FAILURES = {
     "history_comfort": ("HC", "acceleration or jerk beyond the comfort bounds", None),
     "two_frame_extended_comfort": ("EC", "plan inconsistent with the previous frame's", None),
 }
+#: metric family -> its sub-score columns where not NAVSIM's (``NAVSIM_FAILURES`` and ego progress)
+SUB_SCORES = {"rfs": ("rfs",), "ade": ("ade", "fde")}
 #: columns that are not sub-scores: bookkeeping and the failure steps
 NOT_SCORES = {"key", "dataset", "token", "valid", "error", "previous_key", "cluster", "stage", "two_stage_role"}
 
@@ -62,6 +64,14 @@ def named_failures(scores: MetricScores, row: dict[str, Any]) -> list[tuple[str,
 def failures(scores: MetricScores, row: dict[str, Any]) -> list[str]:
     """The sub-scores ``row`` lost, named, with the time they were lost where the scorer records it."""
     return [words for _, words in named_failures(scores, row)]
+
+
+def sub_scores(family: str) -> tuple[str, ...]:
+    """The columns of a family's per-sample table that are sub-scores (NAVSIM's multipliers and weighted terms, RFS,
+    ADE and FDE): progress in metres or a normaliser is a number, not a sub-score to compare or plot."""
+    if family in ("pdms", "epdms"):
+        return (*NAVSIM_FAILURES, "ego_progress")
+    return SUB_SCORES.get(family, ())
 
 
 def is_score(name: str, value: object) -> bool:
