@@ -30,6 +30,7 @@ from lead_s2r.data.collate import IGNORE_VALUE
 from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
 from lead_s2r.data.lead_centernet import lead_centernet_targets
 from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes
+from lead_s2r.data.lead_origin import to_centre_origin
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.targets import (
     MAX_RADAR_POINTS,
@@ -94,6 +95,8 @@ class SourceTransform:
         return fields
 
     def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
+        if self.lead_carla:  # LEAD's CARLA frame: origin at the vehicle centre
+            sample = to_centre_origin(sample)
         meta = sample["meta"]
         ego = meta["ego"]
         out: dict[str, Any] = {
@@ -103,6 +106,8 @@ class SourceTransform:
             "acceleration": torch.from_numpy(np.array(ego["acceleration"], np.float32)),
             "command": torch.scalar_tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
+        if self.lead_carla:  # LEAD's CARLA network tells lane following from going straight, and lane changes apart
+            out["command_full"] = torch.scalar_tensor(int(ego["command"]), dtype=torch.int64)
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
             stored = self.camera.stored_layout(meta)
             if self.inputs_on_device and stored is not None and stored.identity:
