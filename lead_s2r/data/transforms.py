@@ -31,6 +31,7 @@ from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
 from lead_s2r.data.lead_centernet import lead_centernet_targets
 from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes
 from lead_s2r.data.lead_origin import to_centre_origin
+from lead_s2r.data.lead_route import lead_route
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.targets import (
     MAX_RADAR_POINTS,
@@ -39,7 +40,6 @@ from lead_s2r.data.targets import (
     nan_to_zero,
     pad_points,
     radar_targets,
-    route_checkpoints,
 )
 from lead_s2r.errors import UserError
 from lead_s2r.geometry import resample
@@ -127,11 +127,13 @@ class SourceTransform:
         if "future" in sample:
             out.update(self.trajectory(sample["future"]))
         if "route" in sample:
-            out.update(route_checkpoints(sample["route"], spec.num_route_points))
-        target_speed = meta["extras"].get(meta["dataset"], {}).get("target_speed")
-        if target_speed is not None:
-            out["target_speed"] = torch.scalar_tensor(float(target_speed))
+            out.update(lead_route(sample["route"], spec.num_route_points))
+        extras = meta["extras"].get(meta["dataset"], {})
+        if extras.get("target_speed") is not None:
+            out["target_speed"] = torch.scalar_tensor(float(extras["target_speed"]))
             out["target_speed_valid"] = torch.scalar_tensor(True, dtype=torch.bool)
+            # the expert's brake flag: LEAD's target-speed label is then the 0 m/s class whatever the speed
+            out["brake"] = torch.scalar_tensor(bool(extras.get("brake", False)), dtype=torch.bool)
         space = spec.space(self.source)
         if "bev_semantic" in sample and space in spec.bev_semantic_classes:
             out["bev_semantic"] = torch.from_numpy(self.bev_semantic(sample))

@@ -58,6 +58,7 @@ class Batch(TypedDict, total=False):
     route_valid: Tensor  # (B, K)
     target_speed: Tensor  # (B,) expert target speed, m/s (two-hot encoded over the speed classes by the loss)
     target_speed_valid: Tensor  # (B,)
+    brake: Tensor  # (B,) bool: the expert brakes (LEAD's target-speed label is then its 0 m/s class)
     # --- perception targets
     bev_semantic: Tensor  # (B, Hs, Ws) uint8 class ids over the BEV grid, IGNORE_CLASS = ignore (or signed, -1)
     box_heatmap: Tensor  # (B, C, h, w) float CenterNet Gaussian heatmap on the head's grid (stride 4)
