@@ -418,6 +418,11 @@ class CarlaLeadAdapter(Adapter):
                 "traffic_light_states": [
                     str(box.get("state")) for box in others if box.get("class") == "traffic_light"
                 ],
+                "traffic_light_affects_ego": [
+                    bool(box.get("affects_ego", False)) for box in others if box.get("class") == "traffic_light"
+                ],
+                # LEAD labels red lights of these two kinds apart (TRAFFIC_RED_NOT_NORMAL)
+                "unusual_traffic_lights": bool(meta.get("over_head_traffic_light") or meta.get("europe_traffic_light")),
             }
         }
 

@@ -52,7 +52,9 @@ def ours(tmp_path_factory: pytest.TempPathFactory) -> dict:
     out = tmp_path_factory.mktemp("lead_parity") / "converted"
     convert(CarlaLeadAdapter(), DATA / "route", out)
     transform = SourceTransform("carla", input_spec(LeadConfig.from_json(CONFIG)))
-    samples = {sample["meta"]["log_id"].split("/")[0]: transform(sample) for sample in read_samples(out, transform.fields)}
+    samples = {
+        sample["meta"]["log_id"].split("/")[0]: transform(sample) for sample in read_samples(out, transform.fields)
+    }
     assert sorted(samples) == sorted(SCENARIOS)
     return collate([samples[scenario] for scenario in SCENARIOS])
 

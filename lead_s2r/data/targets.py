@@ -51,8 +51,9 @@ def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) ->
     return {name: torch.from_numpy(padded), f"{name}_valid": torch.from_numpy(valid)}
 
 
-def radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, torch.Tensor]:
-    """Radar detection targets: [x, y, speed] of the boxes radar points fall on, fastest first (as LEAD sorts).
+def radar_targets(radar: np.ndarray, boxes: np.ndarray, priority: np.ndarray | None = None) -> dict[str, torch.Tensor]:
+    """Radar detection targets: [x, y, speed] of the boxes radar points fall on, fastest first (as LEAD sorts), then
+    by ``priority`` (lower first; LEAD's class order), where given.
 
     A point hits a box when it lies inside the box's footprint grown by :data:`RADAR_HIT_MARGIN_M`.
     """
@@ -61,7 +62,8 @@ def radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, torch.Tenso
     if len(radar) and len(boxes):
         hit = _radar_hits(radar, boxes)
         speed = np.hypot(boxes[:, 7], boxes[:, 8])
-        chosen = np.flatnonzero(hit)[np.argsort(-speed[hit], kind="stable")][:MAX_RADAR_TARGETS]
+        rank = np.zeros(len(boxes)) if priority is None else np.asarray(priority)
+        chosen = np.flatnonzero(hit)[np.lexsort((rank[hit], -speed[hit]))][:MAX_RADAR_TARGETS]
         targets[: len(chosen)] = np.stack([boxes[chosen, 0], boxes[chosen, 1], speed[chosen]], axis=1)
         valid[: len(chosen)] = True
     return {"radar_targets": torch.from_numpy(targets), "radar_targets_valid": torch.from_numpy(valid)}

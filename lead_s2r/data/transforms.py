@@ -29,7 +29,7 @@ from lead_s2r.data.camera_layout import CameraLayout, label_on_layout
 from lead_s2r.data.collate import IGNORE_VALUE
 from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
 from lead_s2r.data.lead_centernet import lead_centernet_targets
-from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes
+from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes, radar_priority, traffic_light_classes
 from lead_s2r.data.lead_origin import to_centre_origin
 from lead_s2r.data.lead_route import lead_route
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
@@ -123,12 +123,12 @@ class SourceTransform:
         if spec.radar:
             out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
             if "radar" in sample and "boxes" in sample and self.source in spec.radar_sources:
-                out.update(radar_targets(sample["radar"], sample["boxes"]))
+                out.update(self.radar_targets(sample))
         if "future" in sample:
             out.update(self.trajectory(sample["future"]))
         if "route" in sample:
             out.update(lead_route(sample["route"], spec.num_route_points))
-        extras = meta["extras"].get(meta["dataset"], {})
+        extras = _extras(meta)
         if extras.get("target_speed") is not None:
             out["target_speed"] = torch.scalar_tensor(float(extras["target_speed"]))
             out["target_speed_valid"] = torch.scalar_tensor(True, dtype=torch.bool)
@@ -140,7 +140,7 @@ class SourceTransform:
         if "boxes" in sample and space in spec.box_classes:
             out.update(centernet_targets(sample["boxes"], spec.bev, spec.box_classes[space]))
         if "boxes" in sample and space in spec.lead_box_classes:
-            out.update(self.lead_boxes(sample["boxes"], spec.lead_box_classes[space]))
+            out.update(self.lead_boxes(sample, spec.lead_box_classes[space]))
         if len(self.cameras) == 1:
             out.update(self.perspective_labels(sample, space, layout))
         return out
@@ -162,17 +162,31 @@ class SourceTransform:
                 f"'carla_hdmap' classes, not {bev.get('classes')!r}; convert the data with the carla_lead adapter"
             )
         boxes = sample.get("boxes", np.zeros((0, 10), np.float32))
-        return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard")
+        lights = traffic_light_classes(boxes[:, 9], _extras(sample["meta"]))
+        return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard", lights)
 
-    def lead_boxes(self, boxes: np.ndarray, num_classes: int) -> dict[str, torch.Tensor]:
+    def lead_boxes(self, sample: dict[str, Any], num_classes: int) -> dict[str, torch.Tensor]:
         """LEAD's CenterNet targets: vehicles only for a one-class head (NAVSIM's), else LEAD's CARLA classes."""
+        boxes = sample["boxes"]
         classes = boxes[:, 9].astype(np.int64)
         if num_classes == 1:
             classes = np.where(classes == BoxClass.VEHICLE, 0, -1)
         else:
-            classes = lead_box_classes(classes, self.spec.lead_carla_labels == "leaderboard")
+            lights = traffic_light_classes(classes, _extras(sample["meta"]))
+            classes = lead_box_classes(classes, self.spec.lead_carla_labels == "leaderboard", lights)
         bins = self.spec.lead_yaw_bins
         return lead_centernet_targets(boxes, classes, self.spec.bev, num_classes, bins, velocity=self.lead_carla)
+
+    def radar_targets(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
+        """Radar detection targets; for LEAD's CARLA network only of the boxes LEAD detects, in LEAD's order."""
+        boxes = sample["boxes"]
+        if not self.lead_carla:
+            return radar_targets(sample["radar"], boxes)
+        leaderboard = self.spec.lead_carla_labels == "leaderboard"
+        classes = boxes[:, 9].astype(np.int64)
+        lead = lead_box_classes(classes, leaderboard, traffic_light_classes(classes, _extras(sample["meta"])))
+        detected = lead >= 0
+        return radar_targets(sample["radar"], boxes[detected], radar_priority(lead[detected]))
 
     def target_points(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
         points = sample.get("target_points")
@@ -219,3 +233,8 @@ class SourceTransform:
                 label_on_layout(layout, semantic, cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
             )
         return out
+
+
+def _extras(meta: dict[str, Any]) -> dict[str, Any]:
+    """The sample's extras of its own dataset (``meta.extras[meta.dataset]``)."""
+    return meta["extras"].get(meta["dataset"], {})
