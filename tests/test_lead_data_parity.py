@@ -24,7 +24,9 @@ import torch
 
 from lead_s2r.convert import convert
 from lead_s2r.data.collate import collate
+from lead_s2r.data.lead_origin import centre_waypoints_to_rear_axle
 from lead_s2r.data.transforms import SourceTransform
+from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, rear_axle_poses_to_centre
 from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.inputs import on_image_grid
 from lead_s2r.models.lead_config import LeadConfig
@@ -120,3 +122,22 @@ def test_centernet_targets_equal_leads(ours: dict, lead: dict[str, np.ndarray]) 
     np.testing.assert_allclose(-lead_map(ours["lead_box_yaw_residual"])[:, None], lead["center_net_yaw_res"], atol=1e-6)
     np.testing.assert_allclose(lead_map(ours["lead_box_velocity"])[:, None], lead["center_net_velocity"], atol=1e-6)
     np.testing.assert_array_equal(ours["lead_box_count"].numpy(), lead["center_net_avg_factor"])
+
+
+@pytest.mark.parametrize("radius", [10.0, -10.0, 30.0])
+def test_predicted_centre_waypoints_come_back_to_the_rear_axle(radius: float) -> None:
+    """A LEAD CARLA network's waypoints (centre positions, centre frame) become our rear-axle positions: on a turn
+    within 2 cm (the headings come from the path), on a straight and standing still exactly, and a sample that was
+    never moved (origin_x 0) is unchanged."""
+    t = np.arange(1, 9) * 0.25
+    angle = 6.0 * t / radius
+    rear = np.stack([radius * np.sin(angle), radius * (1 - np.cos(angle)), angle], axis=1)
+    centre = torch.from_numpy(rear_axle_poses_to_centre(rear, CARLA_REAR_AXLE_TO_CENTER)[None, :, :2])
+    back = centre_waypoints_to_rear_axle(centre, torch.tensor([CARLA_REAR_AXLE_TO_CENTER]))
+    np.testing.assert_allclose(back[0].numpy(), rear[:, :2], atol=0.02)
+    straight = torch.stack([torch.from_numpy(6.0 * t), torch.zeros(8, dtype=torch.float64)], -1)[None]
+    both = centre_waypoints_to_rear_axle(
+        torch.cat([straight, torch.zeros_like(straight)]), torch.tensor([1.389, 1.389])
+    )
+    torch.testing.assert_close(both, torch.cat([straight, torch.zeros_like(straight)]), rtol=0, atol=1e-12)
+    assert torch.equal(centre_waypoints_to_rear_axle(centre, torch.zeros(1, dtype=torch.float64)), centre)

@@ -108,6 +108,7 @@ class SourceTransform:
         }
         if self.lead_carla:  # LEAD's CARLA network tells lane following from going straight, and lane changes apart
             out["command_full"] = torch.scalar_tensor(int(ego["command"]), dtype=torch.int64)
+            out["origin_x"] = torch.scalar_tensor(float(meta["vehicle"]["rear_axle_to_center"]))
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
             stored = self.camera.stored_layout(meta)
             if self.inputs_on_device and stored is not None and stored.identity:

@@ -45,6 +45,7 @@ class Batch(TypedDict, total=False):
     acceleration: Tensor  # (B, 2) m/s^2, [ax, ay] in the ego frame
     command: Tensor  # (B,) int64 in the 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} (schema.command4)
     command_full: Tensor  # (B,) int64 schema.Command (all 7 values), for LEAD's 6-way CARLA command
+    origin_x: Tensor  # (B,) metres the sample's origin moved forward from the rear axle (LEAD's CARLA frame)
     target_points: Tensor  # (B, 3, 2) previous, current, next route target point, metres
     target_points_valid: Tensor  # (B, 3)
     radar: Tensor  # (B, N, 5) x, y, z, radial velocity, sensor index
