@@ -5,8 +5,9 @@ gives a LEAD network the inputs and targets LEAD's own CARLA loader gives for th
 writes (left turn frame 6, right turn frame 3, the pedestrian stop's frame 12, standing still), each stored as the one
 frame of its route folder (frame 0: our adapter reads a route's frames from the first), and what LEAD's
 ``CARLAData.__getitem__`` (commit 4489176, unmodified) made of them, batched by LEAD's training collate, for LEAD's
-default CARLA TFv6 (leaderboard mode, 3 cameras 384 x 1152, LiDAR, radar, BEV 96 x 80 m at 4 px/m, planning decoder):
-its README says how it was run. Each key is compared in LEAD's layout (y right, BEV rows along y, LEAD's one-hot
+default CARLA TFv6 (leaderboard mode, 3 cameras 384 x 1152, LiDAR, radar, BEV 96 x 80 m at 4 px/m, planning decoder),
+once on the normal rig and once on the perturbated rig of LEAD's recovery augmentation: its README says how it was
+run. Each key is compared in LEAD's layout (y right, BEV rows along y, LEAD's one-hot
 command), after our batch passes the one frame boundary (:mod:`lead_s2r.models.lead_frame`).
 
 Integers, labels, images and rasters must be equal. Positions may differ by float rounding only (``POSITION_ATOL``):
@@ -37,22 +38,31 @@ from lead_s2r_adapters.carla_lead import CarlaLeadAdapter
 DATA = Path(__file__).parent / "data" / "lead_carla_parity"
 #: The routes' scenario folders, in the order LEAD's loader was given their frames.
 SCENARIOS = ["SignalizedJunctionLeftTurn", "SignalizedJunctionRightTurn", "PedestrianCrossing"]
+#: LEAD's outputs per rig (``.npz`` arrays, ``.json`` shapes and the image digest).
+GOLDEN = {"normal": Path("lead_loader"), "perturbated": Path("lead_loader_perturbated")}
 #: LEAD's default CARLA configuration with its planner (the loader's other switches are defaults).
 CONFIG = {"use_planning_decoder": True}
 #: Metres: float32 rounding of positions up to ~100 m, through the rear-axle round trip (module docstring).
 POSITION_ATOL = 1e-5
 
 
-@pytest.fixture(scope="module")
-def lead() -> dict[str, np.ndarray]:
-    return dict(np.load(DATA / "lead_loader.npz"))
+@pytest.fixture(scope="module", params=["normal", "perturbated"])
+def rig(request: pytest.FixtureRequest) -> str:
+    """The camera rig: LEAD's normal one, or its recovery augmentation's shifted and turned one (LEAD's loader with
+    ``use_sensor_perburtation_prob`` 1; our adapter's ``rig="perturbated"``)."""
+    return request.param
 
 
 @pytest.fixture(scope="module")
-def ours(tmp_path_factory: pytest.TempPathFactory) -> dict:
+def lead(rig: str) -> dict[str, np.ndarray]:
+    return dict(np.load(DATA / GOLDEN[rig].with_suffix(".npz")))
+
+
+@pytest.fixture(scope="module")
+def ours(rig: str, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Our batch of the three frames, converted from the route folders as a user would."""
     out = tmp_path_factory.mktemp("lead_parity") / "converted"
-    convert(CarlaLeadAdapter(), DATA / "route", out)
+    convert(CarlaLeadAdapter(rig=rig), DATA / "route", out)
     transform = SourceTransform("carla", input_spec(LeadConfig.from_json(CONFIG)))
     samples = {
         sample["meta"]["log_id"].split("/")[0]: transform(sample) for sample in read_samples(out, transform.fields)
@@ -66,11 +76,11 @@ def lead_map(ours: torch.Tensor) -> np.ndarray:
     return ours.transpose(-1, -2).flip(-2).numpy()
 
 
-def test_inputs_equal_leads(ours: dict, lead: dict[str, np.ndarray]) -> None:
+def test_inputs_equal_leads(ours: dict, lead: dict[str, np.ndarray], rig: str) -> None:
     """The camera mosaic, LiDAR raster and radar are LEAD's bit for bit; target points, command and speed equal."""
     config = LeadConfig.from_json(CONFIG)
     inputs = to_lead_inputs(ours, config)
-    rgb = json.loads((DATA / "lead_loader.json").read_text())["rgb"]
+    rgb = json.loads((DATA / GOLDEN[rig].with_suffix(".json")).read_text())["rgb"]
     assert list(inputs["rgb"].shape) == rgb["shape"]
     pixels = np.ascontiguousarray(inputs["rgb"].numpy())
     assert hashlib.sha256(pixels.tobytes()).hexdigest() == rgb["sha256"]
