@@ -36,6 +36,8 @@ def lead_route(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
         if point is None:
             return _targets(np.zeros((count, 2)), valid=False)
         points[i] = last = point
+    if not np.isfinite(points).all():  # a route point that is not a number
+        return _targets(np.zeros((count, 2)), valid=False)
     return _targets(points, valid=True)
 
 
