@@ -167,8 +167,9 @@ class CarlaLeadAdapter(Adapter):
 
     name: ClassVar[str] = "carla_lead"
     #: 2: box and agent-future centres are no longer shifted along their heading;
-    #: 3: camera calibration of the route's own rig (dataset_information.target_dataset), not always 3 cameras
-    version: ClassVar[str] = "3"
+    #: 3: camera calibration of the route's own rig (dataset_information.target_dataset), not always 3 cameras;
+    #: 4: extras traffic_light_affects_ego and unusual_traffic_lights (LEAD's traffic-light labels)
+    version: ClassVar[str] = "4"
     extras: ClassVar[str | None] = "carla"
 
     def __init__(
