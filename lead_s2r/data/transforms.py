@@ -117,6 +117,7 @@ class SourceTransform:
                 out["rgb"], layout = self.camera.image(sample, stored)
         out.update(self.target_points(sample))
         spec = self.spec
+        lead = self.lead_carla_boxes(sample) if self.lead_carla and "boxes" in sample else None
         if spec.lidar_raster and self.inputs_on_device:
             out[LIDAR_POINTS] = lidar_xy(sample.get("lidar"))
         elif spec.lidar_raster:
@@ -124,7 +125,7 @@ class SourceTransform:
         if spec.radar:
             out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
             if "radar" in sample and "boxes" in sample and self.source in spec.radar_sources:
-                out.update(self.radar_targets(sample))
+                out.update(self.radar_targets(sample, lead))
         if "future" in sample:
             out.update(self.trajectory(sample["future"]))
         if "route" in sample:
@@ -137,11 +138,11 @@ class SourceTransform:
             out["brake"] = torch.scalar_tensor(bool(extras.get("brake", False)), dtype=torch.bool)
         space = spec.space(self.source)
         if "bev_semantic" in sample and space in spec.bev_semantic_classes:
-            out["bev_semantic"] = torch.from_numpy(self.bev_semantic(sample))
+            out["bev_semantic"] = torch.from_numpy(self.bev_semantic(sample, lead))
         if "boxes" in sample and space in spec.box_classes:
             out.update(centernet_targets(sample["boxes"], spec.bev, spec.box_classes[space]))
         if "boxes" in sample and space in spec.lead_box_classes:
-            out.update(self.lead_boxes(sample, spec.lead_box_classes[space]))
+            out.update(self.lead_boxes(sample, spec.lead_box_classes[space], lead))
         if len(self.cameras) == 1:
             out.update(self.perspective_labels(sample, space, layout))
         return out
@@ -151,8 +152,16 @@ class SourceTransform:
         """Whether this source's labels go into LEAD's CARLA class tables (:mod:`lead_s2r.data.lead_labels`)."""
         return self.spec.lead_carla_labels is not None and self.spec.space(self.source) == "carla"
 
-    def bev_semantic(self, sample: dict[str, Any]) -> np.ndarray:
-        """The stored BEV classes on the BEV grid; for LEAD's CARLA head its 13 classes with the boxes drawn over."""
+    def lead_carla_boxes(self, sample: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        """Per box of the sample: the BEV class of a traffic light affecting the ego (-1: not a light; see
+        :func:`~lead_s2r.data.lead_labels.traffic_light_classes`) and LEAD's box class (-1: LEAD detects none)."""
+        classes = sample["boxes"][:, 9].astype(np.int64)
+        lights = traffic_light_classes(classes, _extras(sample["meta"]))
+        return lights, lead_box_classes(classes, self.spec.lead_carla_labels == "leaderboard", lights)
+
+    def bev_semantic(self, sample: dict[str, Any], lead: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+        """The stored BEV classes on the BEV grid; for LEAD's CARLA head its 13 classes with the boxes drawn over
+        (``lead``: :meth:`lead_carla_boxes`, None without boxes)."""
         bev = sample["meta"]["bev"]
         labels = bev_labels(sample["bev_semantic"], bev, self.spec.bev)
         if not self.lead_carla:
@@ -163,31 +172,32 @@ class SourceTransform:
                 f"'carla_hdmap' classes, not {bev.get('classes')!r}; convert the data with the carla_lead adapter"
             )
         boxes = sample.get("boxes", np.zeros((0, 10), np.float32))
-        lights = traffic_light_classes(boxes[:, 9], _extras(sample["meta"]))
+        lights = np.zeros(0, np.int64) if lead is None else lead[0]
         return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard", lights)
 
-    def lead_boxes(self, sample: dict[str, Any], num_classes: int) -> dict[str, torch.Tensor]:
-        """LEAD's CenterNet targets: vehicles only for a one-class head (NAVSIM's), else LEAD's CARLA classes."""
+    def lead_boxes(
+        self, sample: dict[str, Any], num_classes: int, lead: tuple[np.ndarray, np.ndarray] | None
+    ) -> dict[str, torch.Tensor]:
+        """LEAD's CenterNet targets: vehicles only for a one-class head (NAVSIM's), else LEAD's CARLA classes
+        (``lead``: :meth:`lead_carla_boxes`)."""
         boxes = sample["boxes"]
-        classes = boxes[:, 9].astype(np.int64)
         if num_classes == 1:
-            classes = np.where(classes == BoxClass.VEHICLE, 0, -1)
+            classes = np.where(boxes[:, 9].astype(np.int64) == BoxClass.VEHICLE, 0, -1)
         else:
-            lights = traffic_light_classes(classes, _extras(sample["meta"]))
-            classes = lead_box_classes(classes, self.spec.lead_carla_labels == "leaderboard", lights)
+            classes = (lead or self.lead_carla_boxes(sample))[1]
         bins = self.spec.lead_yaw_bins
         return lead_centernet_targets(boxes, classes, self.spec.bev, num_classes, bins, velocity=self.lead_carla)
 
-    def radar_targets(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
-        """Radar detection targets; for LEAD's CARLA network only of the boxes LEAD detects, in LEAD's order."""
+    def radar_targets(
+        self, sample: dict[str, Any], lead: tuple[np.ndarray, np.ndarray] | None
+    ) -> dict[str, torch.Tensor]:
+        """Radar detection targets; for LEAD's CARLA network (``lead``: :meth:`lead_carla_boxes`) only of the boxes
+        LEAD detects, in LEAD's order."""
         boxes = sample["boxes"]
-        if not self.lead_carla:
+        if lead is None:
             return radar_targets(sample["radar"], boxes)
-        leaderboard = self.spec.lead_carla_labels == "leaderboard"
-        classes = boxes[:, 9].astype(np.int64)
-        lead = lead_box_classes(classes, leaderboard, traffic_light_classes(classes, _extras(sample["meta"])))
-        detected = lead >= 0
-        return radar_targets(sample["radar"], boxes[detected], radar_priority(lead[detected]))
+        detected = lead[1] >= 0
+        return radar_targets(sample["radar"], boxes[detected], radar_priority(lead[1][detected]))
 
     def target_points(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
         points = sample.get("target_points")
