@@ -7,12 +7,13 @@ frame of its route folder (frame 0: our adapter reads a route's frames from the 
 ``CARLAData.__getitem__`` (commit 4489176, unmodified) made of them, batched by LEAD's training collate, for LEAD's
 default CARLA TFv6 (leaderboard mode, 3 cameras 384 x 1152, LiDAR, radar, BEV 96 x 80 m at 4 px/m, planning decoder),
 once on the normal rig and once on the perturbated rig of LEAD's recovery augmentation: its README says how it was
-run. Each key is compared in LEAD's layout (y right, BEV rows along y, LEAD's one-hot
-command), after our batch passes the one frame boundary (:mod:`lead_s2r.models.lead_frame`).
+run. Each key is compared in LEAD's layout (y right, BEV rows along y, LEAD's one-hot command), after our batch
+passes the one frame boundary (:mod:`lead_s2r.models.lead_frame`).
 
 Integers, labels, images and rasters must be equal. Positions may differ by float rounding only (``POSITION_ATOL``):
 LEAD works in float64 from the stored values, we move the origin to the rear axle in the adapter (float32 on disk)
-and back to the centre in the transform.
+and back to the centre in the transform. Not compared: ``source_dataset`` (ours are per-source batches),
+``center_net_brake`` and ``center_net_bounding_boxes`` (no loss reads them).
 """
 
 import hashlib
