@@ -168,8 +168,9 @@ class CarlaLeadAdapter(Adapter):
 
     name: ClassVar[str] = "carla_lead"
     #: 2: box and agent-future centres are no longer shifted along their heading;
-    #: 3: camera calibration of the route's own rig (dataset_information.target_dataset), not always 3 cameras
-    version: ClassVar[str] = "3"
+    #: 3: camera calibration of the route's own rig (dataset_information.target_dataset), not always 3 cameras;
+    #: 4: extras traffic_light_affects_ego and unusual_traffic_lights (LEAD's traffic-light labels)
+    version: ClassVar[str] = "4"
     extras: ClassVar[str | None] = "carla"
 
     def __init__(
@@ -419,6 +420,11 @@ class CarlaLeadAdapter(Adapter):
                 "traffic_light_states": [
                     str(box.get("state")) for box in others if box.get("class") == "traffic_light"
                 ],
+                "traffic_light_affects_ego": [
+                    bool(box.get("affects_ego", False)) for box in others if box.get("class") == "traffic_light"
+                ],
+                # LEAD labels red lights of these two kinds apart (TRAFFIC_RED_NOT_NORMAL)
+                "unusual_traffic_lights": bool(meta.get("over_head_traffic_light") or meta.get("europe_traffic_light")),
             }
         }
 

@@ -41,8 +41,9 @@ def main() -> None:
     sample = next(s for log in adapter.list_logs(src) for s in adapter.iter_samples(log))
     boxes = np.resize(sample["boxes"], (args.boxes, 10))
     hdmap = bev_labels(sample["bev_semantic"], sample["meta"]["bev"], CARLA_BEV)
-    classes = lead_box_classes(boxes[:, 9].astype(np.int64), leaderboard=True)
-    bev_ms = mean_ms(lambda: lead_bev_labels(hdmap, boxes, CARLA_BEV, leaderboard=True), args.calls)
+    lights = np.full(len(boxes), -1)  # no traffic light affects the ego
+    classes = lead_box_classes(boxes[:, 9].astype(np.int64), True, lights)
+    bev_ms = mean_ms(lambda: lead_bev_labels(hdmap, boxes, CARLA_BEV, True, lights), args.calls)
     boxes_ms = mean_ms(lambda: lead_centernet_targets(boxes, classes, CARLA_BEV, 8, 12), args.calls)
     print(f"lead_bev_labels: {bev_ms:.2f} ms, lead_centernet_targets: {boxes_ms:.2f} ms ({args.boxes} boxes)")
 

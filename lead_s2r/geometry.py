@@ -105,6 +105,15 @@ def centre_poses_to_rear_axle(poses: np.ndarray, rear_axle_to_center: float) -> 
     return centre_points_to_rear_axle(poses, rear_axle_to_center)
 
 
+def rear_axle_poses_to_centre(poses: np.ndarray, rear_axle_to_center: float) -> np.ndarray:
+    """Rear-axle poses (..., 3) in the t0 rear-axle frame -> ego centre poses in the t0 centre frame (the inverse of
+    :func:`centre_poses_to_rear_axle`)."""
+    poses = np.array(poses, dtype=np.float64, copy=True)
+    poses[..., 0] += rear_axle_to_center * np.cos(poses[..., 2]) - rear_axle_to_center
+    poses[..., 1] += rear_axle_to_center * np.sin(poses[..., 2])
+    return poses
+
+
 def carla_poses_to_iso(poses: np.ndarray, rear_axle_to_center: float = CARLA_REAR_AXLE_TO_CENTER) -> np.ndarray:
     """CARLA ego-centre poses [x, y, yaw] (t0 centre frame, y right) -> ISO rear-axle poses."""
     return centre_poses_to_rear_axle(flip_y(poses, (1, 2)), rear_axle_to_center)

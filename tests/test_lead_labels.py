@@ -9,7 +9,14 @@ import pytest
 import torch
 
 from lead_s2r.data.lead_centernet import angle_bin, gaussian_kernel, gaussian_radius, lead_centernet_targets
-from lead_s2r.data.lead_labels import LeadBevClass, LeadBoxClass, lead_bev_labels, lead_box_classes
+from lead_s2r.data.lead_labels import (
+    LeadBevClass,
+    LeadBoxClass,
+    lead_bev_labels,
+    lead_box_classes,
+    traffic_light_classes,
+)
+from lead_s2r.data.lead_origin import to_centre_origin
 from lead_s2r.data.targets import bev_labels
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import NAVSIM_BEV, BEVGrid
@@ -32,25 +39,26 @@ def _cell(grid: BEVGrid, x: float, y: float, stride: int = 4) -> tuple[int, int]
 
 
 def test_converted_carla_boxes_land_in_leads_box_and_bev_classes(carla_samples) -> None:
-    """The generated route's first frame: vehicle, emergency vehicle, pedestrian, cone and traffic light each peak in
-    LEAD's channel for it (leaderboard mode), and the BEV label holds LEAD's road and occupancy classes."""
+    """The generated route's first frame: vehicle, emergency vehicle and pedestrian each peak in LEAD's channel for
+    it (leaderboard mode, LEAD's frame: origin at the vehicle centre); the plain traffic cone and the green light
+    are not LEAD detections; the BEV label holds LEAD's road and occupancy classes."""
     from lead_reference import TINY_CARLA
 
     config = LeadConfig.from_json({**TINY_CARLA, "use_bev_semantic": True})
     spec = input_spec(config)
-    sample = carla_samples[0]
-    out = SourceTransform("carla", spec)(sample)
+    sample = to_centre_origin(carla_samples[0])
+    out = SourceTransform("carla", spec)(carla_samples[0])
     expected = {
         BoxClass.VEHICLE: LeadBoxClass.VEHICLE,
         BoxClass.EMERGENCY_VEHICLE: LeadBoxClass.SPECIAL,
         BoxClass.PEDESTRIAN: LeadBoxClass.WALKER,
-        BoxClass.TRAFFIC_CONE: LeadBoxClass.OBSTACLE,
-        BoxClass.TRAFFIC_LIGHT: LeadBoxClass.TRAFFIC_LIGHT,
     }
     heatmap = out["lead_box_heatmap"]
     assert heatmap.shape == (8, 48, 40)
-    assert {int(BoxClass(int(box[9]))) for box in sample["boxes"]} == set(expected)
-    for box in sample["boxes"]:
+    classes = {int(BoxClass(int(box[9]))) for box in sample["boxes"]}
+    assert classes == {*expected, BoxClass.TRAFFIC_CONE, BoxClass.TRAFFIC_LIGHT}
+    assert heatmap[LeadBoxClass.OBSTACLE].max() == 0 and heatmap[LeadBoxClass.TRAFFIC_LIGHT].max() == 0
+    for box in sample["boxes"][np.isin(sample["boxes"][:, 9], list(expected))]:
         row, col = _cell(spec.bev, box[0], box[1])
         lead = expected[BoxClass(int(box[9]))]
         assert heatmap[lead, row, col] == 1.0 and out["lead_box_weight"][row, col]
@@ -65,7 +73,7 @@ def test_converted_carla_boxes_land_in_leads_box_and_bev_classes(carla_samples) 
     emergency = sample["boxes"][sample["boxes"][:, 9] == BoxClass.EMERGENCY_VEHICLE][0]
     assert bev[_cell(spec.bev, emergency[0], emergency[1], stride=1)] == LeadBevClass.SPECIAL_VEHICLE
     road = stored == BevClassCarla.ROAD
-    assert road.sum() > 100 and set(np.unique(bev[road])) <= {LeadBevClass.ROAD, *range(4, 10)}
+    assert road.sum() > 100 and set(np.unique(bev[road])) <= {LeadBevClass.ROAD, *range(4, 11)}  # 10: the light
     assert (bev[road] == LeadBevClass.ROAD).mean() > 0.9
     assert set(np.unique(bev)) <= set(range(13))
 
@@ -75,30 +83,31 @@ def test_hdmap_classes_become_leads_bev_classes(leaderboard: bool) -> None:
     """LEAD's ChauffeurNet -> TransFuser BEV table, and in sim-to-real its stop-sign area unlabelled."""
     grid = BEVGrid(0.0, 1.0, 0.0, 3.0, 4.0)
     hdmap = np.array([[*range(9), IGNORE_CLASS, 0, 0]] * 4, np.uint8)
-    labels = lead_bev_labels(hdmap, np.zeros((0, 10)), grid, leaderboard)
+    labels = lead_bev_labels(hdmap, np.zeros((0, 10)), grid, leaderboard, np.zeros(0, np.int64))
     stop = LeadBevClass.STOP_SIGNS if leaderboard else LeadBevClass.UNLABELED
     assert labels[0].tolist() == [0, 1, 0, 2, 2, stop, 0, 0, 0, IGNORE_CLASS, 0, 0]
 
 
 def test_box_footprints_are_drawn_over_the_map_as_lead_draws_them() -> None:
     """A 4 x 2 m vehicle fills 17 x 9 pixels (LEAD's corners truncated, edges filled); a pedestrian is drawn 2.5 x
-    its half extent of at least 0.4 m (2 m square); in sim-to-real an emergency vehicle is a vehicle and a cone is
-    not drawn."""
+    its half extent of at least 0.4 m (2 m square); in sim-to-real an emergency vehicle is a vehicle and a
+    construction cone is not drawn."""
     road = np.full(NAVSIM_BEV.shape, BevClassCarla.ROAD, np.uint8)
     boxes = np.array(
         [
             _box(10.0, 5.0, 4.0, 2.0, 0.0, BoxClass.VEHICLE),
             _box(-10.0, -10.0, 0.5, 0.3, 0.7, BoxClass.PEDESTRIAN),
             _box(20.0, -20.0, 6.0, 2.5, 0.0, BoxClass.EMERGENCY_VEHICLE),
-            _box(0.0, 20.0, 0.4, 0.4, 0.0, BoxClass.TRAFFIC_CONE),
+            _box(0.0, 20.0, 0.4, 0.4, 0.0, BoxClass.CZONE_SIGN),
         ],
         np.float32,
     )
+    not_lights = np.full(len(boxes), -1)
     for leaderboard in (True, False):
-        labels = lead_bev_labels(road, boxes, NAVSIM_BEV, leaderboard)
+        labels = lead_bev_labels(road, boxes, NAVSIM_BEV, leaderboard, not_lights)
         rows, cols = np.nonzero(labels == LeadBevClass.VEHICLE)
         if leaderboard:
-            assert (rows.min(), rows.max(), cols.min(), cols.max(), len(rows)) == (160, 176, 144, 152, 153)
+            assert (rows.min(), rows.max(), cols.min(), cols.max(), len(rows)) == (160, 176, 143, 151, 153)
             assert (labels == LeadBevClass.SPECIAL_VEHICLE).sum() == 25 * 11
             assert (labels == LeadBevClass.OBSTACLE).sum() > 0
         else:
@@ -106,14 +115,21 @@ def test_box_footprints_are_drawn_over_the_map_as_lead_draws_them() -> None:
         walker = labels == LeadBevClass.WALKER
         assert 64 <= walker.sum() <= 90  # a 2 m square rotated by 0.7 rad: 64 pixels and the filled edges
         assert walker[_cell(NAVSIM_BEV, -10.0, -10.0, stride=1)]
-    assert (lead_bev_labels(road, boxes[:0], NAVSIM_BEV, True) == LeadBevClass.ROAD).all()
+    assert (lead_bev_labels(road, boxes[:0], NAVSIM_BEV, True, not_lights[:0]) == LeadBevClass.ROAD).all()
 
 
 def test_our_box_classes_become_leads() -> None:
+    """Plain traffic cones are no LEAD obstacle (only construction cones and warnings, our CZONE_SIGN); a traffic
+    light is detected only when it affects the ego and is red or yellow."""
     ours = np.array([int(c) for c in BoxClass])
-    assert lead_box_classes(ours, leaderboard=True).tolist() == [0, 1, 7, 5, -1, 5, -1, 2, 3, 4]
-    assert lead_box_classes(ours, leaderboard=False).tolist() == [0, 1, 7, 5, -1, 5, -1, 2, 3, 0]
-    assert lead_box_classes(np.array([-1, 99]), leaderboard=True).tolist() == [-1, -1]
+    red = traffic_light_classes(ours, {"traffic_light_states": ["Red"], "traffic_light_affects_ego": [True]})
+    assert red.tolist() == [-1] * 7 + [LeadBevClass.TRAFFIC_RED_NORMAL, -1, -1]
+    assert lead_box_classes(ours, True, red).tolist() == [0, 1, 7, -1, -1, 5, -1, 2, 3, 4]
+    assert lead_box_classes(ours, False, red).tolist() == [0, 1, 7, -1, -1, 5, -1, 2, 3, 0]
+    for state, affects in (("Green", True), ("Red", False)):
+        light = traffic_light_classes(ours, {"traffic_light_states": [state], "traffic_light_affects_ego": [affects]})
+        assert lead_box_classes(ours, True, light)[BoxClass.TRAFFIC_LIGHT] == -1
+    assert lead_box_classes(np.array([-1, 99]), True, np.array([-1, -1])).tolist() == [-1, -1]
 
 
 def test_leads_encoding_of_one_box_by_hand() -> None:
@@ -125,13 +141,15 @@ def test_leads_encoding_of_one_box_by_hand() -> None:
     )
     heat = targets["lead_box_heatmap"][0]
     assert heat[37, 28] == 1.0 and heat[36, 28] == pytest.approx(math.exp(-0.72)) and heat[35, 26] > 0
-    assert heat[34, 28] == 0.0 and int((heat > 0).sum()) == 25
+    assert heat[34, 28] == 0.0 and int((heat[:, :-3] > 0).sum()) == 25  # columns left of LEAD's padding box
     assert targets["lead_box_size"][:, 37, 28].tolist() == [2.0, 1.0]
     assert targets["lead_box_offset"][:, 37, 28].tolist() == pytest.approx([0.3, 0.3], abs=1e-5)
     assert int(targets["lead_box_yaw_class"][37, 28]) == 1
     assert float(targets["lead_box_yaw_residual"][37, 28]) == pytest.approx(0.3 - math.pi / 6, abs=1e-6)
-    assert float(targets["lead_box_velocity"][37, 28]) == 7.0 and float(targets["lead_box_count"]) == 1.0
-    assert int(targets["lead_box_weight"].sum()) == 1
+    assert float(targets["lead_box_velocity"][37, 28]) == 7.0
+    # LEAD's padding box: class 0, size 0 at LEAD's corner cell (our row 0, last column), counted as a peak
+    assert float(targets["lead_box_count"]) == 2.0 and int(targets["lead_box_weight"].sum()) == 2
+    assert heat[0, -1] == 1.0 and targets["lead_box_offset"][:, 0, -1].tolist() == [0.0, 1.0]
     assert angle_bin(-0.3, 12) == (11, pytest.approx(math.pi / 6 - 0.3))
     assert angle_bin(math.pi, 12) == (6, pytest.approx(0.0, abs=1e-12))
     kernel = gaussian_kernel(3)
@@ -142,10 +160,11 @@ def test_leads_encoding_of_one_box_by_hand() -> None:
 def test_boxes_off_the_grid_or_of_no_class_are_not_encoded() -> None:
     boxes = np.array([_box(40.0, 0.0, 4, 2, 0, 0), _box(0.0, 0.0, 4, 2, 0, 6), _box(1.0, 1.0, 4, 2, 0, 0)])
     targets = lead_centernet_targets(boxes, np.array([0, -1, 0]), NAVSIM_BEV, 1, 12, velocity=False)
-    assert int(targets["lead_box_weight"].sum()) == 1 and bool(targets["lead_box_weight"][33, 33])
+    # y = 1 m lies on a cell edge: LEAD's truncation of its y right puts it in our column 32; + LEAD's padding box
+    assert int(targets["lead_box_weight"].sum()) == 2 and bool(targets["lead_box_weight"][33, 32])
     assert "lead_box_velocity" not in targets
     empty = lead_centernet_targets(np.zeros((0, 10)), np.zeros(0), NAVSIM_BEV, 1, 12)
-    assert float(empty["lead_box_count"]) == 1.0 and not empty["lead_box_heatmap"].any()
+    assert float(empty["lead_box_count"]) == 1.0 and not empty["lead_box_heatmap"][:, 3:, :-3].any()
 
 
 def _decode(maps: dict[str, torch.Tensor], row: int, col: int, b: int) -> tuple[float, ...]:
@@ -184,9 +203,10 @@ def test_leads_decoded_boxes_read_in_our_frame_are_its_boxes_mirrored() -> None:
 
 
 def test_leads_box_loss_by_hand_and_a_sample_without_boxes_adds_nothing() -> None:
-    """Zero maps (probability 1/2 everywhere, all bins equal) against one encoded box: focal sum + L1 of size (2 + 1)
-    and offset (0.3 + 0.3) per channel + ln 12 + smooth L1 of the residual + speed 7, over one peak; a second sample
-    carrying the collate filler (heatmap -1) is left out of the mean."""
+    """Zero maps (probability 1/2 everywhere, all bins equal) against one encoded box and LEAD's padding box (size 0,
+    offset (0, 1) in our frame, yaw 0, speed 0): focal sum + L1 of size (2 + 1) and offset (0.3 + 0.3 + 1) per
+    channel + ln 12 per box + smooth L1 of the residual + speed 7, over two peaks; a second sample carrying the
+    collate filler (heatmap -1) is left out of the mean."""
     from lead_s2r.data.collate import collate
     from lead_s2r.training.losses import lead_box_loss
 
@@ -200,9 +220,9 @@ def test_leads_box_loss_by_hand_and_a_sample_without_boxes_adds_nothing() -> Non
     heat = one["lead_box_heatmap"].double()
     focal = (math.log(2) / 4 * ((heat == 1) + (1 - heat).pow(4) * (heat < 1))).sum()
     residual = 0.3 - math.pi / 6
-    expected = float(focal) + 1.5 + 0.3 + math.log(12) + 0.5 * residual**2 + 7.0
+    expected = (float(focal) + 1.5 + 0.8 + 2 * math.log(12) + 0.5 * residual**2 + 7.0) / 2
     assert float(lead_box_loss(pred, batch, velocity=True)) == pytest.approx(expected, rel=1e-5)
-    assert float(lead_box_loss(pred, batch, velocity=False)) == pytest.approx(expected - 7.0, rel=1e-5)
+    assert float(lead_box_loss(pred, batch, velocity=False)) == pytest.approx(expected - 3.5, rel=1e-5)
 
 
 def test_carla_bev_labels_of_another_class_table_are_refused(carla_samples) -> None:
@@ -242,9 +262,10 @@ def test_our_targets_are_leads_targets_of_the_mirrored_boxes_read_through_boxes_
         lead["yaw_res_pred"][0, 0, row, col] = (
             (angle + math.pi / bins) % (2 * math.pi) - k * 2 * math.pi / bins - math.pi / bins
         )
+    lead["yaw_class_pred"][0, 0, 0, 0] = 10.0  # LEAD's padding box at its cell (0, 0): size, offset, residual 0
     read = boxes_from_lead(lead)
     cells = ours["lead_box_weight"]
-    assert int(cells.sum()) == n
+    assert int(cells.sum()) == n + 1
     assert torch.allclose(read["box_size"][0][:, cells], ours["lead_box_size"][:, cells])
     assert torch.allclose(read["box_offset"][0][:, cells], ours["lead_box_offset"][:, cells], atol=1e-5)
     assert torch.equal(read["box_yaw_class"][0].argmax(0)[cells], ours["lead_box_yaw_class"][cells].long())

@@ -19,11 +19,9 @@ from lead_s2r.data.targets import (
     CENTERNET_STRIDE,
     MAX_RADAR_TARGETS,
     RADAR_HIT_MARGIN_M,
-    ROUTE_START_M,
     centernet_targets,
     gaussian_window,
     radar_targets,
-    route_checkpoints,
 )
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import resample, rotate
@@ -46,16 +44,6 @@ def reference_radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, n
         targets[: len(chosen)] = np.stack([boxes[chosen, 0], boxes[chosen, 1], speed[chosen]], axis=1)
         valid[: len(chosen)] = True
     return {"radar_targets": targets, "radar_targets_valid": valid}
-
-
-def reference_route(route: np.ndarray, count: int) -> dict[str, np.ndarray]:
-    route = np.vstack([np.zeros((1, 2)), np.asarray(route, np.float64)])
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
-    keep = np.concatenate([[True], np.diff(arc) > 1e-6])
-    if keep.sum() < 2:
-        return {"route": np.zeros((count, 2), np.float32), "route_valid": np.zeros(count, bool)}
-    points, valid = resample(arc[keep], route[keep], ROUTE_START_M + np.arange(count, dtype=np.float64))
-    return {"route": np.nan_to_num(points).astype(np.float32), "route_valid": valid}
 
 
 def reference_trajectory(future: np.ndarray, times: tuple[float, ...]) -> dict[str, np.ndarray]:
@@ -218,21 +206,6 @@ def test_lidar_inputs_the_float_cell_index_would_miscount_are_refused() -> None:
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
-@pytest.mark.parametrize(
-    "route",
-    [
-        np.stack([np.linspace(0.5, 40, 50), np.sin(np.linspace(0, 3, 50)) * 4], 1).astype(np.float32),
-        np.array([[3.0, 0.0], [3.0, 0.0], [5.0, 1.0], [5.0, 1.0], [9.0, 4.0]], np.float32),  # repeated points
-        np.array([[0.0, 0.0], [4.0, 0.0]]),  # shorter than the checkpoints: masked past its end
-        np.array([[0.0, 0.0]]),  # the ego's own position only: nothing to interpolate
-        np.array([[2.0, 0.0], [np.nan, 1.0], [8.0, 0.0]]),
-        np.array([[2.0, 0.0], [1e300, 0.0]]),  # overflows float32
-    ],
-)
-def test_route_checkpoints_equal_the_norm_and_nan_to_num_definition(route: np.ndarray) -> None:
-    assert_bit_identical(route_checkpoints(route, 10), reference_route(route, 10))
-
-
 def future(steps: int, headings: bool = True) -> np.ndarray:
     """(t, x, y, heading) at 20 Hz along a curve whose heading passes through +-pi (unwrapped by resample)."""
     t = np.arange(1, steps + 1) / 20.0

@@ -9,8 +9,9 @@ from toy_adapter import toy_sample
 
 from lead_s2r.data.camera_layout import Band, Tile, camera_layout
 from lead_s2r.data.collate import collate
+from lead_s2r.data.lead_route import lead_route
 from lead_s2r.data.lidar import rasterize_lidar
-from lead_s2r.data.targets import bev_labels, centernet_targets, radar_targets, route_checkpoints
+from lead_s2r.data.targets import bev_labels, centernet_targets, radar_targets
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import NAVSIM_VERTICAL_FOV_DEG, BEVGrid, TrajectoryGrid, tfv6_config
 from lead_s2r.models.input_spec import input_spec
@@ -77,11 +78,19 @@ def test_centernet_peak_sits_at_the_box_centre():
     assert vehicles_only["box_valid"].sum() == 1
 
 
-def test_route_checkpoints_start_ahead_and_step_one_metre():
+def test_lead_route_pursues_the_route_and_continues_past_its_end():
+    """LEAD's smooth_path: 2.5 m towards the first point, then 1 m chords towards each next one, then on along the
+    last two points; repeated points count once; nothing to pursue is masked."""
     route = np.stack([np.linspace(3, 8, 6), np.zeros(6)], axis=1)
-    out = route_checkpoints(route, 10)
-    assert out["route_valid"].tolist() == [True] * 6 + [False] * 4
-    assert torch.allclose(out["route"][:6, 0], torch.tensor([2.5, 3.5, 4.5, 5.5, 6.5, 7.5]))
+    out = lead_route(np.vstack([route[:1], route]), 10)
+    assert out["route_valid"].all()
+    assert torch.allclose(out["route"], torch.tensor([[2.5 + k, 0.0] for k in range(10)]))
+    turn = lead_route(np.array([[3.0, 0.0], [3.0, 3.0]]), 3)["route"].double()  # 2.5 ahead, then towards (3, 3)
+    assert torch.allclose(turn[0], torch.tensor([2.5, 0.0], dtype=torch.float64))
+    assert torch.allclose(turn[1], torch.tensor([2.5, 0.0], dtype=torch.float64) + torch.tensor([0.5, 3.0]) / 9.25**0.5)
+    assert float((turn[2] - turn[1]).norm()) == pytest.approx(1.0, abs=1e-6) and float(turn[2, 0]) == pytest.approx(3.0)
+    for short in (np.zeros((0, 2)), np.array([[4.0, 0.0]]), np.array([[4.0, 0.0], [np.nan, 1.0]])):
+        assert not lead_route(short, 10)["route_valid"].any()
 
 
 def test_collate_masks_labels_a_sample_lacks():

@@ -289,7 +289,8 @@ class LeadS2RAgent(Base):
             return None
         row, col = np.unravel_index(int(heatmap.argmax()), tuple(heatmap.shape))
         xs, ys = bev_cell_centres(self.spec.bev, CENTERNET_STRIDE)
-        bumper = EGO_HALF_EXTENT[0] + CARLA_REAR_AXLE_TO_CENTER
+        # LEAD's CARLA network sees its frame, whose origin is the vehicle centre (lead_s2r.data.lead_origin)
+        bumper = EGO_HALF_EXTENT[0] + (0.0 if self.transform.lead_carla else CARLA_REAR_AXLE_TO_CENTER)
         return math.hypot(max(float(xs[row]) - bumper, 0.0), float(ys[col]))
 
     def run_step(self, input_data: dict[str, Any], timestamp: float) -> Any:

@@ -9,8 +9,12 @@ and a weight of 1; a later box in the same cell overwrites the earlier one's val
 the number of heatmap cells equal to 1 (at least 1).
 
 Values are in our frame (lateral offset along +y left, yaw counter-clockwise); :mod:`lead_s2r.models.lead_frame`
-turns LEAD's predictions into the same frame, so the loss equals LEAD's. LEAD pads its box list to 90 rows with zeros
-and encodes the padding too, a phantom box of class 0 in the grid's corner cell; we encode only real boxes.
+turns LEAD's predictions into the same frame, so the loss equals LEAD's.
+
+LEAD pads its box list to 90 rows with zeros and encodes the padding too (both its CARLA and NAVSIM loaders): a
+phantom box of class 0 and size 0 in the corner cell of its map at (min x, min y right), i.e. our row 0 and last
+column, with a radius-2 peak that counts in the normaliser and a weight of 1 there. LEAD's released networks were
+trained with it, so we encode it as LEAD does (:func:`paste_phantom`); tests/test_lead_data_parity.py pins it.
 """
 
 import math
@@ -66,8 +70,8 @@ def lead_centernet_targets(
     ``lead_box_size`` and ``lead_box_offset`` (2, h, w), ``lead_box_yaw_class`` (h, w) uint8,
     ``lead_box_yaw_residual``, ``lead_box_velocity`` (h, w), ``lead_box_weight`` (h, w) bool and
     ``lead_box_count``. ``classes`` holds each box's heatmap channel (-1: not encoded); centres off the grid are
-    skipped, as LEAD's BEV bounds filter. Without ``velocity`` (NAVSIM: LEAD trains no speed there) the speed map is
-    left out."""
+    skipped, as LEAD's BEV bounds filter; fewer than :data:`LEAD_MAX_BOXES` add LEAD's padding box. Without
+    ``velocity`` (NAVSIM: LEAD trains no speed there) the speed map is left out."""
     h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
     cell = CENTERNET_STRIDE / grid.pixels_per_meter
     heatmap = np.zeros((num_classes, h, w), np.float32)
@@ -75,17 +79,17 @@ def lead_centernet_targets(
     yaw_class, weight = np.zeros((h, w), np.uint8), np.zeros((h, w), bool)
     yaw_residual, speed = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
     boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
-    kept = np.flatnonzero(np.asarray(classes) >= 0)[:LEAD_MAX_BOXES]
-    picked = boxes[kept]
-    row_f, col_f = (picked[:, 0] - grid.x_min) / cell, (picked[:, 1] - grid.y_min) / cell
+    row_f, col_f = (boxes[:, 0] - grid.x_min) / cell, (boxes[:, 1] - grid.y_min) / cell
+    on_grid = (row_f >= 0) & (row_f < h) & (col_f > 0) & (col_f <= w)
+    kept = np.flatnonzero((np.asarray(classes) >= 0) & on_grid)[:LEAD_MAX_BOXES]  # LEAD filters, then keeps 90
+    picked, row_f, col_f = boxes[kept], row_f[kept], col_f[kept]
     half_length, half_width = picked[:, 3] / 2 / cell, picked[:, 4] / 2 / cell
     speeds = np.hypot(picked[:, 7], picked[:, 8])
     values = zip(np.asarray(classes, np.int64)[kept].tolist(), row_f.tolist(), col_f.tolist(), half_length.tolist(),
                  half_width.tolist(), picked[:, 6].tolist(), speeds.tolist(), strict=True)  # fmt: skip
     for label, x, y, length, width, yaw, box_speed in values:  # Python numbers: cheaper than numpy scalars per box
-        row, col = math.floor(x), math.floor(y)
-        if not (0 <= row < h and 0 <= col < w):
-            continue
+        # LEAD truncates its y right: a centre on a cell edge is in the cell to our right, offset 1 (LEAD's 0)
+        row, col = math.floor(x), math.ceil(y) - 1
         radius = max(MIN_RADIUS, int(gaussian_radius(width, length)))
         paste_max(heatmap[label], row, col, gaussian_kernel(radius))
         size[:, row, col] = length, width
@@ -93,6 +97,8 @@ def lead_centernet_targets(
         yaw_class[row, col], yaw_residual[row, col] = angle_bin(yaw, yaw_bins)
         speed[row, col] = box_speed
         weight[row, col] = True
+    if len(kept) < LEAD_MAX_BOXES:
+        paste_phantom(heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
     out = {
         "lead_box_heatmap": heatmap,
         "lead_box_size": size,
@@ -106,3 +112,23 @@ def lead_centernet_targets(
         del out["lead_box_velocity"]
     count = np.float32(max(1, int((heatmap == 1).sum())))
     return {**{k: torch.from_numpy(v) for k, v in out.items()}, "lead_box_count": torch.scalar_tensor(count)}
+
+
+def paste_phantom(
+    heatmap: np.ndarray,
+    size: np.ndarray,
+    offset: np.ndarray,
+    yaw_class: np.ndarray,
+    yaw_residual: np.ndarray,
+    speed: np.ndarray,
+    weight: np.ndarray,
+) -> None:
+    """LEAD's padding box, written after the real ones as LEAD's loop writes it: class 0, size 0, yaw 0, speed 0, at
+    LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and LEAD's lateral
+    offset 0 (measured from the cell's other edge) is our 1."""
+    col = heatmap.shape[2] - 1
+    paste_max(heatmap[0], 0, col, gaussian_kernel(max(MIN_RADIUS, int(gaussian_radius(0.0, 0.0)))))
+    size[:, 0, col] = 0.0
+    offset[:, 0, col] = 0.0, 1.0
+    yaw_class[0, col], yaw_residual[0, col], speed[0, col] = 0, 0.0, 0.0
+    weight[0, col] = True

@@ -11,12 +11,19 @@ network) keeps emergency vehicles as special vehicles and cones and warnings as 
 that also reads real data) applies LEAD's ``SIM2REAL_*`` converters: special vehicles are vehicles, obstacles are not
 drawn into the BEV, stop-sign areas are unlabelled.
 
-What our schema does not record is left out: which traffic lights and stop signs affect the ego and the lights'
-states (LEAD keeps only those boxes and draws the lights' convex hull in 10..12), parked cars and scenario obstacles
-(LEAD's PARKING and its scenario relabelling), and LEAD's LiDAR-hit visibility filter.
+Traffic lights follow LEAD too, from the adapter's ``traffic_light_states`` and ``traffic_light_affects_ego``
+extras (:func:`traffic_light_classes`): only red or yellow lights that affect the ego are detected; every light that
+affects the ego is drawn into the BEV in its state's class, and the convex hull of all such lights' corners of the
+first state present among unusual red, red, green is filled after every box. Only construction cones and traffic
+warnings (our ``CZONE_SIGN``) are LEAD obstacles; LEAD neither detects nor draws other traffic cones.
+
+What our schema does not record is left out: stop signs' ``affects_ego``, parked cars and scenario obstacles (LEAD's
+PARKING and its scenario relabelling, construction-site and accident hulls), LEAD's size table for cones, warnings
+and parked-car meshes, and LEAD's LiDAR-hit visibility filter.
 """
 
 from enum import IntEnum
+from typing import Any
 
 import cv2
 import numpy as np
@@ -74,7 +81,6 @@ BOX_TO_LEAD = {
     BoxClass.VEHICLE: LeadBoxClass.VEHICLE,
     BoxClass.PEDESTRIAN: LeadBoxClass.WALKER,
     BoxClass.BICYCLE: LeadBoxClass.BIKER,
-    BoxClass.TRAFFIC_CONE: LeadBoxClass.OBSTACLE,
     BoxClass.CZONE_SIGN: LeadBoxClass.OBSTACLE,
     BoxClass.TRAFFIC_LIGHT: LeadBoxClass.TRAFFIC_LIGHT,
     BoxClass.STOP_SIGN: LeadBoxClass.STOP_SIGN,
@@ -85,7 +91,6 @@ BOX_TO_LEAD_BEV = {
     BoxClass.VEHICLE: LeadBevClass.VEHICLE,
     BoxClass.PEDESTRIAN: LeadBevClass.WALKER,
     BoxClass.BICYCLE: LeadBevClass.BIKER,
-    BoxClass.TRAFFIC_CONE: LeadBevClass.OBSTACLE,
     BoxClass.CZONE_SIGN: LeadBevClass.OBSTACLE,
     BoxClass.EMERGENCY_VEHICLE: LeadBevClass.SPECIAL_VEHICLE,
 }
@@ -98,53 +103,121 @@ SIM2REAL_BEV = {
     LeadBevClass.SPECIAL_VEHICLE: LeadBevClass.VEHICLE,
     LeadBevClass.TRAFFIC_RED_NOT_NORMAL: LeadBevClass.TRAFFIC_RED_NORMAL,
 }
+#: The BEV classes of red lights LEAD detects as boxes.
+RED_BEV_CLASSES = (LeadBevClass.TRAFFIC_RED_NORMAL, LeadBevClass.TRAFFIC_RED_NOT_NORMAL)
+#: Half the side of LEAD's occupancy canvas (``build_bev_occupancy``: 256 m around the ego), metres.
+OCCUPANCY_HALF_M = 128.0
 #: LEAD's ``scale_pedestrian_bev_semantic_size`` and ``pedestrian_bev_min_extent`` (half extent, metres).
 PEDESTRIAN_BEV_SCALE, PEDESTRIAN_BEV_MIN_HALF_EXTENT = 2.5, 0.4
 
 
-def lead_box_classes(classes: np.ndarray, leaderboard: bool) -> np.ndarray:
+#: LEAD's red-light states (``affects_ego`` lights in any other state are drawn green).
+RED_STATES = ("Red", "Yellow")
+
+
+def traffic_light_classes(classes: np.ndarray, extras: dict[str, Any]) -> np.ndarray:
+    """(N,) per box the :class:`LeadBevClass` a traffic light affecting the ego is drawn with (green, red, or red of
+    an unusual kind), ``UNLABELED`` for a light that does not affect the ego (or whose state the data lacks), -1 for
+    every other box. ``extras``: the sample's ``carla_lead`` extras, lights listed in box order."""
+    out = np.full(len(classes), -1, np.int64)
+    lights = np.flatnonzero(np.asarray(classes) == BoxClass.TRAFFIC_LIGHT)
+    states = extras.get("traffic_light_states", [])
+    affects = extras.get("traffic_light_affects_ego", [False] * len(lights))
+    red = (
+        LeadBevClass.TRAFFIC_RED_NOT_NORMAL if extras.get("unusual_traffic_lights") else LeadBevClass.TRAFFIC_RED_NORMAL
+    )
+    for row, state, affecting in zip(lights.tolist(), states, affects, strict=True):
+        if not affecting:
+            out[row] = LeadBevClass.UNLABELED
+        else:
+            out[row] = red if state in RED_STATES else LeadBevClass.TRAFFIC_GREEN
+    return out
+
+
+def lead_box_classes(classes: np.ndarray, leaderboard: bool, lights: np.ndarray) -> np.ndarray:
     """(N,) our :class:`~lead_s2r.schema.BoxClass` ids -> LEAD's :class:`LeadBoxClass` ids; -1 where LEAD detects
-    no such object."""
+    no such object (``lights``: :func:`traffic_light_classes`; LEAD detects red lights that affect the ego only)."""
     table = {ours: SIM2REAL_BOX.get(lead, lead) if not leaderboard else lead for ours, lead in BOX_TO_LEAD.items()}
     lookup = np.full(len(BoxClass), -1, np.int64)
     for ours, lead in table.items():
         lookup[ours] = lead
     classes = np.asarray(classes, np.int64)
     known = (classes >= 0) & (classes < len(BoxClass))
-    return np.where(known, lookup[np.clip(classes, 0, len(BoxClass) - 1)], -1)
+    unseen_light = (classes == BoxClass.TRAFFIC_LIGHT) & ~np.isin(lights, RED_BEV_CLASSES)
+    return np.where(known & ~unseen_light, lookup[np.clip(classes, 0, len(BoxClass) - 1)], -1)
 
 
-def lead_bev_labels(hdmap: np.ndarray, boxes: np.ndarray, grid: BEVGrid, leaderboard: bool) -> np.ndarray:
+#: LEAD's radar-detection class order among equally fast boxes (``parse_radar_detection_labels``); others after.
+RADAR_PRIORITY = (
+    LeadBoxClass.SPECIAL,
+    LeadBoxClass.VEHICLE,
+    LeadBoxClass.WALKER,
+    LeadBoxClass.OBSTACLE,
+    LeadBoxClass.PARKING,
+)
+
+
+def radar_priority(lead_classes: np.ndarray) -> np.ndarray:
+    """(N,) rank of each LEAD box class in :data:`RADAR_PRIORITY` (classes not listed rank last)."""
+    rank = {int(cls): i for i, cls in enumerate(RADAR_PRIORITY)}
+    return np.array([rank.get(int(cls), len(RADAR_PRIORITY)) for cls in lead_classes], np.int64)
+
+
+def lead_bev_labels(
+    hdmap: np.ndarray, boxes: np.ndarray, grid: BEVGrid, leaderboard: bool, lights: np.ndarray
+) -> np.ndarray:
     """LEAD's 13-class BEV label on ``grid``: ``hdmap`` (our :class:`~lead_s2r.schema.BevClassCarla` ids on the grid,
-    :data:`IGNORE_CLASS` outside the stored raster) remapped, with the boxes' (N, 10) footprints drawn over it."""
+    :data:`IGNORE_CLASS` outside the stored raster) remapped, with the boxes' (N, 10) footprints drawn over it in
+    order, then the hull of the traffic lights affecting the ego (``lights``: :func:`traffic_light_classes`)."""
+    convert = np.arange(256, dtype=np.int64)
+    if not leaderboard:
+        for lead, sim2real in SIM2REAL_BEV.items():
+            convert[lead] = sim2real
     lookup = np.full(256, IGNORE_CLASS, np.uint8)
     for ours, lead in HDMAP_TO_LEAD.items():
-        lookup[ours] = SIM2REAL_BEV.get(lead, lead) if not leaderboard else lead
+        lookup[ours] = convert[lead]
     labels = lookup[hdmap]
     boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
     bev_class = np.full(len(BoxClass), int(LeadBevClass.UNLABELED), np.int64)
     for ours, lead in BOX_TO_LEAD_BEV.items():
-        bev_class[ours] = SIM2REAL_BEV.get(lead, lead) if not leaderboard else lead
+        bev_class[ours] = lead
     ours = boxes[:, 9].astype(np.int64)
-    drawn = np.flatnonzero((ours >= 0) & (ours < len(BoxClass)))
-    drawn = drawn[bev_class[ours[drawn]] != LeadBevClass.UNLABELED]
+    known = (ours >= 0) & (ours < len(BoxClass))
+    drawn_class = np.where(lights >= 0, lights, bev_class[np.where(known, ours, 0)])
+    drawn = np.flatnonzero(known & (drawn_class != LeadBevClass.UNLABELED) & _on_occupancy_canvas(boxes, grid))
     corners = _footprint_pixels(boxes[drawn], grid)
-    for polygon, label in zip(corners, bev_class[ours[drawn]].tolist(), strict=True):
-        cv2.fillPoly(labels, [polygon], label)
-    return labels
+    canvas = np.ascontiguousarray(labels.T[::-1])  # LEAD's layout, where its polygons are drawn
+    for polygon, label in zip(corners, drawn_class[drawn].tolist(), strict=True):
+        cv2.fillPoly(canvas, [polygon], int(convert[label]))
+    for light in (LeadBevClass.TRAFFIC_RED_NOT_NORMAL, LeadBevClass.TRAFFIC_RED_NORMAL, LeadBevClass.TRAFFIC_GREEN):
+        of_light = drawn_class[drawn] == light
+        if of_light.any():  # LEAD fills the hull of one kind only, the first present in this order
+            cv2.fillPoly(canvas, [cv2.convexHull(corners[of_light].reshape(-1, 2))], int(convert[light]))
+            break
+    return np.ascontiguousarray(canvas[::-1].T)
 
 
 def _footprint_pixels(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
-    """(N, 4, 2) int32 (column, row) corners of the boxes' footprints on ``grid``, as LEAD rasterises them:
-    pixel-edge coordinates truncated to integers, filled edges included (so a 4 x 2 m box at 4 px/m covers 17 x 9
-    pixels); pedestrians and bikers grown as LEAD draws them."""
+    """(N, 4, 2) int32 corners of the boxes' footprints as LEAD draws them, in LEAD's layout of ``grid`` (column
+    along x, row along y right): ``cv2.boxPoints`` of the box on LEAD's 256 m occupancy canvas, truncated to
+    integers there and then cropped to the grid, so every vertex is LEAD's; pedestrians and bikers grown as LEAD
+    draws them. (A vertex computed on the grid itself would truncate the other way left of it.)"""
     half = boxes[:, 3:5] / 2
     grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
     half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
-    cos, sin = np.cos(boxes[:, 6:7]), np.sin(boxes[:, 6:7])
-    local_x = np.array([1, 1, -1, -1]) * half[:, :1]
-    local_y = np.array([1, -1, -1, 1]) * half[:, 1:]
-    x = boxes[:, :1] + cos * local_x - sin * local_y
-    y = boxes[:, 1:2] + sin * local_x + cos * local_y
     ppm = grid.pixels_per_meter
-    return np.stack([(y - grid.y_min) * ppm, (x - grid.x_min) * ppm], axis=2).astype(np.int32)
+    centre = np.stack([boxes[:, 0] + OCCUPANCY_HALF_M, OCCUPANCY_HALF_M - boxes[:, 1]], axis=1) * ppm
+    corners = np.zeros((len(boxes), 4, 2), np.int32)
+    for i, ((cx, cy), (hx, hy), yaw) in enumerate(zip(centre, half, boxes[:, 6], strict=True)):
+        rect = ((float(cx), float(cy)), (float(hx * 2 * ppm), float(hy * 2 * ppm)), float(np.rad2deg(-yaw)))
+        corners[i] = cv2.boxPoints(rect).astype(np.int32)
+    crop = np.array([OCCUPANCY_HALF_M * ppm + grid.x_min * ppm, OCCUPANCY_HALF_M * ppm - grid.y_max * ppm]).astype(int)
+    return corners - crop.astype(np.int32)
+
+
+def _on_occupancy_canvas(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
+    """(N,) whether each box's centre lies on LEAD's occupancy canvas (LEAD skips the others)."""
+    size = 2 * OCCUPANCY_HALF_M * grid.pixels_per_meter
+    cx = (boxes[:, 0] + OCCUPANCY_HALF_M) * grid.pixels_per_meter
+    cy = (OCCUPANCY_HALF_M - boxes[:, 1]) * grid.pixels_per_meter
+    return (cx >= 0) & (cx < size) & (cy >= 0) & (cy < size)

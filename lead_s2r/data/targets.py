@@ -1,5 +1,5 @@
-"""Training targets of one sample on the model's grids: radar points and radar detection targets, route checkpoints,
-BEV class maps, CenterNet box heatmaps and regression targets.
+"""Training targets of one sample on the model's grids: radar points and radar detection targets, BEV class maps,
+CenterNet box heatmaps and regression targets (LEAD's route target: :mod:`lead_s2r.data.lead_route`).
 
 Pure functions of one decoded sample and the grid; whatever depends only on the configuration is computed once per
 process and cached (the BEV label gather index, the CenterNet Gaussian windows). Each output is bit-identical to the
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from lead_s2r.geometry import raster_lookup, resample
+from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import BEVGrid
 from lead_s2r.models.inputs import IGNORE_CLASS
 from lead_s2r.schema import BoxClass
@@ -26,8 +26,6 @@ MAX_BOXES = 64
 MAX_RADAR_TARGETS = 20
 #: A radar point counts as a hit on a box up to this far outside its footprint, metres.
 RADAR_HIT_MARGIN_M = 0.5
-#: Route checkpoints start this far ahead, then come every metre (LEAD's ``smooth_path``).
-ROUTE_START_M = 2.5
 CENTERNET_STRIDE = 4
 
 
@@ -51,8 +49,9 @@ def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) ->
     return {name: torch.from_numpy(padded), f"{name}_valid": torch.from_numpy(valid)}
 
 
-def radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, torch.Tensor]:
-    """Radar detection targets: [x, y, speed] of the boxes radar points fall on, fastest first (as LEAD sorts).
+def radar_targets(radar: np.ndarray, boxes: np.ndarray, priority: np.ndarray | None = None) -> dict[str, torch.Tensor]:
+    """Radar detection targets: [x, y, speed] of the boxes radar points fall on, fastest first (as LEAD sorts), then
+    by ``priority`` (lower first; LEAD's class order), where given.
 
     A point hits a box when it lies inside the box's footprint grown by :data:`RADAR_HIT_MARGIN_M`.
     """
@@ -61,7 +60,8 @@ def radar_targets(radar: np.ndarray, boxes: np.ndarray) -> dict[str, torch.Tenso
     if len(radar) and len(boxes):
         hit = _radar_hits(radar, boxes)
         speed = np.hypot(boxes[:, 7], boxes[:, 8])
-        chosen = np.flatnonzero(hit)[np.argsort(-speed[hit], kind="stable")][:MAX_RADAR_TARGETS]
+        rank = np.zeros(len(boxes)) if priority is None else np.asarray(priority)
+        chosen = np.flatnonzero(hit)[np.lexsort((rank[hit], -speed[hit]))][:MAX_RADAR_TARGETS]
         targets[: len(chosen)] = np.stack([boxes[chosen, 0], boxes[chosen, 1], speed[chosen]], axis=1)
         valid[: len(chosen)] = True
     return {"radar_targets": torch.from_numpy(targets), "radar_targets_valid": torch.from_numpy(valid)}
@@ -83,22 +83,6 @@ def _radar_hits(radar: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     inside = np.abs(cos * dx - sin * dy) <= half[:, 0, None]
     inside &= np.abs(sin * dx + cos * dy) <= half[:, 1, None]
     return inside.any(axis=1)
-
-
-def route_checkpoints(route: np.ndarray, count: int) -> dict[str, torch.Tensor]:
-    """Points along the route at 2.5 m, 3.5 m, ... of arc length from the ego (the origin); masked past its end."""
-    route = np.vstack([np.zeros((1, 2)), np.asarray(route, np.float64)])
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
-    keep = np.concatenate([[True], np.diff(arc) > 1e-6])  # repeated points would stall the interpolation
-    targets = ROUTE_START_M + np.arange(count, dtype=np.float64)
-    if keep.sum() < 2:
-        points, valid = np.zeros((count, 2)), np.zeros(count, bool)
-    else:
-        points, valid = resample(arc[keep], route[keep], targets)
-    return {
-        "route": torch.from_numpy(nan_to_zero(points)),
-        "route_valid": torch.from_numpy(valid),
-    }
 
 
 def nan_to_zero(values: np.ndarray) -> np.ndarray:

@@ -29,7 +29,9 @@ from lead_s2r.data.camera_layout import CameraLayout, label_on_layout
 from lead_s2r.data.collate import IGNORE_VALUE
 from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
 from lead_s2r.data.lead_centernet import lead_centernet_targets
-from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes
+from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes, radar_priority, traffic_light_classes
+from lead_s2r.data.lead_origin import to_centre_origin
+from lead_s2r.data.lead_route import lead_route
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.targets import (
     MAX_RADAR_POINTS,
@@ -38,7 +40,6 @@ from lead_s2r.data.targets import (
     nan_to_zero,
     pad_points,
     radar_targets,
-    route_checkpoints,
 )
 from lead_s2r.errors import UserError
 from lead_s2r.geometry import resample
@@ -94,6 +95,8 @@ class SourceTransform:
         return fields
 
     def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
+        if self.lead_carla:  # LEAD's CARLA frame: origin at the vehicle centre
+            sample = to_centre_origin(sample)
         meta = sample["meta"]
         ego = meta["ego"]
         out: dict[str, Any] = {
@@ -103,6 +106,9 @@ class SourceTransform:
             "acceleration": torch.from_numpy(np.array(ego["acceleration"], np.float32)),
             "command": torch.scalar_tensor(int(command4(ego["command"])), dtype=torch.int64),
         }
+        if self.lead_carla:  # LEAD's CARLA network tells lane following from going straight, and lane changes apart
+            out["command_full"] = torch.scalar_tensor(int(ego["command"]), dtype=torch.int64)
+            out["origin_x"] = torch.scalar_tensor(float(meta["vehicle"]["rear_axle_to_center"]))
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
             stored = self.camera.stored_layout(meta)
             if self.inputs_on_device and stored is not None and stored.identity:
@@ -111,6 +117,7 @@ class SourceTransform:
                 out["rgb"], layout = self.camera.image(sample, stored)
         out.update(self.target_points(sample))
         spec = self.spec
+        lead = self.lead_carla_boxes(sample) if self.lead_carla and "boxes" in sample else None
         if spec.lidar_raster and self.inputs_on_device:
             out[LIDAR_POINTS] = lidar_xy(sample.get("lidar"))
         elif spec.lidar_raster:
@@ -118,22 +125,24 @@ class SourceTransform:
         if spec.radar:
             out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
             if "radar" in sample and "boxes" in sample and self.source in spec.radar_sources:
-                out.update(radar_targets(sample["radar"], sample["boxes"]))
+                out.update(self.radar_targets(sample, lead))
         if "future" in sample:
             out.update(self.trajectory(sample["future"]))
         if "route" in sample:
-            out.update(route_checkpoints(sample["route"], spec.num_route_points))
-        target_speed = meta["extras"].get(meta["dataset"], {}).get("target_speed")
-        if target_speed is not None:
-            out["target_speed"] = torch.scalar_tensor(float(target_speed))
+            out.update(lead_route(sample["route"], spec.num_route_points))
+        extras = _extras(meta)
+        if extras.get("target_speed") is not None:
+            out["target_speed"] = torch.scalar_tensor(float(extras["target_speed"]))
             out["target_speed_valid"] = torch.scalar_tensor(True, dtype=torch.bool)
+            # the expert's brake flag: LEAD's target-speed label is then the 0 m/s class whatever the speed
+            out["brake"] = torch.scalar_tensor(bool(extras.get("brake", False)), dtype=torch.bool)
         space = spec.space(self.source)
         if "bev_semantic" in sample and space in spec.bev_semantic_classes:
-            out["bev_semantic"] = torch.from_numpy(self.bev_semantic(sample))
+            out["bev_semantic"] = torch.from_numpy(self.bev_semantic(sample, lead))
         if "boxes" in sample and space in spec.box_classes:
             out.update(centernet_targets(sample["boxes"], spec.bev, spec.box_classes[space]))
         if "boxes" in sample and space in spec.lead_box_classes:
-            out.update(self.lead_boxes(sample["boxes"], spec.lead_box_classes[space]))
+            out.update(self.lead_boxes(sample, spec.lead_box_classes[space], lead))
         if len(self.cameras) == 1:
             out.update(self.perspective_labels(sample, space, layout))
         return out
@@ -143,8 +152,16 @@ class SourceTransform:
         """Whether this source's labels go into LEAD's CARLA class tables (:mod:`lead_s2r.data.lead_labels`)."""
         return self.spec.lead_carla_labels is not None and self.spec.space(self.source) == "carla"
 
-    def bev_semantic(self, sample: dict[str, Any]) -> np.ndarray:
-        """The stored BEV classes on the BEV grid; for LEAD's CARLA head its 13 classes with the boxes drawn over."""
+    def lead_carla_boxes(self, sample: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        """Per box of the sample: the BEV class of a traffic light affecting the ego (-1: not a light; see
+        :func:`~lead_s2r.data.lead_labels.traffic_light_classes`) and LEAD's box class (-1: LEAD detects none)."""
+        classes = sample["boxes"][:, 9].astype(np.int64)
+        lights = traffic_light_classes(classes, _extras(sample["meta"]))
+        return lights, lead_box_classes(classes, self.spec.lead_carla_labels == "leaderboard", lights)
+
+    def bev_semantic(self, sample: dict[str, Any], lead: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+        """The stored BEV classes on the BEV grid; for LEAD's CARLA head its 13 classes with the boxes drawn over
+        (``lead``: :meth:`lead_carla_boxes`, None without boxes)."""
         bev = sample["meta"]["bev"]
         labels = bev_labels(sample["bev_semantic"], bev, self.spec.bev)
         if not self.lead_carla:
@@ -155,17 +172,32 @@ class SourceTransform:
                 f"'carla_hdmap' classes, not {bev.get('classes')!r}; convert the data with the carla_lead adapter"
             )
         boxes = sample.get("boxes", np.zeros((0, 10), np.float32))
-        return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard")
+        lights = np.zeros(0, np.int64) if lead is None else lead[0]
+        return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard", lights)
 
-    def lead_boxes(self, boxes: np.ndarray, num_classes: int) -> dict[str, torch.Tensor]:
-        """LEAD's CenterNet targets: vehicles only for a one-class head (NAVSIM's), else LEAD's CARLA classes."""
-        classes = boxes[:, 9].astype(np.int64)
+    def lead_boxes(
+        self, sample: dict[str, Any], num_classes: int, lead: tuple[np.ndarray, np.ndarray] | None
+    ) -> dict[str, torch.Tensor]:
+        """LEAD's CenterNet targets: vehicles only for a one-class head (NAVSIM's), else LEAD's CARLA classes
+        (``lead``: :meth:`lead_carla_boxes`)."""
+        boxes = sample["boxes"]
         if num_classes == 1:
-            classes = np.where(classes == BoxClass.VEHICLE, 0, -1)
+            classes = np.where(boxes[:, 9].astype(np.int64) == BoxClass.VEHICLE, 0, -1)
         else:
-            classes = lead_box_classes(classes, self.spec.lead_carla_labels == "leaderboard")
+            classes = (lead or self.lead_carla_boxes(sample))[1]
         bins = self.spec.lead_yaw_bins
         return lead_centernet_targets(boxes, classes, self.spec.bev, num_classes, bins, velocity=self.lead_carla)
+
+    def radar_targets(
+        self, sample: dict[str, Any], lead: tuple[np.ndarray, np.ndarray] | None
+    ) -> dict[str, torch.Tensor]:
+        """Radar detection targets; for LEAD's CARLA network (``lead``: :meth:`lead_carla_boxes`) only of the boxes
+        LEAD detects, in LEAD's order."""
+        boxes = sample["boxes"]
+        if lead is None:
+            return radar_targets(sample["radar"], boxes)
+        detected = lead[1] >= 0
+        return radar_targets(sample["radar"], boxes[detected], radar_priority(lead[1][detected]))
 
     def target_points(self, sample: dict[str, Any]) -> dict[str, torch.Tensor]:
         points = sample.get("target_points")
@@ -212,3 +244,8 @@ class SourceTransform:
                 label_on_layout(layout, semantic, cv2.INTER_NEAREST, IGNORE_VALUE["semantic"])
             )
         return out
+
+
+def _extras(meta: dict[str, Any]) -> dict[str, Any]:
+    """The sample's extras of its own dataset (``meta.extras[meta.dataset]``)."""
+    return meta["extras"].get(meta["dataset"], {})

@@ -44,6 +44,8 @@ class Batch(TypedDict, total=False):
     speed: Tensor  # (B,) m/s
     acceleration: Tensor  # (B, 2) m/s^2, [ax, ay] in the ego frame
     command: Tensor  # (B,) int64 in the 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} (schema.command4)
+    command_full: Tensor  # (B,) int64 schema.Command (all 7 values), for LEAD's 6-way CARLA command
+    origin_x: Tensor  # (B,) metres the sample's origin moved forward from the rear axle (LEAD's CARLA frame)
     target_points: Tensor  # (B, 3, 2) previous, current, next route target point, metres
     target_points_valid: Tensor  # (B, 3)
     radar: Tensor  # (B, N, 5) x, y, z, radial velocity, sensor index
@@ -57,6 +59,7 @@ class Batch(TypedDict, total=False):
     route_valid: Tensor  # (B, K)
     target_speed: Tensor  # (B,) expert target speed, m/s (two-hot encoded over the speed classes by the loss)
     target_speed_valid: Tensor  # (B,)
+    brake: Tensor  # (B,) bool: the expert brakes (LEAD's target-speed label is then its 0 m/s class)
     # --- perception targets
     bev_semantic: Tensor  # (B, Hs, Ws) uint8 class ids over the BEV grid, IGNORE_CLASS = ignore (or signed, -1)
     box_heatmap: Tensor  # (B, C, h, w) float CenterNet Gaussian heatmap on the head's grid (stride 4)

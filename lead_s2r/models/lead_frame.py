@@ -29,6 +29,16 @@ from lead_s2r.schema import Command
 #: Our 4-way command id -> index in LEAD's one-hot.
 NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
 CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
+#: Our full command -> LEAD's CARLA one-hot (RoadOption - 1; unknown -> lane follow, as LEAD's ``command_to_one_hot``).
+CARLA_FULL_COMMAND_INDEX = {
+    Command.LEFT: 0,
+    Command.RIGHT: 1,
+    Command.STRAIGHT: 2,
+    Command.LANE_FOLLOW: 3,
+    Command.CHANGE_LANE_LEFT: 4,
+    Command.CHANGE_LANE_RIGHT: 5,
+    Command.UNKNOWN: 3,
+}
 #: WOD-E2E's intent enum order (UNKNOWN, GO_STRAIGHT, GO_LEFT, GO_RIGHT), as LEAD's WOD loader one-hots it.
 WOD_COMMAND_INDEX = {Command.UNKNOWN: 0, Command.STRAIGHT: 1, Command.LEFT: 2, Command.RIGHT: 3}
 #: LEAD's CenterNet fields -> our box head's names (``lead_s2r.training.losses.box_loss``).
@@ -63,9 +73,13 @@ def bev_map_from_lead(lead_map: Tensor) -> Tensor:
     return lead_map.flip(-2).transpose(-1, -2)
 
 
-def command_one_hot(command: Tensor, config: LeadConfig) -> Tensor:
-    """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot."""
-    table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
+def command_one_hot(command: Tensor, config: LeadConfig, full: Tensor | None = None) -> Tensor:
+    """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot; in CARLA leaderboard mode the 7-way
+    ``full`` command (``command_full``), where the batch has it, gives LEAD's 6 CARLA commands."""
+    if config.carla_leaderboard_mode and full is not None:
+        command, table = full, CARLA_FULL_COMMAND_INDEX
+    else:
+        table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
     table = WOD_COMMAND_INDEX if config.is_wod else table
     lookup = torch.zeros(len(Command), dtype=torch.int64)
     for ours, theirs in table.items():
@@ -97,7 +111,8 @@ def radar_to_lead(radar: Tensor, valid: Tensor, config: LeadConfig) -> Tensor:
 def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
     """Our batch -> LEAD's input dict (keys, units and frame of LEAD's ``TFv6.forward``)."""
     speed = batch["speed"].float()
-    out: dict[str, Tensor] = {"rgb": batch["rgb"], "speed": speed, "command": command_one_hot(batch["command"], config)}
+    command = command_one_hot(batch["command"], config, batch.get("command_full"))
+    out: dict[str, Tensor] = {"rgb": batch["rgb"], "speed": speed, "command": command}
     accel = batch.get("acceleration")
     out["acceleration"] = accel.float().reshape(len(speed), -1).norm(dim=-1) if accel is not None else speed * 0
     if "lidar_bev" in batch:

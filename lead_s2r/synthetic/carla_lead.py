@@ -69,6 +69,8 @@ STOP_SPEED, BRAKE_AT, STOP_DECEL = 7.0, 0.5, 3.5
 #: The blueprint of the walkers the stop brakes for (the mosaic draws these).
 WALKER_AHEAD = "walker.pedestrian.0015"
 TOWNS = ("Town12", "Town13", "Town10HD")
+#: LEAD's ``TransfuserSemanticSegmentationClass`` id the expert stores with each box (``transfuser_semantics_id``).
+TRANSFUSER_SEMANTICS = {"car": 1, "traffic_light": 3, "walker": 4, "static": 6}
 
 
 @dataclass
@@ -262,21 +264,21 @@ def _box(actor: Actor, ego: np.ndarray, step: int, kind: str) -> dict:
         "type_id": actor.type_id,
         "distance": float(np.hypot(*rel)),
         "matrix": _matrix(pose),
-        "num_points": 40,
-        "visible_pixels": 500,
+        "transfuser_semantics_id": TRANSFUSER_SEMANTICS[actor.cls],
     }
-    if actor.cls == "traffic_light":
+    if actor.cls == "traffic_light":  # the expert counts no LiDAR hits or pixels on traffic lights
         box.update(state="Green", affects_ego=True, same_lane_as_ego=True)
         return box
-    if actor.cls == "static":
+    box["num_points"] = 40
+    if actor.cls == "static":  # nor pixels on static props other than parked cars
         box["mesh_path"] = "/Game/Carla/Static/TrafficCone/SM_TrafficCone.SM_TrafficCone"
         return box
+    box["visible_pixels"] = 500
     future = actor.pose_at(step + np.arange(OTHER_FUTURE_STEPS + 1))
     box.update(
         brake=False,
         num_radar_points=3,
         role_name="scenario" if actor.cls == "car" else "walker",
-        transfuser_semantics_id=1 if actor.cls == "car" else 4,
         lane_type_str="Driving",
         base_type="car" if actor.cls == "car" else "",
         future_positions=points_to_local(future[:, :2], ego).astype(np.float16),

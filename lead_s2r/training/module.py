@@ -23,6 +23,7 @@ from torch import Tensor, nn
 from torch.optim.lr_scheduler import LRScheduler
 from torchmetrics import MeanMetric
 
+from lead_s2r.data.lead_origin import centre_waypoints_to_rear_axle
 from lead_s2r.models.input_spec import InputSpec, input_spec
 from lead_s2r.models.inputs import PLANNING_TASKS, Batch
 from lead_s2r.models.lead_driver import LeadDriver
@@ -288,6 +289,8 @@ class DrivingModule(L.LightningModule):
                 continue
             pred = self.model(source_batch, source, tasks)
             xy = pred["waypoints"].float()
+            if "origin_x" in source_batch:  # LEAD's CARLA frame (vehicle centre) back to our rear axle
+                xy = centre_waypoints_to_rear_axle(xy, source_batch["origin_x"])
             yaw = (
                 pred["headings"].float()
                 if "headings" in pred
