@@ -1,20 +1,26 @@
-"""Model sizes shared by the model and training tests."""
+"""Model sizes shared by the model and training tests: LEAD's field names at toy size (timm's ``test_*`` encoders),
+small enough for two shared CPU cores; the switches that make a variant (``lead_driver.tfv6``, ...) are the
+builder's."""
 
-from lead_s2r.models.config import BEVGrid
-
-#: A model small enough for two shared CPU cores; timm's ``test_*`` encoders.
+#: Widths and depths of a tiny network of the one TransFuser family (as ``recipes/smoke/twin_lead.yaml``).
 TINY = dict(
+    use_mixed_precision_training=False,
     image_architecture="test_convnext",
-    bev_architecture="test_convnext",
-    image_size=(32, 64),
-    bev=BEVGrid(-8.0, 8.0, -8.0, 8.0, 2.0),
-    token_dim=32,
-    decoder_layers=1,
-    decoder_heads=4,
-    decoder_ffn=64,
-    radar_queries=4,
-    radar_layers=1,
-    radar_ffn=64,
-    bev_feature_channels=16,
-    fusion_layers=1,
+    lidar_architecture="test_resnet",
+    camera_tile_size=[32, 32],
+    n_layer=1,
+    pixels_per_meter=2.0,
+    bev_features_chanels=16,
+    bb_input_channel=16,
+    radar_token_dim=32,
+    radar_hidden_dim_tokenizer=64,
+    radar_tf_dim_ff=64,
+    radar_hidden_dim_decoder=64,
+    radar_num_layers=1,
+    transfuser_num_bev_cross_attention_layers=1,
+    transfuser_num_bev_cross_attention_heads=4,
+    transfuser_token_dim=32,
+    deconv_channel_num_0=16,
+    deconv_channel_num_1=16,
+    deconv_channel_num_2=8,
 )

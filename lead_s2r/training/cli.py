@@ -4,7 +4,8 @@ Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overr
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
 missing config file, a value of the wrong type), values no constructor can use and a config file that is not UTF-8
 text become a :class:`UserError`, one line like every other verb's, that names the ``--config`` files; a damaged
-``--ckpt_path`` file is named before Lightning loads it (:mod:`lead_s2r.formats.torch_file`).
+``--ckpt_path`` file, or one of the removed network, is named before Lightning loads it
+(:mod:`lead_s2r.formats.torch_file`).
 
 A run's outputs share one root, ``trainer.default_root_dir`` (``runs/<family>/<name>/seed<k>`` in the recipes):
 checkpoints in ``<root>/checkpoints`` (a ``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in
@@ -94,7 +95,7 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
     verb = next(iter(argv), "fit")
     configs = config_files(argv)
     for checkpoint in given_files(argv, "--ckpt_path"):  # Lightning's torch.load, while parsing, checks no CRC
-        torch_file.check_archive(checkpoint, zip_only=True)
+        torch_file.load(checkpoint, zip_only=True)
     try:
         DrivingCLI(
             DrivingModule,

@@ -5,6 +5,7 @@ that LEAD's own inference loads with ``strict=True``."""
 from pathlib import Path
 
 from lead_s2r.errors import UserError
+from lead_s2r.formats import torch_file
 from lead_s2r.models.lead import export_checkpoint
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_tfv6 import LeadTFv6
@@ -26,6 +27,7 @@ def run_checkpoint(run: Path) -> Path:
 
 def export_run(run: Path, out: Path) -> Path:
     checkpoint = run_checkpoint(run)
+    torch_file.load(checkpoint, zip_only=True)  # damage, or the removed network, named in one line
     module = DrivingModule.load_from_checkpoint(checkpoint, map_location="cpu")
     model = module.model
     if not isinstance(model, LeadDriver) or not isinstance(model.network, LeadTFv6):

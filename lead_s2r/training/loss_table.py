@@ -1,7 +1,7 @@
 """Every supervised task, keyed by its name: the batch key that holds its label and the loss that scores it.
 
-A loss reads the model only for what the term needs beyond predictions and labels (the box head's yaw bins, the
-radar normalisation, the target-speed bins, the camera crop of the ablations); adding a task is one entry here.
+A loss reads the model only for what the term needs beyond predictions and labels (the box loss's velocity switch,
+the radar normalisation, the target-speed bins, the camera crop of the ablations); adding a task is one entry here.
 """
 
 from collections.abc import Callable
@@ -25,10 +25,6 @@ class Task(NamedTuple):
 
 def _target_speed(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
     return losses.target_speed_loss(pred, batch, model.target_speed_classes)  # a buffer: on the device, no copy
-
-
-def _boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.box_loss(pred, batch, model.config.box_yaw_bins)
 
 
 def _lead_boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
@@ -62,7 +58,6 @@ TASKS: dict[str, Task] = {
     "bev_semantic": Task(
         "bev_semantic", lambda pred, batch, model: losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
     ),
-    "boxes": Task("box_heatmap", _boxes),
     "lead_boxes": Task("lead_box_heatmap", _lead_boxes),
     "depth": Task("depth", _depth),
     "semantic": Task("semantic", _semantic),
