@@ -9,8 +9,7 @@ import pytest
 import torch
 
 from lead_s2r.data.lead_centernet import angle_bin, gaussian_kernel, gaussian_radius, lead_centernet_targets
-from lead_s2r.data.lead_labels import LeadBevClass, LeadBoxClass, lead_bev_labels, lead_box_classes
-from lead_s2r.data.targets import bev_labels
+from lead_s2r.data.lead_labels import LeadBevClass, LeadBoxClass, bev_labels, lead_bev_labels, lead_box_classes
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import NAVSIM_BEV, BEVGrid
 from lead_s2r.models.input_spec import input_spec

@@ -2,6 +2,12 @@
 small enough for two shared CPU cores; the switches that make a variant (``lead_driver.tfv6``, ...) are the
 builder's."""
 
+from dataclasses import replace
+from typing import Any
+
+from lead_s2r.models.config import default_grids
+from lead_s2r.models.input_spec import InputSpec
+
 #: Widths and depths of a tiny network of the one TransFuser family (as ``recipes/smoke/twin_lead.yaml``).
 TINY = dict(
     use_mixed_precision_training=False,
@@ -24,3 +30,18 @@ TINY = dict(
     deconv_channel_num_1=16,
     deconv_channel_num_2=8,
 )
+
+
+def sensor_spec(**overrides: Any) -> InputSpec:
+    """What the transform tests feed: every sensor and label a CARLA sample has, in the stored classes (not LEAD's
+    tables), on the paper's 1152x384 mosaic and LEAD's CARLA BEV; for the data side alone, no network behind it."""
+    spec = InputSpec(
+        trajectory_grids=default_grids(),
+        lidar_raster=True,
+        radar=True,
+        radar_sources=("carla",),
+        bev_semantic_classes={"carla": 9, "navsim": 7},
+        semantic_classes={"carla": 10},
+        depth_sources=("carla",),
+    )
+    return replace(spec, **{k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()})
