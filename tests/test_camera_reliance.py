@@ -7,7 +7,7 @@ import pytest
 import torch
 import yaml
 from batches import random_batch
-from tiny_models import TINY
+from tiny_models import LTFV6_SWITCHES, TOY_LTFV6
 
 from lead_s2r.models.ego_mlp import EgoStatusMLP
 from lead_s2r.models.lead_driver import ltfv6_navsim
@@ -18,14 +18,10 @@ from lead_s2r.training.cli import run_lightning_cli
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
-#: LTFv6 on one NAVSIM camera tile the size of the toy data's front image.
-LTFV6 = {**TINY, "used_cameras": [False, True, False, False], "camera_tile_size": [64, 32]}
-
-
 @pytest.fixture(scope="module")
 def tfv6():
     torch.manual_seed(0)
-    driver = ltfv6_navsim(**LTFV6).eval()
+    driver = ltfv6_navsim(**TOY_LTFV6).eval()
     return driver, random_batch(driver, 4, "navsim")
 
 
@@ -56,8 +52,8 @@ def test_predict_writes_the_mean_shift_of_every_camera_sample_beside_the_predict
         {"class_path": "lead_s2r.training.prediction_writer.PredictionWriter"},
         {"class_path": "lead_s2r.training.camera_reliance.CameraReliance"},
     ]
-    switches = {"use_navsim_data": True, "use_carla_data": False, "LTF": True, "use_planning_decoder": True}
-    model = {"class_path": "lead_s2r.models.lead_driver.LeadDriver", "init_args": {"config": {**LTFV6, **switches}}}
+    config = {**TOY_LTFV6, **LTFV6_SWITCHES}
+    model = {"class_path": "lead_s2r.models.lead_driver.LeadDriver", "init_args": {"config": config}}
     config = {
         "trainer": {"accelerator": "cpu", "enable_progress_bar": False, "callbacks": callbacks},
         "model": {"model": model},

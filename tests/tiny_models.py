@@ -31,6 +31,11 @@ TINY = dict(
     deconv_channel_num_2=8,
 )
 
+#: A tiny LTFv6 for NAVSIM (``ltfv6_navsim``) on one camera tile the size of tests/toy_adapter.py's front image.
+TOY_LTFV6 = {**TINY, "used_cameras": [False, True, False, False], "camera_tile_size": [64, 32]}
+#: LTFv6's switches, for a recipe that names ``LeadDriver`` with a config (``ltfv6_navsim`` is the builder).
+LTFV6_SWITCHES = {"use_navsim_data": True, "use_carla_data": False, "LTF": True, "use_planning_decoder": True}
+
 
 def sensor_spec(**overrides: Any) -> InputSpec:
     """What the transform tests feed: every sensor and label a CARLA sample has, in the stored classes (not LEAD's
