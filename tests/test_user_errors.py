@@ -226,7 +226,7 @@ def test_score_predictions_of_another_data_set_only(tmp_path, toy_data, capsys):
 
 
 def fit_config(tmp_path: Path, train: dict) -> Path:
-    network = {**TOY_LTFV6, **LTFV6_SWITCHES}
+    network = {**TOY_LTFV6, **LTFV6_SWITCHES, "use_carla_data": True}  # LTFv6 + LEAD: reads CARLA batches too
     config = {
         "trainer": {"accelerator": "cpu", "max_epochs": 1, "default_root_dir": str(tmp_path / "run")},
         "model": {"model": {"class_path": "lead_s2r.models.lead_driver.LeadDriver", "init_args": {"config": network}}},
