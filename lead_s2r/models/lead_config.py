@@ -26,6 +26,8 @@ from enum import IntEnum
 from types import UnionType
 from typing import Any, get_args, get_origin, get_type_hints
 
+import timm
+
 from lead_s2r.errors import UserError
 
 
@@ -139,6 +141,14 @@ class LeadConfig:
     camera_tile_size: list[int] | None = None  # ours: (width, height) of a camera tile; None: the target's CAMERA_TILE
 
     def __post_init__(self) -> None:
+        """Every field has its JSON type (a YAML recipe's null or string where a size goes is named here, not met as a
+        TypeError deep in a torch constructor), then LEAD's rules fill the derived ones."""
+        hints = get_type_hints(type(self))
+        for f in fields(self):
+            setattr(self, f.name, _typed(f.name, getattr(self, f.name), hints[f.name]))
+        for name in ("image_architecture", "lidar_architecture"):
+            if not timm.is_model(getattr(self, name)):
+                raise UserError(f"config: {name} {getattr(self, name)!r} is no timm architecture (timm.list_models())")
         target = self.target_dataset
         wod = self.is_wod
         defaults = {
