@@ -10,6 +10,9 @@ raster, radar and target points when the network reads them, and the labels of i
 semantics and boxes of each source it has heads for (CARLA labels remapped to LEAD's 13 BEV and 8 box classes by
 :mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by :mod:`lead_s2r.data.lead_centernet`), and with
 CARLA data CARLA perspective semantics, depth and radar detection.
+
+This is the package's one TransFuser family: the paper's networks are builder functions below, one per variant with
+what differs in its docstring (:data:`VARIANTS`, as timm registers its models), each a preset of LEAD's switches.
 """
 
 from collections.abc import Callable, Collection
