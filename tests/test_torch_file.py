@@ -84,9 +84,9 @@ def test_predict_with_a_damaged_ckpt_path_is_one_line(tmp_path, toy_data, plain_
 def test_a_checkpoint_of_the_removed_network_is_one_line_wherever_it_is_read(
     tmp_path,
     toy_data,
-    plain_argv,
+    plain_argv,  # noqa: F811
     capsys,
-    removed,  # noqa: F811
+    removed,
 ):
     path = tmp_path / "old.ckpt"
     torch.save(removed, path)
