@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 
 from lead_s2r.data.transforms import SourceTransform
-from lead_s2r.models.config import ltfv6_config
 from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.lead_config import LeadConfig
 
 CAMERAS = ("front", "left", "right", "back")
 
@@ -35,7 +35,8 @@ def main() -> None:
     K = [[1545.0, 0.0, 960.0], [0.0, 1545.0, 540.0], [0.0, 0.0, 1.0]]
     meta = {"cameras": [{"id": name, "width": 1920, "height": 1080, "K": K} for name in CAMERAS]}
     sample = {"__key__": "bench", "meta": meta, **{f"cam_{name}": jpeg for name in CAMERAS}}
-    transform = SourceTransform("navsim", input_spec(ltfv6_config()), list(CAMERAS))
+    ltfv6 = LeadConfig(use_navsim_data=True, LTF=True, use_planning_decoder=True)
+    transform = SourceTransform("navsim", input_spec(ltfv6), list(CAMERAS))
     camera = transform.camera
     rgb, _ = camera.image(sample, camera.stored_layout(meta))  # warm-up: the layout is computed once per rig
     started = time.process_time()

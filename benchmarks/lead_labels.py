@@ -15,8 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from lead_s2r.data.lead_centernet import lead_centernet_targets
-from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes
-from lead_s2r.data.targets import bev_labels
+from lead_s2r.data.lead_labels import bev_labels, lead_bev_labels, lead_box_classes
 from lead_s2r.models.config import CARLA_BEV
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic.carla_lead import generate

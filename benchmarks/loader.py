@@ -47,9 +47,9 @@ from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform
-from lead_s2r.models.config import TFv6Config, tfv6_config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.input_spec import InputSpec, input_spec
 from lead_s2r.models.inputs import on_image_grid
+from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import make_key
 from lead_s2r.shards import read_samples
@@ -108,13 +108,13 @@ def check_agreement(data: Path, lead: LeadStyleFrames, transform: SourceTransfor
 
 
 def loaders(
-    kind: str, tmp: Path, args: argparse.Namespace, config: TFv6Config
+    kind: str, tmp: Path, args: argparse.Namespace, config: InputSpec
 ) -> dict[str, Callable[[], Iterator[int]]]:
     """The loaders over one kind of generated frames, as callables that start a pass and yield batch sizes."""
     raw, data = tmp / kind / "raw", tmp / kind / "data"
     generate(raw, count=args.routes, frames=args.frames, realistic=kind == "realistic")
     convert(get_adapter("carla_lead"), raw, data)
-    check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", input_spec(config)))
+    check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
     streams = {to_device: training_stream(kind, data, args, config, to_device) for to_device in (False, True)}
     lead = {
         views: DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=args.workers)
@@ -135,7 +135,7 @@ def loaders(
 
 
 def training_stream(
-    kind: str, data: Path, args: argparse.Namespace, config: TFv6Config, inputs_on_device: bool
+    kind: str, data: Path, args: argparse.Namespace, config: InputSpec, inputs_on_device: bool
 ) -> Iterator[dict[str, Any]]:
     """One epoch's stream of our training loader, as in training: every round goes on with it."""
     dm = DriveDataModule(
@@ -143,7 +143,7 @@ def training_stream(
         schedule=MixingSchedule.constant({"carla": 1.0}, args.batch_size),
         steps_per_epoch=args.steps * args.rounds + 1,
         num_workers=args.workers,
-        inputs=input_spec(config),
+        inputs=config,
         inputs_on_device=inputs_on_device,
     )
     dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
@@ -170,7 +170,7 @@ def main() -> None:
     parser.add_argument("--kinds", nargs="+", default=["light", "realistic"], choices=["light", "realistic"])
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    config = tfv6_config()  # paper sizes
+    config = input_spec(LeadConfig(use_planning_decoder=True))  # LEAD's TFv6 at paper sizes
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     with tempfile.TemporaryDirectory() as tmp:
         runs = {kind: loaders(kind, Path(tmp), args, config) for kind in args.kinds}

@@ -15,15 +15,14 @@ from pathlib import Path
 
 import torch
 
-from lead_s2r.models.config import ltfv6_config, tfv6_config
-
 sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))  # random model inputs live with the tests
 from batches import random_batch
 
-from lead_s2r.models.tfv6 import TFv6, count_parameters
+from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.lead_driver import ltfv6_navsim, tfv6
 from lead_s2r.training.module import DrivingModule
 
-MODELS = {"tfv6": (tfv6_config, "carla"), "ltfv6": (ltfv6_config, "navsim")}
+MODELS = {"tfv6": (tfv6, "carla"), "ltfv6": (ltfv6_navsim, "navsim")}
 
 
 def to_device(batch: dict, device: torch.device, channels_last: bool) -> dict:
@@ -45,14 +44,13 @@ def peak_memory_gib(device: torch.device) -> float:
 
 def bench(name: str, args: argparse.Namespace) -> str:
     make, source = MODELS[name]
-    config = make(image_architecture=args.architecture, bev_architecture=args.architecture)
+    model = make(image_architecture=args.architecture, lidar_architecture=args.architecture)
     device = torch.device(args.device)
-    model = TFv6(config)
     if args.channels_last:
         model = model.to(memory_format=torch.channels_last)
     module = DrivingModule(model, supervise={source: ["planning", "perception"]}, compile=args.compile).to(device)
     optimizer = module.configure_optimizers()
-    batch = {source: to_device(random_batch(config, args.batch_size, source), device, args.channels_last)}
+    batch = {source: to_device(random_batch(model, args.batch_size, source), device, args.channels_last)}
     dtype = torch.bfloat16 if args.precision == "bf16" else torch.float32
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
@@ -75,9 +73,9 @@ def bench(name: str, args: argparse.Namespace) -> str:
     warm = timed(args.warmup)
     elapsed = timed(args.steps)
     rate = args.batch_size * args.steps / elapsed
-    height, width = config.image_size
+    height, width = input_spec(model.config).image_size
     return (
-        f"| {name} | {args.architecture} | {count_parameters(model) / 1e6:.1f}M | {width}x{height} "
+        f"| {name} | {args.architecture} | {sum(p.numel() for p in model.parameters()) / 1e6:.1f}M | {width}x{height} "
         f"| {args.device} | {args.precision} | {args.channels_last} | {args.compile} | {args.batch_size} "
         f"| {rate:.2f} | {elapsed / args.steps * 1000:.0f} | {peak_memory_gib(device):.2f} | {warm:.1f} |"
     )

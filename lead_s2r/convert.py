@@ -446,10 +446,11 @@ def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _statistics(table: "pa.Table") -> dict[str, Any]:
-    """Ranges a model needs for normalisation and a few sanity figures.
+    """Ranges of the data and a few sanity figures, for people reading info.json (models normalise by their own
+    constants: LEAD divides target points by (200, 50)).
 
     ``target_points`` {low, high} holds the 1st/99th percentiles of the current target point's [x, y] (at least
-    1 m apart), the range ``lead_s2r.models.inputs.target_point_range`` reads.
+    1 m apart).
     """
     stats: dict[str, Any] = {}
     for column in ("speed", "tp_x", "tp_y"):

@@ -7,11 +7,10 @@ import pytest
 import torch
 import yaml
 from batches import random_batch
-from tiny_models import TINY
+from tiny_models import LTFV6_SWITCHES, TOY_LTFV6
 
-from lead_s2r.models.config import tfv6_config
 from lead_s2r.models.ego_mlp import EgoStatusMLP
-from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.models.lead_driver import ltfv6_navsim
 from lead_s2r.predictions import read_predictions
 from lead_s2r.training import camera_reliance
 from lead_s2r.training.cli import run_lightning_cli
@@ -22,8 +21,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 @pytest.fixture(scope="module")
 def tfv6():
     torch.manual_seed(0)
-    config = tfv6_config(**TINY, use_radar=False)
-    return TFv6(config).eval(), random_batch(config, 4, "navsim")
+    driver = ltfv6_navsim(**TOY_LTFV6).eval()
+    return driver, random_batch(driver, 4, "navsim")
 
 
 def test_each_sample_takes_the_next_samples_cameras_and_keeps_everything_else(tfv6):
@@ -36,7 +35,7 @@ def test_each_sample_takes_the_next_samples_cameras_and_keeps_everything_else(tf
 def test_a_camera_model_moves_with_its_images_and_not_when_they_are_all_the_same(tfv6):
     model, batch = tfv6
     shifts = camera_reliance.camera_shift(model, batch, "navsim")
-    assert shifts.shape == (4,) and (shifts > 1e-3).all()  # an untrained TFv6 reads its cameras
+    assert shifts.shape == (4,) and (shifts > 1e-3).all()  # an untrained LTFv6 reads its cameras
     same = dict(batch, rgb=batch["rgb"][:1].expand_as(batch["rgb"]).clone())
     assert camera_reliance.camera_shift(model, same, "navsim").abs().max() == 0  # nothing to trade
 
@@ -53,10 +52,11 @@ def test_predict_writes_the_mean_shift_of_every_camera_sample_beside_the_predict
         {"class_path": "lead_s2r.training.prediction_writer.PredictionWriter"},
         {"class_path": "lead_s2r.training.camera_reliance.CameraReliance"},
     ]
-    model = {"class_path": "lead_s2r.models.tfv6.TFv6", "init_args": {"config": {**TINY, "bev": vars(TINY["bev"])}}}
+    config = {**TOY_LTFV6, **LTFV6_SWITCHES}
+    model = {"class_path": "lead_s2r.models.lead_driver.LeadDriver", "init_args": {"config": config}}
     config = {
         "trainer": {"accelerator": "cpu", "enable_progress_bar": False, "callbacks": callbacks},
-        "model": {"model": {**model, "init_args": {"config": {**model["init_args"]["config"], "use_radar": False}}}},
+        "model": {"model": model},
         "data": {"train": {"navsim": spec}, "predict": {"navsim": spec}, "eval_batch_size": 5},
     }
     recipe = tmp_path / "recipe.yaml"

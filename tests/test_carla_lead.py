@@ -428,11 +428,12 @@ def test_every_lead_camera_rig_converts_with_its_own_calibration(tmp_path: Path)
 def test_each_rig_is_laid_out_in_ltfv6_by_its_calibration(tmp_path: Path) -> None:
     """Only the NAVSIM-matched rig fills LTFv6's 1920x270 input; the others are letterboxed, never squashed."""
     from lead_s2r.data.transforms import SourceTransform
-    from lead_s2r.models.config import ltfv6_config
+    from lead_s2r.models.lead_config import LeadConfig
 
     for rig, (tiles, width, height, *_) in LEAD_RIGS.items():
         cameras = camera_calibration(rig)
-        transform = SourceTransform("carla", input_spec(ltfv6_config()), ["carla_mosaic"])
+        ltfv6 = LeadConfig(use_navsim_data=True, LTF=True, use_planning_decoder=True)
+        transform = SourceTransform("carla", input_spec(ltfv6), ["carla_mosaic"])
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             layout = transform.camera.layout({"cameras": cameras}, [(height, tiles * width)])

@@ -4,14 +4,13 @@ through leaderboard-shaped sensor data; its preprocessing held against the adapt
 import json
 import os
 import shutil
-from dataclasses import asdict
 from pathlib import Path
 
 import pytest
 import torch
 import yaml
 from closed_loop_scene import global_plan, sensor_data
-from tiny_models import TINY
+from tiny_models import TINY, sensor_spec
 
 from lead_s2r.closed_loop import agent as agent_module
 from lead_s2r.closed_loop.agent import AgentConfigError, ClosedLoopConfig, LeadS2RAgent, parse_bool
@@ -26,8 +25,8 @@ from lead_s2r.closed_loop.sensors import Rig, sensor_specs
 from lead_s2r.convert import convert
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models import lead
-from lead_s2r.models.config import ltfv6_config, tfv6_config
 from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import validate
@@ -39,11 +38,13 @@ from lead_s2r_adapters.carla_lead import CarlaLeadAdapter
 CARLA_CLIENT = {"modname": "carla", "reason": "the CARLA client (pip install 'lead-s2r[carla]') builds CARLA's types"}
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-TFV6 = "lead_s2r.models.tfv6.TFv6"
-MODEL = {**TINY, "image_size": [32, 96], "bev": vars(TINY["bev"])}  # 3:1, LEAD's 3-camera rig
+LEAD_DRIVER = "lead_s2r.models.lead_driver.LeadDriver"
+MODEL = {**TINY, "use_planning_decoder": True}  # TFv6 on 32 x 96 (3:1, LEAD's 3-camera rig)
+#: LTFv6 for NAVSIM with CARLA heads, so it reads the CARLA batches of the scene (and no target point).
+LTF = {**TINY, "use_navsim_data": True, "use_carla_data": True, "LTF": True, "use_planning_decoder": True}
 
 
-def fit_config(root: Path, data: Path, model: dict, steps: int, class_path: str = TFV6) -> Path:
+def fit_config(root: Path, data: Path, model: dict, steps: int, class_path: str = LEAD_DRIVER) -> Path:
     """A smoke-recipe-like LightningCLI config: CARLA only, CARLA supervising planning too."""
     config = {
         "seed_everything": 0,
@@ -72,7 +73,7 @@ def fit_config(root: Path, data: Path, model: dict, steps: int, class_path: str 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    """A synthetic left-turn route, converted, and a tiny TFv6 fitted on it for 2 steps (its run folder)."""
+    """A synthetic left-turn route, converted, and a tiny LEAD TFv6 fitted on it for 2 steps (its run folder)."""
     pytest.importorskip(**CARLA_CLIENT)
     root = tmp_path_factory.mktemp("closed_loop")
     synth.generate(root / "src", count=1, frames=4)
@@ -167,9 +168,7 @@ def test_a_run_trained_with_leads_architecture_drives(scene):
     from lead_reference import TINY_CARLA
 
     root = scene["root"] / "lead_run"
-    config = fit_config(
-        root, scene["root"] / "data", TINY_CARLA, steps=1, class_path="lead_s2r.models.lead_driver.LeadDriver"
-    )
+    config = fit_config(root, scene["root"] / "data", TINY_CARLA, steps=1)
     run_lightning_cli(["fit", "--config", str(config)])
     agent = make_agent(root, scene["folder"])
     assert isinstance(agent.model, LeadDriver) and agent.spec.radar and agent.spec.lidar_raster
@@ -177,9 +176,8 @@ def test_a_run_trained_with_leads_architecture_drives(scene):
 
 
 def test_an_ltfv6_navsim_checkpoint_is_refused(scene):
-    ltf = {k: v for k, v in asdict(ltfv6_config(**TINY)).items() if k not in ("trajectory_grids", "label_space")}
     root = scene["root"] / "ltf"
-    run_lightning_cli(["fit", "--config", str(fit_config(root, scene["root"] / "data", ltf, steps=1))])
+    run_lightning_cli(["fit", "--config", str(fit_config(root, scene["root"] / "data", LTF, steps=1))])
     with pytest.raises(UnsupportedCheckpoint, match="reads no route target points"):
         make_agent(root, scene["folder"])
 
@@ -200,14 +198,17 @@ def test_an_older_checkpoint_needs_its_run_config(scene, tmp_path):
     with pytest.raises(UnsupportedCheckpoint, match=r"describe no network .* config\.yaml"):
         make_agent(tmp_path / "old.ckpt", scene["folder"])
     shutil.copy(scene["run"] / "config.yaml", tmp_path / "config.yaml")  # now it sits in its run folder
-    assert make_agent(tmp_path / "old.ckpt", scene["folder"]).model_config.image_size == (32, 96)
+    assert make_agent(tmp_path / "old.ckpt", scene["folder"]).model_config.camera_tile == (32, 32)
 
 
 def test_rig_follows_the_model_image():
-    assert rig_for(tfv6_config(image_size=(384, 1152))) == "CARLA_LEADERBOARD2_3CAMERAS"
-    assert rig_for(tfv6_config(image_size=(384, 2304))) == "CARLA_LEADERBOARD2_6CAMERAS"
-    assert rig_for(tfv6_config(image_size=(384, 1024))) == "CARLA_PY123D_1CAMERA"
-    assert rig_for(ltfv6_config()) == "NAVSIM_4CAMERAS"
+    assert rig_for(input_spec(LeadConfig(use_planning_decoder=True))) == "CARLA_LEADERBOARD2_3CAMERAS"
+    six = LeadConfig(use_planning_decoder=True, carla_root="data/carla_leaderboad2_v10")
+    assert rig_for(input_spec(six)) == "CARLA_LEADERBOARD2_6CAMERAS"
+    assert rig_for(sensor_spec(image_size=(384, 1024))) == "CARLA_PY123D_1CAMERA"
+    assert (
+        rig_for(input_spec(LeadConfig(use_navsim_data=True, LTF=True, use_planning_decoder=True))) == "NAVSIM_4CAMERAS"
+    )
     specs = sensor_specs(Rig("CARLA_LEADERBOARD2_6CAMERAS", lidar=False, radar=False))
     assert [s["yaw"] for s in specs if s["type"] == "sensor.camera.rgb"] == [-57.5, 0.0, 57.5, -122.5, 180.0, 122.5]
 
@@ -263,8 +264,7 @@ def test_closed_loop_check_drives_a_carla_run_offline_and_refuses_a_navsim_model
     assert lines[1].startswith("  rig CARLA_LEADERBOARD2_3CAMERAS, 12 sensors: rgb_1, rgb_2, rgb_3, lidar_0")
     assert lines[2].startswith("  3 ticks on synthetic sensor data: steer ")
     ltf = scene["root"] / "ltf_check"
-    model = {k: v for k, v in asdict(ltfv6_config(**TINY)).items() if k not in ("trajectory_grids", "label_space")}
-    run_lightning_cli(["fit", "--config", str(fit_config(ltf, scene["root"] / "data", model, steps=1))])
+    run_lightning_cli(["fit", "--config", str(fit_config(ltf, scene["root"] / "data", LTF, steps=1))])
     assert main(["closed-loop", "check", str(ltf)]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "reads no route target points" in error and error.startswith("error: ")

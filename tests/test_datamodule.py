@@ -2,19 +2,19 @@ from collections import Counter
 from types import SimpleNamespace
 
 import pytest
+from tiny_models import sensor_spec
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.errors import UserError
-from lead_s2r.models.config import TrajectoryGrid, tfv6_config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.config import TrajectoryGrid
 
 
 def make_datamodule(
     path: str, epoch: int = 0, steps_per_epoch: int | None = 3, rank: int = 0, world_size: int = 1
 ) -> DriveDataModule:
     grids = {"sim": TrajectoryGrid(4, 0.5), "real": TrajectoryGrid(4, 0.5)}
-    config = tfv6_config(image_size=(32, 96), trajectory_grids=grids, use_radar=False)
+    inputs = sensor_spec(image_size=(32, 96), trajectory_grids=grids, radar=False)
     spec = SourceSpec([path], cameras=["front"])
     dm = DriveDataModule(
         train={"sim": spec, "real": spec},
@@ -22,7 +22,7 @@ def make_datamodule(
         schedule=MixingSchedule.lead_sim2real("sim", "real", global_batch_size=8),
         steps_per_epoch=steps_per_epoch,
         eval_batch_size=5,
-        inputs=input_spec(config),
+        inputs=inputs,
     )
     dm.trainer = SimpleNamespace(current_epoch=epoch, global_rank=rank, world_size=world_size)
     return dm

@@ -11,14 +11,13 @@ import lightning as L
 import pytest
 import torch
 from lightning.pytorch.strategies import DDPStrategy
-from tiny_models import TINY
+from tiny_models import TOY_LTFV6
 from toy_adapter import ToyAdapter, write_toy_logs
 
 from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.models.config import TrajectoryGrid, tfv6_config
-from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.models.lead_driver import ltfv6_navsim
 from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.module import DrivingModule
 from lead_s2r.training.scoring_callback import ScoringCallback
@@ -78,11 +77,10 @@ class CountingScoring(ScoringCallback):
 def make_parts(
     data: str, out: Path, more_val: dict[str, str] | None = None
 ) -> tuple[DrivingModule, DriveDataModule, list[L.Callback]]:
-    """A tiny TFv6 trained on ``data`` as source navsim, validated on it and on ``more_val`` (source -> folder)."""
+    """A tiny LTFv6 with CARLA heads trained on ``data`` as source navsim, validated on it and on ``more_val`` (source
+    -> folder)."""
     torch.manual_seed(0)
     val = {"navsim": data} | (more_val or {})
-    grids = {source: TrajectoryGrid(4, 0.5) for source in val}
-    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
     spec = SourceSpec([data], cameras=["front"])
     datamodule = DriveDataModule(
         train={"navsim": spec},
@@ -92,7 +90,7 @@ def make_parts(
         eval_batch_size=8,
         shuffle_buffer=8,
     )
-    module = DrivingModule(TFv6(config), lr=1e-3)
+    module = DrivingModule(ltfv6_navsim(**TOY_LTFV6, use_carla_data=True), lr=1e-3)
     return module, datamodule, [Recorder(out), CountingScoring(data, out)]
 
 
@@ -144,10 +142,10 @@ def one_sample(tmp_path_factory) -> str:
 
 
 def test_a_rank_without_samples_of_a_source_still_syncs_its_metrics(one_shard, one_sample, tmp_path):
-    """Source "lone" has one validation sample: rank 1 sees none of it, yet must compute (and so sync) its metrics,
+    """Source "carla" has one validation sample: rank 1 sees none of it, yet must compute (and so sync) its metrics,
     which it used to make only on its first batch of that source: rank 0 then waited forever (here: a hang turns
     into a failed run after 5 minutes)."""
-    module, datamodule, callbacks = make_parts(one_shard, tmp_path, more_val={"lone": one_sample})
+    module, datamodule, callbacks = make_parts(one_shard, tmp_path, more_val={"carla": one_sample})
     strategy = DDPStrategy(start_method="fork", find_unused_parameters=True)
     faulthandler.dump_traceback_later(300, exit=True)
     try:
@@ -156,7 +154,7 @@ def test_a_rank_without_samples_of_a_source_still_syncs_its_metrics(one_shard, o
         faulthandler.cancel_dump_traceback_later()
     ranks = [json.loads((tmp_path / f"rank{rank}.json").read_text()) for rank in (0, 1)]
     assert [len(rank["val_keys"]) for rank in ranks] == [18 + 1, 17]
-    assert ranks[0]["metrics"]["val/lone/ade"] == ranks[1]["metrics"]["val/lone/ade"] > 0
+    assert ranks[0]["metrics"]["val/carla/ade"] == ranks[1]["metrics"]["val/carla/ade"] > 0
 
 
 def test_too_few_evaluation_samples_for_the_ranks_is_an_error_on_every_rank(one_sample):

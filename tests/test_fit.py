@@ -8,12 +8,11 @@ import lightning as L
 import pytest
 import torch
 import yaml
-from tiny_models import TINY
+from tiny_models import LTFV6_SWITCHES, TOY_LTFV6
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.models.config import TrajectoryGrid, tfv6_config
-from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.models.lead_driver import LeadDriver, ltfv6_navsim
 from lead_s2r.predictions import read_predictions
 from lead_s2r.training.cli import TRAINER_DEFAULTS, run_lightning_cli
 from lead_s2r.training.feedback import tensorboard_installed
@@ -34,6 +33,11 @@ class Recorder(L.Callback):
         self.sizes.append({source: len(b["__key__"]) for source, b in batch.items()})
 
 
+def mixed_ltfv6() -> LeadDriver:
+    """LTFv6 with CARLA heads (LTFv6 + LEAD): the network of a CARLA + NAVSIM mix."""
+    return ltfv6_navsim(**TOY_LTFV6, use_carla_data=True)
+
+
 def fit_recording(module: DrivingModule, data: DriveDataModule, epochs: int) -> Recorder:
     """Fit ``module`` on ``data`` for ``epochs`` on the CPU, recording every step."""
     recorder = Recorder()
@@ -52,14 +56,14 @@ def fit_recording(module: DrivingModule, data: DriveDataModule, epochs: int) -> 
 
 
 def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
-    grids = {"carla": TrajectoryGrid(4, 0.5), "navsim": TrajectoryGrid(4, 0.5)}
-    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
     spec = SourceSpec([toy_data], cameras=["front"])
     schedule = MixingSchedule(
         {0: {"carla": 3, "navsim": 1}, 1: {"carla": 1, "navsim": 1}, 3: {"carla": 0, "navsim": 1}}, 4
     )
     data = DriveDataModule(train={"carla": spec, "navsim": spec}, schedule=schedule, steps_per_epoch=2)
-    recorder = fit_recording(DrivingModule(TFv6(config), lr=1e-3, lr_schedule="cosine_restarts"), data, 4)
+    recorder = fit_recording(
+        DrivingModule(ltfv6_navsim(**TOY_LTFV6, use_carla_data=True), lr=1e-3, lr_schedule="cosine_restarts"), data, 4
+    )
     assert recorder.sizes == [{"carla": 3, "navsim": 1}] * 2 + [{"carla": 2, "navsim": 2}] * 4 + [{"navsim": 4}] * 2
     lrs = torch.tensor(recorder.lrs)
     restarts = [step for step in range(1, len(lrs)) if lrs[step] > lrs[step - 1]]
@@ -69,10 +73,9 @@ def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
 
 @pytest.mark.parametrize("schedule", ["constant", "cosine"])
 def test_warmup_rises_linearly_then_hands_over_to_the_schedule(toy_data, schedule):
-    config = tfv6_config(**{**TINY, "trajectory_grids": {"navsim": TrajectoryGrid(4, 0.5)}, "use_radar": False})
     spec = SourceSpec([toy_data], cameras=["front"])
     data = DriveDataModule(train={"navsim": spec}, schedule=MixingSchedule({0: {"navsim": 2}}, 2), steps_per_epoch=4)
-    module = DrivingModule(TFv6(config), lr=1e-3, lr_schedule=schedule, warmup_steps=4)
+    module = DrivingModule(ltfv6_navsim(**TOY_LTFV6), lr=1e-3, lr_schedule=schedule, warmup_steps=4)
     lrs = fit_recording(module, data, 2).lrs
     assert lrs[:4] == pytest.approx([2.5e-4, 5e-4, 7.5e-4, 1e-3])  # lr / 4 on the first step, lr on the 4th
     if schedule == "constant":
@@ -94,8 +97,6 @@ class KeyRecorder(L.Callback):
 
 def fit_keys(data: str, epochs: int, root=None, resume: str | None = None) -> dict[int, list[list[str]]]:
     """Fit a tiny model and return the keys it trained on; ``root`` keeps a last.ckpt, ``resume`` restarts from one."""
-    grids = {"carla": TrajectoryGrid(4, 0.5), "navsim": TrajectoryGrid(4, 0.5)}
-    config = tfv6_config(**{**TINY, "trajectory_grids": grids, "use_radar": False})
     spec = SourceSpec([data], cameras=["front"])
     datamodule = DriveDataModule(
         train={"carla": spec, "navsim": spec},
@@ -117,7 +118,9 @@ def fit_keys(data: str, epochs: int, root=None, resume: str | None = None) -> di
         callbacks=callbacks,
         **TRAINER_DEFAULTS,
     )
-    trainer.fit(DrivingModule(TFv6(config), lr=1e-3), datamodule=datamodule, ckpt_path=resume)
+    trainer.fit(
+        DrivingModule(ltfv6_navsim(**TOY_LTFV6, use_carla_data=True), lr=1e-3), datamodule=datamodule, ckpt_path=resume
+    )
     return recorder.keys
 
 
@@ -150,8 +153,8 @@ def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_da
         },
         "model": {
             "model": {
-                "class_path": "lead_s2r.models.tfv6.TFv6",
-                "init_args": {"config": {**TINY, "bev": vars(TINY["bev"]), "use_radar": False}},
+                "class_path": "lead_s2r.models.lead_driver.LeadDriver",
+                "init_args": {"config": {**TOY_LTFV6, **LTFV6_SWITCHES}},
             }
         },
         "data": {"train": {"navsim": spec}, "predict": {"navsim": spec}, "steps_per_epoch": 1, "shuffle_buffer": 4},
@@ -175,7 +178,7 @@ def test_default_root_dir_moves_checkpoints_logs_and_predictions_together(toy_da
     assert not (root / "lightning_logs" / "version_1" / "config.yaml").exists()
     assert len(read_predictions(root / "predictions.parquet")) == 24
     loaded = DrivingModule.load_from_checkpoint(last, map_location="cpu")  # no recipe needed
-    assert loaded.model.config == tfv6_config(**TINY, use_radar=False)
+    assert type(loaded.model) is LeadDriver and loaded.model.config == ltfv6_navsim(**TOY_LTFV6).config
     with (root / "lightning_logs" / "version_0" / "metrics.csv").open() as file:
         logged = [row["train/batch_size/navsim"] for row in csv.DictReader(file)]
     assert [size for size in logged if size] == ["8.0"]  # the epoch's per-rank batch size of the source

@@ -14,7 +14,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
-from tiny_models import TINY
+from tiny_models import TINY, sensor_spec
 
 from lead_s2r.convert import convert
 from lead_s2r.data.collate import collate
@@ -31,10 +31,10 @@ from lead_s2r.data.device_inputs import (
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.transforms import SourceTransform
-from lead_s2r.models.config import BEVGrid, TFv6Config, tfv6_config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.config import BEVGrid
+from lead_s2r.models.input_spec import InputSpec, input_spec
 from lead_s2r.models.inputs import LIDAR_HITS_MAX
-from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.models.lead_driver import tfv6
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic.carla_lead import generate
 from lead_s2r.training.module import DrivingModule
@@ -61,17 +61,15 @@ def test_libjpeg_turbo_through_torch_decodes_what_opencv_decodes(quality: int, g
     np.testing.assert_array_equal(ours.permute(1, 2, 0).numpy(), opencv)
 
 
-def on_the_device(batch: dict, config: TFv6Config) -> dict:
+def on_the_device(batch: dict, config: InputSpec) -> dict:
     """What the data module does before the batch moves, on the CPU."""
     return rasterize_points(decode_images(batch, "cpu"), config.bev, "cpu")
 
 
 def test_inputs_sent_raw_give_the_loaders_batch(carla_samples: list[dict]) -> None:
-    config = tfv6_config()  # paper size: the 1152x384 mosaic is the model's image as stored
-    in_loader = collate([SourceTransform("carla", input_spec(config))(sample) for sample in carla_samples])
-    encoded = collate(
-        [SourceTransform("carla", input_spec(config), inputs_on_device=True)(sample) for sample in carla_samples]
-    )
+    config = sensor_spec()  # paper size: the 1152x384 mosaic is the model's image as stored
+    in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
+    encoded = collate([SourceTransform("carla", config, inputs_on_device=True)(sample) for sample in carla_samples])
     assert "rgb" not in encoded and len(encoded[RGB_JPEG]) == len(carla_samples)
     assert "lidar_bev" not in encoded and [len(p) for p in encoded[LIDAR_POINTS]] == [
         len(sample["lidar"]) for sample in carla_samples
@@ -98,17 +96,17 @@ def test_the_device_raster_is_the_loaders_on_cell_edges_and_off_the_grid() -> No
 
 
 def test_a_rig_the_loader_must_lay_out_is_decoded_there(carla_samples: list[dict]) -> None:
-    config = tfv6_config(image_size=(192, 576))  # the mosaic is scaled: not the model's image as stored
-    out = SourceTransform("carla", input_spec(config), inputs_on_device=True)(carla_samples[0])
+    config = sensor_spec(image_size=(192, 576))  # the mosaic is scaled: not the model's image as stored
+    out = SourceTransform("carla", config, inputs_on_device=True)(carla_samples[0])
     assert RGB_JPEG not in out and out["rgb"].shape == (3, 192, 576)
-    assert torch.equal(out["rgb"], SourceTransform("carla", input_spec(config))(carla_samples[0])["rgb"])
+    assert torch.equal(out["rgb"], SourceTransform("carla", config)(carla_samples[0])["rgb"])
 
 
 def test_a_batch_mixing_encoded_and_decoded_images_is_decoded_in_the_loader(carla_samples: list[dict]) -> None:
-    config = tfv6_config()
+    config = sensor_spec()
     loader, device = (
-        SourceTransform("carla", input_spec(config)),
-        SourceTransform("carla", input_spec(config), inputs_on_device=True),
+        SourceTransform("carla", config),
+        SourceTransform("carla", config, inputs_on_device=True),
     )
     laid_out = {k: v for k, v in device(carla_samples[0]).items() if k != RGB_JPEG}  # a rig the loader decodes
     laid_out["rgb"] = loader(carla_samples[0])["rgb"]
@@ -143,15 +141,13 @@ def test_an_undecodable_jpeg_names_the_batchs_samples() -> None:
 
 
 def test_the_data_module_decodes_before_the_batch_moves(carla_samples: list[dict], toy_data: str) -> None:
-    config = tfv6_config()
-    encoded = collate(
-        [SourceTransform("carla", input_spec(config), inputs_on_device=True)(sample) for sample in carla_samples]
-    )
-    dm = DriveDataModule(train={"carla": SourceSpec([toy_data])}, inputs=input_spec(config))
+    config = sensor_spec()
+    encoded = collate([SourceTransform("carla", config, inputs_on_device=True)(sample) for sample in carla_samples])
+    dm = DriveDataModule(train={"carla": SourceSpec([toy_data])}, inputs=config)
     dm.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device("cpu")))
     batch = dm.on_before_batch_transfer({"carla": encoded}, 0)
     assert RGB_JPEG not in batch["carla"] and LIDAR_POINTS not in batch["carla"]
-    in_loader = collate([SourceTransform("carla", input_spec(config))(sample) for sample in carla_samples])
+    in_loader = collate([SourceTransform("carla", config)(sample) for sample in carla_samples])
     assert_batches_equal(batch["carla"], in_loader)
 
 
@@ -163,9 +159,9 @@ def converted_route(tmp_path_factory: pytest.TempPathFactory) -> str:
     return str(root / "data")
 
 
-def carla_data(path: str, config: TFv6Config, **kwargs: Any) -> DriveDataModule:
+def carla_data(path: str, config: InputSpec, **kwargs: Any) -> DriveDataModule:
     schedule = MixingSchedule.constant({"carla": 1.0}, 2)
-    dm = DriveDataModule(train={"carla": SourceSpec([path])}, schedule=schedule, inputs=input_spec(config), **kwargs)
+    dm = DriveDataModule(train={"carla": SourceSpec([path])}, schedule=schedule, inputs=config, **kwargs)
     dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
     return dm
 
@@ -174,18 +170,19 @@ def test_a_loader_worker_sends_the_raw_inputs_to_the_main_process(converted_rout
     batches = {}
     for workers, to_device in ((1, True), (0, False)):
         dm = carla_data(
-            converted_route, tfv6_config(), steps_per_epoch=2, num_workers=workers, inputs_on_device=to_device
+            converted_route, sensor_spec(), steps_per_epoch=2, num_workers=workers, inputs_on_device=to_device
         )
         batches[to_device] = list(dm.train_dataloader()["carla"])  # seeded: the same samples in the same order
     for encoded, decoded in zip(batches[True], batches[False], strict=True):
         assert len(encoded[RGB_JPEG]) == 2 and encoded["__key__"] == decoded["__key__"]
-        assert_batches_equal(on_the_device(encoded, tfv6_config()), decoded)
+        assert_batches_equal(on_the_device(encoded, sensor_spec()), decoded)
 
 
 def test_lightning_decodes_them_before_the_forward(converted_route: str) -> None:
-    config = tfv6_config(**{**TINY, "image_size": (384, 1152)})  # the generated mosaic's size: sent encoded
+    driver = tfv6(**{**TINY, "camera_tile_size": None})  # LEAD's 384 x 1152 mosaic, the generated one: sent encoded
+    config = input_spec(driver.config)
     dm = carla_data(converted_route, config, steps_per_epoch=1, inputs_on_device=True)
-    module = DrivingModule(TFv6(config))
+    module = DrivingModule(driver)
     seen: list[tuple[int, ...]] = []
     module.model.register_forward_pre_hook(
         lambda _, args: seen.append((*args[0]["rgb"].shape, *args[0]["lidar_bev"].shape))
@@ -202,8 +199,8 @@ def test_the_datamodule_sends_raw_inputs_only_when_training_on_a_gpu(toy_data: s
         return dm.inputs_on_device
 
     train = {"carla": SourceSpec([toy_data])}
-    auto = DriveDataModule(train=train, inputs=input_spec(tfv6_config()))
+    auto = DriveDataModule(train=train, inputs=sensor_spec())
     assert not auto.inputs_on_device  # no trainer yet
     assert not on(auto, "cpu") and on(auto, "cuda")
-    assert on(DriveDataModule(train=train, inputs=input_spec(tfv6_config()), inputs_on_device=True), "cpu")
-    assert not on(DriveDataModule(train=train, inputs=input_spec(tfv6_config()), inputs_on_device=False), "cuda")
+    assert on(DriveDataModule(train=train, inputs=sensor_spec(), inputs_on_device=True), "cpu")
+    assert not on(DriveDataModule(train=train, inputs=sensor_spec(), inputs_on_device=False), "cuda")

@@ -12,12 +12,12 @@ from lead_s2r.data.lead_centernet import angle_bin, gaussian_kernel, gaussian_ra
 from lead_s2r.data.lead_labels import (
     LeadBevClass,
     LeadBoxClass,
+    bev_labels,
     lead_bev_labels,
     lead_box_classes,
     traffic_light_classes,
 )
 from lead_s2r.data.lead_origin import to_centre_origin
-from lead_s2r.data.targets import bev_labels
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.config import NAVSIM_BEV, BEVGrid
 from lead_s2r.models.input_spec import input_spec

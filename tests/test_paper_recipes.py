@@ -2,20 +2,17 @@
 chained by init_from, table specs pointing at recipes that exist, and the ego-status MLP trainable through the CLI."""
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from tiny_models import TINY
 
 from lead_s2r.cli import main
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.models.config import BEVGrid, EgoMLPConfig, TFv6Config, default_grids
+from lead_s2r.models.config import EgoMLPConfig, default_grids
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
-from lead_s2r.models.tfv6 import TFv6
 from lead_s2r.report.tables import SEED_FOLDER, load_spec
 from lead_s2r.training.module import DrivingModule
 
@@ -138,14 +135,6 @@ def test_ego_mlp_trains_and_predicts_through_the_cli(toy_data, tmp_path, monkeyp
     assert DrivingModule.load_from_checkpoint(checkpoint).model.config == EgoMLPConfig(hidden=16, layers=1)
 
 
-def tfv6_config_of(recipe: dict) -> TFv6Config:
-    """The recipe's TFv6Config, as LightningCLI would build it (BEV box as a BEVGrid, lists as tuples)."""
-    fields = dict(recipe["model"]["model"]["init_args"]["config"])
-    if "bev" in fields:
-        fields["bev"] = BEVGrid(**fields["bev"])
-    return TFv6Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
-
-
 @pytest.mark.parametrize("recipe", FULL_SCALE, ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_recipe_models_build(recipe, one_thread):
     """A switch combination the model refuses (TFv5 with target-point tokens...) fails here, not on a GPU node."""
@@ -159,10 +148,3 @@ def test_recipe_models_build(recipe, one_thread):
         assert driver.grid(source) == GRIDS[source]
         if planner is not None:
             assert planner.num_waypoints == GRIDS[source].num_points
-        return
-    if not config["model"]["model"]["class_path"].endswith("TFv6"):
-        return
-    full = tfv6_config_of(config)
-    tiny = {k: v for k, v in TINY.items() if k not in ("image_size", "bev")} | {"pretrained": False}
-    model = TFv6(replace(full, **tiny))
-    assert model.config.decoder == full.decoder and model.config.target_points == full.target_points

@@ -31,15 +31,14 @@ def test_smoke_recipe_fits_a_123d_source_beside_carla(tmp_path: Path, monkeypatc
     config = yaml.safe_load(SMOKE.read_text())
     config["trainer"].update(max_epochs=1, default_root_dir=str(tmp_path / "run"), enable_model_summary=False)
     config["trainer"]["callbacks"] = [c for c in config["trainer"]["callbacks"] if "Scoring" not in c["class_path"]]
-    model = config["model"]["model"]["init_args"]["config"]
-    model["trajectory_grids"] = {"carla": [8, 0.25], "py123d": [8, 0.5]}
-    config["model"]["supervise"] = {"carla": ["perception"], "py123d": ["planning"]}  # sim-to-real: real plans
+    # LEAD's network knows the sources carla, navsim and wod: the 123D source trains as the NAVSIM target (its grid)
+    config["model"]["supervise"] = {"carla": ["perception"], "navsim": ["planning"]}  # sim-to-real: real plans
     py123d = {"paths": [str(tmp_path / "py123d")], "cameras": ["front"]}
     config["data"].update(
-        train={"carla": {"paths": [str(tmp_path / "carla")], "cameras": ["carla_mosaic"]}, "py123d": py123d},
-        val={"py123d": py123d},
-        predict={"py123d": py123d},
-        schedule={"anchors": {0: {"carla": 2, "py123d": 2}}, "global_batch_size": 4},
+        train={"carla": {"paths": [str(tmp_path / "carla")], "cameras": ["carla_mosaic"]}, "navsim": py123d},
+        val={"navsim": py123d},
+        predict={"navsim": py123d},
+        schedule={"anchors": {0: {"carla": 2, "navsim": 2}}, "global_batch_size": 4},
         steps_per_epoch=2,
     )
     recipe = tmp_path / "recipe.yaml"
@@ -47,6 +46,6 @@ def test_smoke_recipe_fits_a_123d_source_beside_carla(tmp_path: Path, monkeypatc
     run_lightning_cli(["fit", "--config", str(recipe)])
     with (tmp_path / "run" / "lightning_logs" / "version_0" / "metrics.csv").open() as file:
         rows = list(csv.DictReader(file))
-    losses = [float(r["train/py123d/waypoints"]) for r in rows if r.get("train/py123d/waypoints")]
+    losses = [float(r["train/navsim/waypoints"]) for r in rows if r.get("train/navsim/waypoints")]
     assert losses and all(np.isfinite(losses))
-    assert any(r.get("val/py123d/ade") for r in rows)
+    assert any(r.get("val/navsim/ade") for r in rows)

@@ -39,7 +39,8 @@ def test_without_lead_is_the_lead_twin_minus_its_carla_data(tmp_path):
     for name, twin in (("navsim_ltfv6", "navsim_ltfv6_lead"), ("wod_ltfv6", "wod_ltfv6_lead")):
         without = yaml.safe_load(qs.smoke_config(qs.Training(name, twin, without_lead=True), tmp_path).read_text())
         lead = yaml.safe_load(qs.smoke_config(qs.Training(twin, twin), tmp_path).read_text())
-        assert "carla" not in json.dumps(without) and "init_from" not in without["model"]
+        assert "carla" not in json.dumps(without["data"]) and "init_from" not in without["model"]
+        assert without["model"]["model"]["init_args"]["config"]["use_carla_data"] is False  # no CARLA heads either
         assert "carla" in json.dumps(lead["data"]["train"]) or lead["model"]["init_from"].startswith(str(tmp_path))
         qs.drop_carla(lead)
         lead["trainer"]["default_root_dir"] = without["trainer"]["default_root_dir"]

@@ -7,12 +7,12 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import webdataset as wds
+from tiny_models import sensor_spec
 from toy_adapter import ToyAdapter, corrupt_header, toy_sample, write_toy_logs
 
 from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
-from lead_s2r.models.config import TrajectoryGrid, tfv6_config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.config import TrajectoryGrid
 from lead_s2r.shards import (
     MANIFEST,
     SHARD_DIR,
@@ -187,9 +187,9 @@ def test_a_corrupt_header_mid_shard_is_an_error_not_a_short_read(one_log):
     for part in (shard, one_log / SHARD_DIR):  # a shard of a converted folder is held to its manifest too
         with pytest.raises(ShardError, match=message):
             list(read_samples(part, fields=()))
-    config = tfv6_config(image_size=(32, 64), trajectory_grids={"toy": TrajectoryGrid(4, 0.5)}, use_radar=False)
+    inputs = sensor_spec(image_size=(32, 64), trajectory_grids={"toy": TrajectoryGrid(4, 0.5)}, radar=False)
     spec = SourceSpec([str(one_log)], cameras=["front"])
-    datamodule = DriveDataModule(train={"toy": spec}, predict={"toy": spec}, inputs=input_spec(config))
+    datamodule = DriveDataModule(train={"toy": spec}, predict={"toy": spec}, inputs=inputs)
     (loader,) = datamodule.predict_dataloader()
     with pytest.raises(ShardError, match=message):
         list(loader)

@@ -36,7 +36,6 @@ FULL_SCALE = sorted(p for family in FAMILIES for p in (RECIPES / family).glob("*
 TWIN = RECIPES / "smoke" / "twin.yaml"
 #: model class -> the overlay that shrinks it
 MODEL_OVERLAYS = {
-    "lead_s2r.models.tfv6.TFv6": RECIPES / "smoke" / "twin_tfv6.yaml",
     "lead_s2r.models.ego_mlp.EgoStatusMLP": RECIPES / "smoke" / "twin_ego_mlp.yaml",
     "lead_s2r.models.lead_driver.LeadDriver": RECIPES / "smoke" / "twin_lead.yaml",
 }

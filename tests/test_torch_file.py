@@ -77,3 +77,30 @@ def test_predict_with_a_damaged_ckpt_path_is_one_line(tmp_path, toy_data, plain_
     line = user_error(["predict", "--config", str(config), *weights], capsys)
     assert str(path) in line and ("CRC" in line if damage == "flip" else "not a torch checkpoint archive" in line)
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "removed",
+    [
+        {"hyper_parameters": {"model": {"class_path": torch_file.REMOVED_NETWORK, "init_args": {}}}, "state_dict": {}},
+        {"state_dict": {"model.backbone.image.stages.0.weight": torch.zeros(2)}},  # before hyper_parameters said
+    ],
+)
+def test_a_checkpoint_of_the_removed_network_is_one_line_wherever_it_is_read(
+    tmp_path,
+    toy_data,
+    plain_argv,  # noqa: F811
+    capsys,
+    removed,
+):
+    path = tmp_path / "old.ckpt"
+    torch.save(removed, path)
+    message = r"old\.ckpt: made by the removed TransFuser network \(lead_s2r\.models\.tfv6\.TFv6\)"
+    for read in (read_state_dict, load_model, torch_file.load):  # init_from, the agent, every other reader
+        with pytest.raises(UserError, match=message):
+            read(path)
+    config = fit_config(tmp_path, {"carla": {"paths": [toy_data], "cameras": ["front"]}})
+    line = user_error(["predict", "--config", str(config), "--ckpt_path", str(path)], capsys)
+    assert "made by the removed TransFuser network" in line and not (tmp_path / "run").exists()
+    assert "made by the removed" in user_error(["export-lead", str(path), "--out", str(tmp_path / "lead")], capsys)
+    assert not (tmp_path / "lead").exists()

@@ -1,9 +1,6 @@
 """LightningModule: loss masking per source, overfitting, init_from, bf16 fit, validation ADE/FDE, predictions."""
 
 import itertools
-import json
-import shutil
-from dataclasses import replace
 
 import lightning as L
 import numpy as np
@@ -13,19 +10,16 @@ from batches import random_batch
 from tiny_models import TINY
 from torch.utils.data import DataLoader
 
-from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
-from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.errors import UserError
-from lead_s2r.models.config import TrajectoryGrid, ltfv6_config, tfv6_config
 from lead_s2r.models.input_spec import input_spec
-from lead_s2r.models.tfv6 import TFv6
+from lead_s2r.models.lead_driver import LeadDriver, ltfv6_navsim, ltfv6_wod, tfv6
 from lead_s2r.training import losses
-from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.loss_table import task_loss
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.module import DrivingModule, model_spec
 
-PERCEPTION_MODULES = ("bev_semantic", "boxes", "perspective", "radar.out")
+#: LEAD's CARLA perception heads of a sim-to-real network (its CARLA heads beside NAVSIM's).
+PERCEPTION_MODULES = ("network.bev_semantic_decoder", "network.center_net_decoder", "network.semantic_decoder")
 EVERYTHING = {"carla": ["planning", "perception"], "navsim": ["planning", "perception"], "wod": ["planning"]}
 
 
@@ -44,54 +38,55 @@ def step(module: DrivingModule, batch: dict) -> dict:
 
 
 def test_sim_to_real_carla_batch_gives_no_planning_gradient():
-    config = tfv6_config(**TINY)
-    module = DrivingModule(TFv6(config))  # default supervise = sim-to-real
-    terms = step(module, {"carla": random_batch(config, 2, "carla")})
-    assert {t.split("/")[1] for t in terms} == {"bev_semantic", "boxes", "depth", "semantic", "radar"}
-    assert grad_norm(module.model.planner) == 0.0
-    assert all(grad_norm(module.model.get_submodule(m)) > 0 for m in PERCEPTION_MODULES)
+    driver = ltfv6_navsim(**TINY, use_carla_data=True)
+    module = DrivingModule(driver)  # default supervise = sim-to-real
+    terms = step(module, {"carla": random_batch(driver, 2, "carla")})
+    assert {t.split("/")[1] for t in terms} == {"bev_semantic", "lead_boxes", "semantic"}
+    assert grad_norm(driver.network.planning_decoder) == 0.0
+    assert all(grad_norm(driver.get_submodule(m)) > 0 for m in PERCEPTION_MODULES)
 
 
 def test_sim_to_real_wod_batch_gives_no_perception_gradient():
-    config = tfv6_config(**TINY)
-    module = DrivingModule(TFv6(config))
-    terms = step(module, {"wod": random_batch(config, 2, "wod")})
+    driver = ltfv6_wod(**TINY, use_carla_data=True)
+    module = DrivingModule(driver)
+    terms = step(module, {"wod": random_batch(driver, 2, "wod")})
     assert set(terms) == {"wod/waypoints"}
-    assert all(grad_norm(module.model.get_submodule(m)) == 0.0 for m in PERCEPTION_MODULES)
-    assert grad_norm(module.model.planner) > 0
+    assert grad_norm(driver.network.semantic_decoder) == 0.0
+    assert grad_norm(driver.network.planning_decoder) > 0
 
 
-@pytest.mark.parametrize(
-    "sources", [s for n in (1, 2, 3) for s in itertools.combinations(("carla", "navsim", "wod"), n)]
-)
+@pytest.mark.parametrize("sources", [s for n in (1, 2) for s in itertools.combinations(("carla", "navsim"), n)])
 def test_every_source_mix_trains(sources):
-    config = tfv6_config(**TINY)
-    module = DrivingModule(TFv6(config), supervise=EVERYTHING)
-    terms = step(module, {s: random_batch(config, 2, s) for s in sources})
+    driver = ltfv6_navsim(**TINY, use_carla_data=True)
+    module = DrivingModule(driver, supervise=EVERYTHING)
+    terms = step(module, {s: random_batch(driver, 2, s) for s in sources})
     assert {t.split("/")[0] for t in terms} == set(sources)
     assert all(torch.isfinite(v) for v, _ in terms.values())
-    assert grad_norm(module.model.backbone) > 0
+    assert grad_norm(driver.network.backbone) > 0
 
 
 def test_loss_term_is_sample_weighted_mean_over_sources():
-    config = tfv6_config(**TINY, decoder_dropout=0.0, fusion_dropout=0.0)
-    module = DrivingModule(TFv6(config), supervise={"navsim": ["waypoints"], "wod": ["waypoints"]}).eval()
-    batch = {"navsim": random_batch(config, 1, "navsim"), "wod": random_batch(config, 3, "wod")}
+    driver = ltfv6_navsim(**TINY, use_carla_data=True)
+    module = DrivingModule(driver, supervise={"navsim": ["waypoints"], "carla": ["waypoints"]}).eval()
+    batch = {"navsim": random_batch(driver, 1, "navsim"), "carla": random_batch(driver, 3, "carla")}
     total, terms = module.compute_losses(batch)
-    expected = (terms["navsim/waypoints"][0] * 1 + terms["wod/waypoints"][0] * 3) / 4
+    expected = (terms["navsim/waypoints"][0] * 1 + terms["carla/waypoints"][0] * 3) / 4
     torch.testing.assert_close(total, expected)
 
 
 def test_supervise_errors_name_the_problem():
-    config = tfv6_config(**TINY)
-    model = TFv6(config)
-    batch = random_batch(config, 1, "wod")
+    model = ltfv6_wod(**TINY)
+    batch = random_batch(model, 1, "wod")
     with pytest.raises(ValueError, match="'flying'"):
         active_tasks("wod", batch, model.tasks("wod"), {"wod": ["flying"]})
     with pytest.raises(ValueError, match="'depth'"):
         active_tasks("wod", batch, model.tasks("wod"), {"wod": ["depth"]})
-    with pytest.raises(KeyError, match="'route'"):
+    with pytest.raises(ValueError, match="'route'"):
         active_tasks("wod", batch, model.tasks("wod"), {"wod": ["route"]})
+    carla = tfv6(**TINY)
+    unlabelled = {k: v for k, v in random_batch(carla, 1, "carla").items() if not k.startswith("route")}
+    with pytest.raises(KeyError, match="'route'"):
+        active_tasks("carla", unlabelled, carla.tasks("carla"), {"carla": ["route"]})
     assert active_tasks("wod", batch, model.tasks("wod"), SIM_TO_REAL) == {"waypoints"}
     with pytest.raises(ValueError, match="unknown tasks"):
         DrivingModule(model, loss_weights={"wayponts": 1.0})
@@ -99,9 +94,9 @@ def test_supervise_errors_name_the_problem():
 
 def test_overfits_eight_samples():
     torch.manual_seed(0)
-    config = ltfv6_config(**TINY, decoder_dropout=0.0, fusion_dropout=0.0)
-    module = DrivingModule(TFv6(config), supervise={"navsim": ["waypoints"]}, lr=2e-3, weight_decay=0.0)
-    batch = {"navsim": random_batch(config, 8, "navsim")}
+    driver = ltfv6_navsim(**TINY, embd_pdrop=0.0, attn_pdrop=0.0, resid_pdrop=0.0)
+    module = DrivingModule(driver, supervise={"navsim": ["waypoints"]}, lr=2e-3, weight_decay=0.0)
+    batch = {"navsim": random_batch(driver, 8, "navsim")}
     optimizer = module.configure_optimizers()
     losses = []
     for _ in range(400):
@@ -130,31 +125,29 @@ def trainer(**kwargs) -> L.Trainer:
 
 
 def test_bf16_fit_init_from_round_trip_validate_predict(tmp_path):
-    # pre-train: CARLA + NAVSIM perception and planning, bf16-mixed
-    pre_config = tfv6_config(**TINY)
-    pre = DrivingModule(TFv6(pre_config), supervise=EVERYTHING)
-    batches = [{s: random_batch(pre_config, 2, s) for s in ("carla", "navsim")} for _ in range(2)]
+    # pre-train: CARLA planning and perception for a WOD-E2E network with CARLA heads, bf16-mixed
+    pre_driver = ltfv6_wod(**TINY, use_carla_data=True)
+    pre = DrivingModule(pre_driver, supervise=EVERYTHING)
+    batches = [{"carla": random_batch(pre_driver, 2, "carla")} for _ in range(2)]
     fit = trainer(max_steps=2, precision="bf16-mixed")
     fit.fit(pre, loader(batches))
     ckpt = tmp_path / "pre.ckpt"
     fit.save_checkpoint(ckpt)
 
-    # fine-tune: NAVSIM-only heads, a WOD grid, no CARLA heads -> every matching tensor loads, new ones reported
-    fine_config = tfv6_config(
-        **TINY, bev_semantic_classes={"navsim": 7}, box_classes={"navsim": 1}, semantic_classes={}, depth_sources=()
-    )
-    fine = DrivingModule(TFv6(fine_config), init_from=str(ckpt))
+    # fine-tune: no CARLA heads -> every matching tensor loads, the dropped heads reported
+    fine_driver = ltfv6_wod(**TINY)
+    fine = DrivingModule(fine_driver, init_from=str(ckpt))
     report = fine.init_report
     pre_state, fine_state = pre.model.state_dict(), fine.model.state_dict()
     shared = [k for k in fine_state if k in pre_state and pre_state[k].shape == fine_state[k].shape]
     assert sorted(report.loaded) == sorted(shared)
     assert all(torch.equal(fine_state[k], pre_state[k]) for k in shared)
-    assert any(k.startswith("bev_semantic.carla") for k in report.unexpected)
+    assert any(k.startswith("network.semantic_decoder") for k in report.unexpected)
     assert report.missing == [k for k in fine_state if k not in pre_state]
     assert "init_from: loaded" in report.summary()
 
     # validation ADE / FDE per dataset equals a hand computation
-    val_batch = {"wod": random_batch(fine_config, 3, "wod")}
+    val_batch = {"wod": random_batch(fine_driver, 3, "wod")}
     evaluation = trainer()
     metrics = evaluation.validate(fine, loader([val_batch]), verbose=False)[0]
     fine.eval()
@@ -179,7 +172,7 @@ def test_bf16_fit_init_from_round_trip_validate_predict(tmp_path):
     evaluation.save_checkpoint(tmp_path / "fine.ckpt")
     ckpt.unlink()
     loaded = DrivingModule.load_from_checkpoint(tmp_path / "fine.ckpt", map_location="cpu")
-    assert type(loaded.model) is TFv6 and loaded.model.config == fine_config
+    assert type(loaded.model) is LeadDriver and loaded.model.config == fine_driver.config
     assert loaded.hparams.init_from is None and loaded.supervise == fine.supervise
     for key, value in fine.state_dict().items():
         torch.testing.assert_close(loaded.state_dict()[key], value, rtol=0, atol=0)
@@ -187,80 +180,31 @@ def test_bf16_fit_init_from_round_trip_validate_predict(tmp_path):
 
 def test_a_network_without_a_dataclass_config_is_not_described():
     assert model_spec(torch.nn.Linear(2, 2)) is None
-    spec = model_spec(TFv6(ltfv6_config(**TINY)))
-    assert spec["class_path"] == "lead_s2r.models.tfv6.TFv6"
-    assert spec["init_args"]["config"]["trajectory_grids"]["navsim"] == [8, 0.5]  # JSON types: a weights_only load
+    spec = model_spec(ltfv6_navsim(**TINY))
+    assert spec["class_path"] == "lead_s2r.models.lead_driver.LeadDriver"
+    assert spec["init_args"]["config"]["camera_tile_size"] == [32, 32]  # JSON types: a weights_only load
 
 
 def test_init_from_rejects_missing_and_foreign_files(tmp_path):
-    config = tfv6_config(**TINY)
     with pytest.raises(UserError, match=r"init_from: no checkpoint at .*nope\.ckpt"):
-        DrivingModule(TFv6(config), init_from=str(tmp_path / "nope.ckpt"))
+        DrivingModule(ltfv6_wod(**TINY), init_from=str(tmp_path / "nope.ckpt"))
     reshaped = tmp_path / "reshaped.ckpt"  # every name of the model, no shape: nothing would load
-    torch.save({k: torch.zeros(1, 1, 1, 1, 1) for k in TFv6(config).state_dict()}, reshaped)
+    torch.save({k: torch.zeros(1, 1, 1, 1, 1) for k in ltfv6_wod(**TINY).state_dict()}, reshaped)
     with pytest.raises(UserError, match=r"reshaped\.ckpt: no tensor matches the model's shape"):
-        DrivingModule(TFv6(config), init_from=str(reshaped))
+        DrivingModule(ltfv6_wod(**TINY), init_from=str(reshaped))
     bad = tmp_path / "bad.ckpt"
     torch.save({"state_dict": {"a": "not a tensor"}}, bad)
     with pytest.raises(UserError, match=r"bad\.ckpt holds no state dict of tensors"):
-        DrivingModule(TFv6(config), init_from=str(bad))
-
-
-def converted_copy(source: str, target, target_points: dict | None) -> str:
-    """A copy of a converted folder whose info.json holds ``target_points`` statistics (None: no target points)."""
-    shutil.copytree(source, target)
-    info = json.loads((target / "info.json").read_text())
-    info["statistics"].pop("target_points", None)
-    if target_points is not None:
-        info["statistics"]["target_points"] = target_points
-    (target / "info.json").write_text(json.dumps(info))
-    return str(target)
-
-
-def test_training_folders_give_the_union_of_their_target_point_ranges(toy_data, tmp_path):
-    a = converted_copy(toy_data, tmp_path / "a", {"low": [-5.0, -20.0], "high": [60.0, 20.0]})
-    b = converted_copy(toy_data, tmp_path / "b", {"low": [0.0, -30.0], "high": [80.0, 3.0]})
-    none = converted_copy(toy_data, tmp_path / "none", None)
-    spec = lambda *paths: SourceSpec(list(paths), cameras=["front"])  # noqa: E731
-    data = DriveDataModule(train={"carla": spec(a, none), "navsim": spec(b)})
-    assert data.target_point_range() == ((-5.0, -30.0), (80.0, 20.0))
-    assert DriveDataModule(train={"navsim": spec(none)}).target_point_range() is None
-
-
-def test_fit_normalises_target_points_by_training_statistics_and_predict_keeps_the_checkpoints(toy_data, tmp_path):
-    a = converted_copy(toy_data, tmp_path / "a", {"low": [-5.0, -20.0], "high": [60.0, 20.0]})
-    b = converted_copy(toy_data, tmp_path / "b", {"low": [0.0, -3.0], "high": [15.0, 3.0]})
-    config = tfv6_config(**TINY, trajectory_grids={"carla": TrajectoryGrid(4, 0.5)}, use_radar=False)
-    spec_a, spec_b = SourceSpec([a], cameras=["front"]), SourceSpec([b], cameras=["front"])
-    schedule = MixingSchedule.constant({"carla": 1.0}, 2)
-    fit_data = DriveDataModule(train={"carla": spec_a}, predict={"carla": spec_a}, schedule=schedule, steps_per_epoch=1)
-    module = DrivingModule(TFv6(config), supervise={"carla": ["waypoints"]})
-    assert module.model.target_point_range == ((-200.0, -50.0), (200.0, 50.0))  # LEAD's constants until fit
-    fit = trainer(max_steps=1, **TRAINER_DEFAULTS)
-    fit.fit(module, datamodule=fit_data)
-    assert module.model.target_point_range == ((-5.0, -20.0), (60.0, 20.0))
-    ckpt = tmp_path / "a.ckpt"
-    fit.save_checkpoint(ckpt)
-    state = torch.load(ckpt, weights_only=True)["state_dict"]
-    assert state["model.planner.status.tp_norm.high"].tolist() == [60.0, 20.0]
-    want = trainer().predict(module, datamodule=fit_data)
-
-    # a run whose data has other statistics: prediction still uses the range the checkpoint was trained with
-    fresh = DrivingModule(TFv6(config), supervise={"carla": ["waypoints"]})
-    other_data = DriveDataModule(train={"carla": spec_b}, predict={"carla": spec_b}, schedule=schedule)
-    got = trainer().predict(fresh, datamodule=other_data, ckpt_path=ckpt)
-    assert fresh.model.target_point_range == ((-5.0, -20.0), (60.0, 20.0))
-    for mine, theirs in zip(got, want, strict=True):
-        torch.testing.assert_close(mine["carla"]["xy"], theirs["carla"]["xy"])
-
-    fixed = DrivingModule(TFv6(replace(config, target_point_normalisation="fixed")), supervise={"carla": ["waypoints"]})
-    trainer(max_steps=1, **TRAINER_DEFAULTS).fit(fixed, datamodule=fit_data)
-    assert fixed.model.target_point_range == ((-200.0, -50.0), (200.0, 50.0))
+        DrivingModule(ltfv6_wod(**TINY), init_from=str(bad))
 
 
 @pytest.mark.parametrize(
     ("image_size", "camera"),
-    [((384, 1152), {}), ((128, 384), {}), ((128, 384), {"camera_tiles": 3, "fov_fraction": 0.5})],
+    [
+        ((384, 1152), {"camera_tile_size": None}),
+        ((128, 384), {"camera_tile_size": [128, 128]}),
+        ((128, 384), {"camera_tile_size": [128, 128], "used_cameras": [False, True, True]}),
+    ],
 )
 def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tmp_path, image_size, camera):
     """The loader's uint8 labels (255 = ignore) and 1/4-size depth give the losses of the old contract (int64 labels
@@ -276,11 +220,13 @@ def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tm
     generate(tmp_path, count=1, seed=7, frames=2)
     adapter = get_adapter("carla_lead")
     samples = [s for log in adapter.list_logs(tmp_path) for s in adapter.iter_samples(log)]
-    config = tfv6_config(**{**TINY, "image_size": image_size, **camera})
-    transform = SourceTransform("carla", input_spec(config))
+    driver = tfv6(**{**TINY, **camera})
+    spec = input_spec(driver.config)
+    assert spec.image_size == image_size
+    transform = SourceTransform("carla", spec)
     unlabelled = {k: v for k, v in samples[1].items() if k not in ("bev_semantic", "semantic_carla_mosaic")}
     lean = collate([transform(samples[0]), transform(unlabelled)])
-    bev = reference_bev_labels(samples[0]["bev_semantic"], samples[0]["meta"]["bev"]["pixel_to_ego"], config.bev)
+    bev = reference_bev_labels(samples[0]["bev_semantic"], samples[0]["meta"]["bev"]["pixel_to_ego"], spec.bev)
     semantic = reference_camera(transform, samples[0])["semantic"]
     old = dict(
         lean,
@@ -292,13 +238,13 @@ def test_perception_losses_on_the_lean_batch_equal_the_full_size_int64_labels(tm
     assert lean["semantic"].dtype == lean["bev_semantic"].dtype == torch.uint8 and old["semantic"].dtype == torch.int64
     assert (lean["semantic"][1] == 255).all() and (lean["bev_semantic"][1] == 255).all()
 
-    module = DrivingModule(TFv6(config))
+    module = DrivingModule(driver)
     torch.manual_seed(0)
-    h, w = image_size[0] // 8, module.model.backbone.cameras.output_width(image_size[1]) // 8
+    h, w = image_size[0] // 8, driver.camera_select(torch.zeros(image_size)).shape[-1] // 8
     pred = {
-        "semantic": torch.randn(2, config.semantic_classes["carla"], h, w),
-        "depth": torch.rand(2, h, w) * config.max_depth,
-        "bev_semantic": torch.randn(2, config.bev_semantic_classes["carla"], *lean["bev_semantic"].shape[-2:]),
+        "semantic": torch.randn(2, spec.semantic_classes["carla"], h, w),
+        "depth": torch.rand(2, h, w) * spec.max_depth,
+        "bev_semantic": torch.randn(2, spec.bev_semantic_classes["carla"], *lean["bev_semantic"].shape[-2:]),
     }
     for task in ("semantic", "depth", "bev_semantic"):
         before, after = task_loss(task, pred, old, module.model), task_loss(task, pred, lean, module.model)

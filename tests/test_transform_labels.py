@@ -1,32 +1,23 @@
 """The per-sample label functions of the training transform against their plain definitions, bit for bit.
 
 The references here are the straightforward forms the fast code replaced (one rotation of every (box, point) pair,
-``nan_to_num`` and a float32 cast, ``np.linalg.norm`` of the route's steps); the CenterNet and LiDAR references live
-in test_transform_speed.py. The inputs aim at the paths the fast code adds: a cached Gaussian window cut at every
-edge of the grid and shared by boxes and calls, LiDAR points on cell edges and off the grid (NaN, inf, overflow),
-radar points on the grown footprint's edge.
+``nan_to_num`` and a float32 cast, ``np.linalg.norm`` of the route's steps); the LiDAR reference lives in
+test_transform_speed.py (LEAD's CenterNet encoding is checked in test_lead_labels.py). The inputs aim at the paths the
+fast code adds: LiDAR points on cell edges and off the grid (NaN, inf, overflow), radar points on the grown
+footprint's edge.
 """
-
-import math
 
 import numpy as np
 import pytest
 import torch
-from test_transform_speed import random_boxes, reference_centernet, reference_lidar
+from test_transform_speed import random_boxes, reference_lidar
+from tiny_models import sensor_spec
 
 from lead_s2r.data.lidar import rasterize_lidar
-from lead_s2r.data.targets import (
-    CENTERNET_STRIDE,
-    MAX_RADAR_TARGETS,
-    RADAR_HIT_MARGIN_M,
-    centernet_targets,
-    gaussian_window,
-    radar_targets,
-)
+from lead_s2r.data.radar import MAX_RADAR_TARGETS, RADAR_HIT_MARGIN_M, radar_targets
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import resample, rotate
-from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, BEVGrid, tfv6_config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.config import CARLA_BEV, BEVGrid
 from lead_s2r.models.inputs import lidar_input
 from lead_s2r.schema import command4
 
@@ -113,42 +104,6 @@ def test_radar_points_on_the_grown_footprint_edge_hit_and_one_ulp_beyond_miss() 
     assert_bit_identical(out, reference_radar_targets(radar, boxes))
 
 
-# --------------------------------------------------------------------------- CenterNet
-
-
-def corner_boxes(grid: BEVGrid, widths: list[float]) -> np.ndarray:
-    """Vehicles (class 0) centred in the four corner cells and the middle cell of ``grid``'s CenterNet map,
-    one per width in ``widths`` (a width up to 2 cells keeps the 0.5-cell sigma floor)."""
-    cell = CENTERNET_STRIDE / grid.pixels_per_meter
-    h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
-    cells = [(0, 0), (0, w - 1), (h - 1, 0), (h - 1, w - 1), (h // 2, w // 2)]
-    boxes = np.zeros((len(cells) * len(widths), 10), np.float32)
-    for i, ((row, col), width) in enumerate((c, wd) for wd in widths for c in cells):
-        boxes[i, :2] = grid.x_min + (row + 0.5) * cell, grid.y_min + (col + 0.5) * cell
-        boxes[i, 3:5] = 5.0, width
-    return boxes
-
-
-@pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV, BEVGrid(-8, 8, -8, 8, 8.0)])
-def test_gaussian_windows_shared_by_boxes_and_calls_equal_the_whole_grid_definition(grid: BEVGrid) -> None:
-    boxes = corner_boxes(grid, [1.0, 9.0, 2.0, 13.5])  # sigma floor, 1.5 cells, floor again, 2.25 cells
-    for _ in range(2):  # the second call draws from the windows the first one cached
-        expected = reference_centernet(boxes, grid, 10)
-        assert_bit_identical(centernet_targets(boxes, grid, 10), expected)
-    assert expected["box_heatmap"][0].max() == 1.0 and expected["box_heatmap"][0, 0, 0] == 1.0
-    rng = np.random.default_rng(5)
-    mixed = np.vstack([boxes, random_boxes(rng, 40)])[rng.permutation(len(boxes) + 40)]
-    assert_bit_identical(centernet_targets(mixed, grid, 10), reference_centernet(mixed, grid, 10))
-
-
-@pytest.mark.parametrize("denominator", [0.5, 4.5, 10.125, 0.3])
-def test_a_gaussian_window_holds_every_cell_that_is_non_zero_in_float32(denominator: float) -> None:
-    radius, window = gaussian_window(denominator)
-    assert window.shape == (2 * radius + 1, 2 * radius + 1) and window[radius, radius] == 1.0
-    assert np.float32(math.exp(-((radius + 1) ** 2) / denominator)) == 0.0  # the first cell left out
-    assert not window.flags.writeable  # shared by every box with this denominator
-
-
 # --------------------------------------------------------------------------- LiDAR
 
 
@@ -216,7 +171,7 @@ def future(steps: int, headings: bool = True) -> np.ndarray:
 @pytest.mark.parametrize("knots", [future(60), future(7), future(60, headings=False), future(0)])
 @pytest.mark.parametrize("source", ["carla", "navsim", "wod"])
 def test_trajectory_equals_the_nan_to_num_definition(knots: np.ndarray, source: str) -> None:
-    transform = SourceTransform(source, input_spec(tfv6_config()), [])
+    transform = SourceTransform(source, sensor_spec(), [])
     expected = reference_trajectory(knots, transform.spec.trajectory_grids[source].times)
     assert_bit_identical(transform.trajectory(knots), expected)
 
@@ -231,7 +186,7 @@ def test_ego_scalars_equal_torch_tensor_of_the_meta(speed: float, acceleration: 
         "ego": {"speed": speed, "acceleration": acceleration, "command": command},
         "extras": {"carla_lead": {"target_speed": 8.3}},
     }
-    out = SourceTransform("carla", input_spec(tfv6_config()), [])({"__key__": "k", "meta": meta})
+    out = SourceTransform("carla", sensor_spec(), [])({"__key__": "k", "meta": meta})
     expected = {
         "speed": torch.tensor(float(speed)),
         "acceleration": torch.tensor(acceleration, dtype=torch.float32),

@@ -13,17 +13,16 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from tiny_models import sensor_spec
 
 from lead_s2r.data.camera_input import jpeg_reduction
 from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
+from lead_s2r.data.lead_labels import bev_cell_centres, bev_labels
 from lead_s2r.data.lidar import rasterize_lidar
-from lead_s2r.data.targets import CENTERNET_STRIDE, MAX_BOXES, bev_cell_centres, bev_labels, centernet_targets
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import raster_lookup
-from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, tfv6_config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
-from lead_s2r.schema import BoxClass
 
 # --------------------------------------------------------------------------- references
 
@@ -33,44 +32,18 @@ def camera_image(transform: SourceTransform, sample: dict) -> tuple[torch.Tensor
     return transform.camera.image(sample, transform.camera.stored_layout(sample["meta"]))
 
 
-def reference_centernet(boxes: np.ndarray, grid: BEVGrid, num_classes: int) -> dict[str, np.ndarray]:
-    xs, ys = bev_cell_centres(grid, CENTERNET_STRIDE)
-    h, w = len(xs), len(ys)
-    cell = CENTERNET_STRIDE / grid.pixels_per_meter
-    out = {
-        "box_heatmap": np.zeros((num_classes, h, w), np.float32),
-        "box_index": np.zeros(MAX_BOXES, np.int64),
-        "box_valid": np.zeros(MAX_BOXES, bool),
-        "box_offset": np.zeros((MAX_BOXES, 2), np.float32),
-        "box_size": np.zeros((MAX_BOXES, 2), np.float32),
-        "box_yaw": np.zeros(MAX_BOXES, np.float32),
-        "box_velocity": np.zeros(MAX_BOXES, np.float32),
-    }
-    slot = 0
-    rows_grid, cols_grid = np.arange(h)[:, None], np.arange(w)[None, :]
-    for box in boxes:
-        label = int(box[9])
-        if num_classes == 1:
-            if label != BoxClass.VEHICLE:
-                continue
-            label = 0
-        elif label >= num_classes:
-            continue
-        row_f, col_f = (box[0] - grid.x_min) / cell, (box[1] - grid.y_min) / cell
-        row, col = math.floor(row_f), math.floor(col_f)
-        if not (0 <= row < h and 0 <= col < w) or slot == MAX_BOXES:
-            continue
-        sigma = max(0.5, min(box[3], box[4]) / cell / 6.0)
-        gaussian = np.exp(-((rows_grid - row) ** 2 + (cols_grid - col) ** 2) / (2 * sigma**2)).astype(np.float32)
-        np.maximum(out["box_heatmap"][label], gaussian, out=out["box_heatmap"][label])
-        out["box_index"][slot] = row * w + col
-        out["box_valid"][slot] = True
-        out["box_offset"][slot] = (row_f - row, col_f - col)
-        out["box_size"][slot] = (box[3], box[4])
-        out["box_yaw"][slot] = box[6]
-        out["box_velocity"][slot] = math.hypot(box[7], box[8])
-        slot += 1
-    return out
+def random_boxes(rng: np.random.Generator, n: int) -> np.ndarray:
+    boxes = np.zeros((n, 10), np.float32)
+    boxes[:, 0] = rng.uniform(-40, 70, n)  # some fall off the CARLA grid (x in [-32, 64))
+    boxes[:, 1] = rng.uniform(-45, 45, n)
+    boxes[:, 2] = rng.uniform(0, 2, n)
+    boxes[:, 3] = rng.uniform(0.5, 14, n)  # up to bus-sized: sigma above the 0.5-cell floor
+    boxes[:, 4] = rng.uniform(0.5, 9, n)
+    boxes[:, 5] = rng.uniform(1, 4, n)
+    boxes[:, 6] = rng.uniform(-math.pi, math.pi, n)
+    boxes[:, 7:9] = rng.normal(0, 5, (n, 2))
+    boxes[:, 9] = rng.integers(0, 12, n)  # classes 10 and 11 are beyond a 10-class head
+    return boxes
 
 
 def reference_bev_labels(labels: np.ndarray, pixel_to_ego: list, grid: BEVGrid) -> np.ndarray:
@@ -105,45 +78,6 @@ def reference_camera(transform: SourceTransform, sample: dict) -> dict[str, np.n
 
 
 # --------------------------------------------------------------------------- data
-
-
-def random_boxes(rng: np.random.Generator, n: int) -> np.ndarray:
-    boxes = np.zeros((n, 10), np.float32)
-    boxes[:, 0] = rng.uniform(-40, 70, n)  # some fall off the CARLA grid (x in [-32, 64))
-    boxes[:, 1] = rng.uniform(-45, 45, n)
-    boxes[:, 2] = rng.uniform(0, 2, n)
-    boxes[:, 3] = rng.uniform(0.5, 14, n)  # up to bus-sized: sigma above the 0.5-cell floor
-    boxes[:, 4] = rng.uniform(0.5, 9, n)
-    boxes[:, 5] = rng.uniform(1, 4, n)
-    boxes[:, 6] = rng.uniform(-math.pi, math.pi, n)
-    boxes[:, 7:9] = rng.normal(0, 5, (n, 2))
-    boxes[:, 9] = rng.integers(0, 12, n)  # classes 10 and 11 are beyond a 10-class head
-    return boxes
-
-
-# --------------------------------------------------------------------------- equality
-
-
-@pytest.mark.parametrize(
-    ("n", "num_classes", "grid"),
-    [
-        (0, 10, CARLA_BEV),
-        (30, 10, CARLA_BEV),
-        (200, 10, CARLA_BEV),
-        (40, 1, NAVSIM_BEV),
-        (3, 10, BEVGrid(-8, 8, -8, 8, 8.0)),
-    ],
-)
-def test_centernet_targets_equal_the_whole_grid_definition(n: int, num_classes: int, grid: BEVGrid) -> None:
-    boxes = random_boxes(np.random.default_rng(n), n)
-    expected = reference_centernet(boxes, grid, num_classes)
-    got = centernet_targets(boxes, grid, num_classes)
-    assert set(got) == set(expected)
-    for name, value in expected.items():
-        assert got[name].dtype == torch.from_numpy(value).dtype, name
-        np.testing.assert_array_equal(got[name].numpy(), value, err_msg=name)
-    if n == 200:  # the cap binds: only the first 64 boxes on the grid are drawn, one peak each
-        assert expected["box_valid"].all() and (expected["box_heatmap"] == 1.0).sum() == MAX_BOXES
 
 
 @pytest.mark.parametrize(
@@ -191,7 +125,7 @@ def test_lidar_counts_scale_to_the_float32_levels_of_the_old_raster() -> None:
 
 
 def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", input_spec(tfv6_config()))  # paper size: the 1152x384 mosaic is the input
+    transform = SourceTransform("carla", sensor_spec())  # paper size: the 1152x384 mosaic is the input
     for sample in carla_samples:
         expected = reference_camera(transform, sample)
         got = transform(sample)
@@ -209,9 +143,7 @@ def test_carla_camera_and_perspective_labels_equal_the_full_decode(carla_samples
 
 
 def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> None:
-    transform = SourceTransform(
-        "carla", input_spec(tfv6_config(image_size=(256, 1024)))
-    )  # 3:1 strip into 4:1: letterboxed
+    transform = SourceTransform("carla", sensor_spec(image_size=(256, 1024)))  # 3:1 strip into 4:1: letterboxed
     with pytest.warns(UserWarning, match="letterboxed"):
         got = transform(carla_samples[0])
     expected = reference_camera(transform, carla_samples[0])
@@ -222,7 +154,7 @@ def test_a_letterboxed_rig_equals_the_full_decode(carla_samples: list[dict]) -> 
 
 
 def test_the_transform_reads_only_its_fields_and_gives_the_same_tensors(carla_samples: list[dict]) -> None:
-    transform = SourceTransform("carla", input_spec(tfv6_config()))
+    transform = SourceTransform("carla", sensor_spec())
     assert "past" not in transform.fields and "agents_future" not in transform.fields
     for sample in carla_samples:
         assert {"past", "agents_future"} <= set(sample)  # the adapter wrote them; the model reads neither
@@ -257,7 +189,7 @@ def smooth_camera_sample(width: int, height: int) -> dict:
 )
 def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int], factor: int) -> None:
     sample = smooth_camera_sample(1920, 1080)
-    transform = SourceTransform("navsim", input_spec(tfv6_config(image_size=image_size)), ["front"])
+    transform = SourceTransform("navsim", sensor_spec(image_size=image_size), ["front"])
     layout = transform.camera.layout(sample["meta"], [(1080, 1920)])
     assert jpeg_reduction(layout)[0] == factor
     rgb, _ = camera_image(transform, sample)
@@ -277,7 +209,7 @@ def test_labels_of_a_reduced_decode_follow_the_full_size_layout(image_size: tupl
     sample["semantic_front"] = np.kron(rng.integers(0, 20, (27, 48)), np.ones((40, 40))).astype(np.uint8)
     sample["depth_front"] = rng.integers(0, 256, (270, 480)).astype(np.uint8)  # stored at 1/4, like LEAD's
     sample["meta"]["depth"] = {"max_m": 50.0}
-    transform = SourceTransform("carla", input_spec(tfv6_config(image_size=image_size)), ["front"])
+    transform = SourceTransform("carla", sensor_spec(image_size=image_size), ["front"])
     _, layout = camera_image(transform, sample)
     assert jpeg_reduction(layout)[0] == 4
     got = transform.perspective_labels(sample, "carla", layout)

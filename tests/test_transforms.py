@@ -5,23 +5,24 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from tiny_models import sensor_spec
 from toy_adapter import toy_sample
 
 from lead_s2r.data.camera_layout import Band, Tile, camera_layout
 from lead_s2r.data.collate import collate
+from lead_s2r.data.lead_labels import bev_labels
 from lead_s2r.data.lead_route import lead_route
 from lead_s2r.data.lidar import rasterize_lidar
-from lead_s2r.data.targets import bev_labels, centernet_targets, radar_targets
+from lead_s2r.data.radar import radar_targets
 from lead_s2r.data.transforms import SourceTransform
-from lead_s2r.models.config import NAVSIM_VERTICAL_FOV_DEG, BEVGrid, TrajectoryGrid, tfv6_config
-from lead_s2r.models.input_spec import input_spec
+from lead_s2r.models.config import NAVSIM_VERTICAL_FOV_DEG, BEVGrid, TrajectoryGrid
 
 GRID = BEVGrid(-32.0, 64.0, -40.0, 40.0, 4.0)
 
 
 def transform(**overrides) -> SourceTransform:
-    config = tfv6_config(**{"image_size": (32, 64), "trajectory_grids": {"toy": TrajectoryGrid(6, 0.5)}, **overrides})
-    return SourceTransform("toy", input_spec(config), ["front"])
+    spec = sensor_spec(**{"image_size": (32, 64), "trajectory_grids": {"toy": TrajectoryGrid(6, 0.5)}, **overrides})
+    return SourceTransform("toy", spec, ["front"])
 
 
 def test_future_is_resampled_onto_the_model_grid_and_masked_past_the_horizon():
@@ -66,18 +67,6 @@ def test_bev_labels_follow_the_pixel_to_ego_map():
     assert out[32 * 4, 40 * 4] == 0  # the ego cell is inside
 
 
-def test_centernet_peak_sits_at_the_box_centre():
-    boxes = np.array([[10.1, -3.2, 0, 4.5, 2.0, 1.5, 0.3, 3.0, 4.0, 0], [5, 5, 0, 0.5, 0.5, 1, 0, 0, 0, 1]], np.float32)
-    out = centernet_targets(boxes, GRID, num_classes=10)
-    row, col = int((10.1 + 32) // 1), int((-3.2 + 40) // 1)  # stride 4 at 4 px/m: 1 m cells
-    assert out["box_heatmap"][0, row, col] == 1.0 and out["box_heatmap"][1].max() == 1.0
-    assert out["box_index"][0] == row * 80 + col and out["box_valid"][:2].all() and not out["box_valid"][2:].any()
-    assert torch.allclose(out["box_offset"][0], torch.tensor([0.1, 0.8]), atol=1e-5)
-    assert out["box_velocity"][0] == 5.0
-    vehicles_only = centernet_targets(boxes, GRID, num_classes=1)
-    assert vehicles_only["box_valid"].sum() == 1
-
-
 def test_lead_route_pursues_the_route_and_continues_past_its_end():
     """LEAD's smooth_path: 2.5 m towards the first point, then 1 m chords towards each next one, then on along the
     last two points; repeated points count once; nothing to pursue is masked."""
@@ -94,13 +83,14 @@ def test_lead_route_pursues_the_route_and_continues_past_its_end():
 
 
 def test_collate_masks_labels_a_sample_lacks():
-    boxes_in_carla_space = transform(label_space={"toy": "carla"})
-    with_future = boxes_in_carla_space(toy_sample("log000", 0))
-    without = boxes_in_carla_space({k: v for k, v in toy_sample("log000", 1).items() if k != "future"})
-    del without["box_heatmap"], without["box_valid"]
+    vehicle_boxes = transform(lead_box_classes={"toy": 1})
+    sample = toy_sample("log000", 0)
+    sample["boxes"][:, 3:6] = np.abs(sample["boxes"][:, 3:6]) + 1.0  # the toy's random sizes: real boxes
+    with_future = vehicle_boxes(sample)
+    without = transform()({k: v for k, v in toy_sample("log000", 1).items() if k != "future"})  # no box labels
     batch = collate([with_future, without])
     assert batch["waypoints_valid"][1].sum() == 0 and batch["waypoints_valid"][0].all()
-    assert (batch["box_heatmap"][1] == -1).all() and not batch["box_valid"][1].any()  # no boxes field: ignored
+    assert (batch["lead_box_heatmap"][1] == -1).all() and not batch["lead_box_weight"][1].any()  # no boxes: ignored
     assert batch["__key__"] == ["toy_log000_000000", "toy_log000_000001"]
 
 
@@ -213,7 +203,7 @@ def mosaic_transform(**overrides) -> SourceTransform:
     """A transform reading camera field ``mosaic`` with CARLA's perspective label space."""
     grids = {"toy": TrajectoryGrid(6, 0.5)}
     return SourceTransform(
-        "toy", input_spec(tfv6_config(trajectory_grids=grids, label_space={"toy": "carla"}, **overrides)), ["mosaic"]
+        "toy", sensor_spec(trajectory_grids=grids, label_space={"toy": "carla"}, **overrides), ["mosaic"]
     )
 
 
@@ -278,4 +268,4 @@ def test_fov_crop_needs_calibration_and_ablations_need_a_full_mosaic():
     with pytest.raises(ValueError, match=r"source 'toy'.*calibration"):
         mosaic_transform(image_size=(32, 96), vertical_fov_deg=40.0)(sample)
     with pytest.raises(ValueError, match="camera ablations"):
-        mosaic_transform(image_size=(32, 192), camera_tiles=3, use_tiles=(1,))(mosaic_sample())
+        mosaic_transform(image_size=(32, 192), equal_tiles=True)(mosaic_sample())

@@ -13,7 +13,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from tiny_models import TINY
+from tiny_models import LTFV6_SWITCHES, TOY_LTFV6
 from toy_adapter import ToyAdapter, corrupt_header, toy_sample, write_toy_logs
 
 from lead_s2r import cli
@@ -226,11 +226,10 @@ def test_score_predictions_of_another_data_set_only(tmp_path, toy_data, capsys):
 
 
 def fit_config(tmp_path: Path, train: dict) -> Path:
-    model_config = {key: value for key, value in TINY.items() if key != "bev"}
-    model_config["bev"] = {"x_min": -8.0, "x_max": 8.0, "y_min": -8.0, "y_max": 8.0, "pixels_per_meter": 2.0}
+    network = {**TOY_LTFV6, **LTFV6_SWITCHES, "use_carla_data": True}  # LTFv6 + LEAD: reads CARLA batches too
     config = {
         "trainer": {"accelerator": "cpu", "max_epochs": 1, "default_root_dir": str(tmp_path / "run")},
-        "model": {"model": {"class_path": "lead_s2r.models.tfv6.TFv6", "init_args": {"config": model_config}}},
+        "model": {"model": {"class_path": "lead_s2r.models.lead_driver.LeadDriver", "init_args": {"config": network}}},
         "data": {"train": train, "schedule": {"anchors": {0: dict.fromkeys(train, 2)}, "global_batch_size": 2}},
     }
     path = tmp_path / "fit.yaml"
@@ -297,8 +296,8 @@ def fit_config_with(tmp_path: Path, where: tuple, value: object) -> Path:
 @pytest.mark.parametrize(
     ("where", "value", "message"),
     [
-        ((*MODEL_CONFIG, "decoder_heads"), 7, "embed_dim must be divisible by num_heads"),  # jsonargparse's ValueError
-        ((*MODEL_CONFIG, "token_dim"), None, r"TFv6Config\.token_dim is None, not int"),  # was a TypeError in torch
+        ((*MODEL_CONFIG, "transfuser_num_bev_cross_attention_heads"), 7, "embed_dim must be divisible by num_heads"),
+        ((*MODEL_CONFIG, "transfuser_token_dim"), None, "transfuser_token_dim"),  # was a TypeError in torch
         ((*MODEL_CONFIG, "image_architecture"), "x", "'x' is no timm architecture"),  # was a RuntimeError
         (("data", "train"), {}, r"no training sources configured \(data\.train\)"),  # was a ValueError at fit
     ],

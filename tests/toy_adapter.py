@@ -43,6 +43,7 @@ def toy_sample(log_id: str, frame: int, yaw_rate: float = 0.1, rng: np.random.Ge
     lidar = rng.normal(size=(50, 4)).astype(np.float32)
     boxes = np.zeros((2, 10), np.float32)
     boxes[:, :7] = rng.normal(size=(2, 7))
+    boxes[:, 3:6] = np.abs(boxes[:, 3:6]) + 0.5  # sizes of real boxes (LEAD's CenterNet radius needs them)
     boxes[:, 9] = [0, 1]
     target_points = np.array([[-5, 0], [10, 2 * yaw_rate], [30, 8 * yaw_rate]], np.float32)
     camera = {

@@ -47,14 +47,14 @@ from lead_s2r.closed_loop.route import (
 )
 from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_sample, reading, sensor_specs
 from lead_s2r.data.collate import collate
-from lead_s2r.data.targets import CENTERNET_STRIDE, bev_cell_centres
+from lead_s2r.data.lead_centernet import CENTERNET_STRIDE
+from lead_s2r.data.lead_labels import LeadBoxClass, bev_cell_centres
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 from lead_s2r.models.input_spec import InputSpec
-from lead_s2r.schema import BoxClass
 
 try:  # pragma: no cover - depends on the environment
     from leaderboard.autoagents.autonomous_agent import AutonomousAgent, Track
@@ -215,9 +215,11 @@ class LeadS2RAgent(Base):
         self.model, path = load_driving_model(config.checkpoint, config.pattern, device)
         self.model_config = self.model.config
         spec = check_drivable(self.model, config.source, path)
-        if config.stop_sign_slowdown and spec.space(config.source) not in spec.box_classes:
-            raise UnsupportedCheckpoint(f"{path}: stop_sign_slowdown needs a box head for source {config.source!r}; "
-                                        "the model has none (set stop_sign_slowdown: false)")  # fmt: skip
+        if config.stop_sign_slowdown and spec.lead_box_classes.get(config.source, 0) <= LeadBoxClass.STOP_SIGN:
+            raise UnsupportedCheckpoint(
+                f"{path}: stop_sign_slowdown needs LEAD's CARLA box head for source {config.source!r}; the model has "
+                "none (set stop_sign_slowdown: false)"
+            )
         return spec
 
     def sensors(self) -> list[dict[str, Any]]:
@@ -262,7 +264,7 @@ class LeadS2RAgent(Base):
     def predict(self, batch: dict[str, Any]) -> dict[str, torch.Tensor]:
         tasks = {"waypoints", "route", "target_speed"}
         if self.config.stop_sign_slowdown:
-            tasks.add("boxes")
+            tasks.add("lead_boxes")
         inputs = {k: v.to(self.device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
         return {k: v[0].float().cpu() for k, v in self.model(inputs, self.config.source, tasks).items()}
 
@@ -284,7 +286,7 @@ class LeadS2RAgent(Base):
 
     def stop_sign_distance(self, prediction: dict[str, torch.Tensor]) -> float | None:
         """Distance (m) from the front bumper to the strongest predicted stop sign, None when there is none."""
-        heatmap = prediction["box_heatmap"][BoxClass.STOP_SIGN].sigmoid()
+        heatmap = prediction["box_heatmap"][LeadBoxClass.STOP_SIGN].sigmoid()
         if float(heatmap.max()) < STOP_SIGN_SCORE:
             return None
         row, col = np.unravel_index(int(heatmap.argmax()), tuple(heatmap.shape))

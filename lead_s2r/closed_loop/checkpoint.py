@@ -5,8 +5,8 @@ path and typed config, see :mod:`lead_s2r.training.module`), so a ``.ckpt`` copi
 written before that describe no network; for them the resolved run configuration that ``lead-s2r fit``
 (LightningCLI) saves as ``config.yaml`` in the run folder is read instead. A checkpoint with neither, or whose weights
 do not fit its description, is refused with what to do, as is a model that cannot drive a CARLA route: one without
-an output grid for the source, or one that reads no route target points (an LTFv6 NAVSIM model,
-``target_points=()``: it would not know where to turn). LEAD's users hit exactly these silent mismatches between
+an output grid for the source, or one that reads no route target points (an LTFv6 NAVSIM model, which builds no
+target-point encoder: it would not know where to turn). LEAD's users hit exactly these silent mismatches between
 configs and weights; here they are errors at load time.
 
 A LEAD checkpoint folder (LEAD's ``config.json`` + ``model*.pth``, e.g. its released CARLA TFv6) drives too: it is
@@ -28,7 +28,6 @@ from torch import nn
 from lead_s2r.data.camera_layout import camera_layout, camera_tiles
 from lead_s2r.formats import torch_file
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
-from lead_s2r.models.config import TFv6Config
 from lead_s2r.models.input_spec import InputSpec, input_spec
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
@@ -124,9 +123,9 @@ def family_spec(model: nn.Module, path: Path, where: str) -> InputSpec:
     """What a TFv6-family model reads; :class:`UnsupportedCheckpoint` for any other network (the ego-status MLP reads
     no sensor), which cannot drive ``where``."""
     config = getattr(model, "config", None)
-    if not isinstance(config, TFv6Config | LeadConfig):
+    if not isinstance(config, LeadConfig):
         raise UnsupportedCheckpoint(
-            f"{path}: {type(model).__name__} is not a TFv6-family model (no TFv6Config or LeadConfig); only "
+            f"{path}: {type(model).__name__} is not a TransFuser-family model (no LeadConfig); only "
             f"camera(+LiDAR) models with a planning decoder can drive {where}"
         )
     return input_spec(config)
@@ -144,12 +143,12 @@ def check_drivable(model: nn.Module, source: str, path: Path) -> InputSpec:
     if not getattr(model, "reads_target_points", False):
         raise UnsupportedCheckpoint(
             f"{path}: the model reads no route target points (e.g. an LTFv6 NAVSIM model), so it cannot follow a "
-            "CARLA route; train a model with target_points"
+            "CARLA route; train a CARLA leaderboard model (LEAD's use_tp)"
         )
     return spec
 
 
-def strip_aspect(rig: str, config: TFv6Config | InputSpec) -> float:
+def strip_aspect(rig: str, config: InputSpec) -> float:
     """Width / height of a rig's stitched strip as the training transform lays it out for ``config``."""
     cameras = CAMERA_RIGS[rig]
     meta = {"cameras": camera_calibration(rig)}
@@ -159,7 +158,7 @@ def strip_aspect(rig: str, config: TFv6Config | InputSpec) -> float:
     return layout.strip[1] / layout.strip[0]
 
 
-def rig_for(config: TFv6Config | InputSpec) -> str:
+def rig_for(config: InputSpec) -> str:
     """The LEAD rig whose strip aspect is nearest (in log ratio) to the model's ``image_size``."""
     height, width = config.image_size
     return min(CAMERA_RIGS, key=lambda rig: abs(math.log(strip_aspect(rig, config) * height / width)))

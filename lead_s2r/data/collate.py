@@ -10,7 +10,7 @@ from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, decode_rgb
 from lead_s2r.models.inputs import IGNORE_CLASS, on_image_grid
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
-IGNORE_VALUE = {"bev_semantic": IGNORE_CLASS, "semantic": IGNORE_CLASS, "box_heatmap": -1, "lead_box_heatmap": -1}
+IGNORE_VALUE = {"bev_semantic": IGNORE_CLASS, "semantic": IGNORE_CLASS, "lead_box_heatmap": -1}
 #: Labels on the input image's pixel grid, possibly left at their stored (smaller) size: see :func:`on_image_grid`.
 IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 

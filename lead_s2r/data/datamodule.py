@@ -15,7 +15,6 @@ like the training ones. :mod:`lead_s2r.data.streams` says why webdataset's own s
 import math
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import lightning as L
@@ -30,13 +29,11 @@ from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.data.vocab_scores import VocabScores
 from lead_s2r.errors import UserError
 from lead_s2r.models.input_spec import InputSpec
-from lead_s2r.models.inputs import Batch, target_point_range
+from lead_s2r.models.inputs import Batch
 from lead_s2r.shards import (
-    INFO,
     ManifestCheck,
     ShardError,
     decode_sample,
-    load_info,
     raise_shard_error,
     shard_paths,
 )
@@ -207,27 +204,6 @@ class DriveDataModule(L.LightningDataModule):
     def seed(self) -> int:
         """The seed of the training streams: given, else ``seed_everything``'s (``PL_GLOBAL_SEED``), else 0."""
         return self._seed if self._seed is not None else int(os.environ.get("PL_GLOBAL_SEED", 0))
-
-    def target_point_range(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
-        """The range that holds every training folder's target points: the union of their ``info.json``
-        ``statistics.target_points`` (1st/99th percentiles per axis); None when no folder has target points.
-
-        A folder without target points (NAVSIM, WOD-E2E), or a path that is not a converted folder, adds nothing.
-        """
-        lows, highs = [], []
-        for spec in self.train_sources.values():
-            for path in spec.paths:
-                if not (Path(path) / INFO).is_file():
-                    continue
-                info = load_info(path)
-                if "target_points" not in info.get("statistics", {}):
-                    continue
-                low, high = target_point_range(info)
-                lows.append(low)
-                highs.append(high)
-        if not lows:
-            return None
-        return (min(x for x, _ in lows), min(y for _, y in lows)), (max(x for x, _ in highs), max(y for _, y in highs))
 
     def _where(self) -> tuple[int, int, int]:
         """(epoch, rank, world size) of the attached trainer; (0, 0, 1) without one."""

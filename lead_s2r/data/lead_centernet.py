@@ -23,9 +23,10 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from lead_s2r.data.targets import CENTERNET_STRIDE, paste_max
 from lead_s2r.models.config import BEVGrid
 
+#: BEV pixels per CenterNet cell (LEAD's ``bev_down_sample_factor``).
+CENTERNET_STRIDE = 4
 #: LEAD's ``max_num_bbs``: boxes encoded per sample, in list order.
 LEAD_MAX_BOXES = 90
 #: CornerNet's minimum IoU and LEAD's smallest radius, in cells.
@@ -132,3 +133,13 @@ def paste_phantom(
     offset[:, 0, col] = 0.0, 1.0
     yaw_class[0, col], yaw_residual[0, col], speed[0, col] = 0, 0.0, 0.0
     weight[0, col] = True
+
+
+def paste_max(heatmap: np.ndarray, row: int, col: int, window: np.ndarray) -> None:
+    """``heatmap = max(heatmap, window)`` with the (2r+1)^2 ``window`` centred on (row, col), cut at the heatmap's
+    edges."""
+    radius = window.shape[0] // 2
+    r0, r1 = max(row - radius, 0), min(row + radius + 1, heatmap.shape[0])
+    c0, c1 = max(col - radius, 0), min(col + radius + 1, heatmap.shape[1])
+    target = heatmap[r0:r1, c0:c1]
+    np.maximum(target, window[r0 - row + radius : r1 - row + radius, c0 - col + radius : c1 - col + radius], out=target)

@@ -23,11 +23,13 @@ and parked-car meshes, and LEAD's LiDAR-hit visibility filter.
 """
 
 from enum import IntEnum
+from functools import lru_cache
 from typing import Any
 
 import cv2
 import numpy as np
 
+from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import BEVGrid
 from lead_s2r.models.inputs import IGNORE_CLASS
 from lead_s2r.schema import BevClassCarla, BoxClass
@@ -221,3 +223,38 @@ def _on_occupancy_canvas(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
     cx = (boxes[:, 0] + OCCUPANCY_HALF_M) * grid.pixels_per_meter
     cy = (OCCUPANCY_HALF_M - boxes[:, 1]) * grid.pixels_per_meter
     return (cx >= 0) & (cx < size) & (cy >= 0) & (cy < size)
+
+
+def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
+    """Class ids (uint8) of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; :data:`IGNORE_CLASS`
+    outside it.
+
+    The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
+    (:func:`bev_gather_index`) and each sample is one gather."""
+    pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
+    index = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
+    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.uint8)
+    values[:-1] = labels.reshape(-1)
+    values[-1] = IGNORE_CLASS  # where the index points for cells outside the raster
+    return values[index]
+
+
+@lru_cache(maxsize=64)
+def bev_gather_index(pixel_to_ego: tuple[tuple[float, ...], ...], shape: tuple[int, int], grid: BEVGrid) -> np.ndarray:
+    """(H, W) flat index into a raster of ``shape`` of every grid cell; ``shape[0] * shape[1]`` (one past the end)
+    outside it. :func:`~lead_s2r.geometry.raster_lookup` of a raster of flat indices, so both agree by construction."""
+    xs, ys = bev_cell_centres(grid)
+    x, y = np.meshgrid(xs, ys, indexing="ij")
+    size = shape[0] * shape[1]
+    index = raster_lookup(np.arange(size).reshape(shape), np.asarray(pixel_to_ego), x, y, fill=size)
+    index.flags.writeable = False  # shared by every sample
+    return index
+
+
+def bev_cell_centres(grid: BEVGrid, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Ego x (rows) and y (columns) of the cell centres of ``grid`` at ``stride``."""
+    h, w = grid.shape
+    cell = stride / grid.pixels_per_meter
+    xs = grid.x_min + (np.arange(h // stride) + 0.5) * cell
+    ys = grid.y_min + (np.arange(w // stride) + 0.5) * cell
+    return xs, ys

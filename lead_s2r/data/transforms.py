@@ -3,8 +3,9 @@
 :class:`SourceTransform` is a pure function of one decoded sample and the model's
 :class:`~lead_s2r.models.input_spec.InputSpec`: the native-rate
 future resampled to the model's grid, cameras laid out in the input image (:mod:`lead_s2r.data.camera_input`), LiDAR
-rasterised onto the BEV grid (:mod:`lead_s2r.data.lidar`), and the labels moved onto the model's grids
-(:mod:`lead_s2r.data.targets`); :func:`~lead_s2r.data.collate.collate` stacks them. A label a sample does not have
+rasterised onto the BEV grid (:mod:`lead_s2r.data.lidar`), and the labels moved onto the model's grids in LEAD's
+encoding (:mod:`lead_s2r.data.lead_labels`, :mod:`lead_s2r.data.lead_centernet`, :mod:`lead_s2r.data.radar`,
+:mod:`lead_s2r.data.route`); :func:`~lead_s2r.data.collate.collate` stacks them. A label a sample does not have
 is left out, and the loss masks it.
 
 Tensors are lean (the loader builds and stacks every byte on the CPU): the image uint8, the LiDAR raster uint8 hit
@@ -29,18 +30,18 @@ from lead_s2r.data.camera_layout import CameraLayout, label_on_layout
 from lead_s2r.data.collate import IGNORE_VALUE
 from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
 from lead_s2r.data.lead_centernet import lead_centernet_targets
-from lead_s2r.data.lead_labels import lead_bev_labels, lead_box_classes, radar_priority, traffic_light_classes
+from lead_s2r.data.lead_labels import (
+    bev_labels,
+    lead_bev_labels,
+    lead_box_classes,
+    radar_priority,
+    traffic_light_classes,
+)
 from lead_s2r.data.lead_origin import to_centre_origin
 from lead_s2r.data.lead_route import lead_route
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
-from lead_s2r.data.targets import (
-    MAX_RADAR_POINTS,
-    bev_labels,
-    centernet_targets,
-    nan_to_zero,
-    pad_points,
-    radar_targets,
-)
+from lead_s2r.data.radar import MAX_RADAR_POINTS, pad_points, radar_targets
+from lead_s2r.data.route import nan_to_zero
 from lead_s2r.errors import UserError
 from lead_s2r.geometry import resample
 from lead_s2r.models.input_spec import InputSpec
@@ -82,7 +83,7 @@ class SourceTransform:
             "route": True,
             "lidar": spec.lidar_raster,
             "radar": spec.radar,
-            "boxes": radar_targets or space in spec.box_classes or space in spec.lead_box_classes or self.lead_carla,
+            "boxes": radar_targets or space in spec.lead_box_classes or self.lead_carla,
             "bev_semantic": space in spec.bev_semantic_classes,
         }
         fields = [name for name, read in wanted.items() if read]
@@ -139,8 +140,6 @@ class SourceTransform:
         space = spec.space(self.source)
         if "bev_semantic" in sample and space in spec.bev_semantic_classes:
             out["bev_semantic"] = torch.from_numpy(self.bev_semantic(sample, lead))
-        if "boxes" in sample and space in spec.box_classes:
-            out.update(centernet_targets(sample["boxes"], spec.bev, spec.box_classes[space]))
         if "boxes" in sample and space in spec.lead_box_classes:
             out.update(self.lead_boxes(sample, spec.lead_box_classes[space], lead))
         if len(self.cameras) == 1:

@@ -274,7 +274,9 @@ def smoke_config(training: Training, out: Path, seed: int = 0) -> Path:
 
 def drop_carla(config: dict[str, Any]) -> None:
     """Take LEAD's synthetic data out of a LightningCLI config: the CARLA source, its supervision, its share of the
-    batch and a CARLA pre-training to start from."""
+    batch, a CARLA pre-training to start from and the network's CARLA heads (``use_carla_data``, as the full-scale
+    recipes without LEAD data build it)."""
+    config["model"]["model"]["init_args"]["config"]["use_carla_data"] = False
     config["data"]["train"].pop("carla", None)
     config["model"].get("supervise", {}).pop("carla", None)
     config["model"].pop("init_from", None)

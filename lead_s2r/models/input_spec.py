@@ -2,19 +2,12 @@
 
 The data side (``lead_s2r.data``) is configured by an :class:`InputSpec`, never by a model's own configuration: a
 model config produces one (:func:`input_spec`), so a model with other inputs (the ego-status MLP: no sensor, no
-label) says so plainly instead of posing as a TFv6 configuration.
+label) says so plainly instead of posing as a TransFuser configuration.
 """
 
 from dataclasses import dataclass, field
 
-from lead_s2r.models.config import (
-    CARLA_BEV,
-    NAVSIM_VERTICAL_FOV_DEG,
-    BEVGrid,
-    EgoMLPConfig,
-    TFv6Config,
-    TrajectoryGrid,
-)
+from lead_s2r.models.config import CARLA_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid, EgoMLPConfig, TrajectoryGrid
 from lead_s2r.models.lead_config import NAVSIM_BEV_SEMANTIC_CLASSES, NAVSIM_BOX_CLASSES, LeadConfig
 
 
@@ -31,7 +24,7 @@ class InputSpec:
         lidar_raster: the model reads the LiDAR BEV raster.
         radar: the model reads radar points; ``radar_sources`` also get radar detection targets.
         label_space: source -> label space of its perception labels (default: the source's own name).
-        bev_semantic_classes, box_classes, semantic_classes: per label space, the classes of each perception head.
+        bev_semantic_classes, semantic_classes: per label space, the classes of each perception head.
         depth_sources: label spaces with a depth head; ``max_depth`` decodes stored depth PNGs without a scale.
         num_route_points: route checkpoints per sample.
         lead_box_classes: per label space, the classes of a box head trained with LEAD's CenterNet encoding
@@ -51,7 +44,6 @@ class InputSpec:
     radar_sources: tuple[str, ...] = ()
     label_space: dict[str, str] = field(default_factory=dict)
     bev_semantic_classes: dict[str, int] = field(default_factory=dict)
-    box_classes: dict[str, int] = field(default_factory=dict)
     semantic_classes: dict[str, int] = field(default_factory=dict)
     depth_sources: tuple[str, ...] = ()
     max_depth: float = 50.0
@@ -69,30 +61,12 @@ class InputSpec:
         return self.label_space.get(source, source)
 
 
-def input_spec(config: TFv6Config | EgoMLPConfig | LeadConfig) -> InputSpec:
-    """The inputs a model built from ``config`` reads: every sensor and label of a TFv6-family config; the ego state
-    and its output grids only for the ego-status MLP; for LEAD's own network, :func:`lead_input_spec`."""
+def input_spec(config: EgoMLPConfig | LeadConfig) -> InputSpec:
+    """The inputs a model built from ``config`` reads: the ego state and its output grids only for the ego-status MLP;
+    for the TransFuser family (LEAD's network), :func:`lead_input_spec`."""
     if isinstance(config, EgoMLPConfig):
         return InputSpec(trajectory_grids=dict(config.trajectory_grids))
-    if isinstance(config, LeadConfig):
-        return lead_input_spec(config)
-    return InputSpec(
-        trajectory_grids=dict(config.trajectory_grids),
-        image_size=tuple(config.image_size),
-        vertical_fov_deg=config.vertical_fov_deg,
-        equal_tiles=config.use_tiles is not None or config.fov_fraction < 1.0,
-        bev=config.bev,
-        lidar_raster=config.bev_input == "raster",
-        radar=config.use_radar,
-        radar_sources=tuple(config.radar_sources),
-        label_space=dict(config.label_space),
-        bev_semantic_classes=dict(config.bev_semantic_classes),
-        box_classes=dict(config.box_classes),
-        semantic_classes=dict(config.semantic_classes),
-        depth_sources=tuple(config.depth_sources),
-        max_depth=config.max_depth,
-        num_route_points=config.num_route_points,
-    )
+    return lead_input_spec(config)
 
 
 def lead_grids(config: LeadConfig) -> dict[str, TrajectoryGrid]:

@@ -18,8 +18,7 @@ On a GPU the loader may leave two inputs raw, ``rgb_jpeg`` instead of ``rgb`` an
 ``lidar_bev``, which :mod:`lead_s2r.data.device_inputs` builds on the training device before the batch moves.
 """
 
-from collections.abc import Mapping
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import torch
 import torch.nn.functional as F
@@ -62,13 +61,6 @@ class Batch(TypedDict, total=False):
     brake: Tensor  # (B,) bool: the expert brakes (LEAD's target-speed label is then its 0 m/s class)
     # --- perception targets
     bev_semantic: Tensor  # (B, Hs, Ws) uint8 class ids over the BEV grid, IGNORE_CLASS = ignore (or signed, -1)
-    box_heatmap: Tensor  # (B, C, h, w) float CenterNet Gaussian heatmap on the head's grid (stride 4)
-    box_index: Tensor  # (B, M) int64 flat index of each box centre cell into h * w
-    box_valid: Tensor  # (B, M)
-    box_offset: Tensor  # (B, M, 2) sub-cell centre offset
-    box_size: Tensor  # (B, M, 2) length, width, metres
-    box_yaw: Tensor  # (B, M) radians
-    box_velocity: Tensor  # (B, M) m/s
     lead_box_heatmap: Tensor  # (B, C, h, w) LEAD's CenterNet encoding (lead_s2r.data.lead_centernet), -1 = no label
     lead_box_size: Tensor  # (B, 2, h, w) half length, half width in cells, at the weighted cells
     lead_box_offset: Tensor  # (B, 2, h, w) sub-cell centre offset along x, y
@@ -85,22 +77,7 @@ class Batch(TypedDict, total=False):
 
 #: Loss terms by group: the planner's outputs, and the perception heads' (``supervise:`` names these groups).
 PLANNING_TASKS = frozenset({"waypoints", "headings", "route", "target_speed"})
-PERCEPTION_TASKS = frozenset({"bev_semantic", "boxes", "lead_boxes", "depth", "semantic", "radar"})
-
-
-def target_point_range(info: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, float]]:
-    """``(low, high)`` for ``TFv6Config.target_point_low/high`` from a converted dataset's info.json.
-
-    Reads ``info["statistics"]["target_points"]["low"|"high"]`` ([x, y] each, e.g. 1st/99th percentiles).
-    """
-    try:
-        stats = info["statistics"]["target_points"]
-        low, high = stats["low"], stats["high"]
-    except (KeyError, TypeError) as err:
-        raise KeyError(f"info.json has no statistics.target_points.low/high ({err})") from None
-    if not all(h > lo for lo, h in zip(low, high, strict=True)):
-        raise ValueError(f"info.json statistics.target_points: high {high} must exceed low {low}")
-    return (float(low[0]), float(low[1])), (float(high[0]), float(high[1]))
+PERCEPTION_TASKS = frozenset({"bev_semantic", "lead_boxes", "depth", "semantic", "radar"})
 
 
 def on_image_grid(label: Tensor, size: tuple[int, int]) -> Tensor:

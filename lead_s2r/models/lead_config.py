@@ -23,6 +23,8 @@ LEAD.
 from dataclasses import asdict, dataclass, fields
 from typing import Any, get_args, get_type_hints
 
+import timm
+
 from lead_s2r.errors import UserError
 from lead_s2r.fields import describe, fits
 from lead_s2r.schema import TargetDataset
@@ -133,6 +135,14 @@ class LeadConfig:
     epochs: int | None = None  # LEAD's run length: CARLA 31, NAVSIM 61, WOD-E2E 20
 
     def __post_init__(self) -> None:
+        """Every field has its JSON type (a YAML recipe's null or string where a size goes is named here, not met as a
+        TypeError deep in a torch constructor), then LEAD's rules fill the derived ones."""
+        hints = get_type_hints(type(self))
+        for f in fields(self):
+            setattr(self, f.name, _typed(f.name, getattr(self, f.name), hints[f.name]))
+        for name in ("image_architecture", "lidar_architecture"):
+            if not timm.is_model(getattr(self, name)):
+                raise UserError(f"config: {name} {getattr(self, name)!r} is no timm architecture (timm.list_models())")
         target = self.target_dataset
         wod = self.is_wod
         defaults = {

@@ -10,16 +10,19 @@ raster, radar and target points when the network reads them, and the labels of i
 semantics and boxes of each source it has heads for (CARLA labels remapped to LEAD's 13 BEV and 8 box classes by
 :mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by :mod:`lead_s2r.data.lead_centernet`), and with
 CARLA data CARLA perspective semantics, depth and radar detection.
+
+This is the package's one TransFuser family: the paper's networks are builder functions below, one per variant with
+what differs in its docstring (:data:`VARIANTS`, as timm registers its models), each a preset of LEAD's switches.
 """
 
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
-from lead_s2r.models.backbone import CameraSelect
 from lead_s2r.models.config import TrajectoryGrid
 from lead_s2r.models.input_spec import lead_grids
 from lead_s2r.models.inputs import Batch
@@ -28,6 +31,23 @@ from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
 from lead_s2r.models.lead_frame import bev_map_from_lead, from_lead_outputs, to_lead_inputs
 from lead_s2r.models.lead_loss import SourceDataset, loss_weights, prefix, radar_feature_scale, visible_bev_pixels
 from lead_s2r.models.lead_tfv6 import LeadTFv6
+
+
+class CameraSelect(nn.Module):
+    """LEAD's ``used_cameras`` on a horizontally stitched CARLA mosaic: keep the used tiles, left to right. Applies to
+    any (..., H, W) image-aligned tensor, so perspective labels are cropped exactly as the image is."""
+
+    def __init__(self, tiles: int, use: tuple[int, ...] | None) -> None:
+        super().__init__()
+        if use is not None and any(not 0 <= t < tiles for t in use):
+            raise ValueError(f"used camera tiles {use} must index the {tiles} camera tiles")
+        self.tiles, self.use = tiles, use
+
+    def forward(self, image: Tensor) -> Tensor:
+        if self.use is None:
+            return image
+        width = image.shape[-1] // self.tiles
+        return torch.cat([image[..., t * width : (t + 1) * width] for t in self.use], dim=-1)
 
 
 class LeadDriver(nn.Module):
@@ -58,7 +78,7 @@ class LeadDriver(nn.Module):
             self.network = LeadTFv6(config, pretrained=pretrained)
         self.config = config
         tiles = config.mosaic_tiles
-        self.camera_select = CameraSelect(len(config.used_cameras), tiles, 1.0)  # also crops perspective labels
+        self.camera_select = CameraSelect(len(config.used_cameras), tiles)  # also crops perspective labels
         speeds = torch.tensor(TARGET_SPEED_CLASSES)
         self.register_buffer("target_speed_classes", speeds, persistent=False)  # the target-speed loss's bins
         visible = bev_map_from_lead(visible_bev_pixels(config)[None, None])[0, 0]
@@ -130,3 +150,51 @@ class LeadDriver(nn.Module):
             )
         batch = {**batch, "rgb": self.camera_select(batch["rgb"])}
         return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)), source)
+
+
+# --- variants: one builder per network of the paper, each a LeadConfig preset (LEAD's switches) plus overrides
+
+
+def tfv6(**overrides: Any) -> LeadDriver:
+    """TFv6, LEAD's CARLA leaderboard network: 3-camera mosaic + LiDAR raster + radar, target points (previous,
+    current, next) as planner tokens, route, waypoints (8 @ 4 Hz) and target speed, every CARLA perception head."""
+    return _build({"use_planning_decoder": True}, overrides)
+
+
+def ltfv6_navsim(**overrides: Any) -> LeadDriver:
+    """LTFv6 for NAVSIM: TFv6 without LiDAR (``LTF``: a fixed coordinate grid feeds the BEV branch) and without radar
+    or target points; 4 cameras at NAVSIM's vertical field of view, speed, acceleration and command tokens, waypoints
+    and headings (8 @ 2 Hz), NAVSIM's BEV semantics and vehicle boxes. ``use_carla_data=True`` adds LEAD's CARLA
+    heads (the sim-to-real network of LTFv6 + LEAD)."""
+    return _build(
+        {"use_navsim_data": True, "use_carla_data": False, "LTF": True, "use_planning_decoder": True}, overrides
+    )
+
+
+def ltfv6_wod(**overrides: Any) -> LeadDriver:
+    """LTFv6 for WOD-E2E (our extension of LEAD's rules): 3 front cameras, BEV x 0..64 m, no command token, 10
+    waypoints @ 2 Hz, no perception head of its own (``use_carla_data=True``: CARLA heads, for a CARLA pre-training)."""
+    switches = {"use_waymo_e2e_data": True, "use_carla_data": False, "LTF": True, "use_planning_decoder": True}
+    return _build(switches, overrides)
+
+
+def tfv5(**overrides: Any) -> LeadDriver:
+    """TFv5, the ablation: TFv6's backbone with LEAD's GRU planner (``use_tfv5_planning_decoder``), the current
+    target point initialising the GRUs instead of being a token; route and waypoints, no target speed."""
+    return _build({"use_planning_decoder": True, "use_tfv5_planning_decoder": True}, overrides)
+
+
+#: The variants by name, as timm registers its models.
+VARIANTS: dict[str, Callable[..., LeadDriver]] = {
+    "tfv6": tfv6,
+    "ltfv6_navsim": ltfv6_navsim,
+    "ltfv6_wod": ltfv6_wod,
+    "tfv5": tfv5,
+}
+
+
+def _build(switches: dict[str, Any], overrides: dict[str, Any]) -> LeadDriver:
+    """A randomly initialised driver of ``switches`` with ``overrides`` (LEAD's field names; ``pretrained`` goes to
+    the driver)."""
+    pretrained = bool(overrides.pop("pretrained", False))
+    return LeadDriver(LeadConfig.from_json({**switches, **overrides}), pretrained=pretrained)

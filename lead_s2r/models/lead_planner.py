@@ -31,6 +31,11 @@ def planning_transformer(config: LeadConfig) -> nn.TransformerDecoder:
     )
 
 
+def target_speed_head(dim: int) -> nn.Sequential:
+    """LEAD's target-speed classifier on one query (TFv6's and TFv5's planners alike): Linear, ReLU, Linear."""
+    return nn.Sequential(nn.Linear(dim, dim), nn.ReLU(inplace=True), nn.Linear(dim, len(TARGET_SPEED_CLASSES)))
+
+
 def status_token(encoder: nn.Module, value: Tensor, dim: int) -> Tensor:
     return encoder(value).reshape(-1, 1, dim)
 
@@ -43,6 +48,14 @@ class StatusContext(nn.Module):
         self.status_pos_embedding = nn.Parameter(torch.zeros(1, num_status_tokens, dim))
         self.dimension_adapter = nn.Conv2d(bev_channels, dim, kernel_size=1)
         nn.init.uniform_(self.status_pos_embedding)
+
+    def speed_tokens(self, data: dict[str, Tensor], config: LeadConfig) -> list[Tensor]:
+        """The first status token, speed / ``max_speed``, when the config has one (TFv6 and TFv5 alike)."""
+        if not config.use_velocity:
+            return []
+        like = self.dimension_adapter.weight
+        speed = data["speed"].reshape(-1, 1).to(like.device, like.dtype)
+        return [status_token(self.velocity_encoder, speed / config.max_speed, config.transfuser_token_dim)]
 
     def context(self, bev_features: Tensor, status: list[Tensor]) -> Tensor:
         if not status:
@@ -78,10 +91,7 @@ class PlanningContextEncoder(StatusContext):
     ) -> Tensor:
         c, d = self.config, self.config.transfuser_token_dim
         like = self.dimension_adapter.weight
-        status = []
-        if c.use_velocity:
-            speed = data["speed"].reshape(-1, 1).to(like.device, like.dtype)
-            status.append(status_token(self.velocity_encoder, speed / c.max_speed, d))
+        status = self.speed_tokens(data, c)
         if c.use_acceleration:
             acceleration = data["acceleration"].reshape(-1, 1).to(like.device, like.dtype)
             status.append(status_token(self.acceleration_encoder, acceleration / c.max_acceleration, d))
@@ -123,9 +133,7 @@ class PlanningDecoder(nn.Module):
             if c.use_navsim_data:
                 self.heading_decoder = nn.Linear(d, 1)
         if c.predict_target_speed:
-            self.target_speed_decoder = nn.Sequential(
-                nn.Linear(d, d), nn.ReLU(inplace=True), nn.Linear(d, len(TARGET_SPEED_CLASSES))
-            )
+            self.target_speed_decoder = target_speed_head(d)
         nn.init.uniform_(self.query)
 
     def forward(

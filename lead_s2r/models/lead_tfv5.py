@@ -8,8 +8,14 @@ queries. TFv5 always predicts route (10), waypoints and a target speed.
 import torch
 from torch import Tensor, nn
 
-from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
-from lead_s2r.models.lead_planner import StatusContext, expected_speed, planning_transformer, status_token
+from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_planner import (
+    StatusContext,
+    expected_speed,
+    planning_transformer,
+    status_token,
+    target_speed_head,
+)
 
 TFV5_COMMANDS = 6
 
@@ -27,10 +33,7 @@ class TFv5ContextEncoder(StatusContext):
     def forward(self, bev_features: Tensor, data: dict[str, Tensor]) -> Tensor:
         c, d = self.config, self.config.transfuser_token_dim
         like = self.dimension_adapter.weight
-        status = []
-        if c.use_velocity:
-            speed = data["speed"].reshape(-1, 1).to(like.device, like.dtype)
-            status.append(status_token(self.velocity_encoder, speed / c.max_speed, d))
+        status = self.speed_tokens(data, c)
         if c.use_discrete_command:
             status.append(status_token(self.command_encoder, data["command"].to(like.device, like.dtype), d))
         return self.context(bev_features, status)
@@ -50,9 +53,7 @@ class TFv5PlanningDecoder(nn.Module):
         self.route_decoder = nn.Sequential(nn.Linear(h, 2))
         self.wp_gru = nn.GRU(input_size=d, hidden_size=h, batch_first=True)
         self.wp_decoder = nn.Sequential(nn.Linear(h, 2))
-        self.target_speed_decoder = nn.Sequential(
-            nn.Linear(d, d), nn.ReLU(inplace=True), nn.Linear(d, len(TARGET_SPEED_CLASSES))
-        )
+        self.target_speed_decoder = target_speed_head(d)
         nn.init.uniform_(self.query)
 
     def forward(

@@ -4,8 +4,8 @@ Recipes under ``recipes/`` are plain LightningCLI YAML; every value can be overr
 (``--trainer.max_epochs=31``) and the resolved config is saved next to each run. jsonargparse's own mistakes (a
 missing config file, a value of the wrong type, a section such as ``data: 7`` that is no mapping), values no
 constructor can use and a config file that is not UTF-8 text become a :class:`UserError`, one line like every other
-verb's, that names the ``--config`` files; a damaged ``ckpt_path`` (on the command line or in a config file) is named
-before Lightning loads it (:mod:`lead_s2r.formats.torch_file`).
+verb's, that names the ``--config`` files; a damaged ``ckpt_path`` (on the command line or in a config file), or one
+of the removed network, is named before Lightning loads it (:mod:`lead_s2r.formats.torch_file`).
 
 A run's outputs share one root, ``trainer.default_root_dir`` (``runs/<family>/<name>/seed<k>`` in the recipes):
 checkpoints in ``<root>/checkpoints`` (a ``ModelCheckpoint`` without ``dirpath``; Lightning alone would bury them in
@@ -59,7 +59,7 @@ class DrivingCLI(LightningCLI):
         subcommand = self.config.get("subcommand")
         ckpt_path = subcommand and self.config[subcommand].get("ckpt_path")
         if ckpt_path and Path(ckpt_path).is_file():
-            torch_file.check_archive(Path(ckpt_path), zip_only=True)
+            torch_file.load(Path(ckpt_path), zip_only=True)  # damage, or the removed network, named in one line
 
     def before_instantiate_classes(self) -> None:
         if self.subcommand != "predict":

@@ -1,7 +1,7 @@
 """What :class:`~lead_s2r.training.module.DrivingModule` reads from its data module, declared.
 
 :class:`~lead_s2r.data.datamodule.DriveDataModule` provides all of it. A run on plain dataloaders (no data module, or
-one without these) trains too: with the model's own target-point range, no per-source batch-size log, no ADE/FDE
+one without these) trains too: with no per-source batch-size log, no ADE/FDE
 metrics made ahead of validation, and Lightning's estimate of the steps per epoch.
 """
 
@@ -12,10 +12,6 @@ from typing import Any, Protocol, runtime_checkable
 @runtime_checkable
 class TrainingData(Protocol):
     """The data module's side of the contract (methods only, so checking it evaluates nothing)."""
-
-    def target_point_range(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
-        """``(low, high)`` of the training folders' target points (``info.json`` statistics); None without any."""
-        ...
 
     def current_batch_sizes(self) -> dict[str, int]:
         """Per-rank batch size of each training source in the trainer's current epoch."""

@@ -30,10 +30,6 @@ def _target_speed(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Te
     return losses.target_speed_loss(pred, batch, model.target_speed_classes)  # a buffer: on the device, no copy
 
 
-def _boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.box_loss(pred, batch, model.config.box_yaw_bins)
-
-
 def _lead_boxes(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
     return losses.lead_box_loss(pred, batch, velocity=model.box_velocity_loss)
 
@@ -65,7 +61,6 @@ TASKS: dict[str, Task] = {
     "bev_semantic": Task(
         "bev_semantic", lambda pred, batch, model: losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
     ),
-    "boxes": Task("box_heatmap", _boxes),
     "lead_boxes": Task("lead_box_heatmap", _lead_boxes),
     "depth": Task("depth", _depth),
     "semantic": Task("semantic", _semantic),

@@ -96,43 +96,6 @@ def depth_loss(pred: Tensor, depth: Tensor) -> Tensor:
     return masked_mean((pred - depth).abs(), depth > 0)
 
 
-def focal_heatmap_loss(logits: Tensor, target: Tensor, alpha: float = 2.0, beta: float = 4.0) -> Tensor:
-    """CenterNet's penalty-reduced focal loss on a Gaussian heatmap, normalised by the number of peaks.
-
-    Negative targets mark cells without a label (a sample that has no boxes field): they add nothing.
-    """
-    prob = torch.sigmoid(logits.float()).clamp(1e-4, 1 - 1e-4)
-    peaks = target >= 1.0 - 1e-6
-    negatives = (target >= 0) & ~peaks
-    pos = -torch.log(prob) * (1 - prob) ** alpha * peaks
-    neg = -torch.log(1 - prob) * prob**alpha * (1 - target) ** beta * negatives
-    return (pos.sum() + neg.sum()) / peaks.sum().clamp(min=1)
-
-
-def box_loss(pred: dict[str, Tensor], batch: Batch, yaw_bins: int) -> Tensor:
-    """Heatmap focal loss + L1 offset/size/speed + yaw bin CE + yaw residual smooth-L1 at the box centres."""
-    heat = focal_heatmap_loss(pred["box_heatmap"], batch["box_heatmap"])
-    index, valid = batch["box_index"].long(), batch["box_valid"]
-
-    def at_centres(name: str) -> Tensor:
-        maps = pred[name].float().flatten(2)  # (B, C, h*w)
-        return maps.gather(2, index[:, None].expand(-1, maps.shape[1], -1)).transpose(1, 2)  # (B, M, C)
-
-    yaw = torch.remainder(batch["box_yaw"] + math.pi, 2 * math.pi)  # [0, 2 pi)
-    bin_width = 2 * math.pi / yaw_bins
-    yaw_class = (yaw / bin_width).long().clamp(max=yaw_bins - 1)
-    residual = yaw - (yaw_class.float() + 0.5) * bin_width
-    yaw_logits = at_centres("box_yaw_class")
-    terms = [
-        masked_mean((at_centres("box_offset") - batch["box_offset"]).abs(), valid),
-        masked_mean((at_centres("box_size") - batch["box_size"]).abs(), valid),
-        masked_mean(F.cross_entropy(yaw_logits.transpose(1, 2), yaw_class, reduction="none"), valid),
-        masked_mean(F.smooth_l1_loss(at_centres("box_yaw_residual")[..., 0], residual, reduction="none"), valid),
-        masked_mean((at_centres("box_velocity")[..., 0] - batch["box_velocity"]).abs(), valid),
-    ]
-    return heat + sum(terms)
-
-
 def lead_box_loss(pred: dict[str, Tensor], batch: Batch, velocity: bool) -> Tensor:
     """LEAD's CenterNet terms (:func:`~lead_s2r.models.lead_loss.center_net_losses`) on LEAD-encoded targets
     (``lead_s2r.data.lead_centernet``), summed: they all weigh the same in LEAD's table. The speed term only with

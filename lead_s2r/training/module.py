@@ -44,7 +44,7 @@ INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
 
 def model_spec(model: nn.Module) -> dict[str, Any] | None:
     """``{"class_path", "init_args": {"config"}}`` that rebuilds ``model``, in JSON types (a ``weights_only`` load
-    reads them); None for a network not built from one dataclass ``config`` argument, like the TFv6 family's."""
+    reads them); None for a network not built from one dataclass ``config`` argument."""
     config = getattr(model, "config", None)
     if not is_dataclass(config) or "config" not in inspect.signature(type(model)).parameters:
         return None
@@ -56,7 +56,7 @@ def model_spec(model: nn.Module) -> dict[str, Any] | None:
 
 
 class DrivingModule(L.LightningModule):
-    """Trains any model with the TFv6 interface (``tasks(source)``, ``grid(source)``, ``forward(batch, source,
+    """Trains any model with the driving interface (``tasks(source)``, ``grid(source)``, ``forward(batch, source,
     tasks)``) on ``{source: batch}`` inputs.
 
     A planning term is the mean over the samples of every source that supervises it, so a source's influence grows
@@ -66,7 +66,8 @@ class DrivingModule(L.LightningModule):
     its whole table, channels-last weights, and LEAD's optimizer and schedule from :mod:`lead_s2r.models.lead_loss`.
 
     Args:
-        model: the network, e.g. ``TFv6(ltfv6_config())`` or ``EgoStatusMLP()``.
+        model: the network, e.g. ``LeadDriver(LeadConfig(use_navsim_data=True, LTF=True, use_planning_decoder=True))``
+            or ``EgoStatusMLP()``.
         supervise: per source, task groups ("planning", "perception") or task names it supervises; default
             sim-to-real (CARLA perception only, NAVSIM planning + perception, WOD planning).
         loss_weights: per-task weights over :data:`DEFAULT_LOSS_WEIGHTS` (a LEAD network's: LEAD's normalised
@@ -143,35 +144,10 @@ class DrivingModule(L.LightningModule):
         return datamodule if isinstance(datamodule, TrainingData) else None
 
     def setup(self, stage: str) -> None:
-        """At the start of a fit, normalise target points by the training data's statistics (and put a LEAD network's
-        weights in LEAD's channels-last layout).
-
-        Lightning restores a checkpoint after ``setup``, so a resumed fit, validation and prediction keep the range
-        the weights were trained with (it is saved in the state dict), whatever data the run is given.
-        """
-        if stage == "fit":
-            self._resolve_target_point_range()
-            if isinstance(self.model, LeadDriver):
-                training_layout(self.model)  # LEAD trains channels-last; prediction keeps the loaded layout
-
-    def _resolve_target_point_range(self) -> None:
-        model = self.model
-        normalisation = getattr(model.config, "target_point_normalisation", "fixed")  # LEAD's network: its constants
-        if not getattr(model, "reads_target_points", False) or normalisation != "data":
-            return
-        if self.data is None:  # plain dataloaders: no converted folders to read statistics from
-            return
-        resolved = self.data.target_point_range()
-        if resolved is None:
-            rank_zero_warn(
-                "target_point_normalisation='data', but no training folder has statistics.target_points in its "
-                f"info.json (its samples have no target points, or convert predates them); target points keep the "
-                f"range {model.target_point_range}"
-            )
-            return
-        model.set_target_point_range(*resolved)
-        (x0, y0), (x1, y1) = resolved
-        rank_zero_info(f"target points normalised over x [{x0:.1f}, {x1:.1f}] m, y [{y0:.1f}, {y1:.1f}] m")
+        """At the start of a fit, put a LEAD network's weights in LEAD's channels-last layout (prediction keeps the
+        loaded layout)."""
+        if stage == "fit" and isinstance(self.model, LeadDriver):
+            training_layout(self.model)
 
     # --- losses
     def compute_losses(self, batch: Mapping[str, Batch]) -> tuple[Tensor | None, dict[str, tuple[Tensor, int]]]:
