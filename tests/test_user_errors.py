@@ -335,8 +335,8 @@ def test_init_from_matching_no_tensor_is_refused_not_trained_from_random_weights
     other = tmp_path / "other.ckpt"
     torch.save({"state_dict": {"encoder.weight": torch.zeros(3), "encoder.bias": torch.zeros(3)}}, other)
     line = user_error(["fit", "--config", str(config), f"--model.init_from={other}"], capsys)
-    assert f"init_from: {other}: no tensor name matches the model" in line and "['encoder.']" in line
-    assert "'backbone.'" in line and "'planner.'" in line  # TFv6's own names: the prefixes the file should have
+    assert f"init_from: {other}: no tensor name matches the model" in line and "['network.encoder.']" in line
+    assert "'network.backbone.'" in line and "'network.planning_decoder.'" in line  # the names the file should have
     line = user_error(["fit", "--config", str(config), f"--model.init_from={tmp_path / 'gone.ckpt'}"], capsys)
     assert f"init_from: no checkpoint at {tmp_path / 'gone.ckpt'}" in line
     assert not (tmp_path / "run").exists()

@@ -120,7 +120,8 @@ def load_matching(model: nn.Module, path: str | Path) -> LoadReport:
 def no_match_message(path: str | Path, source: dict[str, torch.Tensor], target: dict[str, torch.Tensor]) -> str:
     """Why ``init_from`` would start from random weights: the names (or shapes) of the file's tensors and the
     model's, by their first component; the usual cause is a checkpoint of another model or a wrapper's prefix."""
-    theirs, ours = (sorted({key.split(".")[0] + "." for key in keys}) for keys in (source, target))
+    depth = 2 if len({key.split(".")[0] for key in (*source, *target)}) == 1 else 1  # a wrapper's shared first part
+    theirs, ours = (sorted({".".join(key.split(".")[:depth]) + "." for key in keys}) for keys in (source, target))
     if set(source) & set(target):
         return f"init_from: {path}: no tensor matches the model's shape (another model size?); model prefixes {ours}"
     shown = theirs[:8] + ["..."] * (len(theirs) > 8)
