@@ -455,7 +455,7 @@ def test_a_model_without_cameras_is_refused(tmp_path: Path) -> None:
     arguments = {"model": {"class_path": "lead_s2r.models.ego_mlp.EgoStatusMLP", "init_args": {}}}
     module = instantiate_module(DrivingModule, {**arguments, "init_from": None, "compile": False})
     torch.save({"hyper_parameters": arguments, "state_dict": module.state_dict()}, tmp_path / "ego_mlp.ckpt")
-    with pytest.raises(UserError, match=r"EgoStatusMLP is not a TFv6-family model .* from AlpaSim's cameras"):
+    with pytest.raises(UserError, match=r"EgoStatusMLP is not a TransFuser-family model .* from AlpaSim's cameras"):
         load_served_model(tmp_path / "ego_mlp.ckpt", None, "model*.pth", "cpu")
 
 

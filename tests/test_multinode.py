@@ -149,7 +149,7 @@ def test_two_nodes_train_like_the_schedule_says_and_validate_like_one(data, tmp_
     single = json.loads((one / "rank0.json").read_text())
     assert sorted(single["val_keys"]) == sorted(ranks[0]["val_keys"] + ranks[1]["val_keys"])
     expected = {name: value for name, value in single["metrics"].items() if name.startswith(("val/", "score/"))}
-    assert {"val/navsim/ade", "score/wod_e2e/rfs"} <= set(expected)
+    assert "val/navsim/ade" in expected and any(name.startswith("score/navsim/") for name in expected)
     for rank in ranks:
         logged = {name: value for name, value in rank["metrics"].items() if name.startswith(("val/", "score/"))}
         assert logged.keys() == expected.keys()
