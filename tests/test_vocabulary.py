@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+import shapely
 import torch
 
 from lead_s2r.cli import main
@@ -19,6 +20,10 @@ from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabSco
 from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
+from lead_s2r.scoring.pdm.collisions import enclosing_radius, find_hits
+from lead_s2r.scoring.pdm.footprint import box_polygons
+from lead_s2r.scoring.pdm.map_flags import BoundsGrid, DrivableMap
+from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
@@ -104,6 +109,79 @@ def test_vocabulary_wide_progress_is_gtrs_normalisation(converted: Path, vocabul
         alone = score_proposals(scene, vocabulary[v : v + 1], 0.1, reference, metric, human_filter=False)
         for name, values in alone.items():
             np.testing.assert_array_equal(unfiltered[name][v : v + 1], values, err_msg=f"{name}, entry {v}")
+
+
+def first_scene(converted: Path):  # noqa: ANN201 (a PDMScene)
+    return scene_from_sample(next(iter(read_samples(converted, fields=("scoring", "boxes", "agents_future")))))
+
+
+def test_bounds_grid_lists_every_box_holding_a_point() -> None:
+    """Points on box edges and corners, on cell borders, a rounding step either side of them and outside the grid:
+    the grid's candidates hold every box that holds the point (it only prunes); boxes without bounds hold none."""
+    rng = np.random.default_rng(3)
+    low = rng.uniform(-40.0, 40.0, (30, 2))
+    boxes = np.concatenate([low, low + rng.uniform(0.0, 25.0, (30, 2))], axis=1)
+    boxes[7] = np.nan
+    grid = BoundsGrid.build(boxes, 2.7)
+    finite = boxes[np.isfinite(boxes).all(axis=1)]
+    corners = np.concatenate([finite[:, [0, 1]], finite[:, [2, 3]], finite[:, [0, 3]], finite[:, [2, 1]]])
+    borders = grid.origin + grid.cell * np.stack([np.arange(40), np.arange(40)[::-1]], axis=1)
+    exact = np.concatenate([corners, borders, (finite[:, :2] + finite[:, 2:]) / 2, rng.uniform(-70, 90, (500, 2))])
+    points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
+    point, box = grid.candidates(points)
+    found = set(zip(point.tolist(), box.tolist(), strict=True))
+    x, y = points[:, None, 0], points[:, None, 1]
+    holds = (x >= boxes[:, 0]) & (x <= boxes[:, 2]) & (y >= boxes[:, 1]) & (y <= boxes[:, 3])
+    truth = set(zip(*(index.tolist() for index in np.nonzero(holds)), strict=True))
+    assert truth <= found and 7 not in box
+    assert len(truth) > 100 and len(found) < 4 * len(truth)
+
+
+def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> None:
+    """Ego points on the map polygons' vertices and edges (outside: the test is strict), a rounding step either
+    side, and each at the edge of its box's reach: the located (point, polygon) pairs are ``contains_xy`` over
+    every polygon, so the grid decides nothing a polygon test would decide differently."""
+    scene = first_scene(converted)
+    drivable_map = DrivableMap.from_scene(scene)
+    rings = shapely.get_coordinates(shapely.get_exterior_ring(drivable_map.polygons))
+    on_edges = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2])
+    nudged = np.concatenate([on_edges, np.nextafter(on_edges, np.inf), np.nextafter(on_edges, -np.inf)])
+    # each point a corner of its ego box (at the enclosing radius from the centre), the centre straight across a
+    # bounding-box side from it or in a random direction
+    angles = [0.0, np.pi / 2, np.pi, -np.pi / 2, *np.random.default_rng(4).uniform(-np.pi, np.pi, 2)]
+    points = np.concatenate([nudged] * len(angles))
+    angle = np.repeat(angles, len(nudged))
+    reach = enclosing_radius(scene.vehicle.length, scene.vehicle.width)
+    centers = points - reach * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    box, point, polygon = drivable_map.locate(points[:, None], centers)
+    assert (point == 0).all()
+    inside = np.stack([shapely.contains_xy(shape, points[:, 0], points[:, 1]) for shape in drivable_map.polygons])
+    expected = set(zip(*(index.tolist() for index in np.nonzero(inside.T)), strict=True))
+    assert set(zip(box.tolist(), polygon.tolist(), strict=True)) == expected
+    assert 0 < len({b for b, _ in expected}) < len(points)
+
+
+def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> None:
+    """Boxes the size of each agent moved along its edges and diagonal: sharing an edge, touching corner to corner
+    (centroids exactly at the pruning bound, the sum of the enclosing radii), a rounding step apart or overlapping.
+    NC/TTC's hits are GEOS ``intersects`` against every box of the step."""
+    observation = log_observation(first_scene(converted))
+    step = 10
+    geoms = np.flatnonzero(observation.objects[observation.step_offsets[step] : observation.step_offsets[step + 1]]
+                           >= 0) + observation.step_offsets[step]  # fmt: skip
+    corners = observation.corners[geoms]
+    shifts = [corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 1], corners[:, 2] - corners[:, 0]]
+    moved = [corners + shift[:, None] * scale for shift in shifts for scale in (1.0, 1.0 - 1e-12, 1.0 + 1e-12)]
+    coords = np.concatenate([np.concatenate([box, box.mean(axis=1, keepdims=True)], axis=1) for box in moved])
+    radius = float(observation.radius[geoms].max())
+    queries = np.arange(len(coords))
+    hits = find_hits(observation, coords, np.full(len(coords), step), queries, queries, radius)
+    polygons = box_polygons(coords)
+    truth = {
+        (q, int(g)) for q in queries for g in geoms if shapely.intersects(polygons[q], observation.polygons[g])
+    }
+    assert set(zip(hits.row.tolist(), hits.geom.tolist(), strict=True)) == truth
+    assert len(truth) >= len(coords) // 3
 
 
 def vocab_score(vocab: Path, data: Path, out: Path, *options: str) -> dict[str, bytes]:

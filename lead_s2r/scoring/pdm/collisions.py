@@ -68,15 +68,24 @@ def candidate_pairs(
     """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``(Q, 2)`` and enclosing
     radius ``radius`` against the geometries of observation step ``obs_steps (Q,)``. Every intersecting pair is
     among them, so the exact test runs on few pairs and no STRtree is needed."""
+    valid = observation.step_geoms >= 0
+    safe = np.maximum(observation.step_geoms, 0)
+    # per step and slot: centroid (NaN pads, which no comparison passes) and the squared reach of a hit
+    step_x = np.where(valid, observation.centroids[safe, 0], np.nan)
+    step_y = np.where(valid, observation.centroids[safe, 1], np.nan)
+    step_reach = observation.radius[safe] + (radius + CIRCLE_SLACK)
+    step_reach *= step_reach
     queries, geoms = [], []
     for start in range(0, len(centers), CHUNK):
-        step_geoms = observation.step_geoms[obs_steps[start : start + CHUNK]]  # (C, Gmax)
-        safe = np.maximum(step_geoms, 0)
-        offset = observation.centroids[safe] - centers[start : start + CHUNK, None]
-        reach = radius + observation.radius[safe] + CIRCLE_SLACK
-        query, slot = np.nonzero((step_geoms >= 0) & (np.einsum("cgi,cgi->cg", offset, offset) <= reach * reach))
+        steps = obs_steps[start : start + CHUNK]
+        dx = step_x[steps] - centers[start : start + CHUNK, :1]
+        dy = step_y[steps] - centers[start : start + CHUNK, 1:]
+        dx *= dx
+        dy *= dy
+        dx += dy
+        query, slot = np.nonzero(dx <= step_reach[steps])
         queries.append(query + start)
-        geoms.append(step_geoms[query, slot])
+        geoms.append(observation.step_geoms[steps[query], slot])
     if not queries:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return np.concatenate(queries), np.concatenate(geoms)

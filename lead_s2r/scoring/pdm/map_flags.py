@@ -1,6 +1,9 @@
 """Where the ego is on the map, per proposal and step: NAVSIM's ``PDMScorer._calculate_ego_area`` and
-``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, one STRtree query (box centres against bounding
-boxes grown by the box's reach) picks candidate polygons and prepared ``shapely.contains_xy`` decides.
+``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, a uniform grid over the polygons' bounding boxes
+grown by the box's reach (:class:`BoundsGrid`, numpy only: no point geometry is built per box) picks candidate
+polygons for each box centre, the polygon's bounding box narrows them point by point, and prepared
+``shapely.contains_xy`` decides. The grid only prunes: every polygon whose grown box holds a centre is among its
+candidates, so the answer is ``contains_xy``'s for every point.
 
 The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
 CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
@@ -18,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from shapely import STRtree
 
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm.footprint import Corner
@@ -41,11 +43,63 @@ IS_DRIVABLE = _kind_table(DRIVABLE_KINDS)
 IS_LANE = _kind_table(LANE_KINDS)
 #: Slack [m] on the ego box's enclosing radius when picking candidate polygons.
 REACH_SLACK = 1e-6
+#: Grid cells per axis at most (a map's extent over its cell size; bounds the index for huge maps).
+MAX_GRID_CELLS = 256
+
+
+@dataclass
+class BoundsGrid:
+    """Which boxes ``(K, 4)`` (xmin, ymin, xmax, ymax) reach each cell of a uniform grid, as CSR (``starts``,
+    ``members``): a point's cell lists every box that holds it (and a few that do not). A point's cell is
+    ``floor((x - origin) / cell)`` computed the same way as a box's cell range, and that is monotone in x under
+    rounding, so a box's range always covers the cells of the points it holds."""
+
+    origin: np.ndarray  # (2,)
+    cell: float
+    shape: tuple[int, int]
+    starts: np.ndarray  # (cells + 1,)
+    members: np.ndarray  # (sum of cells per box,) box index
+
+    @classmethod
+    def build(cls, boxes: np.ndarray, cell: float) -> "BoundsGrid":
+        """The grid of cell size ``cell`` (or coarser, :data:`MAX_GRID_CELLS`) over boxes ``(K, 4)``; boxes with
+        non-finite bounds (empty polygons) hold no point and are left out."""
+        kept = np.flatnonzero(np.isfinite(boxes).all(axis=1))
+        boxes = boxes[kept]
+        origin = boxes[:, :2].min(axis=0) if len(boxes) else np.zeros(2)
+        top = boxes[:, 2:].max(axis=0) if len(boxes) else np.zeros(2)
+        cell = max(cell, float((top - origin).max()) / MAX_GRID_CELLS)
+        shape = tuple(int(n) + 1 for n in cls._cells(origin, cell, top))
+        low, high = cls._cells(origin, cell, boxes[:, :2]), cls._cells(origin, cell, boxes[:, 2:])
+        cells = [
+            (i * shape[1] + np.arange(y0, y1 + 1)) for (x0, y0), (x1, y1) in zip(low, high, strict=True)
+            for i in range(x0, x1 + 1)
+        ]  # fmt: skip
+        spans = (high - low + 1).prod(axis=1)
+        flat = np.concatenate(cells) if cells else np.zeros(0, np.int64)
+        order = np.argsort(flat, kind="stable")
+        starts = np.searchsorted(flat[order], np.arange(shape[0] * shape[1] + 1))
+        return cls(origin, cell, shape, starts, np.repeat(kept, spans)[order])
+
+    @staticmethod
+    def _cells(origin: np.ndarray, cell: float, xy: np.ndarray) -> np.ndarray:
+        return np.floor((xy - origin) / cell).astype(np.int64)
+
+    def candidates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, box)`` pairs for points ``(B, 2)``: a superset of the boxes that hold each point (none for
+        points outside the grid, which lie outside every box)."""
+        cells = self._cells(self.origin, self.cell, xy)
+        inside = np.flatnonzero(((cells >= 0) & (cells < self.shape)).all(axis=1))
+        flat = cells[inside, 0] * self.shape[1] + cells[inside, 1]
+        first, counts = self.starts[flat], self.starts[flat + 1] - self.starts[flat]
+        point = np.repeat(inside, counts)
+        within = np.arange(len(point)) - np.repeat(np.cumsum(counts) - counts, counts)
+        return point, self.members[np.repeat(first, counts) + within]
 
 
 @dataclass
 class DrivableMap:
-    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids and kinds, and an STRtree
+    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids and kinds, and a grid
     over their bounding boxes grown by ``reach``: a box centre finds every polygon that a point of the box within
     ``reach`` of it can lie in, without building the box's polygon."""
 
@@ -53,7 +107,7 @@ class DrivableMap:
     ids: np.ndarray  # (K,) int64
     kinds: np.ndarray  # (K,) MapKind codes
     reach: float
-    tree: STRtree
+    grid: BoundsGrid
     bounds: np.ndarray  # (K, 4) xmin, ymin, xmax, ymax
 
     @classmethod
@@ -72,14 +126,14 @@ class DrivableMap:
         ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
         reach = float(np.hypot(scene.vehicle.length / 2, scene.vehicle.width / 2)) + REACH_SLACK
         bounds = shapely.bounds(polygons)
-        grown = shapely.box(bounds[:, 0] - reach, bounds[:, 1] - reach, bounds[:, 2] + reach, bounds[:, 3] + reach)
-        return cls(polygons, ids, kinds, reach, STRtree(grown), bounds)
+        grown = np.concatenate([bounds[:, :2] - reach, bounds[:, 2:] + reach], axis=1).reshape(-1, 4)
+        return cls(polygons, ids, kinds, reach, BoundsGrid.build(grown, 2.0 * reach), bounds)
 
     def locate(self, points: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon; every point of row b
-        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grown-box query to points inside
-        the polygon's bounding box, one ``(pairs, P)`` comparison per coordinate."""
-        box, polygon = self.tree.query(shapely.points(centers))
+        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grid's to points inside the
+        polygon's bounding box, one ``(pairs, P)`` comparison per coordinate."""
+        box, polygon = self.grid.candidates(centers)
         bounds = self.bounds[polygon]
         x, y = points[box, :, 0], points[box, :, 1]
         near = (x >= bounds[:, :1]) & (x <= bounds[:, 2:3]) & (y >= bounds[:, 1:2]) & (y <= bounds[:, 3:])
