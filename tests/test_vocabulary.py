@@ -26,6 +26,7 @@ from lead_s2r.scoring.pdm.map_flags import BoundsGrid, DrivableMap
 from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
+from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
 from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures
 from lead_s2r.shards import read_samples
@@ -111,7 +112,7 @@ def test_vocabulary_wide_progress_is_gtrs_normalisation(converted: Path, vocabul
             np.testing.assert_array_equal(unfiltered[name][v : v + 1], values, err_msg=f"{name}, entry {v}")
 
 
-def first_scene(converted: Path):  # noqa: ANN201 (a PDMScene)
+def first_scene(converted: Path) -> PDMScene:
     return scene_from_sample(next(iter(read_samples(converted, fields=("scoring", "boxes", "agents_future")))))
 
 
@@ -177,9 +178,7 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     queries = np.arange(len(coords))
     hits = find_hits(observation, coords, np.full(len(coords), step), queries, queries, radius)
     polygons = box_polygons(coords)
-    truth = {
-        (q, int(g)) for q in queries for g in geoms if shapely.intersects(polygons[q], observation.polygons[g])
-    }
+    truth = {(q, int(g)) for q in queries for g in geoms if shapely.intersects(polygons[q], observation.polygons[g])}
     assert set(zip(hits.row.tolist(), hits.geom.tolist(), strict=True)) == truth
     assert len(truth) >= len(coords) // 3
 
