@@ -20,7 +20,7 @@ from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabSco
 from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
-from lead_s2r.scoring.pdm.collisions import enclosing_radius, find_hits
+from lead_s2r.scoring.pdm.collisions import find_hits
 from lead_s2r.scoring.pdm.footprint import box_polygons
 from lead_s2r.scoring.pdm.map_flags import BoundsGrid, DrivableMap
 from lead_s2r.scoring.pdm.observation import log_observation
@@ -139,22 +139,16 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
 
 
 def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> None:
-    """Ego points on the map polygons' vertices and edges (outside: the test is strict), a rounding step either
-    side, and each at the edge of its box's reach: the located (point, polygon) pairs are ``contains_xy`` over
-    every polygon, so the grid decides nothing a polygon test would decide differently."""
-    scene = first_scene(converted)
-    drivable_map = DrivableMap.from_scene(scene)
+    """Ego points on the map polygons' vertices and edges (outside: the test is strict), on the grid's cell borders
+    and a rounding step either side: the located (point, polygon) pairs are ``contains_xy`` over every polygon, so
+    the grid decides nothing a polygon test would decide differently."""
+    drivable_map = DrivableMap.from_scene(first_scene(converted))
     rings = shapely.get_coordinates(shapely.get_exterior_ring(drivable_map.polygons))
-    on_edges = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2])
-    nudged = np.concatenate([on_edges, np.nextafter(on_edges, np.inf), np.nextafter(on_edges, -np.inf)])
-    # each point a corner of its ego box (at the enclosing radius from the centre), the centre straight across a
-    # bounding-box side from it or in a random direction
-    angles = [0.0, np.pi / 2, np.pi, -np.pi / 2, *np.random.default_rng(4).uniform(-np.pi, np.pi, 2)]
-    points = np.concatenate([nudged] * len(angles))
-    angle = np.repeat(angles, len(nudged))
-    reach = enclosing_radius(scene.vehicle.length, scene.vehicle.width)
-    centers = points - reach * np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    box, point, polygon = drivable_map.locate(points[:, None], centers)
+    grid = drivable_map.grid
+    borders = grid.origin + grid.cell * np.stack(np.meshgrid(np.arange(grid.shape[0]), np.arange(9)), -1).reshape(-1, 2)
+    exact = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2, borders])
+    points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
+    box, point, polygon = drivable_map.locate(points[:, None])
     assert (point == 0).all()
     inside = np.stack([shapely.contains_xy(shape, points[:, 0], points[:, 1]) for shape in drivable_map.polygons])
     expected = set(zip(*(index.tolist() for index in np.nonzero(inside.T)), strict=True))

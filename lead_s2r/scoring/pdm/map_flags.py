@@ -1,9 +1,9 @@
 """Where the ego is on the map, per proposal and step: NAVSIM's ``PDMScorer._calculate_ego_area`` and
 ``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, a uniform grid over the polygons' bounding boxes
-grown by the box's reach (:class:`BoundsGrid`, numpy only: no point geometry is built per box) picks candidate
-polygons for each box centre, the polygon's bounding box narrows them point by point, and prepared
-``shapely.contains_xy`` decides. The grid only prunes: every polygon whose grown box holds a centre is among its
-candidates, so the answer is ``contains_xy``'s for every point.
+(:class:`BoundsGrid`, numpy only: no point geometry is built) picks candidate polygons for every point, the
+polygon's bounding box narrows them and prepared ``shapely.contains_xy`` decides. The grid and the bounding box only
+prune: every polygon that holds a point is among its candidates, so the answer is ``contains_xy``'s for every
+point.
 
 The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
 CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
@@ -41,8 +41,8 @@ def _kind_table(kinds: tuple[MapKind, ...]) -> np.ndarray:
 
 IS_DRIVABLE = _kind_table(DRIVABLE_KINDS)
 IS_LANE = _kind_table(LANE_KINDS)
-#: Slack [m] on the ego box's enclosing radius when picking candidate polygons.
-REACH_SLACK = 1e-6
+#: [m] side of a grid cell: about a lane's width, so most cells list one or two polygons per layer.
+GRID_CELL_M = 2.0
 #: Grid cells per axis at most (a map's extent over its cell size; bounds the index for huge maps).
 MAX_GRID_CELLS = 256
 
@@ -71,15 +71,15 @@ class BoundsGrid:
         cell = max(cell, float((top - origin).max()) / MAX_GRID_CELLS)
         shape = tuple(int(n) + 1 for n in cls._cells(origin, cell, top))
         low, high = cls._cells(origin, cell, boxes[:, :2]), cls._cells(origin, cell, boxes[:, 2:])
-        cells = [
-            (i * shape[1] + np.arange(y0, y1 + 1)) for (x0, y0), (x1, y1) in zip(low, high, strict=True)
-            for i in range(x0, x1 + 1)
-        ]  # fmt: skip
-        spans = (high - low + 1).prod(axis=1)
-        flat = np.concatenate(cells) if cells else np.zeros(0, np.int64)
+        spans = high - low + 1
+        box_of = np.repeat(np.arange(len(boxes)), spans.prod(axis=1))
+        first = np.cumsum(spans.prod(axis=1)) - spans.prod(axis=1)
+        local = np.arange(len(box_of)) - first[box_of]
+        column = low[box_of, 0] + local // spans[box_of, 1]
+        flat = column * shape[1] + low[box_of, 1] + local % spans[box_of, 1]
         order = np.argsort(flat, kind="stable")
         starts = np.searchsorted(flat[order], np.arange(shape[0] * shape[1] + 1))
-        return cls(origin, cell, shape, starts, np.repeat(kept, spans)[order])
+        return cls(origin, cell, shape, starts, kept[box_of[order]])
 
     @staticmethod
     def _cells(origin: np.ndarray, cell: float, xy: np.ndarray) -> np.ndarray:
@@ -99,14 +99,12 @@ class BoundsGrid:
 
 @dataclass
 class DrivableMap:
-    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids and kinds, and a grid
-    over their bounding boxes grown by ``reach``: a box centre finds every polygon that a point of the box within
-    ``reach`` of it can lie in, without building the box's polygon."""
+    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids, kinds and bounding
+    boxes, and a grid over those boxes: a point finds every polygon it can lie in without building its geometry."""
 
     polygons: np.ndarray  # (K,) shapely Polygons
     ids: np.ndarray  # (K,) int64
     kinds: np.ndarray  # (K,) MapKind codes
-    reach: float
     grid: BoundsGrid
     bounds: np.ndarray  # (K, 4) xmin, ymin, xmax, ymax
 
@@ -124,23 +122,21 @@ class DrivableMap:
         polygons = shapely.polygons(rings[keep])
         shapely.prepare(polygons)
         ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
-        reach = float(np.hypot(scene.vehicle.length / 2, scene.vehicle.width / 2)) + REACH_SLACK
-        bounds = shapely.bounds(polygons)
-        grown = np.concatenate([bounds[:, :2] - reach, bounds[:, 2:] + reach], axis=1).reshape(-1, 4)
-        return cls(polygons, ids, kinds, reach, BoundsGrid.build(grown, 2.0 * reach), bounds)
+        bounds = shapely.bounds(polygons).reshape(-1, 4)
+        return cls(polygons, ids, kinds, BoundsGrid.build(bounds, GRID_CELL_M), bounds)
 
-    def locate(self, points: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon; every point of row b
-        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grid's to points inside the
-        polygon's bounding box, one ``(pairs, P)`` comparison per coordinate."""
-        box, polygon = self.grid.candidates(centers)
+    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon: the grid's candidates,
+        narrowed to polygons whose bounding box holds the point, decided by ``contains_xy``."""
+        flat = points.reshape(-1, 2)
+        index, polygon = self.grid.candidates(flat)
+        x, y = flat[index, 0], flat[index, 1]
         bounds = self.bounds[polygon]
-        x, y = points[box, :, 0], points[box, :, 1]
-        near = (x >= bounds[:, :1]) & (x <= bounds[:, 2:3]) & (y >= bounds[:, 1:2]) & (y <= bounds[:, 3:])
-        pair, point = np.nonzero(near)
-        box, polygon = box[pair], polygon[pair]
-        inside = shapely.contains_xy(self.polygons[polygon], x[pair, point], y[pair, point])
-        return box[inside], point[inside], polygon[inside]
+        near = np.flatnonzero((x >= bounds[:, 0]) & (x <= bounds[:, 2]) & (y >= bounds[:, 1]) & (y <= bounds[:, 3]))
+        index, polygon = index[near], polygon[near]
+        inside = shapely.contains_xy(self.polygons[polygon], x[near], y[near])
+        box, point = np.divmod(index[inside], points.shape[1])
+        return box, point, polygon[inside]
 
 
 @dataclass
@@ -165,7 +161,7 @@ def ego_areas(
     num_boxes = n_rows * n_steps
     points = np.concatenate([coords.reshape(num_boxes, -1, 2), rear_axles.reshape(num_boxes, 1, 2)], axis=1)
     rear_axle = points.shape[1] - 1
-    box, point, polygon = drivable_map.locate(points, points[:, Corner.CENTER])
+    box, point, polygon = drivable_map.locate(points)
     kind = drivable_map.kinds[polygon]
     is_corner = point < NUM_CORNERS
 
