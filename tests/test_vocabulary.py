@@ -170,7 +170,8 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     coords = np.concatenate([np.concatenate([box, box.mean(axis=1, keepdims=True)], axis=1) for box in moved])
     radius = float(observation.radius[geoms].max())
     queries = np.arange(len(coords))
-    hits = find_hits(observation, coords, np.full(len(coords), step), queries, queries, radius)
+    steps = np.full(len(coords), step)
+    hits = find_hits(observation, coords[:, -1], lambda query: coords[query], steps, queries, queries, radius)
     polygons = box_polygons(coords)
     truth = {(q, int(g)) for q in queries for g in geoms if shapely.intersects(polygons[q], observation.polygons[g])}
     assert set(zip(hits.row.tolist(), hits.geom.tolist(), strict=True)) == truth

@@ -27,6 +27,7 @@ overlap with the same object". Official behaviours reproduced on purpose:
   NaN, which is neither ahead nor behind.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,23 +94,26 @@ def candidate_pairs(
 
 def find_hits(
     observation: Observation,
-    coords: np.ndarray,
+    centers: np.ndarray,
+    boxes: Callable[[np.ndarray], np.ndarray],
     obs_steps: np.ndarray,
     rows: np.ndarray,
     order: np.ndarray,
     radius: float,
 ) -> Hits:
-    """Geometries that intersect query boxes ``coords (Q, 5, 2)`` at observation steps ``obs_steps (Q,)``; polygons
-    are built only for boxes with a candidate."""
-    query, geom = candidate_pairs(observation, coords[:, Corner.CENTER], obs_steps, radius)
+    """Geometries that intersect query boxes of centre ``centers (Q, 2)`` at observation steps ``obs_steps (Q,)``.
+    ``boxes(queries)`` gives the ``(n, 5, 2)`` corners and centre of the queries asked for: only those with a
+    candidate geometry are built, and polygons only for the pairs floats cannot decide."""
+    query, geom = candidate_pairs(observation, centers, obs_steps, radius)
     obj = observation.objects[geom]
     usable = ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
     query, geom = query[usable], geom[usable]
+    coords = boxes(query)
 
     def exact(pairs: np.ndarray) -> np.ndarray:
-        return shapely.intersects(box_polygons(coords[query[pairs]]), observation.polygons[geom[pairs]])
+        return shapely.intersects(box_polygons(coords[pairs]), observation.polygons[geom[pairs]])
 
-    intersects = convex_intersects(coords[query, : Corner.CENTER], observation.corners[geom], exact)
+    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact)
     query, geom = query[intersects], geom[intersects]
     return Hits(rows[query], order[query], geom)
 
@@ -170,7 +174,8 @@ def no_at_fault_collisions(
     (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or NON_DRIVABLE_AREA."""
     num_rows, num_steps = ego_coords.shape[:2]
     row, step = np.divmod(np.arange(num_rows * num_steps), num_steps)
-    hits = find_hits(observation, ego_coords.reshape(-1, 5, 2), step, row, step, ego_radius)
+    boxes = ego_coords.reshape(-1, 5, 2)
+    hits = find_hits(observation, boxes[:, Corner.CENTER], lambda query: boxes[query], step, row, step, ego_radius)
     row, step, obj = hits.row, hits.order, observation.objects[hits.geom]
     ego = states[row, step]
     ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
@@ -192,15 +197,6 @@ def no_at_fault_collisions(
     return scores, *_first_hit(row[counted], step[counted], obj[counted], num_rows)
 
 
-def ttc_coords(states: np.ndarray, ego_coords: np.ndarray, interval: float, offsets: tuple[int, ...]) -> np.ndarray:
-    """Ego boxes ``(N, T, len(offsets), 5, 2)`` moved along the heading at the current speed by ``offset * interval``
-    (``float(k) * interval`` as NAVSIM computes it)."""
-    speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
-    heading = states[..., StateIndex.HEADING]
-    per_second = np.stack([np.cos(heading) * speed, np.sin(heading) * speed], axis=-1)
-    return np.stack([ego_coords + per_second[:, :, None] * (float(k) * interval) for k in offsets], axis=2)
-
-
 def time_to_collision(
     states: np.ndarray,
     ego_coords: np.ndarray,
@@ -217,14 +213,23 @@ def time_to_collision(
     ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon."""
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
-    coords = ttc_coords(states[:, :num_steps], ego_coords[:, :num_steps], interval, offsets)
-    row, step, k = np.unravel_index(np.arange(coords[..., 0, 0].size), coords.shape[:3])
     speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
+    heading = states[:, :num_steps, StateIndex.HEADING]
+    per_second = np.stack([np.cos(heading) * speed[:, :num_steps], np.sin(heading) * speed[:, :num_steps]], axis=-1)
+    row, step, k = np.unravel_index(np.arange(num_rows * num_steps * len(offsets)), (num_rows, num_steps, len(offsets)))
     moving = (speed[row, step] >= TTC_STOPPED_SPEED) & (step + np.asarray(offsets)[k] < observation.num_steps)
     row, step, k = row[moving], step[moving], k[moving]
+    # the box moved along its heading at its speed by float(k) * interval, as NAVSIM computes it; corners only
+    # for the queries with a candidate geometry
+    shift = per_second[row, step] * np.array([float(offset) * interval for offset in offsets])[k, None]
+    centers = ego_coords[row, step, Corner.CENTER] + shift
+
+    def boxes(query: np.ndarray) -> np.ndarray:
+        return ego_coords[row[query], step[query]] + shift[query, None]
+
     obs_step = step + np.asarray(offsets)[k]
     order = step * len(offsets) + k
-    hits = find_hits(observation, coords[row, step, k], obs_step, row, order, ego_radius)
+    hits = find_hits(observation, centers, boxes, obs_step, row, order, ego_radius)
     step = hits.order // len(offsets)
     rear_axle = states[hits.row, step, : StateIndex.HEADING + 1]
     angle = relative_angle(rear_axle, observation.centroids[hits.geom])
