@@ -22,7 +22,7 @@ from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import find_hits
 from lead_s2r.scoring.pdm.footprint import box_polygons
-from lead_s2r.scoring.pdm.map_flags import BoundsGrid, DrivableMap
+from lead_s2r.scoring.pdm.map_flags import CLEAR, CROSSED, INSIDE, BoundsGrid, DrivableMap
 from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
@@ -129,7 +129,8 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     borders = grid.origin + grid.cell * np.stack([np.arange(40), np.arange(40)[::-1]], axis=1)
     exact = np.concatenate([corners, borders, (finite[:, :2] + finite[:, 2:]) / 2, rng.uniform(-70, 90, (500, 2))])
     points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
-    point, box = grid.candidates(points)
+    point, entry = grid.candidates(points)
+    box = grid.members[entry]
     found = set(zip(point.tolist(), box.tolist(), strict=True))
     x, y = points[:, None, 0], points[:, None, 1]
     holds = (x >= boxes[:, 0]) & (x <= boxes[:, 2]) & (y >= boxes[:, 1]) & (y <= boxes[:, 3])
@@ -146,7 +147,8 @@ def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> No
     rings = shapely.get_coordinates(shapely.get_exterior_ring(drivable_map.polygons))
     grid = drivable_map.grid
     borders = grid.origin + grid.cell * np.stack(np.meshgrid(np.arange(grid.shape[0]), np.arange(9)), -1).reshape(-1, 2)
-    exact = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2, borders])
+    spread = np.random.default_rng(5).uniform(grid.origin, grid.origin + grid.cell * np.array(grid.shape), (3000, 2))
+    exact = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2, borders, spread])
     points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
     box, point, polygon = drivable_map.locate(points[:, None])
     assert (point == 0).all()
@@ -154,6 +156,8 @@ def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> No
     expected = set(zip(*(index.tolist() for index in np.nonzero(inside.T)), strict=True))
     assert set(zip(box.tolist(), polygon.tolist(), strict=True)) == expected
     assert 0 < len({b for b, _ in expected}) < len(points)
+    # cells inside a polygon, clear of one and crossed by one all decided points
+    assert {CLEAR, INSIDE, CROSSED} <= set(drivable_map.cover.tolist())
 
 
 def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> None:

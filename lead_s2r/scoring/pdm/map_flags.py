@@ -1,9 +1,11 @@
 """Where the ego is on the map, per proposal and step: NAVSIM's ``PDMScorer._calculate_ego_area`` and
 ``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, a uniform grid over the polygons' bounding boxes
-(:class:`BoundsGrid`, numpy only: no point geometry is built) picks candidate polygons for every point, the
-polygon's bounding box narrows them and prepared ``shapely.contains_xy`` decides. The grid and the bounding box only
-prune: every polygon that holds a point is among its candidates, so the answer is ``contains_xy``'s for every
-point.
+(:class:`BoundsGrid`, numpy only: no point geometry is built) picks candidate polygons for every point. Each
+(cell, polygon) pair is classified once, when a point first falls in it (GEOS on the cell's square grown by
+:data:`CELL_MARGIN_M`): the square inside the polygon's interior (every point of the cell is inside), clear of the
+polygon (none is), or crossed by its edge; only points in crossed cells go on to the bounding-box test and prepared
+``shapely.contains_xy``. A point's computed cell is off its true position by rounding far below the margin, so the
+grid only decides points whose answer is certain, and the answer is ``contains_xy``'s for every point.
 
 The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
 CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
@@ -43,6 +45,11 @@ IS_DRIVABLE = _kind_table(DRIVABLE_KINDS)
 IS_LANE = _kind_table(LANE_KINDS)
 #: [m] side of a grid cell: about a lane's width, so most cells list one or two polygons per layer.
 GRID_CELL_M = 2.0
+#: [m] a cell's square is grown by this before it is classified: far above the rounding of a point's cell
+#: (~1e-9 m at UTM coordinates), far below any map feature
+CELL_MARGIN_M = 1e-6
+#: How a cell lies against a polygon (``DrivableMap.cover``): not yet known, clear of it, inside it, crossed by it.
+UNKNOWN, CLEAR, INSIDE, CROSSED = -1, 0, 1, 2
 #: Grid cells per axis at most (a map's extent over its cell size; bounds the index for huge maps).
 MAX_GRID_CELLS = 256
 
@@ -59,6 +66,7 @@ class BoundsGrid:
     shape: tuple[int, int]
     starts: np.ndarray  # (cells + 1,)
     members: np.ndarray  # (sum of cells per box,) box index
+    member_cells: np.ndarray  # (sum of cells per box,) the flat cell of each member entry
 
     @classmethod
     def build(cls, boxes: np.ndarray, cell: float) -> "BoundsGrid":
@@ -79,22 +87,28 @@ class BoundsGrid:
         flat = column * shape[1] + low[box_of, 1] + local % spans[box_of, 1]
         order = np.argsort(flat, kind="stable")
         starts = np.searchsorted(flat[order], np.arange(shape[0] * shape[1] + 1))
-        return cls(origin, cell, shape, starts, kept[box_of[order]])
+        return cls(origin, cell, shape, starts, kept[box_of[order]], flat[order])
 
     @staticmethod
     def _cells(origin: np.ndarray, cell: float, xy: np.ndarray) -> np.ndarray:
         return np.floor((xy - origin) / cell).astype(np.int64)
 
     def candidates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(point, box)`` pairs for points ``(B, 2)``: a superset of the boxes that hold each point (none for
-        points outside the grid, which lie outside every box)."""
+        """``(point, entry)`` pairs for points ``(B, 2)``: ``members[entry]`` is a superset of the boxes that hold
+        each point (none for points outside the grid, which lie outside every box)."""
         cells = self._cells(self.origin, self.cell, xy)
         inside = np.flatnonzero(((cells >= 0) & (cells < self.shape)).all(axis=1))
         flat = cells[inside, 0] * self.shape[1] + cells[inside, 1]
         first, counts = self.starts[flat], self.starts[flat + 1] - self.starts[flat]
         point = np.repeat(inside, counts)
         within = np.arange(len(point)) - np.repeat(np.cumsum(counts) - counts, counts)
-        return point, self.members[np.repeat(first, counts) + within]
+        return point, np.repeat(first, counts) + within
+
+    def squares(self, entries: np.ndarray, margin: float) -> np.ndarray:
+        """Shapely boxes of the cells of member ``entries``, grown by ``margin``."""
+        column, row = np.divmod(self.member_cells[entries], self.shape[1])
+        x, y = self.origin[0] + self.cell * column, self.origin[1] + self.cell * row
+        return shapely.box(x - margin, y - margin, x + self.cell + margin, y + self.cell + margin)
 
 
 @dataclass
@@ -107,6 +121,7 @@ class DrivableMap:
     kinds: np.ndarray  # (K,) MapKind codes
     grid: BoundsGrid
     bounds: np.ndarray  # (K, 4) xmin, ymin, xmax, ymax
+    cover: np.ndarray  # per grid entry: how its cell lies against its polygon (UNKNOWN until a point falls in it)
 
     @classmethod
     def from_scene(cls, scene: PDMScene) -> "DrivableMap":
@@ -123,20 +138,36 @@ class DrivableMap:
         shapely.prepare(polygons)
         ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
         bounds = shapely.bounds(polygons).reshape(-1, 4)
-        return cls(polygons, ids, kinds, BoundsGrid.build(bounds, GRID_CELL_M), bounds)
+        grid = BoundsGrid.build(bounds, GRID_CELL_M)
+        return cls(polygons, ids, kinds, grid, bounds, np.full(len(grid.members), UNKNOWN, np.int8))
 
     def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon: the grid's candidates,
-        narrowed to polygons whose bounding box holds the point, decided by ``contains_xy``."""
+        those in cells inside a polygon taken, those in crossed cells narrowed to polygons whose bounding box holds
+        the point and decided by ``contains_xy``."""
         flat = points.reshape(-1, 2)
-        index, polygon = self.grid.candidates(flat)
-        x, y = flat[index, 0], flat[index, 1]
+        index, entry = self.grid.candidates(flat)
+        cover = self.cover[entry]
+        unknown = cover == UNKNOWN
+        if unknown.any():
+            self._classify(np.unique(entry[unknown]))
+            cover = self.cover[entry]
+        inside = cover == INSIDE
+        crossed = np.flatnonzero(cover == CROSSED)
+        x, y = flat[index[crossed], 0], flat[index[crossed], 1]
+        polygon = self.grid.members[entry[crossed]]
         bounds = self.bounds[polygon]
         near = np.flatnonzero((x >= bounds[:, 0]) & (x <= bounds[:, 2]) & (y >= bounds[:, 1]) & (y <= bounds[:, 3]))
-        index, polygon = index[near], polygon[near]
-        inside = shapely.contains_xy(self.polygons[polygon], x[near], y[near])
-        box, point = np.divmod(index[inside], points.shape[1])
-        return box, point, polygon[inside]
+        held = near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]
+        box, point = np.divmod(np.concatenate([index[inside], index[crossed[held]]]), points.shape[1])
+        return box, point, np.concatenate([self.grid.members[entry[inside]], polygon[held]])
+
+    def _classify(self, entries: np.ndarray) -> None:
+        """Set ``cover`` of grid ``entries``: the cell's grown square inside its polygon, clear of it or crossed."""
+        squares = self.grid.squares(entries, CELL_MARGIN_M)
+        polygons = self.polygons[self.grid.members[entries]]
+        crossed = np.where(shapely.intersects(polygons, squares), CROSSED, CLEAR)
+        self.cover[entries] = np.where(shapely.contains_properly(polygons, squares), INSIDE, crossed)
 
 
 @dataclass
