@@ -132,8 +132,7 @@ def counted_before_release(row: np.ndarray, obj: np.ndarray, order: np.ndarray, 
     (row, object), after which the object is ignored for that row."""
     if len(row) == 0:
         return np.zeros(0, bool)
-    _, group = np.unique(np.stack([row, obj]), axis=1, return_inverse=True)
-    group = group.reshape(-1)
+    _, group = np.unique(row * (int(obj.max()) + 1) + obj, return_inverse=True)
     release = np.full(group.max() + 1, np.inf)
     np.minimum.at(release, group[~violation], order[~violation])
     return violation & (order < release[group])
