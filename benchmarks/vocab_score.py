@@ -115,7 +115,8 @@ def main() -> None:
     if args.memory:
         entries = vocabulary(args.memory, seed=1)
         grown = peak_growth_mb(partial(score_vocabulary, chosen[0], entries, 0.1, references[0], args.metric))
-        print(f"peak memory growth scoring {args.memory} entries on one scene: {grown:.0f} MB")
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"{args.memory} entries on one scene: peak memory grew {grown:.0f} MB, process peak {peak:.0f} MB")
     print("load average (1, 5, 15 min): " + ", ".join(f"{load:.1f}" for load in os.getloadavg()))
 
 
