@@ -1,5 +1,6 @@
 """Cost of scoring a trajectory vocabulary per (scene, entry), PDMS v1.1 or EPDMS v2.2, against our per-trajectory
-scorer on the same scenes (one core, CPU time of this process).
+scorer on the same scenes (one core: the process pins itself to ``--cpu``; CPU time of this process, wall time beside
+it, and the load average, since a shared machine inflates both).
 
 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/vocab_score.py --metric pdms@navsim-1.1 --sizes 256 2048 8192
 
@@ -9,11 +10,15 @@ one entry). Vocabulary: ``--sizes`` entries in GTRS's layout (40 poses at 0.1 s)
 of +-0.15 1/m and accelerations of +-3 m/s^2, seeded. ``score_vocabulary`` is timed whole, scene-shared work
 included (observation, drivable map, red lights); the per-trajectory figure is one ``score_proposals`` call per entry
 with the observation and drivable map prebuilt (what ``score`` pays per sample), over ``--singles`` entries.
+``--memory N``: afterwards, the peak resident memory the process grew by while scoring N entries on one scene.
 """
 
 import argparse
+import os
+import resource
 import sys
 import tempfile
+import time
 from functools import partial
 from pathlib import Path
 
@@ -58,13 +63,30 @@ def scenes(count: int) -> list[PDMScene]:
     return [scene_from_sample(sample) for sample in samples[:: max(1, len(samples) // count)][:count]]
 
 
+def cpu_and_wall_s(call: partial) -> tuple[float, float]:
+    """CPU time of this process and wall time of one call [s]."""
+    cpu, wall = time.process_time(), time.perf_counter()
+    call()
+    return time.process_time() - cpu, time.perf_counter() - wall
+
+
+def peak_growth_mb(call: partial) -> float:
+    """How much the process's peak resident memory grows during ``call`` [MB] (0: it stayed under the peak)."""
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    call()
+    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--metric", choices=METRICS, default=METRIC)
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 2048, 8192])
     parser.add_argument("--scenes", type=int, default=4)
     parser.add_argument("--singles", type=int, default=16)
+    parser.add_argument("--cpu", type=int, default=0, help="the core to pin this process to")
+    parser.add_argument("--memory", type=int, default=0, help="entries for the peak-memory check (0: skip it)")
     args = parser.parse_args()
+    os.sched_setaffinity(0, {args.cpu})
     chosen = scenes(args.scenes)
     references = [plan_reference(scene) for scene in chosen]
     largest = vocabulary(max(args.sizes))
@@ -80,15 +102,22 @@ def main() -> None:
             call = partial(score_proposals, scene, entry, 0.1, reference, args.metric, **cached)
             single_us.append(1e3 * float(np.median(cpu_times_ms(call, 3))))
     single = float(np.median(single_us))
-    print(f"{args.metric}, {len(chosen)} scenes; per-trajectory scorer: {single:.0f} us per call")
-    print("entries | us per (scene, entry) | vs per-trajectory")
+    print(f"{args.metric}, {len(chosen)} scenes, core {args.cpu}; per-trajectory scorer: {single:.0f} us per call")
+    print("entries | us per (scene, entry), CPU | wall | vs per-trajectory (CPU)")
     for size in args.sizes:
-        per_scene = []
+        cpu, wall = [], []
         for scene, reference in zip(chosen, references, strict=True):
-            call = partial(score_vocabulary, scene, largest[:size], 0.1, reference, args.metric)
-            per_scene.append(1e3 * float(cpu_times_ms(call, 1)[0]) / size)
-        us = float(np.median(per_scene))
-        print(f"{size:7d} | {us:21.1f} | {single / us:6.1f}x")
+            seconds = cpu_and_wall_s(partial(score_vocabulary, scene, largest[:size], 0.1, reference, args.metric))
+            cpu.append(1e6 * seconds[0] / size)
+            wall.append(1e6 * seconds[1] / size)
+        us = float(np.median(cpu))
+        print(f"{size:7d} | {us:26.1f} | {float(np.median(wall)):4.1f} | {single / us:6.1f}x")
+    if args.memory:
+        entries = vocabulary(args.memory, seed=1)
+        grown = peak_growth_mb(partial(score_vocabulary, chosen[0], entries, 0.1, references[0], args.metric))
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"{args.memory} entries on one scene: peak memory grew {grown:.0f} MB, process peak {peak:.0f} MB")
+    print("load average (1, 5, 15 min): " + ", ".join(f"{load:.1f}" for load in os.getloadavg()))
 
 
 if __name__ == "__main__":

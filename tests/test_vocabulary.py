@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+import shapely
 import torch
 
 from lead_s2r.cli import main
@@ -19,8 +20,13 @@ from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabSco
 from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
+from lead_s2r.scoring.pdm.collisions import find_hits
+from lead_s2r.scoring.pdm.footprint import box_polygons
+from lead_s2r.scoring.pdm.map_flags import CLEAR, CROSSED, INSIDE, BoundsGrid, DrivableMap
+from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
+from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
 from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures
 from lead_s2r.shards import read_samples
@@ -104,6 +110,76 @@ def test_vocabulary_wide_progress_is_gtrs_normalisation(converted: Path, vocabul
         alone = score_proposals(scene, vocabulary[v : v + 1], 0.1, reference, metric, human_filter=False)
         for name, values in alone.items():
             np.testing.assert_array_equal(unfiltered[name][v : v + 1], values, err_msg=f"{name}, entry {v}")
+
+
+def first_scene(converted: Path) -> PDMScene:
+    return scene_from_sample(next(iter(read_samples(converted, fields=("scoring", "boxes", "agents_future")))))
+
+
+def test_bounds_grid_lists_every_box_holding_a_point() -> None:
+    """Points on box edges and corners, on cell borders, a rounding step either side of them and outside the grid:
+    the grid's candidates hold every box that holds the point (it only prunes); boxes without bounds hold none."""
+    rng = np.random.default_rng(3)
+    low = rng.uniform(-40.0, 40.0, (30, 2))
+    boxes = np.concatenate([low, low + rng.uniform(0.0, 25.0, (30, 2))], axis=1)
+    boxes[7] = np.nan
+    grid = BoundsGrid.build(boxes, 2.7)
+    finite = boxes[np.isfinite(boxes).all(axis=1)]
+    corners = np.concatenate([finite[:, [0, 1]], finite[:, [2, 3]], finite[:, [0, 3]], finite[:, [2, 1]]])
+    borders = grid.origin + grid.cell * np.stack([np.arange(40), np.arange(40)[::-1]], axis=1)
+    exact = np.concatenate([corners, borders, (finite[:, :2] + finite[:, 2:]) / 2, rng.uniform(-70, 90, (500, 2))])
+    points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
+    point, entry = grid.candidates(points)
+    box = grid.members[entry]
+    found = set(zip(point.tolist(), box.tolist(), strict=True))
+    x, y = points[:, None, 0], points[:, None, 1]
+    holds = (x >= boxes[:, 0]) & (x <= boxes[:, 2]) & (y >= boxes[:, 1]) & (y <= boxes[:, 3])
+    truth = set(zip(*(index.tolist() for index in np.nonzero(holds)), strict=True))
+    assert truth <= found and 7 not in box
+    assert len(truth) > 100 and len(found) < 4 * len(truth)
+
+
+def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> None:
+    """Ego points on the map polygons' vertices and edges (outside: the test is strict), on the grid's cell borders
+    and a rounding step either side: the located (point, polygon) pairs are ``contains_xy`` over every polygon, so
+    the grid decides nothing a polygon test would decide differently."""
+    drivable_map = DrivableMap.from_scene(first_scene(converted))
+    rings = shapely.get_coordinates(shapely.get_exterior_ring(drivable_map.polygons))
+    grid = drivable_map.grid
+    borders = grid.origin + grid.cell * np.stack(np.meshgrid(np.arange(grid.shape[0]), np.arange(9)), -1).reshape(-1, 2)
+    spread = np.random.default_rng(5).uniform(grid.origin, grid.origin + grid.cell * np.array(grid.shape), (3000, 2))
+    exact = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2, borders, spread])
+    points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
+    box, point, polygon = drivable_map.locate(points[:, None])
+    assert (point == 0).all()
+    inside = np.stack([shapely.contains_xy(shape, points[:, 0], points[:, 1]) for shape in drivable_map.polygons])
+    expected = set(zip(*(index.tolist() for index in np.nonzero(inside.T)), strict=True))
+    assert set(zip(box.tolist(), polygon.tolist(), strict=True)) == expected
+    assert 0 < len({b for b, _ in expected}) < len(points)
+    # cells inside a polygon, clear of one and crossed by one all decided points
+    assert {CLEAR, INSIDE, CROSSED} <= set(drivable_map.cover.tolist())
+
+
+def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> None:
+    """Boxes the size of each agent moved along its edges and diagonal: sharing an edge, touching corner to corner
+    (centroids exactly at the pruning bound, the sum of the enclosing radii), a rounding step apart or overlapping.
+    NC/TTC's hits are GEOS ``intersects`` against every box of the step."""
+    observation = log_observation(first_scene(converted))
+    step = 10
+    geoms = np.flatnonzero(observation.objects[observation.step_offsets[step] : observation.step_offsets[step + 1]]
+                           >= 0) + observation.step_offsets[step]  # fmt: skip
+    corners = observation.corners[geoms]
+    shifts = [corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 1], corners[:, 2] - corners[:, 0]]
+    moved = [corners + shift[:, None] * scale for shift in shifts for scale in (1.0, 1.0 - 1e-12, 1.0 + 1e-12)]
+    coords = np.concatenate([np.concatenate([box, box.mean(axis=1, keepdims=True)], axis=1) for box in moved])
+    radius = float(observation.radius[geoms].max())
+    queries = np.arange(len(coords))
+    steps = np.full(len(coords), step)
+    hits = find_hits(observation, coords[:, -1], lambda query: coords[query], steps, queries, queries, radius)
+    polygons = box_polygons(coords)
+    truth = {(q, int(g)) for q in queries for g in geoms if shapely.intersects(polygons[q], observation.polygons[g])}
+    assert set(zip(hits.row.tolist(), hits.geom.tolist(), strict=True)) == truth
+    assert len(truth) >= len(coords) // 3
 
 
 def vocab_score(vocab: Path, data: Path, out: Path, *options: str) -> dict[str, bytes]:

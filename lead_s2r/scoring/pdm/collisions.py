@@ -27,6 +27,7 @@ overlap with the same object". Official behaviours reproduced on purpose:
   NaN, which is neither ahead nor behind.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,15 +69,24 @@ def candidate_pairs(
     """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``(Q, 2)`` and enclosing
     radius ``radius`` against the geometries of observation step ``obs_steps (Q,)``. Every intersecting pair is
     among them, so the exact test runs on few pairs and no STRtree is needed."""
+    valid = observation.step_geoms >= 0
+    safe = np.maximum(observation.step_geoms, 0)
+    # per step and slot: centroid (NaN pads, which no comparison passes) and the squared reach of a hit
+    step_x = np.where(valid, observation.centroids[safe, 0], np.nan)
+    step_y = np.where(valid, observation.centroids[safe, 1], np.nan)
+    step_reach = observation.radius[safe] + (radius + CIRCLE_SLACK)
+    step_reach *= step_reach
     queries, geoms = [], []
     for start in range(0, len(centers), CHUNK):
-        step_geoms = observation.step_geoms[obs_steps[start : start + CHUNK]]  # (C, Gmax)
-        safe = np.maximum(step_geoms, 0)
-        offset = observation.centroids[safe] - centers[start : start + CHUNK, None]
-        reach = radius + observation.radius[safe] + CIRCLE_SLACK
-        query, slot = np.nonzero((step_geoms >= 0) & (np.einsum("cgi,cgi->cg", offset, offset) <= reach * reach))
+        steps = obs_steps[start : start + CHUNK]
+        dx = step_x[steps] - centers[start : start + CHUNK, :1]
+        dy = step_y[steps] - centers[start : start + CHUNK, 1:]
+        dx *= dx
+        dy *= dy
+        dx += dy
+        query, slot = np.nonzero(dx <= step_reach[steps])
         queries.append(query + start)
-        geoms.append(step_geoms[query, slot])
+        geoms.append(observation.step_geoms[steps[query], slot])
     if not queries:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return np.concatenate(queries), np.concatenate(geoms)
@@ -84,23 +94,26 @@ def candidate_pairs(
 
 def find_hits(
     observation: Observation,
-    coords: np.ndarray,
+    centers: np.ndarray,
+    boxes: Callable[[np.ndarray], np.ndarray],
     obs_steps: np.ndarray,
     rows: np.ndarray,
     order: np.ndarray,
     radius: float,
 ) -> Hits:
-    """Geometries that intersect query boxes ``coords (Q, 5, 2)`` at observation steps ``obs_steps (Q,)``; polygons
-    are built only for boxes with a candidate."""
-    query, geom = candidate_pairs(observation, coords[:, Corner.CENTER], obs_steps, radius)
+    """Geometries that intersect query boxes of centre ``centers (Q, 2)`` at observation steps ``obs_steps (Q,)``.
+    ``boxes(queries)`` gives the ``(n, 5, 2)`` corners and centre of the queries asked for: only those with a
+    candidate geometry are built, and polygons only for the pairs floats cannot decide."""
+    query, geom = candidate_pairs(observation, centers, obs_steps, radius)
     obj = observation.objects[geom]
     usable = ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
     query, geom = query[usable], geom[usable]
+    coords = boxes(query)
 
     def exact(pairs: np.ndarray) -> np.ndarray:
-        return shapely.intersects(box_polygons(coords[query[pairs]]), observation.polygons[geom[pairs]])
+        return shapely.intersects(box_polygons(coords[pairs]), observation.polygons[geom[pairs]])
 
-    intersects = convex_intersects(coords[query, : Corner.CENTER], observation.corners[geom], exact)
+    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact)
     query, geom = query[intersects], geom[intersects]
     return Hits(rows[query], order[query], geom)
 
@@ -119,8 +132,7 @@ def counted_before_release(row: np.ndarray, obj: np.ndarray, order: np.ndarray, 
     (row, object), after which the object is ignored for that row."""
     if len(row) == 0:
         return np.zeros(0, bool)
-    _, group = np.unique(np.stack([row, obj]), axis=1, return_inverse=True)
-    group = group.reshape(-1)
+    _, group = np.unique(row * (int(obj.max()) + 1) + obj, return_inverse=True)
     release = np.full(group.max() + 1, np.inf)
     np.minimum.at(release, group[~violation], order[~violation])
     return violation & (order < release[group])
@@ -161,7 +173,8 @@ def no_at_fault_collisions(
     (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or NON_DRIVABLE_AREA."""
     num_rows, num_steps = ego_coords.shape[:2]
     row, step = np.divmod(np.arange(num_rows * num_steps), num_steps)
-    hits = find_hits(observation, ego_coords.reshape(-1, 5, 2), step, row, step, ego_radius)
+    boxes = ego_coords.reshape(-1, 5, 2)
+    hits = find_hits(observation, boxes[:, Corner.CENTER], lambda query: boxes[query], step, row, step, ego_radius)
     row, step, obj = hits.row, hits.order, observation.objects[hits.geom]
     ego = states[row, step]
     ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
@@ -183,15 +196,6 @@ def no_at_fault_collisions(
     return scores, *_first_hit(row[counted], step[counted], obj[counted], num_rows)
 
 
-def ttc_coords(states: np.ndarray, ego_coords: np.ndarray, interval: float, offsets: tuple[int, ...]) -> np.ndarray:
-    """Ego boxes ``(N, T, len(offsets), 5, 2)`` moved along the heading at the current speed by ``offset * interval``
-    (``float(k) * interval`` as NAVSIM computes it)."""
-    speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
-    heading = states[..., StateIndex.HEADING]
-    per_second = np.stack([np.cos(heading) * speed, np.sin(heading) * speed], axis=-1)
-    return np.stack([ego_coords + per_second[:, :, None] * (float(k) * interval) for k in offsets], axis=2)
-
-
 def time_to_collision(
     states: np.ndarray,
     ego_coords: np.ndarray,
@@ -208,14 +212,23 @@ def time_to_collision(
     ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon."""
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
-    coords = ttc_coords(states[:, :num_steps], ego_coords[:, :num_steps], interval, offsets)
-    row, step, k = np.unravel_index(np.arange(coords[..., 0, 0].size), coords.shape[:3])
     speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
+    heading = states[:, :num_steps, StateIndex.HEADING]
+    per_second = np.stack([np.cos(heading) * speed[:, :num_steps], np.sin(heading) * speed[:, :num_steps]], axis=-1)
+    row, step, k = np.unravel_index(np.arange(num_rows * num_steps * len(offsets)), (num_rows, num_steps, len(offsets)))
     moving = (speed[row, step] >= TTC_STOPPED_SPEED) & (step + np.asarray(offsets)[k] < observation.num_steps)
     row, step, k = row[moving], step[moving], k[moving]
+    # the box moved along its heading at its speed by float(k) * interval, as NAVSIM computes it; corners only
+    # for the queries with a candidate geometry
+    shift = per_second[row, step] * np.array([float(offset) * interval for offset in offsets])[k, None]
+    centers = ego_coords[row, step, Corner.CENTER] + shift
+
+    def boxes(query: np.ndarray) -> np.ndarray:
+        return ego_coords[row[query], step[query]] + shift[query, None]
+
     obs_step = step + np.asarray(offsets)[k]
     order = step * len(offsets) + k
-    hits = find_hits(observation, coords[row, step, k], obs_step, row, order, ego_radius)
+    hits = find_hits(observation, centers, boxes, obs_step, row, order, ego_radius)
     step = hits.order // len(offsets)
     rear_axle = states[hits.row, step, : StateIndex.HEADING + 1]
     angle = relative_angle(rear_axle, observation.centroids[hits.geom])

@@ -26,16 +26,12 @@ class Corner(IntEnum):
 
 
 def _translate(
-    centers: np.ndarray, headings: np.ndarray, lon: np.ndarray | float, lat: np.ndarray | float
+    centers: np.ndarray, turns: tuple[np.ndarray, ...], lon: np.ndarray | float, lat: np.ndarray | float
 ) -> np.ndarray:
-    half_pi = np.pi / 2.0
-    offset = np.stack(
-        [
-            lat * np.cos(headings + half_pi) + lon * np.cos(headings),
-            lat * np.sin(headings + half_pi) + lon * np.sin(headings),
-        ],
-        axis=-1,
-    )
+    """``centers`` moved ``lon`` along the heading and ``lat`` across it; ``turns``: the cosine and sine of the
+    heading plus pi/2 and of the heading (computed once for the four corners)."""
+    cos_across, sin_across, cos_along, sin_along = turns
+    offset = np.stack([lat * cos_across + lon * cos_along, lat * sin_across + lon * sin_along], axis=-1)
     return centers + offset
 
 
@@ -44,12 +40,14 @@ def box_coords(
 ) -> np.ndarray:
     """``(..., 5, 2)`` corners and centre of boxes given by centre ``(..., 2)``, heading ``(...)`` and size."""
     half_length, half_width = np.asarray(length) / 2.0, np.asarray(width) / 2.0
+    across = headings + np.pi / 2.0
+    turns = (np.cos(across), np.sin(across), np.cos(headings), np.sin(headings))
     coords = np.empty((*headings.shape, len(Corner), 2))
     coords[..., Corner.CENTER, :] = centers
-    coords[..., Corner.FRONT_LEFT, :] = _translate(centers, headings, half_length, half_width)
-    coords[..., Corner.REAR_LEFT, :] = _translate(centers, headings, -half_length, half_width)
-    coords[..., Corner.REAR_RIGHT, :] = _translate(centers, headings, -half_length, -half_width)
-    coords[..., Corner.FRONT_RIGHT, :] = _translate(centers, headings, half_length, -half_width)
+    coords[..., Corner.FRONT_LEFT, :] = _translate(centers, turns, half_length, half_width)
+    coords[..., Corner.REAR_LEFT, :] = _translate(centers, turns, -half_length, half_width)
+    coords[..., Corner.REAR_RIGHT, :] = _translate(centers, turns, -half_length, -half_width)
+    coords[..., Corner.FRONT_RIGHT, :] = _translate(centers, turns, half_length, -half_width)
     return coords
 
 

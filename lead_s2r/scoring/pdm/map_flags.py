@@ -1,6 +1,11 @@
 """Where the ego is on the map, per proposal and step: NAVSIM's ``PDMScorer._calculate_ego_area`` and
-``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, one STRtree query (box centres against bounding
-boxes grown by the box's reach) picks candidate polygons and prepared ``shapely.contains_xy`` decides.
+``PDMDrivableMap.is_in_layer``. Instead of a loop over polygons, a uniform grid over the polygons' bounding boxes
+(:class:`BoundsGrid`, numpy only: no point geometry is built) picks candidate polygons for every point. Each
+(cell, polygon) pair is classified once, when a point first falls in it (GEOS on the cell's square grown by
+:data:`CELL_MARGIN_M`): the square inside the polygon's interior (every point of the cell is inside), clear of the
+polygon (none is), or crossed by its edge; only points in crossed cells go on to the bounding-box test and prepared
+``shapely.contains_xy``. A point's computed cell is off its true position by rounding far below the margin, so the
+grid only decides points whose answer is certain, and the answer is ``contains_xy``'s for every point.
 
 The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
 CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
@@ -18,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from shapely import STRtree
 
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm.footprint import Corner
@@ -39,22 +43,85 @@ def _kind_table(kinds: tuple[MapKind, ...]) -> np.ndarray:
 
 IS_DRIVABLE = _kind_table(DRIVABLE_KINDS)
 IS_LANE = _kind_table(LANE_KINDS)
-#: Slack [m] on the ego box's enclosing radius when picking candidate polygons.
-REACH_SLACK = 1e-6
+#: [m] side of a grid cell: about a lane's width, so most cells list one or two polygons per layer.
+GRID_CELL_M = 2.0
+#: [m] a cell's square is grown by this before it is classified: far above the rounding of a point's cell
+#: (~1e-9 m at UTM coordinates), far below any map feature
+CELL_MARGIN_M = 1e-6
+#: How a cell lies against a polygon (``DrivableMap.cover``): not yet known, clear of it, inside it, crossed by it.
+UNKNOWN, CLEAR, INSIDE, CROSSED = -1, 0, 1, 2
+#: Grid cells per axis at most (a map's extent over its cell size; bounds the index for huge maps).
+MAX_GRID_CELLS = 256
+
+
+@dataclass
+class BoundsGrid:
+    """Which boxes ``(K, 4)`` (xmin, ymin, xmax, ymax) reach each cell of a uniform grid, as CSR (``starts``,
+    ``members``): a point's cell lists every box that holds it (and a few that do not). A point's cell is
+    ``floor((x - origin) / cell)`` computed the same way as a box's cell range, and that is monotone in x under
+    rounding, so a box's range always covers the cells of the points it holds."""
+
+    origin: np.ndarray  # (2,)
+    cell: float
+    shape: tuple[int, int]
+    starts: np.ndarray  # (cells + 1,)
+    members: np.ndarray  # (sum of cells per box,) box index
+    member_cells: np.ndarray  # (sum of cells per box,) the flat cell of each member entry
+
+    @classmethod
+    def build(cls, boxes: np.ndarray, cell: float) -> "BoundsGrid":
+        """The grid of cell size ``cell`` (or coarser, :data:`MAX_GRID_CELLS`) over boxes ``(K, 4)``; boxes with
+        non-finite bounds (empty polygons) hold no point and are left out."""
+        kept = np.flatnonzero(np.isfinite(boxes).all(axis=1))
+        boxes = boxes[kept]
+        origin = boxes[:, :2].min(axis=0) if len(boxes) else np.zeros(2)
+        top = boxes[:, 2:].max(axis=0) if len(boxes) else np.zeros(2)
+        cell = max(cell, float((top - origin).max()) / MAX_GRID_CELLS)
+        shape = tuple(int(n) + 1 for n in cls._cells(origin, cell, top))
+        low, high = cls._cells(origin, cell, boxes[:, :2]), cls._cells(origin, cell, boxes[:, 2:])
+        spans = high - low + 1
+        box_of = np.repeat(np.arange(len(boxes)), spans.prod(axis=1))
+        first = np.cumsum(spans.prod(axis=1)) - spans.prod(axis=1)
+        local = np.arange(len(box_of)) - first[box_of]
+        column = low[box_of, 0] + local // spans[box_of, 1]
+        flat = column * shape[1] + low[box_of, 1] + local % spans[box_of, 1]
+        order = np.argsort(flat, kind="stable")
+        starts = np.searchsorted(flat[order], np.arange(shape[0] * shape[1] + 1))
+        return cls(origin, cell, shape, starts, kept[box_of[order]], flat[order])
+
+    @staticmethod
+    def _cells(origin: np.ndarray, cell: float, xy: np.ndarray) -> np.ndarray:
+        return np.floor((xy - origin) / cell).astype(np.int64)
+
+    def candidates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, entry)`` pairs for points ``(B, 2)``: ``members[entry]`` is a superset of the boxes that hold
+        each point (none for points outside the grid, which lie outside every box)."""
+        cells = self._cells(self.origin, self.cell, xy)
+        inside = np.flatnonzero(((cells >= 0) & (cells < self.shape)).all(axis=1))
+        flat = cells[inside, 0] * self.shape[1] + cells[inside, 1]
+        first, counts = self.starts[flat], self.starts[flat + 1] - self.starts[flat]
+        point = np.repeat(inside, counts)
+        within = np.arange(len(point)) - np.repeat(np.cumsum(counts) - counts, counts)
+        return point, np.repeat(first, counts) + within
+
+    def squares(self, entries: np.ndarray, margin: float) -> np.ndarray:
+        """Shapely boxes of the cells of member ``entries``, grown by ``margin``."""
+        column, row = np.divmod(self.member_cells[entries], self.shape[1])
+        x, y = self.origin[0] + self.cell * column, self.origin[1] + self.cell * row
+        return shapely.box(x - margin, y - margin, x + self.cell + margin, y + self.cell + margin)
 
 
 @dataclass
 class DrivableMap:
-    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids and kinds, and an STRtree
-    over their bounding boxes grown by ``reach``: a box centre finds every polygon that a point of the box within
-    ``reach`` of it can lie in, without building the box's polygon."""
+    """The scene's scored polygons (kinds in :data:`SCORED_KINDS`, prepared) with their ids, kinds and bounding
+    boxes, and a grid over those boxes: a point finds every polygon it can lie in without building its geometry."""
 
     polygons: np.ndarray  # (K,) shapely Polygons
     ids: np.ndarray  # (K,) int64
     kinds: np.ndarray  # (K,) MapKind codes
-    reach: float
-    tree: STRtree
+    grid: BoundsGrid
     bounds: np.ndarray  # (K, 4) xmin, ymin, xmax, ymax
+    cover: np.ndarray  # per grid entry: how its cell lies against its polygon (UNKNOWN until a point falls in it)
 
     @classmethod
     def from_scene(cls, scene: PDMScene) -> "DrivableMap":
@@ -70,23 +137,37 @@ class DrivableMap:
         polygons = shapely.polygons(rings[keep])
         shapely.prepare(polygons)
         ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
-        reach = float(np.hypot(scene.vehicle.length / 2, scene.vehicle.width / 2)) + REACH_SLACK
-        bounds = shapely.bounds(polygons)
-        grown = shapely.box(bounds[:, 0] - reach, bounds[:, 1] - reach, bounds[:, 2] + reach, bounds[:, 3] + reach)
-        return cls(polygons, ids, kinds, reach, STRtree(grown), bounds)
+        bounds = shapely.bounds(polygons).reshape(-1, 4)
+        grid = BoundsGrid.build(bounds, GRID_CELL_M)
+        return cls(polygons, ids, kinds, grid, bounds, np.full(len(grid.members), UNKNOWN, np.int8))
 
-    def locate(self, points: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon; every point of row b
-        must lie within ``reach`` of ``centers[b]``. Candidates are narrowed from the grown-box query to points inside
-        the polygon's bounding box, one ``(pairs, P)`` comparison per coordinate."""
-        box, polygon = self.tree.query(shapely.points(centers))
+    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon: the grid's candidates,
+        those in cells inside a polygon taken, those in crossed cells narrowed to polygons whose bounding box holds
+        the point and decided by ``contains_xy``."""
+        flat = points.reshape(-1, 2)
+        index, entry = self.grid.candidates(flat)
+        cover = self.cover[entry]
+        unknown = cover == UNKNOWN
+        if unknown.any():
+            self._classify(np.unique(entry[unknown]))
+            cover = self.cover[entry]
+        inside = cover == INSIDE
+        crossed = np.flatnonzero(cover == CROSSED)
+        x, y = flat[index[crossed], 0], flat[index[crossed], 1]
+        polygon = self.grid.members[entry[crossed]]
         bounds = self.bounds[polygon]
-        x, y = points[box, :, 0], points[box, :, 1]
-        near = (x >= bounds[:, :1]) & (x <= bounds[:, 2:3]) & (y >= bounds[:, 1:2]) & (y <= bounds[:, 3:])
-        pair, point = np.nonzero(near)
-        box, polygon = box[pair], polygon[pair]
-        inside = shapely.contains_xy(self.polygons[polygon], x[pair, point], y[pair, point])
-        return box[inside], point[inside], polygon[inside]
+        near = np.flatnonzero((x >= bounds[:, 0]) & (x <= bounds[:, 2]) & (y >= bounds[:, 1]) & (y <= bounds[:, 3]))
+        held = near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]
+        box, point = np.divmod(np.concatenate([index[inside], index[crossed[held]]]), points.shape[1])
+        return box, point, np.concatenate([self.grid.members[entry[inside]], polygon[held]])
+
+    def _classify(self, entries: np.ndarray) -> None:
+        """Set ``cover`` of grid ``entries``: the cell's grown square inside its polygon, clear of it or crossed."""
+        squares = self.grid.squares(entries, CELL_MARGIN_M)
+        polygons = self.polygons[self.grid.members[entries]]
+        crossed = np.where(shapely.intersects(polygons, squares), CROSSED, CLEAR)
+        self.cover[entries] = np.where(shapely.contains_properly(polygons, squares), INSIDE, crossed)
 
 
 @dataclass
@@ -111,7 +192,7 @@ def ego_areas(
     num_boxes = n_rows * n_steps
     points = np.concatenate([coords.reshape(num_boxes, -1, 2), rear_axles.reshape(num_boxes, 1, 2)], axis=1)
     rear_axle = points.shape[1] - 1
-    box, point, polygon = drivable_map.locate(points, points[:, Corner.CENTER])
+    box, point, polygon = drivable_map.locate(points)
     kind = drivable_map.kinds[polygon]
     is_corner = point < NUM_CORNERS
 

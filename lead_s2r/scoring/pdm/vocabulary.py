@@ -2,11 +2,11 @@
 Hydra-MDP / GTRS-style planners, exact and in one pass.
 
 ``score_vocabulary`` is ``score_proposals`` over the whole vocabulary, with what the scene shares built once
-(observation, drivable map and its tree, red-light polygons) and the entries simulated and scored in chunks of
-``chunk`` rows, so memory stays bounded (16,384 entries take well under 2 GB). Row v is bit for bit
-``score_proposals(scene, vocabulary[v:v + 1], ...)``: every step of the pipeline computes a row without looking at
-the others (``elementwise``), so a chunk's neighbours change nothing; ``tests/test_vocabulary.py`` checks it on
-random entries, every column.
+(observation, drivable map with its grid, whose cells classified for one chunk serve the next, red-light polygons)
+and the entries simulated and scored in chunks of ``chunk`` rows, so memory stays bounded (16,384 entries take well
+under 2 GB). Row v is bit for bit ``score_proposals(scene, vocabulary[v:v + 1], ...)``: every step of the pipeline
+computes a row without looking at the others (``elementwise``), so a chunk's neighbours change nothing;
+``tests/test_vocabulary.py`` checks it on random entries, every column.
 
 EP has two definitions. The default (``progress="pair"``) is NAVSIM's for one agent trajectory: each entry's
 progress is normalised over ``[PDM-Closed, entry]``, as ``pdm_score`` scores a submitted trajectory. GTRS's targets
