@@ -51,6 +51,7 @@ from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import collect, scores_key, to_csv, to_latex, to_markdown
+from lead_s2r.report.training_log import TrainingLog
 from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.navsim.proposals import ReferenceCache
 from lead_s2r.scoring.run import SampleCache, score_predictions
@@ -317,7 +318,7 @@ def train_and_score(
         results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, caches)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
-    curves = plot_loss_curves(run / "lightning_logs" / "version_0" / "metrics.csv", run / LOSS_CURVES, key)
+    curves = plot_loss_curves(TrainingLog.of_training(run).path, run / LOSS_CURVES, key)
     if training.predicts:
         checkpoint = run / "checkpoints" / "last.ckpt"
         results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, caches)

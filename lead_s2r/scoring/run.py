@@ -9,21 +9,17 @@ the scorer sees anything, so a subset's aggregates are computed exactly as the w
 
 import contextlib
 import inspect
-import json
 import time
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
-import pyarrow.parquet as pq
-
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.files import write_atomically, write_text
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
+from lead_s2r.scoring.scores_file import ScoresFile
 from lead_s2r.shards import (
     check_listed_shards,
     listed_keys,
@@ -33,8 +29,6 @@ from lead_s2r.shards import (
     sample_offsets,
 )
 
-SCORES_TABLE = "scores.parquet"
-SCORES_JSON = "scores.json"
 #: Samples one job of a parallel read decodes: NAVSIM's take 4 ms each, a job's messages a few ms.
 SAMPLES_PER_READ = 64
 
@@ -226,7 +220,7 @@ def score_predictions(
         "seconds": round(time.perf_counter() - start, 3),
     }
     out = Path(out)
-    report = write_scores(out, result.table, report)
+    report = ScoresFile(out, report, result.table).write()
     scorer.write_files(result, out)
     return report
 
@@ -242,12 +236,3 @@ def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[s
             f"--metric {scorer.name} scores {needs}, but {', '.join(map(str, folders))} holds datasets {datasets} "
             "without them; choose the metric of that dataset (docs/metrics.md) or other --data"
         )
-
-
-def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
-    """Write ``out/scores.parquet`` (with a CRC32 per data page, which ``lead-s2r report`` checks) and
-    ``out/scores.json`` (strict JSON: no NaN) and return the JSON content."""
-    text = json.dumps(report, indent=2, allow_nan=False)
-    write_atomically(out / SCORES_TABLE, lambda partial: pq.write_table(table, partial, write_page_checksum=True))
-    write_text(out / SCORES_JSON, text + "\n")
-    return json.loads(text)
