@@ -32,10 +32,9 @@ from typing import Any, BinaryIO
 import cv2
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.files import move_into_place
+from lead_s2r.files import move_into_place, read_parquet, write_parquet
 from lead_s2r.schema import REQUIRED_FIELDS, field_spec
 
 MANIFEST = "manifest.parquet"
@@ -410,18 +409,25 @@ def _member_bytes(tar: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
 MANIFEST_COLUMNS = ("key", "shard", "dataset", "split", "log")
 
 
+def write_manifest(folder: Path, table: pa.Table) -> Path:
+    """``folder``'s manifest: one row per sample (key, shard, dataset, split, log, tags, ``has_*`` flags), with a CRC32
+    of every data page, so a damaged manifest is an error naming it, not samples listed in another shard."""
+    return write_parquet(folder / MANIFEST, table)
+
+
 def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
     """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
 
-    ``columns`` keeps only those; they and ``required`` must be there. A file that is missing, is not parquet or
-    lacks a column is a :class:`ShardError` naming it.
+    ``columns`` keeps only those; they and ``required`` must be there. A file that is missing, is not parquet, fails
+    a page's CRC (manifests written before the CRCs carry none and read as before) or lacks a column is a
+    :class:`ShardError` naming it.
     """
     path = Path(path)
     file = path / MANIFEST if path.is_dir() else path
     try:
-        table = pq.read_table(file)
+        table = read_parquet(file)
         table.validate(full=True)  # parquet does not check that strings are UTF-8; reading them would raise later
-    except (pa.ArrowException, OSError) as err:  # ArrowInvalid (not parquet), OSError (missing, bad thrift)
+    except (pa.ArrowException, OSError, ValueError) as err:  # ArrowInvalid (not parquet), OSError (missing, CRC)
         raise ShardError(f"{file}: cannot be read as a manifest ({_first_line(err)}); {_REDO}") from None
     absent = [name for name in (*(columns or ()), *required) if name not in table.column_names]
     if absent and not len(table):

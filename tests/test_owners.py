@@ -75,6 +75,7 @@ RULES: list[tuple[str, str, Callable[[ast.AST], Iterator[Finding]]]] = [
     ("scores.json has one owner", "lead_s2r/scoring/scores_file.py", file_name("scores.json")),
     ("scores.parquet has one owner", "lead_s2r/scoring/scores_file.py", file_name("scores.parquet")),
     ("the training log has one owner", "lead_s2r/report/training_log.py", file_name("metrics.csv")),
+    ("a conversion's manifest has one owner", "lead_s2r/shards.py", file_name("manifest.parquet")),
 ]
 
 

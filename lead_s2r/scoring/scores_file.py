@@ -12,12 +12,10 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields
-from lead_s2r.files import write_atomically, write_text
-from lead_s2r.predictions import read_parquet
+from lead_s2r.files import read_parquet, write_parquet, write_text
 
 SCORES_JSON = "scores.json"
 SCORES_TABLE = "scores.parquet"
@@ -58,9 +56,7 @@ class ScoresFile:
         if self.table is None:
             raise ValueError(f"{self.folder}: scores without their table")
         text = json.dumps(self.report, indent=2, allow_nan=False)
-        write_atomically(
-            self.folder / SCORES_TABLE, lambda partial: pq.write_table(self.table, partial, write_page_checksum=True)
-        )
+        write_parquet(self.folder / SCORES_TABLE, self.table)
         write_text(self.json_path, text + "\n")
         return json.loads(text)
 
