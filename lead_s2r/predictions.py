@@ -181,6 +181,12 @@ def group_by_key(predictions: Iterable[Prediction]) -> dict[str, list[Prediction
     return {key: sorted(group, key=lambda p: p.inference) for key, group in groups.items()}
 
 
+def most_probable(inferences: Sequence[Prediction]) -> Prediction:
+    """The highest-probability inference of one sample (the lowest ``inference`` on ties): the one trajectory a
+    scorer scores, a leaderboard takes and a report draws when a planner predicts several."""
+    return min(inferences, key=lambda p: (-p.probability, p.inference))
+
+
 @lru_cache(maxsize=256)
 def _interpolation_matrix(t_source: bytes, t_target: bytes) -> np.ndarray:
     """(len(target), len(source) + 1) weights over [origin at t = 0, source points]; cached per grid pair."""
