@@ -223,15 +223,34 @@ def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
         if (folder / IDENTITY).is_file():  # convert wrote here: its manifest is lost, or it never finished
             raise ShardError(f"{folder} has no {MANIFEST}: its conversion did not finish or it was deleted; {_REDO}")
         return None
-    return keys_by_shard(folder, load_manifest(folder, columns=("shard", "key")).to_pylist())
+    return keys_by_shard(_manifest_rows(folder))
 
 
-def keys_by_shard(folder: Path, rows: Iterable[dict[str, Any]]) -> dict[str, list[str]]:
-    """Manifest rows (``shard``, ``key``) -> keys per shard path, spelt as :func:`shard_paths` spells it."""
+def keys_by_shard(rows: Iterable[dict[str, Any]]) -> dict[str, list[str]]:
+    """:func:`listed_samples` rows -> keys per shard path."""
     listed: dict[str, list[str]] = {}
     for row in rows:
-        listed.setdefault(str(folder / SHARD_DIR / row["shard"]), []).append(row["key"])
+        listed.setdefault(row["shard"], []).append(row["key"])
     return listed
+
+
+def listed_samples(folder: Path, columns: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """Every sample the manifest of the converted ``folder`` lists, as its manifest row (``key``, ``shard`` spelt as
+    :func:`shard_paths` spells it, and ``columns``), in shard order (the manifest's within a shard): the one way a
+    reader chooses samples without decoding any. A tar the manifest lists that the folder lacks is a
+    :class:`ShardError`."""
+    rows = _manifest_rows(folder, columns)
+    check_listed_shards(keys_by_shard(rows))
+    return rows
+
+
+def _manifest_rows(folder: Path, columns: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """:func:`listed_samples` without the check that their tars are there."""
+    rows = load_manifest(folder, columns=("key", "shard", *columns)).to_pylist()
+    for row in rows:
+        row["shard"] = str(folder / SHARD_DIR / row["shard"])
+    rows.sort(key=lambda row: row["shard"])  # stable
+    return rows
 
 
 def check_listed_shards(listed: Mapping[str, Sequence[str]]) -> None:

@@ -38,7 +38,7 @@ import numpy as np
 import torch.utils.data
 import webdataset as wds
 
-from lead_s2r.shards import MANIFEST, SHARD_DIR, ShardError, check_listed_shards, keys_by_shard, load_manifest
+from lead_s2r.shards import MANIFEST, ShardError, keys_by_shard, listed_samples
 
 
 def worker_info() -> tuple[int, int]:
@@ -95,13 +95,10 @@ def manifest_samples(
             f"{folder / MANIFEST} not found: evaluation splits samples over ranks by the manifest; "
             "point the data at a folder written by `lead-s2r convert`"
         )
-    rows = load_manifest(folder, columns=("key", "shard", "split")).to_pylist()
+    rows = listed_samples(folder, ("split",))
     wanted = None if splits is None else set(splits)
-    kept = [row for row in rows if wanted is None or row["split"] in wanted]
-    kept.sort(key=lambda row: row["shard"])  # stable: manifest order within a shard
-    listed = keys_by_shard(folder, rows)
-    check_listed_shards(listed)
-    return [(str(folder / SHARD_DIR / row["shard"]), row["key"]) for row in kept], listed
+    kept = [(row["shard"], row["key"]) for row in rows if wanted is None or row["split"] in wanted]
+    return kept, keys_by_shard(rows)
 
 
 class SampleShare:

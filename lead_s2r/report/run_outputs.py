@@ -23,7 +23,7 @@ from lead_s2r.predictions import Prediction, group_by_key, read_predictions
 from lead_s2r.report.tables import TableError, folder_identity, run_identity
 from lead_s2r.report.training_log import TrainingLog
 from lead_s2r.scoring.scores_file import SCORES_JSON, ScoresFile, scores_folders
-from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
+from lead_s2r.shards import MANIFEST, listed_samples, load_manifest, read_samples
 
 PREDICTIONS = "predictions.parquet"
 #: metric family -> (the per-sample headline column, True when higher is better): what "worst" and "wins" mean
@@ -175,16 +175,15 @@ def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict
     """The samples of ``keys`` from converted ``folders``, every field decoded, reading only the shards that hold
     them (the manifest says which). A key none of the folders holds is a :class:`UserError`."""
     wanted = set(keys)
-    by_shard: dict[Path, set[str]] = defaultdict(set)
+    by_shard: dict[str, set[str]] = defaultdict(set)
     folders = list(folders)
     for folder in folders:
         if not (folder / MANIFEST).is_file():
             raise UserError(f"--data {folder}: not a converted folder (no {MANIFEST}); give what `lead-s2r convert` "
                             "wrote")  # fmt: skip
-        manifest = load_manifest(folder)
-        rows = manifest.filter(pc.is_in(manifest["key"], value_set=pa.array(sorted(wanted), pa.string())))
-        for key, shard in zip(rows["key"].to_pylist(), rows["shard"].to_pylist(), strict=True):
-            by_shard[folder / SHARD_DIR / shard].add(key)
+        for row in listed_samples(folder):
+            if row["key"] in wanted:
+                by_shard[row["shard"]].add(row["key"])
     found = {key for keys_ in by_shard.values() for key in keys_}
     missing = sorted(wanted - found)
     if missing:

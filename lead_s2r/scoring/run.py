@@ -21,9 +21,8 @@ from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
 from lead_s2r.scoring.scores_file import ScoresFile
 from lead_s2r.shards import (
-    check_listed_shards,
     listed_keys,
-    load_manifest,
+    listed_samples,
     read_part,
     read_samples,
     sample_offsets,
@@ -109,19 +108,12 @@ def choose_samples(
 def sample_listing(folder: Path, fields: tuple[str, ...]) -> list[dict[str, Any]]:
     """A folder's samples as entries (``key``, ``split``, ``tags``, and ``shard`` or the decoded ``sample``): from
     its manifest, or, for a folder of tars without one, from every sample decoded."""
-    listed = listed_keys(folder)
-    if listed is None:
+    if listed_keys(folder) is None:
         return [
             {"key": s["__key__"], "split": s["meta"]["split"], "tags": s["meta"].get("tags") or (), "sample": s}
             for s in read_samples(folder, fields=fields)
         ]
-    check_listed_shards(listed)
-    rows = {row["key"]: row for row in load_manifest(folder, columns=("key", "split", "tags")).to_pylist()}
-    return [
-        {"key": key, "split": rows[key]["split"], "tags": rows[key]["tags"] or (), "shard": shard}
-        for shard, keys in sorted(listed.items())
-        for key in keys
-    ]
+    return [row | {"tags": row["tags"] or ()} for row in listed_samples(folder, ("split", "tags"))]
 
 
 def _decoded(chosen: list[dict[str, Any]], fields: tuple[str, ...], executor: Executor | None) -> list[dict[str, Any]]:
