@@ -6,11 +6,8 @@ file that passes for a result (a scores.parquet without its rows, a manifest cut
 temporary name beside its target (same folder, so the rename stays on one file system and is atomic on POSIX) that
 is unique per process and thread, since scoring workers may write the same cache entry at once; the temporary is
 removed whatever happens.
-
-Parquet files we write and read back (predictions, scores, manifests) carry a CRC32 per data page and are read
-checked (:func:`write_parquet`, :func:`read_parquet`): parquet has no other guard, so a flipped bit in a value would
-pass for another value. pyarrow is imported in those two only: conversion workers import this module to write
-shards, and pyarrow is a fifth of a second of their start-up.
+Parquet files we read back (predictions, scores, manifests) carry a CRC32 per data page, checked on reading: nothing
+else guards a value. pyarrow is imported there only (0.2 s of a conversion worker's start-up, which writes shards).
 """
 
 import base64

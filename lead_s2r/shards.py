@@ -223,14 +223,14 @@ def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
         if (folder / IDENTITY).is_file():  # convert wrote here: its manifest is lost, or it never finished
             raise ShardError(f"{folder} has no {MANIFEST}: its conversion did not finish or it was deleted; {_REDO}")
         return None
-    return keys_by_shard(_manifest_rows(folder))
+    return keys_by_shard((row["shard"], row["key"]) for row in _manifest_rows(folder))
 
 
-def keys_by_shard(rows: Iterable[dict[str, Any]]) -> dict[str, list[str]]:
-    """:func:`listed_samples` rows -> keys per shard path."""
+def keys_by_shard(samples: Iterable[tuple[str, str]]) -> dict[str, list[str]]:
+    """(shard, key) pairs -> the keys of each shard, in their order; shards in first-seen order."""
     listed: dict[str, list[str]] = {}
-    for row in rows:
-        listed.setdefault(row["shard"], []).append(row["key"])
+    for shard, key in samples:
+        listed.setdefault(shard, []).append(key)
     return listed
 
 
@@ -240,7 +240,7 @@ def listed_samples(folder: Path, columns: Sequence[str] = ()) -> list[dict[str, 
     reader chooses samples without decoding any. A tar the manifest lists that the folder lacks is a
     :class:`ShardError`."""
     rows = _manifest_rows(folder, columns)
-    check_listed_shards(keys_by_shard(rows))
+    check_listed_shards(keys_by_shard((row["shard"], row["key"]) for row in rows))
     return rows
 
 
@@ -424,10 +424,6 @@ def _member_bytes(tar: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
     return file.read()
 
 
-#: Columns every manifest of a conversion that wrote a sample has; a conversion that wrote none writes only ``key``.
-MANIFEST_COLUMNS = ("key", "shard", "dataset", "split", "log")
-
-
 def write_manifest(folder: Path, table: pa.Table) -> Path:
     """``folder``'s manifest: one row per sample (key, shard, dataset, split, log, tags, ``has_*`` flags), with a CRC32
     of every data page, so a damaged manifest is an error naming it, not samples listed in another shard."""
@@ -437,12 +433,15 @@ def write_manifest(folder: Path, table: pa.Table) -> Path:
 def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
     """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
 
-    ``columns`` keeps only those; they and ``required`` must be there. A file that is missing, is not parquet, fails
-    a page's CRC (manifests written before the CRCs carry none and read as before) or lacks a column is a
-    :class:`ShardError` naming it.
+    ``columns`` keeps only those; they and ``required`` must be there. A folder without one, a file that is missing,
+    is not parquet, fails a page's CRC (manifests written before the CRCs carry none and read as before) or lacks a
+    column is a :class:`ShardError` naming it.
     """
     path = Path(path)
     file = path / MANIFEST if path.is_dir() else path
+    if path.is_dir() and not file.is_file():
+        raise ShardError(f"{path} holds no {MANIFEST}: not a converted folder (or its conversion did not finish); "
+                         "give a folder `lead-s2r convert` wrote")  # fmt: skip
     try:
         table = read_parquet(file)
         table.validate(full=True)  # parquet does not check that strings are UTF-8; reading them would raise later

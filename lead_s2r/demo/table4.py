@@ -17,20 +17,8 @@ from rich.console import RenderableType
 from rich.table import Table
 
 from lead_s2r.files import write_text
-from lead_s2r.report.tables import (
-    Cell,
-    Column,
-    Row,
-    Run,
-    TableSpec,
-    collect,
-    format_cell,
-    format_paper,
-    load_spec,
-    to_csv,
-    to_latex,
-    to_markdown,
-)
+from lead_s2r.report import tables as paper  # the paper's tables: collect and render
+from lead_s2r.report.tables import Cell, Column, Row, Run, TableSpec, format_cell, format_paper, load_spec
 
 #: dataset -> the held-out split every row is scored on, and its name in the table.
 EVAL_SPLITS = {"navsim": "test", "wod_e2e": "val"}
@@ -90,8 +78,8 @@ def build_table4(results: dict[str, Any], out: Path, seeds: tuple[int, ...]) -> 
     written to ``out/table/table4.{md,tex,csv}``; returned as the console shows it (a table per dataset, the notes,
     the camera reliance)."""
     spec = table_spec(seeds)
-    cells = collect(spec, table_runs(results, out, seeds))
-    for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
+    cells = paper.collect(spec, table_runs(results, out, seeds))
+    for suffix, render in (("md", paper.to_markdown), ("tex", paper.to_latex), ("csv", paper.to_csv)):
         write_text(out / "table" / f"table4.{suffix}", render(spec, cells))
     return [*tables(spec, cells), spec.notes, camera_use(results, seeds)]
 

@@ -22,8 +22,9 @@ from lead_s2r.errors import UserError
 from lead_s2r.predictions import Prediction, group_by_key, read_predictions
 from lead_s2r.report.tables import TableError, folder_identity, run_identity
 from lead_s2r.report.training_log import TrainingLog
+from lead_s2r.scoring.run import decode_listed
 from lead_s2r.scoring.scores_file import SCORES_JSON, ScoresFile, scores_folders
-from lead_s2r.shards import MANIFEST, listed_samples, load_manifest, read_samples
+from lead_s2r.shards import listed_samples, load_manifest
 
 PREDICTIONS = "predictions.parquet"
 #: metric family -> (the per-sample headline column, True when higher is better): what "worst" and "wins" mean
@@ -132,7 +133,7 @@ def _whole_sets(scores: list[MetricScores]) -> list[MetricScores]:
 
 def _metric_scores(folder: Path) -> MetricScores:
     scores = ScoresFile.read(folder)
-    return MetricScores(folder, scores.report, scores.rows_by_key())
+    return MetricScores(folder, scores.report, {row["key"]: row for row in scores.table.to_pylist()})
 
 
 def _predictions(path: Path, scores: list[MetricScores]) -> dict[str, list[Prediction]]:
@@ -174,28 +175,14 @@ def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
 def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict[str, Any]]:
     """The samples of ``keys`` from converted ``folders``, every field decoded, reading only the shards that hold
     them (the manifest says which). A key none of the folders holds is a :class:`UserError`."""
-    wanted = set(keys)
-    by_shard: dict[str, set[str]] = defaultdict(set)
-    folders = list(folders)
-    for folder in folders:
-        if not (folder / MANIFEST).is_file():
-            raise UserError(f"--data {folder}: not a converted folder (no {MANIFEST}); give what `lead-s2r convert` "
-                            "wrote")  # fmt: skip
-        for row in listed_samples(folder):
-            if row["key"] in wanted:
-                by_shard[row["shard"]].add(row["key"])
-    found = {key for keys_ in by_shard.values() for key in keys_}
-    missing = sorted(wanted - found)
+    wanted, folders = set(keys), list(folders)
+    chosen = [row for folder in folders for row in listed_samples(folder) if row["key"] in wanted]
+    missing = sorted(wanted - {row["key"] for row in chosen})
     if missing:
         where = ", ".join(str(folder) for folder in folders) or "no --data folder"
         raise UserError(f"sample {missing[0]!r} (and {len(missing) - 1} more) is not in {where}; pass the converted "
                         "folders the run was scored on with --data")  # fmt: skip
-    samples = {}
-    for shard, shard_keys in by_shard.items():
-        for sample in read_samples(shard):
-            if sample["__key__"] in shard_keys:
-                samples[sample["__key__"]] = sample
-    return samples
+    return {sample["__key__"]: sample for sample in decode_listed(chosen, None)}
 
 
 def sample_tags(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, list[str]]:

@@ -27,7 +27,7 @@ import yaml
 from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields, fits, is_number
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
-from lead_s2r.scoring.scores_file import ScoresFile, scores_folders
+from lead_s2r.scoring.scores_file import SCORES_JSON, ScoresFile, scores_folders
 
 #: The table specs of the paper (Tables 1-5), next to the recipes they read.
 PAPER_SPECS = Path(__file__).resolve().parents[2] / "recipes" / "paper"
@@ -236,9 +236,9 @@ def load_run(path: Path) -> Run:
         scores = ScoresFile.read(folder, rows=False, error=TableError)
         key = scores_key(scores.metric, scores.tag)
         if key in run.scores:
-            raise TableError(f"{path}: two scores.json for metric {key!r} (one is {scores.json_path}); keep one")
+            raise TableError(f"{path}: two scores.json for metric {key!r} (one is {folder / SCORES_JSON}); keep one")
         run.scores[key] = scores.aggregates
-        run.sources[key] = scores.json_path
+        run.sources[key] = folder / SCORES_JSON
     return run
 
 

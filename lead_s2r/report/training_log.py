@@ -1,8 +1,6 @@
-"""A run's training log: ``metrics.csv``, which Lightning's CSV logger writes (one row per logged step, a column per
-metric, blank where a metric was not logged that step) and the report's and the quickstart's loss curves read.
-
-The one module that spells the name or parses the file (tests/test_owners.py holds every other to that).
-"""
+"""A run's training log, ``metrics.csv``: Lightning's CSV logger writes it (a row per logged step, a column per metric,
+blank where not logged), the report's and the quickstart's loss curves read it. The one module that spells the name
+or parses the file (tests/test_owners.py)."""
 
 import csv
 from collections.abc import Iterator
@@ -12,8 +10,6 @@ from pathlib import Path
 from lead_s2r.errors import UserError
 
 TRAINING_LOG = "metrics.csv"
-#: Where Lightning's CSV logger puts the log of a training's first run below its root folder.
-FIRST_VERSION = Path("lightning_logs") / "version_0"
 
 
 @dataclass(frozen=True)
@@ -25,7 +21,7 @@ class TrainingLog:
     @classmethod
     def of_training(cls, root: Path) -> "TrainingLog":
         """The log of the first training run under ``root`` (LightningCLI's ``trainer.default_root_dir``)."""
-        return cls(root / FIRST_VERSION / TRAINING_LOG)
+        return cls(root / "lightning_logs" / "version_0" / TRAINING_LOG)
 
     @classmethod
     def below(cls, folder: Path) -> list["TrainingLog"]:

@@ -99,7 +99,7 @@ def choose_samples(
         held = sorted({t for entry in in_split for t in entry["tags"]})
         raise UserError(f"--tag {tag}: no sample of {', '.join(map(str, folders))} has it; their tags: {held}")
     passed_over = {entry["key"] for entry in in_split} - {entry["key"] for entry in chosen}
-    result = _decoded(chosen, fields, executor), passed_over
+    result = decode_listed(chosen, fields, executor), passed_over
     if cache is not None:
         cache[key] = result
     return result
@@ -116,10 +116,13 @@ def sample_listing(folder: Path, fields: tuple[str, ...]) -> list[dict[str, Any]
     return [row | {"tags": row["tags"] or ()} for row in listed_samples(folder, ("split", "tags"))]
 
 
-def _decoded(chosen: list[dict[str, Any]], fields: tuple[str, ...], executor: Executor | None) -> list[dict[str, Any]]:
-    """The samples of ``chosen`` entries, in their order: decoded already, or read from their shards in parts of
-    consecutive chosen samples (:func:`~lead_s2r.shards.read_part`), by ``executor``'s workers or here."""
-    if "sample" in chosen[0]:
+def decode_listed(
+    chosen: list[dict[str, Any]], fields: tuple[str, ...] | None, executor: Executor | None = None
+) -> list[dict[str, Any]]:
+    """The samples of ``chosen`` entries (:func:`sample_listing`'s), in their order: decoded already, or read from
+    their shards in parts of consecutive chosen samples (:func:`~lead_s2r.shards.read_part`; ``fields`` None: every
+    field), by ``executor``'s workers or here."""
+    if chosen and "sample" in chosen[0]:
         return [entry["sample"] for entry in chosen]
     by_shard: dict[str, list[str]] = {}
     for entry in chosen:

@@ -1,10 +1,6 @@
-"""The scores of one scoring: ``scores.json`` (aggregates, metric, config, inputs) beside ``scores.parquet`` (one row
-per scored sample), what ``lead-s2r score`` and ``lead-s2r carla-metrics`` write and ``lead-s2r report`` and
-``lead-s2r table`` read.
-
-The one module that spells these names or parses the files (tests/test_owners.py holds every other to that): the
-report and the table builder once checked a scores.json two ways and disagreed on what passes.
-"""
+"""One scoring's output: ``scores.json`` (aggregates, metric, config, inputs) beside ``scores.parquet`` (a row per
+scored sample), written by ``lead-s2r score`` / ``carla-metrics``, read by ``lead-s2r report`` / ``table``. The one
+module that spells the names or parses the files (tests/test_owners.py): the readers once checked it two ways."""
 
 import json
 from dataclasses import dataclass
@@ -28,7 +24,7 @@ ADVICE = "not what `lead-s2r score` or `lead-s2r carla-metrics` writes there"
 
 @dataclass
 class ScoresFile:
-    """One scoring's output folder: the scores.json content and, when read with its rows or written, the table."""
+    """A scoring's output folder: the scores.json content and, read with its rows or to be written, the table."""
 
     folder: Path
     report: dict[str, Any]
@@ -46,10 +42,6 @@ class ScoresFile:
     def aggregates(self) -> dict[str, Any]:
         return self.report.get("aggregates", {})
 
-    @property
-    def json_path(self) -> Path:
-        return self.folder / SCORES_JSON
-
     def write(self) -> dict[str, Any]:
         """Write ``scores.parquet`` (with a CRC32 per data page, which the readers check) and ``scores.json``
         (strict JSON: no NaN), each put in place whole; return the JSON content as a reader sees it."""
@@ -57,7 +49,7 @@ class ScoresFile:
             raise ValueError(f"{self.folder}: scores without their table")
         text = json.dumps(self.report, indent=2, allow_nan=False)
         write_parquet(self.folder / SCORES_TABLE, self.table)
-        write_text(self.json_path, text + "\n")
+        write_text(self.folder / SCORES_JSON, text + "\n")
         return json.loads(text)
 
     @classmethod
@@ -81,10 +73,6 @@ class ScoresFile:
             if key is None or not pa.types.is_string(key):
                 raise error(f"{folder / SCORES_TABLE}: its key column holds {key}, not sample keys; {ADVICE}")
         return cls(folder, report, table)
-
-    def rows_by_key(self) -> dict[str, dict[str, Any]]:
-        """The per-sample rows (read with ``rows``) by sample key."""
-        return {row["key"]: row for row in (self.table.to_pylist() if self.table is not None else [])}
 
 
 def scores_folders(path: Path) -> list[Path]:
