@@ -223,7 +223,7 @@ def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
         if (folder / IDENTITY).is_file():  # convert wrote here: its manifest is lost, or it never finished
             raise ShardError(f"{folder} has no {MANIFEST}: its conversion did not finish or it was deleted; {_REDO}")
         return None
-    return keys_by_shard((row["shard"], row["key"]) for row in _manifest_rows(folder))
+    return keys_by_shard((row["shard"], row["key"]) for row in listed_samples(folder, check=False))
 
 
 def keys_by_shard(samples: Iterable[tuple[str, str]]) -> dict[str, list[str]]:
@@ -234,22 +234,17 @@ def keys_by_shard(samples: Iterable[tuple[str, str]]) -> dict[str, list[str]]:
     return listed
 
 
-def listed_samples(folder: Path, columns: Sequence[str] = ()) -> list[dict[str, Any]]:
+def listed_samples(folder: Path, columns: Sequence[str] = (), check: bool = True) -> list[dict[str, Any]]:
     """Every sample the manifest of the converted ``folder`` lists, as its manifest row (``key``, ``shard`` spelt as
     :func:`shard_paths` spells it, and ``columns``), in shard order (the manifest's within a shard): the one way a
-    reader chooses samples without decoding any. A tar the manifest lists that the folder lacks is a
+    reader chooses samples without decoding any. With ``check``, a tar the manifest lists that the folder lacks is a
     :class:`ShardError`."""
-    rows = _manifest_rows(folder, columns)
-    check_listed_shards(keys_by_shard((row["shard"], row["key"]) for row in rows))
-    return rows
-
-
-def _manifest_rows(folder: Path, columns: Sequence[str] = ()) -> list[dict[str, Any]]:
-    """:func:`listed_samples` without the check that their tars are there."""
     rows = load_manifest(folder, columns=("key", "shard", *columns)).to_pylist()
     for row in rows:
         row["shard"] = str(folder / SHARD_DIR / row["shard"])
     rows.sort(key=lambda row: row["shard"])  # stable
+    if check:
+        check_listed_shards(keys_by_shard((row["shard"], row["key"]) for row in rows))
     return rows
 
 

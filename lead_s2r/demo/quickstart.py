@@ -48,7 +48,7 @@ from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import scores_key
-from lead_s2r.report.training_log import TrainingLog
+from lead_s2r.report.training_log import TRAINING_LOG
 from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.navsim.proposals import ReferenceCache
 from lead_s2r.scoring.run import SampleCache, score_predictions
@@ -308,7 +308,7 @@ def train_and_score(
         results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, caches)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
-    curves = plot_loss_curves(TrainingLog.of_training(run).path, run / LOSS_CURVES, key)
+    curves = plot_loss_curves(run / "lightning_logs" / "version_0" / TRAINING_LOG, run / LOSS_CURVES, key)
     if training.predicts:
         checkpoint = run / "checkpoints" / "last.ckpt"
         results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, caches)

@@ -19,11 +19,6 @@ class TrainingLog:
     path: Path
 
     @classmethod
-    def of_training(cls, root: Path) -> "TrainingLog":
-        """The log of the first training run under ``root`` (LightningCLI's ``trainer.default_root_dir``)."""
-        return cls(root / "lightning_logs" / "version_0" / TRAINING_LOG)
-
-    @classmethod
     def below(cls, folder: Path) -> list["TrainingLog"]:
         """Every log below ``folder``, in the order of their paths."""
         return [cls(path) for path in sorted(folder.rglob(TRAINING_LOG))]

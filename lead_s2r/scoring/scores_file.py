@@ -34,14 +34,6 @@ class ScoresFile:
     def metric(self) -> str:
         return str(self.report["metric"])
 
-    @property
-    def tag(self) -> str | None:
-        return self.report.get("tag")
-
-    @property
-    def aggregates(self) -> dict[str, Any]:
-        return self.report.get("aggregates", {})
-
     def write(self) -> dict[str, Any]:
         """Write ``scores.parquet`` (with a CRC32 per data page, which the readers check) and ``scores.json``
         (strict JSON: no NaN), each put in place whole; return the JSON content as a reader sees it."""
@@ -71,7 +63,8 @@ class ScoresFile:
             check_fields(report.get("config", {}), {"reference_cache": str | None}, str(json_path), error, at="config")
             key = table.schema.field("key").type if "key" in table.column_names else None
             if key is None or not pa.types.is_string(key):
-                raise error(f"{folder / SCORES_TABLE}: its key column holds {key}, not sample keys; {ADVICE}")
+                what = "is missing" if key is None else f"holds {key}"
+                raise error(f"{folder / SCORES_TABLE}: its key column {what}, not sample keys; {ADVICE}")
         return cls(folder, report, table)
 
 
