@@ -74,9 +74,8 @@ METRICS = (
 
 
 def build_table4(results: dict[str, Any], out: Path, seeds: tuple[int, ...]) -> list[RenderableType]:
-    """Table 4 of the quickstart's ``results`` (``{run id: {dataset: {scores key: aggregates}}}``) over ``seeds``:
-    written to ``out/table/table4.{md,tex,csv}``; returned as the console shows it (a table per dataset, the notes,
-    the camera reliance)."""
+    """Table 4 of the quickstart's ``results`` (``{run id: {dataset: {scores key: aggregates}}}``) over ``seeds``,
+    written to ``out/table/table4.{md,tex,csv}``; returns the console's view (a table per dataset, notes, cameras)."""
     spec = table_spec(seeds)
     cells = paper.collect(spec, table_runs(results, out, seeds))
     for suffix, render in (("md", paper.to_markdown), ("tex", paper.to_latex), ("csv", paper.to_csv)):

@@ -15,16 +15,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
-import pyarrow.compute as pc
-
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import Prediction, group_by_key, read_predictions
 from lead_s2r.report.tables import TableError, folder_identity, run_identity
-from lead_s2r.report.training_log import TrainingLog
+from lead_s2r.report.training_log import TRAINING_LOG, TrainingLog
 from lead_s2r.scoring.run import decode_listed
 from lead_s2r.scoring.scores_file import SCORES_JSON, ScoresFile, scores_folders
-from lead_s2r.shards import listed_samples, load_manifest
+from lead_s2r.shards import listed_samples
 
 PREDICTIONS = "predictions.parquet"
 #: metric family -> (the per-sample headline column, True when higher is better): what "worst" and "wins" mean
@@ -165,9 +162,9 @@ def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
     (``metrics.csv``; the x axis is the optimizer step) below ``path``, else in ``path/../lightning_logs``: a
     prediction folder inside its training's root (``<default_root_dir>/trained``) shows the training's curves."""
     curves: dict[str, list[tuple[float, float]]] = defaultdict(list)
-    logs = TrainingLog.below(path) or TrainingLog.below(path.parent / "lightning_logs")
+    logs = sorted(path.rglob(TRAINING_LOG)) or sorted((path.parent / "lightning_logs").rglob(TRAINING_LOG))
     for log in logs:
-        for name, step, value in log.read():
+        for name, step, value in TrainingLog(log).read():
             curves[name].append((step, value))
     return dict(curves)
 
@@ -187,12 +184,5 @@ def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict
 
 def sample_tags(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, list[str]]:
     """The manifest's tags (``scene_filter:pedestrians_ahead``) of each of ``keys`` the converted ``folders`` hold."""
-    wanted = pa.array(sorted(set(keys)), pa.string())
-    tags: dict[str, list[str]] = {}
-    for folder in folders:
-        manifest = load_manifest(folder)
-        if "tags" not in manifest.column_names:
-            continue
-        rows = manifest.filter(pc.is_in(manifest["key"], value_set=wanted))
-        tags.update(zip(rows["key"].to_pylist(), (t or [] for t in rows["tags"].to_pylist()), strict=True))
-    return tags
+    wanted, rows = set(keys), (row for folder in folders for row in listed_samples(folder, ("tags",), check=False))
+    return {row["key"]: row["tags"] or [] for row in rows if row["key"] in wanted}

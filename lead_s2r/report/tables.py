@@ -234,7 +234,7 @@ def load_run(path: Path) -> Run:
     run = Run(path, *identity)
     for folder in scores_folders(path):
         scores = ScoresFile.read(folder, rows=False, error=TableError)
-        key = scores_key(scores.metric, scores.report.get("tag"))
+        key = scores_key(scores.report["metric"], scores.report.get("tag"))
         if key in run.scores:
             raise TableError(f"{path}: two scores.json for metric {key!r} (one is {folder / SCORES_JSON}); keep one")
         run.scores[key] = scores.report.get("aggregates", {})

@@ -18,11 +18,6 @@ class TrainingLog:
 
     path: Path
 
-    @classmethod
-    def below(cls, folder: Path) -> list["TrainingLog"]:
-        """Every log below ``folder``, in the order of their paths."""
-        return [cls(path) for path in sorted(folder.rglob(TRAINING_LOG))]
-
     def read(self) -> Iterator[tuple[str, float, float]]:
         """(column, step, value) of every filled cell but the step and epoch columns. A file that is gone, not
         UTF-8, not CSV, without a step column, with a row longer than its header or a cell that is no number is a

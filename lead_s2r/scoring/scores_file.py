@@ -30,10 +30,6 @@ class ScoresFile:
     report: dict[str, Any]
     table: pa.Table | None = None
 
-    @property
-    def metric(self) -> str:
-        return str(self.report["metric"])
-
     def write(self) -> dict[str, Any]:
         """Write ``scores.parquet`` (with a CRC32 per data page, which the readers check) and ``scores.json``
         (strict JSON: no NaN), each put in place whole; return the JSON content as a reader sees it."""
