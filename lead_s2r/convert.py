@@ -46,11 +46,11 @@ import numpy as np
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.files import write_atomically, write_text
+from lead_s2r.files import write_text
 from lead_s2r.processes import Executor, WorkerDied, make_executor
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, SchemaError, validate
-from lead_s2r.shards import ERRORS, IDENTITY, INFO, MANIFEST, SHARD_DIR, ShardFile, write_sample
+from lead_s2r.shards import ERRORS, IDENTITY, INFO, MANIFEST, SHARD_DIR, ShardFile, write_manifest, write_sample
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -411,7 +411,6 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
     pyarrow and rich are imported in the driver's functions only: the workers' forkserver imports this module, and
     they are 0.2 s of its start-up."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
     rows = [row for record in records for _, log_rows in record["logs"] for row in log_rows]
     flags = sorted({name for row in rows for name in row if name.startswith("has_")})
@@ -419,7 +418,7 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         for name in flags:
             row.setdefault(name, False)
     table = pa.Table.from_pylist(rows) if rows else pa.table({"key": pa.array([], pa.string())})
-    write_atomically(out / MANIFEST, lambda partial: pq.write_table(table, partial))
+    write_manifest(out, table)
     info = {
         "schema_version": SCHEMA_VERSION,
         "lead_s2r_version": __version__,

@@ -5,7 +5,7 @@ ego frame of the sample (rear axle at t0, x forward, y left), ``t`` > 0 in secon
 optionally ``probability`` float and ``inference`` int for multi-modal outputs. ``yaw`` may be NaN where a
 model predicts no heading; ``t``, ``x``, ``y`` must be finite. :func:`write_predictions` stores a CRC32 of every
 data page and :func:`read_predictions` checks those a file carries, and the column names against the copy of the
-schema pyarrow keeps beside them (:func:`read_parquet`): parquet has no other guard, so a flipped bit in a
+schema pyarrow keeps beside them (:mod:`lead_s2r.files`): parquet has no other guard, so a flipped bit in a
 coordinate or a column name would otherwise be scored as a slightly different prediction or a missing column.
 
 :func:`on_grid` puts trajectories on a scorer's time grid. A prediction on another grid (e.g. 2 Hz x 10) is
@@ -14,7 +14,6 @@ puts the ego there. It never extrapolates: a target time after the last predicte
 checkpoint is never filled by copying the 4.75 s point.
 """
 
-import base64
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -23,10 +22,9 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.files import write_atomically
+from lead_s2r.files import read_parquet, write_parquet
 
 #: Seconds within which two time stamps are the same grid point.
 TIME_TOLERANCE = 1e-3
@@ -104,7 +102,7 @@ def write_predictions(path: str | Path, predictions: Iterable[Prediction]) -> Pa
         "inference": [int(p.inference) for p in predictions],
     }
     table = pa.table(columns, schema=SCHEMA)
-    return write_atomically(Path(path), lambda partial: pq.write_table(table, partial, write_page_checksum=True))
+    return write_parquet(Path(path), table)
 
 
 def read_predictions(path: str | Path) -> list[Prediction]:
@@ -158,28 +156,6 @@ def read_predictions(path: str | Path) -> list[Prediction]:
     return predictions
 
 
-def read_parquet(path: str | Path) -> pa.Table:
-    """A parquet table, checked as far as the file allows: the CRC of every page that carries one, then what no
-    checksum covers: the row counts of the footer and of its row groups (a flipped bit there drops rows unseen), and
-    the columns' names and types against the Arrow schema pyarrow stores beside them. Raises OSError or
-    ArrowException for a damaged file (ArrowInvalid for counts or columns that disagree), ValueError for a name that
-    is no longer UTF-8 or a stored schema that is no longer base64."""
-    table = pq.read_table(path, page_checksum_verification=True)
-    metadata = pq.read_metadata(path)
-    grouped = sum(metadata.row_group(i).num_rows for i in range(metadata.num_row_groups))
-    if not metadata.num_rows == grouped == table.num_rows:
-        raise pa.ArrowInvalid(f"its footer counts {metadata.num_rows} rows, its row groups {grouped}")
-    stored = (metadata.metadata or {}).get(b"ARROW:schema")
-    if stored is not None:
-        written = pa.ipc.read_schema(pa.py_buffer(base64.b64decode(stored, validate=True)))
-        if table.schema.names != written.names:
-            raise pa.ArrowInvalid(f"its footer names the columns {table.schema.names}, written as {written.names}")
-        retyped = [f"{a.name}: {a.type}" for a, b in zip(table.schema, written, strict=True) if not a.equals(b)]
-        if retyped:
-            raise pa.ArrowInvalid(f"its footer types the columns {retyped} otherwise than they were written")
-    return table
-
-
 def _check_unique(predictions: Sequence[Prediction]) -> None:
     seen = set()
     for p in predictions:
@@ -203,6 +179,12 @@ def group_by_key(predictions: Iterable[Prediction]) -> dict[str, list[Prediction
     for p in predictions:
         groups[p.key].append(p)
     return {key: sorted(group, key=lambda p: p.inference) for key, group in groups.items()}
+
+
+def most_probable(inferences: Sequence[Prediction]) -> Prediction:
+    """The highest-probability inference of one sample (the lowest ``inference`` on ties): the one trajectory a
+    scorer scores, a leaderboard takes and a report draws when a planner predicts several."""
+    return min(inferences, key=lambda p: (-p.probability, p.inference))
 
 
 @lru_cache(maxsize=256)

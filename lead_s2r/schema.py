@@ -128,9 +128,6 @@ CLASS_TABLES: dict[str, type[IntEnum]] = {
     "carla_semantic": SemanticClassCarla,
 }
 
-BOX_COLUMNS = ("x", "y", "z", "length", "width", "height", "yaw", "vx", "vy", "class")
-TRAJECTORY_COLUMNS = ("t", "x", "y", "yaw")
-
 
 class MapKind(IntEnum):
     """``polygon_kind`` codes of ``scoring.npz`` (nuPlan SemanticMapLayer names)."""

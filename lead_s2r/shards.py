@@ -32,10 +32,9 @@ from typing import Any, BinaryIO
 import cv2
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.files import move_into_place
+from lead_s2r.files import move_into_place, read_parquet, write_parquet
 from lead_s2r.schema import REQUIRED_FIELDS, field_spec
 
 MANIFEST = "manifest.parquet"
@@ -224,15 +223,29 @@ def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
         if (folder / IDENTITY).is_file():  # convert wrote here: its manifest is lost, or it never finished
             raise ShardError(f"{folder} has no {MANIFEST}: its conversion did not finish or it was deleted; {_REDO}")
         return None
-    return keys_by_shard(folder, load_manifest(folder, columns=("shard", "key")).to_pylist())
+    return keys_by_shard((row["shard"], row["key"]) for row in listed_samples(folder, check=False))
 
 
-def keys_by_shard(folder: Path, rows: Iterable[dict[str, Any]]) -> dict[str, list[str]]:
-    """Manifest rows (``shard``, ``key``) -> keys per shard path, spelt as :func:`shard_paths` spells it."""
+def keys_by_shard(samples: Iterable[tuple[str, str]]) -> dict[str, list[str]]:
+    """(shard, key) pairs -> the keys of each shard, in their order; shards in first-seen order."""
     listed: dict[str, list[str]] = {}
-    for row in rows:
-        listed.setdefault(str(folder / SHARD_DIR / row["shard"]), []).append(row["key"])
+    for shard, key in samples:
+        listed.setdefault(shard, []).append(key)
     return listed
+
+
+def listed_samples(folder: Path, columns: Sequence[str] = (), check: bool = True) -> list[dict[str, Any]]:
+    """Every sample the manifest of the converted ``folder`` lists, as its manifest row (``key``, ``shard`` spelt as
+    :func:`shard_paths` spells it, and ``columns``), in shard order (the manifest's within a shard): the one way a
+    reader chooses samples without decoding any. With ``check``, a tar the manifest lists that the folder lacks is a
+    :class:`ShardError`."""
+    rows = load_manifest(folder, columns=("key", "shard", *columns)).to_pylist()
+    for row in rows:
+        row["shard"] = str(folder / SHARD_DIR / row["shard"])
+    rows.sort(key=lambda row: row["shard"])  # stable
+    if check:
+        check_listed_shards(keys_by_shard((row["shard"], row["key"]) for row in rows))
+    return rows
 
 
 def check_listed_shards(listed: Mapping[str, Sequence[str]]) -> None:
@@ -406,22 +419,28 @@ def _member_bytes(tar: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
     return file.read()
 
 
-#: Columns every manifest of a conversion that wrote a sample has; a conversion that wrote none writes only ``key``.
-MANIFEST_COLUMNS = ("key", "shard", "dataset", "split", "log")
+def write_manifest(folder: Path, table: pa.Table) -> Path:
+    """``folder``'s manifest: one row per sample (key, shard, dataset, split, log, tags, ``has_*`` flags), with a CRC32
+    of every data page, so a damaged manifest is an error naming it, not samples listed in another shard."""
+    return write_parquet(folder / MANIFEST, table)
 
 
 def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
     """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
 
-    ``columns`` keeps only those; they and ``required`` must be there. A file that is missing, is not parquet or
-    lacks a column is a :class:`ShardError` naming it.
+    ``columns`` keeps only those; they and ``required`` must be there. A folder without one, a file that is missing,
+    is not parquet, fails a page's CRC (manifests written before the CRCs carry none and read as before) or lacks a
+    column is a :class:`ShardError` naming it.
     """
     path = Path(path)
     file = path / MANIFEST if path.is_dir() else path
+    if path.is_dir() and not file.is_file():
+        raise ShardError(f"{path} holds no {MANIFEST}: not a converted folder (or its conversion did not finish); "
+                         "give a folder `lead-s2r convert` wrote")  # fmt: skip
     try:
-        table = pq.read_table(file)
+        table = read_parquet(file)
         table.validate(full=True)  # parquet does not check that strings are UTF-8; reading them would raise later
-    except (pa.ArrowException, OSError) as err:  # ArrowInvalid (not parquet), OSError (missing, bad thrift)
+    except (pa.ArrowException, OSError, ValueError) as err:  # ArrowInvalid (not parquet), OSError (missing, CRC)
         raise ShardError(f"{file}: cannot be read as a manifest ({_first_line(err)}); {_REDO}") from None
     absent = [name for name in (*(columns or ()), *required) if name not in table.column_names]
     if absent and not len(table):

@@ -225,12 +225,13 @@ def test_the_benchmark_flag_is_a_real_boolean(tmp_path):
     path.write_text("checkpoint: runs/a\ncreeping: true\ncontroller: waypoint\n")
     config = ClosedLoopConfig.from_agent_config(str(path), {})
     assert (config.checkpoint, config.creeping, config.controller) == ("runs/a", True, "waypoint")
+    config.rig, config.device = "CARLA_LEADERBOARD2_3CAMERAS", "cpu"
+    assert ClosedLoopConfig.read(config.write(tmp_path / "written.yaml")) == config  # every field round-trips
 
 
 def test_the_heuristics_and_the_waypoint_controller_switch_on_by_config(scene, tmp_path):
-    path = tmp_path / "drive.yaml"
-    options = {"checkpoint": str(scene["run"]), "controller": "waypoint", "creeping": True, "stop_sign_slowdown": True}
-    path.write_text(yaml.safe_dump(options))
+    options = {"controller": "waypoint", "creeping": True, "stop_sign_slowdown": True}
+    path = ClosedLoopConfig(str(scene["run"]), **options).write(tmp_path / "drive.yaml")
     agent = make_agent(path, scene["folder"])
     frame = sensor_data(scene["folder"], 1)
     controls = [agent.run_step(frame, step * 0.05) for step in range(5)]

@@ -48,7 +48,7 @@ def test_a_log_without_loss_terms_is_an_error_naming_the_file(tmp_path):
     ],
 )
 def test_a_damaged_log_is_named_by_the_one_reader(tmp_path, log, message):
-    """The quickstart's loss curves read metrics.csv as the report does (run_outputs.logged_values)."""
+    """The quickstart's loss curves read metrics.csv as the report does (report.training_log.TrainingLog)."""
     path = tmp_path / "metrics.csv"
     if log is not None:
         path.write_bytes(log)

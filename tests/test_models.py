@@ -16,7 +16,7 @@ from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
 from lead_s2r.models.lead_driver import VARIANTS, CameraSelect, LeadDriver, ltfv6_navsim, tfv6
 from lead_s2r.models.lead_loss import two_hot
-from lead_s2r.training.losses import heading_loss, radar_loss, segmentation_loss
+from lead_s2r.training.losses import heading_loss, lead_semantic_loss, radar_loss
 
 #: variant -> (builder overrides, the sources its network reads)
 CASES = {
@@ -147,11 +147,12 @@ def test_radar_loss_matches_within_each_sample_of_a_batch():
     assert radar_loss(pred, batch, (40.0, 40.0, 20.0)).item() == pytest.approx(5 * 0.1 / 2, abs=1e-5)
 
 
-def test_segmentation_loss_is_the_mean_over_labelled_pixels():
-    logits = torch.zeros(1, 4, 2, 2, requires_grad=True)  # uniform: log 4 per labelled pixel
-    labels = torch.tensor([[[0, -1], [3, -1]]])
-    assert segmentation_loss(logits, labels).item() == pytest.approx(math.log(4))
-    unlabelled = segmentation_loss(logits, torch.full((1, 2, 2), -1))
+def test_semantic_loss_is_the_mean_over_every_pixel_of_a_labelled_sample():
+    """LEAD's perspective term: unlabelled pixels add 0 but count; a sample without any label is left out."""
+    logits = torch.zeros(2, 4, 2, 2, requires_grad=True)  # uniform: log 4 per labelled pixel
+    labels = torch.tensor([[[0, 255], [3, 255]], [[255, 255], [255, 255]]], dtype=torch.uint8)  # the loader's
+    assert lead_semantic_loss(logits, labels).item() == pytest.approx(math.log(4) / 2)
+    unlabelled = lead_semantic_loss(logits, torch.full((2, 2, 2), 255, dtype=torch.uint8))
     assert unlabelled.item() == 0.0 and unlabelled.requires_grad
 
 

@@ -1,5 +1,6 @@
 """One owner per idea (DESIGN.md §1), read from the source with ``ast`` like the import rules: the typed-fields check
-lives in lead_s2r/fields.py and renames in lead_s2r/files.py, and nowhere else. Each rule is also shown to catch a
+lives in lead_s2r/fields.py, renames in lead_s2r/files.py, and each artifact's file name in its owner module (the
+only place that can then parse it), and nowhere else. Each rule is also shown to catch a
 planted violation, so a rule that silently stopped matching would fail here."""
 
 import ast
@@ -52,10 +53,29 @@ def renames(tree: ast.AST) -> Iterator[Finding]:
                 yield node.lineno, f"{owner or '...'}.{node.func.attr}: write through lead_s2r.files"
 
 
+def file_name(name: str) -> Callable[[ast.AST], Iterator[Finding]]:
+    """A finder of the string ``name`` as a path or a path's last part (``"scores.json"``, ``"out/scores.json"``,
+    ``"**/scores.json"``, an f-string's piece): a reader or writer of that artifact outside its owner. Prose that
+    mentions the file (a message, a docstring) has spaces and is no path."""
+
+    def finder(tree: ast.AST) -> Iterator[Finding]:
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                text = node.value.strip()
+                if " " not in text and (text == name or text.endswith(f"/{name}")):
+                    yield node.lineno, f"{text!r}: read and write {name} through its owner module"
+
+    return finder
+
+
 #: (rule, the one module allowed to do it, the finder)
 RULES: list[tuple[str, str, Callable[[ast.AST], Iterator[Finding]]]] = [
     ("the typed-fields check has one definition", "lead_s2r/fields.py", hand_written_type_checks),
     ("files are put in place by the atomic-write helper alone", "lead_s2r/files.py", renames),
+    ("scores.json has one owner", "lead_s2r/scoring/scores_file.py", file_name("scores.json")),
+    ("scores.parquet has one owner", "lead_s2r/scoring/scores_file.py", file_name("scores.parquet")),
+    ("the training log has one owner", "lead_s2r/report/training_log.py", file_name("metrics.csv")),
+    ("a conversion's manifest has one owner", "lead_s2r/shards.py", file_name("manifest.parquet")),
 ]
 
 
@@ -83,6 +103,13 @@ def test_one_owner(rule: str, owner: str, finder: Callable[[ast.AST], Iterator[F
         (hand_written_type_checks, "def f(v):\n    if isinstance(v, bool) or not isinstance(v, int):\n        pass\n"),
         (renames, "import os\nos.replace('a', 'b')\n"),
         (renames, "from pathlib import Path\nPath('a').rename('b')\n"),
+        (
+            file_name("scores.json"),
+            "import json\ndef f(run):\n    return json.loads((run / 'scores.json').read_text())\n",
+        ),
+        (file_name("scores.json"), "def f(run):\n    return sorted(run.rglob('**/scores.json'))\n"),
+        (file_name("scores.parquet"), "def f(out):\n    return f'{out}/scores.parquet'\n"),
+        (file_name("metrics.csv"), "def f(run):\n    return run / 'lightning_logs/version_0/metrics.csv'\n"),
     ],
 )
 def test_a_planted_violation_is_caught(
@@ -91,5 +118,6 @@ def test_a_planted_violation_is_caught(
     module = tmp_path / "planted.py"
     module.write_text(planted)
     assert violations(finder, "lead_s2r/fields.py", [module])
-    (tmp_path / "clean.py").write_text("def f(v):\n    return isinstance(v, bool)\n")
+    clean = 'def f(v):\n    """Reads metrics.csv."""\n    return isinstance(v, bool), "no scores.json below"\n'
+    (tmp_path / "clean.py").write_text(clean)
     assert not violations(finder, "lead_s2r/fields.py", [tmp_path / "clean.py"])

@@ -12,7 +12,7 @@ from lead_s2r.cli import main
 from lead_s2r.demo import quickstart as qs
 from lead_s2r.demo import table4
 from lead_s2r.predictions import read_predictions
-from lead_s2r.report.tables import MISSING, collect, to_markdown
+from lead_s2r.report.tables import MISSING, collect
 from lead_s2r.shards import load_manifest
 
 COLUMNS = [
@@ -104,8 +104,10 @@ RESULTS = {
 
 
 def test_a_row_joins_the_navsim_and_wod_runs_of_one_model_over_seeds(tmp_path):
-    spec = table4.table_spec(qs.SEEDS)
-    lines = to_markdown(spec, collect(spec, table4.table_runs(RESULTS, tmp_path, qs.SEEDS))).splitlines()
+    shown = table4.build_table4(RESULTS, tmp_path, qs.SEEDS)
+    assert shown[-2] == table4.table_spec(qs.SEEDS).notes and shown[-1].startswith("Camera reliance")
+    assert sorted(path.name for path in (tmp_path / "table").iterdir()) == ["table4.csv", "table4.md", "table4.tex"]
+    lines = (tmp_path / "table" / "table4.md").read_text().splitlines()
     zero = "0.00 ± 0.00"
     navsim = "| Expert (logged) | 93.75 ± 0.00 | 94.5 | 75.00 ± 0.00 | – | 46.88 ± 0.00 | 51.3 |"
     wod = f"8.00 ± 0.00 | 8.10 | 7.00 ± 0.00 | – | {zero} | – | {zero} | – |"

@@ -14,7 +14,7 @@ from corruptions import flip_footer_byte, flip_in_value
 from lead_s2r.errors import UserError
 from lead_s2r.predictions import Prediction, write_predictions
 from lead_s2r.report.run_outputs import load_run
-from lead_s2r.scoring.run import write_scores
+from lead_s2r.scoring.scores_file import ScoresFile
 
 T = 0.5 * np.arange(1, 9)
 LOG = "epoch,step,train/loss\n0,1,2.5\n0,2,1.5\n"
@@ -27,7 +27,7 @@ def scored_run(root: Path, report: dict[str, Any] | None = None) -> Path:
     write_predictions(root / "predictions.parquet", predictions)
     rows = pa.table({"key": ["k0", "k1"], "dataset": ["navsim"] * 2, "ade": [1234.5, 2.0]})
     defaults = {"metric": "ade", "predictions": str(root / "predictions.parquet"), "data": [], "tag": None}
-    write_scores(run / "ade", rows, defaults | {"config": {}, "aggregates": {"ade": 618.25}} | (report or {}))
+    ScoresFile(run / "ade", defaults | {"config": {}, "aggregates": {"ade": 618.25}} | (report or {}), rows).write()
     (run / "logs").mkdir()
     (run / "logs" / "metrics.csv").write_text(LOG)
     (run / "logs" / "config.yaml").write_text("seed_everything: 0\n")
@@ -41,7 +41,7 @@ def test_the_run_reads_whole(tmp_path: Path) -> None:
 
 
 def test_a_flipped_score_fails_its_page_checksum(tmp_path: Path) -> None:
-    """Without the CRC write_scores stores, the report would show 1234.5000000000002 for k0."""
+    """Without the CRC ScoresFile.write stores, the report would show 1234.5000000000002 for k0."""
     run = scored_run(tmp_path)
     flip_in_value(run / "ade" / "scores.parquet", np.float64(1234.5).tobytes())
     with pytest.raises(UserError, match=r"ade: cannot read scores\.json / scores\.parquet .*(CRC|checksum)"):
@@ -83,9 +83,8 @@ def test_scores_json_that_is_not_utf8_is_named(tmp_path: Path) -> None:
 
 def test_a_scores_table_keyed_by_numbers_is_named(tmp_path: Path) -> None:
     run = scored_run(tmp_path)
-    write_scores(
-        run / "ade", pa.table({"key": [0, 1], "ade": [1.0, 2.0]}), json.loads((run / "ade/scores.json").read_text())
-    )
+    report = json.loads((run / "ade/scores.json").read_text())
+    ScoresFile(run / "ade", report, pa.table({"key": [0, 1], "ade": [1.0, 2.0]})).write()
     with pytest.raises(UserError, match=r"scores\.parquet: its key column holds int64"):
         load_run(run)
 

@@ -7,6 +7,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import webdataset as wds
+from corruptions import flip_in_value
 from tiny_models import sensor_spec
 from toy_adapter import ToyAdapter, corrupt_header, toy_sample, write_toy_logs
 
@@ -21,6 +22,7 @@ from lead_s2r.shards import (
     decode_field,
     encode_field,
     listed_keys,
+    load_manifest,
     read_part,
     read_samples,
     sample_offsets,
@@ -175,6 +177,20 @@ def one_log(tmp_path) -> Path:
     write_toy_logs(tmp_path / "src", n_logs=1, frames=3)
     convert(ToyAdapter(), tmp_path / "src", tmp_path / "data")
     return tmp_path / "data"
+
+
+def test_a_flipped_manifest_value_fails_its_page_checksum(one_log):
+    """Without the CRC sample 1 would be listed 1 µs later (the middle timestamp: in no page's min/max statistics,
+    which no CRC covers)."""
+    flip_in_value(one_log / MANIFEST, np.int64(1_500_000).tobytes())
+    with pytest.raises(ShardError, match=rf"{MANIFEST}: cannot be read as a manifest \(.*(CRC|checksum)"):
+        load_manifest(one_log)
+
+
+def test_a_manifest_written_before_the_checksums_reads_as_before(one_log):
+    written = load_manifest(one_log)
+    pq.write_table(written, one_log / MANIFEST)  # no page CRCs, as conversions wrote them before
+    assert load_manifest(one_log).equals(written) and len(listed_keys(one_log)[next(iter(listed_keys(one_log)))]) == 3
 
 
 def test_a_corrupt_header_mid_shard_is_an_error_not_a_short_read(one_log):

@@ -11,7 +11,7 @@ import pytest
 
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
-from lead_s2r.predictions import Prediction, write_predictions
+from lead_s2r.predictions import Prediction, most_probable, write_predictions
 from lead_s2r.shards import read_samples
 from lead_s2r.submit import wod_e2e as wod_submit
 from lead_s2r.submit.common import SubmissionError
@@ -193,3 +193,13 @@ def test_validate_rejects_wrong_point_counts_nan_and_duplicates() -> None:
         wod_submit.validate({"s.binproto-00000-of-00002": shard([good]), "s.binproto-00001-of-00002": shard([good])})
     with pytest.raises(SubmissionError, match="not one complete set"):
         wod_submit.validate({"s.binproto-00001-of-00002": shard([good])})
+
+
+def test_one_trajectory_per_frame_is_the_most_probable_lowest_inference_on_ties() -> None:
+    """The rule every reader of several inferences uses (leaderboards, PDMS/EPDMS, the report's drawings)."""
+    t = 0.5 * np.arange(1, 9)
+    xy = np.zeros((8, 2))
+    made = [Prediction("k", "wod_e2e", t, xy, 0 * t, probability, inference) for inference, probability in
+            enumerate((0.2, 0.4, 0.4))]  # fmt: skip
+    for order in (made, made[::-1]):
+        assert most_probable(order).inference == 1

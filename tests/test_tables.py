@@ -252,10 +252,10 @@ def test_a_spec_that_is_not_utf8_is_named(tmp_path):
 @pytest.mark.parametrize(
     ("report", "message"),
     [
-        (b'{"metric": 7, "aggregates": {}}', "not the scores.json of lead-s2r score"),  # was the key 7: a seed missing
-        (b'{"metric": "m", "aggregates": "x"}', "not the scores.json of lead-s2r score"),
-        (b"[]", "not the scores.json of lead-s2r score"),  # was an AttributeError
-        (b'{"metric": "\xff"}', "cannot read scores: 'utf-8' codec"),
+        (b'{"metric": 7, "aggregates": {}}', "metric is 7, not str"),  # was the key 7: a seed missing
+        (b'{"metric": "m", "aggregates": "x"}', "aggregates is 'x', not dict"),
+        (b"[]", "the file is \\[\\], not a mapping"),  # was an AttributeError
+        (b'{"metric": "\xff"}', "cannot read it \\('utf-8' codec"),
         (
             json.dumps({"metric": B2D, "aggregates": {"infractions_per_100km": 7}}).encode(),
             r"aggregates\.infractions_per_100km is 7, not a mapping",

@@ -13,6 +13,7 @@ from lead_s2r.registry import SCORER_GROUP, load
 def cmd_score(args: argparse.Namespace) -> int:
     from lead_s2r.processes import make_executor
     from lead_s2r.scoring.run import planner_predictions, score_predictions
+    from lead_s2r.scoring.scores_file import SCORES_JSON, SCORES_TABLE
 
     options: dict[str, Any] = {"allow_missing": not args.strict}
     for option in args.option:
@@ -43,7 +44,7 @@ def cmd_score(args: argparse.Namespace) -> int:
         from lead_s2r.report.score_summary import score_table
 
         Console().print(score_table(summary))
-        print(f"wrote {out / 'scores.json'} and scores.parquet ({summary['seconds']:.1f} s)")
+        print(f"wrote {out / SCORES_JSON} and {SCORES_TABLE} ({summary['seconds']:.1f} s)")
     return 0
 
 

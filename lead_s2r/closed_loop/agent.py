@@ -16,7 +16,7 @@ here it is a real boolean (``1/true/yes/on`` or ``0/false/no/off``, anything els
 import json
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal, get_type_hints
 
@@ -52,6 +52,7 @@ from lead_s2r.data.lead_labels import LeadBoxClass, bev_cell_centres
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields
+from lead_s2r.files import write_text
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
 from lead_s2r.models.input_spec import InputSpec
@@ -135,33 +136,37 @@ class ClosedLoopConfig:
         if bench2drive:
             agent_config = agent_config.split("+", 1)[0]  # Bench2Drive appends "+<save name>"
         if agent_config.endswith((".yaml", ".yml")):
-            config = read_agent_yaml(Path(agent_config))
+            config = cls.read(Path(agent_config))
         else:
             config = cls(checkpoint=agent_config)
         if bench2drive is not None:
             config.bench2drive = bench2drive
         return config
 
+    @classmethod
+    def read(cls, path: Path) -> "ClosedLoopConfig":
+        """An agent config YAML whose every field has its type (``creeping: 7`` would drive as True)."""
+        try:
+            values = yaml.safe_load(path.read_bytes()) or {}
+        except (OSError, yaml.YAMLError) as err:  # YAMLError covers bytes that are not UTF-8
+            raise AgentConfigError(f"{path}: cannot read the agent config ({err})") from None
+        hints = get_type_hints(cls)
+        if not isinstance(values, dict) or set(values) - set(hints) or "checkpoint" not in values:
+            unknown = sorted(set(values) - set(hints)) if isinstance(values, dict) else values
+            raise AgentConfigError(f"{path}: unknown keys {unknown} or no 'checkpoint'; known: {sorted(hints)}")
+        check_fields(values, hints, str(path), AgentConfigError)
+        try:
+            return cls(**values)
+        except ValueError as err:  # its own checks: the controller, the rig
+            raise AgentConfigError(f"{path}: {err}") from None
+
+    def write(self, path: Path) -> Path:
+        """This config as the YAML :meth:`read` reads (every field, so a run records how it drove)."""
+        return write_text(path, yaml.safe_dump(asdict(self), sort_keys=False))
+
 
 class AgentConfigError(UserError, ValueError):
     """An agent config YAML the agent cannot drive with; the message names the file and the field."""
-
-
-def read_agent_yaml(path: Path) -> ClosedLoopConfig:
-    """An agent config YAML whose every field has its type (``creeping: 7`` would drive as True)."""
-    try:
-        values = yaml.safe_load(path.read_bytes()) or {}
-    except (OSError, yaml.YAMLError) as err:  # YAMLError covers bytes that are not UTF-8
-        raise AgentConfigError(f"{path}: cannot read the agent config ({err})") from None
-    hints = get_type_hints(ClosedLoopConfig)
-    if not isinstance(values, dict) or set(values) - set(hints) or "checkpoint" not in values:
-        unknown = sorted(set(values) - set(hints)) if isinstance(values, dict) else values
-        raise AgentConfigError(f"{path}: unknown keys {unknown} or no 'checkpoint'; known: {sorted(hints)}")
-    check_fields(values, hints, str(path), AgentConfigError)
-    try:
-        return ClosedLoopConfig(**values)
-    except ValueError as err:  # its own checks: the controller, the rig
-        raise AgentConfigError(f"{path}: {err}") from None
 
 
 class _StandInAgent:

@@ -38,7 +38,7 @@ import numpy as np
 import torch.utils.data
 import webdataset as wds
 
-from lead_s2r.shards import MANIFEST, SHARD_DIR, ShardError, check_listed_shards, keys_by_shard, load_manifest
+from lead_s2r.shards import keys_by_shard, listed_samples
 
 
 def worker_info() -> tuple[int, int]:
@@ -89,19 +89,10 @@ def manifest_samples(
 ) -> tuple[list[tuple[str, str]], dict[str, list[str]]]:
     """(shard path, key) of every sample of a converted folder in the wanted splits, in shard order; and every key
     the manifest lists per shard, all splits (what a tar must yield, :class:`~lead_s2r.shards.ManifestCheck`)."""
-    folder = Path(path)
-    if not (folder / MANIFEST).is_file():
-        raise ShardError(
-            f"{folder / MANIFEST} not found: evaluation splits samples over ranks by the manifest; "
-            "point the data at a folder written by `lead-s2r convert`"
-        )
-    rows = load_manifest(folder, columns=("key", "shard", "split")).to_pylist()
+    rows = listed_samples(Path(path), ("split",))
     wanted = None if splits is None else set(splits)
-    kept = [row for row in rows if wanted is None or row["split"] in wanted]
-    kept.sort(key=lambda row: row["shard"])  # stable: manifest order within a shard
-    listed = keys_by_shard(folder, rows)
-    check_listed_shards(listed)
-    return [(str(folder / SHARD_DIR / row["shard"]), row["key"]) for row in kept], listed
+    kept = [(row["shard"], row["key"]) for row in rows if wanted is None or row["split"] in wanted]
+    return kept, keys_by_shard((row["shard"], row["key"]) for row in rows)
 
 
 class SampleShare:
@@ -134,12 +125,10 @@ class TrainShare:
 
     def __init__(self, samples: Sequence[tuple[str, str]], seed: StreamSeed, world_size: int) -> None:
         order = random.Random(stream_seed(seed.seed, seed.epoch, seed.source, "ranks"))  # the same on every rank
-        keys_by_shard: dict[str, list[str]] = {}
-        for shard, key in samples:
-            keys_by_shard.setdefault(shard, []).append(key)
-        shards = list(keys_by_shard)
+        by_shard = keys_by_shard(samples)
+        shards = list(by_shard)
         order.shuffle(shards)
-        ordered = [(shard, key) for shard in shards for key in keys_by_shard[shard]]
+        ordered = [(shard, key) for shard in shards for key in by_shard[shard]]
         offset = order.randrange(len(ordered)) if ordered else 0
         self.samples = share(ordered[offset:] + ordered[:offset], seed.rank, world_size)
         self.seed = seed

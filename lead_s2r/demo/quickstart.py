@@ -41,16 +41,14 @@ from lead_s2r.demo.table4 import (
     EXPERT,
     TRAINED,
     UNTRAINED,
-    camera_use,
+    build_table4,
     scorings,
-    table_runs,
-    table_spec,
-    tables,
 )
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.report.loss_curves import plot_loss_curves
-from lead_s2r.report.tables import collect, scores_key, to_csv, to_latex, to_markdown
+from lead_s2r.report.tables import scores_key
+from lead_s2r.report.training_log import TRAINING_LOG
 from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.scoring.navsim.proposals import ReferenceCache
 from lead_s2r.scoring.run import SampleCache, score_predictions
@@ -142,15 +140,8 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
         for training in TRAININGS:
             results.update(train_and_score(training, seed, out, console, started, caches))
     (out / "summary.json").write_text(json.dumps(results, indent=2))
-    spec = table_spec(SEEDS)
-    cells = collect(spec, table_runs(results, out, SEEDS))
-    (out / "table").mkdir(exist_ok=True)
-    for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
-        (out / "table" / f"table4.{suffix}").write_text(render(spec, cells))
-    for grid in tables(spec, cells):
-        console.print(grid)
-    console.print(spec.notes)
-    console.print(camera_use(results, SEEDS))
+    for shown in build_table4(results, out, SEEDS):
+        console.print(shown)
     console.print(
         f"Trained {steps_range()} optimizer steps, seeds {', '.join(map(str, SEEDS))}, on NAVSIM trainval / WOD-E2E "
         f"train logs, scored on the held-out NAVSIM {EVAL_SPLITS['navsim']} / WOD-E2E {EVAL_SPLITS['wod_e2e']} logs; "
@@ -317,7 +308,7 @@ def train_and_score(
         results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, caches)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
-    curves = plot_loss_curves(run / "lightning_logs" / "version_0" / "metrics.csv", run / LOSS_CURVES, key)
+    curves = plot_loss_curves(run / "lightning_logs" / "version_0" / TRAINING_LOG, run / LOSS_CURVES, key)
     if training.predicts:
         checkpoint = run / "checkpoints" / "last.ckpt"
         results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, caches)

@@ -4,7 +4,8 @@ of it: one table per dataset that fits 80 columns, then each camera model's came
 
 A "needs perception" metric scores the held-out scenes with pedestrians ahead only (:data:`PERCEPTION_TAGS`), where
 the ego status cannot tell the driver to stop; the camera reliance (:mod:`lead_s2r.training.camera_reliance`) says
-whether a camera model's plan reads its cameras at all. ``<out>/table`` holds Table 4's single layout.
+whether a camera model's plan reads its cameras at all. :func:`build_table4` makes the whole table here, from the
+quickstart's scores to ``<out>/table`` (Table 4's single layout) and the console's view.
 """
 
 from dataclasses import dataclass
@@ -12,8 +13,11 @@ from pathlib import Path
 from typing import Any
 
 from rich import box
+from rich.console import RenderableType
 from rich.table import Table
 
+from lead_s2r.files import write_text
+from lead_s2r.report import tables as paper  # the paper's tables: collect and render
 from lead_s2r.report.tables import Cell, Column, Row, Run, TableSpec, format_cell, format_paper, load_spec
 
 #: dataset -> the held-out split every row is scored on, and its name in the table.
@@ -67,6 +71,16 @@ METRICS = (
     Metric("RFS, needs perception", "rfs@wod-e2e-2025", "rfs", ("wod_e2e",), needs_perception=True),
     Metric("ADE", "ade", "ade"),
 )
+
+
+def build_table4(results: dict[str, Any], out: Path, seeds: tuple[int, ...]) -> list[RenderableType]:
+    """Table 4 of the quickstart's ``results`` (``{run id: {dataset: {scores key: aggregates}}}``) over ``seeds``,
+    written to ``out/table/table4.{md,tex,csv}``; returns the console's view (a table per dataset, notes, cameras)."""
+    spec = table_spec(seeds)
+    cells = paper.collect(spec, table_runs(results, out, seeds))
+    for suffix, render in (("md", paper.to_markdown), ("tex", paper.to_latex), ("csv", paper.to_csv)):
+        write_text(out / "table" / f"table4.{suffix}", render(spec, cells))
+    return [*tables(spec, cells), spec.notes, camera_use(results, seeds)]
 
 
 def scorings(dataset: str) -> list[tuple[str, str | None]]:

@@ -137,8 +137,6 @@ def _manifest(path: Path) -> pa.Table:
     """The manifest of a converted folder; a missing, unconverted or empty folder is a :class:`UserError`."""
     if not path.is_dir():
         raise UserError(f"{path} is not a folder; give a folder written by lead-s2r convert")
-    if not (path / MANIFEST).is_file():
-        raise UserError(f"{path} holds no {MANIFEST}: not a converted folder (or its conversion did not finish)")
     manifest = load_manifest(path, required=_READ)
     if not len(manifest):
         raise UserError(f"{path}: {MANIFEST} lists no sample; convert again and check its errors.jsonl")

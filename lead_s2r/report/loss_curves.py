@@ -14,7 +14,7 @@ matplotlib.use("Agg")  # files only: no display on a training node
 import matplotlib.pyplot as plt
 
 from lead_s2r.errors import UserError
-from lead_s2r.report.run_outputs import logged_values
+from lead_s2r.report.training_log import TrainingLog
 
 #: Path components of logged metrics that are not loss terms (validation displacement errors, batch sizes).
 NOT_LOSSES = frozenset({"ade", "fde", "batch_size"})
@@ -22,9 +22,9 @@ NOT_LOSSES = frozenset({"ade", "fde", "batch_size"})
 
 def read_curves(metrics_csv: Path) -> dict[str, list[tuple[int, float]]]:
     """``{metric: [(step, value), ...]}`` for every ``train/`` and ``val/`` loss term in ``metrics_csv`` (read by
-    :func:`~lead_s2r.report.run_outputs.logged_values`, which names a damaged file)."""
+    :class:`~lead_s2r.report.training_log.TrainingLog`, which names a damaged file)."""
     curves: dict[str, list[tuple[int, float]]] = {}
-    for name, step, value in logged_values(metrics_csv):
+    for name, step, value in TrainingLog(metrics_csv).read():
         if name.startswith(("train/", "val/")) and not NOT_LOSSES & set(name.split("/")):
             curves.setdefault(name.removesuffix("_epoch"), []).append((int(step), value))
     return {name: points for name, points in curves.items() if not name.endswith("_step")}

@@ -26,13 +26,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow.compute as pc
 
 from lead_s2r.errors import UserError
-from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run
+from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run, load_samples
 from lead_s2r.report.sample_page import is_score, sub_scores, top_xy
 from lead_s2r.schema import BoxClass
-from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
+from lead_s2r.shards import MANIFEST, listed_samples, load_manifest
 
 APPLICATION = "lead_s2r"
 #: the extras fields that name each box's track, by source (the first one present is used)
@@ -54,8 +53,6 @@ def find_log(target: Path, log: str | None) -> tuple[Path, str, RunOutputs | Non
     folders = [target] if run is None else run.data_folders()
     logs: dict[str, Path] = {}
     for folder in folders:
-        if not (folder / MANIFEST).is_file():
-            raise UserError(f"{folder}: not a converted folder (no {MANIFEST}); give one or a scored run")
         logs.update(dict.fromkeys(load_manifest(folder)["log"].to_pylist(), folder))
     if log is None:
         if len(logs) != 1:
@@ -71,10 +68,8 @@ def find_log(target: Path, log: str | None) -> tuple[Path, str, RunOutputs | Non
 
 def log_samples(folder: Path, log: str) -> list[dict[str, Any]]:
     """The samples of ``log`` in ``folder``, in frame order (only the shards that hold them are read)."""
-    manifest = load_manifest(folder)
-    shards = sorted(set(manifest.filter(pc.equal(manifest["log"], log))["shard"].to_pylist()))
-    samples = [s for shard in shards for s in read_samples(folder / SHARD_DIR / shard) if s["meta"]["log_id"] == log]
-    return sorted(samples, key=lambda s: s["meta"]["frame_idx"])
+    keys = [row["key"] for row in listed_samples(folder, ("log",)) if row["log"] == log]
+    return sorted(load_samples([folder], keys).values(), key=lambda s: s["meta"]["frame_idx"])
 
 
 def write_recording(target: str | Path, rrd: str | Path, log: str | None = None, spawn: bool = False) -> Path:

@@ -8,38 +8,24 @@ scores, predictions gone, a ``--data`` folder without the run's samples, a damag
 :class:`UserError` naming the path.
 """
 
-import csv
-import json
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
-import pyarrow.compute as pc
-
 from lead_s2r.errors import UserError
-from lead_s2r.fields import check_fields
-from lead_s2r.predictions import Prediction, group_by_key, read_parquet, read_predictions
+from lead_s2r.predictions import Prediction, group_by_key, read_predictions
 from lead_s2r.report.tables import TableError, folder_identity, run_identity
-from lead_s2r.shards import MANIFEST, SHARD_DIR, load_manifest, read_samples
+from lead_s2r.report.training_log import TRAINING_LOG, TrainingLog
+from lead_s2r.scoring.run import decode_listed
+from lead_s2r.scoring.scores_file import SCORES_JSON, ScoresFile, scores_folders
+from lead_s2r.shards import listed_samples
 
-SCORES_JSON = "scores.json"
-SCORES_TABLE = "scores.parquet"
 PREDICTIONS = "predictions.parquet"
 #: metric family -> (the per-sample headline column, True when higher is better): what "worst" and "wins" mean
 HEADLINES = {"pdms": ("score", True), "epdms": ("score", True), "rfs": ("rfs", True), "ade": ("ade", False)}
-#: The scores.json fields a report reads and the JSON type `lead-s2r score` writes for each (``metric`` is required).
-REPORT_FIELDS: dict[str, Any] = {
-    "metric": str,
-    "tag": str | None,
-    "predictions": str,
-    "data": list[str],
-    "config": dict,
-    "aggregates": dict,
-}
 
 
 @dataclass
@@ -127,7 +113,7 @@ def load_run(path: str | Path) -> RunOutputs:
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path}: no such run folder; give the folder `lead-s2r score --out` wrote into (or above it)")
-    every = [_metric_scores(json_path) for json_path in sorted(path.rglob(SCORES_JSON))]
+    every = [_metric_scores(folder) for folder in scores_folders(path)]
     scores = _whole_sets(every)
     if not scores:
         raise UserError(f"{path}: no {SCORES_JSON} below it; score the run first (`lead-s2r score ... --out`)")
@@ -142,25 +128,9 @@ def _whole_sets(scores: list[MetricScores]) -> list[MetricScores]:
     return [entry for entry in scores if not entry.report.get("tag") or entry.metric not in whole]
 
 
-def _metric_scores(json_path: Path) -> MetricScores:
-    table_path = json_path.with_name(SCORES_TABLE)
-    try:
-        report = json.loads(json_path.read_bytes())
-        table = read_parquet(table_path)
-    except (OSError, ValueError, pa.ArrowException) as err:  # ValueError: UTF-8, JSON, base64 (read_parquet)
-        raise UserError(f"{json_path.parent}: cannot read {SCORES_JSON} / {SCORES_TABLE} ({err})") from None
-    if not isinstance(report, dict) or "metric" not in report or "key" not in table.column_names:
-        raise UserError(f"{json_path}: not a `lead-s2r score` output (no 'metric', or no 'key' column in the table)")
-    _check_report(json_path, report)
-    if not pa.types.is_string(table.schema.field("key").type):
-        raise UserError(f"{table_path}: its key column holds {table.schema.field('key').type}, not sample keys")
-    return MetricScores(json_path.parent, report, {row["key"]: row for row in table.to_pylist()})
-
-
-def _check_report(json_path: Path, report: dict[str, Any]) -> None:
-    """The fields a report reads have the types `lead-s2r score` writes (a damaged one is named, not a traceback)."""
-    check_fields(report, REPORT_FIELDS, str(json_path), advice="not what `lead-s2r score` writes there")
-    check_fields(report.get("config", {}), {"reference_cache": str | None}, str(json_path), at="config")
+def _metric_scores(folder: Path) -> MetricScores:
+    scores = ScoresFile.read(folder)
+    return MetricScores(folder, scores.report, {row["key"]: row for row in scores.table.to_pylist()})
 
 
 def _predictions(path: Path, scores: list[MetricScores]) -> dict[str, list[Prediction]]:
@@ -192,70 +162,27 @@ def training_curves(path: Path) -> dict[str, list[tuple[float, float]]]:
     (``metrics.csv``; the x axis is the optimizer step) below ``path``, else in ``path/../lightning_logs``: a
     prediction folder inside its training's root (``<default_root_dir>/trained``) shows the training's curves."""
     curves: dict[str, list[tuple[float, float]]] = defaultdict(list)
-    logs = sorted(path.rglob("metrics.csv")) or sorted((path.parent / "lightning_logs").rglob("metrics.csv"))
+    logs = sorted(path.rglob(TRAINING_LOG)) or sorted((path.parent / "lightning_logs").rglob(TRAINING_LOG))
     for log in logs:
-        for name, step, value in logged_values(log):
+        for name, step, value in TrainingLog(log).read():
             curves[name].append((step, value))
     return dict(curves)
-
-
-def logged_values(log: Path) -> Iterator[tuple[str, float, float]]:
-    """(column, step, value) of every filled cell of a Lightning CSV log (``metrics.csv``) but its step and epoch
-    columns: the one reader of that file (the report's curves, the quickstart's loss curves). A file that is gone,
-    not UTF-8, not CSV, without a step column, with a row longer than its header or a cell that is no number is a
-    :class:`UserError` naming it."""
-    try:
-        with log.open(newline="") as file:
-            reader = csv.DictReader(file)
-            if reader.fieldnames is not None and "step" not in reader.fieldnames:
-                raise ValueError(f"no step column in its header {reader.fieldnames}")
-            for row in reader:
-                if None in row:  # DictReader files the cells past the header's under None
-                    raise ValueError(f"line {reader.line_num} has more cells than the header")
-                step = row.get("step")
-                for name, value in row.items():
-                    if name not in ("step", "epoch") and value not in (None, "") and step not in (None, ""):
-                        yield name, float(step), float(value)
-    except (OSError, ValueError, csv.Error) as err:  # ValueError: bytes that are not UTF-8, or a cell that is no number
-        raise UserError(f"{log}: not a Lightning CSV log ({err})") from None
 
 
 def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict[str, Any]]:
     """The samples of ``keys`` from converted ``folders``, every field decoded, reading only the shards that hold
     them (the manifest says which). A key none of the folders holds is a :class:`UserError`."""
-    wanted = set(keys)
-    by_shard: dict[Path, set[str]] = defaultdict(set)
-    folders = list(folders)
-    for folder in folders:
-        if not (folder / MANIFEST).is_file():
-            raise UserError(f"--data {folder}: not a converted folder (no {MANIFEST}); give what `lead-s2r convert` "
-                            "wrote")  # fmt: skip
-        manifest = load_manifest(folder)
-        rows = manifest.filter(pc.is_in(manifest["key"], value_set=pa.array(sorted(wanted), pa.string())))
-        for key, shard in zip(rows["key"].to_pylist(), rows["shard"].to_pylist(), strict=True):
-            by_shard[folder / SHARD_DIR / shard].add(key)
-    found = {key for keys_ in by_shard.values() for key in keys_}
-    missing = sorted(wanted - found)
+    wanted, folders = set(keys), list(folders)
+    chosen = [row for folder in folders for row in listed_samples(folder) if row["key"] in wanted]
+    missing = sorted(wanted - {row["key"] for row in chosen})
     if missing:
         where = ", ".join(str(folder) for folder in folders) or "no --data folder"
         raise UserError(f"sample {missing[0]!r} (and {len(missing) - 1} more) is not in {where}; pass the converted "
                         "folders the run was scored on with --data")  # fmt: skip
-    samples = {}
-    for shard, shard_keys in by_shard.items():
-        for sample in read_samples(shard):
-            if sample["__key__"] in shard_keys:
-                samples[sample["__key__"]] = sample
-    return samples
+    return {sample["__key__"]: sample for sample in decode_listed(chosen, None)}
 
 
 def sample_tags(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, list[str]]:
     """The manifest's tags (``scene_filter:pedestrians_ahead``) of each of ``keys`` the converted ``folders`` hold."""
-    wanted = pa.array(sorted(set(keys)), pa.string())
-    tags: dict[str, list[str]] = {}
-    for folder in folders:
-        manifest = load_manifest(folder)
-        if "tags" not in manifest.column_names:
-            continue
-        rows = manifest.filter(pc.is_in(manifest["key"], value_set=wanted))
-        tags.update(zip(rows["key"].to_pylist(), (t or [] for t in rows["tags"].to_pylist()), strict=True))
-    return tags
+    wanted, rows = set(keys), (row for folder in folders for row in listed_samples(folder, ("tags",), check=False))
+    return {row["key"]: row["tags"] or [] for row in rows if row["key"] in wanted}

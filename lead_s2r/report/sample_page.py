@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.predictions import Prediction
+from lead_s2r.predictions import Prediction, most_probable
 from lead_s2r.report.bev import bev_figure, save_figure
 from lead_s2r.report.camera import camera_figure, forward_cameras
 from lead_s2r.report.run_outputs import MetricScores, RunOutputs
@@ -89,7 +89,7 @@ def score_cells(row: dict[str, Any]) -> list[tuple[str, str]]:
 
 def top_xy(frame: list[Prediction]) -> np.ndarray:
     """The most probable inference's ``(T, 2)`` positions."""
-    return np.asarray(max(frame, key=lambda p: p.probability).xy, np.float64)
+    return np.asarray(most_probable(frame).xy, np.float64)
 
 
 def reference_xy(run: RunOutputs, key: str) -> np.ndarray | None:

@@ -16,7 +16,6 @@ the seeds that are missing are listed under the table; a cell with no run at all
 import csv
 import glob
 import io
-import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -28,6 +27,7 @@ import yaml
 from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields, fits, is_number
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
+from lead_s2r.scoring.scores_file import SCORES_JSON, ScoresFile, scores_folders
 
 #: The table specs of the paper (Tables 1-5), next to the recipes they read.
 PAPER_SPECS = Path(__file__).resolve().parents[2] / "recipes" / "paper"
@@ -232,22 +232,13 @@ def load_run(path: Path) -> Run:
             raise TableError(f"{path}: its config.yaml files disagree on (run id, seed): {sorted(identities)}")
         identity = identities.pop()
     run = Run(path, *identity)
-    for scores in sorted(path.rglob("scores.json")):
-        try:
-            report = json.loads(scores.read_bytes())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise TableError(f"{scores}: cannot read scores: {err}") from None
-        report = report if isinstance(report, dict) else {}
-        metric, tag, aggregates = report.get("metric"), report.get("tag"), report.get("aggregates", {})
-        if not isinstance(metric, str) or not isinstance(tag, str | None) or not isinstance(aggregates, dict):
-            raise TableError(
-                f"{scores}: not the scores.json of lead-s2r score or carla-metrics (metric, tag, aggregates)"
-            )
-        key = scores_key(metric, tag)
+    for folder in scores_folders(path):
+        scores = ScoresFile.read(folder, rows=False, error=TableError)
+        key = scores_key(scores.report["metric"], scores.report.get("tag"))
         if key in run.scores:
-            raise TableError(f"{path}: two scores.json for metric {key!r} (one is {scores}); keep one")
-        run.scores[key] = aggregates
-        run.sources[key] = scores
+            raise TableError(f"{path}: two scores.json for metric {key!r} (one is {folder / SCORES_JSON}); keep one")
+        run.scores[key] = scores.report.get("aggregates", {})
+        run.sources[key] = folder / SCORES_JSON
     return run
 
 

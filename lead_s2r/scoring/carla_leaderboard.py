@@ -33,6 +33,7 @@ import pyarrow as pa
 from lead_s2r.errors import UserError
 from lead_s2r.fields import fits
 from lead_s2r.scoring.base import ScoreResult
+from lead_s2r.scoring.scores_file import ScoresFile
 
 METRIC_VERSION = "1"
 
@@ -361,7 +362,6 @@ def carla_metrics(
 ) -> dict[str, Any]:
     """The body of ``lead-s2r carla-metrics``: score results JSON files, write ``scores.json`` / ``scores.parquet``."""
     from lead_s2r import __version__
-    from lead_s2r.scoring.run import write_scores
 
     if not results:
         raise ResultsError("no results JSON given")
@@ -376,4 +376,4 @@ def carla_metrics(
         "results": [str(path) for path in results],
         "aggregates": result.aggregates,
     }
-    return write_scores(Path(out), result.table, report)
+    return ScoresFile(Path(out), report, result.table).write()

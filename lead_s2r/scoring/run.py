@@ -9,32 +9,25 @@ the scorer sees anything, so a subset's aggregates are computed exactly as the w
 
 import contextlib
 import inspect
-import json
 import time
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
-import pyarrow.parquet as pq
-
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.files import write_atomically, write_text
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
 from lead_s2r.scoring.base import Scorer, coverage
+from lead_s2r.scoring.scores_file import ScoresFile
 from lead_s2r.shards import (
-    check_listed_shards,
     listed_keys,
-    load_manifest,
+    listed_samples,
     read_part,
     read_samples,
     sample_offsets,
 )
 
-SCORES_TABLE = "scores.parquet"
-SCORES_JSON = "scores.json"
 #: Samples one job of a parallel read decodes: NAVSIM's take 4 ms each, a job's messages a few ms.
 SAMPLES_PER_READ = 64
 
@@ -106,7 +99,7 @@ def choose_samples(
         held = sorted({t for entry in in_split for t in entry["tags"]})
         raise UserError(f"--tag {tag}: no sample of {', '.join(map(str, folders))} has it; their tags: {held}")
     passed_over = {entry["key"] for entry in in_split} - {entry["key"] for entry in chosen}
-    result = _decoded(chosen, fields, executor), passed_over
+    result = decode_listed(chosen, fields, executor), passed_over
     if cache is not None:
         cache[key] = result
     return result
@@ -115,25 +108,21 @@ def choose_samples(
 def sample_listing(folder: Path, fields: tuple[str, ...]) -> list[dict[str, Any]]:
     """A folder's samples as entries (``key``, ``split``, ``tags``, and ``shard`` or the decoded ``sample``): from
     its manifest, or, for a folder of tars without one, from every sample decoded."""
-    listed = listed_keys(folder)
-    if listed is None:
+    if listed_keys(folder) is None:
         return [
             {"key": s["__key__"], "split": s["meta"]["split"], "tags": s["meta"].get("tags") or (), "sample": s}
             for s in read_samples(folder, fields=fields)
         ]
-    check_listed_shards(listed)
-    rows = {row["key"]: row for row in load_manifest(folder, columns=("key", "split", "tags")).to_pylist()}
-    return [
-        {"key": key, "split": rows[key]["split"], "tags": rows[key]["tags"] or (), "shard": shard}
-        for shard, keys in sorted(listed.items())
-        for key in keys
-    ]
+    return [row | {"tags": row["tags"] or ()} for row in listed_samples(folder, ("split", "tags"))]
 
 
-def _decoded(chosen: list[dict[str, Any]], fields: tuple[str, ...], executor: Executor | None) -> list[dict[str, Any]]:
-    """The samples of ``chosen`` entries, in their order: decoded already, or read from their shards in parts of
-    consecutive chosen samples (:func:`~lead_s2r.shards.read_part`), by ``executor``'s workers or here."""
-    if "sample" in chosen[0]:
+def decode_listed(
+    chosen: list[dict[str, Any]], fields: tuple[str, ...] | None, executor: Executor | None = None
+) -> list[dict[str, Any]]:
+    """The samples of ``chosen`` entries (:func:`sample_listing`'s), in their order: decoded already, or read from
+    their shards in parts of consecutive chosen samples (:func:`~lead_s2r.shards.read_part`; ``fields`` None: every
+    field), by ``executor``'s workers or here."""
+    if chosen and "sample" in chosen[0]:
         return [entry["sample"] for entry in chosen]
     by_shard: dict[str, list[str]] = {}
     for entry in chosen:
@@ -226,7 +215,7 @@ def score_predictions(
         "seconds": round(time.perf_counter() - start, 3),
     }
     out = Path(out)
-    report = write_scores(out, result.table, report)
+    report = ScoresFile(out, report, result.table).write()
     scorer.write_files(result, out)
     return report
 
@@ -242,12 +231,3 @@ def _check_metric_fits(scorer: Scorer, folders: list[Path], samples: list[dict[s
             f"--metric {scorer.name} scores {needs}, but {', '.join(map(str, folders))} holds datasets {datasets} "
             "without them; choose the metric of that dataset (docs/metrics.md) or other --data"
         )
-
-
-def write_scores(out: Path, table: pa.Table, report: dict[str, Any]) -> dict[str, Any]:
-    """Write ``out/scores.parquet`` (with a CRC32 per data page, which ``lead-s2r report`` checks) and
-    ``out/scores.json`` (strict JSON: no NaN) and return the JSON content."""
-    text = json.dumps(report, indent=2, allow_nan=False)
-    write_atomically(out / SCORES_TABLE, lambda partial: pq.write_table(table, partial, write_page_checksum=True))
-    write_text(out / SCORES_JSON, text + "\n")
-    return json.loads(text)

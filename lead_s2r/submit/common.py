@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from lead_s2r.errors import UserError
-from lead_s2r.predictions import Prediction, group_by_key, read_predictions
+from lead_s2r.predictions import Prediction, group_by_key, most_probable, read_predictions
 from lead_s2r.shards import read_samples
 
 #: How many missing names an error message lists before "...".
@@ -55,12 +55,12 @@ def split_metas(data: Sequence[Path], dataset: str) -> dict[str, dict[str, Any]]
 
 
 def best_inferences(path: Path) -> dict[str, Prediction]:
-    """The highest-probability inference of every key in a predictions file (the lowest ``inference`` on ties):
-    both leaderboards take exactly one trajectory per token / frame."""
+    """The most probable inference of every key in a predictions file: both leaderboards take exactly one trajectory
+    per token / frame."""
     if not Path(path).is_file():
         raise SubmissionError(f"{path}: no such predictions file (--predictions)")
     groups = group_by_key(read_predictions(path))
-    return {key: max(group, key=lambda p: p.probability) for key, group in groups.items()}
+    return {key: most_probable(group) for key, group in groups.items()}
 
 
 def require_text(value: str | None, field: str, option: str) -> str:

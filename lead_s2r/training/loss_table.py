@@ -1,9 +1,11 @@
 """Every supervised task, keyed by its name: the batch key that holds its label and the loss that scores it.
 
 A loss reads the model only for what the term needs beyond predictions and labels (the box head's yaw bins, the
-radar normalisation, the target-speed bins, the camera crop of the ablations); adding a task is one entry here.
-LEAD's networks (:class:`~lead_s2r.models.lead_driver.LeadDriver`) are scored by LEAD's definitions
-(:data:`LEAD_TASKS`, from :mod:`lead_s2r.models.lead_loss`).
+radar normalisation, the target-speed bins, the BEV's visible area, the camera crop of the ablations); adding a
+task is one entry here. Perception terms are LEAD's definitions (:mod:`lead_s2r.models.lead_loss`): BEV semantics
+ignore what the cameras cannot see but count it in the mean, perspective terms are per-sample pixel means, depth
+labels are whole metres. One family of networks (:class:`~lead_s2r.models.lead_driver.LeadDriver`; the Ego MLP has
+planning terms only), so one table.
 """
 
 from collections.abc import Callable
@@ -12,7 +14,6 @@ from typing import NamedTuple
 from torch import Tensor, nn
 
 from lead_s2r.models.inputs import Batch, on_image_grid
-from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.training import losses
 
 #: ``loss(pred, batch, model)``: one scalar for one source's batch.
@@ -45,12 +46,16 @@ def _on_input_image(task: str, batch: Batch, model: nn.Module) -> Tensor:
     return crop(on_image_grid(batch[task], tuple(batch["rgb"].shape[-2:])))
 
 
+def _bev_semantic(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
+    return losses.lead_bev_semantic_loss(pred["bev_semantic"], batch["bev_semantic"], model.bev_visible)
+
+
 def _semantic(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.segmentation_loss(pred["semantic"], _on_input_image("semantic", batch, model))
+    return losses.lead_semantic_loss(pred["semantic"], _on_input_image("semantic", batch, model))
 
 
 def _depth(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.depth_loss(pred["depth"], _on_input_image("depth", batch, model))
+    return losses.lead_depth_loss(pred["depth"], _on_input_image("depth", batch, model))
 
 
 TASKS: dict[str, Task] = {
@@ -58,34 +63,11 @@ TASKS: dict[str, Task] = {
     "headings": Task("headings", lambda pred, batch, model: losses.heading_loss(pred, batch)),
     "route": Task("route", lambda pred, batch, model: losses.route_loss(pred, batch)),
     "target_speed": Task("target_speed", _target_speed),
-    "bev_semantic": Task(
-        "bev_semantic", lambda pred, batch, model: losses.segmentation_loss(pred["bev_semantic"], batch["bev_semantic"])
-    ),
+    "bev_semantic": Task("bev_semantic", _bev_semantic),
     "lead_boxes": Task("lead_box_heatmap", _lead_boxes),
     "depth": Task("depth", _depth),
     "semantic": Task("semantic", _semantic),
     "radar": Task("radar_targets", _radar),
-}
-
-
-def _lead_bev_semantic(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.lead_bev_semantic_loss(pred["bev_semantic"], batch["bev_semantic"], model.bev_visible)
-
-
-def _lead_semantic(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.lead_semantic_loss(pred["semantic"], _on_input_image("semantic", batch, model))
-
-
-def _lead_depth(pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
-    return losses.lead_depth_loss(pred["depth"], _on_input_image("depth", batch, model))
-
-
-#: LEAD's definitions where they differ from the generic ones: BEV semantics ignore what the cameras cannot see but
-#: count it in the mean, perspective terms are per-sample pixel means, depth labels are whole metres.
-LEAD_TASKS: dict[str, Task] = TASKS | {
-    "bev_semantic": Task("bev_semantic", _lead_bev_semantic),
-    "semantic": Task("semantic", _lead_semantic),
-    "depth": Task("depth", _lead_depth),
 }
 #: Each task's label key in the batch.
 TASK_TARGETS = {name: task.target for name, task in TASKS.items()}
@@ -93,7 +75,6 @@ TASK_TARGETS = {name: task.target for name, task in TASKS.items()}
 
 def task_loss(task: str, pred: dict[str, Tensor], batch: Batch, model: nn.Module) -> Tensor:
     """The loss term of ``task`` for one source's batch."""
-    table = LEAD_TASKS if isinstance(model, LeadDriver) else TASKS
-    if task not in table:
-        raise ValueError(f"unknown task {task!r}; known: {sorted(table)}")
-    return table[task].loss(pred, batch, model)
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; known: {sorted(TASKS)}")
+    return TASKS[task].loss(pred, batch, model)

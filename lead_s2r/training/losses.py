@@ -79,23 +79,6 @@ def _resize_logits(logits: Tensor, size: tuple[int, int]) -> Tensor:
     return F.interpolate(logits.float(), size=size, mode="bilinear", align_corners=False)
 
 
-def segmentation_loss(logits: Tensor, labels: Tensor) -> Tensor:
-    """Cross-entropy with logits resized to the label raster, mean over labelled pixels; unlabelled ones are ignored.
-
-    Labels come as the loader's uint8 (255 = ignore, :func:`~lead_s2r.models.inputs.class_ids`) and are widened
-    here, on the device."""
-    logits = _resize_logits(logits, tuple(labels.shape[-2:]))
-    ids = class_ids(labels)
-    ce = F.cross_entropy(logits, ids, ignore_index=-1, reduction="none")
-    return masked_mean(ce, ids >= 0)
-
-
-def depth_loss(pred: Tensor, depth: Tensor) -> Tensor:
-    """L1 in metres where a depth label exists (> 0)."""
-    pred = _resize_logits(pred[:, None], tuple(depth.shape[-2:]))[:, 0]
-    return masked_mean((pred - depth).abs(), depth > 0)
-
-
 def lead_box_loss(pred: dict[str, Tensor], batch: Batch, velocity: bool) -> Tensor:
     """LEAD's CenterNet terms (:func:`~lead_s2r.models.lead_loss.center_net_losses`) on LEAD-encoded targets
     (``lead_s2r.data.lead_centernet``), summed: they all weigh the same in LEAD's table. The speed term only with

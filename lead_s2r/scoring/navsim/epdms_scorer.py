@@ -34,12 +34,12 @@ import pyarrow as pa
 from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup
 from lead_s2r.geometry import resample
-from lead_s2r.predictions import Prediction
+from lead_s2r.predictions import Prediction, most_probable
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
 from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
@@ -215,7 +215,7 @@ class EPDMSScorer(PDMSScorer):
         return pa.Table.from_pylist(table, schema=navhard.SCHEMA), navhard.summaries(self.two_stage_result) | counts
 
     def frame(self, sample: dict[str, Any], predictions: list[Prediction]) -> Frame:
-        poses, interval = proposal_of(top_inference(predictions))
+        poses, interval = proposal_of(most_probable(predictions))
         try:
             return Frame(sample, scene_from_sample(sample), poses, interval, None)
         except RouteError as err:

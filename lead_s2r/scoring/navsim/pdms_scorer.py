@@ -21,9 +21,9 @@ from typing import Any, ClassVar
 import numpy as np
 import pyarrow as pa
 
-from lead_s2r.predictions import Prediction
+from lead_s2r.predictions import Prediction, most_probable
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of, top_inference
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.score import score_proposals
@@ -89,7 +89,7 @@ class PDMSScorer(Scorer):
 
     def score_sample(self, sample: dict[str, Any], frame: list[Prediction]) -> dict[str, Any]:
         """One row of the table: NAVSIM's sub-scores of the most probable inference, or an invalid row."""
-        proposals, interval = proposal_of(top_inference(frame))
+        proposals, interval = proposal_of(most_probable(frame))
         row: dict[str, Any] = {
             "key": sample["__key__"],
             "dataset": sample["meta"]["dataset"],

@@ -46,10 +46,6 @@ def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tup
     }
 
 
-def top_inference(frame: list[Prediction]) -> Prediction:
-    return max(frame, key=lambda p: p.probability)
-
-
 def navsim_token(sample: dict[str, Any]) -> str:
     """NAVSIM's scene token (the key of its CSV rows); our sample key where the converter kept none."""
     return sample["meta"].get("extras", {}).get("navsim", {}).get("scene_token", sample["__key__"])
