@@ -29,7 +29,8 @@ from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lida
 
 def camera_image(transform: SourceTransform, sample: dict) -> tuple[torch.Tensor, CameraLayout]:
     """The transform's camera input of ``sample`` and its layout, by whichever decode path the rig takes."""
-    return transform.camera.image(sample, transform.camera.stored_layout(sample["meta"]))
+    plan = transform.camera.plan(sample)
+    return transform.camera.image(sample, plan), plan.layout
 
 
 def random_boxes(rng: np.random.Generator, n: int) -> np.ndarray:

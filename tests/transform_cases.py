@@ -47,7 +47,10 @@ CASES: dict[str, tuple[str, dict[str, Any], list[str], bool]] = {
 def convert_sources(root: Path) -> dict[str, Path]:
     """Generated raw data of each source converted to shards under ``root``: source -> shard folder."""
     writers: dict[str, tuple[Callable[[Path], None], Callable[[Path], Any]]] = {
-        "carla": (lambda raw: carla_lead.generate(raw, count=1, seed=0, frames=4), lambda raw: get_adapter("carla_lead")),
+        "carla": (
+            lambda raw: carla_lead.generate(raw, count=1, seed=0, frames=4),
+            lambda raw: get_adapter("carla_lead"),
+        ),
         "navsim": (
             lambda raw: navsim.generate(raw, count=1, seed=0),
             lambda raw: NavsimAdapter(scene_filter=str(raw / "scene_filters" / "navmini.yaml"), maps=str(raw / "maps")),
