@@ -1,7 +1,8 @@
 """Training-loader throughput at paper sizes against plain shard decoding, side by side in one process.
 
 .venv/bin/python benchmarks/loader.py --kinds realistic navsim wod --steps 40 --rounds 3 --two-workers
-(add ``taskset -c 0`` for one core; the 2-worker rows then share that core, so leave it off for them)
+
+One core: every loader but the 2-worker one runs in this one process (no dataloader workers, one torch thread).
 
 Prints, per kind of generated data, the median over ``--rounds`` rounds (after one warm-up round) of: plain shard
 decoding samples/s (``read_samples`` over the converted shards, every field decoded, JPEG bytes left as bytes: the

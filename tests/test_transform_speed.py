@@ -17,12 +17,22 @@ from tiny_models import sensor_spec
 
 from lead_s2r.data.camera_input import jpeg_reduction
 from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
-from lead_s2r.data.lead_labels import bev_cell_centres, bev_labels
+from lead_s2r.data.lead_labels import (
+    OCCUPANCY_HALF_M,
+    PEDESTRIAN_BEV_MIN_HALF_EXTENT,
+    PEDESTRIAN_BEV_SCALE,
+    _bev_tables,
+    _footprint_pixels,
+    bev_cell_centres,
+    bev_labels,
+    lead_bev_labels,
+)
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
+from lead_s2r.schema import BoxClass
 
 # --------------------------------------------------------------------------- references
 
@@ -225,3 +235,31 @@ def test_ltfv6_on_four_navsim_cameras_decodes_at_a_quarter() -> None:
     camera = ((1080, 1920), (Tile(0, 1920, 1545.0, 540.0),))
     layout = camera_layout((camera,) * 4, (270, 1920), NAVSIM_VERTICAL_FOV_DEG)
     assert jpeg_reduction(layout) == (4, cv2.IMREAD_REDUCED_COLOR_4 & ~cv2.IMREAD_COLOR)
+
+
+def reference_footprints(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
+    """LEAD's footprint corners box by box, as LEAD computes them: ``cv2.boxPoints`` of numpy scalars."""
+    half = boxes[:, 3:5] / 2
+    grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
+    half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
+    ppm = grid.pixels_per_meter
+    centre = np.stack([boxes[:, 0] + OCCUPANCY_HALF_M, OCCUPANCY_HALF_M - boxes[:, 1]], axis=1) * ppm
+    corners = np.zeros((len(boxes), 4, 2), np.int32)
+    for i, ((cx, cy), (hx, hy), yaw) in enumerate(zip(centre, half, boxes[:, 6], strict=True)):
+        rect = ((float(cx), float(cy)), (float(hx * 2 * ppm), float(hy * 2 * ppm)), float(np.rad2deg(-yaw)))
+        corners[i] = cv2.boxPoints(rect).astype(np.int32)
+    crop = np.array([OCCUPANCY_HALF_M * ppm + grid.x_min * ppm, OCCUPANCY_HALF_M * ppm - grid.y_max * ppm]).astype(int)
+    return corners - crop.astype(np.int32)
+
+
+@pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV])
+def test_footprints_and_the_bev_remap_are_leads_box_by_box_and_numpys(grid: BEVGrid) -> None:
+    rng = np.random.default_rng(11)
+    boxes = random_boxes(rng, 400).astype(np.float64)
+    boxes[:, 9] = rng.integers(0, len(BoxClass), 400)
+    np.testing.assert_array_equal(_footprint_pixels(boxes, grid), reference_footprints(boxes, grid))
+    hdmap = rng.integers(0, 256, grid.shape).astype(np.uint8)
+    for leaderboard in (True, False):
+        _, lookup, _ = _bev_tables(leaderboard)
+        no_boxes = lead_bev_labels(hdmap, boxes[:0], grid, leaderboard, np.zeros(0, np.int64))
+        np.testing.assert_array_equal(no_boxes, lookup[hdmap])  # the LUT and both quarter turns: numpy's gather
