@@ -18,13 +18,12 @@ from tiny_models import sensor_spec
 from lead_s2r.data.camera_input import jpeg_reduction
 from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
 from lead_s2r.data.lead_labels import (
-    OCCUPANCY_HALF_M,
-    PEDESTRIAN_BEV_MIN_HALF_EXTENT,
-    PEDESTRIAN_BEV_SCALE,
     _bev_tables,
     _footprint_pixels,
     bev_cell_centres,
     bev_labels,
+    canvas_crop,
+    footprint_rects,
     lead_bev_labels,
 )
 from lead_s2r.data.lidar import rasterize_lidar
@@ -239,17 +238,13 @@ def test_ltfv6_on_four_navsim_cameras_decodes_at_a_quarter() -> None:
 
 def reference_footprints(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
     """LEAD's footprint corners box by box, as LEAD computes them: ``cv2.boxPoints`` of numpy scalars."""
-    half = boxes[:, 3:5] / 2
-    grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
-    half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
+    centre, half = footprint_rects(boxes, grid)
     ppm = grid.pixels_per_meter
-    centre = np.stack([boxes[:, 0] + OCCUPANCY_HALF_M, OCCUPANCY_HALF_M - boxes[:, 1]], axis=1) * ppm
     corners = np.zeros((len(boxes), 4, 2), np.int32)
     for i, ((cx, cy), (hx, hy), yaw) in enumerate(zip(centre, half, boxes[:, 6], strict=True)):
         rect = ((float(cx), float(cy)), (float(hx * 2 * ppm), float(hy * 2 * ppm)), float(np.rad2deg(-yaw)))
         corners[i] = cv2.boxPoints(rect).astype(np.int32)
-    crop = np.array([OCCUPANCY_HALF_M * ppm + grid.x_min * ppm, OCCUPANCY_HALF_M * ppm - grid.y_max * ppm]).astype(int)
-    return corners - crop.astype(np.int32)
+    return corners - canvas_crop(grid)
 
 
 @pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV])

@@ -216,18 +216,30 @@ def _footprint_pixels(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
     along x, row along y right): ``cv2.boxPoints`` of the box on LEAD's 256 m occupancy canvas, truncated to
     integers there and then cropped to the grid, so every vertex is LEAD's; pedestrians and bikers grown as LEAD
     draws them. (A vertex computed on the grid itself would truncate the other way left of it.)"""
-    half = boxes[:, 3:5] / 2
-    grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
-    half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
+    centre, half = footprint_rects(boxes, grid)
     ppm = grid.pixels_per_meter
-    centre = np.stack([boxes[:, 0] + OCCUPANCY_HALF_M, OCCUPANCY_HALF_M - boxes[:, 1]], axis=1) * ppm
     points = np.zeros((len(boxes), 4, 2), np.float32)
     sizes, angles = (half * 2 * ppm).tolist(), np.rad2deg(-boxes[:, 6]).tolist()  # elementwise: the same numbers
     for i, ((cx, cy), (width, height), angle) in enumerate(zip(centre.tolist(), sizes, angles, strict=True)):
         points[i] = cv2.boxPoints(((cx, cy), (width, height), angle))
-    corners = points.astype(np.int32)
+    return points.astype(np.int32) - canvas_crop(grid)
+
+
+def footprint_rects(boxes: np.ndarray, grid: BEVGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) centres of the boxes on LEAD's occupancy canvas (pixels) and (N, 2) half extents (metres), pedestrians
+    and bikers grown as LEAD draws them."""
+    half = boxes[:, 3:5] / 2
+    grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
+    half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
+    centre = np.stack([boxes[:, 0] + OCCUPANCY_HALF_M, OCCUPANCY_HALF_M - boxes[:, 1]], axis=1) * grid.pixels_per_meter
+    return centre, half
+
+
+def canvas_crop(grid: BEVGrid) -> np.ndarray:
+    """(2,) int32 pixel offset of ``grid``'s corner on LEAD's occupancy canvas."""
+    ppm = grid.pixels_per_meter
     crop = np.array([OCCUPANCY_HALF_M * ppm + grid.x_min * ppm, OCCUPANCY_HALF_M * ppm - grid.y_max * ppm]).astype(int)
-    return corners - crop.astype(np.int32)
+    return crop.astype(np.int32)
 
 
 def _on_occupancy_canvas(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
