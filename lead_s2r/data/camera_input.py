@@ -75,6 +75,7 @@ class CameraPlan:
 
 
 def rig_layout(rig: Rig, image_size: tuple[int, int], vertical_fov_deg: float | None) -> CameraLayout:
+    """The layout of ``rig``'s camera fields at their sizes in the rig (stored or reduced)."""
     return camera_layout(tuple((shape, tiles_at(cal, shape)) for shape, cal in rig), image_size, vertical_fov_deg)
 
 
