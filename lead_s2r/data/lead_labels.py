@@ -139,14 +139,21 @@ def traffic_light_classes(classes: np.ndarray, extras: dict[str, Any]) -> np.nda
 def lead_box_classes(classes: np.ndarray, leaderboard: bool, lights: np.ndarray) -> np.ndarray:
     """(N,) our :class:`~lead_s2r.schema.BoxClass` ids -> LEAD's :class:`LeadBoxClass` ids; -1 where LEAD detects
     no such object (``lights``: :func:`traffic_light_classes`; LEAD detects red lights that affect the ego only)."""
-    table = {ours: SIM2REAL_BOX.get(lead, lead) if not leaderboard else lead for ours, lead in BOX_TO_LEAD.items()}
-    lookup = np.full(len(BoxClass), -1, np.int64)
-    for ours, lead in table.items():
-        lookup[ours] = lead
+    lookup = _box_table(leaderboard)
     classes = np.asarray(classes, np.int64)
     known = (classes >= 0) & (classes < len(BoxClass))
     unseen_light = (classes == BoxClass.TRAFFIC_LIGHT) & ~np.isin(lights, RED_BEV_CLASSES)
     return np.where(known & ~unseen_light, lookup[np.clip(classes, 0, len(BoxClass) - 1)], -1)
+
+
+@lru_cache(maxsize=2)
+def _box_table(leaderboard: bool) -> np.ndarray:
+    """Our box class -> LEAD's box class (-1: none), for the leaderboard or sim-to-real; built once (read-only)."""
+    lookup = np.full(len(BoxClass), -1, np.int64)
+    for ours, lead in BOX_TO_LEAD.items():
+        lookup[ours] = lead if leaderboard else SIM2REAL_BOX.get(lead, lead)
+    lookup.flags.writeable = False
+    return lookup
 
 
 #: LEAD's radar-detection class order among equally fast boxes (``parse_radar_detection_labels``); others after.
