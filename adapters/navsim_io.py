@@ -12,6 +12,7 @@ import numpy as np
 from lead_s2r.errors import UserError
 from lead_s2r.formats import restricted_pickle
 from lead_s2r.geometry import quaternion_matrix
+from lead_s2r.image_headers import jpeg_size as frame_size
 from lead_s2r.schema import BoxClass
 
 #: NAVSIM camera -> our camera id.
@@ -93,23 +94,12 @@ def read_pcd(path: Path) -> tuple[np.ndarray, list[str]]:
     return points.astype(np.float32).reshape(n, len(columns)), columns
 
 
-_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
-
-
 def jpeg_size(data: bytes, where: str) -> tuple[int, int]:
     """(width, height) from a JPEG's frame header, without decoding the image."""
-    i = 2
-    while data[:2] == b"\xff\xd8" and i + 9 <= len(data):
-        if data[i] != 0xFF:
-            break
-        marker = data[i + 1]
-        if marker == 0xFF or 0xD0 <= marker <= 0xD7 or marker == 0x01:
-            i += 1 if marker == 0xFF else 2
-            continue
-        if marker in _SOF:
-            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
-        i += 2 + int.from_bytes(data[i + 2 : i + 4], "big")
-    raise NavsimFormatError(f"{where}: not a JPEG with a frame header")
+    size = frame_size(data)
+    if size is None:
+        raise NavsimFormatError(f"{where}: not a JPEG with a frame header")
+    return size
 
 
 def quaternion_yaw(q: Any) -> float:

@@ -38,10 +38,10 @@ def main() -> None:
     ltfv6 = LeadConfig(use_navsim_data=True, LTF=True, use_planning_decoder=True)
     transform = SourceTransform("navsim", input_spec(ltfv6), list(CAMERAS))
     camera = transform.camera
-    rgb, _ = camera.image(sample, camera.stored_layout(meta))  # warm-up: the layout is computed once per rig
+    rgb = camera.image(sample, camera.plan(sample))  # warm-up: the plan is made once per rig
     started = time.process_time()
     for _ in range(args.repeats):
-        camera.image(sample, camera.stored_layout(meta))
+        camera.image(sample, camera.plan(sample))
     per_sample = (time.process_time() - started) / args.repeats * 1e3
     print(f"LTFv6 camera input {tuple(rgb.shape)} from 4 x 1920x1080 JPEGs: {per_sample:.1f} ms CPU per sample")
 

@@ -3,6 +3,8 @@
 .venv/bin/python benchmarks/convert_carla_lead.py --routes 64 --frames 16 --workers 1 2 --rounds 3
 .venv/bin/python benchmarks/convert_carla_lead.py --import-torch --workers 1 2 --rounds 3   # a user's script
 .venv/bin/python benchmarks/convert_carla_lead.py --executor ray --workers 1 2 --rounds 3    # Ray, N CPUs
+.venv/bin/python benchmarks/convert_carla_lead.py --cli --routes 64 --frames 16 --workers 1 2 --rounds 2 --no-stages
+    # issue 42's check: `lead-s2r convert` from the shell on 1024 samples, 1 and 2 workers interleaved, best of two
 
 Runs ``convert`` with each worker count in turn, ``--rounds`` times (interleaved, so a machine shared with other
 jobs slows every count alike), and reports per round: wall time, samples/s in total and per worker, the CPU
@@ -13,8 +15,11 @@ process converts the routes again stage by stage and splits its CPU time: the ad
 PNGs and building the sample), schema validation, encoding the fields, writing the tar.
 
 ``--import-torch`` imports torch first, as a user's training script calling ``convert`` would (the workers must not
-pay for it again). ``--executor ray`` runs each worker count on a Ray started on this machine with that many CPUs
-(started before the clock starts: the throughput of a running cluster).
+pay for it again). ``--cli`` runs each conversion as a user does, ``lead-s2r convert carla_lead --src ... --out ...
+--workers N`` in a subprocess (start-up and imports included in its wall time). The summary gives, per worker count,
+the median of the same-round speed-ups and the speed-up of its best round over the first count's best round.
+``--executor ray`` runs each worker count on a Ray started on this machine with that many CPUs (started before the
+clock starts: the throughput of a running cluster).
 """
 
 import argparse
@@ -23,6 +28,7 @@ import multiprocessing as mp
 import os
 import resource
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -36,7 +42,7 @@ from lead_s2r.convert import convert, manifest_row, one_thread_per_worker
 from lead_s2r.processes import RayExecutor
 from lead_s2r.registry import Adapter, get_adapter
 from lead_s2r.schema import validate
-from lead_s2r.shards import ShardFile, encode_sample
+from lead_s2r.shards import ShardFile, encode_sample, load_manifest
 from lead_s2r.synthetic.carla_lead import generate
 
 
@@ -105,6 +111,18 @@ def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> d
     }
 
 
+def run_cli(src: Path, out: Path, workers: int, rig: str) -> dict[str, float]:
+    """One conversion by the ``lead-s2r`` command beside this Python: wall time and the CPU of the reaped command."""
+    command = [str(Path(sys.executable).with_name("lead-s2r")), "convert", "carla_lead", "--src", str(src)]
+    command += ["--out", str(out), "--workers", str(workers), "--force", "--quiet", "--rig", rig]
+    load = os.getloadavg()[0]
+    wall, child = time.perf_counter(), children_cpu()
+    subprocess.run(command, check=True)
+    wall = time.perf_counter() - wall
+    samples = load_manifest(out).num_rows
+    return {"samples": samples, "wall": wall, "driver_cpu": 0.0, "worker_cpu": children_cpu() - child, "load": load}
+
+
 def stage_split(adapter: Adapter, src: Path, out: Path) -> tuple[int, dict[str, float]]:
     """CPU seconds per stage of converting every log in this process (what one worker does)."""
     cpu: dict[str, float] = defaultdict(float)
@@ -147,6 +165,8 @@ def main() -> None:
     parser.add_argument("--raw", type=Path, help="reuse (or create) the generated routes here")
     parser.add_argument("--executor", choices=["processes", "ray"], default="processes")
     parser.add_argument("--import-torch", action="store_true", help="import torch first, as a training script does")
+    parser.add_argument("--cli", action="store_true", help="convert with the lead-s2r command, as a user does")
+    parser.add_argument("--no-stages", action="store_true", help="skip the CPU split by stage")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         src = args.raw or Path(tmp) / "raw"
@@ -158,14 +178,20 @@ def main() -> None:
         speedups: dict[int, list[float]] = defaultdict(list)
         per_worker: dict[int, list[float]] = defaultdict(list)
         cpu_per_sample: dict[int, list[float]] = defaultdict(list)
+        rates: dict[int, list[float]] = defaultdict(list)
         for round_index in range(args.rounds):
             print(f"round {round_index}: machine check, 2 processes of a CPU loop: {machine_parallelism():.2f}x one")
             base = None
             written = []
             for workers in args.workers:
-                r = run(adapter, src, Path(tmp) / f"out{workers}", workers, args.executor == "ray")
+                out = Path(tmp) / f"out{workers}"
+                if args.cli:
+                    r = run_cli(src, out, workers, args.rig)
+                else:
+                    r = run(adapter, src, out, workers, args.executor == "ray")
                 written.append(digests(Path(tmp) / f"out{workers}"))
                 rate = r["samples"] / r["wall"]
+                rates[workers].append(rate)
                 base = base or rate
                 cpu_ms = (r["driver_cpu"] + r["worker_cpu"]) / r["samples"] * 1e3
                 speedups[workers].append(rate / base)
@@ -184,8 +210,12 @@ def main() -> None:
             print(
                 f"  workers={workers}: {statistics.median(per_worker[workers]):.1f} samples/s per worker, "
                 f"{statistics.median(speedups[workers]):.2f}x workers={args.workers[0]} (same-round ratios), "
-                f"{statistics.median(cpu_per_sample[workers]):.1f} ms CPU/sample"
+                f"{statistics.median(cpu_per_sample[workers]):.1f} ms CPU/sample; best round "
+                f"{max(rates[workers]):.1f} samples/s = {max(rates[workers]) / max(rates[args.workers[0]]):.2f}x the "
+                f"best of workers={args.workers[0]}"
             )
+        if args.no_stages:
+            return
         count, cpu = stage_split(adapter, src, Path(tmp) / "stages")
         total = sum(cpu.values())
         print(f"CPU by stage, one process, {count} samples: {total / count * 1e3:.2f} ms/sample")

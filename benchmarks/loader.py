@@ -1,29 +1,33 @@
-"""Training-loader throughput at TFv6 paper sizes, side by side in one process, on generated LEAD routes.
+"""Training-loader throughput at paper sizes against plain shard decoding, side by side in one process.
 
-.venv/bin/python benchmarks/loader.py --routes 6 --frames 16 --steps 40 --rounds 3
+.venv/bin/python benchmarks/loader.py --kinds realistic navsim wod --steps 40 --rounds 3 --two-workers
 
-Two kinds of generated frames (``--kinds``): light ones (five actors, about 700 LiDAR points: the tests' frames) and
-realistic ones (``generate(realistic=True)``: about 60 actors, about 60,000 LiDAR + radar points in the LAZ, metas
-with every target-point planner LEAD saves). Per kind, each converted with our adapter:
+One core: every loader but the 2-worker one runs in this one process (no dataloader workers, one torch thread).
 
-- plain decoding: ``read_samples`` over the converted shards, every field decoded (JPEG bytes stay bytes): the
-  floor any shard loader pays; shown also with the JPEGs decoded to pixels, for reference;
-- ours: ``DriveDataModule``'s training loader (shard resampling, shuffle buffer, decoding the fields the transform
-  reads, ``SourceTransform`` at paper sizes: 1152x384 mosaic, 384x320 LiDAR BEV, CenterNet at stride 4, BEV labels,
-  depth and semantics; collation into batches); the shards hold the LiDAR as points, so ours rasterises them too.
-  One epoch's stream serves every round, as in training: the shuffle buffer fills once (timed and printed apart),
-  not once per 40-batch pass, which would read 256 samples more than it yields each time;
-- LEAD-style: ``lead_style.LeadStyleFrames`` over the raw route folders of the same frames, shuffled by a torch
-  ``DataLoader`` with its default collation: LEAD's per-frame steps and LEAD's tensor contract (see that module),
-  building both rigs per item as LEAD does without a cache, and (for a conservative bound) only the rig it returns.
-  Its camera and perspective labels are checked against ours on one frame.
+Prints, per kind of generated data, the median over ``--rounds`` rounds (after one warm-up round) of: plain shard
+decoding samples/s (``read_samples`` over the converted shards, every field decoded, JPEG bytes left as bytes: the
+floor any shard loader pays); our training loader's samples/s and CPU ms per sample; their ratio, measured in the
+same round (a busy machine slows both alike), with the spread of that ratio over the rounds. Kinds:
 
-"After the first batch" leaves out each pass's first batch. Torch runs one intra-op thread (``--threads``), as in a
-dataloader worker: with the default two on this shared 2-core machine, collation's ``torch.stack`` spun and took 4x
-longer.
+- ``light`` / ``realistic``: generated LEAD CARLA routes (light: five actors, about 700 LiDAR points, the tests'
+  frames; realistic: about 60 actors, about 60,000 LiDAR + radar points, metas with every target-point planner),
+  for LEAD's CARLA TFv6 at ``LeadConfig()`` defaults (1152x384 mosaic, 384x320 LiDAR BEV, radar, CenterNet at stride
+  4, BEV labels, depth and semantics). Ours twice: everything built in the loader (``inputs_on_device=False``, a
+  CPU-only run) and the JPEG and LiDAR points left for the GPU (``inputs_on_device=True``, a run on a GPU);
+- ``navsim``: generated NAVSIM logs (``lead-s2r synth navsim``) for the NAVSIM LTFv6 recipe's inputs
+  (recipes/navsim/ltfv6.yaml: four cameras at NAVSIM's vertical field of view into 1920x270, BEV semantics, boxes);
+- ``wod``: generated WOD-E2E segments for the WOD-E2E LTFv6 recipe's inputs (recipes/wod/ltfv6.yaml: three front
+  cameras into 972x360).
 
-The loaders run in turn within each round (interleaved), so a busy machine slows all alike; the ratios are per round
-and the summary gives their median. CPU time is this process's (user + system).
+Ours is ``DriveDataModule``'s training loader (shard resampling, shuffle buffer, decoding the fields the transform
+reads, ``SourceTransform``, collation into batches of ``--batch-size``); one epoch's stream serves every round, as in
+training: the shuffle buffer fills once (timed and printed apart). ``--two-workers`` adds ours with 2 dataloader
+workers (its ratio is to plain decoding in one process). ``--lead-style`` adds, for the CARLA kinds,
+``lead_style.LeadStyleFrames`` over the raw route folders (LEAD's per-frame steps and tensor contract, both rigs as
+LEAD builds them uncached, and one rig), checked against ours on one frame.
+
+Torch runs one intra-op thread (``--threads``), as a dataloader worker does. CPU time is this process's (user +
+system); with workers it is the workers' too (their CPU is not this process's: the row says so).
 """
 
 import argparse
@@ -33,6 +37,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -53,16 +58,34 @@ from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import make_key
 from lead_s2r.shards import read_samples
+from lead_s2r.synthetic import navsim, wod_e2e
 from lead_s2r.synthetic.carla_lead import generate
 
-PLAIN, PIXELS, OURS, OURS_DEVICE, LEAD_BOTH, LEAD_ONE = (
+PLAIN, PIXELS, OURS, OURS_DEVICE, OURS_TWO, LEAD_BOTH, LEAD_ONE = (
     "plain decoding (read_samples, every field)",
     "plain decoding + JPEG to pixels",
-    "ours (DriveDataModule)",
+    "ours (DriveDataModule), everything in the loader",
     "ours, JPEG and LiDAR left for the GPU (inputs_on_device)",
+    "ours, 2 workers (samples/s of both; CPU: the main process only)",
     "LEAD-style per-file, both rigs (LEAD uncached)",
     "LEAD-style per-file, one rig",
 )
+
+#: LEAD config switches of each kind's model (the recipes' ``model.config``), its source and its cameras.
+KINDS: dict[str, tuple[str, dict[str, Any], list[str]]] = {
+    "light": ("carla", {"use_planning_decoder": True}, ["carla_mosaic"]),
+    "realistic": ("carla", {"use_planning_decoder": True}, ["carla_mosaic"]),
+    "navsim": (
+        "navsim",
+        {"use_navsim_data": True, "use_carla_data": False, "LTF": True, "use_planning_decoder": True},
+        ["front_left", "front", "front_right", "back"],
+    ),
+    "wod": (
+        "wod",
+        {"use_waymo_e2e_data": True, "use_carla_data": False, "LTF": True, "use_planning_decoder": True},
+        ["front_left", "front", "front_right"],
+    ),
+}
 
 
 @dataclass
@@ -107,103 +130,138 @@ def check_agreement(data: Path, lead: LeadStyleFrames, transform: SourceTransfor
     np.testing.assert_allclose(depth, theirs["depth"], rtol=1e-5, atol=1e-4, err_msg="depth")
 
 
-def loaders(
-    kind: str, tmp: Path, args: argparse.Namespace, config: InputSpec
-) -> dict[str, Callable[[], Iterator[int]]]:
-    """The loaders over one kind of generated frames, as callables that start a pass and yield batch sizes."""
+def generate_data(kind: str, raw: Path, data: Path, args: argparse.Namespace) -> None:
+    """Generated raw data of ``kind`` converted to shards in ``data``."""
+    if KINDS[kind][0] == "carla":
+        generate(raw, count=args.routes, frames=args.frames, realistic=kind == "realistic")
+        adapter = get_adapter("carla_lead")
+    elif kind == "navsim":
+        navsim.generate(raw, count=args.logs, seed=0)
+        adapter = get_adapter("navsim", maps=str(raw / "maps"))
+    else:
+        wod_e2e.generate(raw, count=args.logs, seed=0)
+        adapter = get_adapter("wod_e2e")
+    convert(adapter, raw, data)
+
+
+def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Callable[[], Iterator[int]]]:
+    """The loaders over one kind of generated data, as callables that start a pass and yield batch sizes."""
     raw, data = tmp / kind / "raw", tmp / kind / "data"
-    generate(raw, count=args.routes, frames=args.frames, realistic=kind == "realistic")
-    convert(get_adapter("carla_lead"), raw, data)
-    check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
-    streams = {to_device: training_stream(kind, data, args, config, to_device) for to_device in (False, True)}
-    lead = {
-        views: DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=args.workers)
-        for views in (1, 2)
-    }
+    generate_data(kind, raw, data, args)
+    source, switches, _ = KINDS[kind]
+    config = input_spec(LeadConfig(**switches))
 
-    def lead_run(views: int) -> Iterator[int]:
-        return (len(batch["key"]) for _, batch in zip(range(args.steps), _forever(lead[views]), strict=False))
+    def ours(stream: Iterator[dict[str, Any]]) -> Callable[[], Iterator[int]]:
+        return lambda: (len(next(stream)["__key__"]) for _ in range(args.steps))
 
-    return {
+    runs = {
         PLAIN: lambda: (1 for _ in read_samples(data)),
         PIXELS: lambda: (_decode_jpegs(sample) for sample in read_samples(data)),
-        OURS: lambda: (len(next(streams[False])["__key__"]) for _ in range(args.steps)),
-        OURS_DEVICE: lambda: (len(next(streams[True])["__key__"]) for _ in range(args.steps)),
-        LEAD_BOTH: lambda: lead_run(2),
-        LEAD_ONE: lambda: lead_run(1),
+        OURS: ours(training_stream(kind, data, args, config, False, 0)),
     }
+    if source == "carla":
+        runs[OURS_DEVICE] = ours(training_stream(kind, data, args, config, True, 0))
+    if args.two_workers:
+        runs[OURS_TWO] = ours(training_stream(kind, data, args, config, False, 2))
+    if args.lead_style and source == "carla":
+        check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
+        lead = {
+            views: DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=0)
+            for views in (1, 2)
+        }
+        for name, views in ((LEAD_BOTH, 2), (LEAD_ONE, 1)):
+            runs[name] = partial(
+                lambda views: (len(b["key"]) for _, b in zip(range(args.steps), _forever(lead[views]), strict=False)),
+                views,
+            )
+    return runs
 
 
 def training_stream(
-    kind: str, data: Path, args: argparse.Namespace, config: InputSpec, inputs_on_device: bool
+    kind: str, data: Path, args: argparse.Namespace, config: InputSpec, inputs_on_device: bool, workers: int
 ) -> Iterator[dict[str, Any]]:
     """One epoch's stream of our training loader, as in training: every round goes on with it."""
+    source, _, cameras = KINDS[kind]
     dm = DriveDataModule(
-        train={"carla": SourceSpec([str(data)])},
-        schedule=MixingSchedule.constant({"carla": 1.0}, args.batch_size),
-        steps_per_epoch=args.steps * args.rounds + 1,
-        num_workers=args.workers,
+        train={source: SourceSpec([str(data)], cameras=cameras)},
+        schedule=MixingSchedule.constant({source: 1.0}, args.batch_size),
+        steps_per_epoch=args.steps * (args.rounds + 1) + 1,
+        num_workers=workers,
         inputs=config,
         inputs_on_device=inputs_on_device,
     )
     dm.trainer = SimpleNamespace(current_epoch=0, world_size=1)
     wall, cpu = time.perf_counter(), time.process_time()
-    stream = iter(dm.train_dataloader()["carla"])
+    stream = iter(dm.train_dataloader()[source])
     first = next(stream)
     print(
-        f"{kind}: ours (inputs_on_device={inputs_on_device}), the shuffle buffer's fill and the first batch (once per "
-        f"epoch and worker): {time.perf_counter() - wall:.2f} s wall, {time.process_time() - cpu:.2f} s CPU for "
-        f"{len(first['__key__'])}"
+        f"{kind}: ours (inputs_on_device={inputs_on_device}, {workers} workers), the shuffle buffer's fill and the "
+        f"first batch (once per epoch and worker): {time.perf_counter() - wall:.2f} s wall, "
+        f"{time.process_time() - cpu:.2f} s CPU for {len(first['__key__'])}"
     )
     return stream
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--routes", type=int, default=6)
-    parser.add_argument("--frames", type=int, default=16)
+    parser.add_argument("--routes", type=int, default=6, help="CARLA routes per CARLA kind")
+    parser.add_argument("--frames", type=int, default=16, help="frames per CARLA route")
+    parser.add_argument("--logs", type=int, default=8, help="NAVSIM logs / WOD-E2E segments per split")
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--steps", type=int, default=40, help="batches per round for ours and the LEAD-style loader")
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--workers", type=int, default=0, help="loader workers for ours and the LEAD-style loader")
+    parser.add_argument("--rounds", type=int, default=3, help="timed rounds, after one warm-up round")
+    parser.add_argument("--two-workers", action="store_true", help="also ours with 2 dataloader workers")
+    parser.add_argument("--lead-style", action="store_true", help="also the LEAD-style loader (CARLA kinds)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (collation)")
-    parser.add_argument("--kinds", nargs="+", default=["light", "realistic"], choices=["light", "realistic"])
+    parser.add_argument("--kinds", nargs="+", default=["realistic", "navsim", "wod"], choices=list(KINDS))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    config = input_spec(LeadConfig(use_planning_decoder=True))  # LEAD's TFv6 at paper sizes
-    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; CPUs usable: {_cpus()}")
     with tempfile.TemporaryDirectory() as tmp:
-        runs = {kind: loaders(kind, Path(tmp), args, config) for kind in args.kinds}
+        runs = {kind: loaders(kind, Path(tmp), args) for kind in args.kinds}
         timings: dict[tuple[str, str], list[Timing]] = {(k, n): [] for k, per in runs.items() for n in per}
-        for round_index in range(args.rounds):
+        for round_index in range(-1, args.rounds):  # round -1: the warm-up, not counted
             for kind, per_kind in runs.items():
                 for name, run in per_kind.items():
                     timing = timed(run())
-                    timings[kind, name].append(timing)
+                    if round_index >= 0:
+                        timings[kind, name].append(timing)
                     print(
-                        f"round {round_index}, {kind}: {name}: {timing.samples} samples, {timing.rate:.1f} samples/s "
-                        f"({timing.steady_rate:.1f} after the first batch), "
-                        f"{timing.cpu / timing.samples * 1e3:.2f} ms CPU/sample"
+                        f"round {'warm-up' if round_index < 0 else round_index}, {kind}: {name}: {timing.samples} "
+                        f"samples, {timing.rate:.1f} samples/s, {timing.cpu / timing.samples * 1e3:.2f} ms CPU/sample"
                     )
         print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
-        print(f"median over {args.rounds} rounds (ratios: median of the per-round ratios):")
-        for kind in runs:
-            for name in runs[kind]:
-                runs_of = timings[kind, name]
-                rate = statistics.median(t.rate for t in runs_of)
-                steady = statistics.median(t.steady_rate for t in runs_of)
-                cpu = statistics.median(t.cpu / t.samples * 1e3 for t in runs_of)
-                print(f"  {kind}: {name}: {rate:.1f} samples/s ({steady:.1f} after the first batch), {cpu:.2f} ms CPU")
-            for name in (OURS, OURS_DEVICE):
-                ours = timings[kind, name]
-                for label, attribute in (("every batch", "rate"), ("after the first batch", "steady_rate")):
-                    over_plain = _median_ratio(ours, timings[kind, PLAIN], attribute, "rate")
-                    both = _median_ratio(ours, timings[kind, LEAD_BOTH], attribute, attribute)
-                    one = _median_ratio(ours, timings[kind, LEAD_ONE], attribute, attribute)
-                    print(
-                        f"  {kind}, {name}, {label}: {over_plain:.2f}x plain decoding, {both:.2f}x LEAD-style "
-                        f"(both rigs), {one:.2f}x LEAD-style (one rig)"
-                    )
+        summary(runs, timings, args.rounds)
+
+
+def summary(
+    runs: dict[str, dict[str, Callable[[], Iterator[int]]]], timings: dict[tuple[str, str], list[Timing]], rounds: int
+) -> None:
+    """Medians over the rounds; each ratio is the median of the per-round ratios, with their spread."""
+    print(
+        f"\nmedian over {rounds} rounds; ratio: samples/s over plain decoding's in the same round (spread: max/min-1)"
+    )
+    for kind in runs:
+        source, switches, _ = KINDS[kind]
+        print(f"{kind} ({source}, LeadConfig({', '.join(f'{k}={v}' for k, v in switches.items())})):")
+        plain = timings[kind, PLAIN]
+        for name in runs[kind]:
+            of = timings[kind, name]
+            rate = statistics.median(t.rate for t in of)
+            cpu = statistics.median(t.cpu / t.samples * 1e3 for t in of)
+            line = f"  {name}: {rate:.1f} samples/s, {cpu:.2f} ms CPU/sample"
+            if name != PLAIN:
+                ratios = [x.rate / y.rate for x, y in zip(of, plain, strict=True)]
+                spread = max(ratios) / min(ratios) - 1
+                line += f", {statistics.median(ratios):.2f}x plain decoding (spread {spread:.0%})"
+            if name not in (PLAIN, OURS_TWO):  # one process: CPU per sample, steadier than wall time on a busy machine
+                cpu_ratios = [y.cpu / y.samples / (x.cpu / x.samples) for x, y in zip(of, plain, strict=True)]
+                line += f", by CPU time {statistics.median(cpu_ratios):.2f}x"
+            print(line)
+
+
+def _cpus() -> int:
+    return len(os.sched_getaffinity(0))
 
 
 def _decode_jpegs(sample: dict[str, Any]) -> int:
@@ -211,10 +269,6 @@ def _decode_jpegs(sample: dict[str, Any]) -> int:
         if name.startswith("cam_"):
             cv2.imdecode(np.frombuffer(value, np.uint8), cv2.IMREAD_COLOR)
     return 1
-
-
-def _median_ratio(a: list[Timing], b: list[Timing], attribute_a: str, attribute_b: str) -> float:
-    return statistics.median(getattr(x, attribute_a) / getattr(y, attribute_b) for x, y in zip(a, b, strict=True))
 
 
 def _forever(loader: DataLoader):

@@ -80,3 +80,11 @@ def test_without_steps_per_epoch_an_epoch_is_one_pass_over_the_training_samples(
     empty = DriveDataModule(train={"sim": SourceSpec([toy_data], splits=["val"])}, steps_per_epoch=None)
     with pytest.raises(UserError, match=r"data\.train: no training samples"):
         empty.epoch_steps()
+
+
+@pytest.mark.parametrize("device", ["cpu", "cuda"])
+def test_batches_are_pinned_for_a_gpu_only(toy_data, device):
+    dm = make_datamodule(toy_data)
+    dm.trainer.strategy = SimpleNamespace(root_device=SimpleNamespace(type=device))
+    loaders = [*dm.train_dataloader().values(), *dm.val_dataloader()]
+    assert loaders and all(loader.pipeline[0].pin_memory == (device == "cuda") for loader in loaders)  # its DataLoader

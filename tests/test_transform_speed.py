@@ -17,19 +17,29 @@ from tiny_models import sensor_spec
 
 from lead_s2r.data.camera_input import jpeg_reduction
 from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
-from lead_s2r.data.lead_labels import bev_cell_centres, bev_labels
+from lead_s2r.data.lead_labels import (
+    _bev_tables,
+    _footprint_pixels,
+    bev_cell_centres,
+    bev_labels,
+    canvas_crop,
+    footprint_rects,
+    lead_bev_labels,
+)
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import CARLA_BEV, NAVSIM_BEV, NAVSIM_VERTICAL_FOV_DEG, BEVGrid
 from lead_s2r.models.inputs import IGNORE_CLASS, LIDAR_HITS_MAX, class_ids, lidar_input, on_image_grid
+from lead_s2r.schema import BoxClass
 
 # --------------------------------------------------------------------------- references
 
 
 def camera_image(transform: SourceTransform, sample: dict) -> tuple[torch.Tensor, CameraLayout]:
     """The transform's camera input of ``sample`` and its layout, by whichever decode path the rig takes."""
-    return transform.camera.image(sample, transform.camera.stored_layout(sample["meta"]))
+    plan = transform.camera.plan(sample)
+    return transform.camera.image(sample, plan), plan.layout
 
 
 def random_boxes(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -224,3 +234,27 @@ def test_ltfv6_on_four_navsim_cameras_decodes_at_a_quarter() -> None:
     camera = ((1080, 1920), (Tile(0, 1920, 1545.0, 540.0),))
     layout = camera_layout((camera,) * 4, (270, 1920), NAVSIM_VERTICAL_FOV_DEG)
     assert jpeg_reduction(layout) == (4, cv2.IMREAD_REDUCED_COLOR_4 & ~cv2.IMREAD_COLOR)
+
+
+def reference_footprints(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
+    """LEAD's footprint corners box by box, as LEAD computes them: ``cv2.boxPoints`` of numpy scalars."""
+    centre, half = footprint_rects(boxes, grid)
+    ppm = grid.pixels_per_meter
+    corners = np.zeros((len(boxes), 4, 2), np.int32)
+    for i, ((cx, cy), (hx, hy), yaw) in enumerate(zip(centre, half, boxes[:, 6], strict=True)):
+        rect = ((float(cx), float(cy)), (float(hx * 2 * ppm), float(hy * 2 * ppm)), float(np.rad2deg(-yaw)))
+        corners[i] = cv2.boxPoints(rect).astype(np.int32)
+    return corners - canvas_crop(grid)
+
+
+@pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV])
+def test_footprints_and_the_bev_remap_are_leads_box_by_box_and_numpys(grid: BEVGrid) -> None:
+    rng = np.random.default_rng(11)
+    boxes = random_boxes(rng, 400).astype(np.float64)
+    boxes[:, 9] = rng.integers(0, len(BoxClass), 400)
+    np.testing.assert_array_equal(_footprint_pixels(boxes, grid), reference_footprints(boxes, grid))
+    hdmap = rng.integers(0, 256, grid.shape).astype(np.uint8)
+    for leaderboard in (True, False):
+        _, lookup, _ = _bev_tables(leaderboard)
+        no_boxes = lead_bev_labels(hdmap, boxes[:0], grid, leaderboard, np.zeros(0, np.int64))
+        np.testing.assert_array_equal(no_boxes, lookup[hdmap])  # the LUT and both quarter turns: numpy's gather

@@ -82,41 +82,52 @@ class CameraLayout:
         return (band.x0, band.x1, band.top, band.bottom) == (0, w, 0, h)
 
 
-def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> tuple[Tile, ...]:
-    """The tiles of camera field ``camera`` from ``meta.cameras``, scaled to the decoded image ``shape``.
+@dataclass(frozen=True)
+class Calibration:
+    """A camera field's ``meta.cameras`` entries, hashable so that a rig's layout is cached by it.
 
-    A mosaic lists one calibration per tile (``tile`` = [x0, width]); a camera without calibration is one tile
-    without intrinsics.
+    Attributes:
+        size: (height, width) of the stored image the entries describe.
+        tiles: per tile left to right, (x0, width, fy, cy) at that size; fy and cy None where the layout does not
+            read intrinsics (no vertical field of view asked), so every calibration of a rig shares one layout.
     """
-    height, width = shape
-    entries = _calibrations(meta, camera)
+
+    size: tuple[int, int]
+    tiles: tuple[tuple[float, float, float | None, float | None], ...]
+
+
+def calibration(meta: dict[str, Any], camera: str, intrinsics: bool = True) -> Calibration | None:
+    """The calibration of camera field ``camera`` from ``meta.cameras``; None without one."""
+    entries = [c for c in meta.get("cameras", []) if c.get("id") == camera]
     if not entries:
-        return (Tile(0, width),)
-    stored_height, stored_width = _stored_size(entries)
-    sx, sy = width / stored_width, height / stored_height
+        return None
+    entries.sort(key=lambda c: c["tile"][0] if "tile" in c else 0)
+    width = max((c["tile"][0] + c["tile"][1]) if "tile" in c else c["width"] for c in entries)
     tiles = []
     for c in entries:
         x0, w = c["tile"] if "tile" in c else (0, c["width"])
-        tiles.append(Tile(round(x0 * sx), round((x0 + w) * sx), float(c["K"][1][1]) * sy, float(c["K"][1][2]) * sy))
-    return tuple(tiles)
+        fy, cy = (float(c["K"][1][1]), float(c["K"][1][2])) if intrinsics else (None, None)
+        tiles.append((x0, w, fy, cy))
+    return Calibration((int(entries[0]["height"]), int(width)), tuple(tiles))
 
 
-def _calibrations(meta: dict[str, Any], camera: str) -> list[dict[str, Any]]:
-    """The ``meta.cameras`` entries of camera field ``camera``, left to right."""
-    entries = [c for c in meta.get("cameras", []) if c.get("id") == camera]
-    return sorted(entries, key=lambda c: c["tile"][0] if "tile" in c else 0)
+def tiles_at(calibration: Calibration | None, shape: tuple[int, int]) -> tuple[Tile, ...]:
+    """The tiles of a camera image of ``shape`` (height, width) with ``calibration``, scaled from its stored size:
+    a mosaic has one per calibration entry; a camera without calibration is one tile without intrinsics."""
+    height, width = shape
+    if calibration is None:
+        return (Tile(0, width),)
+    stored_height, stored_width = calibration.size
+    sx, sy = width / stored_width, height / stored_height
+    return tuple(
+        Tile(round(x0 * sx), round((x0 + w) * sx), None if fy is None else fy * sy, None if cy is None else cy * sy)
+        for x0, w, fy, cy in calibration.tiles
+    )
 
 
-def _stored_size(entries: list[dict[str, Any]]) -> tuple[int, int]:
-    """(height, width) of the stored image the calibration ``entries`` describe."""
-    width = max((c["tile"][0] + c["tile"][1]) if "tile" in c else c["width"] for c in entries)
-    return int(entries[0]["height"]), int(width)
-
-
-def stored_shape(meta: dict[str, Any], camera: str) -> tuple[int, int] | None:
-    """(height, width) of camera field ``camera`` as stored, from its ``meta.cameras`` entries; None without one."""
-    entries = _calibrations(meta, camera)
-    return _stored_size(entries) if entries else None
+def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> tuple[Tile, ...]:
+    """The tiles of camera field ``camera`` from ``meta.cameras``, scaled to the decoded image ``shape``."""
+    return tiles_at(calibration(meta, camera), shape)
 
 
 def tile_bands(height: int, tiles: Sequence[Tile], vertical_fov_deg: float | None) -> tuple[Band, ...]:

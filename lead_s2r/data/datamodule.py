@@ -214,8 +214,10 @@ class DriveDataModule(L.LightningDataModule):
     @property
     def inputs_on_device(self) -> bool:
         """Whether loaders leave the camera JPEG and the LiDAR points for the device: as given, else on a GPU."""
-        if self._inputs_on_device is not None:
-            return self._inputs_on_device
+        return self._inputs_on_device if self._inputs_on_device is not None else self._on_gpu
+
+    @property
+    def _on_gpu(self) -> bool:
         strategy = getattr(self.trainer, "strategy", None)
         return strategy is not None and strategy.root_device.type == "cuda"
 
@@ -275,7 +277,10 @@ class DriveDataModule(L.LightningDataModule):
         )
 
     def _loader(self, dataset: wds.DataPipeline) -> wds.WebLoader:
-        return wds.WebLoader(dataset, batch_size=None, num_workers=self.num_workers)
+        """A loader over ``dataset``; on a GPU its batches pinned (a pinning thread in the main process), so the copy
+        to the device runs asynchronously. No persistent workers: every loader is rebuilt each epoch
+        (``reload_dataloaders_every_n_epochs=1``: the schedule, the epoch's seed), which starts new workers anyway."""
+        return wds.WebLoader(dataset, batch_size=None, num_workers=self.num_workers, pin_memory=self._on_gpu)
 
     def current_batch_sizes(self) -> dict[str, int]:
         """Per-rank batch size of each source in the trainer's current epoch."""

@@ -139,14 +139,21 @@ def traffic_light_classes(classes: np.ndarray, extras: dict[str, Any]) -> np.nda
 def lead_box_classes(classes: np.ndarray, leaderboard: bool, lights: np.ndarray) -> np.ndarray:
     """(N,) our :class:`~lead_s2r.schema.BoxClass` ids -> LEAD's :class:`LeadBoxClass` ids; -1 where LEAD detects
     no such object (``lights``: :func:`traffic_light_classes`; LEAD detects red lights that affect the ego only)."""
-    table = {ours: SIM2REAL_BOX.get(lead, lead) if not leaderboard else lead for ours, lead in BOX_TO_LEAD.items()}
-    lookup = np.full(len(BoxClass), -1, np.int64)
-    for ours, lead in table.items():
-        lookup[ours] = lead
+    lookup = _box_table(leaderboard)
     classes = np.asarray(classes, np.int64)
     known = (classes >= 0) & (classes < len(BoxClass))
     unseen_light = (classes == BoxClass.TRAFFIC_LIGHT) & ~np.isin(lights, RED_BEV_CLASSES)
     return np.where(known & ~unseen_light, lookup[np.clip(classes, 0, len(BoxClass) - 1)], -1)
+
+
+@lru_cache(maxsize=2)
+def _box_table(leaderboard: bool) -> np.ndarray:
+    """Our box class -> LEAD's box class (-1: none), for the leaderboard or sim-to-real; built once (read-only)."""
+    lookup = np.full(len(BoxClass), -1, np.int64)
+    for ours, lead in BOX_TO_LEAD.items():
+        lookup[ours] = lead if leaderboard else SIM2REAL_BOX.get(lead, lead)
+    lookup.flags.writeable = False
+    return lookup
 
 
 #: LEAD's radar-detection class order among equally fast boxes (``parse_radar_detection_labels``); others after.
@@ -170,25 +177,18 @@ def lead_bev_labels(
 ) -> np.ndarray:
     """LEAD's 13-class BEV label on ``grid``: ``hdmap`` (our :class:`~lead_s2r.schema.BevClassCarla` ids on the grid,
     :data:`IGNORE_CLASS` outside the stored raster) remapped, with the boxes' (N, 10) footprints drawn over it in
-    order, then the hull of the traffic lights affecting the ego (``lights``: :func:`traffic_light_classes`)."""
-    convert = np.arange(256, dtype=np.int64)
-    if not leaderboard:
-        for lead, sim2real in SIM2REAL_BEV.items():
-            convert[lead] = sim2real
-    lookup = np.full(256, IGNORE_CLASS, np.uint8)
-    for ours, lead in HDMAP_TO_LEAD.items():
-        lookup[ours] = convert[lead]
-    labels = lookup[hdmap]
+    order, then the hull of the traffic lights affecting the ego (``lights``: :func:`traffic_light_classes`).
+
+    ``hdmap`` is uint8: the remap is one ``cv2.LUT`` (numpy's ``lookup[hdmap]`` widens the 123k indices to int64
+    first, 10x slower), and LEAD's layout is a ``cv2.rotate`` either way (a quarter turn: ``labels.T[::-1]``)."""
+    convert, lookup, bev_class = _bev_tables(leaderboard)
+    canvas = cv2.rotate(cv2.LUT(hdmap, lookup), cv2.ROTATE_90_COUNTERCLOCKWISE)  # LEAD's layout, where it draws
     boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
-    bev_class = np.full(len(BoxClass), int(LeadBevClass.UNLABELED), np.int64)
-    for ours, lead in BOX_TO_LEAD_BEV.items():
-        bev_class[ours] = lead
     ours = boxes[:, 9].astype(np.int64)
     known = (ours >= 0) & (ours < len(BoxClass))
     drawn_class = np.where(lights >= 0, lights, bev_class[np.where(known, ours, 0)])
     drawn = np.flatnonzero(known & (drawn_class != LeadBevClass.UNLABELED) & _on_occupancy_canvas(boxes, grid))
     corners = _footprint_pixels(boxes[drawn], grid)
-    canvas = np.ascontiguousarray(labels.T[::-1])  # LEAD's layout, where its polygons are drawn
     for polygon, label in zip(corners, drawn_class[drawn].tolist(), strict=True):
         cv2.fillPoly(canvas, [polygon], int(convert[label]))
     for light in (LeadBevClass.TRAFFIC_RED_NOT_NORMAL, LeadBevClass.TRAFFIC_RED_NORMAL, LeadBevClass.TRAFFIC_GREEN):
@@ -196,7 +196,26 @@ def lead_bev_labels(
         if of_light.any():  # LEAD fills the hull of one kind only, the first present in this order
             cv2.fillPoly(canvas, [cv2.convexHull(corners[of_light].reshape(-1, 2))], int(convert[light]))
             break
-    return np.ascontiguousarray(canvas[::-1].T)
+    return cv2.rotate(canvas, cv2.ROTATE_90_CLOCKWISE)
+
+
+@lru_cache(maxsize=2)
+def _bev_tables(leaderboard: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """LEAD's BEV class remap (LEAD's class -> the trained class), our hdmap id -> that class (uint8, 256 entries,
+    :data:`IGNORE_CLASS` for unknown ids) and our box class -> LEAD's BEV class, for the leaderboard or sim-to-real."""
+    convert = np.arange(256, dtype=np.int64)
+    if not leaderboard:
+        for lead, sim2real in SIM2REAL_BEV.items():
+            convert[lead] = sim2real
+    lookup = np.full(256, IGNORE_CLASS, np.uint8)
+    for ours, lead in HDMAP_TO_LEAD.items():
+        lookup[ours] = convert[lead]
+    bev_class = np.full(len(BoxClass), int(LeadBevClass.UNLABELED), np.int64)
+    for ours, lead in BOX_TO_LEAD_BEV.items():
+        bev_class[ours] = lead
+    for table in (convert, lookup, bev_class):
+        table.flags.writeable = False  # shared by every call
+    return convert, lookup, bev_class
 
 
 def _footprint_pixels(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
@@ -204,17 +223,30 @@ def _footprint_pixels(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
     along x, row along y right): ``cv2.boxPoints`` of the box on LEAD's 256 m occupancy canvas, truncated to
     integers there and then cropped to the grid, so every vertex is LEAD's; pedestrians and bikers grown as LEAD
     draws them. (A vertex computed on the grid itself would truncate the other way left of it.)"""
+    centre, half = footprint_rects(boxes, grid)
+    ppm = grid.pixels_per_meter
+    points = np.zeros((len(boxes), 4, 2), np.float32)
+    sizes, angles = (half * 2 * ppm).tolist(), np.rad2deg(-boxes[:, 6]).tolist()  # elementwise: the same numbers
+    for i, ((cx, cy), (width, height), angle) in enumerate(zip(centre.tolist(), sizes, angles, strict=True)):
+        points[i] = cv2.boxPoints(((cx, cy), (width, height), angle))
+    return points.astype(np.int32) - canvas_crop(grid)
+
+
+def footprint_rects(boxes: np.ndarray, grid: BEVGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) centres of the boxes on LEAD's occupancy canvas (pixels) and (N, 2) half extents (metres), pedestrians
+    and bikers grown as LEAD draws them."""
     half = boxes[:, 3:5] / 2
     grown = np.isin(boxes[:, 9], [BoxClass.PEDESTRIAN, BoxClass.BICYCLE])
     half[grown] = np.maximum(half[grown], PEDESTRIAN_BEV_MIN_HALF_EXTENT) * PEDESTRIAN_BEV_SCALE
+    centre = np.stack([boxes[:, 0] + OCCUPANCY_HALF_M, OCCUPANCY_HALF_M - boxes[:, 1]], axis=1) * grid.pixels_per_meter
+    return centre, half
+
+
+def canvas_crop(grid: BEVGrid) -> np.ndarray:
+    """(2,) int32 pixel offset of ``grid``'s corner on LEAD's occupancy canvas."""
     ppm = grid.pixels_per_meter
-    centre = np.stack([boxes[:, 0] + OCCUPANCY_HALF_M, OCCUPANCY_HALF_M - boxes[:, 1]], axis=1) * ppm
-    corners = np.zeros((len(boxes), 4, 2), np.int32)
-    for i, ((cx, cy), (hx, hy), yaw) in enumerate(zip(centre, half, boxes[:, 6], strict=True)):
-        rect = ((float(cx), float(cy)), (float(hx * 2 * ppm), float(hy * 2 * ppm)), float(np.rad2deg(-yaw)))
-        corners[i] = cv2.boxPoints(rect).astype(np.int32)
     crop = np.array([OCCUPANCY_HALF_M * ppm + grid.x_min * ppm, OCCUPANCY_HALF_M * ppm - grid.y_max * ppm]).astype(int)
-    return corners - crop.astype(np.int32)
+    return crop.astype(np.int32)
 
 
 def _on_occupancy_canvas(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:

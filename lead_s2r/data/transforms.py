@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import torch
 
-from lead_s2r.data.camera_input import CameraInput
+from lead_s2r.data.camera_input import AS_STORED, CameraInput
 from lead_s2r.data.camera_layout import CameraLayout, label_on_layout
 from lead_s2r.data.collate import IGNORE_VALUE
 from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
@@ -111,11 +111,11 @@ class SourceTransform:
             out["command_full"] = torch.scalar_tensor(int(ego["command"]), dtype=torch.int64)
             out["origin_x"] = torch.scalar_tensor(float(meta["vehicle"]["rear_axle_to_center"]))
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
-            stored = self.camera.stored_layout(meta)
-            if self.inputs_on_device and stored is not None and stored.identity:
-                out[RGB_JPEG], layout = jpeg_tensor(self.camera.jpeg(sample, self.cameras[0])), stored
+            plan = self.camera.plan(sample)
+            if self.inputs_on_device and plan.path == AS_STORED:
+                out[RGB_JPEG] = jpeg_tensor(self.camera.jpeg(sample, self.cameras[0]))
             else:
-                out["rgb"], layout = self.camera.image(sample, stored)
+                out["rgb"] = self.camera.image(sample, plan)
         out.update(self.target_points(sample))
         spec = self.spec
         lead = self.lead_carla_boxes(sample) if self.lead_carla and "boxes" in sample else None
@@ -143,7 +143,7 @@ class SourceTransform:
         if "boxes" in sample and space in spec.lead_box_classes:
             out.update(self.lead_boxes(sample, spec.lead_box_classes[space], lead))
         if len(self.cameras) == 1:
-            out.update(self.perspective_labels(sample, space, layout))
+            out.update(self.perspective_labels(sample, space, plan.layout))
         return out
 
     @property
