@@ -27,7 +27,6 @@ camera convention it speaks (AlpaSim's) as carla-driver-interface's metadata, so
 """
 
 import logging
-import math
 import threading
 from collections.abc import Callable
 from concurrent import futures
@@ -45,11 +44,11 @@ from lead_s2r.closed_loop.alpasim_messages import (
     build_sample,
     check_dynamics,
     invalid,
+    jpeg_shape,
     local_trajectory,
     match_cameras,
     pose_matrix,
     precondition,
-    reduced_jpeg_shape,
     scene_camera,
 )
 from lead_s2r.closed_loop.alpasim_model import ServedModel
@@ -134,15 +133,15 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
             slot = session.slot_of.get(image.logical_id)
             if slot is None:  # a camera the model does not read (or one the scene never declared)
                 return protocol.Empty()
-            shape = reduced_jpeg_shape(image.image_bytes)
+            shape = jpeg_shape(image.image_bytes)
             if shape is None:
                 raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: not a decodable JPEG "
                               "(set AlpaSim's image_format: jpeg)")  # fmt: skip
             declared = session.cameras[image.logical_id].calibration
-            if shape != (math.ceil(declared["height"] / 8), math.ceil(declared["width"] / 8)):
-                raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: about {8 * shape[1]}x"
-                              f"{8 * shape[0]} pixels, but the camera is declared {declared['width']}x"
-                              f"{declared['height']} (rollout_spec.vehicle.available_cameras)")  # fmt: skip
+            if shape != (declared["height"], declared["width"]):
+                raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: {shape[1]}x{shape[0]} "
+                              f"pixels, but the camera is declared {declared['width']}x{declared['height']} "
+                              "(rollout_spec.vehicle.available_cameras)")  # fmt: skip
             with session.lock:
                 previous = session.images.get(slot, (-(2**63), b""))[0]
                 if image.frame_end_us < previous:

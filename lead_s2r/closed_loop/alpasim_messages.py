@@ -11,13 +11,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
 import grpc
 import numpy as np
 from carla_driver_interface import protocol
 from scipy.spatial.transform import Rotation
 
 from lead_s2r.closed_loop.alpasim_model import CameraSlot, ServedModel
+from lead_s2r.data.device_inputs import decode_rgb, jpeg_tensor
 from lead_s2r.geometry import to_global, to_local, wrap_angle
 from lead_s2r.schema import SCHEMA_VERSION, Command
 
@@ -239,13 +239,16 @@ def build_sample(session: Session, served: ServedModel, time_now_us: int) -> dic
     return sample
 
 
-def reduced_jpeg_shape(data: bytes) -> tuple[int, int] | None:
-    """(rows, columns) of ``data`` decoded at 1/8 size, each ``ceil(n / 8)`` (libjpeg scales while decoding: a check,
-    not the decode the model's input gets); None where ``data`` is no JPEG libjpeg decodes."""
+def jpeg_shape(data: bytes) -> tuple[int, int] | None:
+    """(rows, columns) of ``data`` decoded as the model's input decodes it (torchvision's libjpeg-turbo, which refuses
+    damage OpenCV decodes through); None where ``data`` is no JPEG that decodes."""
     if not data.startswith(b"\xff\xd8"):
         return None
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_REDUCED_GRAYSCALE_8)
-    return None if image is None else (int(image.shape[0]), int(image.shape[1]))
+    try:
+        image = decode_rgb([jpeg_tensor(data)], "cpu")[0]
+    except RuntimeError:
+        return None
+    return int(image.shape[1]), int(image.shape[2])
 
 
 def local_trajectory(plan: np.ndarray, times: np.ndarray, anchor: tuple[int, np.ndarray], time_now_us: int) -> Any:
