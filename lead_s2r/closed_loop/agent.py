@@ -47,6 +47,7 @@ from lead_s2r.closed_loop.route import (
     world_to_iso,
 )
 from lead_s2r.closed_loop.sensors import (
+    COMPASS,
     GNSS_ID,
     GNSS_SIZE,
     IMU_ID,
@@ -258,7 +259,7 @@ class LeadS2RAgent(Base):
         """World ISO (x, y, yaw) of the vehicle centre from GNSS and compass, filtered when configured."""
         lat, lon = vector(input_data, GNSS_ID, GNSS_SIZE)[:2]
         xy = world_to_iso(gnss_to_world(lat, lon, self.reference))
-        yaw = compass_to_yaw(float(vector(input_data, IMU_ID, IMU_SIZE)[6]))
+        yaw = compass_to_yaw(float(vector(input_data, IMU_ID, IMU_SIZE)[COMPASS]))
         speed = speed_reading(input_data)
         if self.position_filter is not None:
             xy = self.position_filter.step(np.r_[xy, yaw, speed])[:2]

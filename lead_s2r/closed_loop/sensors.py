@@ -13,7 +13,7 @@ current tick's two half sweeps, unfiltered, as LEAD's recorded point clouds are.
 A tick's data is checked as it is read: a sensor missing, a reading of another shape or type is a
 :class:`SensorInputError` naming the sensor (the rig and the simulator disagree: no later tick would be better); a
 LiDAR or radar row that is not a number (or 10 km away) is no return and is dropped; a GNSS, IMU or speedometer value
-that is not a number makes the tick unusable (:func:`unusable_reading`; the agent brakes that tick,
+that is not a number or out of range makes the tick unusable (:func:`unusable_reading`; the agent brakes that tick,
 docs/closed_loop.md).
 """
 
@@ -51,6 +51,15 @@ IMU_TICK, GNSS_TICK, SPEEDOMETER_HZ = 0.05, 0.01, 20
 GNSS_ID, IMU_ID, SPEED_ID = "gps", "imu", "speed"
 #: Values per reading: GNSS [lat, lon, alt], IMU [ax, ay, az, gx, gy, gz, compass]; LiDAR and radar columns.
 GNSS_SIZE, IMU_SIZE, POINT_COLUMNS = 3, 7, 4
+#: The IMU's compass value (radians); NaN on CARLA's first ticks.
+COMPASS = 6
+#: The largest magnitude of each GNSS (lat, lon degrees, alt m), IMU (m/s^2, rad/s, compass rad) and speedometer (m/s)
+#: value a tick can be driven on; no car or planet gives more.
+POSE_READING_LIMITS = {
+    GNSS_ID: np.array([90.0, 180.0, 1e5]),
+    IMU_ID: np.array([1e3, 1e3, 1e3, 1e3, 1e3, 1e3, 2 * np.pi]),
+    SPEED_ID: np.array([1e3]),
+}
 #: A LiDAR or radar value beyond this (metres, m/s, radians) is no return: CARLA's sensors reach 100 m.
 MAX_POINT_VALUE = 1e4
 #: LEAD's ``jpeg_quality`` for the closed-loop image round trip.
@@ -136,14 +145,17 @@ def speed_reading(input_data: dict[str, Any]) -> float:
 
 def unusable_reading(input_data: dict[str, Any]) -> str | None:
     """Why this tick's position, heading or speed cannot be used (a GNSS, IMU or speedometer value that is not a
-    finite number), None when they can; a missing or misshapen reading raises :class:`SensorInputError`."""
+    number or beyond :data:`POSE_READING_LIMITS`: the position filter would diverge on it), None when they can; a
+    missing or misshapen reading raises :class:`SensorInputError`."""
+    imu = vector(input_data, IMU_ID, IMU_SIZE)
+    imu[COMPASS] = 0.0 if np.isnan(imu[COMPASS]) else imu[COMPASS]  # CARLA's first ticks: north (route.compass_to_yaw)
     readings = {
         GNSS_ID: vector(input_data, GNSS_ID, GNSS_SIZE),
-        IMU_ID: vector(input_data, IMU_ID, IMU_SIZE),
+        IMU_ID: imu,
         SPEED_ID: np.array([speed_reading(input_data)]),
     }
-    bad = [sensor for sensor, values in readings.items() if not np.isfinite(values).all()]
-    return f"sensors {bad}: a value that is not a finite number" if bad else None
+    bad = [sensor for sensor, values in readings.items() if not (np.abs(values) <= POSE_READING_LIMITS[sensor]).all()]
+    return f"sensors {bad}: a value that is not a number or out of range" if bad else None
 
 
 def sensor_points(input_data: dict[str, Any], sensor_id: str) -> np.ndarray:
