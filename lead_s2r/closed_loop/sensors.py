@@ -147,7 +147,7 @@ def unusable_reading(input_data: dict[str, Any]) -> str | None:
     """Why this tick's position, heading or speed cannot be used (a GNSS, IMU or speedometer value that is not a
     number or beyond :data:`POSE_READING_LIMITS`: the position filter would diverge on it), None when they can; a
     missing or misshapen reading raises :class:`SensorInputError`."""
-    imu = vector(input_data, IMU_ID, IMU_SIZE)
+    imu = vector(input_data, IMU_ID, IMU_SIZE).copy()  # the simulator's array stays as it came
     imu[COMPASS] = 0.0 if np.isnan(imu[COMPASS]) else imu[COMPASS]  # CARLA's first ticks: north (route.compass_to_yaw)
     readings = {
         GNSS_ID: vector(input_data, GNSS_ID, GNSS_SIZE),
