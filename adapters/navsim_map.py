@@ -41,6 +41,10 @@ class MapError(UserError, ValueError):
     """A map file, layer or field is missing or malformed; the message names it."""
 
 
+class MissingLayer(MapError):
+    """A layer the GeoPackage does not hold: an error, unless the layer is optional (a damaged file always is)."""
+
+
 def resolve_location(location: str) -> str:
     return LOCATION_ALIASES.get(location, location)
 
@@ -59,10 +63,10 @@ def _read_layer(path: Path, layer: str) -> pa.Table:
 
     try:
         meta, table = pyogrio.read_arrow(path, layer=layer, return_fids=True)
-    except pyogrio.errors.DataSourceError as err:  # a damaged SQLite file
-        raise MapError(f"{path}: not a readable GeoPackage ({' '.join(str(err).split())})") from None
     except pyogrio.errors.DataLayerError as err:
-        raise MapError(f"{path}: layer {layer!r} is missing ({err})") from None
+        raise MissingLayer(f"{path}: layer {layer!r} is missing ({err})") from None
+    except (pyogrio.errors.DataSourceError, OSError) as err:  # a damaged SQLite file, found opening it or reading
+        raise MapError(f"{path}: not a readable GeoPackage ({' '.join(str(err).split())})") from None
     rename = {meta["geometry_name"]: "geometry", meta.get("fid_column") or "OGC_FID": "fid", "OGC_FID": "fid"}
     table = table.rename_columns([rename.get(name, name) for name in table.column_names])
     if "geometry" not in table.column_names:  # damaged GeoPackage metadata loses the geometry column's name
@@ -109,7 +113,7 @@ def load_map(maps_root: Path, location: str) -> NuplanMap:
     for kind, (layer, id_field, parent_field, limit_field) in POLYGON_LAYERS.items():
         try:
             table = _read_layer(path, layer)
-        except MapError:
+        except MissingLayer:
             if layer in OPTIONAL_LAYERS:
                 continue
             raise

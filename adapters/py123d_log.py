@@ -162,7 +162,7 @@ class LogData:
         try:  # the column types are checked (LogFiles.table); a null inside a list is not
             boxes = np.asarray(column(table, path, f"{BOX_KEY}.bounding_box_se3")[row].as_py() or [], np.float64)
             labels = [int(label) for label in column(table, path, f"{BOX_KEY}.label")[row].as_py() or []]
-            moving = [[0.0, 0.0, 0.0] if v is None else v for v in velocity]
+            moving = [[np.nan] * 3 if v is None else v for v in velocity]  # null: py123d has no velocity, unknown
             moving = np.asarray(moving, np.float64).reshape(-1, 3)
         except (TypeError, ValueError):
             raise Py123dFormatError(path, f"row {row}: a null inside a list of boxes", "bounding_box_se3") from None
@@ -175,7 +175,8 @@ class LogData:
         moving = moving[keep]
         with np.errstate(divide="ignore", invalid="ignore"):  # a zero quaternion: NaN, refused below
             poses = pose_matrix(boxes[:, :7])
-        near = (np.abs(np.column_stack([boxes, moving])) < MAX_COORDINATE).all()  # False for NaN
+        known = ~np.isnan(moving).all(axis=1)  # null (or all NaN): unknown; partly NaN or huge: damage
+        near = (np.abs(boxes) < MAX_COORDINATE).all() and (np.abs(moving[known]) < MAX_COORDINATE).all()
         if not (near and np.isfinite(poses).all()):
             problem = f"row {row}: a box value is not finite or {MAX_COORDINATE:g} or more, or a quaternion is zero"
             raise Py123dFormatError(path, problem, "bounding_box_se3")

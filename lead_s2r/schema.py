@@ -128,6 +128,9 @@ CLASS_TABLES: dict[str, type[IntEnum]] = {
     "carla_semantic": SemanticClassCarla,
 }
 
+#: The ``boxes`` columns vx, vy: both NaN where the source does not know a box's velocity (docs/schema.md).
+BOX_VELOCITY = slice(7, 9)
+
 
 class MapKind(IntEnum):
     """``polygon_kind`` codes of ``scoring.npz`` (nuPlan SemanticMapLayer names)."""
@@ -173,7 +176,13 @@ FIELDS: dict[str, FieldSpec] = {
         FieldSpec("radar", "npy", "float32", (None, 5), doc="x, y, z, radial velocity, sensor index"),
         FieldSpec("target_points", "npy", "float32", (3, 2), doc="previous, current, next target point"),
         FieldSpec("route", "npy", "float32", (None, 2), doc="dense route ahead"),
-        FieldSpec("boxes", "npy", "float32", (None, 10), doc="x, y, z, length, width, height, yaw, vx, vy, class"),
+        FieldSpec(
+            "boxes",
+            "npy",
+            "float32",
+            (None, 10),
+            doc="x, y, z, length, width, height, yaw, vx, vy (NaN: unknown), class",
+        ),
         FieldSpec("agents_future", "npz", doc="poses (N,T,3), valid (N,T), t (T,)"),
         FieldSpec("bev_semantic", "png", "uint8", (None, None), doc="class ids, table named in meta.bev"),
         FieldSpec("raters", "npz", doc="trajectories (P,T,2), scores (P,)"),
@@ -252,13 +261,21 @@ def validate(sample: dict[str, Any]) -> None:
     _check_trajectory(key, "past", sample["past"], past=True)
     if "future" in sample:
         _check_trajectory(key, "future", sample["future"], past=False)
-    if "boxes" in sample and not np.isfinite(sample["boxes"]).all():
-        raise SchemaError(key, "boxes", "contains NaN or infinite values")
+    if "boxes" in sample:
+        _check_boxes(key, sample["boxes"])
     if "target_points" in sample:
         rows = sample["target_points"]
         partial = np.isnan(rows).any(axis=1) & ~np.isnan(rows).all(axis=1)
         if partial.any() or np.isinf(rows).any():
             raise SchemaError(key, "target_points", "a row must be all finite or all NaN (absent)")
+
+
+def _check_boxes(key: str, boxes: np.ndarray) -> None:
+    """Every box value finite, except a velocity the source does not know: vx and vy both NaN."""
+    velocity = boxes[:, BOX_VELOCITY]
+    unknown = np.isnan(velocity).all(axis=1)
+    if not (np.isfinite(np.delete(boxes, BOX_VELOCITY, axis=1)).all() and np.isfinite(velocity[~unknown]).all()):
+        raise SchemaError(key, "boxes", "contains NaN or infinite values (vx, vy may both be NaN: velocity unknown)")
 
 
 def _check_value(key: str, name: str, spec: FieldSpec, value: Any) -> None:

@@ -390,8 +390,17 @@ def test_out_of_order_timestamps_are_invalid_argument(lead_server: str, bystande
 
 
 def test_an_undecodable_image_is_invalid_argument(lead_server: str, bystander) -> None:
+    import io
+
+    from carla_driver_interface.testing import render_road
+    from PIL import Image
+
     client = Client(lead_server).start()
-    for data in (b"\xff\xd8 not a jpeg", b"\x89PNG\r\n"):
+    buffer = io.BytesIO()
+    Image.fromarray(render_road(client.camera, Pose.identity())).save(buffer, format="JPEG")
+    middle = len(buffer.getvalue()) // 2  # a marker inside the scan: OpenCV decodes through it, the model's decoder not
+    damaged = buffer.getvalue()[:middle] + b"\xff\x04" + buffer.getvalue()[middle + 2 :]
+    for data in (b"\xff\xd8 not a jpeg", b"\x89PNG\r\n", damaged):
         refused(lambda d=data: client.image(d, 1), grpc.StatusCode.INVALID_ARGUMENT, "camera_image.image_bytes")
 
 
@@ -402,6 +411,38 @@ def test_a_nan_pose_is_invalid_argument(lead_server: str, bystander) -> None:
     message.trajectory.poses[0].pose.quat.w = 1.0
     refused(lambda: client.stub.submit_egomotion_observation(message), grpc.StatusCode.INVALID_ARGUMENT,
             "trajectory.poses[0].pose")  # fmt: skip
+
+
+def test_an_image_of_another_size_than_declared_is_invalid_argument(lead_server: str, bystander) -> None:
+    import io
+
+    from carla_driver_interface.testing import render_road
+    from PIL import Image
+
+    client = Client(lead_server).start()
+    buffer = io.BytesIO()
+    Image.fromarray(render_road(client.camera, Pose.identity())).resize((240, 135)).save(buffer, format="JPEG")
+    message = refused(lambda: client.image(buffer.getvalue(), 1), grpc.StatusCode.INVALID_ARGUMENT,
+                      "camera_image.image_bytes")  # fmt: skip
+    assert "240x135 pixels, but the camera is declared 480x270" in message
+
+
+def test_a_dynamic_state_or_route_out_of_range_and_a_drive_before_the_pose_are_invalid_argument(
+    lead_server: str, bystander
+) -> None:
+    client = Client(lead_server).start()
+    message = protocol.RolloutEgoTrajectory(session_uuid=client.session)
+    message.trajectory.poses.append(Pose.identity().to_proto_at_time(1))
+    message.dynamic_states.add().linear_acceleration.y = math.inf
+    refused(lambda: client.stub.submit_egomotion_observation(message), grpc.StatusCode.INVALID_ARGUMENT,
+            "dynamic_states[0].linear_acceleration")  # fmt: skip
+    route = protocol.RouteRequest(session_uuid=client.session, route=protocol.Route(
+        timestamp_us=1, waypoints=waypoints_to_proto(np.array([[1e9, 0.0, 0.0]]))))  # fmt: skip
+    refused(lambda: client.stub.submit_route(route), grpc.StatusCode.INVALID_ARGUMENT, "route.waypoints")
+    client.egomotion(Pose.identity(), 200_000)
+    client.image(b"", 200_000)
+    refused(lambda: client.stub.drive(protocol.DriveRequest(session_uuid=client.session, time_now_us=100_000)),
+            grpc.StatusCode.INVALID_ARGUMENT, "time_now_us")  # fmt: skip
 
 
 def test_drive_before_observations_is_failed_precondition(lead_server: str, bystander) -> None:

@@ -1,11 +1,14 @@
 """The leaderboard agent end to end on a synthetic CARLA route: a tiny model trained here by `lead-s2r fit`, driven
 through leaderboard-shaped sensor data; its preprocessing held against the adapter + training transform."""
 
+import copy
 import json
+import math
 import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -14,6 +17,7 @@ from tiny_models import TINY, sensor_spec
 
 from lead_s2r.closed_loop import agent as agent_module
 from lead_s2r.closed_loop.agent import AgentConfigError, ClosedLoopConfig, LeadS2RAgent, parse_bool
+from lead_s2r.closed_loop.check import straight_route, synthetic_input
 from lead_s2r.closed_loop.checkpoint import (
     UnsupportedCheckpoint,
     check_drivable,
@@ -21,7 +25,7 @@ from lead_s2r.closed_loop.checkpoint import (
     rig_for,
     saved_config,
 )
-from lead_s2r.closed_loop.sensors import Rig, sensor_specs
+from lead_s2r.closed_loop.sensors import Rig, SensorInputError, sensor_specs
 from lead_s2r.convert import convert
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models import lead
@@ -288,3 +292,29 @@ def test_a_damaged_agent_config_is_named(tmp_path, content, message):
     path.write_bytes(content)
     with pytest.raises(AgentConfigError, match=r"drive\.yaml: " + message):
         ClosedLoopConfig.from_agent_config(str(path), {})
+
+
+def test_damaged_sensor_data_is_named_dropped_or_braked_on(scene):
+    """docs/closed_loop.md's table of damaged sensor data, one row each."""
+    agent = LeadS2RAgent("localhost", 2000, False)
+    agent.set_global_plan(*straight_route())
+    agent.setup(str(scene["run"]))
+    ticks = [synthetic_input(agent.sensors(), frame, np.random.default_rng(frame)) for frame in range(3)]
+    agent.run_step(ticks[0], 0.0)
+
+    def control(twin: LeadS2RAgent, tick: dict) -> tuple[float, float, float]:
+        got = twin.run_step(tick, 0.05)
+        return got.steer, got.throttle, got.brake
+
+    with pytest.raises(SensorInputError, match=r"^sensor 'lidar_0': missing from the tick's input_data"):
+        copy.deepcopy(agent).run_step({k: v for k, v in ticks[1].items() if k != "lidar_0"}, 0.05)
+    with pytest.raises(SensorInputError, match=r"sensor 'imu': expected 7 numbers, got shape \(6,\)"):
+        copy.deepcopy(agent).run_step({**ticks[1], "imu": (1, ticks[1]["imu"][1][:6])}, 0.05)
+    with pytest.raises(SensorInputError, match=r"sensor 'rgb_1': expected a BGRA uint8 384x384x4 image"):
+        copy.deepcopy(agent).run_step({**ticks[1], "rgb_1": (1, ticks[1]["rgb_1"][1].astype(np.float32))}, 0.05)
+    pristine = control(copy.deepcopy(agent), ticks[1])
+    nan_rows = np.vstack([ticks[1]["radar_1"][1], [[math.nan, 0, 0, 0], [1e30, 0, 0, 0]]]).astype(np.float32)
+    assert control(copy.deepcopy(agent), {**ticks[1], "radar_1": (1, nan_rows)}) == pristine  # rows dropped
+    braking = copy.deepcopy(agent)
+    assert control(braking, {**ticks[1], "gps": (1, np.array([math.nan, 0.0, 0.0]))}) == (0.0, 0.0, 1.0)
+    assert control(braking, ticks[2]) == control(copy.deepcopy(agent), ticks[2])  # the route state as it was

@@ -465,6 +465,15 @@ def test_a_wrong_typed_config_field_is_named(tmp_path: Path, field: str, value, 
         lead.read_config(tmp_path)
 
 
+def test_a_config_value_of_its_type_that_no_layer_takes_is_named(tmp_path: Path) -> None:
+    """The fuzz at seed 6911: a dropout probability of 7 (a number where LEAD writes a number) failed in torch."""
+    shutil.copytree(TINY, tmp_path / "lead")
+    values = json.loads((TINY / "config.json").read_text())
+    (tmp_path / "lead" / "config.json").write_text(json.dumps(dict(values, resid_pdrop=7)))
+    with pytest.raises(UserError, match=r"config\.json: LEAD's network cannot be built from it \(dropout probability"):
+        lead.load_checkpoint(tmp_path / "lead")
+
+
 def test_a_config_that_is_not_utf8_is_named(tmp_path: Path) -> None:
     (tmp_path / "config.json").write_bytes(b'{"n_layer": "\xff"}')
     with pytest.raises(UserError, match=r"config\.json: not valid JSON"):

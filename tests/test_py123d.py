@@ -274,3 +274,48 @@ def test_lead_s2r_score_computes_pdms_on_a_converted_123d_log(converted, tmp_pat
     aggregates = report["aggregates"]
     assert aggregates["frames"] > 0 and aggregates["frames_skipped_other_dataset"] == 0
     assert 0.9 < aggregates["pdms"] <= 1.0 and aggregates["no_at_fault_collisions"] == 1.0
+
+
+def test_a_null_box_velocity_is_unknown_not_zero_and_scores_as_standing(converted, tmp_path: Path) -> None:
+    """py123d writes a box velocity null where its source has none: NaN in vx, vy (and the box's agents_future
+    velocity), the rest of the box as with velocities; PDMS treats the box as standing (docs/metrics.md)."""
+    from lead_s2r.predictions import Prediction
+    from lead_s2r.schema import validate
+    from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
+    from lead_s2r.scoring.pdm.sample import agent_tracks
+
+    synth.write_log(tmp_path / "src", "log-left", index=0, frames=FRAMES, box_velocities=False)
+    result = convert(Py123dAdapter(), tmp_path / "src", tmp_path / "out")
+    assert result.ok and result.samples == len(converted[1]["nuplan_test/log-left"])
+    samples = list(read_samples(tmp_path / "out"))
+    for sample, known in zip(samples, converted[1]["nuplan_test/log-left"], strict=True):
+        validate(sample)
+        boxes, future = sample["boxes"], sample["agents_future"]
+        assert np.isnan(boxes[:, 7:9]).all() and np.isfinite(boxes[:, :7]).all()
+        np.testing.assert_array_equal(np.delete(boxes, [7, 8], axis=1), np.delete(known["boxes"], [7, 8], axis=1))
+        assert np.isnan(future["velocity"][future["valid"]]).all()
+        np.testing.assert_array_equal(future["poses"], known["agents_future"]["poses"])
+    sample = samples[4]  # test_pdms_of_the_logged_future's, with velocities
+    tracks = agent_tracks(sample)
+    assert np.isfinite(tracks["agent_velocity"]).all() and (tracks["agent_velocity"][tracks["agent_valid"]] == 0).all()
+    future = sample["future"]
+    prediction = Prediction(sample["__key__"], sample["meta"]["dataset"], future[:, 0], future[:, 1:3], future[:, 3])
+    row = PDMSScorer().score_sample(sample, [prediction])
+    assert row["valid"] and np.isfinite(row["score"]) and row["no_at_fault_collisions"] == 1.0
+
+
+def test_a_box_velocity_of_nan_in_one_axis_is_refused(tmp_path: Path) -> None:
+    """Only a wholly unknown velocity is NaN; a partly NaN one is damage, named with its file and row."""
+    log = synth.write_log(tmp_path / "src", "log-left", index=0, frames=FRAMES)
+    path, name = log / "box_detections_se3.arrow", "box_detections_se3.velocity_3d"
+    table = pa.ipc.open_file(pa.memory_map(str(path))).read_all()
+    rows = table[name].to_pylist()
+    rows[0][0] = [1.0, float("nan"), 0.0]
+    table = table.set_column(table.column_names.index(name), name, pa.array(rows, table[name].type))
+    path.unlink()
+    with pa.OSFile(str(path), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
+        writer.write_table(table)
+    result = convert(Py123dAdapter(), tmp_path / "src", tmp_path / "out")
+    assert result.samples == 0 and len(result.errors) == 1
+    error = json.dumps(result.errors)
+    assert str(path) in error and "row 0: a box value is not finite" in error

@@ -8,6 +8,7 @@ import json
 import lzma
 import os
 import pickle
+import re
 import struct
 import subprocess
 import sys
@@ -32,6 +33,7 @@ from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.shards import ERRORS, INFO, MANIFEST, ShardError, load_manifest, read_samples
 from lead_s2r.training import cli as training_cli  # noqa: F401 - see the module docstring
 
+DATA = Path(__file__).parent / "data"
 CLUSTERS = "val_sequence_name_to_scenario_cluster.json"
 
 
@@ -336,6 +338,22 @@ def test_navsim_damaged_map_names_the_geopackage(raw, tmp_path):
     result = convert(get_adapter("navsim", maps=str(src / "maps")), src, tmp_path / "out")
     assert len(result.errors) == 2
     assert all(f"{gpkg}: not a readable GeoPackage" in error["error"] for error in result.errors)
+
+
+def test_navsim_map_damaged_inside_a_layer_names_the_geopackage(tmp_path):
+    """The fuzz's damage (seed 5307, trial 11 of the navsim target: 211 bytes at 101790 of the synthetic map)
+    leaves SQLite opening the file and fails while a layer's rows stream ("database disk image is malformed"), which
+    once ended without the file's name."""
+    from lead_s2r.synthetic import navsim
+    from lead_s2r_adapters import navsim_map
+
+    navsim.generate(tmp_path / "raw", count=2, seed=3)  # the fuzz's map
+    (gpkg,) = (tmp_path / "raw" / "maps").rglob("map.gpkg")
+    data, span = bytearray(gpkg.read_bytes()), (DATA / "navsim_map_fuzz5307_span.bin").read_bytes()
+    data[101790 : 101790 + len(span)] = span
+    gpkg.write_bytes(bytes(data))
+    with pytest.raises(navsim_map.MapError, match=f"^{re.escape(str(gpkg))}: not a readable GeoPackage"):
+        navsim_map.load_map(tmp_path / "raw" / "maps", "us-nv-las-vegas-strip")
 
 
 class _NaNBoxesAdapter(ToyAdapter):

@@ -14,6 +14,7 @@ here it is a real boolean (``1/true/yes/on`` or ``0/false/no/off``, anything els
 """
 
 import json
+import logging
 import math
 import os
 from dataclasses import asdict, dataclass
@@ -45,7 +46,19 @@ from lead_s2r.closed_loop.route import (
     road_option,
     world_to_iso,
 )
-from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID, Rig, build_sample, reading, sensor_specs
+from lead_s2r.closed_loop.sensors import (
+    COMPASS,
+    GNSS_ID,
+    GNSS_SIZE,
+    IMU_ID,
+    IMU_SIZE,
+    Rig,
+    build_sample,
+    sensor_specs,
+    speed_reading,
+    unusable_reading,
+    vector,
+)
 from lead_s2r.data.collate import collate
 from lead_s2r.data.lead_centernet import CENTERNET_STRIDE
 from lead_s2r.data.lead_labels import LeadBoxClass, bev_cell_centres
@@ -72,6 +85,9 @@ LOWER_TARGET_SPEED_FACTOR = 0.8
 #: A stop-sign heatmap peak counts as a sign above this score (our choice; LEAD thresholds its decoded boxes).
 STOP_SIGN_SCORE = 0.3
 TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off", "")
+#: The first tick's control, and that of a tick the agent cannot drive on.
+BRAKE = Control(0.0, 0.0, 1.0)
+logger = logging.getLogger(__name__)
 
 
 def get_entry_point() -> str:
@@ -246,10 +262,10 @@ class LeadS2RAgent(Base):
 
     def pose(self, input_data: dict[str, Any]) -> np.ndarray:
         """World ISO (x, y, yaw) of the vehicle centre from GNSS and compass, filtered when configured."""
-        lat, lon = np.asarray(reading(input_data, GNSS_ID), np.float64)[:2]
+        lat, lon = vector(input_data, GNSS_ID, GNSS_SIZE)[:2]
         xy = world_to_iso(gnss_to_world(lat, lon, self.reference))
-        yaw = compass_to_yaw(float(np.asarray(reading(input_data, IMU_ID))[6]))
-        speed = float(reading(input_data, SPEED_ID)["speed"])
+        yaw = compass_to_yaw(float(vector(input_data, IMU_ID, IMU_SIZE)[COMPASS]))
+        speed = speed_reading(input_data)
         if self.position_filter is not None:
             xy = self.position_filter.step(np.r_[xy, yaw, speed])[:2]
         return np.r_[xy, yaw]
@@ -301,10 +317,20 @@ class LeadS2RAgent(Base):
         return math.hypot(max(float(xs[row]) - bumper, 0.0), float(ys[col]))
 
     def run_step(self, input_data: dict[str, Any], timestamp: float) -> Any:
-        """One tick: the route state always advances; the first tick brakes (LEAD's initial frame delay)."""
-        batch = self.preprocess(input_data, timestamp)
-        speed = float(reading(input_data, SPEED_ID)["speed"])
-        control = Control(0.0, 0.0, 1.0) if self.step == 0 else self.control(self.predict(batch), speed)
+        """One tick: the route state advances; the first tick brakes (LEAD's initial frame delay). A tick whose
+        GNSS, IMU or speed is not a number brakes and leaves the route state as it was; so does a prediction that is
+        not a number. A sensor missing or misshapen is a :class:`~.sensors.SensorInputError` naming it."""
+        unusable, control = unusable_reading(input_data), BRAKE
+        if unusable is None:
+            batch = self.preprocess(input_data, timestamp)
+            if self.step > 0:
+                prediction = self.predict(batch)
+                if all(bool(value.isfinite().all()) for value in prediction.values()):
+                    control = self.control(prediction, speed_reading(input_data))
+                else:
+                    unusable = "the model's prediction is not a number"
+        if unusable is not None:
+            logger.warning("tick %d: %s; braking", self.step, unusable)
         self.step += 1
         if self.config.bench2drive:
             self._write_metric_info()

@@ -38,11 +38,13 @@ from carla_driver_interface import contract, protocol
 
 from lead_s2r import __version__
 from lead_s2r.closed_loop.alpasim_messages import (
+    MAX_COORDINATE_M,
     RequestError,
     Session,
     build_sample,
-    decodable_jpeg,
+    check_dynamics,
     invalid,
+    jpeg_shape,
     local_trajectory,
     match_cameras,
     pose_matrix,
@@ -131,9 +133,15 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
             slot = session.slot_of.get(image.logical_id)
             if slot is None:  # a camera the model does not read (or one the scene never declared)
                 return protocol.Empty()
-            if not decodable_jpeg(image.image_bytes):
+            shape = jpeg_shape(image.image_bytes)
+            if shape is None:
                 raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: not a decodable JPEG "
                               "(set AlpaSim's image_format: jpeg)")  # fmt: skip
+            declared = session.cameras[image.logical_id].calibration
+            if shape != (declared["height"], declared["width"]):
+                raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: {shape[1]}x{shape[0]} "
+                              f"pixels, but the camera is declared {declared['width']}x{declared['height']} "
+                              "(rollout_spec.vehicle.available_cameras)")  # fmt: skip
             with session.lock:
                 previous = session.images.get(slot, (-(2**63), b""))[0]
                 if image.frame_end_us < previous:
@@ -153,6 +161,8 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
             entries = [
                 (p.timestamp_us, pose_matrix(p.pose, f"trajectory.poses[{i}].pose")) for i, p in enumerate(poses)
             ]
+            for index, state in enumerate(states):
+                check_dynamics(state, f"dynamic_states[{index}]")
             with session.lock:
                 known = {timestamp for timestamp, _ in session.poses}  # a runtime may send its history again
                 last, new = (session.poses[-1][0] if session.poses else -(2**63)), []
@@ -175,8 +185,8 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
         def body() -> Any:
             session = self.session(request.session_uuid)
             points = np.array([[w.x, w.y] for w in request.route.waypoints], np.float64).reshape(-1, 2)
-            if not np.isfinite(points).all():
-                raise invalid("route.waypoints: not finite")
+            if not (np.abs(points) < MAX_COORDINATE_M).all():  # False for NaN
+                raise invalid(f"route.waypoints: not finite or {MAX_COORDINATE_M:g} m or more away")
             with session.lock:
                 session.route = (request.route.timestamp_us, points)
             return protocol.Empty()
@@ -194,6 +204,8 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
                 sample, anchor = self.prepare(session, request.time_now_us)
             with self.model_lock:
                 plan = self.served.plan(sample)
+            if not np.isfinite(plan).all():  # never a pose that is not a number to the simulator
+                raise RuntimeError("the model's plan is not finite")
             return protocol.DriveResponse(trajectory=local_trajectory(plan, self.served.grid_times, anchor,
                                                                       request.time_now_us))  # fmt: skip
 
@@ -205,6 +217,8 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
             raise invalid(f"time_now_us: {time_now_us} is not after the previous drive's {session.last_drive_us}")
         if not session.poses:
             raise precondition("drive: no egomotion observation yet (submit_egomotion_observation first)")
+        if time_now_us < session.poses[-1][0]:
+            raise invalid(f"time_now_us: {time_now_us} is before the latest egomotion pose's {session.poses[-1][0]}")
         missing = sorted(set(session.slot_of.values()) - set(session.images))
         if missing:
             names = [logical for logical, slot in session.slot_of.items() if slot in missing]

@@ -11,13 +11,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
 import grpc
 import numpy as np
 from carla_driver_interface import protocol
 from scipy.spatial.transform import Rotation
 
 from lead_s2r.closed_loop.alpasim_model import CameraSlot, ServedModel
+from lead_s2r.data.device_inputs import decode_rgb, jpeg_tensor
 from lead_s2r.geometry import to_global, to_local, wrap_angle
 from lead_s2r.schema import SCHEMA_VERSION, Command
 
@@ -29,6 +29,10 @@ COMMAND_LOOKAHEAD_M, COMMAND_OFFSET_M = 5.0, 2.0
 TARGET_POINT_DISTANCE_M, NEXT_TARGET_POINT_M = 5.0, 25.0
 #: Ego poses kept per session for the past trajectory.
 HISTORY = 64
+#: A pose or route coordinate this far from the origin (m) is damage, not a place (nor 1e8 m: py123d's bound too).
+MAX_COORDINATE_M = 1e8
+#: A dynamic state value (m/s, m/s^2, rad/s) this large is damage: no vehicle moves, brakes or turns that fast.
+MAX_DYNAMICS = 1e3
 DATASET = "alpasim"
 
 
@@ -61,12 +65,22 @@ class SceneCamera:
 def pose_matrix(pose: Any, name: str) -> np.ndarray:
     """A ``common.Pose`` as a 4x4 matrix; a non-finite value or a zero quaternion is an error naming ``name``."""
     values = np.array([pose.vec.x, pose.vec.y, pose.vec.z, pose.quat.x, pose.quat.y, pose.quat.z, pose.quat.w])
-    if not np.isfinite(values).all() or np.linalg.norm(values[3:]) < 1e-9:
-        raise invalid(f"{name}: not a finite pose with a unit quaternion ({values.tolist()})")
+    if not (np.abs(values) < MAX_COORDINATE_M).all() or np.linalg.norm(values[3:]) < 1e-9:  # False for NaN
+        raise invalid(f"{name}: not a finite pose {MAX_COORDINATE_M:g} m or less from the origin with a unit "
+                      f"quaternion ({values.tolist()})")  # fmt: skip
     matrix = np.eye(4)
     matrix[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
     matrix[:3, 3] = values[:3]
     return matrix
+
+
+def check_dynamics(state: Any, name: str) -> None:
+    """A ``DynamicState``'s velocities, accelerations and angular velocity: finite and below :data:`MAX_DYNAMICS`."""
+    for part in ("linear_velocity", "linear_acceleration", "angular_velocity", "angular_acceleration"):
+        vector = getattr(state, part)
+        values = [vector.x, vector.y, vector.z]
+        if not all(abs(value) < MAX_DYNAMICS for value in values):  # False for NaN
+            raise invalid(f"{name}.{part}: {values} is not finite or {MAX_DYNAMICS:g} or more")
 
 
 def scene_camera(camera: Any, index: int) -> SceneCamera | None:
@@ -225,11 +239,16 @@ def build_sample(session: Session, served: ServedModel, time_now_us: int) -> dic
     return sample
 
 
-def decodable_jpeg(data: bytes) -> bool:
-    """Whether ``data`` is a JPEG libjpeg decodes (at 1/8 size: a check, not the decode the model's input gets)."""
+def jpeg_shape(data: bytes) -> tuple[int, int] | None:
+    """(rows, columns) of ``data`` decoded as the model's input decodes it (torchvision's libjpeg-turbo, which refuses
+    damage OpenCV decodes through); None where ``data`` is no JPEG that decodes."""
     if not data.startswith(b"\xff\xd8"):
-        return False
-    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_REDUCED_GRAYSCALE_8) is not None
+        return None
+    try:
+        image = decode_rgb([jpeg_tensor(data)], "cpu")[0]
+    except RuntimeError:
+        return None
+    return int(image.shape[1]), int(image.shape[2])
 
 
 def local_trajectory(plan: np.ndarray, times: np.ndarray, anchor: tuple[int, np.ndarray], time_now_us: int) -> Any:

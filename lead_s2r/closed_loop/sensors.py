@@ -9,6 +9,12 @@ Leaderboard 2.0 hands data over as its ``SensorInterface`` shapes it: cameras BG
 order flipped); GNSS [lat, lon, alt]; IMU [ax, ay, az, gx, gy, gz, compass]; speedometer ``{"speed": m/s}``.
 Like LEAD, the mosaic goes through a JPEG round trip (quality 90) because the training data was JPEG; the LiDAR is the
 current tick's two half sweeps, unfiltered, as LEAD's recorded point clouds are.
+
+A tick's data is checked as it is read: a sensor missing, a reading of another shape or type is a
+:class:`SensorInputError` naming the sensor (the rig and the simulator disagree: no later tick would be better); a
+LiDAR or radar row that is not a number (or 10 km away) is no return and is dropped; a GNSS, IMU or speedometer value
+that is not a number or out of range makes the tick unusable (:func:`unusable_reading`; the agent brakes that tick,
+docs/closed_loop.md).
 """
 
 from dataclasses import dataclass
@@ -18,6 +24,7 @@ import cv2
 import numpy as np
 
 from lead_s2r.closed_loop.route import Navigation
+from lead_s2r.errors import UserError
 from lead_s2r.formats.carla_rig import (
     CAMERA_RIGS,
     EGO_VEHICLE,
@@ -42,6 +49,19 @@ RADARS = (
 RADAR_FOV = (90.0, 0.1)  # horizontal, vertical, degrees
 IMU_TICK, GNSS_TICK, SPEEDOMETER_HZ = 0.05, 0.01, 20
 GNSS_ID, IMU_ID, SPEED_ID = "gps", "imu", "speed"
+#: Values per reading: GNSS [lat, lon, alt], IMU [ax, ay, az, gx, gy, gz, compass]; LiDAR and radar columns.
+GNSS_SIZE, IMU_SIZE, POINT_COLUMNS = 3, 7, 4
+#: The IMU's compass value (radians); NaN on CARLA's first ticks.
+COMPASS = 6
+#: The largest magnitude of each GNSS (lat, lon degrees, alt m), IMU (m/s^2, rad/s, compass rad) and speedometer (m/s)
+#: value a tick can be driven on; no car or planet gives more.
+POSE_READING_LIMITS = {
+    GNSS_ID: np.array([90.0, 180.0, 1e5]),
+    IMU_ID: np.array([1e3, 1e3, 1e3, 1e3, 1e3, 1e3, 2 * np.pi]),
+    SPEED_ID: np.array([1e3]),
+}
+#: A LiDAR or radar value beyond this (metres, m/s, radians) is no return: CARLA's sensors reach 100 m.
+MAX_POINT_VALUE = 1e4
 #: LEAD's ``jpeg_quality`` for the closed-loop image round trip.
 JPEG_QUALITY = 90
 DATASET = "carla_lead"
@@ -84,21 +104,81 @@ def sensor_specs(rig: Rig) -> list[dict[str, Any]]:
     return specs
 
 
+class SensorInputError(UserError, ValueError):
+    """A tick's sensor data the agent cannot read; one line naming the sensor."""
+
+
 def reading(input_data: dict[str, Any], sensor_id: str) -> Any:
-    """The data of one sensor (``input_data[id] = (frame, data)``), or an error naming the missing id."""
+    """The data of one sensor (``input_data[id] = (frame, data)``), or an error naming the sensor."""
     if sensor_id not in input_data:
-        raise KeyError(f"leaderboard input_data has no sensor {sensor_id!r} (got {sorted(input_data)})")
-    return input_data[sensor_id][1]
+        raise SensorInputError(f"sensor {sensor_id!r}: missing from the tick's input_data (got {sorted(input_data)})")
+    entry = input_data[sensor_id]
+    if not (isinstance(entry, tuple | list) and len(entry) == 2):
+        raise SensorInputError(f"sensor {sensor_id!r}: expected a (frame, data) pair, got {type(entry).__name__}")
+    return entry[1]
+
+
+def _numbers(value: Any, sensor_id: str, shape: str) -> np.ndarray:
+    """``value`` as a float64 array, or an error naming the sensor and the ``shape`` expected."""
+    try:
+        return np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        raise SensorInputError(f"sensor {sensor_id!r}: expected {shape}, got {type(value).__name__}") from None
+
+
+def vector(input_data: dict[str, Any], sensor_id: str, size: int) -> np.ndarray:
+    """A GNSS or IMU reading as float64 (size,), any value possibly NaN (:func:`unusable_reading` says)."""
+    values = _numbers(reading(input_data, sensor_id), sensor_id, f"{size} numbers")
+    if values.shape != (size,):
+        raise SensorInputError(f"sensor {sensor_id!r}: expected {size} numbers, got shape {values.shape}")
+    return values
+
+
+def speed_reading(input_data: dict[str, Any]) -> float:
+    """The speedometer's m/s (the leaderboard's ``{"speed": value}``)."""
+    data = reading(input_data, SPEED_ID)
+    value = data.get("speed") if isinstance(data, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
+        raise SensorInputError(f"sensor {SPEED_ID!r}: expected {{'speed': a number}}, got {data!r:.80}")
+    return float(value)
+
+
+def unusable_reading(input_data: dict[str, Any]) -> str | None:
+    """Why this tick's position, heading or speed cannot be used (a GNSS, IMU or speedometer value that is not a
+    number or beyond :data:`POSE_READING_LIMITS`: the position filter would diverge on it), None when they can; a
+    missing or misshapen reading raises :class:`SensorInputError`."""
+    imu = vector(input_data, IMU_ID, IMU_SIZE).copy()  # the simulator's array stays as it came
+    imu[COMPASS] = 0.0 if np.isnan(imu[COMPASS]) else imu[COMPASS]  # CARLA's first ticks: north (route.compass_to_yaw)
+    readings = {
+        GNSS_ID: vector(input_data, GNSS_ID, GNSS_SIZE),
+        IMU_ID: imu,
+        SPEED_ID: np.array([speed_reading(input_data)]),
+    }
+    bad = [sensor for sensor, values in readings.items() if not (np.abs(values) <= POSE_READING_LIMITS[sensor]).all()]
+    return f"sensors {bad}: a value that is not a number or out of range" if bad else None
+
+
+def sensor_points(input_data: dict[str, Any], sensor_id: str) -> np.ndarray:
+    """A LiDAR or radar reading as float64 (N, 4); rows with a value that is not a number or beyond
+    :data:`MAX_POINT_VALUE` are no return and dropped."""
+    points = _numbers(reading(input_data, sensor_id), sensor_id, f"an (N, {POINT_COLUMNS}) array")
+    if points.ndim != 2 or points.shape[1] != POINT_COLUMNS:
+        raise SensorInputError(f"sensor {sensor_id!r}: expected an (N, {POINT_COLUMNS}) array, got shape "
+                               f"{points.shape}")  # fmt: skip
+    return points[(np.abs(points) < MAX_POINT_VALUE).all(axis=1)]  # False for NaN
 
 
 def mosaic_jpeg(input_data: dict[str, Any], rig: str, quality: int = JPEG_QUALITY) -> bytes:
     """The rig's cameras stitched left to right, the top rows LEAD keeps, as JPEG bytes."""
     tiles = []
     for camera in CAMERA_RIGS[rig]:
-        image = np.asarray(reading(input_data, f"rgb_{camera.number}"))
-        if image.shape != (camera.height, camera.width, 4):
-            raise ValueError(f"camera rgb_{camera.number}: expected BGRA {camera.height}x{camera.width}x4, got "
-                             f"{image.shape}")  # fmt: skip
+        sensor_id = f"rgb_{camera.number}"
+        data = reading(input_data, sensor_id)
+        image = data if isinstance(data, np.ndarray) else np.zeros(0)
+        if image.shape != (camera.height, camera.width, 4) or image.dtype != np.uint8:
+            raise SensorInputError(f"sensor {sensor_id!r}: expected a BGRA uint8 {camera.height}x{camera.width}x4 "
+                                   f"image, got {type(data).__name__} {getattr(data, 'dtype', '')} "
+                                   f"{getattr(data, 'shape', '')}")  # fmt: skip
         tiles.append(image[: camera.stored_height, :, :3])
     ok, data = cv2.imencode(".jpg", np.ascontiguousarray(np.hstack(tiles)), [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
@@ -110,7 +190,7 @@ def lidar_points(input_data: dict[str, Any]) -> np.ndarray:
     """Both half sweeps in the ISO rear-axle frame: float32 (N, 4) x, y, z, time (0: this tick)."""
     clouds = []
     for name, position, yaw in LIDARS:
-        points = np.asarray(reading(input_data, name), np.float64).reshape(-1, 4)
+        points = sensor_points(input_data, name)
         clouds.append(carla_points_to_iso(sensor_to_carla_ego(points[:, :3], position, yaw)))
     points = np.concatenate(clouds)
     return np.column_stack([points, np.zeros(len(points))]).astype(np.float32)
@@ -120,8 +200,7 @@ def radar_points(input_data: dict[str, Any]) -> np.ndarray:
     """The four radars in the ISO rear-axle frame: float32 (N, 5) x, y, z, radial velocity, sensor index."""
     rows = []
     for index, (name, position, yaw) in enumerate(RADARS):
-        detections = np.asarray(reading(input_data, name), np.float64).reshape(-1, 4)
-        local = radar_to_cartesian(detections)
+        local = radar_to_cartesian(sensor_points(input_data, name))
         ego = carla_points_to_iso(sensor_to_carla_ego(local[:, :3], position, yaw))
         rows.append(np.column_stack([ego, local[:, 3], np.full(len(ego), index)]))
     return np.concatenate(rows).astype(np.float32)
@@ -129,8 +208,7 @@ def radar_points(input_data: dict[str, Any]) -> np.ndarray:
 
 def ego_state(input_data: dict[str, Any], navigation: Navigation) -> dict[str, Any]:
     """``meta.ego`` from the speedometer, the IMU (CARLA's y-right vehicle axes) and the route command."""
-    imu = np.asarray(reading(input_data, IMU_ID), np.float64)
-    speed = float(reading(input_data, SPEED_ID)["speed"])
+    imu, speed = vector(input_data, IMU_ID, IMU_SIZE), speed_reading(input_data)
     return {
         "speed": speed,
         "velocity": [speed, 0.0],

@@ -72,7 +72,8 @@ def lead_centernet_targets(
     ``lead_box_yaw_residual``, ``lead_box_velocity`` (h, w), ``lead_box_weight`` (h, w) bool and
     ``lead_box_count``. ``classes`` holds each box's heatmap channel (-1: not encoded); centres off the grid are
     skipped, as LEAD's BEV bounds filter; fewer than :data:`LEAD_MAX_BOXES` add LEAD's padding box. Without
-    ``velocity`` (NAVSIM: LEAD trains no speed there) the speed map is left out."""
+    ``velocity`` (NAVSIM: LEAD trains no speed there) the speed map is left out; a box of unknown velocity (NaN vx,
+    vy) leaves NaN in its cell, which the loss skips (:func:`~lead_s2r.training.losses.lead_box_loss`)."""
     h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
     cell = CENTERNET_STRIDE / grid.pixels_per_meter
     heatmap = np.zeros((num_classes, h, w), np.float32)

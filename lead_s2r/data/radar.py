@@ -25,7 +25,8 @@ def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) ->
 
 def radar_targets(radar: np.ndarray, boxes: np.ndarray, priority: np.ndarray | None = None) -> dict[str, torch.Tensor]:
     """Radar detection targets: [x, y, speed] of the boxes radar points fall on, fastest first (as LEAD sorts), then
-    by ``priority`` (lower first; LEAD's class order), where given.
+    by ``priority`` (lower first; LEAD's class order), where given. A box of unknown velocity (NaN vx, vy) comes
+    after the known ones with speed NaN, which the loss leaves out (:func:`~lead_s2r.models.lead_loss.radar_loss`).
 
     A point hits a box when it lies inside the box's footprint grown by :data:`RADAR_HIT_MARGIN_M`.
     """

@@ -103,7 +103,10 @@ def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Modul
     files = weight_files(folder, pattern)
     members = []
     for file in files:
-        model = LeadTFv6(config)
+        try:
+            model = LeadTFv6(config)
+        except ValueError as err:  # a value of its JSON type that a layer refuses (a dropout probability of 7)
+            raise UserError(f"{folder / 'config.json'}: LEAD's network cannot be built from it ({err})") from None
         state = read_weights(file)
         try:
             model.load_state_dict(state, strict=True)

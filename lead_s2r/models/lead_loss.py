@@ -213,8 +213,12 @@ def radar_loss(pred: Tensor, detections: Tensor, scale: tuple[float, float, floa
     the matched L1 (per valid slot) and the BCE (over all slots), averaged over samples."""
     state, logit = pred[..., :3].float(), pred[..., 3:].float()
     label_state, valid = detections[..., :3].float(), detections[..., 3:].float()
+    known = (~label_state.isnan()).float()  # our extension: a speed the data does not know (NaN) adds nothing
+    label_state = label_state.nan_to_num()
     norm = torch.tensor(scale, device=state.device, dtype=state.dtype)
-    l1_cost = ((state[:, :, None] - label_state[:, None]) / norm).abs().sum(-1) * valid[:, None, :, 0]
+    l1_cost = (((state[:, :, None] - label_state[:, None]) / norm).abs() * known[:, None]).sum(-1) * valid[
+        :, None, :, 0
+    ]
     bce_cost = F.binary_cross_entropy_with_logits(
         logit[:, :, None].expand(-1, -1, valid.shape[1], -1),
         valid[:, None].expand(-1, logit.shape[1], -1, -1),
@@ -223,7 +227,7 @@ def radar_loss(pred: Tensor, detections: Tensor, scale: tuple[float, float, floa
     queries, slots = hungarian_matches(RADAR_REGRESSION_WEIGHT * l1_cost + RADAR_CLASSIFICATION_WEIGHT * bce_cost)
     rows = torch.arange(len(state), device=state.device)[:, None]
     matched_valid = valid[rows, slots][..., 0]
-    l1 = ((state[rows, queries] - label_state[rows, slots]) / norm).abs().sum(-1) * matched_valid
+    l1 = (((state[rows, queries] - label_state[rows, slots]) / norm).abs() * known[rows, slots]).sum(-1) * matched_valid
     l1 = l1.sum(-1) / matched_valid.sum(-1).clamp(min=1)
     bce = F.binary_cross_entropy_with_logits(logit[rows, queries], valid[rows, slots], reduction="none")
     return (RADAR_REGRESSION_WEIGHT * l1 + RADAR_CLASSIFICATION_WEIGHT * bce[..., 0].mean(-1)).mean()

@@ -130,8 +130,12 @@ def lidar_points(iteration: int) -> np.ndarray:
     return np.column_stack([10 * np.cos(angles) + 0.01 * iteration, 10 * np.sin(angles), np.full(24, 0.5)])
 
 
-def _boxes(actors: list[lead.Actor], step: int, labels: dict, static: object, meta: BoxDetectionsSE3Metadata, ts):
-    """The actors' boxes at a 20 Hz tick, in py123d's ISO world with world-frame velocities."""
+def _boxes(
+    actors: list[lead.Actor], step: int, labels: dict, static: object, meta: BoxDetectionsSE3Metadata, ts,
+    velocities: bool = True,
+):  # fmt: skip
+    """The actors' boxes at a 20 Hz tick, in py123d's ISO world with world-frame velocities (None without
+    ``velocities``)."""
     detections = []
     for actor in actors:
         if actor.cls == "traffic_light":
@@ -143,7 +147,7 @@ def _boxes(actors: list[lead.Actor], step: int, labels: dict, static: object, me
             BoxDetectionSE3(
                 BoxDetectionAttributes(labels.get(actor.cls, static), str(actor.actor_id)),
                 BoundingBoxSE3(_pose(pose[0], pose[1], pose[2], actor.extent[2]), length, width, height),
-                Vector3D(float(heading[0]), float(heading[1]), 0.0),
+                Vector3D(float(heading[0]), float(heading[1]), 0.0) if velocities else None,
             )
         )
     return BoxDetectionsSE3(detections, ts, meta)
@@ -164,10 +168,12 @@ def write_log(
     seed: int = 0,
     codec: str = "ipc",
     dynamics: bool = True,
+    box_velocities: bool = True,
 ) -> Path:
     """A nuPlan-style 123D log of the drive ``index`` (0 left turn, 1 right turn, 2 stop) and its map; returns the
     log folder (``root/logs/nuplan_test/<name>``). ``codec``: ipc | laz, the LiDAR payload; ``dynamics``: False
-    writes poses only, as parsers of datasets without ego dynamics do."""
+    writes poses only, as parsers of datasets without ego dynamics do; ``box_velocities``: False writes every box
+    velocity null, as py123d's parsers of datasets without them (PandaSet) do."""
     drive, actors = drive_and_actors(index, frames, seed)
     actors = log_actors(actors)
     ego_meta = EgoStateSE3Metadata(
@@ -199,7 +205,7 @@ def write_log(
         light = TrafficLightStatus.RED if red else TrafficLightStatus.GREEN
         modalities = [
             ego,
-            _boxes(actors, step, NUPLAN_LABEL, STATIC_LABEL["nuplan"], box_meta, ts),
+            _boxes(actors, step, NUPLAN_LABEL, STATIC_LABEL["nuplan"], box_meta, ts, box_velocities),
             ParsedCamera(camera, ts, None, byte_string=jpeg(step // STEP)),
             Lidar(ts, ts, lidar, lidar_points(step // STEP).astype(np.float32), _intensity(24)),
             TrafficLightDetections([TrafficLightDetection(LANES["turn"][0], light)], ts),

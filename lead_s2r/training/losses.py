@@ -82,7 +82,8 @@ def _resize_logits(logits: Tensor, size: tuple[int, int]) -> Tensor:
 def lead_box_loss(pred: dict[str, Tensor], batch: Batch, velocity: bool) -> Tensor:
     """LEAD's CenterNet terms (:func:`~lead_s2r.models.lead_loss.center_net_losses`) on LEAD-encoded targets
     (``lead_s2r.data.lead_centernet``), summed: they all weigh the same in LEAD's table. The speed term only with
-    ``velocity`` and a speed label (CARLA's; LEAD weighs NAVSIM's and LTF's 0). A sample without boxes carries the
+    ``velocity`` and a speed label (CARLA's; LEAD weighs NAVSIM's and LTF's 0), left out where the speed is unknown
+    (NaN). A sample without boxes carries the
     collate filler (a heatmap of -1) and is left out, as LEAD leaves out another source's samples."""
     heatmap = batch["lead_box_heatmap"].float()
     labelled = (heatmap >= 0).flatten(1).all(dim=1)
@@ -106,7 +107,10 @@ def lead_box_loss(pred: dict[str, Tensor], batch: Batch, velocity: bool) -> Tens
     velocity = velocity and "lead_box_velocity" in batch
     if velocity:
         head["velocity_pred"] = pred["box_velocity"]
-        target["center_net_velocity"] = batch["lead_box_velocity"][:, None]
+        label = batch["lead_box_velocity"][:, None]
+        # a box of unknown speed (NaN: its source has no velocity) is labelled with the prediction: no loss, no
+        # gradient, and LEAD's normaliser (the box count) unchanged
+        target["center_net_velocity"] = torch.where(label.isnan(), pred["box_velocity"].detach().to(label.dtype), label)
     terms = lead_loss.center_net_losses(head, target, labelled, velocity=velocity)
     if not velocity:
         del terms["loss_center_net_velocity"]

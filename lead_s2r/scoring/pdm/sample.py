@@ -27,7 +27,10 @@ def _scoring(sample: dict[str, Any]) -> dict[str, np.ndarray]:
 
 def agent_tracks(sample: dict[str, Any]) -> dict[str, np.ndarray]:
     """``agent_t``, ``agent_poses``, ``agent_velocity``, ``agent_valid``, ``agent_size``, ``agent_class`` of a
-    sample: t = 0 from ``boxes``, later keyframes from ``agents_future`` (either may be absent)."""
+    sample: t = 0 from ``boxes``, later keyframes from ``agents_future`` (either may be absent).
+
+    A velocity the source does not know (NaN; docs/schema.md) is 0 here: PDM-Closed forecasts that box standing where
+    it was seen and the collision rules count it as stopped (NAVSIM's devkit has no unknown velocity to follow)."""
     boxes = np.asarray(sample.get("boxes", np.zeros((0, 10))), np.float64).reshape(-1, 10)
     future = sample.get("agents_future")
     count = len(boxes)
