@@ -25,6 +25,7 @@ import numpy as np
 
 from lead_s2r.closed_loop.route import Navigation
 from lead_s2r.errors import UserError
+from lead_s2r.fields import is_number
 from lead_s2r.formats.carla_rig import (
     CAMERA_RIGS,
     EGO_VEHICLE,
@@ -138,7 +139,7 @@ def speed_reading(input_data: dict[str, Any]) -> float:
     """The speedometer's m/s (the leaderboard's ``{"speed": value}``)."""
     data = reading(input_data, SPEED_ID)
     value = data.get("speed") if isinstance(data, dict) else None
-    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
+    if not is_number(value, finite=False):  # NaN or out of range: unusable_reading brakes the tick
         raise SensorInputError(f"sensor {SPEED_ID!r}: expected {{'speed': a number}}, got {data!r:.80}")
     return float(value)
 
