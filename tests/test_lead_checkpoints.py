@@ -141,6 +141,26 @@ def test_camera_tile_size_shrinks_only_the_image_input() -> None:
             LeadConfig.from_json({"camera_tile_size": bad})
 
 
+def test_toy_scales_scale_the_planners_status_inputs_and_outputs() -> None:
+    """Our toy scales (the smoke twins'): the same weights with ``trajectory_scale`` 8 and ``heading_scale`` 0.1 give 8
+    times the waypoints and a tenth of the headings; ``status_scale`` 4 reads speed and acceleration as 4 times
+    larger. Each refused below 0; LEAD's network is all three at 1."""
+    inputs = seeded_inputs(TINY_NAVSIM)
+    lead_model = seeded_model(TINY_NAVSIM)
+    plain = lead.forward(lead_model, inputs)
+    toy = lead.model_from_config({**TINY_NAVSIM, "trajectory_scale": 8.0, "heading_scale": 0.1, "status_scale": 4.0})
+    toy.load_state_dict(lead_model.state_dict(), strict=True)
+    faster = {**inputs, "speed": inputs["speed"] * 4, "acceleration": inputs["acceleration"] * 4}
+    expected = lead.forward(lead_model, faster)
+    got = lead.forward(toy.eval(), inputs)
+    torch.testing.assert_close(got["pred_future_waypoints"], 8 * expected["pred_future_waypoints"])
+    torch.testing.assert_close(got["pred_headings"], 0.1 * expected["pred_headings"])
+    assert not torch.allclose(expected["pred_future_waypoints"], plain["pred_future_waypoints"])
+    for name in ("status_scale", "trajectory_scale", "heading_scale"):
+        with pytest.raises(UserError, match=name):
+            LeadConfig.from_json({name: 0.0})
+
+
 @pytest.fixture(scope="module")
 def tiny_case() -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     return (
@@ -338,6 +358,9 @@ def assert_refused(argv: list[str], out: Path, capsys, *words: str) -> None:
         ({**TINY_CARLA, "camera_tile_size": [64, 64]}, "camera_tile_size"),  # the smoke twins' overlay
         ({**TINY_NAVSIM, "num_way_points_prediction": 12}, "num_way_points_prediction"),
         ({**TINY_NAVSIM, "waypoint_interval_s": 0.25}, "waypoint_interval_s"),  # loads in LEAD, means 0.5 s there
+        ({**TINY_NAVSIM, "trajectory_scale": 8.0}, "trajectory_scale"),  # the smoke twins' toy scales
+        ({**TINY_NAVSIM, "status_scale": 8.0}, "status_scale"),
+        ({**TINY_NAVSIM, "heading_scale": 0.1}, "heading_scale"),
         ({**TINY_NAVSIM, "use_navsim_data": False, "use_waymo_e2e_data": True, "used_cameras": [True] * 3},
          "use_waymo_e2e_data"),
     ],

@@ -4,6 +4,7 @@ term and the total, every gradient and the parameters after one optimizer step, 
 dropout off (BatchNorm on batch statistics)."""
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -227,3 +228,22 @@ def test_lead_recipes_configure_leads_optimizer_and_schedule(recipe: Path) -> No
     assert module.get("warmup_steps", 0) == 0
     assert spec["trainer"].get("gradient_clip_val") is None
     assert module["lr_schedule"] == ("cosine_restarts" if config.use_cosine_annealing_with_restarts else "cosine")
+
+
+def test_an_ensemble_validates_on_the_outputs_it_merges(tmp_path: Path) -> None:
+    """A LEAD ensemble folder validated with ``log_val_losses``: NAVSIM's ensemble merges the planner only
+    (``LeadEnsemble``), so its loss terms are the planner's, equal to the mean prediction's, not a KeyError for the
+    BEV and box maps it drops."""
+    for name in ("config.json", "model_0000.pth"):
+        shutil.copy(TINY / name, tmp_path / name)
+    shutil.copy(TINY / "model_0000.pth", tmp_path / "model_0001.pth")
+    ensemble = DrivingModule(LeadDriver(checkpoint=str(tmp_path)), log_val_losses=True).eval()
+    single = DrivingModule(LeadDriver(checkpoint=str(TINY)), log_val_losses=True).eval()
+    assert ensemble.model.tasks("navsim") == {"waypoints", "headings"}
+    with torch.no_grad():
+        _, terms = ensemble.compute_losses({"navsim": our_navsim_batch()})
+        _, single_terms = single.compute_losses({"navsim": our_navsim_batch()})
+    assert set(terms) == {"navsim/waypoints", "navsim/headings"}
+    for name, (value, count) in terms.items():  # two copies of one member: its own terms
+        torch.testing.assert_close(value, single_terms[name][0], rtol=TOL, atol=TOL)
+        assert count == single_terms[name][1]

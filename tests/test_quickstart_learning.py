@@ -2,10 +2,10 @@
 
 Untrained, the twin is tens of metres off on held-out logs (its steps are 8 m a unit); a model that ignores its inputs
 at best predicts the training trajectories' mean, over 3 m off here (the mean over these very held-out logs is the best
-any input-blind constant does, and the test computes it). Until the status inputs were scaled and the learning rate
-raised, the twin stayed there, and with outputs in metres it stayed shrunk towards it (docs/training.md, "The output
-scale"). Only a model that reads the ego status gets below the threshold: with the output scale alone the twin
-reached 1.42 m here (seed 0, 2-core CPU, torch 2.14), and it stays below with the heading scale.
+any input-blind constant does, and the test computes it). A model that reads the ego status gets below the threshold.
+LEAD's network with LEAD's scales stays near the constant in the quickstart's steps (4.0 m after 80 steps at 2 px/m);
+the twin gets there with the toy scales (``status_scale``, ``trajectory_scale``, ``heading_scale``) at 1 px/m and 160
+steps (docs/training.md, "On the one family: toy scales").
 """
 
 import sys
@@ -31,12 +31,6 @@ def _blind_ade(samples: list[dict]) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="LEAD's LTFv6 twin (issue 37: the one family) has LEAD's status scales and metre outputs, not the removed "
-    "network's toy scales; in the quickstart's 80 steps it reached 4.0 m held-out ADE (val, seed 0), above the "
-    "threshold (docs/training.md)",
-)
 def test_ltfv6_twin_learns_held_out_trajectories_in_the_quickstarts_steps(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["lead-s2r"])  # LightningCLI reads it beside its args
     monkeypatch.setitem(qs.PLAN, "navsim", ({"trainval": 16, "test": 4}, {"maps": "maps"}))

@@ -78,8 +78,8 @@ HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: next to nothing and it needs a few hundred to fit the WOD-E2E futures; the LTFv6 twins cost most of the run.
 STEPS: dict[str, tuple[int, int]] = {
     "ego_mlp": (8, 50),
-    "navsim_ltfv6": (4, 20),
-    "navsim_ltfv6_lead": (4, 20),
+    "navsim_ltfv6": (8, 20),
+    "navsim_ltfv6_lead": (8, 20),
     "wod_ltfv6_pretrain": (4, 15),
     "wod_ltfv6": (6, 25),
     "wod_ltfv6_lead": (6, 25),

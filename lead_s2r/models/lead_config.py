@@ -17,7 +17,8 @@ Our extensions, where LEAD's code has no switch (docs/models.md, "LEAD's own arc
 its rules, so a network that overrides them loads in LEAD only where the rules give the same values.
 ``camera_tile_size`` (width, height of one camera tile) replaces the target's :data:`CAMERA_TILE` for toy runs such as
 the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD always derives the size, so such a network does not load in
-LEAD.
+LEAD. So do the toy scales (:data:`TOY_SCALES`) of the planner's status inputs and outputs, which the smoke twins set
+to learn in a few hundred steps.
 """
 
 from dataclasses import asdict, dataclass, fields
@@ -52,6 +53,8 @@ NAVSIM_BEV_SEMANTIC_CLASSES = 7
 NAVSIM_BOX_CLASSES = 1
 #: ``training_used_lidar_steps`` is a fixed property (> 1 adds the CenterNet velocity head).
 TRAINING_USED_LIDAR_STEPS = 10
+#: Our toy-scale fields (1.0: LEAD's network), which LEAD's loader cannot read.
+TOY_SCALES = ("status_scale", "trajectory_scale", "heading_scale")
 #: WOD-E2E's maximum speed for the speed token, m/s (LEAD's ``max_speed``).
 WOD_MAX_SPEED = 33.33
 
@@ -133,6 +136,12 @@ class LeadConfig:
     camera_tile_size: list[int] | None = None  # ours: (width, height) of a camera tile; None: the target's CAMERA_TILE
     use_cosine_annealing_with_restarts: bool | None = None  # LEAD's schedule: restarts except for WOD-E2E
     epochs: int | None = None  # LEAD's run length: CARLA 31, NAVSIM 61, WOD-E2E 20
+    # ours, toy scales for runs of a few hundred steps (the smoke twins); 1.0 is LEAD's network, export-lead refuses
+    # any other value. AdamW moves a weight by about the learning rate per step: too few steps to grow the planner's
+    # input and output layers to the world's scales (docs/training.md, "The output scale").
+    status_scale: float = 1.0  # multiplies the planner's speed and acceleration inputs after LEAD's normalisation
+    trajectory_scale: float = 1.0  # metres per unit of the route and waypoint heads' per-step outputs
+    heading_scale: float = 1.0  # radians per unit of the heading head's per-step outputs
 
     def __post_init__(self) -> None:
         """Every field has its JSON type (a YAML recipe's null or string where a size goes is named here, not met as a
@@ -180,6 +189,9 @@ class LeadConfig:
                 f"config.json: num_way_points_prediction={self.num_way_points_prediction} and waypoint_interval_s="
                 f"{self.waypoint_interval_s} must be positive"
             )
+        for name in TOY_SCALES:
+            if getattr(self, name) <= 0:
+                raise UserError(f"config.json: {name}={getattr(self, name)} must be positive (1.0: LEAD's network)")
         size = self.camera_tile_size
         if size is not None and (len(size) != 2 or any(int(n) != n or n < 32 or n % 32 for n in size)):
             raise UserError(f"config.json: camera_tile_size={size} must be [width, height], multiples of 32 pixels")
@@ -312,6 +324,9 @@ class LeadConfig:
     @property
     def camera_tile(self) -> tuple[int, int]:
         """(width, height) of one camera tile: the override, else the target's."""
+        for name in TOY_SCALES:
+            if getattr(self, name) <= 0:
+                raise UserError(f"config.json: {name}={getattr(self, name)} must be positive (1.0: LEAD's network)")
         size = self.camera_tile_size
         return (int(size[0]), int(size[1])) if size is not None else CAMERA_TILE[self.target_dataset]
 

@@ -127,8 +127,12 @@ class LeadDriver(nn.Module):
         return lead_grids(self.config)[source]
 
     def tasks(self, source: str) -> frozenset[str]:
+        """What the network predicts for ``source``; an ensemble only what :class:`LeadEnsemble` merges: the planner's
+        outputs, and CARLA's maps in leaderboard mode (never the radar detector's queries)."""
         c = self.config
         tasks = c.perception_tasks(source)
+        if isinstance(self.network, LeadEnsemble):
+            tasks -= {"radar"} if c.carla_leaderboard_mode else c.perception_tasks(source)
         if source in c.sources and c.use_planning_decoder:  # a pretraining network (no planner) plans nothing
             tasks.add("waypoints")
             if c.use_navsim_data and not c.use_tfv5_planning_decoder:

@@ -21,6 +21,12 @@ def expected_speed(logits: Tensor, classes: tuple[float, ...] = TARGET_SPEED_CLA
     return (probabilities * torch.tensor(classes, device=logits.device, dtype=probabilities.dtype)[None]).sum(-1)
 
 
+def scaled_cumsum(steps: Tensor, scale: float) -> Tensor:
+    """Per-query steps (B, Q, C) -> their running sum over the queries, ``scale`` units of the output per unit of a
+    step (1.0, LEAD's network: a multiplication by 1 is exact, so its outputs stay bit for bit LEAD's)."""
+    return torch.cumsum(steps * scale, 1)
+
+
 def planning_transformer(config: LeadConfig) -> nn.TransformerDecoder:
     d = config.transfuser_token_dim
     layer = nn.TransformerDecoderLayer(
@@ -50,12 +56,13 @@ class StatusContext(nn.Module):
         nn.init.uniform_(self.status_pos_embedding)
 
     def speed_tokens(self, data: dict[str, Tensor], config: LeadConfig) -> list[Tensor]:
-        """The first status token, speed / ``max_speed``, when the config has one (TFv6 and TFv5 alike)."""
+        """The first status token, speed / ``max_speed`` (x ``status_scale``), when the config has one (TFv6 and TFv5
+        alike)."""
         if not config.use_velocity:
             return []
         like = self.dimension_adapter.weight
-        speed = data["speed"].reshape(-1, 1).to(like.device, like.dtype)
-        return [status_token(self.velocity_encoder, speed / config.max_speed, config.transfuser_token_dim)]
+        speed = data["speed"].reshape(-1, 1).to(like.device, like.dtype) / config.max_speed * config.status_scale
+        return [status_token(self.velocity_encoder, speed, config.transfuser_token_dim)]
 
     def context(self, bev_features: Tensor, status: list[Tensor]) -> Tensor:
         if not status:
@@ -94,7 +101,8 @@ class PlanningContextEncoder(StatusContext):
         status = self.speed_tokens(data, c)
         if c.use_acceleration:
             acceleration = data["acceleration"].reshape(-1, 1).to(like.device, like.dtype)
-            status.append(status_token(self.acceleration_encoder, acceleration / c.max_acceleration, d))
+            acceleration = acceleration / c.max_acceleration * c.status_scale
+            status.append(status_token(self.acceleration_encoder, acceleration, d))
         if c.use_discrete_command:
             status.append(status_token(self.command_encoder, data["command"].to(like.device, like.dtype), d))
         if c.use_tp:
@@ -139,16 +147,18 @@ class PlanningDecoder(nn.Module):
     def forward(
         self, bev_features: Tensor, data: dict[str, Tensor], radar: tuple[Tensor, Tensor] | None = None
     ) -> dict[str, Tensor]:
+        c = self.config
         context = self.planning_context_encoder(bev_features, data, radar)
         queries = self.transformer_decoder(self.query.repeat(context.shape[0], 1, 1), context)
         out: dict[str, Tensor] = {}
         if self.num_route:
-            out["pred_route"] = torch.cumsum(self.route_decoder(queries[:, : self.num_route]), 1)
+            out["pred_route"] = scaled_cumsum(self.route_decoder(queries[:, : self.num_route]), c.trajectory_scale)
         if self.num_waypoints:
             waypoint_queries = queries[:, self.num_route : self.num_route + self.num_waypoints]
-            out["pred_future_waypoints"] = torch.cumsum(self.wp_decoder(waypoint_queries), 1)
-            if self.config.use_navsim_data:
-                out["pred_headings"] = torch.cumsum(self.heading_decoder(waypoint_queries), 1).squeeze(-1)
+            out["pred_future_waypoints"] = scaled_cumsum(self.wp_decoder(waypoint_queries), c.trajectory_scale)
+            if c.use_navsim_data:
+                headings = scaled_cumsum(self.heading_decoder(waypoint_queries), c.heading_scale)
+                out["pred_headings"] = headings.squeeze(-1)
         if self.config.predict_target_speed:
             logits = self.target_speed_decoder(queries[:, self.num_route + self.num_waypoints])
             out["pred_target_speed_distribution"] = logits

@@ -13,6 +13,7 @@ from lead_s2r.models.lead_planner import (
     StatusContext,
     expected_speed,
     planning_transformer,
+    scaled_cumsum,
     status_token,
     target_speed_head,
 )
@@ -69,8 +70,8 @@ class TFv5PlanningDecoder(nn.Module):
         waypoint_values, _ = self.wp_gru(waypoint_values, hidden)
         logits = self.target_speed_decoder(values[:, -1])
         return {
-            "pred_route": torch.cumsum(self.route_decoder(route_values), 1),
-            "pred_future_waypoints": torch.cumsum(self.wp_decoder(waypoint_values), 1),
+            "pred_route": scaled_cumsum(self.route_decoder(route_values), self.config.trajectory_scale),
+            "pred_future_waypoints": scaled_cumsum(self.wp_decoder(waypoint_values), self.config.trajectory_scale),
             "pred_target_speed_distribution": logits,
             "pred_target_speed_scalar": expected_speed(logits),
         }

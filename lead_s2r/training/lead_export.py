@@ -7,7 +7,8 @@ the file, but recomputes plain properties from its own rules and ignores keys it
 its config (:data:`LEAD_DERIVES`) are such fields, so a network that sets one to a value LEAD's rules do not give
 cannot be represented: LEAD would build another shape (its strict load fails: one target point's
 ``status_pos_embedding``, ``camera_tile_size``'s ``pos_emb``, 12 waypoints' ``query``) or, worse, load and mean
-something else (waypoints 0.25 s apart read as 0.5 s apart). Such a run is refused in one line naming the field,
+something else (waypoints 0.25 s apart read as 0.5 s apart, or a toy ``trajectory_scale``'s outputs read as metres).
+Such a run is refused in one line naming the field,
 before anything is written; so is a WOD-E2E network, which LEAD's code (4489176) cannot build at all. Where the
 values agree, our fields are written too (``waypoint_interval_s``, ``camera_tile_size``): LEAD ignores keys it does
 not know, and our loader reads them back. Checked with LEAD's own loader and forward on every configuration of
@@ -24,7 +25,7 @@ from typing import Any
 from lead_s2r.errors import UserError
 from lead_s2r.formats import torch_file
 from lead_s2r.models.lead import export_checkpoint
-from lead_s2r.models.lead_config import LeadConfig
+from lead_s2r.models.lead_config import TOY_SCALES, LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_tfv6 import LeadTFv6
 
@@ -38,7 +39,7 @@ LEAD_DERIVES = {
     "camera_tile_size": "camera_tile",
 }
 #: Our keys in an exported config.json that LEAD ignores (they hold what LEAD's rules derive).
-OUR_KEYS = ("waypoint_interval_s", "camera_tile_size")
+OUR_KEYS = ("waypoint_interval_s", "camera_tile_size", *TOY_SCALES)
 
 
 def check_lead_reads(config: LeadConfig, source: Path) -> None:
@@ -48,6 +49,12 @@ def check_lead_reads(config: LeadConfig, source: Path) -> None:
             f"{source}: use_waymo_e2e_data is true, and LEAD's code cannot build a WOD-E2E network (its camera "
             "calibration imports a function missing from its public code); nothing written"
         )
+    for name in TOY_SCALES:
+        if getattr(config, name) != 1.0:
+            raise UserError(
+                f"{source}: {name}={getattr(config, name)!r} is our toy scale, which LEAD's network does not have "
+                "(LEAD's is 1.0), so LEAD cannot load this network as trained; nothing written"
+            )
     as_lead_reads = replace(config, **dict.fromkeys(LEAD_DERIVES))  # None: LEAD's rule decides
     for field, effect in LEAD_DERIVES.items():
         ours, leads = getattr(config, effect), getattr(as_lead_reads, effect)
