@@ -139,7 +139,7 @@ def generate_data(kind: str, raw: Path, data: Path, args: argparse.Namespace) ->
         navsim.generate(raw, count=args.logs, seed=0)
         adapter = get_adapter("navsim", maps=str(raw / "maps"))
     else:
-        wod_e2e.generate(raw, count=args.logs, seed=0)
+        wod_e2e.generate(raw, count=args.logs, seed=0, image_scale=args.wod_image_scale)
         adapter = get_adapter("wod_e2e")
     convert(adapter, raw, data)
 
@@ -207,6 +207,12 @@ def main() -> None:
     parser.add_argument("--routes", type=int, default=6, help="CARLA routes per CARLA kind")
     parser.add_argument("--frames", type=int, default=16, help="frames per CARLA route")
     parser.add_argument("--logs", type=int, default=8, help="NAVSIM logs / WOD-E2E segments per split")
+    parser.add_argument(
+        "--wod-image-scale",
+        type=float,
+        default=1.0,
+        help="WOD-E2E camera size as a fraction of the real cameras' (1.0: real size; 0.0556: generator default)",
+    )
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--steps", type=int, default=40, help="batches per round for ours and the LEAD-style loader")
     parser.add_argument("--rounds", type=int, default=3, help="timed rounds, after one warm-up round")

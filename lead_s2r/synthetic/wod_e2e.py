@@ -322,6 +322,13 @@ def write_dataset(out: Path, dataset: SynthDataset, seed: int = 0) -> list[Path]
     return paths
 
 
-def generate(out: Path, count: int | None = None, seed: int = 0, splits: dict[str, int] | None = None) -> None:
-    """``lead-s2r synth wod_e2e --out DIR [--segments N]``: N segments per split (default 3), or ``splits``."""
-    write_dataset(out, make_dataset(count, seed, splits=splits), seed)
+def generate(
+    out: Path,
+    count: int | None = None,
+    seed: int = 0,
+    splits: dict[str, int] | None = None,
+    image_scale: float = IMAGE_SCALE,
+) -> None:
+    """``lead-s2r synth wod_e2e --out DIR [--segments N]``: N segments per split (default 3), or ``splits``; images
+    at ``image_scale`` (1.0: the real cameras' sizes, which take the loader's reduced-decode path)."""
+    write_dataset(out, make_dataset(count, seed, image_scale, splits), seed)
