@@ -5,8 +5,7 @@ one without these) trains too: with no per-source batch-size log, no ADE/FDE
 metrics made ahead of validation, and Lightning's estimate of the steps per epoch.
 """
 
-from collections.abc import Mapping
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 
 @runtime_checkable
@@ -21,6 +20,6 @@ class TrainingData(Protocol):
         """Batches per training epoch, the same on every rank."""
         ...
 
-    def validation_sources(self) -> Mapping[str, Any]:
-        """The validation sources, by name (every rank makes their metrics, data or not)."""
+    def validation_sources(self) -> list[str]:
+        """The names of the validation sources (every rank makes their metrics, data or not)."""
         ...
