@@ -17,6 +17,7 @@ from toy_adapter import ToyAdapter, write_toy_logs
 from lead_s2r.convert import convert
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.lead_driver import ltfv6_navsim
 from lead_s2r.training.cli import TRAINER_DEFAULTS
 from lead_s2r.training.module import DrivingModule
@@ -82,6 +83,7 @@ def make_parts(
     torch.manual_seed(0)
     val = {"navsim": data} | (more_val or {})
     spec = SourceSpec([data], cameras=["front"])
+    network = ltfv6_navsim(**TOY_LTFV6, use_carla_data=True)
     datamodule = DriveDataModule(
         train={"navsim": spec},
         val={source: SourceSpec([folder], cameras=["front"]) for source, folder in val.items()},
@@ -89,8 +91,9 @@ def make_parts(
         steps_per_epoch=2,
         eval_batch_size=8,
         shuffle_buffer=8,
+        inputs=input_spec(network.config),
     )
-    module = DrivingModule(ltfv6_navsim(**TOY_LTFV6, use_carla_data=True), lr=1e-3)
+    module = DrivingModule(network, lr=1e-3, data=datamodule)  # wired as `lead-s2r fit` links them
     return module, datamodule, [Recorder(out), CountingScoring(data, out)]
 
 

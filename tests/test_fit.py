@@ -3,6 +3,7 @@
 import csv
 import math
 import sys
+from typing import Any
 
 import lightning as L
 import pytest
@@ -12,6 +13,7 @@ from tiny_models import LTFV6_SWITCHES, TOY_LTFV6
 
 from lead_s2r.data.datamodule import DriveDataModule, SourceSpec
 from lead_s2r.data.mixing import MixingSchedule
+from lead_s2r.models.input_spec import input_spec
 from lead_s2r.models.lead_driver import LeadDriver, ltfv6_navsim
 from lead_s2r.predictions import read_predictions
 from lead_s2r.training.cli import TRAINER_DEFAULTS, run_lightning_cli
@@ -38,6 +40,11 @@ def mixed_ltfv6() -> LeadDriver:
     return ltfv6_navsim(**TOY_LTFV6, use_carla_data=True)
 
 
+def wired(network: LeadDriver, **data: Any) -> DriveDataModule:
+    """``DriveDataModule(**data)`` building what ``network`` reads, wired as ``lead-s2r fit`` links them."""
+    return DriveDataModule(**data, inputs=input_spec(network.config))
+
+
 def fit_recording(module: DrivingModule, data: DriveDataModule, epochs: int) -> Recorder:
     """Fit ``module`` on ``data`` for ``epochs`` on the CPU, recording every step."""
     recorder = Recorder()
@@ -60,10 +67,9 @@ def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
     schedule = MixingSchedule(
         {0: {"carla": 3, "navsim": 1}, 1: {"carla": 1, "navsim": 1}, 3: {"carla": 0, "navsim": 1}}, 4
     )
-    data = DriveDataModule(train={"carla": spec, "navsim": spec}, schedule=schedule, steps_per_epoch=2)
-    recorder = fit_recording(
-        DrivingModule(ltfv6_navsim(**TOY_LTFV6, use_carla_data=True), lr=1e-3, lr_schedule="cosine_restarts"), data, 4
-    )
+    network = mixed_ltfv6()
+    data = wired(network, train={"carla": spec, "navsim": spec}, schedule=schedule, steps_per_epoch=2)
+    recorder = fit_recording(DrivingModule(network, lr=1e-3, lr_schedule="cosine_restarts", data=data), data, 4)
     assert recorder.sizes == [{"carla": 3, "navsim": 1}] * 2 + [{"carla": 2, "navsim": 2}] * 4 + [{"navsim": 4}] * 2
     lrs = torch.tensor(recorder.lrs)
     restarts = [step for step in range(1, len(lrs)) if lrs[step] > lrs[step - 1]]
@@ -74,8 +80,9 @@ def test_fit_follows_the_mixing_and_lr_schedules(toy_data):
 @pytest.mark.parametrize("schedule", ["constant", "cosine"])
 def test_warmup_rises_linearly_then_hands_over_to_the_schedule(toy_data, schedule):
     spec = SourceSpec([toy_data], cameras=["front"])
-    data = DriveDataModule(train={"navsim": spec}, schedule=MixingSchedule({0: {"navsim": 2}}, 2), steps_per_epoch=4)
-    module = DrivingModule(ltfv6_navsim(**TOY_LTFV6), lr=1e-3, lr_schedule=schedule, warmup_steps=4)
+    network = ltfv6_navsim(**TOY_LTFV6)
+    data = wired(network, train={"navsim": spec}, schedule=MixingSchedule({0: {"navsim": 2}}, 2), steps_per_epoch=4)
+    module = DrivingModule(network, lr=1e-3, lr_schedule=schedule, warmup_steps=4, data=data)
     lrs = fit_recording(module, data, 2).lrs
     assert lrs[:4] == pytest.approx([2.5e-4, 5e-4, 7.5e-4, 1e-3])  # lr / 4 on the first step, lr on the 4th
     if schedule == "constant":
@@ -98,7 +105,9 @@ class KeyRecorder(L.Callback):
 def fit_keys(data: str, epochs: int, root=None, resume: str | None = None) -> dict[int, list[list[str]]]:
     """Fit a tiny model and return the keys it trained on; ``root`` keeps a last.ckpt, ``resume`` restarts from one."""
     spec = SourceSpec([data], cameras=["front"])
-    datamodule = DriveDataModule(
+    network = mixed_ltfv6()
+    datamodule = wired(
+        network,
         train={"carla": spec, "navsim": spec},
         schedule=MixingSchedule.constant({"carla": 1, "navsim": 1}, 4),
         steps_per_epoch=3,
@@ -118,9 +127,7 @@ def fit_keys(data: str, epochs: int, root=None, resume: str | None = None) -> di
         callbacks=callbacks,
         **TRAINER_DEFAULTS,
     )
-    trainer.fit(
-        DrivingModule(ltfv6_navsim(**TOY_LTFV6, use_carla_data=True), lr=1e-3), datamodule=datamodule, ckpt_path=resume
-    )
+    trainer.fit(DrivingModule(network, lr=1e-3, data=datamodule), datamodule=datamodule, ckpt_path=resume)
     return recorder.keys
 
 

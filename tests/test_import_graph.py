@@ -198,3 +198,55 @@ def test_a_hidden_cycle_is_found_and_named(tmp_path: Path) -> None:
     cycle = find_cycle(edges)
     assert cycle is not None
     assert [(edge.source, edge.target, edge.line) for edge in cycle] == [("pkg.a", "pkg.b", 1), ("pkg.b", "pkg.a", 2)]
+
+
+#: Layers whose wiring to the other side of a fit is declared (``lead-s2r fit`` links the model and the data module,
+#: DESIGN.md §1), and the trainer attributes that would reach around those links.
+DECLARED_WIRING = ("data", "training")
+REACH_THROUGH = ("datamodule", "lightning_module")
+
+
+def _is_trainer(node: ast.AST) -> bool:
+    """``trainer`` or ``<anything>.trainer``."""
+    return (isinstance(node, ast.Name) and node.id == "trainer") or (
+        isinstance(node, ast.Attribute) and node.attr == "trainer"
+    )
+
+
+def trainer_reach_through(path: Path) -> list[str]:
+    """Every ``trainer.datamodule`` / ``trainer.lightning_module`` in ``path`` (``self.trainer....`` and
+    ``getattr(trainer, "...")`` too), as ``file:line``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Attribute) and node.attr in REACH_THROUGH and _is_trainer(node.value):
+            found.append(f"{path.name}:{node.lineno}: trainer.{node.attr}")
+        elif isinstance(node, ast.Call) and getattr(node.func, "id", None) == "getattr" and len(node.args) >= 2:
+            owner, name = node.args[:2]
+            if _is_trainer(owner) and isinstance(name, ast.Constant) and name.value in REACH_THROUGH:
+                found.append(f"{path.name}:{node.lineno}: getattr(trainer, {name.value!r})")
+    return found
+
+
+def test_data_and_training_never_reach_through_the_trainer() -> None:
+    """The model's input spec reaches the data module, and the data module the model, through LightningCLI's
+    ``link_arguments`` (lead_s2r/training/cli.py), not by asking the trainer at run time."""
+    paths = [path for layer in DECLARED_WIRING for path in sorted((ROOT / "lead_s2r" / layer).rglob("*.py"))]
+    assert len(paths) > 20  # the walk sees both layers
+    broken = [finding for path in paths for finding in trainer_reach_through(path)]
+    if broken:
+        pytest.fail("declare the wiring (link_arguments) instead:\n  " + "\n  ".join(broken), pytrace=False)
+
+
+@pytest.mark.parametrize(
+    "planted",
+    [
+        "def f(self):\n    return self.trainer.datamodule\n",
+        "def f(trainer):\n    return trainer.lightning_module.input_spec()\n",
+        "def f(self):\n    return getattr(self.trainer, 'lightning_module', None)\n",
+    ],
+)
+def test_a_planted_reach_through_is_caught(tmp_path: Path, planted: str) -> None:
+    (tmp_path / "planted.py").write_text(planted)
+    assert len(trainer_reach_through(tmp_path / "planted.py")) == 1
+    (tmp_path / "clean.py").write_text("def f(self):\n    return self.datamodule, self.trainer.current_epoch\n")
+    assert not trainer_reach_through(tmp_path / "clean.py")

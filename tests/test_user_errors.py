@@ -328,10 +328,12 @@ def test_fit_config_section_that_is_no_mapping_is_named_in_our_words(tmp_path, p
     assert not (tmp_path / "run").exists()
 
 
-def test_init_from_matching_no_tensor_is_refused_not_trained_from_random_weights(tmp_path, plain_argv, capsys):
+def test_init_from_matching_no_tensor_is_refused_not_trained_from_random_weights(
+    tmp_path, toy_data, plain_argv, capsys
+):
     import torch
 
-    config = fit_config(tmp_path, {"carla": {"paths": [str(tmp_path / "no-data")], "cameras": ["front"]}})
+    config = fit_config(tmp_path, {"carla": {"paths": [toy_data], "cameras": ["front"]}})  # built before the model
     other = tmp_path / "other.ckpt"
     torch.save({"state_dict": {"encoder.weight": torch.zeros(3), "encoder.bias": torch.zeros(3)}}, other)
     line = user_error(["fit", "--config", str(config), f"--model.init_from={other}"], capsys)

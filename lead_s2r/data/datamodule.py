@@ -15,7 +15,7 @@ like the training ones. :mod:`lead_s2r.data.streams` says why webdataset's own s
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import lightning as L
 import torch
@@ -83,14 +83,6 @@ class _Tag:
         return {self.source: batch}
 
 
-@runtime_checkable
-class ReadsInputs(Protocol):
-    """A LightningModule that tells its data module what its model reads
-    (:meth:`lead_s2r.training.module.DrivingModule.input_spec`)."""
-
-    def input_spec(self) -> InputSpec: ...
-
-
 class DriveDataModule(L.LightningDataModule):
     """Mixed-source training data and per-source evaluation data for the TFv6 family.
 
@@ -105,7 +97,7 @@ class DriveDataModule(L.LightningDataModule):
         num_workers: dataloader workers per source.
         shuffle_buffer: samples in each source's shuffle buffer.
         inputs: what the transforms build (:class:`~lead_s2r.models.input_spec.InputSpec`, from a model config by
-            :func:`~lead_s2r.models.input_spec.input_spec`); by default what the attached module's model reads.
+            :func:`~lead_s2r.models.input_spec.input_spec`); ``lead-s2r fit|predict`` links the model's here.
         seed: seed of shard resampling and shuffling (with the epoch, rank, worker and source); by default the
             one ``seed_everything`` set, else 0.
         inputs_on_device: send a camera JPEG that is the model's image as stored (CARLA's mosaic at TFv6's size) to the
@@ -150,6 +142,8 @@ class DriveDataModule(L.LightningDataModule):
                     spec.shards()
                 except ShardError as err:
                     raise UserError(f"data.{stage}.{name}.paths: {err}") from None
+        if inputs is not None:
+            self.check_sources(inputs)
 
     def _stages(self) -> dict[str, dict[str, SourceSpec]]:
         return {"train": self.train_sources, "val": self.val_sources, "predict": self.predict_sources}
@@ -165,20 +159,11 @@ class DriveDataModule(L.LightningDataModule):
                         "(the model config's trajectory_grids)"
                     )
 
-    def setup(self, stage: str) -> None:
-        self.check_sources(self.inputs)
-
     @property
     def inputs(self) -> InputSpec:
-        """What the transforms build: as given, else what the attached LightningModule's model reads."""
+        """What the transforms build, as given."""
         if self._inputs is None:
-            module = getattr(self.trainer, "lightning_module", None)
-            if not isinstance(module, ReadsInputs):
-                raise ValueError(
-                    "DriveDataModule needs to know the model's inputs: pass inputs=input_spec(config) or attach a "
-                    "module with input_spec() (DrivingModule)"
-                )
-            self._inputs = module.input_spec()
+            raise ValueError("DriveDataModule needs to know the model's inputs: pass inputs=input_spec(network.config)")
         return self._inputs
 
     def epoch_steps(self) -> int:
@@ -190,9 +175,9 @@ class DriveDataModule(L.LightningDataModule):
             self._steps_per_epoch = math.ceil(samples / self.schedule.global_batch_size)
         return self._steps_per_epoch
 
-    def validation_sources(self) -> dict[str, SourceSpec]:
-        """The validation sources, by name."""
-        return self.val_sources
+    def validation_sources(self) -> list[str]:
+        """The names of the validation sources."""
+        return list(self.val_sources)
 
     def train_samples(self) -> int:
         """Samples of every training source in its splits, counted from the folders' manifests."""

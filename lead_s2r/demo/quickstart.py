@@ -44,7 +44,7 @@ from lead_s2r.demo.table4 import (
     build_table4,
     scorings,
 )
-from lead_s2r.predictions import read_predictions, write_predictions
+from lead_s2r.predictions import write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import scores_key
@@ -326,23 +326,24 @@ def predict_and_score(
     checkpoint: Path | None,
     caches: dict[str, ScoringCaches],
 ) -> dict[str, Any]:
-    """Predict with ``config``'s model (``checkpoint``; None: its initial weights) and score each dataset's
-    predictions against that dataset alone, in the stage's folder of that dataset's family."""
-    root = stage_folder(out, training, home(training)[0], stage, seed)
-    args = ["predict", "--config", str(config), "--trainer.default_root_dir", str(root)]
-    with lightning_output_to(out / LIGHTNING_LOG):
-        run_lightning_cli(args + (["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]))
-    predictions = read_predictions(root / "predictions.parquet")
-    reliance_file = root / camera_reliance.FILENAME
-    reliance = json.loads(reliance_file.read_text()) if reliance_file.exists() else {}
+    """Predict with ``config``'s model (``checkpoint``; None: its initial weights) on each dataset's held-out logs
+    alone, into the stage's folder of that dataset's family, and score the ``predictions.parquet`` the writer left
+    there against that dataset."""
+    sources = yaml.safe_load(config.read_text())["data"]["predict"]
+    weights = ["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]
     results = {}
     for dataset in scored_on(training):
-        mine = [p for p in predictions if p.dataset == dataset]
-        if mine:
-            folder = stage_folder(out, training, dataset, stage, seed)
-            folder.mkdir(parents=True, exist_ok=True)
-            path = write_predictions(folder / f"predictions-{dataset}.parquet", mine)
-            results[dataset] = score(path, out / "data" / dataset, dataset, folder / "scores", caches[dataset])
-            if dataset in reliance:
-                results[dataset][CAMERA_RELIANCE] = reliance[dataset]
+        data = out / "data" / dataset
+        mine = {name: spec for name, spec in sources.items() if spec["paths"] == [str(data)]}
+        if not mine:
+            continue
+        folder = stage_folder(out, training, dataset, stage, seed)
+        args = ["predict", "--config", str(config), f"--data.predict={json.dumps(mine)}"]
+        with lightning_output_to(out / LIGHTNING_LOG):
+            run_lightning_cli([*args, "--trainer.default_root_dir", str(folder), *weights])
+        results[dataset] = score(folder / "predictions.parquet", data, dataset, folder / "scores", caches[dataset])
+        reliance_file = folder / camera_reliance.FILENAME
+        reliance = json.loads(reliance_file.read_text()) if reliance_file.exists() else {}
+        if dataset in reliance:
+            results[dataset][CAMERA_RELIANCE] = reliance[dataset]
     return results

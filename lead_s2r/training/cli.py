@@ -25,10 +25,12 @@ from typing import Any
 import yaml
 from lightning.pytorch import Trainer
 from lightning.pytorch.cli import LightningCLI
+from torch import nn
 
 from lead_s2r.data.datamodule import DriveDataModule
 from lead_s2r.errors import UserError
 from lead_s2r.formats import torch_file
+from lead_s2r.models.input_spec import InputSpec, input_spec
 from lead_s2r.training.feedback import fit_summary, run_loggers
 from lead_s2r.training.module import DrivingModule
 
@@ -42,12 +44,17 @@ PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_erro
 
 
 class DrivingCLI(LightningCLI):
-    """LightningCLI that checks the data's source names against the model before anything is written, roots
+    """LightningCLI that links the model and the data module (:meth:`add_arguments_to_parser`), so the data's source
+    names are checked against the model before anything is written, roots
     checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``, logs to CSV and (when installed)
     TensorBoard beside any logger the config adds, ends a fit by saying what it wrote, and refuses to predict with
     random weights unless asked to (``--untrained``): predictions of an untrained model look like any others."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
+        """Declare the wiring (built in this order): what the network reads to the data module, which checks its
+        source names against it; the data module to the module, which reads its :class:`TrainingData` side."""
+        parser.link_arguments("model.model", "data.inputs", compute_fn=network_inputs, apply_on="instantiate")
+        parser.link_arguments("data", "model.data", apply_on="instantiate")
         parser.add_argument(
             "--untrained", action="store_true", help="predict: use the model's initial weights (no --ckpt_path)"
         )
@@ -83,8 +90,6 @@ class DrivingCLI(LightningCLI):
             raise UserError(f"cannot build what the config describes: {' '.join(str(err).split())}") from err
 
     def instantiate_trainer(self, **kwargs: Any) -> Trainer:
-        if isinstance(self.datamodule, DriveDataModule) and isinstance(self.model, DrivingModule):
-            self.datamodule.check_sources(self.model.input_spec())
         trainer_config = self._get(self.config_init, "trainer", default={})
         root = trainer_config.get("default_root_dir") or Path.cwd()
         kwargs.setdefault("logger", run_loggers(trainer_config.get("logger"), root))
@@ -100,6 +105,11 @@ class DrivingCLI(LightningCLI):
         for callback in self.trainer.checkpoint_callbacks:
             if callback.dirpath is None:
                 callback.dirpath = str(Path(self.trainer.default_root_dir) / "checkpoints")
+
+
+def network_inputs(network: nn.Module) -> InputSpec:
+    """What ``network`` reads (``model.model``), for the data module's transforms to build."""
+    return input_spec(network.config)
 
 
 def run_lightning_cli(args: list[str] | None = None) -> None:

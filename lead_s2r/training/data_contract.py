@@ -1,12 +1,13 @@
-"""What :class:`~lead_s2r.training.module.DrivingModule` reads from its data module, declared.
+"""What :class:`~lead_s2r.training.module.DrivingModule` reads from its data module (``DrivingModule(data=...)``,
+linked by ``lead-s2r fit``), declared.
 
-:class:`~lead_s2r.data.datamodule.DriveDataModule` provides all of it. A run on plain dataloaders (no data module, or
-one without these) trains too: with no per-source batch-size log, no ADE/FDE
-metrics made ahead of validation, and Lightning's estimate of the steps per epoch.
+:class:`~lead_s2r.data.datamodule.DriveDataModule` provides all of it. LightningCLI checks the linked data module
+against these signatures, return types included, so an implementation returns exactly these types. A run on plain
+dataloaders (no ``data``) trains too: with no per-source batch-size log, no ADE/FDE metrics made ahead of validation,
+and Lightning's estimate of the steps per epoch.
 """
 
-from collections.abc import Mapping
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 
 @runtime_checkable
@@ -21,6 +22,6 @@ class TrainingData(Protocol):
         """Batches per training epoch, the same on every rank."""
         ...
 
-    def validation_sources(self) -> Mapping[str, Any]:
-        """The validation sources, by name (every rank makes their metrics, data or not)."""
+    def validation_sources(self) -> list[str]:
+        """The names of the validation sources (every rank makes their metrics, data or not)."""
         ...

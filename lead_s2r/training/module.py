@@ -24,7 +24,6 @@ from torch.optim.lr_scheduler import LRScheduler
 from torchmetrics import MeanMetric
 
 from lead_s2r.data.lead_origin import centre_waypoints_to_rear_axle
-from lead_s2r.models.input_spec import InputSpec, input_spec
 from lead_s2r.models.inputs import PLANNING_TASKS, Batch
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_loss import adamw, cosine_schedule, training_layout
@@ -83,6 +82,10 @@ class DrivingModule(L.LightningModule):
         init_from: checkpoint whose matching tensors initialise the model (fine-tuning); new heads are reported.
         log_val_losses: also log every loss term on the validation data (``val/<source>/<task>``), for loss curves.
             Under DDP each is the mean of the ranks' means, not the exact mean over samples that ADE/FDE are.
+        data: the data module it trains on, for its side of :class:`TrainingData` (per-epoch batch sizes logged,
+            steps per epoch, validation sources); ``lead-s2r fit`` links it. None (plain dataloaders): no batch-size
+            log, no ADE/FDE metrics made ahead of validation, Lightning's estimate of the steps per epoch. Not a
+            hyper-parameter: a checkpoint rebuilds the module without it.
 
     A checkpoint of it rebuilds the module alone: ``DrivingModule.load_from_checkpoint(path)``.
     """
@@ -101,9 +104,11 @@ class DrivingModule(L.LightningModule):
         compile: bool = False,
         init_from: str | None = None,
         log_val_losses: bool = False,
+        data: TrainingData | None = None,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters(ignore=["model"])
+        self.save_hyperparameters(ignore=["model", "data"])
+        self.data = data
         self.model = model
         self.supervise = {k: list(v) for k, v in (SIM_TO_REAL if supervise is None else supervise).items()}
         model_weights = model.loss_weights if isinstance(model, LeadDriver) else {}
@@ -133,16 +138,6 @@ class DrivingModule(L.LightningModule):
         hparams.setdefault("_instantiator", INSTANTIATOR)
 
     # --- setup
-    def input_spec(self) -> InputSpec:
-        """What the model reads, for the data module to build (``DriveDataModule`` asks when given no ``inputs``)."""
-        return input_spec(self.model.config)
-
-    @property
-    def data(self) -> TrainingData | None:
-        """The trainer's data module, where it provides :class:`TrainingData` (None on plain dataloaders)."""
-        datamodule = self.trainer.datamodule
-        return datamodule if isinstance(datamodule, TrainingData) else None
-
     def setup(self, stage: str) -> None:
         """At the start of a fit, put a LEAD network's weights in LEAD's channels-last layout (prediction keeps the
         loaded layout)."""
