@@ -11,7 +11,13 @@ from lead_s2r.schema import BoxClass, MapKind
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import center_frame, history_comfort, past_states
 from lead_s2r.scoring.pdm.footprint import ego_coords
-from lead_s2r.scoring.pdm.metrics import driving_direction_compliance, ego_progress_v2, lane_keeping
+from lead_s2r.scoring.pdm.metrics import (
+    LANE_KEEPING_LIMIT_M,
+    beyond_lane_limit,
+    driving_direction_compliance,
+    ego_progress_v2,
+    lane_keeping,
+)
 from lead_s2r.scoring.pdm.observation import V2_STEPS, log_observation, overlapping_ego_at_t0
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals, score_states_v2
@@ -84,6 +90,45 @@ def test_lane_offset_of_0p7_m_fails_after_2_s(seconds: float, expected: float) -
     lk, failed_at = lane_keeping(straight_centres(offset), centerline, np.zeros((1, 41), bool))
     assert lk.tolist() == [expected]
     assert failed_at.tolist() == [19 if expected == 0.0 else -1]  # the 20th consecutive step (index 19)
+
+
+def points_at_the_lane_limit(vertices: np.ndarray) -> np.ndarray:
+    """Points at 0.5 m (as floats round it) from every segment's middle, both sides, and from every vertex along
+    eight directions, each with its neighbours one rounding step either way in x and in y."""
+    start, end = vertices[:-1], vertices[1:]
+    along = end - start
+    length = np.linalg.norm(along, axis=1, keepdims=True)
+    normal = np.divide(along[:, ::-1] * [-1.0, 1.0], length, out=np.zeros_like(along), where=length > 0)
+    middle = (start + end) / 2
+    angles = np.arange(8) * np.pi / 4
+    rays = np.stack([np.cos(angles), np.sin(angles)], -1)
+    exact = np.concatenate(
+        [
+            middle + LANE_KEEPING_LIMIT_M * normal,
+            middle - LANE_KEEPING_LIMIT_M * normal,
+            (vertices[:, None] + LANE_KEEPING_LIMIT_M * rays).reshape(-1, 2),
+        ]
+    )
+    step = np.stack([np.nextafter(exact, exact + 1.0) - exact, np.nextafter(exact, exact - 1.0) - exact])
+    shifted = [exact + s * axis for s in step for axis in ([1.0, 0.0], [0.0, 1.0])]
+    return np.concatenate([exact, *shifted])
+
+
+@pytest.mark.parametrize("origin", [(0.0, 0.0), (664_432.25, 3_997_251.5)])  # a UTM-sized offset too
+def test_lane_limit_equals_geos_distance_at_the_limit(origin: tuple[float, float]) -> None:
+    rng = np.random.default_rng(0)
+    # straight, diagonal and sharply turning segments, a repeated vertex, spacing 0.3-6 m
+    local = np.array([[0, 0], [6, 0], [6.3, 0.1], [6.3, 0.1], [9, 3], [9.2, 3.4], [4, 7], [3.3, 7.05], [0.2, 2.9]])
+    vertices = local + np.asarray(origin)
+    centerline = shapely.linestrings(vertices)
+    near = points_at_the_lane_limit(vertices)
+    spread = vertices.min(axis=0) - 3 + rng.uniform(0, 1, (20_000, 2)) * (np.ptp(vertices, axis=0) + 6)
+    far = vertices[0] + [[-1e3, 0.0], [0.0, 5e3]]  # outside the grid
+    centres = np.concatenate([near, spread, far])
+    geos = shapely.distance(shapely.points(centres), centerline) > LANE_KEEPING_LIMIT_M
+    assert np.array_equal(beyond_lane_limit(centres[None], centerline)[0], geos)
+    assert 0 < geos[: len(near)].sum() < len(near)  # the limit is reached from both sides
+    assert geos[len(near) :].any() and not geos[len(near) :].all()
 
 
 def test_intersection_steps_pause_the_lane_keeping_count() -> None:

@@ -15,11 +15,16 @@ Constants and official behaviours reproduced on purpose:
   with NC = 0 can have EP = 1.
 * LK (v2): the distance from the box centre to the whole centreline linestring, > 0.5 m for ceil(2.0 / 0.1) = 20
   consecutive steps fails. Steps with the centre inside an INTERSECTION are skipped and do not reset the count.
+  ``beyond_lane_limit`` decides "> 0.5 m" in numpy wherever the answer is certain and asks GEOS
+  (``shapely.distance``) for the few centres within :data:`LANE_KEEPING_MARGIN_M` of the limit, so every flag is
+  GEOS's.
 * PDMS = NC * DAC * (5 * EP + 5 * TTC + 2 * C + 0 * DDC) / 12, in NAVSIM's order of operations.
 """
 
 import numpy as np
 import shapely
+
+from lead_s2r.scoring.pdm.map_flags import GRID_CELL_M, BoundsGrid
 
 DDC_HORIZON_S = 1.0
 DDC_COMPLIANT_M = 2.0
@@ -27,6 +32,12 @@ DDC_VIOLATION_M = 6.0
 PROGRESS_THRESHOLD_M = 5.0
 LANE_KEEPING_LIMIT_M = 0.5
 LANE_KEEPING_WINDOW_S = 2.0
+#: [m] a centre whose numpy distance lies this close to the LK limit is measured again by GEOS: far above the
+#: rounding of either computation (~1e-9 m at UTM coordinates), so numpy decides only the certain answers
+LANE_KEEPING_MARGIN_M = 1e-6
+#: [m] a segment's bounding box is grown by the limit plus this before it is gridded: every segment within the limit
+#: (and the margin) of a centre is a candidate of the centre's cell, whatever the rounding of the box
+LANE_KEEPING_SLACK_M = 0.01
 #: v1.1 ``PDMScorerConfig`` weights in ``WeightedMetricIndex`` order: progress, TTC, comfort, driving direction.
 V11_WEIGHTS = np.array([5.0, 5.0, 2.0, 0.0])
 
@@ -91,8 +102,7 @@ def lane_keeping(
 ) -> tuple[np.ndarray, np.ndarray]:
     """LK ``(N,)`` in {0, 1} and the step it fails at ``(N,)`` (-1 if it does not) from box centres ``(N, T, 2)``;
     ``in_intersection (N, T)`` marks the steps that are skipped."""
-    deviation = shapely.distance(shapely.points(centers), centerline)
-    exceeds = deviation > LANE_KEEPING_LIMIT_M
+    exceeds = beyond_lane_limit(centers, centerline)
     required = int(np.ceil(LANE_KEEPING_WINDOW_S / interval))
     count = np.zeros(len(centers), np.int64)
     failed_at = np.full(len(centers), -1)
@@ -101,6 +111,38 @@ def lane_keeping(
         count[counted] = np.where(exceeds[counted, step], count[counted] + 1, 0)
         failed_at[(failed_at < 0) & (count >= required)] = step
     return np.where(failed_at >= 0, 0.0, 1.0), failed_at
+
+
+def beyond_lane_limit(centers: np.ndarray, centerline: shapely.LineString) -> np.ndarray:
+    """``shapely.distance(centre, centerline) > LANE_KEEPING_LIMIT_M`` for centres ``(..., 2)``, GEOS's answer
+    without a point geometry per centre: a grid over the segments' grown bounding boxes gives each centre the segments
+    that can lie within the limit (none: farther), numpy's point-to-segment distance to those decides centres clear of
+    the limit by :data:`LANE_KEEPING_MARGIN_M`, and GEOS measures the rest."""
+    points = centers.reshape(-1, 2)
+    vertices = shapely.get_coordinates(centerline)
+    start, end = vertices[:-1], vertices[1:]
+    reach = LANE_KEEPING_LIMIT_M + LANE_KEEPING_SLACK_M
+    grid = BoundsGrid.build(np.hstack([np.minimum(start, end) - reach, np.maximum(start, end) + reach]), GRID_CELL_M)
+    point, entry = grid.candidates(points)  # grouped by point, in increasing order
+    segment = grid.members[entry]
+    nearest = np.full(len(points), np.inf)
+    if len(point):
+        first = np.flatnonzero(np.diff(point, prepend=-1))
+        distance = _segment_distance(points[point], start[segment], end[segment])
+        nearest[point[first]] = np.minimum.reduceat(distance, first)
+    beyond = nearest > LANE_KEEPING_LIMIT_M
+    unsure = np.flatnonzero(np.abs(nearest - LANE_KEEPING_LIMIT_M) <= LANE_KEEPING_MARGIN_M)
+    beyond[unsure] = shapely.distance(shapely.points(points[unsure]), centerline) > LANE_KEEPING_LIMIT_M
+    return beyond.reshape(centers.shape[:-1])
+
+
+def _segment_distance(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Distance ``(B,)`` from each point ``(B, 2)`` to the segment from ``start`` to ``end`` (a point if they meet)."""
+    along, offset = end - start, points - start
+    squared = (along * along).sum(axis=1)
+    fraction = np.divide((offset * along).sum(axis=1), squared, out=np.zeros(len(points)), where=squared > 0.0)
+    gap = offset - np.clip(fraction, 0.0, 1.0)[:, None] * along
+    return np.sqrt((gap * gap).sum(axis=1))
 
 
 def pdms_v11(
