@@ -34,11 +34,10 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from lead_s2r import __version__
 from lead_s2r.errors import UserError
-from lead_s2r.files import write_bytes
+from lead_s2r.files import write_bytes, write_parquet
 from lead_s2r.geometry import resample
 from lead_s2r.gtrs_targets import EPDMS_NAMES, PDMS_NAMES, targets_bytes
 from lead_s2r.processes import Executor, InlineExecutor
@@ -108,6 +107,11 @@ def load_vocabulary(path: Path) -> np.ndarray:
         return check_vocabulary(array, f"--vocab {path}")
     except ValueError as err:
         raise UserError(str(err)) from None
+
+
+def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
+    """Written twice per run, ``complete: false`` first, so a killed run's folder says it is unfinished."""
+    write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
 
 
 def _sha256(path: Path) -> str:
@@ -223,7 +227,7 @@ def score_data(
     _check_folder(out, run)
     manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
     manifest |= {"package_version": __version__, "gtrs_metrics": list(GTRS_NAMES[metric].values())}
-    write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+    _write_manifest(out, manifest)
     parts = [out / PARTS / f"{index:06d}.npz" for index in range(len(jobs))]
     for partial in (out / PARTS).glob(".*.partial"):  # a killed run's unfinished writes
         partial.unlink()
@@ -311,12 +315,10 @@ def _assemble(out: Path, parts: list[Path], manifest: dict[str, Any]) -> dict[st
     columns = {"key": pa.array(keys, pa.string()), "token": pa.array([tokens[key] for key in keys], pa.string())}
     for name in names:
         columns[name] = pa.array([scores[key][name].astype(np.float32) for key in keys], pa.list_(pa.float32()))
-    buffer = pa.BufferOutputStream()
-    pq.write_table(pa.table(columns), buffer, write_page_checksum=True)
-    write_bytes(out / PARQUET, buffer.getvalue().to_pybytes())
+    write_parquet(out / PARQUET, pa.table(columns))
     manifest = manifest | {"complete": True, "scenes": len(keys), "entries": int(manifest["identity"]["shape"][0])}
     manifest["failed"] = [{"key": key, "error": failed[key]} for key in tokens if key in failed]
-    write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+    _write_manifest(out, manifest)
     return manifest
 
 
