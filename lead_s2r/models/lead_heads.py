@@ -9,17 +9,6 @@ from torch import Tensor, nn
 
 from lead_s2r.models.lead_config import TRAINING_USED_LIDAR_STEPS, LeadConfig
 
-#: CenterNet output fields in LEAD's ``CenterNetBoundingBoxPrediction`` order (``brake_pred`` is always None).
-CENTERNET_FIELDS = (
-    "center_heatmap_logit_pred",
-    "center_heatmap_pred",
-    "wh_pred",
-    "offset_pred",
-    "yaw_class_pred",
-    "yaw_res_pred",
-    "velocity_pred",
-)
-
 
 class BEVDecoder(nn.Module):
     """3x3 conv, ReLU, 1x1 conv without bias, bilinear upsample from the stride-4 grid to the full BEV."""
