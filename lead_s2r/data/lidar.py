@@ -34,10 +34,25 @@ def lidar_xy(points: np.ndarray | None, x_shift: float = 0.0) -> torch.Tensor:
     moved by ``x_shift`` as :func:`rasterize_lidar` moves it."""
     if points is None:
         return torch.zeros(0, 2)
-    xy = points[:, :2].copy()
+    xy = _first_two_columns(points)
     if x_shift:
         xy[:, 0] -= xy.dtype.type(x_shift)
     return torch.from_numpy(xy)
+
+
+#: A word as wide as two values of each dtype, in which a row's x, y are copied as one value.
+_PAIR_WORDS = {np.dtype(np.float32): np.dtype(np.uint64), np.dtype(np.float64): np.dtype(np.complex128)}
+
+
+def _first_two_columns(points: np.ndarray) -> np.ndarray:
+    """A contiguous copy of ``points[:, :2]``, byte for byte. numpy copies an (N, 2) slice of wider rows value by
+    value (0.29 ms for a LEAD frame's 60,000 points); read as one 8- or 16-byte word per row it is one strided
+    copy of N words (0.02 ms)."""
+    pair = _PAIR_WORDS.get(points.dtype)
+    if pair is None or points.ndim != 2 or points.shape[1] < 2 or points.strides[1] != points.itemsize:
+        return points[:, :2].copy()
+    words = points[:, :2].view(pair)[:, 0]  # (N,): one word per row, at the row's stride
+    return words.copy().view(points.dtype).reshape(len(points), 2)
 
 
 def _lidar_cells(points: np.ndarray, grid: BEVGrid, x_shift: float) -> np.ndarray:
