@@ -28,9 +28,9 @@ LEAD builds them uncached, and one rig), checked against ours on one frame.
 
 Both sides of a ratio run over as many samples (plain decoding cycles over the shards until it has read
 ``--steps`` x ``--batch-size``), and the process's Python heap is frozen before the first round (``gc.freeze``,
-as the loader's workers do) and collected before every pass: otherwise a full collection over the half a million
-objects torch, Lightning and the generated data leave lands, about once a round, in whichever pass is running, and
-moved the one-core CARLA ratio by 14-18% between rounds.
+as the loader's workers do) and collected before every pass: otherwise the occasional full collection over the
+half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in whichever pass is
+running (docs/benchmarks.md, "Third round").
 
 Torch runs one intra-op thread (``--threads``), as a dataloader worker does. CPU time is this process's (user +
 system); with workers it is the workers' too (their CPU is not this process's: the row says so).
@@ -273,7 +273,8 @@ def summary(
                 line += f", {statistics.median(ratios):.2f}x plain decoding (spread {spread:.0%})"
             if name not in (PLAIN, OURS_TWO):  # one process: CPU per sample, steadier than wall time on a busy machine
                 cpu_ratios = [y.cpu / y.samples / (x.cpu / x.samples) for x, y in zip(of, plain, strict=True)]
-                line += f", by CPU time {statistics.median(cpu_ratios):.2f}x"
+                cpu_spread = max(cpu_ratios) / min(cpu_ratios) - 1
+                line += f", by CPU time {statistics.median(cpu_ratios):.2f}x (spread {cpu_spread:.0%})"
             print(line)
 
 
