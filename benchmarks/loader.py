@@ -26,11 +26,19 @@ workers (its ratio is to plain decoding in one process). ``--lead-style`` adds, 
 ``lead_style.LeadStyleFrames`` over the raw route folders (LEAD's per-frame steps and tensor contract, both rigs as
 LEAD builds them uncached, and one rig), checked against ours on one frame.
 
+Both sides of a ratio run over as many samples (plain decoding cycles over the shards until it has read
+``--steps`` x ``--batch-size``), and the process's Python heap is frozen before the first round (``gc.freeze``,
+as the loader's workers do) and collected before every pass: otherwise the occasional full collection over the
+half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in whichever pass is
+running (docs/benchmarks.md, "Third round").
+
 Torch runs one intra-op thread (``--threads``), as a dataloader worker does. CPU time is this process's (user +
 system); with workers it is the workers' too (their CPU is not this process's: the row says so).
 """
 
 import argparse
+import gc
+import itertools
 import os
 import statistics
 import tempfile
@@ -155,8 +163,8 @@ def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Callabl
         return lambda: (len(next(stream)["__key__"]) for _ in range(args.steps))
 
     runs = {
-        PLAIN: lambda: (1 for _ in read_samples(data)),
-        PIXELS: lambda: (_decode_jpegs(sample) for sample in read_samples(data)),
+        PLAIN: lambda: (1 for _ in _samples(data, args)),
+        PIXELS: lambda: (_decode_jpegs(sample) for sample in _samples(data, args)),
         OURS: ours(training_stream(kind, data, args, config, False, 0)),
     }
     if source == "carla":
@@ -226,9 +234,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         runs = {kind: loaders(kind, Path(tmp), args) for kind in args.kinds}
         timings: dict[tuple[str, str], list[Timing]] = {(k, n): [] for k, per in runs.items() for n in per}
+        gc.collect()
+        gc.freeze()  # what the loader's workers do (datamodule._freeze_inherited_objects): see the module docstring
         for round_index in range(-1, args.rounds):  # round -1: the warm-up, not counted
             for kind, per_kind in runs.items():
                 for name, run in per_kind.items():
+                    gc.collect()  # every pass starts from empty GC generations
                     timing = timed(run())
                     if round_index >= 0:
                         timings[kind, name].append(timing)
@@ -262,12 +273,20 @@ def summary(
                 line += f", {statistics.median(ratios):.2f}x plain decoding (spread {spread:.0%})"
             if name not in (PLAIN, OURS_TWO):  # one process: CPU per sample, steadier than wall time on a busy machine
                 cpu_ratios = [y.cpu / y.samples / (x.cpu / x.samples) for x, y in zip(of, plain, strict=True)]
-                line += f", by CPU time {statistics.median(cpu_ratios):.2f}x"
+                cpu_spread = max(cpu_ratios) / min(cpu_ratios) - 1
+                line += f", by CPU time {statistics.median(cpu_ratios):.2f}x (spread {cpu_spread:.0%})"
             print(line)
 
 
 def _cpus() -> int:
     return len(os.sched_getaffinity(0))
+
+
+def _samples(data: Path, args: argparse.Namespace) -> Iterator[dict[str, Any]]:
+    """As many samples as ours reads in a round (``--steps`` x ``--batch-size``), over the shards again and again:
+    both sides of a ratio run equally long over the same kind of samples."""
+    passes = itertools.chain.from_iterable(read_samples(data) for _ in itertools.count())
+    return itertools.islice(passes, args.steps * args.batch_size)
 
 
 def _decode_jpegs(sample: dict[str, Any]) -> int:

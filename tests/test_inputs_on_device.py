@@ -95,6 +95,23 @@ def test_the_device_raster_is_the_loaders_on_cell_edges_and_off_the_grid() -> No
     assert batch["lidar_bev"][3].max() == LIDAR_HITS_MAX and expected.sum() > 0
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_points_moved_in_the_raster_and_their_xy_are_the_moved_clouds(dtype: type) -> None:
+    grid = BEVGrid(-8.0, 8.0, -4.0, 4.0, 2.0)
+    rng = np.random.default_rng(1)
+    cloud = rng.uniform(-9, 9, (2000, 4)).astype(dtype)
+    cloud[:3, :2] = [[np.nan, 0.0], [-0.0, np.inf], [1.389, -0.0]]
+    shift = 1.389
+    for points in (cloud, cloud[::3], cloud[::-1], np.asfortranarray(cloud), cloud[:, :2], cloud[:, 1:]):
+        moved = points.copy()
+        moved[:, 0] -= dtype(shift)  # what to_centre_origin does to every other point field
+        np.testing.assert_array_equal(rasterize_lidar(points, grid, shift), rasterize_lidar(moved, grid))
+        for x_shift, expected in ((0.0, points), (shift, moved)):
+            xy = lidar_xy(points, x_shift).numpy()
+            assert xy.flags.c_contiguous and xy.dtype == dtype and not np.shares_memory(xy, points)
+            assert xy.tobytes() == np.ascontiguousarray(expected[:, :2]).tobytes()  # NaN and -0.0 too
+
+
 def test_a_rig_the_loader_must_lay_out_is_decoded_there(carla_samples: list[dict]) -> None:
     config = sensor_spec(image_size=(192, 576))  # the mosaic is scaled: not the model's image as stored
     out = SourceTransform("carla", config, inputs_on_device=True)(carla_samples[0])

@@ -22,6 +22,7 @@ from lead_s2r.data.lead_labels import (
     _footprint_pixels,
     bev_cell_centres,
     bev_labels,
+    box_points,
     canvas_crop,
     footprint_rects,
     lead_bev_labels,
@@ -245,6 +246,19 @@ def reference_footprints(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
         rect = ((float(cx), float(cy)), (float(hx * 2 * ppm), float(hy * 2 * ppm)), float(np.rad2deg(-yaw)))
         corners[i] = cv2.boxPoints(rect).astype(np.int32)
     return corners - canvas_crop(grid)
+
+
+def test_box_points_are_opencvs_bit_for_bit() -> None:
+    rng = np.random.default_rng(5)
+    count = 20_000
+    centres = rng.uniform(-50, 1100, (count, 2))
+    sizes = rng.uniform(0, 80, (count, 2))
+    angles = np.rad2deg(-rng.uniform(-7, 7, count))
+    centres[:2000], sizes[:2000] = np.round(centres[:2000]), np.round(sizes[:2000] * 4) / 4  # on pixel edges
+    angles[:1000] = rng.choice([0.0, 90.0, -90.0, 180.0, -180.0, 45.0, 270.0, -0.0], 1000)  # exact quarter turns
+    rects = zip(centres.tolist(), sizes.tolist(), angles.tolist(), strict=True)
+    expected = np.stack([cv2.boxPoints(rect) for rect in rects])
+    np.testing.assert_array_equal(box_points(centres, sizes, angles), expected)
 
 
 @pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV])

@@ -14,6 +14,7 @@ a network, centre positions in the centre frame, go back to rear-axle positions 
 :func:`centre_waypoints_to_rear_axle`.
 """
 
+from collections.abc import Collection
 from typing import Any
 
 import numpy as np
@@ -30,12 +31,21 @@ FIXED_POINT_ROUNDS = 4
 POINT_FIELDS = ("lidar", "radar", "target_points", "route", "boxes")
 
 
-def to_centre_origin(sample: dict[str, Any]) -> dict[str, Any]:
-    """``sample`` (a shallow copy) with its geometry in the vehicle-centre frame: x - ``rear_axle_to_center``."""
-    shift = float(sample["meta"]["vehicle"]["rear_axle_to_center"])
+def centre_shift(sample: dict[str, Any]) -> float:
+    """Metres from the rear axle forward to the vehicle centre (``meta.vehicle.rear_axle_to_center``)."""
+    return float(sample["meta"]["vehicle"]["rear_axle_to_center"])
+
+
+def to_centre_origin(sample: dict[str, Any], keep: Collection[str] = ()) -> dict[str, Any]:
+    """``sample`` (a shallow copy) with its geometry in the vehicle-centre frame: x - :func:`centre_shift`.
+
+    Point fields in ``keep`` stay in the rear-axle frame for a caller that moves them as it reads them: the LiDAR
+    cloud (60,000 points) is shifted inside its raster (:func:`~lead_s2r.data.lidar.rasterize_lidar`'s ``x_shift``,
+    the same float32 subtraction), not copied here first."""
+    shift = centre_shift(sample)
     moved = dict(sample)
     for name in POINT_FIELDS:
-        if name in sample:
+        if name in sample and name not in keep:
             points = np.array(sample[name], copy=True)
             points[:, 0] -= points.dtype.type(shift)
             moved[name] = points

@@ -37,7 +37,7 @@ from lead_s2r.data.lead_labels import (
     radar_priority,
     traffic_light_classes,
 )
-from lead_s2r.data.lead_origin import to_centre_origin
+from lead_s2r.data.lead_origin import centre_shift, to_centre_origin
 from lead_s2r.data.lead_route import lead_route
 from lead_s2r.data.lidar import lidar_xy, rasterize_lidar
 from lead_s2r.data.radar import MAX_RADAR_POINTS, pad_points, radar_targets
@@ -96,8 +96,9 @@ class SourceTransform:
         return fields
 
     def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
-        if self.lead_carla:  # LEAD's CARLA frame: origin at the vehicle centre
-            sample = to_centre_origin(sample)
+        lidar_shift = 0.0
+        if self.lead_carla:  # LEAD's CARLA frame: origin at the vehicle centre; the LiDAR moved in its raster
+            sample, lidar_shift = to_centre_origin(sample, keep=("lidar",)), centre_shift(sample)
         meta = sample["meta"]
         ego = meta["ego"]
         out: dict[str, Any] = {
@@ -120,9 +121,9 @@ class SourceTransform:
         spec = self.spec
         lead = self.lead_carla_boxes(sample) if self.lead_carla and "boxes" in sample else None
         if spec.lidar_raster and self.inputs_on_device:
-            out[LIDAR_POINTS] = lidar_xy(sample.get("lidar"))
+            out[LIDAR_POINTS] = lidar_xy(sample.get("lidar"), lidar_shift)
         elif spec.lidar_raster:
-            out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), spec.bev))[None]
+            out["lidar_bev"] = torch.from_numpy(rasterize_lidar(sample.get("lidar"), spec.bev, lidar_shift))[None]
         if spec.radar:
             out.update(pad_points("radar", sample.get("radar"), MAX_RADAR_POINTS, 5))
             if "radar" in sample and "boxes" in sample and self.source in spec.radar_sources:
