@@ -19,10 +19,21 @@ from lead_s2r.convert import convert
 from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabScores
 from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
+from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import find_hits
-from lead_s2r.scoring.pdm.footprint import box_polygons
-from lead_s2r.scoring.pdm.map_flags import CLEAR, CROSSED, INSIDE, BoundsGrid, DrivableMap
+from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
+from lead_s2r.scoring.pdm.map_flags import (
+    CLEAR,
+    CROSSED,
+    INSIDE,
+    IS_DRIVABLE,
+    IS_LANE,
+    BoundsGrid,
+    DrivableMap,
+    ego_areas,
+    multiple_lanes,
+)
 from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
@@ -123,6 +134,7 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     low = rng.uniform(-40.0, 40.0, (30, 2))
     boxes = np.concatenate([low, low + rng.uniform(0.0, 25.0, (30, 2))], axis=1)
     boxes[7] = np.nan
+    boxes[8] = [-45.0, -45.0, -30.0, -30.0]  # the grid's first cell has a member
     grid = BoundsGrid.build(boxes, 2.7)
     finite = boxes[np.isfinite(boxes).all(axis=1)]
     corners = np.concatenate([finite[:, [0, 1]], finite[:, [2, 3]], finite[:, [0, 3]], finite[:, [2, 1]]])
@@ -136,6 +148,10 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     holds = (x >= boxes[:, 0]) & (x <= boxes[:, 2]) & (y >= boxes[:, 1]) & (y <= boxes[:, 3])
     truth = set(zip(*(index.tolist() for index in np.nonzero(holds)), strict=True))
     assert truth <= found and 7 not in box
+    # points off the grid, on every side, list nothing
+    top = grid.origin + grid.cell * np.array(grid.shape)
+    off = np.array([[grid.origin[0] - 1.0, 0.0], [0.0, grid.origin[1] - 1e-9], [top[0] + 1.0, 0.0], [0.0, top[1] + 5]])
+    assert len(grid.candidates(off)[0]) == 0
     assert len(truth) > 100 and len(found) < 4 * len(truth)
 
 
@@ -158,6 +174,62 @@ def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> No
     assert 0 < len({b for b, _ in expected}) < len(points)
     # cells inside a polygon, clear of one and crossed by one all decided points
     assert {CLEAR, INSIDE, CROSSED} <= set(drivable_map.cover.tolist())
+
+
+def test_ego_area_flags_equal_polygon_tests_on_every_polygon(converted: Path) -> None:
+    """Boxes spread over the map, with corners on polygon vertices and a rounding step off them: every flag of
+    ``ego_areas`` equals NAVSIM's definition evaluated with ``contains_xy`` over every polygon (MULTIPLE_LANES: more
+    than one lane polygon holds a corner and none holds all four)."""
+    scene = first_scene(converted)
+    drivable_map = DrivableMap.from_scene(scene)
+    rng = np.random.default_rng(11)
+    grid = drivable_map.grid
+    rings = shapely.get_coordinates(shapely.get_exterior_ring(drivable_map.polygons))
+    centers = np.concatenate([
+        rng.uniform(grid.origin, grid.origin + grid.cell * np.array(grid.shape), (600, 2)),
+        rings[rng.integers(0, len(rings), 200)],
+    ])  # fmt: skip
+    states = np.zeros((len(centers), 1, 11))
+    states[:, 0, :2] = centers
+    states[:, 0, 2] = rng.uniform(-np.pi, np.pi, len(centers))
+    coords = ego_coords(states, scene.vehicle)
+    # a corner exactly on a vertex, and one a rounding step beside it
+    coords[-200:, 0, 0] = rings[rng.integers(0, len(rings), 200)]
+    coords[-100:, 0, 0] = np.nextafter(coords[-100:, 0, 0], np.inf)
+    route = np.asarray(scene.route_lane_ids, np.int64)
+    areas = ego_areas(drivable_map, coords, states[..., :2], route)
+    points = np.concatenate([coords[:, 0], states[:, :, :2]], axis=1)  # (B, 6, 2): 4 corners, centre, rear axle
+    inside = np.stack(
+        [shapely.contains_xy(polygon, points[..., 0], points[..., 1]) for polygon in drivable_map.polygons]
+    )
+    kinds, lanes = drivable_map.kinds[:, None, None], IS_LANE[drivable_map.kinds][:, None]
+    lane_corners = inside[:, :, :4] & lanes[..., None]  # (K, B, 4)
+    touched = lane_corners.any(axis=2)
+    expected = {
+        "multiple_lanes": (touched.sum(axis=0) > 1) & ~lane_corners.all(axis=2).any(axis=0),
+        "non_drivable_area": ~(inside[:, :, :4] & IS_DRIVABLE[kinds]).any(axis=0).all(axis=1),
+        "oncoming_traffic": ~(inside[:, :, 4] & lanes & np.isin(drivable_map.ids, route)[:, None]).any(axis=0),
+        "center_in_intersection": (inside[:, :, 4] & (kinds[..., 0] == MapKind.INTERSECTION)).any(axis=0),
+        "rear_axle_in_intersection": (inside[:, :, 5] & (kinds[..., 0] == MapKind.INTERSECTION)).any(axis=0),
+    }
+    for name, flags in expected.items():
+        np.testing.assert_array_equal(getattr(areas, name)[:, 0], flags, err_msg=name)
+        assert 0 < flags.sum() < len(flags) or name == "rear_axle_in_intersection", name
+
+
+def test_multiple_lanes_counts_distinct_lanes_and_all_four() -> None:
+    """Corners held by up to three lane polygons each (-1 pads, repeats across corners, one lane on all four):
+    MULTIPLE_LANES is the set definition."""
+    rng = np.random.default_rng(2)
+    lanes = rng.integers(-1, 5, (4000, 4, 3))
+    lanes[:500, :, 1] = 3  # lane 3 holds every corner
+    lanes[500:1000] = np.where(rng.random((500, 4, 3)) < 0.7, -1, lanes[500:1000])
+    expected = []
+    for box in lanes:
+        sets = [set(corner[corner >= 0].tolist()) for corner in box]
+        expected.append(len(set.union(*sets)) > 1 and not set.intersection(*sets))
+    np.testing.assert_array_equal(multiple_lanes(lanes), expected)
+    assert 0 < sum(expected) < len(expected)
 
 
 def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> None:

@@ -73,7 +73,8 @@ def candidate_pairs(
         dx *= dx
         dy *= dy
         dx += dy
-        query, slot = np.nonzero((dx <= step_reach).reshape(-1, step_reach.shape[1]))
+        rows, slots_per_row, gmax = dx.shape
+        query, slot = np.nonzero((dx <= step_reach).reshape(rows * slots_per_row, gmax))
         queries.append(query + start * centers.shape[1])
         slots.append(slot)
     if not queries:

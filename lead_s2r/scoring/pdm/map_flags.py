@@ -214,27 +214,55 @@ def ego_areas(
     for corner in range(1, NUM_CORNERS):
         corners_drivable = corners_drivable & drivable[:, corner]
 
-    box = index // per_box
-    lane = IS_LANE[kind] & (index - box * per_box < NUM_CORNERS)
-    # (box, lane polygon) pairs and how many corners each holds; index is sorted, so pairs come grouped by box
-    num_polygons = max(len(drivable_map.ids), 1)
-    pairs, corners_in_lane = np.unique(box[lane] * num_polygons + polygon[lane], return_counts=True)
-    lane_box = pairs // num_polygons
-    lanes_touched = np.bincount(lane_box, minlength=num_boxes)
-    all_corners_in_one = np.zeros(num_boxes, bool)
-    all_corners_in_one[lane_box[corners_in_lane == NUM_CORNERS]] = True
-    multiple_lanes = (lanes_touched > 1) & ~all_corners_in_one
-
-    on_route = held(IS_LANE[kind] & np.isin(drivable_map.ids, route_lane_ids)[polygon])[:, Corner.CENTER]
+    lane = IS_LANE[kind]
+    several_lanes = multiple_lanes(corner_lanes(index[lane], polygon[lane], per_box, num_boxes))
+    on_route = held(lane & np.isin(drivable_map.ids, route_lane_ids)[polygon])[:, Corner.CENTER]
     in_intersection = held(kind == MapKind.INTERSECTION)
 
     def grid(flags: np.ndarray) -> np.ndarray:
         return flags.reshape(n_rows, n_steps)
 
     return EgoAreas(
-        grid(multiple_lanes),
+        grid(several_lanes),
         grid(~corners_drivable),
         grid(~on_route),
         grid(in_intersection[:, -1]),
         grid(in_intersection[:, Corner.CENTER]),
     )
+
+
+def corner_lanes(index: np.ndarray, polygon: np.ndarray, per_box: int, num_boxes: int) -> np.ndarray:
+    """``(boxes, 4, W)``: the lane polygons holding each corner (-1 pads), from the lane hits ``(index, polygon)``
+    of ``ego_areas`` (``index`` sorted: a point's hits are consecutive)."""
+    box = index // per_box
+    corner = index - box * per_box
+    at_corner = corner < NUM_CORNERS
+    index, polygon = index[at_corner], polygon[at_corner]
+    new_point = np.ones(len(index), bool)
+    new_point[1:] = index[1:] != index[:-1]
+    # a hit's rank among its point's hits: its position minus the position of the point's first hit
+    position = np.arange(len(index))
+    rank = position - np.maximum.accumulate(np.where(new_point, position, 0))
+    lanes = np.full((num_boxes * per_box, int(rank.max()) + 1 if len(rank) else 1), -1)
+    lanes[index, rank] = polygon
+    return lanes.reshape(num_boxes, per_box, -1)[:, :NUM_CORNERS]
+
+
+def multiple_lanes(lanes: np.ndarray) -> np.ndarray:
+    """NAVSIM's MULTIPLE_LANES from the corners' lane polygons ``(boxes, 4, W)`` (-1 pads): more than one distinct
+    polygon among the corners, and none holding all four."""
+    by_corner = np.ascontiguousarray(lanes.transpose(1, 2, 0))  # (4, W, boxes): each slot a contiguous row
+    slots = by_corner.reshape(-1, len(lanes))  # corner-major: slot j is corner j // W
+    distinct = np.zeros(len(lanes), np.int64)
+    for j, lane in enumerate(slots):
+        new = lane >= 0
+        for earlier in slots[:j]:
+            new &= earlier != lane
+        distinct += new
+    in_all = np.zeros(len(lanes), bool)
+    for lane in by_corner[0]:  # each lane of corner 0: also held by the three others?
+        held_by_all = lane >= 0
+        for other in by_corner[1:]:
+            held_by_all &= np.logical_or.reduce([slot == lane for slot in other])
+        in_all |= held_by_all
+    return (distinct > 1) & ~in_all
