@@ -12,7 +12,7 @@ the 41 steps counts, step 0 included, and "touch" is shapely ``intersects`` with
 import numpy as np
 import shapely
 
-from lead_s2r.scoring.pdm.footprint import box_polygons
+from lead_s2r.scoring.pdm.footprint import Corner, box_polygons
 from lead_s2r.scoring.pdm.map_flags import LANE_KINDS
 from lead_s2r.scoring.pdm.scene import PDMScene
 
@@ -52,15 +52,28 @@ def red_light_polygons(scene: PDMScene, num_steps: int, interval: float = 0.1) -
 
 
 def on_red_light(ego_coords: np.ndarray, red_lights: list[list[shapely.Polygon]]) -> np.ndarray:
-    """``(N, T)``: the ego box ``(N, T, 5, 2)`` intersects a red-light polygon of its step."""
+    """``(N, T)``: the ego box ``(N, T, 5, 2)`` intersects a red-light polygon of its step. Only boxes whose bounding
+    box meets a light's are handed to GEOS: a box's bounds are the minimum and maximum of the very corners its polygon
+    is built from, so a box whose bounds miss every light's cannot touch one (no arithmetic, nothing to round)."""
     num_rows, num_steps = ego_coords.shape[:2]
     if len(red_lights) != num_steps:
         raise ValueError(f"red lights are given for {len(red_lights)} steps, the ego boxes have {num_steps}")
     touching = np.zeros((num_rows, num_steps), bool)
+    corners = ego_coords[:, :, : Corner.CENTER]
+    low, high = corners.min(axis=2), corners.max(axis=2)  # (N, T, 2)
     for step, lights in enumerate(red_lights):
         if lights:
-            boxes = box_polygons(ego_coords[:, step])
-            touching[:, step] = shapely.intersects(boxes[:, None], np.array(lights, dtype=object)[None]).any(-1)
+            shapes = np.array(lights, dtype=object)
+            bounds = shapely.bounds(shapes)  # (L, 4) xmin, ymin, xmax, ymax
+            meets = (
+                (low[:, step, :1] <= bounds[:, 2])
+                & (high[:, step, :1] >= bounds[:, 0])
+                & (low[:, step, 1:] <= bounds[:, 3])
+                & (high[:, step, 1:] >= bounds[:, 1])
+            )
+            near = np.flatnonzero(meets.any(axis=1))
+            boxes = box_polygons(ego_coords[near, step])
+            touching[near, step] = shapely.intersects(boxes[:, None], shapes[None]).any(-1)
     return touching
 
 
