@@ -86,12 +86,8 @@ def test_red_light_bounds_prune_keeps_boxes_touching_at_the_bounds() -> None:
     light = shapely.Polygon([(10.0, 0.0), (12.0, 2.0), (14.0, 0.0), (12.0, -2.0)])
 
     def box(xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
-        corners = [
-            (xmax, ymax),
-            (xmin, ymax),
-            (xmin, ymin),
-            (xmax, ymin),
-        ]  # front left, rear left, rear right, front right
+        # front left, rear left, rear right, front right (heading +x), then the centre
+        corners = [(xmax, ymax), (xmin, ymax), (xmin, ymin), (xmax, ymin)]
         return np.array([*corners, ((xmin + xmax) / 2, (ymin + ymax) / 2)])
 
     # per side of the light's bounds, a box whose opposite side lies on it (touching the extreme vertex)
