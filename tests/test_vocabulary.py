@@ -79,13 +79,13 @@ def vocabulary(converted: Path) -> np.ndarray:
 @pytest.mark.parametrize("metric", METRICS)
 def test_random_entries_equal_scoring_each_alone(converted: Path, vocabulary: np.ndarray, metric: str) -> None:
     """Every column, every sub-score and the final score included, bit for bit (NaN where alone is NaN), with
-    chunks of 16 so entries sit at every position of a chunk."""
+    chunks of 16 so entries sit at every position of a chunk, simulated 24 at a time so chunks straddle blocks."""
     rng = np.random.default_rng(0)
     varied = set()
     for sample in list(read_samples(converted, fields=("scoring", "boxes", "agents_future", "future")))[:3]:
         scene = scene_from_sample(sample)
         reference = plan_reference(scene)
-        together = score_vocabulary(scene, vocabulary, 0.1, reference, metric, chunk=16)
+        together = score_vocabulary(scene, vocabulary, 0.1, reference, metric, chunk=16, simulation_block=24)
         for v in rng.choice(len(vocabulary), size=6, replace=False):
             alone = score_proposals(scene, vocabulary[v : v + 1], 0.1, reference, metric)
             assert together.keys() == alone.keys()
