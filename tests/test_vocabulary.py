@@ -38,6 +38,7 @@ from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.score import human_trajectory, simulate_rows
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
 from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures
 from lead_s2r.shards import read_samples
@@ -94,6 +95,20 @@ def test_random_entries_equal_scoring_each_alone(converted: Path, vocabulary: np
         varied |= {name for name, values in together.items() if len(np.unique(values[np.isfinite(values)])) > 1}
     # the vocabulary exercises the sub-scores: they pass for some entries and fail for others
     assert {"no_at_fault_collisions", "drivable_area_compliance", "ego_progress", "score"} <= varied
+
+
+def test_simulated_rows_must_match_the_proposals(converted: Path, vocabulary: np.ndarray) -> None:
+    """``score_proposals(simulated=...)`` scores ``simulate_rows``' rows as it would simulate them, and refuses rows
+    that are not those of its proposals (the reference first, the human trajectory last where the filter runs)."""
+    scene = first_scene(converted)
+    reference = plan_reference(scene)
+    entries = vocabulary[:5]
+    rows = simulate_rows(scene, entries, 0.1, reference, human_trajectory(scene))
+    given = score_proposals(scene, entries, 0.1, reference, "epdms@navsim-2.2", simulated=rows)
+    for name, values in score_proposals(scene, entries, 0.1, reference, "epdms@navsim-2.2").items():
+        np.testing.assert_array_equal(given[name], values, err_msg=name)
+    with pytest.raises(ValueError, match="simulated rows for 4 proposals"):
+        score_proposals(scene, entries[:4], 0.1, reference, "epdms@navsim-2.2", simulated=rows)
 
 
 @pytest.mark.parametrize("metric", METRICS)
