@@ -79,6 +79,35 @@ def test_red_light_status_is_held_five_steps_and_step_zero_counts() -> None:
     assert on_red_light(ego_coords(standing, PACIFICA), red_now)[0].all()  # step 0 included
 
 
+def test_red_light_bounds_prune_keeps_boxes_touching_at_the_bounds() -> None:
+    """Boxes touching a (diamond) light only at the extreme vertices of its bounding box, a rounding step short of
+    it, or overlapping its bounds but not it: ``on_red_light`` is GEOS ``intersects`` for every one, so the bounds
+    prune drops only boxes that cannot touch."""
+    light = shapely.Polygon([(10.0, 0.0), (12.0, 2.0), (14.0, 0.0), (12.0, -2.0)])
+
+    def box(xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
+        # front left, rear left, rear right, front right (heading +x), then the centre
+        corners = [(xmax, ymax), (xmin, ymax), (xmin, ymin), (xmax, ymin)]
+        return np.array([*corners, ((xmin + xmax) / 2, (ymin + ymax) / 2)])
+
+    # per side of the light's bounds, a box whose opposite side lies on it (touching the extreme vertex)
+    beside = {
+        "left": lambda edge: box(edge - 2.0, -1.0, edge, 1.0),
+        "right": lambda edge: box(edge, -1.0, edge + 2.0, 1.0),
+        "above": lambda edge: box(11.0, edge, 13.0, edge + 2.0),
+        "below": lambda edge: box(11.0, edge - 2.0, 13.0, edge),
+    }
+    edges = {"left": 10.0, "right": 14.0, "above": 2.0, "below": -2.0}
+    steps = (0.0, -np.inf, np.inf)  # on the bound, a rounding step either side
+    boxes = [beside[side](np.nextafter(edge, step) if step else edge) for side, edge in edges.items() for step in steps]
+    boxes.append(box(13.5, 1.5, 15.0, 3.0))  # inside the light's bounds, off the light
+    coords = np.stack(boxes)[:, None]
+    touching = on_red_light(coords, [[light]])[:, 0]
+    expected = shapely.intersects(shapely.polygons(coords[:, 0, :4]), light)
+    np.testing.assert_array_equal(touching, expected)
+    assert 0 < expected.sum() < len(expected) - 1
+
+
 def straight_centres(offset: np.ndarray) -> np.ndarray:
     return np.stack([np.arange(41) * 1.0, offset], -1)[None]
 

@@ -19,14 +19,26 @@ from lead_s2r.convert import convert
 from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabScores
 from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
+from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import find_hits
-from lead_s2r.scoring.pdm.footprint import box_polygons
-from lead_s2r.scoring.pdm.map_flags import CLEAR, CROSSED, INSIDE, BoundsGrid, DrivableMap
+from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
+from lead_s2r.scoring.pdm.map_flags import (
+    CLEAR,
+    CROSSED,
+    INSIDE,
+    IS_DRIVABLE,
+    IS_LANE,
+    BoundsGrid,
+    DrivableMap,
+    ego_areas,
+    multiple_lanes,
+)
 from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.score import human_trajectory, simulate_rows
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
 from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures
 from lead_s2r.shards import read_samples
@@ -68,13 +80,13 @@ def vocabulary(converted: Path) -> np.ndarray:
 @pytest.mark.parametrize("metric", METRICS)
 def test_random_entries_equal_scoring_each_alone(converted: Path, vocabulary: np.ndarray, metric: str) -> None:
     """Every column, every sub-score and the final score included, bit for bit (NaN where alone is NaN), with
-    chunks of 16 so entries sit at every position of a chunk."""
+    chunks of 16 so entries sit at every position of a chunk, simulated 24 at a time so chunks straddle blocks."""
     rng = np.random.default_rng(0)
     varied = set()
     for sample in list(read_samples(converted, fields=("scoring", "boxes", "agents_future", "future")))[:3]:
         scene = scene_from_sample(sample)
         reference = plan_reference(scene)
-        together = score_vocabulary(scene, vocabulary, 0.1, reference, metric, chunk=16)
+        together = score_vocabulary(scene, vocabulary, 0.1, reference, metric, chunk=16, simulation_block=24)
         for v in rng.choice(len(vocabulary), size=6, replace=False):
             alone = score_proposals(scene, vocabulary[v : v + 1], 0.1, reference, metric)
             assert together.keys() == alone.keys()
@@ -83,6 +95,20 @@ def test_random_entries_equal_scoring_each_alone(converted: Path, vocabulary: np
         varied |= {name for name, values in together.items() if len(np.unique(values[np.isfinite(values)])) > 1}
     # the vocabulary exercises the sub-scores: they pass for some entries and fail for others
     assert {"no_at_fault_collisions", "drivable_area_compliance", "ego_progress", "score"} <= varied
+
+
+def test_simulated_rows_must_match_the_proposals(converted: Path, vocabulary: np.ndarray) -> None:
+    """``score_proposals(simulated=...)`` scores ``simulate_rows``' rows as it would simulate them, and refuses rows
+    that are not those of its proposals (the reference first, the human trajectory last where the filter runs)."""
+    scene = first_scene(converted)
+    reference = plan_reference(scene)
+    entries = vocabulary[:5]
+    rows = simulate_rows(scene, entries, 0.1, reference, human_trajectory(scene))
+    given = score_proposals(scene, entries, 0.1, reference, "epdms@navsim-2.2", simulated=rows)
+    for name, values in score_proposals(scene, entries, 0.1, reference, "epdms@navsim-2.2").items():
+        np.testing.assert_array_equal(given[name], values, err_msg=name)
+    with pytest.raises(ValueError, match="simulated rows for 4 proposals"):
+        score_proposals(scene, entries[:4], 0.1, reference, "epdms@navsim-2.2", simulated=rows)
 
 
 @pytest.mark.parametrize("metric", METRICS)
@@ -123,6 +149,7 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     low = rng.uniform(-40.0, 40.0, (30, 2))
     boxes = np.concatenate([low, low + rng.uniform(0.0, 25.0, (30, 2))], axis=1)
     boxes[7] = np.nan
+    boxes[8] = [-45.0, -45.0, -30.0, -30.0]  # the grid's first cell has a member
     grid = BoundsGrid.build(boxes, 2.7)
     finite = boxes[np.isfinite(boxes).all(axis=1)]
     corners = np.concatenate([finite[:, [0, 1]], finite[:, [2, 3]], finite[:, [0, 3]], finite[:, [2, 1]]])
@@ -136,6 +163,10 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     holds = (x >= boxes[:, 0]) & (x <= boxes[:, 2]) & (y >= boxes[:, 1]) & (y <= boxes[:, 3])
     truth = set(zip(*(index.tolist() for index in np.nonzero(holds)), strict=True))
     assert truth <= found and 7 not in box
+    # points off the grid, on every side, list nothing
+    top = grid.origin + grid.cell * np.array(grid.shape)
+    off = np.array([[grid.origin[0] - 1.0, 0.0], [0.0, grid.origin[1] - 1e-9], [top[0] + 1.0, 0.0], [0.0, top[1] + 5]])
+    assert len(grid.candidates(off)[0]) == 0
     assert len(truth) > 100 and len(found) < 4 * len(truth)
 
 
@@ -150,14 +181,70 @@ def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> No
     spread = np.random.default_rng(5).uniform(grid.origin, grid.origin + grid.cell * np.array(grid.shape), (3000, 2))
     exact = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2, borders, spread])
     points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
-    box, point, polygon = drivable_map.locate(points[:, None])
-    assert (point == 0).all()
+    box, polygon = drivable_map.locate(points[:, None])
+    assert (np.diff(box) >= 0).all()
     inside = np.stack([shapely.contains_xy(shape, points[:, 0], points[:, 1]) for shape in drivable_map.polygons])
     expected = set(zip(*(index.tolist() for index in np.nonzero(inside.T)), strict=True))
     assert set(zip(box.tolist(), polygon.tolist(), strict=True)) == expected
     assert 0 < len({b for b, _ in expected}) < len(points)
     # cells inside a polygon, clear of one and crossed by one all decided points
     assert {CLEAR, INSIDE, CROSSED} <= set(drivable_map.cover.tolist())
+
+
+def test_ego_area_flags_equal_polygon_tests_on_every_polygon(converted: Path) -> None:
+    """Boxes spread over the map, with corners on polygon vertices and a rounding step off them: every flag of
+    ``ego_areas`` equals NAVSIM's definition evaluated with ``contains_xy`` over every polygon (MULTIPLE_LANES: more
+    than one lane polygon holds a corner and none holds all four)."""
+    scene = first_scene(converted)
+    drivable_map = DrivableMap.from_scene(scene)
+    rng = np.random.default_rng(11)
+    grid = drivable_map.grid
+    rings = shapely.get_coordinates(shapely.get_exterior_ring(drivable_map.polygons))
+    centers = np.concatenate([
+        rng.uniform(grid.origin, grid.origin + grid.cell * np.array(grid.shape), (600, 2)),
+        rings[rng.integers(0, len(rings), 200)],
+    ])  # fmt: skip
+    states = np.zeros((len(centers), 1, 11))
+    states[:, 0, :2] = centers
+    states[:, 0, 2] = rng.uniform(-np.pi, np.pi, len(centers))
+    coords = ego_coords(states, scene.vehicle)
+    # a corner exactly on a vertex, and one a rounding step beside it
+    coords[-200:, 0, 0] = rings[rng.integers(0, len(rings), 200)]
+    coords[-100:, 0, 0] = np.nextafter(coords[-100:, 0, 0], np.inf)
+    route = np.asarray(scene.route_lane_ids, np.int64)
+    areas = ego_areas(drivable_map, coords, states[..., :2], route)
+    points = np.concatenate([coords[:, 0], states[:, :, :2]], axis=1)  # (B, 6, 2): 4 corners, centre, rear axle
+    inside = np.stack(
+        [shapely.contains_xy(polygon, points[..., 0], points[..., 1]) for polygon in drivable_map.polygons]
+    )
+    kinds, lanes = drivable_map.kinds[:, None, None], IS_LANE[drivable_map.kinds][:, None]
+    lane_corners = inside[:, :, :4] & lanes[..., None]  # (K, B, 4)
+    touched = lane_corners.any(axis=2)
+    expected = {
+        "multiple_lanes": (touched.sum(axis=0) > 1) & ~lane_corners.all(axis=2).any(axis=0),
+        "non_drivable_area": ~(inside[:, :, :4] & IS_DRIVABLE[kinds]).any(axis=0).all(axis=1),
+        "oncoming_traffic": ~(inside[:, :, 4] & lanes & np.isin(drivable_map.ids, route)[:, None]).any(axis=0),
+        "center_in_intersection": (inside[:, :, 4] & (kinds[..., 0] == MapKind.INTERSECTION)).any(axis=0),
+        "rear_axle_in_intersection": (inside[:, :, 5] & (kinds[..., 0] == MapKind.INTERSECTION)).any(axis=0),
+    }
+    for name, flags in expected.items():
+        np.testing.assert_array_equal(getattr(areas, name)[:, 0], flags, err_msg=name)
+        assert 0 < flags.sum() < len(flags) or name == "rear_axle_in_intersection", name
+
+
+def test_multiple_lanes_counts_distinct_lanes_and_all_four() -> None:
+    """Corners held by up to three lane polygons each (-1 pads, repeats across corners, one lane on all four):
+    MULTIPLE_LANES is the set definition."""
+    rng = np.random.default_rng(2)
+    lanes = rng.integers(-1, 5, (4000, 4, 3))
+    lanes[:500, :, 1] = 3  # lane 3 holds every corner
+    lanes[500:1000] = np.where(rng.random((500, 4, 3)) < 0.7, -1, lanes[500:1000])
+    expected = []
+    for box in lanes:
+        sets = [set(corner[corner >= 0].tolist()) for corner in box]
+        expected.append(len(set.union(*sets)) > 1 and not set.intersection(*sets))
+    np.testing.assert_array_equal(multiple_lanes(lanes), expected)
+    assert 0 < sum(expected) < len(expected)
 
 
 def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> None:
@@ -173,12 +260,15 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     moved = [corners + shift[:, None] * scale for shift in shifts for scale in (1.0, 1.0 - 1e-12, 1.0 + 1e-12)]
     coords = np.concatenate([np.concatenate([box, box.mean(axis=1, keepdims=True)], axis=1) for box in moved])
     radius = float(observation.radius[geoms].max())
-    queries = np.arange(len(coords))
-    steps = np.full(len(coords), step)
-    hits = find_hits(observation, coords[:, -1], lambda query: coords[query], steps, queries, queries, radius)
+    query, geom = find_hits(observation, coords[:, None, -1], np.array([step]), lambda q: coords[q], radius)
     polygons = box_polygons(coords)
-    truth = {(q, int(g)) for q in queries for g in geoms if shapely.intersects(polygons[q], observation.polygons[g])}
-    assert set(zip(hits.row.tolist(), hits.geom.tolist(), strict=True)) == truth
+    truth = {
+        (q, int(g))
+        for q in range(len(coords))
+        for g in geoms
+        if shapely.intersects(polygons[q], observation.polygons[g])
+    }
+    assert set(zip(query.tolist(), geom.tolist(), strict=True)) == truth
     assert len(truth) >= len(coords) // 3
 
 

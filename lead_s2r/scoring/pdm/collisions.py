@@ -28,7 +28,6 @@ overlap with the same object". Official behaviours reproduced on purpose:
 """
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -49,61 +48,52 @@ TTC_OFFSETS = (0, 3, 6, 9)  # steps: np.arange(0, int(1.0 / 0.1), 3)
 
 #: Slack [m] on the bounding-circle test that picks candidate pairs, far above any rounding in the box corners.
 CIRCLE_SLACK = 1e-6
-#: Candidate pairs are searched this many query boxes at a time (bounds the (chunk, Gmax) temporaries).
-CHUNK = 4096
-
-
-@dataclass
-class Hits:
-    """Overlapping (ego box, observation geometry) pairs: the query's proposal row, its order key (the ego step for
-    NC, ``step * len(offsets) + k`` for TTC) and the geometry index in the observation."""
-
-    row: np.ndarray
-    order: np.ndarray
-    geom: np.ndarray
+#: Candidate pairs are searched this many query rows at a time (bounds the (rows, P, Gmax) temporaries).
+CHUNK = 64
 
 
 def candidate_pairs(
     observation: Observation, centers: np.ndarray, obs_steps: np.ndarray, radius: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``(Q, 2)`` and enclosing
-    radius ``radius`` against the geometries of observation step ``obs_steps (Q,)``. Every intersecting pair is
-    among them, so the exact test runs on few pairs and no STRtree is needed."""
-    valid = observation.step_geoms >= 0
-    safe = np.maximum(observation.step_geoms, 0)
-    # per step and slot: centroid (NaN pads, which no comparison passes) and the squared reach of a hit
+    """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``centers (N, P, 2)`` (NaN:
+    no query) and enclosing radius ``radius``, query ``(n, p)`` (flat index ``n * P + p``) against the geometries of
+    observation step ``obs_steps[p]``. Every intersecting pair is among them, so the exact test runs on few pairs
+    and no STRtree is needed. Each row meets the same steps, so the steps' centroids broadcast over the rows."""
+    valid = observation.step_geoms[obs_steps] >= 0  # (P, Gmax)
+    safe = np.maximum(observation.step_geoms[obs_steps], 0)
+    # per query slot and geometry: centroid (NaN pads, which no comparison passes) and the squared reach of a hit
     step_x = np.where(valid, observation.centroids[safe, 0], np.nan)
     step_y = np.where(valid, observation.centroids[safe, 1], np.nan)
     step_reach = observation.radius[safe] + (radius + CIRCLE_SLACK)
     step_reach *= step_reach
-    queries, geoms = [], []
+    queries, slots = [], []
     for start in range(0, len(centers), CHUNK):
-        steps = obs_steps[start : start + CHUNK]
-        dx = step_x[steps] - centers[start : start + CHUNK, :1]
-        dy = step_y[steps] - centers[start : start + CHUNK, 1:]
+        dx = step_x - centers[start : start + CHUNK, :, :1]
+        dy = step_y - centers[start : start + CHUNK, :, 1:]
         dx *= dx
         dy *= dy
         dx += dy
-        query, slot = np.nonzero(dx <= step_reach[steps])
-        queries.append(query + start)
-        geoms.append(observation.step_geoms[steps[query], slot])
+        rows, slots_per_row, gmax = dx.shape
+        query, slot = np.nonzero((dx <= step_reach).reshape(rows * slots_per_row, gmax))
+        queries.append(query + start * centers.shape[1])
+        slots.append(slot)
     if not queries:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return np.concatenate(queries), np.concatenate(geoms)
+    query = np.concatenate(queries)
+    return query, observation.step_geoms[obs_steps[query % centers.shape[1]], np.concatenate(slots)]
 
 
 def find_hits(
     observation: Observation,
     centers: np.ndarray,
-    boxes: Callable[[np.ndarray], np.ndarray],
     obs_steps: np.ndarray,
-    rows: np.ndarray,
-    order: np.ndarray,
+    boxes: Callable[[np.ndarray], np.ndarray],
     radius: float,
-) -> Hits:
-    """Geometries that intersect query boxes of centre ``centers (Q, 2)`` at observation steps ``obs_steps (Q,)``.
-    ``boxes(queries)`` gives the ``(n, 5, 2)`` corners and centre of the queries asked for: only those with a
-    candidate geometry are built, and polygons only for the pairs floats cannot decide."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(query, geometry)`` pairs that intersect, for query boxes of centre ``centers (N, P, 2)`` (NaN: no query)
+    at observation steps ``obs_steps (P,)``, queries as flat indices ``n * P + p``. ``boxes(queries)`` gives the
+    ``(n, 5, 2)`` corners and centre of the queries asked for: only those with a candidate geometry are built, and
+    polygons only for the pairs floats cannot decide."""
     query, geom = candidate_pairs(observation, centers, obs_steps, radius)
     obj = observation.objects[geom]
     usable = ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
@@ -114,8 +104,7 @@ def find_hits(
         return shapely.intersects(box_polygons(coords[pairs]), observation.polygons[geom[pairs]])
 
     intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact)
-    query, geom = query[intersects], geom[intersects]
-    return Hits(rows[query], order[query], geom)
+    return query[intersects], geom[intersects]
 
 
 def relative_angle(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -172,20 +161,21 @@ def no_at_fault_collisions(
     (a track index: the scene's agent row; -1 if none), for states ``(N, T, 11)`` and their boxes ``(N, T, 5, 2)``
     (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or NON_DRIVABLE_AREA."""
     num_rows, num_steps = ego_coords.shape[:2]
-    row, step = np.divmod(np.arange(num_rows * num_steps), num_steps)
     boxes = ego_coords.reshape(-1, 5, 2)
-    hits = find_hits(observation, boxes[:, Corner.CENTER], lambda query: boxes[query], step, row, step, ego_radius)
-    row, step, obj = hits.row, hits.order, observation.objects[hits.geom]
+    steps = np.arange(num_steps)
+    query, geom = find_hits(observation, ego_coords[:, :, Corner.CENTER], steps, lambda q: boxes[q], ego_radius)
+    row, step = np.divmod(query, num_steps)
+    obj = observation.objects[geom]
     ego = states[row, step]
     ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
     track_stopped = ~observation.object_is_agent[obj] | (observation.object_speed[obj] <= STOPPED_TRACK_SPEED)
-    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], observation.centroids[hits.geom]) > np.deg2rad(BEHIND_DEG)
+    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], observation.centroids[geom]) > np.deg2rad(BEHIND_DEG)
     front = ego_coords[row, step][:, [Corner.FRONT_LEFT, Corner.FRONT_RIGHT]]
 
     def exact(pairs: np.ndarray) -> np.ndarray:
-        return shapely.intersects(shapely.linestrings(front[pairs]), observation.polygons[hits.geom[pairs]])
+        return shapely.intersects(shapely.linestrings(front[pairs]), observation.polygons[geom[pairs]])
 
-    front_hit = convex_intersects(front, observation.corners[hits.geom], exact)
+    front_hit = convex_intersects(front, observation.corners[geom], exact)
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
     at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
     counted = counted_before_release(row, obj, step, at_fault)
@@ -212,28 +202,31 @@ def time_to_collision(
     ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon."""
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
-    speed = np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y])
+    speed = np.hypot(states[:, :num_steps, StateIndex.VELOCITY_X], states[:, :num_steps, StateIndex.VELOCITY_Y])
     heading = states[:, :num_steps, StateIndex.HEADING]
-    per_second = np.stack([np.cos(heading) * speed[:, :num_steps], np.sin(heading) * speed[:, :num_steps]], axis=-1)
-    row, step, k = np.unravel_index(np.arange(num_rows * num_steps * len(offsets)), (num_rows, num_steps, len(offsets)))
-    moving = (speed[row, step] >= TTC_STOPPED_SPEED) & (step + np.asarray(offsets)[k] < observation.num_steps)
-    row, step, k = row[moving], step[moving], k[moving]
-    # the box moved along its heading at its speed by float(k) * interval, as NAVSIM computes it; corners only
-    # for the queries with a candidate geometry
-    shift = per_second[row, step] * np.array([float(offset) * interval for offset in offsets])[k, None]
-    centers = ego_coords[row, step, Corner.CENTER] + shift
+    per_second = np.stack([np.cos(heading) * speed, np.sin(heading) * speed], axis=-1)  # (N, S, 2)
+    # queries (row, step, k) as one grid (N, S * K): the box moved along its heading at its speed by
+    # float(k) * interval, as NAVSIM computes it; none (NaN centre) where the ego stands or the observation ends
+    lengths = np.array([float(offset) * interval for offset in offsets])
+    shift = per_second[:, :, None] * lengths[:, None]  # (N, S, K, 2)
+    centers = ego_coords[:, :num_steps, None, Corner.CENTER] + shift
+    obs_steps = np.arange(num_steps)[:, None] + np.asarray(offsets)  # (S, K)
+    moving = (speed[:, :, None] >= TTC_STOPPED_SPEED) & (obs_steps < observation.num_steps)
+    centers[~moving] = np.nan
+    per_row = num_steps * len(offsets)
 
     def boxes(query: np.ndarray) -> np.ndarray:
-        return ego_coords[row[query], step[query]] + shift[query, None]
+        row, step = np.divmod(query // len(offsets), num_steps)
+        return ego_coords[row, step] + shift.reshape(-1, 2)[query, None]
 
-    obs_step = step + np.asarray(offsets)[k]
-    order = step * len(offsets) + k
-    hits = find_hits(observation, centers, boxes, obs_step, row, order, ego_radius)
-    step = hits.order // len(offsets)
-    rear_axle = states[hits.row, step, : StateIndex.HEADING + 1]
-    angle = relative_angle(rear_axle, observation.centroids[hits.geom])
-    risky_area = lanes_or_off_road[hits.row, step] | in_intersection[hits.row, step]
+    valid_steps = np.minimum(obs_steps, observation.num_steps - 1).reshape(-1)  # the NaN centres' steps are never read
+    query, geom = find_hits(observation, centers.reshape(num_rows, per_row, 2), valid_steps, boxes, ego_radius)
+    row, order = np.divmod(query, per_row)
+    step = order // len(offsets)
+    rear_axle = states[row, step, : StateIndex.HEADING + 1]
+    angle = relative_angle(rear_axle, observation.centroids[geom])
+    risky_area = lanes_or_off_road[row, step] | in_intersection[row, step]
     violation = (angle < np.deg2rad(AHEAD_DEG)) | (risky_area & ~(angle > np.deg2rad(BEHIND_DEG)))
-    counted = counted_before_release(hits.row, observation.objects[hits.geom], hits.order, violation)
-    first = _first_step(hits.row[counted], step[counted], num_rows)
+    counted = counted_before_release(row, observation.objects[geom], order, violation)
+    first = _first_step(row[counted], step[counted], num_rows)
     return np.where(first >= 0, 0.0, 1.0), first

@@ -64,7 +64,7 @@ class BoundsGrid:
     origin: np.ndarray  # (2,)
     cell: float
     shape: tuple[int, int]
-    starts: np.ndarray  # (cells + 1,)
+    starts: np.ndarray  # (cells + 2,): cell c's members are [starts[c], starts[c + 1]); the last cell is empty
     members: np.ndarray  # (sum of cells per box,) box index
     member_cells: np.ndarray  # (sum of cells per box,) the flat cell of each member entry
 
@@ -86,7 +86,8 @@ class BoundsGrid:
         column = low[box_of, 0] + local // spans[box_of, 1]
         flat = column * shape[1] + low[box_of, 1] + local % spans[box_of, 1]
         order = np.argsort(flat, kind="stable")
-        starts = np.searchsorted(flat[order], np.arange(shape[0] * shape[1] + 1))
+        # one more (empty) cell after the last: where points off the grid look
+        starts = np.searchsorted(flat[order], np.arange(shape[0] * shape[1] + 2))
         return cls(origin, cell, shape, starts, kept[box_of[order]], flat[order])
 
     @staticmethod
@@ -94,15 +95,21 @@ class BoundsGrid:
         return np.floor((xy - origin) / cell).astype(np.int64)
 
     def candidates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(point, entry)`` pairs for points ``(B, 2)``: ``members[entry]`` is a superset of the boxes that hold
-        each point (none for points outside the grid, which lie outside every box)."""
+        """``(point, entry)`` pairs for points ``(B, 2)``, grouped by point in increasing order: ``members[entry]``
+        is a superset of the boxes that hold each point (none for points outside the grid, which lie outside every
+        box)."""
         cells = self._cells(self.origin, self.cell, xy)
-        inside = np.flatnonzero(((cells >= 0) & (cells < self.shape)).all(axis=1))
-        flat = cells[inside, 0] * self.shape[1] + cells[inside, 1]
-        first, counts = self.starts[flat], self.starts[flat + 1] - self.starts[flat]
-        point = np.repeat(inside, counts)
-        within = np.arange(len(point)) - np.repeat(np.cumsum(counts) - counts, counts)
-        return point, np.repeat(first, counts) + within
+        rows, columns = self.shape
+        # a cell index below 0 is huge as unsigned, so one comparison per axis tells the points on the grid
+        on_grid = (cells[:, 0].view(np.uint64) < rows) & (cells[:, 1].view(np.uint64) < columns)
+        flat = np.where(on_grid, cells[:, 0] * columns + cells[:, 1], rows * columns)  # off the grid: no members
+        first = self.starts[flat]
+        counts = self.starts[flat + 1] - first
+        ends = np.cumsum(counts)
+        # entry j of the expansion is first[point] + (j - the expansion's start for that point)
+        return np.repeat(np.arange(len(xy)), counts), np.arange(ends[-1] if len(ends) else 0) + np.repeat(
+            first - (ends - counts), counts
+        )
 
     def squares(self, entries: np.ndarray, margin: float) -> np.ndarray:
         """Shapely boxes of the cells of member ``entries``, grown by ``margin``."""
@@ -120,7 +127,7 @@ class DrivableMap:
     ids: np.ndarray  # (K,) int64
     kinds: np.ndarray  # (K,) MapKind codes
     grid: BoundsGrid
-    bounds: np.ndarray  # (K, 4) xmin, ymin, xmax, ymax
+    bounds: np.ndarray  # (4, K) rows xmin, ymin, xmax, ymax (gathers by polygon stay 1-D)
     cover: np.ndarray  # per grid entry: how its cell lies against its polygon (UNKNOWN until a point falls in it)
 
     @classmethod
@@ -139,12 +146,14 @@ class DrivableMap:
         ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
         bounds = shapely.bounds(polygons).reshape(-1, 4)
         grid = BoundsGrid.build(bounds, GRID_CELL_M)
-        return cls(polygons, ids, kinds, grid, bounds, np.full(len(grid.members), UNKNOWN, np.int8))
+        cover = np.full(len(grid.members), UNKNOWN, np.int8)
+        return cls(polygons, ids, kinds, grid, np.ascontiguousarray(bounds.T), cover)
 
-    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(box, point, polygon)`` for every point ``(B, P, 2)`` strictly inside a polygon: the grid's candidates,
-        those in cells inside a polygon taken, those in crossed cells narrowed to polygons whose bounding box holds
-        the point and decided by ``contains_xy``."""
+    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(index, polygon)`` for every point of ``points (B, P, 2)`` strictly inside a polygon, ``index`` the
+        point's flat position ``box * P + point`` in increasing order: the grid's candidates, those in cells inside
+        a polygon taken, those in crossed cells narrowed to polygons whose bounding box holds the point and decided
+        by ``contains_xy``."""
         flat = points.reshape(-1, 2)
         index, entry = self.grid.candidates(flat)
         cover = self.cover[entry]
@@ -152,15 +161,14 @@ class DrivableMap:
         if unknown.any():
             self._classify(np.unique(entry[unknown]))
             cover = self.cover[entry]
-        inside = cover == INSIDE
+        held = cover == INSIDE
         crossed = np.flatnonzero(cover == CROSSED)
         x, y = flat[index[crossed], 0], flat[index[crossed], 1]
         polygon = self.grid.members[entry[crossed]]
-        bounds = self.bounds[polygon]
-        near = np.flatnonzero((x >= bounds[:, 0]) & (x <= bounds[:, 2]) & (y >= bounds[:, 1]) & (y <= bounds[:, 3]))
-        held = near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]
-        box, point = np.divmod(np.concatenate([index[inside], index[crossed[held]]]), points.shape[1])
-        return box, point, np.concatenate([self.grid.members[entry[inside]], polygon[held]])
+        xmin, ymin, xmax, ymax = self.bounds[:, polygon]
+        near = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
+        held[crossed[near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]]] = True
+        return index[held], self.grid.members[entry[held]]
 
     def _classify(self, entries: np.ndarray) -> None:
         """Set ``cover`` of grid ``entries``: the cell's grown square inside its polygon, clear of it or crossed."""
@@ -191,41 +199,70 @@ def ego_areas(
     n_rows, n_steps = coords.shape[:2]
     num_boxes = n_rows * n_steps
     points = np.concatenate([coords.reshape(num_boxes, -1, 2), rear_axles.reshape(num_boxes, 1, 2)], axis=1)
-    rear_axle = points.shape[1] - 1
-    box, point, polygon = drivable_map.locate(points)
+    per_box = points.shape[1]
+    index, polygon = drivable_map.locate(points)
     kind = drivable_map.kinds[polygon]
-    is_corner = point < NUM_CORNERS
 
-    drivable_corners = np.zeros((num_boxes, NUM_CORNERS), bool)
-    drivable = IS_DRIVABLE[kind] & is_corner
-    drivable_corners[box[drivable], point[drivable]] = True
-    non_drivable = drivable_corners.sum(-1) < NUM_CORNERS
+    def held(wanted: np.ndarray) -> np.ndarray:
+        """``(boxes, points)``: some polygon where ``wanted`` holds the point."""
+        flags = np.zeros(num_boxes * per_box, bool)
+        flags[index[wanted]] = True
+        return flags.reshape(num_boxes, per_box)
+
+    drivable = held(IS_DRIVABLE[kind])
+    corners_drivable = drivable[:, Corner.FRONT_LEFT]
+    for corner in range(1, NUM_CORNERS):
+        corners_drivable = corners_drivable & drivable[:, corner]
 
     lane = IS_LANE[kind]
-    num_polygons = max(len(drivable_map.ids), 1)
-    pairs, corners_in_lane = np.unique(
-        box[lane & is_corner] * num_polygons + polygon[lane & is_corner], return_counts=True
-    )
-    lane_box = pairs // num_polygons
-    lanes_touched = np.bincount(lane_box, minlength=num_boxes)
-    all_corners_in_one = np.bincount(lane_box, weights=corners_in_lane == NUM_CORNERS, minlength=num_boxes) > 0
-    multiple_lanes = (lanes_touched > 1) & ~all_corners_in_one
-
-    on_route = lane & (point == Corner.CENTER) & np.isin(drivable_map.ids, route_lane_ids)[polygon]
-    oncoming = np.ones(num_boxes, bool)
-    oncoming[box[on_route]] = False
-
-    intersection = kind == MapKind.INTERSECTION
-    in_intersection = np.zeros((num_boxes, points.shape[1]), bool)
-    in_intersection[box[intersection], point[intersection]] = True
+    several_lanes = multiple_lanes(corner_lanes(index[lane], polygon[lane], per_box, num_boxes))
+    on_route = held(lane & np.isin(drivable_map.ids, route_lane_ids)[polygon])[:, Corner.CENTER]
+    in_intersection = held(kind == MapKind.INTERSECTION)
 
     def grid(flags: np.ndarray) -> np.ndarray:
         return flags.reshape(n_rows, n_steps)
 
     return EgoAreas(
-        grid(multiple_lanes),
-        grid(non_drivable),
-        grid(oncoming),
-        grid(in_intersection[:, rear_axle]),
+        grid(several_lanes),
+        grid(~corners_drivable),
+        grid(~on_route),
+        grid(in_intersection[:, -1]),
         grid(in_intersection[:, Corner.CENTER]),
     )
+
+
+def corner_lanes(index: np.ndarray, polygon: np.ndarray, per_box: int, num_boxes: int) -> np.ndarray:
+    """``(boxes, 4, W)``: the lane polygons holding each corner (-1 pads), from the lane hits ``(index, polygon)``
+    of ``ego_areas`` (``index`` sorted: a point's hits are consecutive)."""
+    box = index // per_box
+    corner = index - box * per_box
+    at_corner = corner < NUM_CORNERS
+    index, polygon = index[at_corner], polygon[at_corner]
+    new_point = np.ones(len(index), bool)
+    new_point[1:] = index[1:] != index[:-1]
+    # a hit's rank among its point's hits: its position minus the position of the point's first hit
+    position = np.arange(len(index))
+    rank = position - np.maximum.accumulate(np.where(new_point, position, 0))
+    lanes = np.full((num_boxes * per_box, int(rank.max()) + 1 if len(rank) else 1), -1)
+    lanes[index, rank] = polygon
+    return lanes.reshape(num_boxes, per_box, -1)[:, :NUM_CORNERS]
+
+
+def multiple_lanes(lanes: np.ndarray) -> np.ndarray:
+    """NAVSIM's MULTIPLE_LANES from the corners' lane polygons ``(boxes, 4, W)`` (-1 pads): more than one distinct
+    polygon among the corners, and none holding all four."""
+    by_corner = np.ascontiguousarray(lanes.transpose(1, 2, 0))  # (4, W, boxes): each slot a contiguous row
+    slots = by_corner.reshape(-1, len(lanes))  # corner-major: slot j is corner j // W
+    distinct = np.zeros(len(lanes), np.int64)
+    for j, lane in enumerate(slots):
+        new = lane >= 0
+        for earlier in slots[:j]:
+            new &= earlier != lane
+        distinct += new
+    in_all = np.zeros(len(lanes), bool)
+    for lane in by_corner[0]:  # each lane of corner 0: also held by the three others?
+        held_by_all = lane >= 0
+        for other in by_corner[1:]:
+            held_by_all &= np.logical_or.reduce([slot == lane for slot in other])
+        in_all |= held_by_all
+    return (distinct > 1) & ~in_all

@@ -274,11 +274,28 @@ def _reference(scene: PDMScene, reference: np.ndarray) -> np.ndarray:
     return reference
 
 
-def _human(scene: PDMScene) -> np.ndarray | None:
+def human_trajectory(scene: PDMScene) -> np.ndarray | None:
     """The logged future the human filter scores, or None where there is none (synthetic scenes)."""
     if scene.is_synthetic or scene.human_poses is None:
         return None
     return _poses(scene, scene.human_poses, "human_poses", "K, 3")
+
+
+def simulate_rows(
+    scene: PDMScene, proposals: np.ndarray, interval: float, reference: np.ndarray, human: np.ndarray | None
+) -> np.ndarray:
+    """The simulated states ``(rows, 41, 11)`` ``score_proposals`` scores: the reference first, then every proposal
+    ``(N, K, 3)``, then the human trajectory where it is given (the human filter's). Every row is simulated on its
+    own, so a row's states do not depend on the rows simulated with it."""
+    targets = [
+        interpolate_reference(_reference(scene, reference), REFERENCE_INTERVAL_S, scene.t0_us)[None],
+        interpolate_proposals(proposals, interval, scene.t0_us),
+    ]
+    if human is not None:
+        targets.append(interpolate_proposals(human[None], scene.human_interval, scene.t0_us))
+    return simulate_proposals(
+        np.concatenate(targets), scene.ego_velocity, scene.ego_acceleration, scene.tire_steering_angle, scene.vehicle
+    )
 
 
 def score_proposals(
@@ -295,6 +312,7 @@ def score_proposals(
     with_states: bool = False,
     with_masked_progress: bool = False,
     human_filter: bool = True,
+    simulated: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """``metric`` (PDMS v1.1 or EPDMS v2.2) of ``proposals (N, K, 3)`` (ego-frame poses at ``interval * (k + 1)``),
     one row each, with the columns of :data:`COLUMNS` or :data:`EPDMS_COLUMNS`. ``reference (M, 3)``: the EP
@@ -306,7 +324,8 @@ def score_proposals(
     filter) as ``masked_progress_m`` and ``reference_masked_progress_m`` (what a vocabulary-wide EP needs,
     ``vocabulary``). ``human_filter=False`` (EPDMS) leaves v2.2's human penalty filter out, as SimScale's
     vocabulary targets do. ``observation``, ``drivable_map`` and ``red_lights`` (EPDMS) are built from the scene
-    when None.
+    when None. ``simulated``: the rows :func:`simulate_rows` gives for these proposals (a vocabulary simulates many
+    chunks in one call, ``vocabulary``), simulated here when None.
     The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
     ``interpolation``)."""
     if metric not in METRICS:
@@ -314,16 +333,15 @@ def score_proposals(
     if previous is not None and metric != EPDMS_METRIC:
         raise ValueError(f"previous frames feed EC, which {metric!r} does not have; pass previous=None")
     proposals = _poses(scene, proposals, "proposals", "N, K, 3")
-    targets = [
-        interpolate_reference(_reference(scene, reference), REFERENCE_INTERVAL_S, scene.t0_us)[None],
-        interpolate_proposals(proposals, interval, scene.t0_us),
-    ]
-    human = _human(scene) if metric == EPDMS_METRIC and human_filter else None
-    if human is not None:
-        targets.append(interpolate_proposals(human[None], scene.human_interval, scene.t0_us))
-    states = simulate_proposals(
-        np.concatenate(targets), scene.ego_velocity, scene.ego_acceleration, scene.tire_steering_angle, scene.vehicle
-    )
+    human = human_trajectory(scene) if metric == EPDMS_METRIC and human_filter else None
+    if simulated is None:
+        simulated = simulate_rows(scene, proposals, interval, reference, human)
+    elif len(simulated) != len(proposals) + 1 + (human is not None):
+        raise ValueError(
+            f"scene {scene.key!r}: {len(simulated)} simulated rows for {len(proposals)} proposals; pass "
+            "simulate_rows' rows (the reference, the proposals, the human trajectory where the filter scores it)"
+        )
+    states = simulated
     agents = slice(1, 1 + len(proposals))
     extra = {"simulated_states": states[agents]} if with_states else {}
     if metric == METRIC:

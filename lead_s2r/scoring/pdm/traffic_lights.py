@@ -9,10 +9,12 @@ the 41 steps counts, step 0 included, and "touch" is shapely ``intersects`` with
 (``PDMScorer._calculate_traffic_light_compliance`` over the red-light pseudo-objects of the observation).
 """
 
+from functools import reduce
+
 import numpy as np
 import shapely
 
-from lead_s2r.scoring.pdm.footprint import box_polygons
+from lead_s2r.scoring.pdm.footprint import Corner, box_polygons
 from lead_s2r.scoring.pdm.map_flags import LANE_KINDS
 from lead_s2r.scoring.pdm.scene import PDMScene
 
@@ -52,15 +54,25 @@ def red_light_polygons(scene: PDMScene, num_steps: int, interval: float = 0.1) -
 
 
 def on_red_light(ego_coords: np.ndarray, red_lights: list[list[shapely.Polygon]]) -> np.ndarray:
-    """``(N, T)``: the ego box ``(N, T, 5, 2)`` intersects a red-light polygon of its step."""
+    """``(N, T)``: the ego box ``(N, T, 5, 2)`` intersects a red-light polygon of its step. Only boxes whose bounding
+    box meets a light's are handed to GEOS: a box's bounds are the minimum and maximum of the very corners its polygon
+    is built from, so a box whose bounds miss every light's cannot touch one (no arithmetic, nothing to round)."""
     num_rows, num_steps = ego_coords.shape[:2]
     if len(red_lights) != num_steps:
         raise ValueError(f"red lights are given for {len(red_lights)} steps, the ego boxes have {num_steps}")
     touching = np.zeros((num_rows, num_steps), bool)
     for step, lights in enumerate(red_lights):
         if lights:
-            boxes = box_polygons(ego_coords[:, step])
-            touching[:, step] = shapely.intersects(boxes[:, None], np.array(lights, dtype=object)[None]).any(-1)
+            shapes = np.array(lights, dtype=object)
+            shapely.prepare(shapes)  # once per polygon: the lights are the scene's, shared by its steps and calls
+            xmin, ymin, xmax, ymax = shapely.bounds(shapes).T
+            # the box's bounds, corner by corner (numpy's reductions over an axis of 4 cost far more)
+            corners = [ego_coords[:, step, corner] for corner in range(Corner.CENTER)]
+            low, high = reduce(np.minimum, corners), reduce(np.maximum, corners)
+            meets = (low[:, :1] <= xmax) & (high[:, :1] >= xmin) & (low[:, 1:] <= ymax) & (high[:, 1:] >= ymin)
+            near = np.flatnonzero(meets.any(axis=1))
+            boxes = box_polygons(ego_coords[near, step])
+            touching[near, step] = shapely.intersects(shapes[None], boxes[:, None]).any(-1)
     return touching
 
 

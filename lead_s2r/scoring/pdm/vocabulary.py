@@ -3,10 +3,10 @@ Hydra-MDP / GTRS-style planners, exact and in one pass.
 
 ``score_vocabulary`` is ``score_proposals`` over the whole vocabulary, with what the scene shares built once
 (observation, drivable map with its grid, whose cells classified for one chunk serve the next, red-light polygons)
-and the entries simulated and scored in chunks of ``chunk`` rows, so memory stays bounded (16,384 entries take well
-under 2 GB). Row v is bit for bit ``score_proposals(scene, vocabulary[v:v + 1], ...)``: every step of the pipeline
-computes a row without looking at the others (``elementwise``), so a chunk's neighbours change nothing;
-``tests/test_vocabulary.py`` checks it on random entries, every column.
+and the entries simulated in blocks of ``simulation_block`` rows and scored in chunks of ``chunk``, so memory stays
+bounded (16,384 entries take well under 2 GB). Row v is bit for bit ``score_proposals(scene, vocabulary[v:v + 1],
+...)``: every step of the pipeline computes a row without looking at the others (``elementwise``), so a block's or
+a chunk's neighbours change nothing; ``tests/test_vocabulary.py`` checks it on random entries, every column.
 
 EP has two definitions. The default (``progress="pair"``) is NAVSIM's for one agent trajectory: each entry's
 progress is normalised over ``[PDM-Closed, entry]``, as ``pdm_score`` scores a submitted trajectory. GTRS's targets
@@ -26,12 +26,23 @@ from lead_s2r.scoring.pdm.map_flags import DrivableMap
 from lead_s2r.scoring.pdm.metrics import PROGRESS_THRESHOLD_M, pdms_v11
 from lead_s2r.scoring.pdm.observation import V2_STEPS, log_observation
 from lead_s2r.scoring.pdm.scene import PDMScene
-from lead_s2r.scoring.pdm.score import EPDMS_METRIC, INTERVAL_S, METRIC, METRICS, score_proposals
+from lead_s2r.scoring.pdm.score import (
+    EPDMS_METRIC,
+    INTERVAL_S,
+    METRIC,
+    METRICS,
+    human_trajectory,
+    score_proposals,
+    simulate_rows,
+)
 from lead_s2r.scoring.pdm.traffic_lights import red_light_polygons
 
-#: entries simulated and scored together: big enough that numpy's per-call cost vanishes, small enough that the
-#: TTC boxes of a chunk (chunk x 41 x 4 boxes) stay a few tens of MB
-CHUNK = 256
+#: entries scored together: big enough that numpy's per-call cost vanishes, small enough that a chunk's map points
+#: and TTC queries (chunk x 41 x 6 and x 4) stay near the cache (1,024 is slower than 512 here, 1 MB of L2 per core)
+CHUNK = 512
+#: entries simulated together: the simulation's ~3,000 numpy calls per block cost less per entry over more rows (its
+#: curvature fits run in cache-sized blocks of their own, ``lqr.CURVATURE_BLOCK``)
+SIMULATION_BLOCK = 1024
 PROGRESS_PAIR = "pair"
 PROGRESS_VOCABULARY = "vocabulary"
 PROGRESS_MODES = (PROGRESS_PAIR, PROGRESS_VOCABULARY)
@@ -65,19 +76,21 @@ def score_vocabulary(
     progress: str = PROGRESS_PAIR,
     human_filter: bool = True,
     chunk: int = CHUNK,
+    simulation_block: int = SIMULATION_BLOCK,
 ) -> dict[str, np.ndarray]:
     """``metric`` of every entry of ``vocabulary (V, K, 3)`` (ego-frame poses at ``interval * (k + 1)``): one
     ``(V,)`` array per column of ``score_proposals`` (``COLUMNS`` or ``EPDMS_COLUMNS``), row v equal to scoring
     entry v alone. ``reference``: PDM-Closed's ``(M, 3)`` as ``score_proposals`` takes it. ``progress``: EP over
     ``[reference, entry]`` (``"pair"``, NAVSIM's definition) or over the reference and the whole vocabulary
     (``"vocabulary"``, GTRS's targets; the module docstring). ``human_filter=False``: EPDMS without v2.2's human
-    penalty filter (SimScale's targets run without it). EC needs a previous frame and stays NaN."""
+    penalty filter (SimScale's targets run without it). EC needs a previous frame and stays NaN. Entries are
+    simulated ``simulation_block`` and scored ``chunk`` at a time (speed and memory only: a row's bits are its own)."""
     if metric not in METRICS:
         raise ValueError(f"metric {metric!r} is not scored here; score_vocabulary computes {' and '.join(METRICS)}")
     if progress not in PROGRESS_MODES:
         raise ValueError(f"progress {progress!r}: choose {' or '.join(PROGRESS_MODES)}")
-    if chunk < 1:
-        raise ValueError(f"chunk {chunk}: give at least 1 entry per chunk")
+    if chunk < 1 or simulation_block < 1:
+        raise ValueError(f"chunk {chunk}, simulation_block {simulation_block}: give at least 1 entry to each")
     vocabulary = check_vocabulary(vocabulary)
     arguments = {"drivable_map": DrivableMap.from_scene(scene)}
     if metric == EPDMS_METRIC:
@@ -89,10 +102,17 @@ def score_vocabulary(
         arguments["observation"] = log_observation(scene)
     wants_masked = progress == PROGRESS_VOCABULARY
     arguments |= {"with_masked_progress": wants_masked, "human_filter": human_filter}
-    parts = [
-        score_proposals(scene, entries, interval, reference, metric, **arguments)
-        for entries in (vocabulary[start : start + chunk] for start in range(0, len(vocabulary), chunk))
-    ]
+    human = human_trajectory(scene) if metric == EPDMS_METRIC and human_filter else None
+    parts = []
+    for block in range(0, len(vocabulary), simulation_block):
+        entries = vocabulary[block : block + simulation_block]
+        states = simulate_rows(scene, entries, interval, reference, human)
+        # a chunk's rows: the reference, its entries, and the human trajectory's row where there is one
+        reference_row, entry_rows, human_row = states[:1], states[1 : len(entries) + 1], states[len(entries) + 1 :]
+        for start in range(0, len(entries), chunk):
+            rows = np.concatenate([reference_row, entry_rows[start : start + chunk], human_row])
+            part = entries[start : start + chunk]
+            parts.append(score_proposals(scene, part, interval, reference, metric, **arguments, simulated=rows))
     columns = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
     if not wants_masked:
         return columns
