@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from google.protobuf.message import DecodeError
 
-from lead_s2r.files import replace_folder, write_atomically
+from lead_s2r.files import replace_folder, write_bytes
 from lead_s2r.predictions import PredictionError, on_grid, regular_grid
 from lead_s2r.submit.common import (
     SubmissionError,
@@ -236,7 +236,7 @@ def write_wod(
         partial.mkdir(parents=True)
         for name, payload in payloads.items():
             (partial / name).write_bytes(payload)
-        write_atomically(tar_path(out), lambda path: path.write_bytes(tar_gz(out.name, payloads)))
+        write_bytes(tar_path(out), tar_gz(out.name, payloads))
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
