@@ -24,7 +24,7 @@ import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from lead_s2r.errors import UserError
-from lead_s2r.files import staged_folder
+from lead_s2r.files import staged_folder, write_text
 from lead_s2r.report.comparison import Difference, differences, pair_view, unmatched
 from lead_s2r.report.model_comparison import (
     Model,
@@ -196,8 +196,7 @@ class Pages:
 
     def write(self, template: str, target: str, **context: Any) -> None:
         html = self.env.get_template(template).render(home=self.home, **context)
-        (self.site / target).parent.mkdir(exist_ok=True)
-        (self.site / target).write_text(html, encoding="utf-8")
+        write_text(self.site / target, html)
 
     def summary(
         self,
