@@ -117,7 +117,7 @@ def measure(name: str, config: LeadConfig, steps: int) -> None:
     model = LeadDriver(config=config).eval()
     spec = input_spec(config)
     with tempfile.TemporaryDirectory() as folder:  # no run folder: LEAD's cameras of its target
-        slots = camera_slots(model, config, spec, "navsim", Path(folder))
+        slots = camera_slots(config, spec, "navsim", Path(folder))
     served = ServedModel(model, "navsim", spec, slots, torch.device("cpu"), Path(name))
     forward, decode = [], []
     served.model = Timed(model, forward)

@@ -36,6 +36,7 @@ import secrets
 import shutil
 import time
 import traceback
+from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -438,9 +439,7 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
 
 
 def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    by_split: dict[str, int] = {}
-    for row in rows:
-        by_split[row["split"]] = by_split.get(row["split"], 0) + 1
+    by_split = dict(Counter(row["split"] for row in rows))
     return {"samples": len(rows), "logs": len({row["log"] for row in rows}), "by_split": by_split}
 
 

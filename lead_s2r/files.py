@@ -15,7 +15,8 @@ import os
 import shutil
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -51,8 +52,19 @@ def move_into_place(partial: Path, path: Path) -> None:
     os.replace(partial, path)
 
 
-def replace_folder(staging: Path, out: Path) -> None:
-    """Move a finished folder to ``out``; an older folder there is removed only once the new one is in place."""
+@contextmanager
+def staged_folder(out: Path) -> Iterator[Path]:
+    """A new sibling of ``out`` to fill (mode 0755: mkdtemp's 0700 would hide a site from a web server), which
+    becomes ``out`` when the block ends (an older ``out`` is removed only once the new one is in place) and is
+    removed when the block fails."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
+    staging.chmod(0o755)
+    try:
+        yield staging
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
     if out.exists():
         old = Path(tempfile.mkdtemp(prefix=f".{out.name}-old-", dir=out.parent))
         os.replace(out, old / out.name)

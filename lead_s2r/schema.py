@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from lead_s2r.errors import UserError
+from lead_s2r.fields import fits, is_number
 
 SCHEMA_VERSION = 1
 KEY_PATTERN = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -341,11 +342,11 @@ def _check_meta(key: str, sample: dict[str, Any]) -> None:
     _require(key, "meta.vehicle", meta["vehicle"], VEHICLE_REQUIRED)
     ego = meta["ego"]
     for name in ("speed", "yaw_rate"):
-        if not (isinstance(ego[name], int | float) and math.isfinite(ego[name])):
+        if not is_number(ego[name]):
             raise SchemaError(key, f"meta.ego.{name}", f"expected a finite number, got {ego[name]!r}")
     for name in ("velocity", "acceleration"):
         vec = ego[name]
-        if not (isinstance(vec, list | tuple) and len(vec) == 2 and all(math.isfinite(v) for v in vec)):
+        if not (fits(vec, list[float]) and len(vec) == 2):
             raise SchemaError(key, f"meta.ego.{name}", f"expected 2 finite numbers, got {vec!r}")
     if ego["command"] not in {int(c) for c in Command}:
         raise SchemaError(key, "meta.ego.command", f"not a Command value: {ego['command']!r}")

@@ -238,14 +238,14 @@ def _with(path: tuple[str, ...], value: Any) -> dict[str, Any]:
 @pytest.mark.parametrize(
     ("path", "value", "message"),
     [
-        (("route_id",), 7, r"\[0\]\.route_id: expected a str, got 7"),
+        (("route_id",), 7, r"\[0\]\.route_id is 7, not str"),
         (("route_id",), "", r"\[0\]\.route_id: '' names no route"),
-        (("scores",), [], r"\[0\]\.scores: expected a dict, got \[\]"),
-        (("scores", "score_route"), "x", r"\[0\]\.scores\.score_route: expected a finite number"),
-        (("scores", "score_composed"), "x", r"\[0\]\.scores\.score_composed: expected a finite number"),
-        (("meta", "duration_game"), None, r"\[0\]\.meta\.duration_game: expected a finite number"),
-        (("status",), 7, r"\[0\]\.status: expected a string, got 7"),
-        (("infractions",), None, r"\[0\]\.infractions: expected a dict of message lists"),
+        (("scores",), [], r"\[0\]\.scores is \[\], not dict"),
+        (("scores", "score_route"), "x", r"\[0\]\.scores\.score_route is 'x', not float"),
+        (("scores", "score_composed"), "x", r"\[0\]\.scores\.score_composed is 'x', not float or null"),
+        (("meta", "duration_game"), None, r"\[0\]\.meta\.duration_game is None, not float"),
+        (("status",), 7, r"\[0\]\.status is 7, not str"),
+        (("infractions",), None, r"\[0\]\.infractions is None, not dict"),
         (("infractions", "red_light"), 7, r"\[0\]\.infractions\.red_light: expected a list of messages"),
         (("infractions", "red_light"), [7], r"\[0\]\.infractions\.red_light: expected a list of messages"),
         (("infractions", "min_speed_infractions"), ["slow"], r"\[0\]\.infractions\.min_speed_infractions: .*X%"),
@@ -269,7 +269,7 @@ def test_a_wrong_typed_field_is_named_with_its_file_and_record(tmp_path, path, v
     [
         (b'{"_checkpoint": {"records": [\xff]}}', "cannot read results JSON: 'utf-8' codec"),
         (b'{"_checkpoint": 7}', r"no _checkpoint\.records list"),
-        (b'{"_checkpoint": {"records": [7]}}', r"_checkpoint\.records\[0\]: expected a record \(a dict\), got 7"),
+        (b'{"_checkpoint": {"records": [7]}}', r"_checkpoint\.records\[0\] is 7, not a mapping"),
     ],
 )
 def test_an_unreadable_results_file_is_named(tmp_path, content, message):

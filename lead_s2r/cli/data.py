@@ -6,6 +6,7 @@ import json
 import sys
 import types
 import typing
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -84,9 +85,7 @@ def _written(name: str, out: Path) -> str:
     size = f"{len(files)} files, {sum(path.stat().st_size for path in files) / 1e6:.1f} MB"
     if name not in names(ADAPTER_GROUP):
         return size
-    splits: dict[str, int] = {}
-    for log in load(name)().list_logs(out):
-        splits[log.split] = splits.get(log.split, 0) + 1
+    splits = Counter(log.split for log in load(name)().list_logs(out))
     logs = ", ".join(f"{count} {split}" for split, count in sorted(splits.items()))
     return f"logs {logs} ({size}); next: lead-s2r convert {name} --src {out} --out DATA (docs/datasets/{name}.md)"
 

@@ -344,7 +344,7 @@ class LeadS2RAgent(Base):
         path = Path(save_path) / "metric_info.json"
         info = json.loads(path.read_text()) if path.is_file() else {}
         info[self.step] = get_metric_info()
-        path.write_text(json.dumps(info, indent=1))
+        write_text(path, json.dumps(info, indent=1))
 
     def destroy(self) -> None:
         self.model = None

@@ -110,11 +110,11 @@ def load_served_model(path: str | Path, source: str | None, pattern: str, device
         source = "navsim" if "navsim" in sources else (sources or [""])[0]
     if source not in sources:
         raise UserError(f"{found}: --source {source!r}: the model plans for {sources}; pick one of them")
-    slots = camera_slots(model, model.config, spec, source, found)
+    slots = camera_slots(model.config, spec, source, found)
     return ServedModel(model, source, spec, slots, torch.device(device), found)
 
 
-def camera_slots(model: nn.Module, config: Any, spec: InputSpec, source: str, found: Path) -> tuple[CameraSlot, ...]:
+def camera_slots(config: Any, spec: InputSpec, source: str, found: Path) -> tuple[CameraSlot, ...]:
     """The model's cameras left to right: a CARLA model's LEAD rig tiles; for other sources the data cameras of its
     run (``config.yaml``), or LEAD's cameras of its target (a LEAD folder), by their nominal directions."""
     if source == "carla":

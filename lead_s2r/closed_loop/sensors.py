@@ -83,12 +83,11 @@ def _mount(x: float, y: float, z: float, yaw: float) -> dict[str, float]:
 
 def sensor_specs(rig: Rig) -> list[dict[str, Any]]:
     """The leaderboard ``sensors()`` list of a rig."""
-    specs: list[dict[str, Any]] = []
-    for camera in CAMERA_RIGS[rig.cameras]:
-        specs.append(
-            {"type": "sensor.camera.rgb", **_mount(*camera.position, camera.yaw_deg), "width": camera.width,
-             "height": camera.height, "fov": camera.fov_deg, "id": f"rgb_{camera.number}"}
-        )  # fmt: skip
+    specs = [
+        {"type": "sensor.camera.rgb", **_mount(*camera.position, camera.yaw_deg), "width": camera.width,
+         "height": camera.height, "fov": camera.fov_deg, "id": f"rgb_{camera.number}"}
+        for camera in CAMERA_RIGS[rig.cameras]
+    ]  # fmt: skip
     if rig.lidar:
         specs += [{"type": "sensor.lidar.ray_cast", **_mount(*pos, yaw), "id": name} for name, pos, yaw in LIDARS]
     if rig.radar:

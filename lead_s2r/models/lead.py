@@ -18,6 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from lead_s2r.errors import UserError
+from lead_s2r.files import write_atomically, write_text
 from lead_s2r.formats import torch_file
 from lead_s2r.models import lead_loss
 from lead_s2r.models.lead_config import LeadConfig
@@ -144,10 +145,7 @@ def export_checkpoint(model: nn.Module, folder: str | Path) -> Path:
     if not isinstance(model, LeadTFv6):
         raise TypeError(f"export_checkpoint takes one LeadTFv6 network, got {type(model).__name__}")
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().contiguous().clone() for k, v in model.state_dict().items()}
-    tmp = folder / "model_0000.pth.tmp"
-    torch.save(state, tmp)
-    (folder / "config.json").write_text(json.dumps(model.config.to_json(), indent=1))
-    tmp.replace(folder / "model_0000.pth")
+    write_text(folder / "config.json", json.dumps(model.config.to_json(), indent=1))
+    write_atomically(folder / "model_0000.pth", lambda partial: torch.save(state, partial))
     return folder

@@ -324,9 +324,6 @@ class LeadConfig:
     @property
     def camera_tile(self) -> tuple[int, int]:
         """(width, height) of one camera tile: the override, else the target's."""
-        for name in TOY_SCALES:
-            if getattr(self, name) <= 0:
-                raise UserError(f"config.json: {name}={getattr(self, name)} must be positive (1.0: LEAD's network)")
         size = self.camera_tile_size
         return (int(size[0]), int(size[1])) if size is not None else CAMERA_TILE[self.target_dataset]
 
@@ -421,11 +418,6 @@ class LeadConfig:
         if source == "carla" and self.has_radar_detector:
             tasks.add("radar")
         return tasks
-
-    @property
-    def box_yaw_bins(self) -> int:
-        """Yaw bins of the CenterNet heads, under the name our box loss reads."""
-        return self.num_dir_bins
 
     @property
     def has_radar_detector(self) -> bool:

@@ -5,6 +5,7 @@ Every sample is read and validated by default: reading them all is also what hol
 """
 
 import itertools
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -45,9 +46,8 @@ def inspect_dataset(
         _check_png(Path(png))
     manifest = _manifest(path)
     info = load_info(path)
-    counts: dict[str, int] = {}
-    for dataset, split in zip(manifest["dataset"].to_pylist(), manifest["split"].to_pylist(), strict=True):
-        counts[f"{dataset}/{split}"] = counts.get(f"{dataset}/{split}", 0) + 1
+    pairs = zip(manifest["dataset"].to_pylist(), manifest["split"].to_pylist(), strict=True)
+    counts = dict(Counter(f"{dataset}/{split}" for dataset, split in pairs))
     has = {name[4:]: int(pc.sum(manifest[name]).as_py() or 0) for name in manifest.column_names if name[:4] == "has_"}
     stats: dict[str, Any] = {}
     for column in ("speed", "tp_x", "tp_y"):

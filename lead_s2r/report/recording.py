@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 
 from lead_s2r.errors import UserError
+from lead_s2r.files import write_atomically
+from lead_s2r.report.camera import on_ground
 from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run, load_samples
 from lead_s2r.report.sample_page import is_score, sub_scores, top_xy
 from lead_s2r.schema import BoxClass
@@ -82,24 +84,21 @@ def write_recording(target: str | Path, rrd: str | Path, log: str | None = None,
     folder, log, run = find_log(Path(target), log)
     samples = log_samples(folder, log)
     recording = rr.RecordingStream(APPLICATION, recording_id=log)
-    rrd.parent.mkdir(parents=True, exist_ok=True)
-    partial = rrd.with_name(f".{rrd.name}.partial")
-    recording.save(partial, default_blueprint=layout(rr, samples))
-    try:
+
+    def record(partial: Path) -> None:
+        recording.save(partial, default_blueprint=layout(samples))
         for sample in samples:
             log_frame(rr, recording, sample, run)
         recording.flush()
         recording.disconnect()
-        partial.replace(rrd)
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
+
+    write_atomically(rrd, record)
     if spawn:  # the viewer ships in the rerun-sdk wheel; `python -m rerun FILE` is its `rerun FILE`
         subprocess.Popen([sys.executable, "-m", "rerun", str(rrd)], start_new_session=True)
     return rrd
 
 
-def layout(rr: Any, samples: list[dict[str, Any]]) -> Any:
+def layout(samples: list[dict[str, Any]]) -> Any:
     """The view the viewer opens with: the scene in 3D beside the front camera(s) over the sub-scores' curves."""
     import rerun.blueprint as rrb
 
@@ -135,15 +134,10 @@ def log_frame(rr: Any, recording: Any, sample: dict[str, Any], run: RunOutputs |
         _map(rr, recording, sample["scoring"])
     if "future" in sample:
         recording.log(
-            "/plan/logged", rr.LineStrips3D([_on_ground(np.asarray(sample["future"])[:, 1:3])], colors=[[0, 166, 81]])
+            "/plan/logged", rr.LineStrips3D([on_ground(np.asarray(sample["future"])[:, 1:3])], colors=[[0, 166, 81]])
         )
     if run is not None:
         _run(rr, recording, sample["__key__"], run)
-
-
-def _on_ground(xy: np.ndarray) -> np.ndarray:
-    xy = np.asarray(xy, np.float64).reshape(-1, 2)
-    return np.column_stack([xy, np.zeros(len(xy))])
 
 
 def _camera(rr: Any, recording: Any, sample: dict[str, Any], camera: dict[str, Any]) -> None:
@@ -192,7 +186,7 @@ def _boxes(rr: Any, recording: Any, boxes: np.ndarray, meta: dict[str, Any]) -> 
 
 def _pieces(flat: Any, offsets: Any) -> list[np.ndarray]:
     flat, offsets = np.asarray(flat, np.float64), np.asarray(offsets).tolist()
-    return [_on_ground(flat[a:b]) for a, b in pairwise(offsets)]
+    return [on_ground(flat[a:b]) for a, b in pairwise(offsets)]
 
 
 def _map(rr: Any, recording: Any, scoring: dict[str, Any]) -> None:
@@ -205,7 +199,7 @@ def _map(rr: Any, recording: Any, scoring: dict[str, Any]) -> None:
 def _run(rr: Any, recording: Any, key: str, run: RunOutputs) -> None:
     if key in run.predictions:
         recording.log(
-            "/plan/predicted", rr.LineStrips3D([_on_ground(top_xy(run.predictions[key]))], colors=[[228, 0, 124]])
+            "/plan/predicted", rr.LineStrips3D([on_ground(top_xy(run.predictions[key]))], colors=[[228, 0, 124]])
         )
     for scores in run.scores:
         row = scores.rows.get(key) or {}

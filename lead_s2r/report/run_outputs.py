@@ -8,7 +8,6 @@ scores, predictions gone, a ``--data`` folder without the run's samples, a damag
 :class:`UserError` naming the path.
 """
 
-import math
 from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -16,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from lead_s2r.errors import UserError
+from lead_s2r.fields import is_number
 from lead_s2r.predictions import Prediction, group_by_key, read_predictions
 from lead_s2r.report.tables import TableError, folder_identity, run_identity
 from lead_s2r.report.training_log import TRAINING_LOG, TrainingLog
@@ -59,7 +59,7 @@ class MetricScores:
         column = HEADLINES.get(self.family, (None, True))[0]
         row = self.rows.get(key)
         value = None if row is None or column is None else row.get(column)
-        return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+        return float(value) if is_number(value) else None
 
 
 @dataclass

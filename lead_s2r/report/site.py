@@ -15,10 +15,7 @@ metric and no random ones, or the pages of forty runs take minutes). The site is
 temporary sibling folder and renamed into place at the end, so a failed report leaves ``DIR`` as it was.
 """
 
-import shutil
-import tempfile
-from collections.abc import Collection, Iterator
-from contextlib import contextmanager
+from collections.abc import Collection
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -27,7 +24,7 @@ import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from lead_s2r.errors import UserError
-from lead_s2r.files import replace_folder
+from lead_s2r.files import staged_folder, write_text
 from lead_s2r.report.comparison import Difference, differences, pair_view, unmatched
 from lead_s2r.report.model_comparison import (
     Model,
@@ -107,7 +104,7 @@ def build_report(
     changed = [] if b is None else differences(a, b, threshold)
     folders = data_folders(a, data)
     loaded = load_samples(folders, list(dict.fromkeys([*shown, *(d.key for d in changed)])))
-    with _staging(Path(out)) as staging:
+    with staged_folder(Path(out)) as staging:
         pages = Pages(staging)
         pages.summary(a, shown, loaded, sample_tags(folders, shown), None if b is None else b.name)
         if b is not None:
@@ -138,7 +135,7 @@ def build_site(
     keys = {key for chosen in shown.values() for key in chosen} | {key for _, key in drawn}
     loaded = load_samples(folders, sorted(keys))
     tags = sample_tags(folders, keys)
-    with _staging(Path(out)) as staging:
+    with staged_folder(Path(out)) as staging:
         for path, run in runs.items():
             Pages(staging / "runs" / run.slug, home="../../").summary(run, shown[path], loaded, tags, None)
         pages = Pages(staging)
@@ -183,28 +180,15 @@ def _pair_keys(deltas: list[SceneDelta], worst: int, threshold: float) -> list[t
     return drawn
 
 
-@contextmanager
-def _staging(out: Path) -> Iterator[Path]:
-    """A temporary sibling of ``out`` to write the site into (with the script), renamed into place when complete."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
-    try:
-        (staging / SCRIPT).write_bytes(resources.files("lead_s2r.report").joinpath("templates", SCRIPT).read_bytes())
-        yield staging
-        replace_folder(staging, out)
-        out.chmod(0o755)  # mkdtemp's 0700 would hide the site from a web server
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-
-
 class Pages:
     """Renders the templates into a site folder; ``home``: the relative path from it to the site's root (where the
-    script and, over many runs, the index of runs are)."""
+    script and, over many runs, the index of runs are; the root's pages write the script)."""
 
     def __init__(self, site: Path, home: str = "") -> None:
         self.site = site
         self.home = home
+        if not home:
+            (site / SCRIPT).write_bytes(resources.files("lead_s2r.report").joinpath("templates", SCRIPT).read_bytes())
         for folder in ("img", "samples"):
             (site / folder).mkdir(parents=True, exist_ok=True)
         self.env = Environment(loader=PackageLoader("lead_s2r.report", "templates"), autoescape=True,
@@ -212,8 +196,7 @@ class Pages:
 
     def write(self, template: str, target: str, **context: Any) -> None:
         html = self.env.get_template(template).render(home=self.home, **context)
-        (self.site / target).parent.mkdir(exist_ok=True)
-        (self.site / target).write_text(html, encoding="utf-8")
+        write_text(self.site / target, html)
 
     def summary(
         self,

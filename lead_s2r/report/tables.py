@@ -26,6 +26,7 @@ import yaml
 
 from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields, fits, is_number
+from lead_s2r.files import write_text
 from lead_s2r.scoring.carla_leaderboard import INFRACTIONS
 from lead_s2r.scoring.scores_file import SCORES_JSON, ScoresFile, scores_folders
 
@@ -428,11 +429,10 @@ def build_table(spec_name: str | Path, run_patterns: list[str], out: str | Path 
     markdown = to_markdown(spec, cells)
     if out is not None:
         out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
         stem = spec_path(spec_name).stem
-        (out / f"{stem}.md").write_text(markdown)
-        (out / f"{stem}.tex").write_text(to_latex(spec, cells))
-        (out / f"{stem}.csv").write_text(to_csv(spec, cells))
+        write_text(out / f"{stem}.md", markdown)
+        write_text(out / f"{stem}.tex", to_latex(spec, cells))
+        write_text(out / f"{stem}.csv", to_csv(spec, cells))
         if spec.figure is not None:
             from lead_s2r.report.figures import infraction_bars
 

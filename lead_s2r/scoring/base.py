@@ -5,6 +5,7 @@ sample fields it reads (``meta`` always comes), so the data is decoded once with
 """
 
 from abc import ABC, abstractmethod
+from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,10 +132,7 @@ def coverage(predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) 
     predictions = list(predictions)
     predicted = {p.key for p in predictions}
     held = _datasets(data)
-    other: dict[str, int] = {}
-    for p in predictions:
-        if p.dataset not in held:
-            other[p.dataset] = other.get(p.dataset, 0) + 1
+    other = dict(Counter(p.dataset for p in predictions if p.dataset not in held))
     return {"unpredicted": [s["__key__"] for s in data if s["__key__"] not in predicted], "other_datasets": other}
 
 

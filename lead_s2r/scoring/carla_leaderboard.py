@@ -31,7 +31,7 @@ from typing import Any
 import pyarrow as pa
 
 from lead_s2r.errors import UserError
-from lead_s2r.fields import fits
+from lead_s2r.fields import check_fields, fits
 from lead_s2r.scoring.base import ScoreResult
 from lead_s2r.scoring.scores_file import ScoresFile
 
@@ -73,6 +73,11 @@ SUCCESS_STATUSES = ("Completed", "Perfect")
 _OUTSIDE_LANES = re.compile(r"for about ([\d.eE+-]+) meters \(([\d.eE+-]+)% of the completed route\)")
 _MIN_SPEED = re.compile(r"is ([\d.eE+-]+)% of the surrounding traffic")
 _ROUTE_ID = re.compile(r"^(?:RouteScenario_)?(.+?)(?:_rep(\d+))?$")
+#: The types of the record fields the scores read (:func:`lead_s2r.fields.check_fields`).
+RECORD_FIELDS = {"route_id": str, "scores": dict, "meta": dict, "status": str, "infractions": dict}
+SCORES_FIELDS = {"score_route": float, "score_composed": float | None, "score_penalty": float | None}
+META_FIELDS = {"route_length": float, "duration_game": float}
+_ADVICE = "is this a leaderboard 2.0 results file?"
 
 
 class ResultsError(UserError, ValueError):
@@ -157,38 +162,26 @@ def is_success(record: RouteRecord) -> bool:
     return record.status in SUCCESS_STATUSES and clean
 
 
-def _number(value: Any, where: str) -> float:
-    if not fits(value, float):
-        raise ResultsError(f"{where}: expected a finite number, got {value!r}")
-    return float(value)
-
-
-def _number_or_none(value: Any, where: str) -> float | None:
-    return None if value is None else _number(value, where)
-
-
-def _field(container: dict[str, Any], name: str, kind: type, where: str) -> Any:
-    """``container[name]`` when it is a ``kind``; a missing or other-typed field names itself."""
-    value = container.get(name)
-    if not fits(value, kind):
-        raise ResultsError(
-            f"{where}.{name}: expected a {kind.__name__}, got {value!r}; is this a leaderboard 2.0 results file?"
-        )
-    return value
+def _checked(raw: Any, hints: dict[str, Any], source: str, at: str, required: tuple[str, ...]) -> dict[str, Any]:
+    """``raw`` when it is a mapping holding ``required`` and its fields have their types; else one line naming
+    ``source``, the record and the field."""
+    check_fields(raw, hints, source, ResultsError, _ADVICE, at)
+    missing = [name for name in required if name not in raw]
+    if missing:
+        raise ResultsError(f"{source}: {at}: missing field {missing[0]!r}; {_ADVICE}")
+    return raw
 
 
 def _infractions(raw: dict[str, Any], where: str) -> dict[str, list[str]]:
     """The infraction messages by type; those whose percentage the scores read (off-lane, min speed) are parsed here,
     where the file and record are known."""
     infractions = raw.get("infractions", {})
-    if not isinstance(infractions, dict):
-        raise ResultsError(f"{where}.infractions: expected a dict of message lists, got {infractions!r}")
     unknown = set(infractions) - set(INFRACTIONS)
     if unknown:
         raise ResultsError(f"{where}: unknown infraction type(s) {sorted(unknown)}; known: {list(INFRACTIONS)}")
     parsers = {"outside_route_lanes": outside_lane_event, "min_speed_infractions": min_speed_percentage}
     for name, messages in infractions.items():
-        if not isinstance(messages, list) or not all(isinstance(m, str) for m in messages):
+        if not fits(messages, list[str]):
             raise ResultsError(f"{where}.infractions.{name}: expected a list of messages, got {messages!r}")
         for message in messages if name in parsers else ():
             try:
@@ -198,35 +191,32 @@ def _infractions(raw: dict[str, Any], where: str) -> dict[str, list[str]]:
     return {name: list(messages) for name, messages in infractions.items()}
 
 
-def parse_record(raw: dict[str, Any], source: str, position: int) -> RouteRecord:
+def parse_record(raw: Any, source: str, position: int) -> RouteRecord:
     """One entry of ``_checkpoint.records``; errors name the file, record and field."""
-    where = f"{source}: _checkpoint.records[{position}]"
-    if not isinstance(raw, dict):
-        raise ResultsError(f"{where}: expected a record (a dict), got {raw!r}")
-    for name in ("route_id", "scores", "meta"):
-        if name not in raw:
-            raise ResultsError(f"{where}: missing field {name!r}; is this a leaderboard 2.0 results file?")
-    route_id = _field(raw, "route_id", str, where)
-    scores, meta = _field(raw, "scores", dict, where), _field(raw, "meta", dict, where)
-    match = _ROUTE_ID.match(route_id)
+    at = f"_checkpoint.records[{position}]"
+    raw = _checked(raw, RECORD_FIELDS, source, at, ("route_id", "scores", "meta"))
+    scores = _checked(raw["scores"], SCORES_FIELDS, source, f"{at}.scores", ("score_route",))
+    meta = _checked(raw["meta"], META_FIELDS, source, f"{at}.meta", ("route_length",))
+    match = _ROUTE_ID.match(raw["route_id"])
     if match is None:
-        raise ResultsError(f"{where}.route_id: {route_id!r} names no route")
-    status = raw.get("status", "")
-    if not isinstance(status, str):
-        raise ResultsError(f"{where}.status: expected a string, got {status!r}")
+        raise ResultsError(f"{source}: {at}.route_id: {raw['route_id']!r} names no route")
     return RouteRecord(
         source=source,
-        route_id=route_id,
+        route_id=raw["route_id"],
         route=match.group(1),
         repetition=int(match.group(2) or 0),
-        status=status.split(" - ")[0],
-        route_completion=_number(scores.get("score_route"), f"{where}.scores.score_route"),
-        route_length=_number(meta.get("route_length"), f"{where}.meta.route_length"),
-        duration_game=_number(meta.get("duration_game", 0.0), f"{where}.meta.duration_game"),
-        infractions=_infractions(raw, where),
-        reported_ds=_number_or_none(scores.get("score_composed"), f"{where}.scores.score_composed"),
-        reported_is=_number_or_none(scores.get("score_penalty"), f"{where}.scores.score_penalty"),
+        status=raw.get("status", "").split(" - ")[0],
+        route_completion=float(scores["score_route"]),
+        route_length=float(meta["route_length"]),
+        duration_game=float(meta.get("duration_game", 0.0)),
+        infractions=_infractions(raw, f"{source}: {at}"),
+        reported_ds=_optional_float(scores.get("score_composed")),
+        reported_is=_optional_float(scores.get("score_penalty")),
     )
+
+
+def _optional_float(value: float | None) -> float | None:
+    return None if value is None else float(value)
 
 
 def read_results(path: str | Path) -> list[RouteRecord]:

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.files import write_atomically
+from lead_s2r.files import write_bytes
 from lead_s2r.formats import restricted_pickle
 from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps, numpy1_array
 from lead_s2r.geometry import resample
@@ -217,8 +217,7 @@ def write_navsim(
     split = read_split(data, two_stage)
     submission: dict[str, Any] = {**metadata.as_keys(), **seed_lists(split, predictions)}
     validate(submission, split.tokens)
-    payload = encode(submission)
-    write_atomically(Path(out), lambda path: path.write_bytes(payload))
+    write_bytes(Path(out), encode(submission))
     report = check_navsim(Path(out))
     if Path(out).name != UPLOAD_NAME:
         report["note"] = f"rename the file to {UPLOAD_NAME}: the leaderboard reads that name from your HF repo"

@@ -14,7 +14,6 @@ sequence names". Required metadata: ``account_name`` (the email registered at wa
 
 import io
 import re
-import shutil
 import tarfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -24,7 +23,7 @@ from typing import Any
 import numpy as np
 from google.protobuf.message import DecodeError
 
-from lead_s2r.files import replace_folder, write_atomically
+from lead_s2r.files import staged_folder, write_bytes
 from lead_s2r.predictions import PredictionError, on_grid, regular_grid
 from lead_s2r.submit.common import (
     SubmissionError,
@@ -230,19 +229,10 @@ def write_wod(
     )
     validate(messages, list(frames.values()))
     payloads = {name: message.SerializeToString() for name, message in messages.items()}
-    partial = out.with_name(out.name + ".partial")
-    shutil.rmtree(partial, ignore_errors=True)
-    try:
-        partial.mkdir(parents=True)
+    with staged_folder(out) as staging:
         for name, payload in payloads.items():
-            (partial / name).write_bytes(payload)
-        write_atomically(tar_path(out), lambda path: path.write_bytes(tar_gz(out.name, payloads)))
-    except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
-        raise
-    if out.exists():
-        out.rmdir()
-    replace_folder(partial, out)
+            (staging / name).write_bytes(payload)
+        write_bytes(tar_path(out), tar_gz(out.name, payloads))
     return check_wod(tar_path(out))
 
 

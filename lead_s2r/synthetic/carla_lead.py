@@ -251,7 +251,7 @@ def _matrix(pose: np.ndarray) -> list[list[float]]:
     return matrix.tolist()
 
 
-def _box(actor: Actor, ego: np.ndarray, step: int, kind: str) -> dict:
+def _box(actor: Actor, ego: np.ndarray, step: int) -> dict:
     pose = actor.pose_at(np.array([step]))[0]
     rel = points_to_local(pose[:2], ego)
     box = {
@@ -409,7 +409,7 @@ def write_route(
         frame = step // SAVE_FREQ
         name = f"{frame:04d}"
         ego = drive.pose[step]
-        boxes = [_ego_box(float(drive.speed[step]))] + [_box(actor, ego, step, kind) for actor in actors]
+        boxes = [_ego_box(float(drive.speed[step]))] + [_box(actor, ego, step) for actor in actors]
         walkers = np.array([box["position"][:2] for box in boxes if box.get("type_id") == WALKER_AHEAD])
         write_pickle(folder / "bboxes" / f"{name}.pkl", boxes)
         write_pickle(folder / "metas" / f"{name}.pkl", _meta(drive, step, planners, extras, rig))

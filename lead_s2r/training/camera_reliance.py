@@ -20,6 +20,7 @@ import lightning as L
 import torch
 from torch import Tensor
 
+from lead_s2r.files import write_text
 from lead_s2r.models.inputs import Batch
 from lead_s2r.training.distributed import gather_lists
 
@@ -82,6 +83,4 @@ class CameraReliance(L.Callback):
         for dataset in sorted({dataset for dataset, _ in shifts}):
             mine = [shift for (name, _), shift in shifts.items() if name == dataset]
             summary[dataset] = {"mean_m": sum(mine) / len(mine), "samples": len(mine)}
-        path = Path(trainer.default_root_dir) / FILENAME
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(summary, indent=2))
+        write_text(Path(trainer.default_root_dir) / FILENAME, json.dumps(summary, indent=2))

@@ -27,14 +27,15 @@ def masked_mean(values: Tensor, mask: Tensor) -> Tensor:
     return (values * mask).sum() / mask.sum().clamp(min=1.0)
 
 
-def _valid(batch: Batch, key: str, like: Tensor) -> Tensor:
+def valid_mask(batch: Batch, key: str, like: Tensor) -> Tensor:
+    """The (B, T) label mask ``<key>_valid`` of ``batch``; every entry valid where the batch has none."""
     return batch.get(f"{key}_valid", torch.ones(like.shape[:2], dtype=torch.bool, device=like.device))
 
 
 def waypoint_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
     """L1 over valid waypoints."""
     return masked_mean(
-        (pred["waypoints"].float() - batch["waypoints"]).abs(), _valid(batch, "waypoints", batch["waypoints"])
+        (pred["waypoints"].float() - batch["waypoints"]).abs(), valid_mask(batch, "waypoints", batch["waypoints"])
     )
 
 
@@ -50,13 +51,13 @@ def heading_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
     target = batch["headings"].float()
     steps = torch.diff(target, dim=1, prepend=torch.zeros_like(target[:, :1]))
     unwrapped = torch.cumsum(torch.remainder(steps + math.pi, 2 * math.pi) - math.pi, dim=1)
-    return masked_mean((pred["headings"].float() - unwrapped).abs(), _valid(batch, "headings", target))
+    return masked_mean((pred["headings"].float() - unwrapped).abs(), valid_mask(batch, "headings", target))
 
 
 def route_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
     """L1 over the route checkpoints plus L1 of the last valid one (ADE + FDE, as LEAD)."""
     target, route = batch["route"], pred["route"].float()
-    valid = _valid(batch, "route", target)
+    valid = valid_mask(batch, "route", target)
     err = (route - target).abs()
     last = valid.long().cumsum(1).argmax(1)  # index of the last valid checkpoint
     rows = torch.arange(len(target), device=target.device)

@@ -29,6 +29,7 @@ from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_loss import adamw, cosine_schedule, training_layout
 from lead_s2r.training.data_contract import TrainingData
 from lead_s2r.training.loss_table import TASK_TARGETS, task_loss
+from lead_s2r.training.losses import valid_mask
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
 from lead_s2r.training.prediction_writer import to_predictions
 from lead_s2r.training.weights import LoadReport, load_matching
@@ -212,9 +213,7 @@ class DrivingModule(L.LightningModule):
             if "waypoints" not in source_batch:
                 continue
             target = source_batch["waypoints"]
-            valid = source_batch.get(
-                "waypoints_valid", torch.ones(target.shape[:2], dtype=torch.bool, device=target.device)
-            )
+            valid = valid_mask(source_batch, "waypoints", target)
             has = valid.any(1)
             if not has.any():
                 continue
