@@ -237,6 +237,12 @@ def optional_fields(sample: dict[str, Any]) -> list[str]:
     return sorted(name for name in sample if name != "__key__" and name not in REQUIRED_FIELDS)
 
 
+def navsim_scene_token(sample: dict[str, Any]) -> str:
+    """NAVSIM's scene token of a sample (the key of its CSV rows and GTRS's pickles); the sample key where the
+    converter kept none."""
+    return sample["meta"].get("extras", {}).get("navsim", {}).get("scene_token", sample["__key__"])
+
+
 def make_key(*parts: object) -> str:
     """Join parts into a webdataset-safe key (no dots; anything outside [A-Za-z0-9_-] becomes '-')."""
     return "_".join(re.sub(r"[^A-Za-z0-9-]", "-", str(part)) for part in parts)

@@ -13,14 +13,10 @@ import numpy as np
 import torch
 
 from lead_s2r.gtrs_targets import Targets, read_targets
+from lead_s2r.schema import navsim_scene_token
 
 VOCAB_SCORES = "vocab_scores"
 VOCAB_SCORES_MASK = "vocab_scores_mask"
-
-
-def scene_token(sample: dict[str, Any]) -> str:
-    """NAVSIM's scene token of a sample (the pickle's key); the sample key where the converter kept none."""
-    return sample["meta"].get("extras", {}).get("navsim", {}).get("scene_token", sample["__key__"])
 
 
 class VocabScores:
@@ -42,7 +38,7 @@ class VocabScores:
         return self._targets
 
     def __call__(self, sample: dict[str, Any], out: dict[str, Any]) -> dict[str, Any]:
-        columns = self.targets().get(scene_token(sample))
+        columns = self.targets().get(navsim_scene_token(sample))
         if columns is None:
             scores = np.zeros(self._shape, np.float32)
         else:

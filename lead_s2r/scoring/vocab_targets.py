@@ -41,7 +41,7 @@ from lead_s2r.files import write_bytes, write_parquet
 from lead_s2r.geometry import resample
 from lead_s2r.gtrs_targets import EPDMS_NAMES, PDMS_NAMES, targets_bytes
 from lead_s2r.processes import Executor, InlineExecutor
-from lead_s2r.scoring.navsim.proposals import navsim_token
+from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import NEEDS_MAPS, scene_from_sample
@@ -144,7 +144,7 @@ def score_scenes(
     scores, tokens, failed = {}, {}, {}
     for sample in job_samples(source):
         key = sample["__key__"]
-        tokens[key] = navsim_token(sample)
+        tokens[key] = navsim_scene_token(sample)
         try:
             scene = scene_from_sample(sample)
         except RouteError as err:

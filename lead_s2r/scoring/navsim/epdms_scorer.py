@@ -35,11 +35,12 @@ from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction, most_probable
+from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
 from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, proposal_of
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
@@ -191,9 +192,9 @@ class EPDMSScorer(PDMSScorer):
         self, frames: list[Frame], mapping: list[TwoStageGroup], samples: list[dict[str, Any]]
     ) -> tuple[pa.Table, dict[str, Any]]:
         """Every frame of the mapping scored alone, then NAVSIM's two-stage weights, EC and summaries."""
-        navhard.check_complete(mapping, samples, {navsim_token(frame.sample): frame.error for frame in frames})
+        navhard.check_complete(mapping, samples, {navsim_scene_token(frame.sample): frame.error for frame in frames})
         results = self.map_samples(self.proposal_scores, [(frame, None, True) for frame in frames])
-        tokens = [navsim_token(frame.sample) for frame in frames]
+        tokens = [navsim_scene_token(frame.sample) for frame in frames]
         rows = [
             navhard.token_row(token, frame.sample, frame.poses, result)
             for token, frame, result in zip(tokens, frames, results, strict=True)
@@ -227,7 +228,7 @@ class EPDMSScorer(PDMSScorer):
         row: dict[str, Any] = {
             "key": sample["__key__"],
             "dataset": sample["meta"]["dataset"],
-            "token": navsim_token(sample),
+            "token": navsim_scene_token(sample),
             "valid": frame.scene is not None,
             "previous_key": None if earlier is None else earlier.sample["__key__"],
             "error": frame.error,

@@ -22,8 +22,9 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r.predictions import Prediction, most_probable
+from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, navsim_token, proposal_of
+from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, proposal_of
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.score import score_proposals
@@ -93,7 +94,7 @@ class PDMSScorer(Scorer):
         row: dict[str, Any] = {
             "key": sample["__key__"],
             "dataset": sample["meta"]["dataset"],
-            "token": navsim_token(sample),
+            "token": navsim_scene_token(sample),
             "valid": True,
             "error": None,
         }

@@ -46,11 +46,6 @@ def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tup
     }
 
 
-def navsim_token(sample: dict[str, Any]) -> str:
-    """NAVSIM's scene token (the key of its CSV rows); our sample key where the converter kept none."""
-    return sample["meta"].get("extras", {}).get("navsim", {}).get("scene_token", sample["__key__"])
-
-
 class ReferenceCache:
     """PDM-Closed references per sample key: in memory, and in ``folder`` (``<key>.npy``) when given.
 

@@ -29,7 +29,7 @@ import pyarrow as pa
 from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
-from lead_s2r.scoring.navsim.proposals import navsim_token
+from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.pdm import epdms, two_stage
 
 #: per-token table of a two-stage run: the one-stage columns, the token's stage, role and pseudo closed-loop weight.
@@ -70,7 +70,7 @@ def check_complete(
             f"navhard two-stage: token {stray[0]} ({len(stray)} such) is in no group of the two-stage mapping; "
             "leave it out of --data or score one stage with --option two_stage=false"
         )
-    converted = {navsim_token(sample) for sample in samples}
+    converted = {navsim_scene_token(sample) for sample in samples}
     for group in mapping:
         for stage, tokens in ((1, (group.original, group.previous)), (2, [t for p in group.pairs for t in p])):
             for token in tokens:
