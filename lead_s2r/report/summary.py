@@ -53,7 +53,8 @@ def histograms(scores: MetricScores, out: Path) -> bool:
     figure = Figure(figsize=(3.0 * HISTOGRAM_COLUMNS, 2.2 * rows), dpi=80)
     for index, (name, values) in enumerate(columns.items()):
         axes = figure.add_subplot(rows, HISTOGRAM_COLUMNS, index + 1)
-        axes.hist(values, bins=20, color="#4c72b0")
+        counts, edges = np.histogram(values, bins=20)
+        axes.stairs(counts, edges, fill=True, color="#4c72b0")  # one patch, not 20 bars: a tenth of the report's time
         axes.set_title(name, fontsize=8)
         axes.tick_params(labelsize=7)
         axes.ticklabel_format(useOffset=False)
