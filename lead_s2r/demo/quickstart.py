@@ -22,15 +22,19 @@ and console view).
 import importlib
 import json
 import logging
+import multiprocessing
 import shutil
+import sys
 import time
 import warnings
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import torch
 import yaml
 from rich.console import Console
 
@@ -96,16 +100,17 @@ class Training:
     recipe: str
     without_lead: bool = False
     predicts: bool = True
+    #: the training whose checkpoint of the same seed this one starts from (its recipe's ``init_from``)
+    after: str | None = None
 
 
-#: In init_from order.
 TRAININGS = (
     Training("ego_mlp", "ego_mlp"),
     Training("navsim_ltfv6", "navsim_ltfv6_lead", without_lead=True),
     Training("navsim_ltfv6_lead", "navsim_ltfv6_lead"),
     Training("wod_ltfv6_pretrain", "wod_ltfv6_pretrain", predicts=False),
     Training("wod_ltfv6", "wod_ltfv6_lead", without_lead=True),
-    Training("wod_ltfv6_lead", "wod_ltfv6_lead"),
+    Training("wod_ltfv6_lead", "wod_ltfv6_lead", after="wod_ltfv6_pretrain"),
 )
 
 
@@ -136,9 +141,7 @@ def quickstart(out: Path, workers: int = 2, console: Console | None = None) -> d
     caches = {dataset: ScoringCaches() for dataset in PLAN}
     results = {"expert": score_expert(out, caches)}
     _stage(console, f"{EXPERT}: logged futures scored on the held-out logs", started)
-    for seed in SEEDS:
-        for training in TRAININGS:
-            results.update(train_and_score(training, seed, out, console, started, caches))
+    results |= train_every_seed(out, workers, console, started, caches)
     (out / "summary.json").write_text(json.dumps(results, indent=2))
     for shown in build_table4(results, out, SEEDS):
         console.print(shown)
@@ -292,11 +295,69 @@ def lightning_output_to(log: Path) -> Iterator[None]:
                 logger.handlers = saved
 
 
-def train_and_score(
-    training: Training, seed: int, out: Path, console: Console, started: float, caches: dict[str, ScoringCaches]
+def chains() -> list[tuple[Training, ...]]:
+    """The trainings in runs that can go side by side: a pre-training and those that start from it, else one each."""
+    grouped = [(t, *(d for d in TRAININGS if d.after == t.name)) for t in TRAININGS if t.after is None]
+    return sorted(grouped, key=len, reverse=True)  # the longest first, so no process waits on it at the end
+
+
+def train_every_seed(
+    out: Path, workers: int, console: Console, started: float, caches: dict[str, ScoringCaches]
 ) -> dict[str, Any]:
+    """:func:`train_and_score` for every training and seed, each on one torch thread and up to ``workers`` at a time
+    in forked processes (where the platform forks safely; elsewhere one after another). The twins' small steps use a
+    second thread poorly (a NAVSIM twin's fit took 61 s CPU on two threads, 27 s on one, beside a busy core), and one
+    thread a run makes every number the same on any machine however many cores it has. Results are merged in a fixed
+    order, whichever run ends first."""
+    jobs = [(chain, seed) for seed in SEEDS for chain in chains()]
+    if workers < 2 or sys.platform != "linux":
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return _merged((train_chain(chain, seed, out, caches) for chain, seed in jobs), console, started)
+        finally:
+            torch.set_num_threads(threads)
+    _inherited.clear()
+    _inherited.update(caches)  # forked processes see them as they are now, without pickling 20 MB a run
+    context = multiprocessing.get_context("fork")
+    with ProcessPoolExecutor(workers, context, initializer=torch.set_num_threads, initargs=(1,)) as pool:
+        futures = [pool.submit(train_chain, chain, seed, out) for chain, seed in jobs]
+        return _merged((future.result() for future in futures), console, started)
+
+
+#: The quickstart process's scoring caches, for the training processes it forks.
+_inherited: dict[str, ScoringCaches] = {}
+
+
+def _merged(done: Iterator[tuple[dict[str, Any], list[str]]], console: Console, started: float) -> dict[str, Any]:
+    """The runs' results in one dict, in the order given; each run's lines shown as it comes."""
+    results: dict[str, Any] = {}
+    for scored, messages in done:
+        results |= scored
+        for message in messages:
+            _stage(console, message, started)
+    return results
+
+
+def train_chain(
+    chain: tuple[Training, ...], seed: int, out: Path, caches: dict[str, ScoringCaches] | None = None
+) -> tuple[dict[str, Any], list[str]]:
+    """:func:`train_and_score` for each training of ``chain`` in order, with ``caches`` (a forked process: the
+    parent's); returns the results and one line a training."""
+    results, messages = {}, []
+    for training in chain:
+        scored, message = train_and_score(training, seed, out, caches if caches is not None else _inherited)
+        results |= scored
+        messages.append(message)
+    return results, messages
+
+
+def train_and_score(
+    training: Training, seed: int, out: Path, caches: dict[str, ScoringCaches]
+) -> tuple[dict[str, Any], str]:
     """Fit the training's config with ``seed``; draw its loss curves; predict and score the held-out logs with the
-    weights before and after training. Returns ``{"<name>/seed<N>/<stage>": {dataset: {scorer: aggregates}}}``."""
+    weights before and after training. Returns ``{"<name>/seed<N>/<stage>": {dataset: {scorer: aggregates}}}`` and
+    the line the console shows."""
     config = smoke_config(training, out, seed)
     run = run_folder(out, *home(training), seed)
     for dataset in scored_on(training):  # a checkpoint or scores left by an earlier quickstart would pass for new
@@ -313,8 +374,7 @@ def train_and_score(
         checkpoint = run / "checkpoints" / "last.ckpt"
         results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, caches)
     scored = ", scored before and after" if training.predicts else ""
-    _stage(console, f"{key}: trained{scored}; loss curves -> {curves}", started)
-    return results
+    return results, f"{key}: trained{scored}; loss curves -> {curves}"
 
 
 def predict_and_score(
