@@ -103,7 +103,7 @@ def find_hits(
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(box_polygons(coords[pairs]), observation.polygons[geom[pairs]])
 
-    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact)
+    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact, observation.axes[geom])
     return query[intersects], geom[intersects]
 
 
@@ -175,7 +175,7 @@ def no_at_fault_collisions(
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(shapely.linestrings(front[pairs]), observation.polygons[geom[pairs]])
 
-    front_hit = convex_intersects(front, observation.corners[geom], exact)
+    front_hit = convex_intersects(front, observation.corners[geom], exact, observation.axes[geom])
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
     at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
     counted = counted_before_release(row, obj, step, at_fault)

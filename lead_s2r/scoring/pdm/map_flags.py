@@ -168,6 +168,7 @@ class DrivableMap:
         xmin, ymin, xmax, ymax = self.bounds[:, polygon]
         near = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
         held[crossed[near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]]] = True
+        held = np.flatnonzero(held)  # one pass over the mask for both gathers
         return index[held], self.grid.members[entry[held]]
 
     def _classify(self, entries: np.ndarray) -> None:
