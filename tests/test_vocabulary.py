@@ -35,6 +35,7 @@ from lead_s2r.scoring.pdm.map_flags import (
     multiple_lanes,
 )
 from lead_s2r.scoring.pdm.observation import log_observation
+from lead_s2r.scoring.pdm.overlap import Axes, convex_intersects
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
@@ -270,6 +271,19 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     }
     assert set(zip(query.tolist(), geom.tolist(), strict=True)) == truth
     assert len(truth) >= len(coords) // 3
+    # each moved box against the agent it was moved from: the observation's axes, gathered per pair, are the numbers
+    # the pair's own corners give, and the test answers GEOS with them
+    pairs = np.tile(geoms, len(moved))
+    gathered = observation.axes[pairs]
+    recomputed = Axes.of(observation.corners[pairs])
+    for name in ("normals", "low", "high"):
+        assert getattr(gathered, name).tobytes() == getattr(recomputed, name).tobytes()
+
+    def exact(undecided: np.ndarray) -> np.ndarray:
+        return shapely.intersects(polygons[undecided], observation.polygons[pairs[undecided]])
+
+    answer = convex_intersects(coords[:, :4], observation.corners[pairs], exact, gathered)
+    assert answer.tolist() == [(q, int(g)) in truth for q, g in enumerate(pairs.tolist())]
 
 
 def vocab_score(vocab: Path, data: Path, out: Path, *options: str) -> dict[str, bytes]:
