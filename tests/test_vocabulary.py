@@ -286,6 +286,23 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     assert answer.tolist() == [(q, int(g)) in truth for q, g in enumerate(pairs.tolist())]
 
 
+def test_separating_axes_leave_a_degenerate_outline_to_geos() -> None:
+    """A box collapsed to a point has no edge normals (NaN gaps): a gap on the other box's axes still separates it
+    when it lies outside, and inside it goes to GEOS instead of counting as overlap (the NaN axes prove nothing)."""
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    points = np.array([[1.0, 1.0], [5.0, 1.0]])  # inside the square, beyond it on its x axis
+    first = np.repeat(points[:, None], 4, axis=1)
+    second = np.stack([square, square])
+    asked = []
+
+    def exact(undecided: np.ndarray) -> np.ndarray:
+        asked.extend(undecided.tolist())
+        return shapely.intersects(shapely.points(points[undecided]), shapely.polygons(second[undecided]))
+
+    assert convex_intersects(first, second, exact).tolist() == [True, False]
+    assert asked == [0]
+
+
 def vocab_score(vocab: Path, data: Path, out: Path, *options: str) -> dict[str, bytes]:
     """Every file ``vocab score`` writes, by name."""
     args = ["vocab", "score", "--vocab", str(vocab), "--data", str(data), "--out", str(out), "--quiet"]
