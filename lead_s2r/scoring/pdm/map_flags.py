@@ -163,7 +163,8 @@ class DrivableMap:
             cover = self.cover[entry]
         held = cover == INSIDE
         crossed = np.flatnonzero(cover == CROSSED)
-        x, y = flat[index[crossed], 0], flat[index[crossed], 1]
+        crossed_points = index[crossed]
+        x, y = flat[crossed_points, 0], flat[crossed_points, 1]
         polygon = self.grid.members[entry[crossed]]
         xmin, ymin, xmax, ymax = self.bounds[:, polygon]
         near = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
