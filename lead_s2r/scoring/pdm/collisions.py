@@ -73,8 +73,8 @@ def candidate_pairs(
         dx *= dx
         dy *= dy
         dx += dy
-        rows, slots_per_row, gmax = dx.shape
-        query, slot = np.nonzero((dx <= step_reach).reshape(rows * slots_per_row, gmax))
+        # flat positions split by the row length: a 2-D np.nonzero costs ~8x more here, the same pairs in order
+        query, slot = np.divmod(np.flatnonzero(dx <= step_reach), dx.shape[-1])
         queries.append(query + start * centers.shape[1])
         slots.append(slot)
     if not queries:
