@@ -35,6 +35,7 @@ from lead_s2r.scoring.pdm.map_flags import (
     multiple_lanes,
 )
 from lead_s2r.scoring.pdm.observation import log_observation
+from lead_s2r.scoring.pdm.overlap import Axes, convex_intersects
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
@@ -270,6 +271,36 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     }
     assert set(zip(query.tolist(), geom.tolist(), strict=True)) == truth
     assert len(truth) >= len(coords) // 3
+    # each moved box against the agent it was moved from: the observation's axes, gathered per pair, are the numbers
+    # the pair's own corners give, and the test answers GEOS with them
+    pairs = np.tile(geoms, len(moved))
+    gathered = observation.axes[pairs]
+    recomputed = Axes.of(observation.corners[pairs])
+    for name in ("normals", "low", "high"):
+        assert getattr(gathered, name).tobytes() == getattr(recomputed, name).tobytes()
+
+    def exact(undecided: np.ndarray) -> np.ndarray:
+        return shapely.intersects(polygons[undecided], observation.polygons[pairs[undecided]])
+
+    answer = convex_intersects(coords[:, :4], observation.corners[pairs], exact, gathered)
+    assert answer.tolist() == [(q, int(g)) in truth for q, g in enumerate(pairs.tolist())]
+
+
+def test_separating_axes_leave_a_degenerate_outline_to_geos() -> None:
+    """A box collapsed to a point has no edge normals (NaN gaps): a gap on the other box's axes still separates it
+    when it lies outside, and inside it goes to GEOS instead of counting as overlap (the NaN axes prove nothing)."""
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    points = np.array([[1.0, 1.0], [5.0, 1.0]])  # inside the square, beyond it on its x axis
+    first = np.repeat(points[:, None], 4, axis=1)
+    second = np.stack([square, square])
+    asked = []
+
+    def exact(undecided: np.ndarray) -> np.ndarray:
+        asked.extend(undecided.tolist())
+        return shapely.intersects(shapely.points(points[undecided]), shapely.polygons(second[undecided]))
+
+    assert convex_intersects(first, second, exact).tolist() == [True, False]
+    assert asked == [0]
 
 
 def vocab_score(vocab: Path, data: Path, out: Path, *options: str) -> dict[str, bytes]:

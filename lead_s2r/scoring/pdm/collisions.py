@@ -73,8 +73,8 @@ def candidate_pairs(
         dx *= dx
         dy *= dy
         dx += dy
-        rows, slots_per_row, gmax = dx.shape
-        query, slot = np.nonzero((dx <= step_reach).reshape(rows * slots_per_row, gmax))
+        # flat positions split by the row length: a 2-D np.nonzero costs ~8x more here, the same pairs in order
+        query, slot = np.divmod(np.flatnonzero(dx <= step_reach), dx.shape[-1])
         queries.append(query + start * centers.shape[1])
         slots.append(slot)
     if not queries:
@@ -103,7 +103,7 @@ def find_hits(
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(box_polygons(coords[pairs]), observation.polygons[geom[pairs]])
 
-    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact)
+    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact, observation.axes[geom])
     return query[intersects], geom[intersects]
 
 
@@ -175,7 +175,7 @@ def no_at_fault_collisions(
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(shapely.linestrings(front[pairs]), observation.polygons[geom[pairs]])
 
-    front_hit = convex_intersects(front, observation.corners[geom], exact)
+    front_hit = convex_intersects(front, observation.corners[geom], exact, observation.axes[geom])
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
     at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
     counted = counted_before_release(row, obj, step, at_fault)

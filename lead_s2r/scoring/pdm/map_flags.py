@@ -163,11 +163,13 @@ class DrivableMap:
             cover = self.cover[entry]
         held = cover == INSIDE
         crossed = np.flatnonzero(cover == CROSSED)
-        x, y = flat[index[crossed], 0], flat[index[crossed], 1]
+        crossed_points = index[crossed]
+        x, y = flat[crossed_points, 0], flat[crossed_points, 1]
         polygon = self.grid.members[entry[crossed]]
         xmin, ymin, xmax, ymax = self.bounds[:, polygon]
         near = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
         held[crossed[near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]]] = True
+        held = np.flatnonzero(held)  # one pass over the mask for both gathers
         return index[held], self.grid.members[entry[held]]
 
     def _classify(self, entries: np.ndarray) -> None:

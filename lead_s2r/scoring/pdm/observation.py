@@ -31,6 +31,7 @@ from shapely import STRtree
 
 from lead_s2r.schema import BoxClass
 from lead_s2r.scoring.pdm.footprint import box_coords, box_polygons
+from lead_s2r.scoring.pdm.overlap import Axes
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
 
@@ -53,6 +54,7 @@ class Observation:
 
     polygons: np.ndarray  # (G,) shapely Polygons
     corners: np.ndarray  # (G, 4, 2) a box's corners in ring order (NaN for red-light polygons)
+    axes: Axes  # the corners' separating axes and extents, computed once for every NC/TTC query that meets a box
     objects: np.ndarray  # (G,) int64 object index
     centroids: np.ndarray  # (G, 2)
     radius: np.ndarray  # (G,)
@@ -206,6 +208,7 @@ def dense_observation(
     return Observation(
         polygons=polygons,
         corners=corners,
+        axes=Axes.of(corners),
         objects=objects.astype(np.int64),
         centroids=centroids,
         radius=_enclosing_radius(polygons, centroids),

@@ -12,6 +12,7 @@ beside it.
 """
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import reduce
 
 import numpy as np
@@ -36,23 +37,45 @@ def _extent(outline: np.ndarray, ax: np.ndarray, ay: np.ndarray) -> tuple[np.nda
     return reduce(np.minimum, projections), reduce(np.maximum, projections)
 
 
-def _gaps(first: np.ndarray, second: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """``(P, A)``: how far apart the projections of the two outlines on each axis are (negative: overlap depth)."""
-    ax, ay = axes[..., 0], axes[..., 1]
-    low1, high1 = _extent(first, ax, ay)
-    low2, high2 = _extent(second, ax, ay)
-    return np.maximum(low2 - high1, low1 - high2)
+@dataclass
+class Axes:
+    """Outlines' separating axes ``(P, E, 2)`` and each outline's own extent on them ``(P, E)``: what the test needs
+    of one side alone, so outlines met by many queries (an observation's boxes) compute it once and gather rows."""
+
+    normals: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+
+    @classmethod
+    def of(cls, outline: np.ndarray) -> "Axes":
+        normals = _unit_normals(outline)
+        return cls(normals, *_extent(outline, normals[..., 0], normals[..., 1]))
+
+    def __getitem__(self, rows: np.ndarray) -> "Axes":
+        return Axes(self.normals[rows], self.low[rows], self.high[rows])
 
 
-def convex_intersects(first: np.ndarray, second: np.ndarray, exact: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+def _gaps(own: Axes, other: np.ndarray) -> np.ndarray:
+    """``(P, E)``: how far apart the projections of an outline (``own``, its axes) and ``other`` ``(P, K, 2)`` are on
+    each of its axes (negative: overlap depth)."""
+    low, high = _extent(other, own.normals[..., 0], own.normals[..., 1])
+    return np.maximum(low - own.high, own.low - high)
+
+
+def convex_intersects(
+    first: np.ndarray, second: np.ndarray, exact: Callable[[np.ndarray], np.ndarray], second_axes: Axes | None = None
+) -> np.ndarray:
     """``(P,)``: outline ``first[p]`` (``(P, K1, 2)``, convex, in ring order) shares a point with ``second[p]``.
-    ``exact(indices)`` answers the undecided pairs (``shapely.intersects`` of the same outlines)."""
+    ``exact(indices)`` answers the undecided pairs (``shapely.intersects`` of the same outlines). ``second_axes``:
+    ``Axes.of(second)`` where the caller holds it (the same numbers, gathered instead of recomputed)."""
     if len(first) == 0:
         return np.zeros(0, bool)
-    axes = np.concatenate([_unit_normals(first), _unit_normals(second)], axis=1)
-    gaps = _gaps(first, second, axes)
-    separated = (gaps > MARGIN).any(axis=-1)
-    overlapping = (gaps < -MARGIN).all(axis=-1)
+    second_axes = Axes.of(second) if second_axes is None else second_axes
+    gaps = [*_gaps(Axes.of(first), second).T, *_gaps(second_axes, first).T]
+    # the widest gap axis by axis, elementwise (numpy's any / all over an axis of 3-4 cost far more): fmax skips a
+    # NaN gap (some other axis may still separate), maximum keeps it (a NaN axis proves no overlap)
+    separated = reduce(np.fmax, gaps) > MARGIN
+    overlapping = reduce(np.maximum, gaps) < -MARGIN
     result = overlapping & ~separated
     undecided = np.flatnonzero(~separated & ~overlapping)
     if len(undecided):
