@@ -322,7 +322,10 @@ def train_every_seed(
     context = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(workers, context, initializer=torch.set_num_threads, initargs=(1,)) as pool:
         futures = [pool.submit(train_chain, chain, seed, out) for chain, seed in jobs]
-        return _merged((future.result() for future in futures), console, started)
+        try:
+            return _merged((future.result() for future in futures), console, started)
+        finally:  # a run that failed stops the runs not yet started
+            pool.shutdown(cancel_futures=True)
 
 
 #: The quickstart process's scoring caches, for the training processes it forks.
