@@ -305,22 +305,20 @@ def train_every_seed(
     out: Path, workers: int, console: Console, started: float, caches: dict[str, ScoringCaches]
 ) -> dict[str, Any]:
     """:func:`train_and_score` for every training and seed, each on one torch thread and up to ``workers`` at a time
-    in forked processes (where the platform forks safely; elsewhere one after another). The twins' small steps use a
-    second thread poorly (a NAVSIM twin's fit took 61 s CPU on two threads, 27 s on one, beside a busy core), and one
-    thread a run makes every number the same on any machine however many cores it has. Results are merged in a fixed
-    order, whichever run ends first."""
+    in processes of their own (forked where the platform forks safely, spawned elsewhere). The twins' small steps use
+    a second thread poorly (a NAVSIM twin's fit took 61 s CPU on two threads, 27 s on one, beside a busy core), and
+    one thread a run makes every number the same on any machine however many cores it has. Results are merged in a
+    fixed order, whichever run ends first."""
     jobs = [(chain, seed) for seed in SEEDS for chain in chains()]
-    if workers < 2 or sys.platform != "linux":
+    if workers < 2:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
             return _merged((train_chain(chain, seed, out, caches) for chain, seed in jobs), console, started)
         finally:
             torch.set_num_threads(threads)
-    _inherited.clear()
-    _inherited.update(caches)  # forked processes see them as they are now, without pickling 20 MB a run
-    context = multiprocessing.get_context("fork")
-    with ProcessPoolExecutor(workers, context, initializer=torch.set_num_threads, initargs=(1,)) as pool:
+    context = multiprocessing.get_context("fork" if sys.platform == "linux" else "spawn")
+    with ProcessPoolExecutor(workers, context, initializer=_start_training_process, initargs=(caches,)) as pool:
         futures = [pool.submit(train_chain, chain, seed, out) for chain, seed in jobs]
         try:
             return _merged((future.result() for future in futures), console, started)
@@ -328,8 +326,15 @@ def train_every_seed(
             pool.shutdown(cancel_futures=True)
 
 
-#: The quickstart process's scoring caches, for the training processes it forks.
+#: A training process's scoring caches: the quickstart's, as they were when the process started.
 _inherited: dict[str, ScoringCaches] = {}
+
+
+def _start_training_process(caches: dict[str, ScoringCaches]) -> None:
+    """One torch thread, and the quickstart's caches: inherited as they are when forked (no copy of their 20 MB),
+    unpickled once when spawned."""
+    torch.set_num_threads(1)
+    _inherited.update(caches)
 
 
 def _merged(done: Iterator[tuple[dict[str, Any], list[str]]], console: Console, started: float) -> dict[str, Any]:
@@ -345,8 +350,8 @@ def _merged(done: Iterator[tuple[dict[str, Any], list[str]]], console: Console, 
 def train_chain(
     chain: tuple[Training, ...], seed: int, out: Path, caches: dict[str, ScoringCaches] | None = None
 ) -> tuple[dict[str, Any], list[str]]:
-    """:func:`train_and_score` for each training of ``chain`` in order, with ``caches`` (a forked process: the
-    parent's); returns the results and one line a training."""
+    """:func:`train_and_score` for each training of ``chain`` in order, with ``caches`` (in a training process: the
+    quickstart's); returns the results and one line a training."""
     results, messages = {}, []
     for training in chain:
         scored, message = train_and_score(training, seed, out, caches if caches is not None else _inherited)
