@@ -181,7 +181,7 @@ class NavsimAdapter(Adapter):
         frames = load_log(path)
         scenes = LogScenes(self, log, frames)
         for start, current in self.windows(frames, str(path)):
-            token = str(required(frames[current], "token", f"{path} frame {current}"))
+            token = required(frames[current], "token", f"{path} frame {current}", str)
             if self.filter is None or self.filter.tokens is None or token in self.filter.tokens:
                 yield _scene(scenes, start, current, f"{path} frame {current}")
 

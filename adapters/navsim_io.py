@@ -115,11 +115,15 @@ def homogeneous(rotation: Any, translation: Any) -> np.ndarray:
     return matrix
 
 
-def required(frame: dict[str, Any], name: str, where: str) -> Any:
-    """``frame[name]``, or an error naming ``where`` and the missing field."""
+def required(frame: dict[str, Any], name: str, where: str, kind: type | None = None) -> Any:
+    """``frame[name]``, or an error naming ``where`` and the field when it is missing or, given ``kind``, of another
+    type (a name or path that is not text would otherwise be read as one: ``True`` as a map location)."""
     if name not in frame:
         raise NavsimFormatError(f"{where}: field {name!r} is missing")
-    return frame[name]
+    value = frame[name]
+    if kind is not None and not isinstance(value, kind):
+        raise NavsimFormatError(f"{where}: field {name!r} is {type(value).__name__}, not {kind.__name__}")
+    return value
 
 
 def read_camera(
@@ -127,7 +131,7 @@ def read_camera(
 ) -> tuple[bytes, dict[str, Any]]:
     """One camera's JPEG bytes as stored and its ``meta.cameras`` entry (OpenScene calibrates cameras to the LiDAR,
     so ``cam_to_ego`` goes through ``lidar2ego``)."""
-    path = sensors / str(required(cam, "data_path", where))
+    path = sensors / required(cam, "data_path", where, str)
     if not path.is_file():
         raise FileNotFoundError(f"{where}: sensor blob {path} is missing")
     data = path.read_bytes()

@@ -70,15 +70,15 @@ class LogScenes:
             quaternion_matrix(required(frame, "lidar2ego_rotation", where)),
             required(frame, "lidar2ego_translation", where),
         )
-        token = str(required(frame, "token", where))
-        location = str(required(frame, "map_location", where))
+        token = required(frame, "token", where, str)
+        location = required(frame, "map_location", where, str)
         sample: dict[str, Any] = {
             "__key__": make_key(self.log.log_id, token),
             "past": trajectory[: source.history],
             "future": trajectory[source.history :],
         }
         cameras = self.cameras(frame, where, lidar2ego, sample)
-        points, columns = read_pcd(self.sensors / str(required(frame, "lidar_path", where)))
+        points, columns = read_pcd(self.sensors / required(frame, "lidar_path", where, str))
         points[:, :3] = (points[:, :3].astype(np.float64) @ lidar2ego[:3, :3].T + lidar2ego[:3, 3]).astype(np.float32)
         sample["lidar"] = points
         extras: dict[str, Any] = {
@@ -103,7 +103,7 @@ class LogScenes:
             red = [[int(lc) for lc, is_red in self.traffic_lights(i) if is_red] for i in future]
             times = (self.stamps[list(future)] - self.stamps[current]) / 1e6
             roadblocks, map_name = extras["roadblock_ids"], extras["map_name"]
-            add_map_fields(source, sample, map_name, origin, roadblocks, red, times, self.ego_past(current))
+            add_map_fields(source, sample, map_name, origin, roadblocks, red, times, self.ego_past(current), where)
         ego = self.ego(current, where, trajectory[source.history - 2])
         scene = SceneFrame(self.log, self.log.log_id, current, int(self.stamps[current]), False)
         sample["meta"] = scene_meta(source, scene, extras, ego, cameras, sample) | {"lidar_columns": columns}

@@ -176,20 +176,25 @@ def add_map_fields(
     red: list[list[int]],
     times: np.ndarray,
     past: np.ndarray,
+    where: str,
 ) -> None:
     """``scoring`` (the PDM scorer's map context, ``red`` lane connectors per future keyframe at ``times``, the ego
-    ``past``) and ``bev_semantic`` (rendered from it and the boxes) into ``sample``; needs ``source.maps``."""
+    ``past``) and ``bev_semantic`` (rendered from it and the boxes) into ``sample``; needs ``source.maps``. A map
+    error names ``where`` (the log's file and frame) too: the log's location or ids may be what is wrong."""
     assert source.maps is not None
-    nuplan_map = navsim_map.load_map(source.maps, map_name)
-    try:  # a damaged map (or the log's ids into it) fails deep in numpy/shapely: name the map file here
-        context = navsim_map.scoring_context(nuplan_map, origin, source.map_radius, roadblocks, red, times)
-        context["ego_past"] = past
-        sample["scoring"] = context
-        sample["bev_semantic"] = navsim_map.bev_semantic_raster(context, sample.get("boxes", np.zeros((0, 10))))
-    except (TypeError, ValueError, KeyError, IndexError, shapely.errors.ShapelyError) as err:
-        if isinstance(err, UserError):
-            raise
-        problem = f"{type(err).__name__}: {err}"
-        raise navsim_map.MapError(
-            f"{nuplan_map.path}: unusable around this scene, or the log's ids into it ({problem})"
-        ) from err
+    try:
+        nuplan_map = navsim_map.load_map(source.maps, map_name)
+        try:  # a damaged map (or the log's ids into it) fails deep in numpy/shapely: name the map file here
+            context = navsim_map.scoring_context(nuplan_map, origin, source.map_radius, roadblocks, red, times)
+            context["ego_past"] = past
+            sample["scoring"] = context
+            sample["bev_semantic"] = navsim_map.bev_semantic_raster(context, sample.get("boxes", np.zeros((0, 10))))
+        except (TypeError, ValueError, KeyError, IndexError, shapely.errors.ShapelyError) as err:
+            if isinstance(err, UserError):
+                raise
+            problem = f"{type(err).__name__}: {err}"
+            raise navsim_map.MapError(
+                f"{nuplan_map.path}: unusable around this scene, or the log's ids into it ({problem})"
+            ) from err
+    except navsim_map.MapError as err:
+        raise type(err)(f"{where}: {err}") from err

@@ -216,7 +216,7 @@ class SyntheticScene:
                 for k, s in enumerate(self.scene["extended_traffic_light_data"] or [])
             ]
             times = np.arange(len(red)) * 0.5
-            add_map_fields(source, sample, map_name, self.origin, roadblocks, red, times, self.ego_past())
+            add_map_fields(source, sample, map_name, self.origin, roadblocks, red, times, self.ego_past(), self.where)
         extras = {
             "scene_token": token,
             "initial_token": token,

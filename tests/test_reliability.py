@@ -397,6 +397,27 @@ def test_navsim_wrong_typed_log_value_names_the_log_file(raw, tmp_path):
     assert "a value of an unexpected type (ValueError" in error["error"]
 
 
+@pytest.mark.parametrize(
+    ("location", "expected"),
+    [(True, "field 'map_location' is bool, not str"), ("us-xx-nowhere", "no map for location 'us-xx-nowhere'")],
+)
+def test_navsim_log_map_location_without_a_map_names_the_log_file(raw, tmp_path, location, expected):
+    """Found by the fuzz (seed 7411): a location of another type was read as the text 'True', and a location the maps
+    folder lacks named only the missing map; both are the log's values, so the error names the log's pickle."""
+    src = copy_of(raw["navsim"], tmp_path)
+    log = sorted((src / "navsim_logs" / "mini").glob("*.pkl"))[0]
+    with open(log, "rb") as file:
+        frames = restricted_pickle.load(file)
+    for frame in frames:
+        frame["map_location"] = location
+    rewrite(log, pickle.dumps(frames))
+    (error,) = convert(get_adapter("navsim", maps=str(src / "maps")), src, tmp_path / "out").errors
+    assert error["error"].startswith(f"NavsimFormatError: {log} frame ") or error["error"].startswith(
+        f"MapError: {log} frame "
+    )
+    assert expected in error["error"]
+
+
 def test_laz_header_claiming_too_many_points_or_a_stuck_decoder_is_refused(raw, tmp_path, monkeypatch):
     """A damaged point count made the decoder fill gigabytes for minutes (a hang of the whole conversion)."""
     from lead_s2r_adapters import laz_decoder
