@@ -2,7 +2,12 @@
 
 import io
 import json
+import multiprocessing
+import os
+import signal
 import sys
+import threading
+import time
 
 import pytest
 import torch
@@ -226,3 +231,36 @@ def test_quickstart_scores_every_model_before_and_after_training_on_held_out_log
         torch.set_num_threads(threads)
     assert set(again) == {"navsim_ltfv6/seed1/untrained", "navsim_ltfv6/seed1/trained"}
     assert again == {key: results[key] for key in again}
+
+
+def _slow_chain(chain: tuple, seed: int, out, caches=None) -> tuple[dict, list[str]]:
+    time.sleep(120)  # a training in flight
+    return {}, []
+
+
+def test_ctrl_c_stops_the_trainings_in_flight_at_once(tmp_path, monkeypatch):
+    """Ctrl-C reaches every process of the terminal's group: the training processes leave it to the quickstart,
+    which stops them instead of waiting for their runs (Lightning would catch it in there and go on scoring)."""
+    monkeypatch.setattr(qs, "train_chain", _slow_chain)  # forked: the processes run the patched module
+
+    def ctrl_c() -> None:
+        time.sleep(2)  # the processes have started
+        for process in multiprocessing.active_children():
+            os.kill(process.pid, signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=ctrl_c, daemon=True).start()
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        qs.train_every_seed(tmp_path, 2, Console(file=io.StringIO()), started, {})
+    assert time.monotonic() - started < 30
+    assert multiprocessing.active_children() == []
+
+
+def test_ctrl_c_in_any_verb_is_one_line_and_status_130(monkeypatch, capsys):
+    def interrupted(argv: list[str], from_shell: bool) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("lead_s2r.cli._run", interrupted)
+    assert main(["convert", "--help"]) == 130
+    assert capsys.readouterr().err == "interrupted\n"

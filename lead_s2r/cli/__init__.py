@@ -20,6 +20,8 @@ DEBUG_FLAG = "--debug"
 USER_ERROR_STATUS = 2
 #: A closed stdout: the status a shell gives a process ended by SIGPIPE (128 + 13).
 BROKEN_PIPE_STATUS = 141
+#: A shell's status for a command stopped by SIGINT (128 + 2).
+INTERRUPTED_STATUS = 130
 #: The verb groups, in the order ``lead-s2r --help`` lists them.
 VERB_GROUPS = (data, scoring, vocab, submit, closed_loop, serve, report, training, demo)
 
@@ -65,6 +67,11 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `lead-s2r ... | head`: the reader has all it wanted
         _quiet_stdout()
         return BROKEN_PIPE_STATUS
+    except KeyboardInterrupt:  # Ctrl-C: one line; files are written whole or not at all, so what was written stays
+        if debug:
+            raise
+        print("interrupted", file=sys.stderr)
+        return INTERRUPTED_STATUS
 
 
 def _quiet_stdout() -> None:

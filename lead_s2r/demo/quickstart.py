@@ -24,6 +24,7 @@ import json
 import logging
 import multiprocessing
 import shutil
+import signal
 import sys
 import time
 import warnings
@@ -322,7 +323,11 @@ def train_every_seed(
         futures = [pool.submit(train_chain, chain, seed, out) for chain, seed in jobs]
         try:
             return _merged((future.result() for future in futures), console, started)
-        finally:  # a run that failed stops the runs not yet started
+        except BaseException:  # a run that failed, or Ctrl-C: the runs in flight are stopped, not waited for
+            for process in multiprocessing.active_children():
+                process.terminate()
+            raise
+        finally:  # and those not yet started never start
             pool.shutdown(cancel_futures=True)
 
 
@@ -332,7 +337,9 @@ _inherited: dict[str, ScoringCaches] = {}
 
 def _start_training_process(caches: dict[str, ScoringCaches]) -> None:
     """One torch thread, and the quickstart's caches: inherited as they are when forked (no copy of their 20 MB),
-    unpickled once when spawned."""
+    unpickled once when spawned. Ctrl-C is the quickstart's to handle: Lightning would catch it in here and go on to
+    score a half-trained model."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     torch.set_num_threads(1)
     _inherited.update(caches)
 
