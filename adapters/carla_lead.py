@@ -356,10 +356,12 @@ class CarlaLeadAdapter(Adapter):
             yaw = float(field(box, "yaw", path))
             if extent.shape != (3,) or position.shape != (3,):
                 raise LeadFormatError(path, f"box {i}: extent and position must hold 3 numbers", "extent/position")
+            speeds[i] = float(box.get("speed", 0.0))
+            if not np.isfinite([*extent, *position, yaw, speeds[i]]).all():  # None reads as NaN in a float array
+                raise LeadFormatError(path, f"box {i}: extent, position, yaw and speed must be finite numbers")
             centres[i] = position[0], position[1], yaw
             rows[i, 2:6] = position[2], *(2 * extent)
             rows[i, 9] = box_class(box)
-            speeds[i] = float(box.get("speed", 0.0))
             if "future_positions" in box:
                 future = array(box, "future_positions", path, columns=2)[1:, :2]
                 yaws = array(box, "future_yaws", path)[1:]

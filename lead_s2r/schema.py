@@ -339,6 +339,12 @@ def _require(key: str, where: str, mapping: Any, names: tuple[str, ...]) -> None
             raise SchemaError(key, f"{where}.{name}", "required entry is missing")
 
 
+def _is_matrix(value: Any, size: int) -> bool:
+    """Whether ``value`` is a ``size`` x ``size`` matrix of finite numbers as JSON holds it (rows of a ragged list
+    would make numpy raise instead of answering)."""
+    return fits(value, list[list[float]]) and len(value) == size and all(len(row) == size for row in value)
+
+
 def _check_meta(key: str, sample: dict[str, Any]) -> None:
     meta = sample["meta"]
     _require(key, "meta", meta, META_REQUIRED)
@@ -365,10 +371,12 @@ def _check_meta(key: str, sample: dict[str, Any]) -> None:
     for name, flag in has.items():
         if flag and name not in sample:
             raise SchemaError(key, f"meta.has.{name}", "flagged true but the field is missing")
+    if not isinstance(meta["cameras"], list):
+        raise SchemaError(key, "meta.cameras", "expected a list of cameras")
     for i, camera in enumerate(meta["cameras"]):
         _require(key, f"meta.cameras[{i}]", camera, CAMERA_REQUIRED)
-        if np.asarray(camera["K"]).shape != (3, 3) or np.asarray(camera["cam_to_ego"]).shape != (4, 4):
-            raise SchemaError(key, f"meta.cameras[{i}]", "K must be 3x3 and cam_to_ego 4x4")
+        if not (_is_matrix(camera["K"], 3) and _is_matrix(camera["cam_to_ego"], 4)):
+            raise SchemaError(key, f"meta.cameras[{i}]", "K must be 3x3 and cam_to_ego 4x4 finite numbers")
     if "lidar" in sample:
         columns = meta.get("lidar_columns")
         if not isinstance(columns, list) or len(columns) != sample["lidar"].shape[1]:

@@ -29,6 +29,7 @@ from lead_s2r.formats import restricted_pickle
 from lead_s2r.predictions import write_predictions
 from lead_s2r.registry import get_adapter
 from lead_s2r.report.inspection import inspect_dataset
+from lead_s2r.schema import SchemaError, validate
 from lead_s2r.scoring.baselines import predict_human
 from lead_s2r.shards import ERRORS, INFO, MANIFEST, ShardError, load_manifest, read_samples
 from lead_s2r.training import cli as training_cli  # noqa: F401 - see the module docstring
@@ -416,6 +417,31 @@ def test_navsim_log_map_location_without_a_map_names_the_log_file(raw, tmp_path,
         f"MapError: {log} frame "
     )
     assert expected in error["error"]
+
+
+def test_lead_box_value_that_is_no_number_names_the_boxes_file(raw, tmp_path):
+    """Found by the fuzz (seed 8123): a None in a box's position read as NaN, and only the sample check caught it,
+    naming the route but not the file."""
+    src = copy_of(raw["carla_lead"], tmp_path)
+    first, _ = routes(src)
+    path = first / "bboxes" / "0001.pkl"
+    with lzma.open(path, "rb") as file:
+        boxes = restricted_pickle.load(file)
+    other = next(i for i, box in enumerate(boxes) if box.get("class") != "ego_car")
+    boxes[other]["position"] = [boxes[other]["position"][0], None, boxes[other]["position"][2]]
+    path.unlink()
+    with lzma.open(path, "wb") as file:
+        pickle.dump(boxes, file)
+    (error,) = convert(get_adapter("carla_lead"), src, tmp_path / "out").errors
+    assert f"{path}: box " in error["error"] and "must be finite numbers" in error["error"]
+
+
+def test_converted_camera_matrix_of_ragged_rows_is_a_schema_error(converted, tmp_path, capsys):
+    """Found by the fuzz (seed 8123): a ragged K in a converted sample's meta was numpy's ValueError in inspect."""
+    sample = next(iter(read_samples(converted["wod_e2e"])))
+    sample["meta"]["cameras"][0]["K"] = [[1.0, 0.0, 2.0], [0.0, 1.0], [0.0, 0.0, 1.0]]
+    with pytest.raises(SchemaError, match=r"meta.cameras\[0\]'?: K must be 3x3 and cam_to_ego 4x4 finite numbers"):
+        validate(sample)
 
 
 def test_laz_header_claiming_too_many_points_or_a_stuck_decoder_is_refused(raw, tmp_path, monkeypatch):
