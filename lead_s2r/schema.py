@@ -265,9 +265,9 @@ def validate(sample: dict[str, Any]) -> None:
             raise SchemaError(key, name, "unknown field") from None
         _check_value(key, name, spec, value)
     _check_meta(key, sample)
-    _check_trajectory(key, "past", sample["past"], past=True)
+    check_trajectory(key, "past", sample["past"], past=True)
     if "future" in sample:
-        _check_trajectory(key, "future", sample["future"], past=False)
+        check_trajectory(key, "future", sample["future"], past=False)
     if "boxes" in sample:
         _check_boxes(key, sample["boxes"])
     if "target_points" in sample:
@@ -313,7 +313,8 @@ def _check_array(key: str, name: str, spec: FieldSpec, value: Any) -> None:
             raise SchemaError(key, name, f"expected shape {want}, got {value.shape}")
 
 
-def _check_trajectory(key: str, name: str, rows: np.ndarray, past: bool) -> None:
+def check_trajectory(key: str, name: str, rows: np.ndarray, past: bool) -> None:
+    """Raise :class:`SchemaError` unless ``rows`` is a valid ``past`` (or future) trajectory of sample ``key``."""
     if len(rows) == 0:
         raise SchemaError(key, name, "is empty")
     if not np.isfinite(rows[:, :3]).all():

@@ -21,11 +21,9 @@ from corruptions import KINDS, corrupt, hardlink_copy, pick_file
 
 from lead_s2r.convert import convert
 from lead_s2r.errors import UserError
-from lead_s2r.predictions import write_predictions
 from lead_s2r.registry import Adapter, get_adapter
 from lead_s2r.report.inspection import inspect_dataset
-from lead_s2r.scoring.baselines import predict_human
-from lead_s2r.scoring.run import score_predictions
+from lead_s2r.scoring.run import planner_predictions, score_predictions
 from lead_s2r.shards import ERRORS, load_manifest, read_samples
 
 TRIALS = int(os.environ.get("LEAD_S2R_FUZZ_TRIALS", "30"))
@@ -155,8 +153,7 @@ def converted_trial(name: str, made: Made, trial: Path, rng: np.random.Generator
                 assert report["checked"] == len(expected), f"{what}: inspect checked {report['checked']}"
                 invalid = report["invalid"]
             else:
-                replayed = (predict_human(s, horizon=5.0) for s in read_samples(folder, fields=("future",)))
-                predictions = write_predictions(trial / "pred.parquet", replayed)
+                predictions = planner_predictions("human", folder, trial / "pred.parquet")
                 score_predictions("ade", predictions, [folder], trial / "scores")
             outcomes.append("ok")
         except UserError as err:

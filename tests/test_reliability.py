@@ -4,6 +4,7 @@ errors.jsonl line in ``convert``, one line and exit status 2 elsewhere), and wro
 Lightning is imported at collection, as in test_user_errors.py, so that its log handler binds to pytest's stderr.
 """
 
+import io
 import json
 import lzma
 import os
@@ -12,6 +13,7 @@ import re
 import struct
 import subprocess
 import sys
+import tarfile
 from pathlib import Path
 
 import numpy as np
@@ -442,6 +444,23 @@ def test_converted_camera_matrix_of_ragged_rows_is_a_schema_error(converted, tmp
     sample["meta"]["cameras"][0]["K"] = [[1.0, 0.0, 2.0], [0.0, 1.0], [0.0, 0.0, 1.0]]
     with pytest.raises(SchemaError, match=r"meta.cameras\[0\]'?: K must be 3x3 and cam_to_ego 4x4 finite numbers"):
         validate(sample)
+
+
+def test_human_planner_on_a_damaged_future_names_the_data_folder(converted, tmp_path, capsys):
+    """Found by the fuzz (seed 9029): a flipped bit in a converted future's t was blamed on the prediction."""
+    folder = copy_of(converted["navsim"], tmp_path)
+    tar = sorted((folder / "shards").glob("*.tar"))[0]
+    data = bytearray(tar.read_bytes())
+    with tarfile.open(tar) as archive:
+        member = next(m for m in archive.getmembers() if m.name.endswith(".future.npy"))
+    future = np.load(io.BytesIO(bytes(data[member.offset_data : member.offset_data + member.size])))
+    start = member.offset_data + member.size - future.nbytes + 2 * future.shape[1] * 4  # row 2's t
+    data[start : start + 4] = np.float32(future[0, 0]).tobytes()  # earlier than row 1's
+    rewrite(tar, bytes(data))
+    args = ["score", "--metric", "ade", "--planner", "human", "--data", str(folder), "--out", str(tmp_path / "s")]
+    message = user_error(args, capsys)
+    assert message.startswith(f"error: {folder}: sample '{member.name.split('.')[0]}', field 'future': t must be")
+    assert not (tmp_path / "s").exists()
 
 
 def test_laz_header_claiming_too_many_points_or_a_stuck_decoder_is_refused(raw, tmp_path, monkeypatch):

@@ -142,6 +142,23 @@ def test_figure_spec_names_leaderboard_infractions(tmp_path):
         load_spec(bad)
 
 
+@pytest.mark.parametrize(
+    ("infractions", "expected"),
+    [
+        ([{"red_light": 1}], r"figure.infractions is \[\{'red_light': 1\}\], not a list of str"),
+        ("red_light", "'red_light', not a list of str"),
+    ],
+)
+def test_figure_infractions_of_another_type_are_one_line(tmp_path, infractions, expected):
+    """Found by the fuzz (seed 9029): a dict among the infractions was Python's 'unhashable type'."""
+    spec = yaml.safe_load(write_spec(tmp_path).read_text())
+    spec["figure"]["infractions"] = infractions
+    bad = tmp_path / "bad_figure.yaml"
+    bad.write_text(yaml.safe_dump(spec))
+    with pytest.raises(TableError, match=expected):
+        load_spec(bad)
+
+
 def test_table5_from_leaderboard_results_end_to_end(tmp_path):
     """results JSON -> carla-metrics into each seed's run folder -> the shipped Table 5 spec, by name."""
     from test_carla_leaderboard import VEHICLE_HIT, record, results_file

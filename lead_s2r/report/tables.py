@@ -100,6 +100,7 @@ def spec_path(spec: str | Path) -> Path:
 SPEC_FIELDS = {"title": str, "columns": list, "rows": list, "seeds": list[int], "digits": int, "notes": str}
 COLUMN_FIELDS = {"name": str, "metric": str, "key": str, "scale": int | float, "tag": str | None}
 ROW_FIELDS = {"name": str, "run": str | None, "paper": list | None, "seeds": list[int]}
+FIGURE_FIELDS = {"metric": str, "infractions": list[str]}
 
 
 def _typed(path: Path, where: str, mapping: Any, kinds: dict[str, Any]) -> dict[str, Any]:
@@ -154,11 +155,12 @@ def _row(path: Path, index: int, row: Any, columns: int) -> Row:
     )
 
 
-def _check_figure(path: Path, figure: dict[str, Any] | None) -> None:
+def _check_figure(path: Path, figure: Any) -> None:
     if figure is None:
         return
-    infractions = figure.get("infractions") if isinstance(figure, dict) else None
-    if not isinstance(figure.get("metric") if isinstance(figure, dict) else None, str) or not infractions:
+    figure = _typed(path, "figure", figure, FIGURE_FIELDS)
+    infractions = figure.get("infractions")
+    if "metric" not in figure or not infractions:
         raise TableError(f"{path}: figure needs 'metric' (a carla-metrics metric) and a list of 'infractions'")
     unknown = sorted(set(infractions) - set(INFRACTIONS))
     if unknown:

@@ -5,6 +5,7 @@ from typing import Any
 import numpy as np
 
 from lead_s2r.predictions import Prediction, PredictionError
+from lead_s2r.schema import check_trajectory
 
 
 def constant_turn_rate(speed: float, yaw_rate: float, t: np.ndarray) -> np.ndarray:
@@ -35,6 +36,7 @@ def predict_human(sample: dict[str, Any], horizon: float | None = None) -> Predi
             "future for the human planner to replay; score a split with futures, or --planner constant-velocity"
         )
     future = np.asarray(sample["future"], np.float64)
+    check_trajectory(sample["__key__"], "future", future, past=False)  # a damaged future is the data's fault
     if horizon is None:
         horizon = SCORED_HORIZON_S.get(sample["meta"]["dataset"], float(future[-1, 0]))
     kept = future[future[:, 0] <= horizon + 1e-3]

@@ -18,6 +18,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.predictions import read_predictions, write_predictions
 from lead_s2r.processes import Executor
 from lead_s2r.registry import SCORER_GROUP, load
+from lead_s2r.schema import SchemaError
 from lead_s2r.scoring.base import Scorer, coverage
 from lead_s2r.scoring.scores_file import ScoresFile
 from lead_s2r.shards import (
@@ -41,8 +42,13 @@ def planner_predictions(planner: str, data: Path | list[Path], path: Path, split
     if planner not in PLANNERS:
         raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
     predict, needs = PLANNERS[planner], PLANNER_NEEDS.get(planner)
-    samples = select_samples(_folders(data), ("future",), split)
-    predictions = [predict(s) for s in samples if needs is None or needs in s]
+    folders = _folders(data)
+    samples = select_samples(folders, ("future",), split)
+    try:
+        predictions = [predict(s) for s in samples if needs is None or needs in s]
+    except SchemaError as err:  # the data's own values, not a planner's mistake: name where they are
+        where = ", ".join(map(str, folders))
+        raise UserError(f"{where}: {err} (lead-s2r inspect {where} lists every such sample)") from None
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_predictions(path, predictions)
 
