@@ -5,6 +5,7 @@ a resumed run; ``vocab build`` is deterministic; bad input is one line, exit 2, 
 
 import json
 import pickle
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabSco
 from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.schema import MapKind
-from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
+from lead_s2r.scoring.pdm import epdms, score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import find_hits
 from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
 from lead_s2r.scoring.pdm.map_flags import (
@@ -96,6 +97,85 @@ def test_random_entries_equal_scoring_each_alone(converted: Path, vocabulary: np
         varied |= {name for name, values in together.items() if len(np.unique(values[np.isfinite(values)])) > 1}
     # the vocabulary exercises the sub-scores: they pass for some entries and fail for others
     assert {"no_at_fault_collisions", "drivable_area_compliance", "ego_progress", "score"} <= varied
+
+
+def hostile_entries(scene: PDMScene) -> np.ndarray:
+    """Entries a k-means vocabulary can hold and a fast path could special-case, ``(V, 40, 3)``: standing still
+    (exactly and creeping), reversing (facing forward and backward), far too fast, swerving off the map, changing
+    lanes, a U-turn, spinning or flipping heading on the spot, headings past pi, jumps, far off the map, driving into
+    every agent at several keyframes (and a metre beside it), standing on map polygons' vertices and sliding along
+    their edges."""
+    t = GTRS_INTERVAL_S * np.arange(1, GTRS_POSES + 1)
+    zero = np.zeros_like(t)
+
+    def entry(x: np.ndarray, y: np.ndarray, heading: np.ndarray | float | None = None) -> np.ndarray:
+        x, y = np.broadcast_to(x, t.shape), np.broadcast_to(y, t.shape)
+        heading = np.arctan2(np.diff(y, prepend=0.0), np.diff(x, prepend=0.0)) if heading is None else heading
+        return np.stack([x, y, np.broadcast_to(heading, t.shape)], -1)
+
+    ramp = np.clip(t / 3.0, 0.0, 1.0)
+    entries = [
+        entry(zero, zero, 0.0), entry(1e-9 * t, zero, 0.0), entry(-3.0 * t, zero, 0.0), entry(-5.0 * t, zero, np.pi),
+        entry(60.0 * t, zero), entry(8.0 * t, 6.0 * t**2), entry(8.0 * t, -6.0 * t**2),
+        entry(9.0 * t, 3.5 * (3 * ramp**2 - 2 * ramp**3)), entry(6.0 * np.sin(t), 6.0 * (1 - np.cos(t)), t),
+        entry(zero, zero, 2.5 * np.pi * t), entry(5.0 * t, zero, np.where(np.arange(len(t)) % 2, np.pi, 0.0)),
+        entry(5.0 * t, zero, 10.0), entry(7.0 * t, np.where(np.arange(len(t)) % 2, 1.0, -1.0)),
+        entry(np.where(t > 2.0, 40.0, 0.0), zero, 0.0), entry(1e4 + t, 1e4 + zero, 0.0),
+    ]  # fmt: skip
+    for track in range(len(scene.agent_poses)):
+        for keyframe in (1, 3, 6, 8):
+            if keyframe < len(scene.agent_t) and scene.agent_valid[track, keyframe]:
+                x, y, _ = scene.agent_poses[track, keyframe]
+                reach = np.clip(t / scene.agent_t[keyframe], 0.0, None)
+                entries += [entry(x * reach, y * reach), entry(x * reach, y * reach + 1.0)]
+    ring_of = np.repeat(np.arange(len(scene.polygon_kind)), np.diff(scene.polygon_offsets))
+    near = np.flatnonzero((np.hypot(*scene.polygon_xy.T) < 30.0) & (np.diff(ring_of, append=-1) == 0))[::7]
+    for start, end in zip(scene.polygon_xy[near], scene.polygon_xy[near + 1], strict=True):
+        heading = np.arctan2(*(end - start)[::-1])
+        entries += [entry(start[0] + zero, start[1] + zero, heading)]
+        entries += [entry(*(start[:, None] + (end - start)[:, None] * np.clip(t / 4.0, 0.0, 1.0)), heading)]
+    return np.stack(entries)
+
+
+def scene_variants(scene: PDMScene) -> dict[str, PDMScene]:
+    """The scene, without agents, with its map moved far away (every point off the grid), its ego standing and
+    reversing, sideways and steering."""
+    no_agents = {
+        "agent_poses": scene.agent_poses[:0], "agent_velocity": scene.agent_velocity[:0],
+        "agent_valid": scene.agent_valid[:0], "agent_size": scene.agent_size[:0], "agent_class": scene.agent_class[:0],
+    }  # fmt: skip
+    return {
+        "logged": scene,
+        "no agents": replace(scene, **no_agents),
+        "map far away": replace(scene, polygon_xy=scene.polygon_xy + 1000.0),
+        "ego standing": replace(scene, ego_velocity=np.zeros(2), ego_acceleration=np.zeros(2)),
+        "ego reversing": replace(scene, ego_velocity=np.array([-3.0, 0.0]), ego_acceleration=np.array([0.5, 0.1])),
+        "ego sideways": replace(scene, ego_velocity=np.array([9.0, 0.4]), tire_steering_angle=0.05),
+    }
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_hostile_entries_and_scenes_equal_scoring_each_alone(
+    converted: Path, vocabulary: np.ndarray, metric: str
+) -> None:
+    """Every entry of a hostile vocabulary (:func:`hostile_entries`, the logged k-means-like futures, duplicates)
+    in every scene variant (:func:`scene_variants`): every column bit for bit what the entry gets alone, with
+    chunks of 7 and simulation blocks of 13 (entries at every position, blocks straddled, a short last block)."""
+    rng = np.random.default_rng(5)
+    samples = list(read_samples(converted, fields=("scoring", "boxes", "agents_future", "future")))
+    failing = set()
+    for name, scene in scene_variants(scene_from_sample(samples[4])).items():
+        reference = plan_reference(scene)
+        entries = np.concatenate([hostile_entries(scene), vocabulary[-5:]])
+        entries = entries[rng.permutation(np.r_[np.arange(len(entries)), rng.choice(len(entries), 3)])]
+        together = score_vocabulary(scene, entries, 0.1, reference, metric, chunk=7, simulation_block=13)
+        for v in range(len(entries)):
+            alone = score_proposals(scene, entries[v : v + 1], 0.1, reference, metric)
+            for column, values in alone.items():
+                np.testing.assert_array_equal(together[column][v : v + 1], values, err_msg=f"{name}: {column}, {v}")
+        failing |= {column for column, values in together.items() if {0.0, 1.0} <= set(values.tolist())}
+    # every sub-score is 0 for some entries and 1 for others (TLC: the entries that run the scene's red light)
+    assert set(together) & {*epdms.FILTERED, "comfort"} <= failing
 
 
 def test_simulated_rows_must_match_the_proposals(converted: Path, vocabulary: np.ndarray) -> None:
