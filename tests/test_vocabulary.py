@@ -341,7 +341,10 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     moved = [corners + shift[:, None] * scale for shift in shifts for scale in (1.0, 1.0 - 1e-12, 1.0 + 1e-12)]
     coords = np.concatenate([np.concatenate([box, box.mean(axis=1, keepdims=True)], axis=1) for box in moved])
     radius = float(observation.radius[geoms].max())
-    query, geom = find_hits(observation, coords[:, None, -1], np.array([step]), lambda q: coords[q], radius)
+    centers = coords[None, :, -1]  # one query slot, a row per box
+    query, geom = find_hits(
+        observation, centers[..., 0], centers[..., 1], np.array([step]), lambda q: coords[q], radius
+    )
     polygons = box_polygons(coords)
     truth = {
         (q, int(g))
@@ -356,7 +359,7 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     pairs = np.tile(geoms, len(moved))
     gathered = observation.axes[pairs]
     recomputed = Axes.of(observation.corners[pairs])
-    for name in ("normals", "low", "high"):
+    for name in ("nx", "ny", "low", "high"):
         assert getattr(gathered, name).tobytes() == getattr(recomputed, name).tobytes()
 
     def exact(undecided: np.ndarray) -> np.ndarray:
