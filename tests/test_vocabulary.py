@@ -237,7 +237,7 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     borders = grid.origin + grid.cell * np.stack([np.arange(40), np.arange(40)[::-1]], axis=1)
     exact = np.concatenate([corners, borders, (finite[:, :2] + finite[:, 2:]) / 2, rng.uniform(-70, 90, (500, 2))])
     points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
-    point, entry = grid.candidates(points)
+    point, entry = grid.candidates(points[:, 0], points[:, 1])
     box = grid.members[entry]
     found = set(zip(point.tolist(), box.tolist(), strict=True))
     x, y = points[:, None, 0], points[:, None, 1]
@@ -247,7 +247,7 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     # points off the grid, on every side, list nothing
     top = grid.origin + grid.cell * np.array(grid.shape)
     off = np.array([[grid.origin[0] - 1.0, 0.0], [0.0, grid.origin[1] - 1e-9], [top[0] + 1.0, 0.0], [0.0, top[1] + 5]])
-    assert len(grid.candidates(off)[0]) == 0
+    assert len(grid.candidates(off[:, 0], off[:, 1])[0]) == 0
     assert len(truth) > 100 and len(found) < 4 * len(truth)
 
 
@@ -262,7 +262,7 @@ def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> No
     spread = np.random.default_rng(5).uniform(grid.origin, grid.origin + grid.cell * np.array(grid.shape), (3000, 2))
     exact = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2, borders, spread])
     points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
-    box, polygon = drivable_map.locate(points[:, None])
+    box, polygon = drivable_map.locate(points[:, None, 0], points[:, None, 1])
     assert (np.diff(box) >= 0).all()
     inside = np.stack([shapely.contains_xy(shape, points[:, 0], points[:, 1]) for shape in drivable_map.polygons])
     expected = set(zip(*(index.tolist() for index in np.nonzero(inside.T)), strict=True))

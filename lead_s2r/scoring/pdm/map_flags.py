@@ -94,20 +94,23 @@ class BoundsGrid:
     def _cells(origin: np.ndarray, cell: float, xy: np.ndarray) -> np.ndarray:
         return np.floor((xy - origin) / cell).astype(np.int64)
 
-    def candidates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(point, entry)`` pairs for points ``(B, 2)``, grouped by point in increasing order: ``members[entry]``
-        is a superset of the boxes that hold each point (none for points outside the grid, which lie outside every
-        box)."""
-        cells = self._cells(self.origin, self.cell, xy)
+    def candidates(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, entry)`` pairs for points ``(x, y)``, each ``(B,)``, grouped by point in increasing order:
+        ``members[entry]`` is a superset of the boxes that hold each point (none for points outside the grid, which
+        lie outside every box). The axes are handled apart: numpy's loops over an axis of 2 cost far more."""
+        row = np.floor((x - self.origin[0]) / self.cell).astype(np.int64)
+        column = np.floor((y - self.origin[1]) / self.cell).astype(np.int64)
         rows, columns = self.shape
         # a cell index below 0 is huge as unsigned, so one comparison per axis tells the points on the grid
-        on_grid = (cells[:, 0].view(np.uint64) < rows) & (cells[:, 1].view(np.uint64) < columns)
-        flat = np.where(on_grid, cells[:, 0] * columns + cells[:, 1], rows * columns)  # off the grid: no members
+        on_grid = (row.view(np.uint64) < rows) & (column.view(np.uint64) < columns)
+        row *= columns
+        row += column
+        flat = np.where(on_grid, row, rows * columns)  # off the grid: no members
         first = self.starts[flat]
         counts = self.starts[flat + 1] - first
         ends = np.cumsum(counts)
         # entry j of the expansion is first[point] + (j - the expansion's start for that point)
-        return np.repeat(np.arange(len(xy)), counts), np.arange(ends[-1] if len(ends) else 0) + np.repeat(
+        return np.repeat(np.arange(len(x)), counts), np.arange(ends[-1] if len(ends) else 0) + np.repeat(
             first - (ends - counts), counts
         )
 
@@ -149,13 +152,13 @@ class DrivableMap:
         cover = np.full(len(grid.members), UNKNOWN, np.int8)
         return cls(polygons, ids, kinds, grid, np.ascontiguousarray(bounds.T), cover)
 
-    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(index, polygon)`` for every point of ``points (B, P, 2)`` strictly inside a polygon, ``index`` the
+    def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(index, polygon)`` for every point ``(x, y)`` (each ``(B, P)``) strictly inside a polygon, ``index`` the
         point's flat position ``box * P + point`` in increasing order: the grid's candidates, those in cells inside
         a polygon taken, those in crossed cells narrowed to polygons whose bounding box holds the point and decided
         by ``contains_xy``."""
-        flat = points.reshape(-1, 2)
-        index, entry = self.grid.candidates(flat)
+        x, y = x.reshape(-1), y.reshape(-1)
+        index, entry = self.grid.candidates(x, y)
         cover = self.cover[entry]
         unknown = cover == UNKNOWN
         if unknown.any():
@@ -164,7 +167,7 @@ class DrivableMap:
         held = cover == INSIDE
         crossed = np.flatnonzero(cover == CROSSED)
         crossed_points = index[crossed]
-        x, y = flat[crossed_points, 0], flat[crossed_points, 1]
+        x, y = x[crossed_points], y[crossed_points]
         polygon = self.grid.members[entry[crossed]]
         xmin, ymin, xmax, ymax = self.bounds[:, polygon]
         near = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
@@ -200,9 +203,13 @@ def ego_areas(
     """The ego-area flags of ego boxes ``(N, T, 5, 2)`` (4 corners + centre) with rear axles ``(N, T, 2)``."""
     n_rows, n_steps = coords.shape[:2]
     num_boxes = n_rows * n_steps
-    points = np.concatenate([coords.reshape(num_boxes, -1, 2), rear_axles.reshape(num_boxes, 1, 2)], axis=1)
-    per_box = points.shape[1]
-    index, polygon = drivable_map.locate(points)
+    # per box its corners, centre and rear axle, x and y apart
+    x, y = (
+        np.concatenate([coords[..., axis].reshape(num_boxes, -1), rear_axles[..., axis].reshape(num_boxes, 1)], axis=1)
+        for axis in range(2)
+    )
+    per_box = x.shape[1]
+    index, polygon = drivable_map.locate(x, y)
     kind = drivable_map.kinds[polygon]
 
     def held(wanted: np.ndarray) -> np.ndarray:

@@ -123,7 +123,7 @@ def beyond_lane_limit(centers: np.ndarray, centerline: shapely.LineString) -> np
     start, end = vertices[:-1], vertices[1:]
     reach = LANE_KEEPING_LIMIT_M + LANE_KEEPING_SLACK_M
     grid = BoundsGrid.build(np.hstack([np.minimum(start, end) - reach, np.maximum(start, end) + reach]), GRID_CELL_M)
-    point, entry = grid.candidates(points)  # grouped by point, in increasing order
+    point, entry = grid.candidates(points[:, 0], points[:, 1])  # grouped by point, in increasing order
     segment = grid.members[entry]
     nearest = np.full(len(points), np.inf)
     if len(point):
