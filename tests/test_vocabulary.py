@@ -25,6 +25,8 @@ from lead_s2r.scoring.pdm import epdms, score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import find_hits
 from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
 from lead_s2r.scoring.pdm.map_flags import (
+    CELL_CROSSED,
+    CELL_SETTLED,
     CLEAR,
     CROSSED,
     INSIDE,
@@ -311,6 +313,8 @@ def test_ego_area_flags_equal_polygon_tests_on_every_polygon(converted: Path) ->
     for name, flags in expected.items():
         np.testing.assert_array_equal(getattr(areas, name)[:, 0], flags, err_msg=name)
         assert 0 < flags.sum() < len(flags) or name == "rear_axle_in_intersection", name
+    # both paths ran: points answered by their cell alone (no polygon edge crosses it) and points located one by one
+    assert {CELL_SETTLED, CELL_CROSSED} <= set(drivable_map.settled.state.tolist())
 
 
 def test_multiple_lanes_counts_distinct_lanes_and_all_four() -> None:

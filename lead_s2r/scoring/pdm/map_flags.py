@@ -94,10 +94,9 @@ class BoundsGrid:
     def _cells(origin: np.ndarray, cell: float, xy: np.ndarray) -> np.ndarray:
         return np.floor((xy - origin) / cell).astype(np.int64)
 
-    def candidates(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(point, entry)`` pairs for points ``(x, y)``, each ``(B,)``, grouped by point in increasing order:
-        ``members[entry]`` is a superset of the boxes that hold each point (none for points outside the grid, which
-        lie outside every box). The axes are handled apart: numpy's loops over an axis of 2 cost far more."""
+    def cells_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The flat cell of each point ``(x, y)``, each ``(B,)``; points off the grid get the empty cell after the
+        last. The axes are handled apart: numpy's loops over an axis of 2 cost far more."""
         row = np.floor((x - self.origin[0]) / self.cell).astype(np.int64)
         column = np.floor((y - self.origin[1]) / self.cell).astype(np.int64)
         rows, columns = self.shape
@@ -105,14 +104,23 @@ class BoundsGrid:
         on_grid = (row.view(np.uint64) < rows) & (column.view(np.uint64) < columns)
         row *= columns
         row += column
-        flat = np.where(on_grid, row, rows * columns)  # off the grid: no members
-        first = self.starts[flat]
-        counts = self.starts[flat + 1] - first
+        return np.where(on_grid, row, rows * columns)
+
+    def expand(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(position, entry)``: every member entry of each of ``cells``, grouped by position in ``cells``."""
+        first = self.starts[cells]
+        counts = self.starts[cells + 1] - first
         ends = np.cumsum(counts)
         # entry j of the expansion is first[point] + (j - the expansion's start for that point)
-        return np.repeat(np.arange(len(x)), counts), np.arange(ends[-1] if len(ends) else 0) + np.repeat(
+        return np.repeat(np.arange(len(cells)), counts), np.arange(ends[-1] if len(ends) else 0) + np.repeat(
             first - (ends - counts), counts
         )
+
+    def candidates(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, entry)`` pairs for points ``(x, y)``, each ``(B,)``, grouped by point in increasing order:
+        ``members[entry]`` is a superset of the boxes that hold each point (none for points outside the grid, which
+        lie outside every box)."""
+        return self.expand(self.cells_of(x, y))
 
     def squares(self, entries: np.ndarray, margin: float) -> np.ndarray:
         """Shapely boxes of the cells of member ``entries``, grown by ``margin``."""
@@ -132,6 +140,7 @@ class DrivableMap:
     grid: BoundsGrid
     bounds: np.ndarray  # (4, K) rows xmin, ymin, xmax, ymax (gathers by polygon stay 1-D)
     cover: np.ndarray  # per grid entry: how its cell lies against its polygon (UNKNOWN until a point falls in it)
+    settled: "SettledCells"
 
     @classmethod
     def from_scene(cls, scene: PDMScene) -> "DrivableMap":
@@ -150,7 +159,8 @@ class DrivableMap:
         bounds = shapely.bounds(polygons).reshape(-1, 4)
         grid = BoundsGrid.build(bounds, GRID_CELL_M)
         cover = np.full(len(grid.members), UNKNOWN, np.int8)
-        return cls(polygons, ids, kinds, grid, np.ascontiguousarray(bounds.T), cover)
+        settled = SettledCells.empty(grid, IS_LANE[kinds])
+        return cls(polygons, ids, kinds, grid, np.ascontiguousarray(bounds.T), cover, settled)
 
     def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(index, polygon)`` for every point ``(x, y)`` (each ``(B, P)``) strictly inside a polygon, ``index`` the
@@ -182,6 +192,95 @@ class DrivableMap:
         crossed = np.where(shapely.intersects(polygons, squares), CROSSED, CLEAR)
         self.cover[entries] = np.where(shapely.contains_properly(polygons, squares), INSIDE, crossed)
 
+    def layers(self, x: np.ndarray, y: np.ndarray) -> "PointLayers":
+        """What the ego-area flags need of points ``(x, y)`` (each ``(B,)``): the answer of a point whose cell no
+        polygon edge crosses is its cell's (:class:`SettledCells`), and only points in crossed cells are located one
+        by one (:meth:`locate`)."""
+        cells = self.grid.cells_of(x, y)
+        settled = self.settled
+        state = settled.state[cells]
+        if (state == CELL_UNKNOWN).any():
+            self._settle(np.unique(cells[state == CELL_UNKNOWN]))
+            state = settled.state[cells]
+        # as many lane slots as these points' cells can fill (a crossed cell: as many as it lists lanes)
+        width = max(1, int(settled.lane_count[cells].max(initial=0)))
+        out = PointLayers(settled.drivable[cells], settled.intersection[cells], settled.lanes[:, :width][cells])
+        crossed = np.flatnonzero(state == CELL_CROSSED)  # their cells' answers are empty: set them here
+        index, polygon = self.locate(x[crossed], y[crossed])
+        point, kind = crossed[index], self.kinds[polygon]
+        out.drivable[point[IS_DRIVABLE[kind]]] = True
+        out.intersection[point[kind == MapKind.INTERSECTION]] = True
+        lane = IS_LANE[kind]
+        out.lanes[point[lane], _ranks(index[lane])] = polygon[lane]
+        return out
+
+    def _settle(self, cells: np.ndarray) -> None:
+        """Classify every member of ``cells`` and record, for those no polygon edge crosses, the answer every point
+        in them gets: the polygons whose interior holds the cell's grown square."""
+        position, entry = self.grid.expand(cells)
+        unknown = self.cover[entry] == UNKNOWN
+        if unknown.any():
+            self._classify(entry[unknown])
+        cover = self.cover[entry]
+        crossed = np.zeros(len(cells), bool)
+        crossed[position[cover == CROSSED]] = True
+        inside = (cover == INSIDE) & ~crossed[position]
+        position, polygon = position[inside], self.grid.members[entry[inside]]
+        kind = self.kinds[polygon]
+        settled = self.settled
+        settled.drivable[cells[position[IS_DRIVABLE[kind]]]] = True
+        settled.intersection[cells[position[kind == MapKind.INTERSECTION]]] = True
+        lane = IS_LANE[kind]
+        rank = _ranks(position[lane])
+        settled.lanes[cells[position[lane]], rank] = polygon[lane]
+        settled.lane_count[cells[~crossed]] = 0
+        np.maximum.at(settled.lane_count, cells[position[lane]], rank + 1)
+        settled.state[cells] = np.where(crossed, CELL_CROSSED, CELL_SETTLED)
+
+
+#: How a grid cell stands (``SettledCells.state``): not yet classified, every point of it answered by the cell,
+#: or crossed by some polygon's edge (its points are located one by one).
+CELL_UNKNOWN, CELL_SETTLED, CELL_CROSSED = -1, 0, 1
+
+
+@dataclass
+class SettledCells:
+    """Per grid cell (and the empty cell off the grid), once its members are classified: its state and, where no
+    polygon edge crosses it, what holds every point of it (a drivable polygon, an intersection, which lanes)."""
+
+    state: np.ndarray  # (cells,) int8
+    drivable: np.ndarray  # (cells,) bool
+    intersection: np.ndarray  # (cells,) bool
+    lanes: np.ndarray  # (cells, W) lane polygons holding the cell, -1 pads; W: the most lanes any cell lists
+    lane_count: np.ndarray  # (cells,) slots of ``lanes`` in use; a crossed (or unknown) cell: the lanes it lists
+
+    @classmethod
+    def empty(cls, grid: BoundsGrid, is_lane: np.ndarray) -> "SettledCells":
+        count = len(grid.starts) - 1
+        listed = np.bincount(grid.member_cells[is_lane[grid.members]], minlength=count)
+        state = np.full(count, CELL_UNKNOWN, np.int8)
+        state[-1] = CELL_SETTLED  # off the grid: no polygon
+        lanes = np.full((count, max(1, int(listed.max(initial=0)))), -1, np.int32)
+        return cls(state, np.zeros(count, bool), np.zeros(count, bool), lanes, listed)
+
+
+@dataclass
+class PointLayers:
+    """Per point: inside a drivable polygon (ROADBLOCK, INTERSECTION, CARPARK_AREA), inside an INTERSECTION, and
+    the lane polygons holding it ``(B, W)`` (-1 pads)."""
+
+    drivable: np.ndarray
+    intersection: np.ndarray
+    lanes: np.ndarray
+
+
+def _ranks(group: np.ndarray) -> np.ndarray:
+    """Each element's rank within its run of equal values in ``group`` (runs consecutive)."""
+    position = np.arange(len(group))
+    new_run = np.ones(len(group), bool)
+    new_run[1:] = group[1:] != group[:-1]
+    return position - np.maximum.accumulate(np.where(new_run, position, 0))
+
 
 @dataclass
 class EgoAreas:
@@ -209,52 +308,27 @@ def ego_areas(
         for axis in range(2)
     )
     per_box = x.shape[1]
-    index, polygon = drivable_map.locate(x, y)
-    kind = drivable_map.kinds[polygon]
-
-    def held(wanted: np.ndarray) -> np.ndarray:
-        """``(boxes, points)``: some polygon where ``wanted`` holds the point."""
-        flags = np.zeros(num_boxes * per_box, bool)
-        flags[index[wanted]] = True
-        return flags.reshape(num_boxes, per_box)
-
-    drivable = held(IS_DRIVABLE[kind])
+    layers = drivable_map.layers(x.reshape(-1), y.reshape(-1))
+    drivable = layers.drivable.reshape(num_boxes, per_box)
     corners_drivable = drivable[:, Corner.FRONT_LEFT]
     for corner in range(1, NUM_CORNERS):
         corners_drivable = corners_drivable & drivable[:, corner]
-
-    lane = IS_LANE[kind]
-    several_lanes = multiple_lanes(corner_lanes(index[lane], polygon[lane], per_box, num_boxes))
-    on_route = held(lane & np.isin(drivable_map.ids, route_lane_ids)[polygon])[:, Corner.CENTER]
-    in_intersection = held(kind == MapKind.INTERSECTION)
+    lanes = layers.lanes.reshape(num_boxes, per_box, -1)
+    # a lane index -1 (a pad) reads the appended False
+    on_route_lane = np.append(np.isin(drivable_map.ids, route_lane_ids) & IS_LANE[drivable_map.kinds], False)
+    on_route = on_route_lane[lanes[:, Corner.CENTER]].any(axis=1)
+    in_intersection = layers.intersection.reshape(num_boxes, per_box)
 
     def grid(flags: np.ndarray) -> np.ndarray:
         return flags.reshape(n_rows, n_steps)
 
     return EgoAreas(
-        grid(several_lanes),
+        grid(multiple_lanes(lanes[:, :NUM_CORNERS])),
         grid(~corners_drivable),
         grid(~on_route),
         grid(in_intersection[:, -1]),
         grid(in_intersection[:, Corner.CENTER]),
     )
-
-
-def corner_lanes(index: np.ndarray, polygon: np.ndarray, per_box: int, num_boxes: int) -> np.ndarray:
-    """``(boxes, 4, W)``: the lane polygons holding each corner (-1 pads), from the lane hits ``(index, polygon)``
-    of ``ego_areas`` (``index`` sorted: a point's hits are consecutive)."""
-    box = index // per_box
-    corner = index - box * per_box
-    at_corner = corner < NUM_CORNERS
-    index, polygon = index[at_corner], polygon[at_corner]
-    new_point = np.ones(len(index), bool)
-    new_point[1:] = index[1:] != index[:-1]
-    # a hit's rank among its point's hits: its position minus the position of the point's first hit
-    position = np.arange(len(index))
-    rank = position - np.maximum.accumulate(np.where(new_point, position, 0))
-    lanes = np.full((num_boxes * per_box, int(rank.max()) + 1 if len(rank) else 1), -1)
-    lanes[index, rank] = polygon
-    return lanes.reshape(num_boxes, per_box, -1)[:, :NUM_CORNERS]
 
 
 def multiple_lanes(lanes: np.ndarray) -> np.ndarray:
