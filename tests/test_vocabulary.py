@@ -328,7 +328,7 @@ def test_multiple_lanes_counts_distinct_lanes_and_all_four() -> None:
     for box in lanes:
         sets = [set(corner[corner >= 0].tolist()) for corner in box]
         expected.append(len(set.union(*sets)) > 1 and not set.intersection(*sets))
-    np.testing.assert_array_equal(multiple_lanes(lanes), expected)
+    np.testing.assert_array_equal(multiple_lanes(lanes.transpose(1, 2, 0)), expected)
     assert 0 < sum(expected) < len(expected)
 
 

@@ -204,14 +204,16 @@ class DrivableMap:
             state = settled.state[cells]
         # as many lane slots as these points' cells can fill (a crossed cell: as many as it lists lanes)
         width = max(1, int(settled.lane_count[cells].max(initial=0)))
-        out = PointLayers(settled.drivable[cells], settled.intersection[cells], settled.lanes[:, :width][cells])
+        out = PointLayers(settled.drivable[cells], settled.intersection[cells], np.empty((width, len(cells)), np.int32))
+        for slot in range(width):
+            np.take(settled.lanes[slot], cells, out=out.lanes[slot])
         crossed = np.flatnonzero(state == CELL_CROSSED)  # their cells' answers are empty: set them here
         index, polygon = self.locate(x[crossed], y[crossed])
         point, kind = crossed[index], self.kinds[polygon]
         out.drivable[point[IS_DRIVABLE[kind]]] = True
         out.intersection[point[kind == MapKind.INTERSECTION]] = True
         lane = IS_LANE[kind]
-        out.lanes[point[lane], _ranks(index[lane])] = polygon[lane]
+        out.lanes[_ranks(index[lane]), point[lane]] = polygon[lane]
         return out
 
     def _settle(self, cells: np.ndarray) -> None:
@@ -232,7 +234,7 @@ class DrivableMap:
         settled.intersection[cells[position[kind == MapKind.INTERSECTION]]] = True
         lane = IS_LANE[kind]
         rank = _ranks(position[lane])
-        settled.lanes[cells[position[lane]], rank] = polygon[lane]
+        settled.lanes[rank, cells[position[lane]]] = polygon[lane]
         settled.lane_count[cells[~crossed]] = 0
         np.maximum.at(settled.lane_count, cells[position[lane]], rank + 1)
         settled.state[cells] = np.where(crossed, CELL_CROSSED, CELL_SETTLED)
@@ -251,7 +253,7 @@ class SettledCells:
     state: np.ndarray  # (cells,) int8
     drivable: np.ndarray  # (cells,) bool
     intersection: np.ndarray  # (cells,) bool
-    lanes: np.ndarray  # (cells, W) lane polygons holding the cell, -1 pads; W: the most lanes any cell lists
+    lanes: np.ndarray  # (W, cells) lane polygons holding the cell, slot by slot, -1 pads; W: the most any cell lists
     lane_count: np.ndarray  # (cells,) slots of ``lanes`` in use; a crossed (or unknown) cell: the lanes it lists
 
     @classmethod
@@ -260,14 +262,14 @@ class SettledCells:
         listed = np.bincount(grid.member_cells[is_lane[grid.members]], minlength=count)
         state = np.full(count, CELL_UNKNOWN, np.int8)
         state[-1] = CELL_SETTLED  # off the grid: no polygon
-        lanes = np.full((count, max(1, int(listed.max(initial=0)))), -1, np.int32)
+        lanes = np.full((max(1, int(listed.max(initial=0))), count), -1, np.int32)
         return cls(state, np.zeros(count, bool), np.zeros(count, bool), lanes, listed)
 
 
 @dataclass
 class PointLayers:
     """Per point: inside a drivable polygon (ROADBLOCK, INTERSECTION, CARPARK_AREA), inside an INTERSECTION, and
-    the lane polygons holding it ``(B, W)`` (-1 pads)."""
+    the lane polygons holding it, slot by slot ``(W, B)`` (-1 pads)."""
 
     drivable: np.ndarray
     intersection: np.ndarray
@@ -313,17 +315,17 @@ def ego_areas(
     corners_drivable = drivable[:, Corner.FRONT_LEFT]
     for corner in range(1, NUM_CORNERS):
         corners_drivable = corners_drivable & drivable[:, corner]
-    lanes = layers.lanes.reshape(num_boxes, per_box, -1)
+    lanes = layers.lanes.reshape(-1, num_boxes, per_box)  # (W, boxes, points)
     # a lane index -1 (a pad) reads the appended False
     on_route_lane = np.append(np.isin(drivable_map.ids, route_lane_ids) & IS_LANE[drivable_map.kinds], False)
-    on_route = on_route_lane[lanes[:, Corner.CENTER]].any(axis=1)
+    on_route = on_route_lane[lanes[:, :, Corner.CENTER]].any(axis=0)
     in_intersection = layers.intersection.reshape(num_boxes, per_box)
 
     def grid(flags: np.ndarray) -> np.ndarray:
         return flags.reshape(n_rows, n_steps)
 
     return EgoAreas(
-        grid(multiple_lanes(lanes[:, :NUM_CORNERS])),
+        grid(multiple_lanes(lanes[:, :, :NUM_CORNERS].transpose(2, 0, 1))),
         grid(~corners_drivable),
         grid(~on_route),
         grid(in_intersection[:, -1]),
@@ -331,18 +333,19 @@ def ego_areas(
     )
 
 
-def multiple_lanes(lanes: np.ndarray) -> np.ndarray:
-    """NAVSIM's MULTIPLE_LANES from the corners' lane polygons ``(boxes, 4, W)`` (-1 pads): more than one distinct
+def multiple_lanes(by_corner: np.ndarray) -> np.ndarray:
+    """NAVSIM's MULTIPLE_LANES from the corners' lane polygons ``(4, W, boxes)`` (-1 pads): more than one distinct
     polygon among the corners, and none holding all four."""
-    by_corner = np.ascontiguousarray(lanes.transpose(1, 2, 0))  # (4, W, boxes): each slot a contiguous row
-    slots = by_corner.reshape(-1, len(lanes))  # corner-major: slot j is corner j // W
-    distinct = np.zeros(len(lanes), np.int64)
+    by_corner = np.ascontiguousarray(by_corner)  # each slot a contiguous row
+    num_boxes = by_corner.shape[-1]
+    slots = by_corner.reshape(-1, num_boxes)  # corner-major: slot j is corner j // W
+    distinct = np.zeros(num_boxes, np.int64)
     for j, lane in enumerate(slots):
         new = lane >= 0
         for earlier in slots[:j]:
             new &= earlier != lane
         distinct += new
-    in_all = np.zeros(len(lanes), bool)
+    in_all = np.zeros(num_boxes, bool)
     for lane in by_corner[0]:  # each lane of corner 0: also held by the three others?
         held_by_all = lane >= 0
         for other in by_corner[1:]:
