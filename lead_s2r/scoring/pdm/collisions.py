@@ -104,8 +104,15 @@ def find_hits(
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(box_polygons(coords[pairs]), observation.polygons[geom[pairs]])
 
-    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact, observation.axes[geom])
+    corners = np.take(observation.corners, geom, axis=0)
+    intersects = convex_intersects(coords[:, : Corner.CENTER], corners, exact, observation.axes[geom])
     return query[intersects], geom[intersects]
+
+
+def _at(array: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """``array[first, second]`` by ``np.take`` on the first two axes flattened: the same elements, several times
+    faster than numpy's fancy indexing with two index arrays (or one over rows of a multi-dimensional array)."""
+    return np.take(array.reshape(-1, *array.shape[2:]), first * array.shape[1] + second, axis=0)
 
 
 def relative_angle(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -166,23 +173,24 @@ def no_at_fault_collisions(
 
     def boxes(query: np.ndarray) -> np.ndarray:
         step, row = np.divmod(query, num_rows)
-        return ego_coords[row, step]
+        return _at(ego_coords, row, step)
 
     query, geom = find_hits(observation, *centers, np.arange(num_steps), boxes, ego_radius)
     step, row = np.divmod(query, num_rows)
     obj = observation.objects[geom]
-    ego = states[row, step]
+    ego = _at(states, row, step)
     ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
     track_stopped = ~observation.object_is_agent[obj] | (observation.object_speed[obj] <= STOPPED_TRACK_SPEED)
-    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], observation.centroids[geom]) > np.deg2rad(BEHIND_DEG)
-    front = ego_coords[row, step][:, [Corner.FRONT_LEFT, Corner.FRONT_RIGHT]]
+    centroids = np.take(observation.centroids, geom, axis=0)
+    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], centroids) > np.deg2rad(BEHIND_DEG)
+    front = np.take(_at(ego_coords, row, step), [Corner.FRONT_LEFT, Corner.FRONT_RIGHT], axis=1)
 
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(shapely.linestrings(front[pairs]), observation.polygons[geom[pairs]])
 
-    front_hit = convex_intersects(front, observation.corners[geom], exact, observation.axes[geom])
+    front_hit = convex_intersects(front, np.take(observation.corners, geom, axis=0), exact, observation.axes[geom])
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
-    at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
+    at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & _at(lanes_or_off_road, row, step)))
     counted = counted_before_release(row, obj, step, at_fault)
 
     severity = np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE)
@@ -208,8 +216,10 @@ def time_to_collision(
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
     # per (step, row), laid out (S, N) so that the queries' grid (K, S, N) has the rows as its long axis
-    speed = np.hypot(states[:, :num_steps, StateIndex.VELOCITY_X], states[:, :num_steps, StateIndex.VELOCITY_Y]).T
-    heading = states[:, :num_steps, StateIndex.HEADING].T
+    speed = np.ascontiguousarray(
+        np.hypot(states[:, :num_steps, StateIndex.VELOCITY_X], states[:, :num_steps, StateIndex.VELOCITY_Y]).T
+    )
+    heading = np.ascontiguousarray(states[:, :num_steps, StateIndex.HEADING].T)
     per_second = np.cos(heading) * speed, np.sin(heading) * speed
     center = ego_coords[:, :num_steps, Corner.CENTER].transpose(2, 1, 0)  # (2, S, N)
     # queries (offset k, step, row): the box moved along its heading at its speed by float(k) * interval, as NAVSIM
@@ -225,8 +235,8 @@ def time_to_collision(
 
     def boxes(query: np.ndarray) -> np.ndarray:
         offset, step, row = np.unravel_index(query, x.shape)
-        shift = np.stack([along[step, row] for along in per_second], -1) * np.array(lengths)[offset, None]
-        return ego_coords[row, step] + shift[:, None]
+        shift = np.stack([_at(along, step, row) for along in per_second], -1) * np.array(lengths)[offset, None]
+        return _at(ego_coords, row, step) + shift[:, None]
 
     valid_steps = np.minimum(obs_steps, observation.num_steps - 1).reshape(-1)  # the NaN centres' steps are never read
     query, geom = find_hits(
@@ -234,9 +244,9 @@ def time_to_collision(
     )
     offset, step, row = np.unravel_index(query, x.shape)
     order = step * len(offsets) + offset  # the official walk: steps in order, offsets in order within a step
-    rear_axle = states[row, step, : StateIndex.HEADING + 1]
-    angle = relative_angle(rear_axle, observation.centroids[geom])
-    risky_area = lanes_or_off_road[row, step] | in_intersection[row, step]
+    rear_axle = _at(states, row, step)[:, : StateIndex.HEADING + 1]
+    angle = relative_angle(rear_axle, np.take(observation.centroids, geom, axis=0))
+    risky_area = _at(lanes_or_off_road, row, step) | _at(in_intersection, row, step)
     violation = (angle < np.deg2rad(AHEAD_DEG)) | (risky_area & ~(angle > np.deg2rad(BEHIND_DEG)))
     counted = counted_before_release(row, observation.objects[geom], order, violation)
     first = _first_step(row[counted], step[counted], num_rows)

@@ -65,7 +65,8 @@ class Axes:
         return cls(nx, ny, *_extent(corners, nx, ny))
 
     def __getitem__(self, rows: np.ndarray) -> "Axes":
-        return Axes(self.nx[:, rows], self.ny[:, rows], self.low[:, rows], self.high[:, rows])
+        # np.take: the same columns, far faster than fancy indexing after a slice
+        return Axes(*(np.take(part, rows, axis=1) for part in (self.nx, self.ny, self.low, self.high)))
 
 
 def _gaps(own: Axes, other: np.ndarray) -> np.ndarray:
