@@ -169,7 +169,7 @@ class DrivableMap:
         by ``contains_xy``."""
         x, y = x.reshape(-1), y.reshape(-1)
         index, entry = self.grid.candidates(x, y)
-        cover = self.cover[entry]
+        cover = np.take(self.cover, entry)
         unknown = cover == UNKNOWN
         if unknown.any():
             self._classify(np.unique(entry[unknown]))
@@ -179,7 +179,7 @@ class DrivableMap:
         crossed_points = index[crossed]
         x, y = x[crossed_points], y[crossed_points]
         polygon = self.grid.members[entry[crossed]]
-        xmin, ymin, xmax, ymax = self.bounds[:, polygon]
+        xmin, ymin, xmax, ymax = np.take(self.bounds, polygon, axis=1)  # np.take: far faster than fancy indexing
         near = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
         held[crossed[near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]]] = True
         held = np.flatnonzero(held)  # one pass over the mask for both gathers
@@ -204,7 +204,11 @@ class DrivableMap:
             state = settled.state[cells]
         # as many lane slots as these points' cells can fill (a crossed cell: as many as it lists lanes)
         width = max(1, int(settled.lane_count[cells].max(initial=0)))
-        out = PointLayers(settled.drivable[cells], settled.intersection[cells], np.empty((width, len(cells)), np.int32))
+        out = PointLayers(
+            np.take(settled.drivable, cells),
+            np.take(settled.intersection, cells),
+            np.empty((width, len(cells)), np.int32),
+        )
         for slot in range(width):
             np.take(settled.lanes[slot], cells, out=out.lanes[slot])
         crossed = np.flatnonzero(state == CELL_CROSSED)  # their cells' answers are empty: set them here

@@ -128,7 +128,8 @@ def beyond_lane_limit(centers: np.ndarray, centerline: shapely.LineString) -> np
     nearest = np.full(len(points), np.inf)
     if len(point):
         first = np.flatnonzero(np.diff(point, prepend=-1))
-        distance = _segment_distance(points[point, 0], points[point, 1], start[segment], end[segment])
+        x, y = (np.take(points[:, axis], point) for axis in range(2))
+        distance = _segment_distance(x, y, np.take(start, segment, axis=0), np.take(end, segment, axis=0))
         nearest[point[first]] = np.minimum.reduceat(distance, first)
     beyond = nearest > LANE_KEEPING_LIMIT_M
     unsure = np.flatnonzero(np.abs(nearest - LANE_KEEPING_LIMIT_M) <= LANE_KEEPING_MARGIN_M)
