@@ -20,6 +20,7 @@ CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are
 """
 
 from dataclasses import dataclass
+from functools import reduce
 
 import numpy as np
 import shapely
@@ -342,17 +343,16 @@ def multiple_lanes(by_corner: np.ndarray) -> np.ndarray:
     polygon among the corners, and none holding all four."""
     by_corner = np.ascontiguousarray(by_corner)  # each slot a contiguous row
     num_boxes = by_corner.shape[-1]
-    slots = by_corner.reshape(-1, num_boxes)  # corner-major: slot j is corner j // W
-    distinct = np.zeros(num_boxes, np.int64)
-    for j, lane in enumerate(slots):
-        new = lane >= 0
-        for earlier in slots[:j]:
-            new &= earlier != lane
-        distinct += new
+    slots = by_corner.reshape(-1, num_boxes)
+    # more than one distinct lane: some lane other than the largest one present (pads are -1, below every lane)
+    largest = reduce(np.maximum, slots)
+    several = np.zeros(num_boxes, bool)
+    for lane in slots:
+        several |= (lane >= 0) & (lane < largest)
     in_all = np.zeros(num_boxes, bool)
     for lane in by_corner[0]:  # each lane of corner 0: also held by the three others?
         held_by_all = lane >= 0
         for other in by_corner[1:]:
             held_by_all &= np.logical_or.reduce([slot == lane for slot in other])
         in_all |= held_by_all
-    return (distinct > 1) & ~in_all
+    return several & ~in_all
