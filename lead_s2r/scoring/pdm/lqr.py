@@ -102,11 +102,10 @@ def _fit_curvature(heading_steps: np.ndarray, speed: np.ndarray, dt: float) -> n
     weights[0] = dt
     index = np.arange(m)
     suffix_sq = np.cumsum((speed**2)[:, ::-1], axis=1)[:, ::-1]  # sum_{i >= c} v_i^2
-    # entry (c, c') reads the suffix sum at max(c, c'): row c's own on and below the diagonal, column c''s above
-    # (a select, far cheaper than gathering with an (M, M) index array; the same values)
-    normal = np.where(np.greater_equal.outer(index, index), suffix_sq[:, :, None], suffix_sq[:, None, :])
+    # entry (c, c') reads the suffix sum at max(c, c') (np.take: a gather far cheaper than fancy indexing or a select)
+    normal = np.take(suffix_sq, np.maximum.outer(index, index), axis=1)
     normal *= np.outer(weights, weights)
-    normal[:, index[1:], index[1:]] += CURVATURE_RATE_PENALTY
+    normal.reshape(len(speed), -1)[:, m + 1 :: m + 1] += CURVATURE_RATE_PENALTY  # the diagonal after (0, 0)
     normal[:, 0, 0] += INITIAL_CURVATURE_PENALTY
     rhs = np.cumsum((speed * heading_steps)[:, ::-1], axis=1)[:, ::-1] * weights
     solution = np.linalg.solve(normal, rhs[..., None])[..., 0]

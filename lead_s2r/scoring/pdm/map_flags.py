@@ -218,7 +218,7 @@ class DrivableMap:
         out.drivable[point[IS_DRIVABLE[kind]]] = True
         out.intersection[point[kind == MapKind.INTERSECTION]] = True
         lane = IS_LANE[kind]
-        out.lanes[_ranks(index[lane]), point[lane]] = polygon[lane]
+        np.put(out.lanes, _ranks(index[lane]) * len(cells) + point[lane], polygon[lane])  # lanes[rank, point]
         return out
 
     def _settle(self, cells: np.ndarray) -> None:
