@@ -106,9 +106,9 @@ def lane_keeping(
     required = int(np.ceil(LANE_KEEPING_WINDOW_S / interval))
     count = np.zeros(len(centers), np.int64)
     failed_at = np.full(len(centers), -1)
-    for step in range(centers.shape[1]):
-        counted = ~in_intersection[:, step]
-        count[counted] = np.where(exceeds[counted, step], count[counted] + 1, 0)
+    # step by step over contiguous rows; a skipped step keeps the count
+    for step, (exceeding, skipped) in enumerate(zip(exceeds.T.copy(), in_intersection.T.copy(), strict=True)):
+        count = np.where(skipped, count, np.where(exceeding, count + 1, 0))
         failed_at[(failed_at < 0) & (count >= required)] = step
     return np.where(failed_at >= 0, 0.0, 1.0), failed_at
 
