@@ -23,6 +23,7 @@ from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm import epdms, score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import find_hits
+from lead_s2r.scoring.pdm.elementwise import row_products
 from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
 from lead_s2r.scoring.pdm.map_flags import (
     CELL_CROSSED,
@@ -515,3 +516,30 @@ def test_navsim_samples_get_their_scenes_vocabulary_targets(scored, converted, t
     assert not bool(missing[VOCAB_SCORES_MASK]) and not missing[VOCAB_SCORES].any()
     assert missing[VOCAB_SCORES].shape == out[VOCAB_SCORES].shape
     assert len(pickle.dumps(attach)) < 1000  # the path, not the targets
+
+
+@pytest.mark.parametrize("strided", [False, True])
+@pytest.mark.parametrize("shape", [(40, 40), (10, 5)])
+def test_row_products_do_not_depend_on_the_rows_beside_them(strided: bool, shape: tuple[int, int]) -> None:
+    """A row multiplied among 1,025 others, alone, and alone at another memory alignment, in the same layout: the
+    same bits, for contiguous rows (a BLAS product per row: the speed fit) and strided ones (numpy's own loop: the
+    curvature lookahead, Savitzky-Golay on a state column). The layout itself may change the bits (it picks the
+    loop), so the vocabulary and a single entry must reach each product with the same layout, as they do."""
+    rng = np.random.default_rng(8)
+    matrix = rng.normal(size=shape)
+    step = 3 if strided else 1
+
+    def rows(count: int, offset: int = 0) -> np.ndarray:
+        """``(count, K)`` rows in a fresh buffer starting ``offset`` bytes in, every ``step``-th value."""
+        size = count * shape[0] * step
+        buffer = np.frombuffer(bytearray(size * 8 + offset), np.float64, count=size, offset=offset)
+        return buffer.reshape(count, -1)[:, ::step]
+
+    values = rows(1025)
+    values[:] = rng.normal(size=values.shape)
+    together = row_products(values, matrix)
+    for row in (0, 1, 511, 1024):
+        for offset in (0, 8, 24):
+            alone = rows(1, offset)
+            alone[:] = values[row]
+            assert row_products(alone, matrix).tobytes() == together[row : row + 1].tobytes(), (row, offset)
