@@ -3,9 +3,11 @@
 (:class:`BoundsGrid`, numpy only: no point geometry is built) picks candidate polygons for every point. Each
 (cell, polygon) pair is classified once, when a point first falls in it (GEOS on the cell's square grown by
 :data:`CELL_MARGIN_M`): the square inside the polygon's interior (every point of the cell is inside), clear of the
-polygon (none is), or crossed by its edge; only points in crossed cells go on to the bounding-box test and prepared
-``shapely.contains_xy``. A point's computed cell is off its true position by rounding far below the margin, so the
-grid only decides points whose answer is certain, and the answer is ``contains_xy``'s for every point.
+polygon (none is), or crossed by its edge. A cell no polygon edge crosses answers all its points at once
+(:class:`SettledCells`: the layers and lanes whose interior holds it); only points in crossed cells go on to their
+candidates, the bounding-box test and prepared ``shapely.contains_xy``. A point's computed cell is off its true
+position by rounding far below the margin, so the grid only decides points whose answer is certain, and the answer
+is ``contains_xy``'s for every point.
 
 The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
 CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
