@@ -59,7 +59,9 @@ def driving_direction_compliance(
     """DDC ``(N,)`` in {0, 0.5, 1} from box centres ``(N, T, 2)`` and ONCOMING_TRAFFIC ``(N, T)``; steps in
     ``exclude (N, T)`` (v2: centre inside an INTERSECTION) do not count."""
     progress = np.zeros(oncoming.shape)
-    progress[:, 1:] = np.linalg.norm(centers[:, 1:] - centers[:, :-1], axis=-1)
+    # np.linalg.norm's own sum, x and y apart (numpy's loops over an axis of 2 cost far more)
+    dx, dy = (np.diff(centers[..., axis], axis=1) for axis in range(2))
+    progress[:, 1:] = np.sqrt(dx * dx + dy * dy)
     counted = oncoming if exclude is None else oncoming & ~exclude
     progress[~counted] = 0.0
     horizon = int(DDC_HORIZON_S / interval)
