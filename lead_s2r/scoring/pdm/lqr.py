@@ -227,11 +227,12 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
         Q_LATERAL[1],
         R_LATERAL,
     ]
-    table = np.empty((num_fits, len(rows), count))
+    # filled field by field, each a contiguous (S, N) block, and handed out as (S, fields, N)
+    table = np.empty((len(rows), num_fits, count))
     for field, row in enumerate(rows):
-        table[:, field] = row
+        table[field] = row
     may_stop = (reference_speed <= STOPPING_VELOCITY).any(axis=1).tolist()
-    return table, may_stop
+    return table.transpose(1, 0, 2), may_stop
 
 
 def step_references(table: np.ndarray, proposal: int | None = None) -> list[StepReference]:
