@@ -5,6 +5,7 @@ a resumed run; ``vocab build`` is deterministic; bad input is one line, exit 2, 
 
 import json
 import pickle
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +21,13 @@ from lead_s2r.data.vocab_scores import VOCAB_SCORES, VOCAB_SCORES_MASK, VocabSco
 from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.schema import MapKind
-from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
+from lead_s2r.scoring.pdm import epdms, score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import find_hits
+from lead_s2r.scoring.pdm.elementwise import row_products
 from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
 from lead_s2r.scoring.pdm.map_flags import (
+    CELL_CROSSED,
+    CELL_SETTLED,
     CLEAR,
     CROSSED,
     INSIDE,
@@ -98,6 +102,85 @@ def test_random_entries_equal_scoring_each_alone(converted: Path, vocabulary: np
     assert {"no_at_fault_collisions", "drivable_area_compliance", "ego_progress", "score"} <= varied
 
 
+def hostile_entries(scene: PDMScene) -> np.ndarray:
+    """Entries a k-means vocabulary can hold and a fast path could special-case, ``(V, 40, 3)``: standing still
+    (exactly and creeping), reversing (facing forward and backward), far too fast, swerving off the map, changing
+    lanes, a U-turn, spinning or flipping heading on the spot, headings past pi, jumps, far off the map, driving into
+    every agent at several keyframes (and a metre beside it), standing on map polygons' vertices and sliding along
+    their edges."""
+    t = GTRS_INTERVAL_S * np.arange(1, GTRS_POSES + 1)
+    zero = np.zeros_like(t)
+
+    def entry(x: np.ndarray, y: np.ndarray, heading: np.ndarray | float | None = None) -> np.ndarray:
+        x, y = np.broadcast_to(x, t.shape), np.broadcast_to(y, t.shape)
+        heading = np.arctan2(np.diff(y, prepend=0.0), np.diff(x, prepend=0.0)) if heading is None else heading
+        return np.stack([x, y, np.broadcast_to(heading, t.shape)], -1)
+
+    ramp = np.clip(t / 3.0, 0.0, 1.0)
+    entries = [
+        entry(zero, zero, 0.0), entry(1e-9 * t, zero, 0.0), entry(-3.0 * t, zero, 0.0), entry(-5.0 * t, zero, np.pi),
+        entry(60.0 * t, zero), entry(8.0 * t, 6.0 * t**2), entry(8.0 * t, -6.0 * t**2),
+        entry(9.0 * t, 3.5 * (3 * ramp**2 - 2 * ramp**3)), entry(6.0 * np.sin(t), 6.0 * (1 - np.cos(t)), t),
+        entry(zero, zero, 2.5 * np.pi * t), entry(5.0 * t, zero, np.where(np.arange(len(t)) % 2, np.pi, 0.0)),
+        entry(5.0 * t, zero, 10.0), entry(7.0 * t, np.where(np.arange(len(t)) % 2, 1.0, -1.0)),
+        entry(np.where(t > 2.0, 40.0, 0.0), zero, 0.0), entry(1e4 + t, 1e4 + zero, 0.0),
+    ]  # fmt: skip
+    for track in range(len(scene.agent_poses)):
+        for keyframe in (1, 3, 6, 8):
+            if keyframe < len(scene.agent_t) and scene.agent_valid[track, keyframe]:
+                x, y, _ = scene.agent_poses[track, keyframe]
+                reach = np.clip(t / scene.agent_t[keyframe], 0.0, None)
+                entries += [entry(x * reach, y * reach), entry(x * reach, y * reach + 1.0)]
+    ring_of = np.repeat(np.arange(len(scene.polygon_kind)), np.diff(scene.polygon_offsets))
+    near = np.flatnonzero((np.hypot(*scene.polygon_xy.T) < 30.0) & (np.diff(ring_of, append=-1) == 0))[::7]
+    for start, end in zip(scene.polygon_xy[near], scene.polygon_xy[near + 1], strict=True):
+        heading = np.arctan2(*(end - start)[::-1])
+        entries += [entry(start[0] + zero, start[1] + zero, heading)]
+        entries += [entry(*(start[:, None] + (end - start)[:, None] * np.clip(t / 4.0, 0.0, 1.0)), heading)]
+    return np.stack(entries)
+
+
+def scene_variants(scene: PDMScene) -> dict[str, PDMScene]:
+    """The scene, without agents, with its map moved far away (every point off the grid), its ego standing and
+    reversing, sideways and steering."""
+    no_agents = {
+        "agent_poses": scene.agent_poses[:0], "agent_velocity": scene.agent_velocity[:0],
+        "agent_valid": scene.agent_valid[:0], "agent_size": scene.agent_size[:0], "agent_class": scene.agent_class[:0],
+    }  # fmt: skip
+    return {
+        "logged": scene,
+        "no agents": replace(scene, **no_agents),
+        "map far away": replace(scene, polygon_xy=scene.polygon_xy + 1000.0),
+        "ego standing": replace(scene, ego_velocity=np.zeros(2), ego_acceleration=np.zeros(2)),
+        "ego reversing": replace(scene, ego_velocity=np.array([-3.0, 0.0]), ego_acceleration=np.array([0.5, 0.1])),
+        "ego sideways": replace(scene, ego_velocity=np.array([9.0, 0.4]), tire_steering_angle=0.05),
+    }
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_hostile_entries_and_scenes_equal_scoring_each_alone(
+    converted: Path, vocabulary: np.ndarray, metric: str
+) -> None:
+    """Every entry of a hostile vocabulary (:func:`hostile_entries`, the logged k-means-like futures, duplicates)
+    in every scene variant (:func:`scene_variants`): every column bit for bit what the entry gets alone, with
+    chunks of 7 and simulation blocks of 13 (entries at every position, blocks straddled, a short last block)."""
+    rng = np.random.default_rng(5)
+    samples = list(read_samples(converted, fields=("scoring", "boxes", "agents_future", "future")))
+    failing = set()
+    for name, scene in scene_variants(scene_from_sample(samples[4])).items():
+        reference = plan_reference(scene)
+        entries = np.concatenate([hostile_entries(scene), vocabulary[-5:]])
+        entries = entries[rng.permutation(np.r_[np.arange(len(entries)), rng.choice(len(entries), 3)])]
+        together = score_vocabulary(scene, entries, 0.1, reference, metric, chunk=7, simulation_block=13)
+        for v in range(len(entries)):
+            alone = score_proposals(scene, entries[v : v + 1], 0.1, reference, metric)
+            for column, values in alone.items():
+                np.testing.assert_array_equal(together[column][v : v + 1], values, err_msg=f"{name}: {column}, {v}")
+        failing |= {column for column, values in together.items() if {0.0, 1.0} <= set(values.tolist())}
+    # every sub-score is 0 for some entries and 1 for others (TLC: the entries that run the scene's red light)
+    assert set(together) & {*epdms.FILTERED, "comfort"} <= failing
+
+
 def test_simulated_rows_must_match_the_proposals(converted: Path, vocabulary: np.ndarray) -> None:
     """``score_proposals(simulated=...)`` scores ``simulate_rows``' rows as it would simulate them, and refuses rows
     that are not those of its proposals (the reference first, the human trajectory last where the filter runs)."""
@@ -157,7 +240,7 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     borders = grid.origin + grid.cell * np.stack([np.arange(40), np.arange(40)[::-1]], axis=1)
     exact = np.concatenate([corners, borders, (finite[:, :2] + finite[:, 2:]) / 2, rng.uniform(-70, 90, (500, 2))])
     points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
-    point, entry = grid.candidates(points)
+    point, entry = grid.candidates(points[:, 0], points[:, 1])
     box = grid.members[entry]
     found = set(zip(point.tolist(), box.tolist(), strict=True))
     x, y = points[:, None, 0], points[:, None, 1]
@@ -167,7 +250,7 @@ def test_bounds_grid_lists_every_box_holding_a_point() -> None:
     # points off the grid, on every side, list nothing
     top = grid.origin + grid.cell * np.array(grid.shape)
     off = np.array([[grid.origin[0] - 1.0, 0.0], [0.0, grid.origin[1] - 1e-9], [top[0] + 1.0, 0.0], [0.0, top[1] + 5]])
-    assert len(grid.candidates(off)[0]) == 0
+    assert len(grid.candidates(off[:, 0], off[:, 1])[0]) == 0
     assert len(truth) > 100 and len(found) < 4 * len(truth)
 
 
@@ -182,7 +265,7 @@ def test_map_lookup_equals_contains_on_every_polygon_edge(converted: Path) -> No
     spread = np.random.default_rng(5).uniform(grid.origin, grid.origin + grid.cell * np.array(grid.shape), (3000, 2))
     exact = np.concatenate([rings, (rings[1:] + rings[:-1]) / 2, borders, spread])
     points = np.concatenate([exact, np.nextafter(exact, np.inf), np.nextafter(exact, -np.inf)])
-    box, polygon = drivable_map.locate(points[:, None])
+    box, polygon = drivable_map.locate(points[:, None, 0], points[:, None, 1])
     assert (np.diff(box) >= 0).all()
     inside = np.stack([shapely.contains_xy(shape, points[:, 0], points[:, 1]) for shape in drivable_map.polygons])
     expected = set(zip(*(index.tolist() for index in np.nonzero(inside.T)), strict=True))
@@ -231,6 +314,8 @@ def test_ego_area_flags_equal_polygon_tests_on_every_polygon(converted: Path) ->
     for name, flags in expected.items():
         np.testing.assert_array_equal(getattr(areas, name)[:, 0], flags, err_msg=name)
         assert 0 < flags.sum() < len(flags) or name == "rear_axle_in_intersection", name
+    # both paths ran: points answered by their cell alone (no polygon edge crosses it) and points located one by one
+    assert {CELL_SETTLED, CELL_CROSSED} <= set(drivable_map.settled.state.tolist())
 
 
 def test_multiple_lanes_counts_distinct_lanes_and_all_four() -> None:
@@ -244,7 +329,7 @@ def test_multiple_lanes_counts_distinct_lanes_and_all_four() -> None:
     for box in lanes:
         sets = [set(corner[corner >= 0].tolist()) for corner in box]
         expected.append(len(set.union(*sets)) > 1 and not set.intersection(*sets))
-    np.testing.assert_array_equal(multiple_lanes(lanes), expected)
+    np.testing.assert_array_equal(multiple_lanes(lanes.transpose(1, 2, 0)), expected)
     assert 0 < sum(expected) < len(expected)
 
 
@@ -261,7 +346,10 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     moved = [corners + shift[:, None] * scale for shift in shifts for scale in (1.0, 1.0 - 1e-12, 1.0 + 1e-12)]
     coords = np.concatenate([np.concatenate([box, box.mean(axis=1, keepdims=True)], axis=1) for box in moved])
     radius = float(observation.radius[geoms].max())
-    query, geom = find_hits(observation, coords[:, None, -1], np.array([step]), lambda q: coords[q], radius)
+    centers = coords[None, :, -1]  # one query slot, a row per box
+    query, geom = find_hits(
+        observation, centers[..., 0], centers[..., 1], np.array([step]), lambda q: coords[q], radius
+    )
     polygons = box_polygons(coords)
     truth = {
         (q, int(g))
@@ -276,7 +364,7 @@ def test_collision_candidates_reach_boxes_that_just_touch(converted: Path) -> No
     pairs = np.tile(geoms, len(moved))
     gathered = observation.axes[pairs]
     recomputed = Axes.of(observation.corners[pairs])
-    for name in ("normals", "low", "high"):
+    for name in ("nx", "ny", "low", "high"):
         assert getattr(gathered, name).tobytes() == getattr(recomputed, name).tobytes()
 
     def exact(undecided: np.ndarray) -> np.ndarray:
@@ -428,3 +516,30 @@ def test_navsim_samples_get_their_scenes_vocabulary_targets(scored, converted, t
     assert not bool(missing[VOCAB_SCORES_MASK]) and not missing[VOCAB_SCORES].any()
     assert missing[VOCAB_SCORES].shape == out[VOCAB_SCORES].shape
     assert len(pickle.dumps(attach)) < 1000  # the path, not the targets
+
+
+@pytest.mark.parametrize("strided", [False, True])
+@pytest.mark.parametrize("shape", [(40, 40), (10, 5)])
+def test_row_products_do_not_depend_on_the_rows_beside_them(strided: bool, shape: tuple[int, int]) -> None:
+    """A row multiplied among 1,025 others, alone, and alone at another memory alignment, in the same layout: the
+    same bits, for contiguous rows (a BLAS product per row: the speed fit) and strided ones (numpy's own loop: the
+    curvature lookahead, Savitzky-Golay on a state column). The layout itself may change the bits (it picks the
+    loop), so the vocabulary and a single entry must reach each product with the same layout, as they do."""
+    rng = np.random.default_rng(8)
+    matrix = rng.normal(size=shape)
+    step = 3 if strided else 1
+
+    def rows(count: int, offset: int = 0) -> np.ndarray:
+        """``(count, K)`` rows in a fresh buffer starting ``offset`` bytes in, every ``step``-th value."""
+        size = count * shape[0] * step
+        buffer = np.frombuffer(bytearray(size * 8 + offset), np.float64, count=size, offset=offset)
+        return buffer.reshape(count, -1)[:, ::step]
+
+    values = rows(1025)
+    values[:] = rng.normal(size=values.shape)
+    together = row_products(values, matrix)
+    for row in (0, 1, 511, 1024):
+        for offset in (0, 8, 24):
+            alone = rows(1, offset)
+            alone[:] = values[row]
+            assert row_products(alone, matrix).tobytes() == together[row : row + 1].tobytes(), (row, offset)

@@ -48,53 +48,54 @@ TTC_OFFSETS = (0, 3, 6, 9)  # steps: np.arange(0, int(1.0 / 0.1), 3)
 
 #: Slack [m] on the bounding-circle test that picks candidate pairs, far above any rounding in the box corners.
 CIRCLE_SLACK = 1e-6
-#: Candidate pairs are searched this many query rows at a time (bounds the (rows, P, Gmax) temporaries).
-CHUNK = 64
 
 
 def candidate_pairs(
-    observation: Observation, centers: np.ndarray, obs_steps: np.ndarray, radius: float
+    observation: Observation, x: np.ndarray, y: np.ndarray, obs_steps: np.ndarray, radius: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``centers (N, P, 2)`` (NaN:
-    no query) and enclosing radius ``radius``, query ``(n, p)`` (flat index ``n * P + p``) against the geometries of
-    observation step ``obs_steps[p]``. Every intersecting pair is among them, so the exact test runs on few pairs
-    and no STRtree is needed. Each row meets the same steps, so the steps' centroids broadcast over the rows."""
-    valid = observation.step_geoms[obs_steps] >= 0  # (P, Gmax)
-    safe = np.maximum(observation.step_geoms[obs_steps], 0)
+    """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``(x, y)``, each
+    ``(P, N)`` (NaN: no query), and enclosing radius ``radius``, query ``(p, n)`` (flat index ``p * N + n``) against
+    the geometries of observation step ``obs_steps[p]``. Every intersecting pair is among them, so the exact test
+    runs on few pairs and no STRtree is needed. Query slot p meets the same geometries in every row, so each
+    geometry slot is one pass over the ``(P, N)`` grid, its long axis the rows (numpy's loops over an axis of a few
+    geometries cost far more)."""
+    geoms = observation.step_geoms[obs_steps]  # (P, Gmax)
+    valid = geoms >= 0
+    safe = np.maximum(geoms, 0)
     # per query slot and geometry: centroid (NaN pads, which no comparison passes) and the squared reach of a hit
     step_x = np.where(valid, observation.centroids[safe, 0], np.nan)
     step_y = np.where(valid, observation.centroids[safe, 1], np.nan)
     step_reach = observation.radius[safe] + (radius + CIRCLE_SLACK)
     step_reach *= step_reach
-    queries, slots = [], []
-    for start in range(0, len(centers), CHUNK):
-        dx = step_x - centers[start : start + CHUNK, :, :1]
-        dy = step_y - centers[start : start + CHUNK, :, 1:]
+    dx, dy = np.empty_like(x), np.empty_like(y)
+    queries, geometries = [], []
+    for slot in range(geoms.shape[1]):
+        np.subtract(step_x[:, slot, None], x, out=dx)
+        np.subtract(step_y[:, slot, None], y, out=dy)
         dx *= dx
         dy *= dy
         dx += dy
-        # flat positions split by the row length: a 2-D np.nonzero costs ~8x more here, the same pairs in order
-        query, slot = np.divmod(np.flatnonzero(dx <= step_reach), dx.shape[-1])
-        queries.append(query + start * centers.shape[1])
-        slots.append(slot)
+        query = np.flatnonzero(dx <= step_reach[:, slot, None])
+        queries.append(query)
+        geometries.append(geoms[query // x.shape[1], slot])
     if not queries:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    query = np.concatenate(queries)
-    return query, observation.step_geoms[obs_steps[query % centers.shape[1]], np.concatenate(slots)]
+    return np.concatenate(queries), np.concatenate(geometries)
 
 
 def find_hits(
     observation: Observation,
-    centers: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
     obs_steps: np.ndarray,
     boxes: Callable[[np.ndarray], np.ndarray],
     radius: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(query, geometry)`` pairs that intersect, for query boxes of centre ``centers (N, P, 2)`` (NaN: no query)
-    at observation steps ``obs_steps (P,)``, queries as flat indices ``n * P + p``. ``boxes(queries)`` gives the
+    """``(query, geometry)`` pairs that intersect, for query boxes of centre ``(x, y)`` ``(P, N)`` (NaN: no query)
+    at observation steps ``obs_steps (P,)``, queries as flat indices ``p * N + n``. ``boxes(queries)`` gives the
     ``(n, 5, 2)`` corners and centre of the queries asked for: only those with a candidate geometry are built, and
-    polygons only for the pairs floats cannot decide."""
-    query, geom = candidate_pairs(observation, centers, obs_steps, radius)
+    polygons only for the pairs floats cannot decide. The pairs come in no particular order."""
+    query, geom = candidate_pairs(observation, x, y, obs_steps, radius)
     obj = observation.objects[geom]
     usable = ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
     query, geom = query[usable], geom[usable]
@@ -103,8 +104,15 @@ def find_hits(
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(box_polygons(coords[pairs]), observation.polygons[geom[pairs]])
 
-    intersects = convex_intersects(coords[:, : Corner.CENTER], observation.corners[geom], exact, observation.axes[geom])
+    corners = np.take(observation.corners, geom, axis=0)
+    intersects = convex_intersects(coords[:, : Corner.CENTER], corners, exact, observation.axes[geom])
     return query[intersects], geom[intersects]
+
+
+def _at(array: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """``array[first, second]`` by ``np.take`` on the first two axes flattened: the same elements, several times
+    faster than numpy's fancy indexing with two index arrays (or one over rows of a multi-dimensional array)."""
+    return np.take(array.reshape(-1, *array.shape[2:]), first * array.shape[1] + second, axis=0)
 
 
 def relative_angle(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -161,23 +169,28 @@ def no_at_fault_collisions(
     (a track index: the scene's agent row; -1 if none), for states ``(N, T, 11)`` and their boxes ``(N, T, 5, 2)``
     (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or NON_DRIVABLE_AREA."""
     num_rows, num_steps = ego_coords.shape[:2]
-    boxes = ego_coords.reshape(-1, 5, 2)
-    steps = np.arange(num_steps)
-    query, geom = find_hits(observation, ego_coords[:, :, Corner.CENTER], steps, lambda q: boxes[q], ego_radius)
-    row, step = np.divmod(query, num_steps)
+    centers = ego_coords[:, :, Corner.CENTER].transpose(2, 1, 0)  # (2, T, N): a step's rows side by side
+
+    def boxes(query: np.ndarray) -> np.ndarray:
+        step, row = np.divmod(query, num_rows)
+        return _at(ego_coords, row, step)
+
+    query, geom = find_hits(observation, *centers, np.arange(num_steps), boxes, ego_radius)
+    step, row = np.divmod(query, num_rows)
     obj = observation.objects[geom]
-    ego = states[row, step]
+    ego = _at(states, row, step)
     ego_stopped = np.hypot(ego[:, StateIndex.VELOCITY_X], ego[:, StateIndex.VELOCITY_Y]) <= STOPPED_EGO_SPEED
     track_stopped = ~observation.object_is_agent[obj] | (observation.object_speed[obj] <= STOPPED_TRACK_SPEED)
-    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], observation.centroids[geom]) > np.deg2rad(BEHIND_DEG)
-    front = ego_coords[row, step][:, [Corner.FRONT_LEFT, Corner.FRONT_RIGHT]]
+    centroids = np.take(observation.centroids, geom, axis=0)
+    behind = relative_angle(ego[:, : StateIndex.HEADING + 1], centroids) > np.deg2rad(BEHIND_DEG)
+    front = np.take(_at(ego_coords, row, step), [Corner.FRONT_LEFT, Corner.FRONT_RIGHT], axis=1)
 
     def exact(pairs: np.ndarray) -> np.ndarray:
         return shapely.intersects(shapely.linestrings(front[pairs]), observation.polygons[geom[pairs]])
 
-    front_hit = convex_intersects(front, observation.corners[geom], exact, observation.axes[geom])
+    front_hit = convex_intersects(front, np.take(observation.corners, geom, axis=0), exact, observation.axes[geom])
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
-    at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & lanes_or_off_road[row, step]))
+    at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & _at(lanes_or_off_road, row, step)))
     counted = counted_before_release(row, obj, step, at_fault)
 
     severity = np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE)
@@ -202,30 +215,38 @@ def time_to_collision(
     ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon."""
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
-    speed = np.hypot(states[:, :num_steps, StateIndex.VELOCITY_X], states[:, :num_steps, StateIndex.VELOCITY_Y])
-    heading = states[:, :num_steps, StateIndex.HEADING]
-    per_second = np.stack([np.cos(heading) * speed, np.sin(heading) * speed], axis=-1)  # (N, S, 2)
-    # queries (row, step, k) as one grid (N, S * K): the box moved along its heading at its speed by
-    # float(k) * interval, as NAVSIM computes it; none (NaN centre) where the ego stands or the observation ends
-    lengths = np.array([float(offset) * interval for offset in offsets])
-    shift = per_second[:, :, None] * lengths[:, None]  # (N, S, K, 2)
-    centers = ego_coords[:, :num_steps, None, Corner.CENTER] + shift
-    obs_steps = np.arange(num_steps)[:, None] + np.asarray(offsets)  # (S, K)
-    moving = (speed[:, :, None] >= TTC_STOPPED_SPEED) & (obs_steps < observation.num_steps)
-    centers[~moving] = np.nan
-    per_row = num_steps * len(offsets)
+    # per (step, row), laid out (S, N) so that the queries' grid (K, S, N) has the rows as its long axis
+    speed = np.ascontiguousarray(
+        np.hypot(states[:, :num_steps, StateIndex.VELOCITY_X], states[:, :num_steps, StateIndex.VELOCITY_Y]).T
+    )
+    heading = np.ascontiguousarray(states[:, :num_steps, StateIndex.HEADING].T)
+    per_second = np.cos(heading) * speed, np.sin(heading) * speed
+    center = ego_coords[:, :num_steps, Corner.CENTER].transpose(2, 1, 0)  # (2, S, N)
+    # queries (offset k, step, row): the box moved along its heading at its speed by float(k) * interval, as NAVSIM
+    # computes it; none (NaN centre) where the ego stands or the observation ends
+    lengths = [float(offset) * interval for offset in offsets]
+    obs_steps = np.arange(num_steps) + np.asarray(offsets)[:, None]  # (K, S)
+    resting = (speed < TTC_STOPPED_SPEED) | (obs_steps[..., None] >= observation.num_steps)  # (K, S, N)
+    x, y = (
+        np.stack([axis + along * length for length in lengths]) for axis, along in zip(center, per_second, strict=True)
+    )
+    x[resting] = np.nan
+    y[resting] = np.nan
 
     def boxes(query: np.ndarray) -> np.ndarray:
-        row, step = np.divmod(query // len(offsets), num_steps)
-        return ego_coords[row, step] + shift.reshape(-1, 2)[query, None]
+        offset, step, row = np.unravel_index(query, x.shape)
+        shift = np.stack([_at(along, step, row) for along in per_second], -1) * np.array(lengths)[offset, None]
+        return _at(ego_coords, row, step) + shift[:, None]
 
     valid_steps = np.minimum(obs_steps, observation.num_steps - 1).reshape(-1)  # the NaN centres' steps are never read
-    query, geom = find_hits(observation, centers.reshape(num_rows, per_row, 2), valid_steps, boxes, ego_radius)
-    row, order = np.divmod(query, per_row)
-    step = order // len(offsets)
-    rear_axle = states[row, step, : StateIndex.HEADING + 1]
-    angle = relative_angle(rear_axle, observation.centroids[geom])
-    risky_area = lanes_or_off_road[row, step] | in_intersection[row, step]
+    query, geom = find_hits(
+        observation, x.reshape(-1, num_rows), y.reshape(-1, num_rows), valid_steps, boxes, ego_radius
+    )
+    offset, step, row = np.unravel_index(query, x.shape)
+    order = step * len(offsets) + offset  # the official walk: steps in order, offsets in order within a step
+    rear_axle = _at(states, row, step)[:, : StateIndex.HEADING + 1]
+    angle = relative_angle(rear_axle, np.take(observation.centroids, geom, axis=0))
+    risky_area = _at(lanes_or_off_road, row, step) | _at(in_intersection, row, step)
     violation = (angle < np.deg2rad(AHEAD_DEG)) | (risky_area & ~(angle > np.deg2rad(BEHIND_DEG)))
     counted = counted_before_release(row, observation.objects[geom], order, violation)
     first = _first_step(row[counted], step[counted], num_rows)

@@ -97,7 +97,11 @@ def jerk(
     states: np.ndarray, coordinate: str, times: np.ndarray, window: int, accel_window: int = ACCEL_WINDOW
 ) -> np.ndarray:
     """Jerk ``(N, T)``: derivative (``window``, order 2) of the acceleration smoothed with ``accel_window``."""
-    return np.round(derivative(acceleration(states, coordinate, accel_window), times, window), DECIMALS)
+    return _jerk_of(acceleration(states, coordinate, accel_window), times, window)
+
+
+def _jerk_of(smoothed: np.ndarray, times: np.ndarray, window: int) -> np.ndarray:
+    return np.round(derivative(smoothed, times, window), DECIMALS)
 
 
 def phase_unwrap(headings: np.ndarray) -> np.ndarray:
@@ -110,13 +114,15 @@ def phase_unwrap(headings: np.ndarray) -> np.ndarray:
 
 def yaw_rate(states: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW) -> np.ndarray:
     """Yaw rate ``(N, T)``: first derivative (order 2) of the unwrapped heading."""
-    heading = phase_unwrap(states[..., StateIndex.HEADING])
+    return _yaw_rate_of(phase_unwrap(states[..., StateIndex.HEADING]), times, window)
+
+
+def _yaw_rate_of(heading: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW) -> np.ndarray:
     return np.round(derivative(heading, times, window, poly_order=2, order=1), DECIMALS)
 
 
-def yaw_acceleration(states: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW) -> np.ndarray:
-    """Yaw acceleration ``(N, T)``: second derivative (order 3) of the unwrapped heading."""
-    heading = phase_unwrap(states[..., StateIndex.HEADING])
+def yaw_acceleration(heading: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW) -> np.ndarray:
+    """Yaw acceleration ``(N, T)``: second derivative (order 3) of the unwrapped heading ``(N, T)``."""
     return np.round(derivative(heading, times, window, poly_order=3, order=2), DECIMALS)
 
 
@@ -138,14 +144,19 @@ def comfort_checks(
     lon_lat = states if lon_lat_states is None else lon_lat_states
     accel_window = horizon if accel_window is None else accel_window
     jerk_window = horizon if jerk_window is None else jerk_window
+    # computed once where two checks read the same numbers: the longitudinal acceleration where the jerk smooths it
+    # with the same window (v2), the unwrapped heading
+    lon_accel = acceleration(lon_lat, "x", accel_window)
+    smoothed_lon = lon_accel if accel_window == ACCEL_WINDOW else acceleration(lon_lat, "x", ACCEL_WINDOW)
+    heading = phase_unwrap(states[..., StateIndex.HEADING])
     return np.stack(
         [
-            _within(acceleration(lon_lat, "x", accel_window), MIN_LON_ACCEL, MAX_LON_ACCEL),
+            _within(lon_accel, MIN_LON_ACCEL, MAX_LON_ACCEL),
             _within(acceleration(lon_lat, "y", accel_window), -MAX_ABS_LAT_ACCEL, MAX_ABS_LAT_ACCEL),
             _within(jerk(states, "magnitude", times, jerk_window), -MAX_ABS_JERK, MAX_ABS_JERK),
-            _within(jerk(lon_lat, "x", times, jerk_window), -MAX_ABS_LON_JERK, MAX_ABS_LON_JERK),
-            _within(yaw_acceleration(states, times), -MAX_ABS_YAW_ACCEL, MAX_ABS_YAW_ACCEL),
-            _within(yaw_rate(states, times), -MAX_ABS_YAW_RATE, MAX_ABS_YAW_RATE),
+            _within(_jerk_of(smoothed_lon, times, jerk_window), -MAX_ABS_LON_JERK, MAX_ABS_LON_JERK),
+            _within(yaw_acceleration(heading, times), -MAX_ABS_YAW_ACCEL, MAX_ABS_YAW_ACCEL),
+            _within(_yaw_rate_of(heading, times), -MAX_ABS_YAW_RATE, MAX_ABS_YAW_RATE),
         ],
         axis=-1,
     )

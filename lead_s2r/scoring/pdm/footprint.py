@@ -14,6 +14,9 @@ import shapely
 from lead_s2r.scoring.pdm.state import StateIndex
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
 
+#: a box's length or width: one for all boxes or one per box (broadcast against the headings)
+Size = np.ndarray | float
+
 
 class Corner(IntEnum):
     """Rows of a ``(..., 5, 2)`` box array (nuPlan ``BBCoordsIndex``)."""
@@ -25,40 +28,42 @@ class Corner(IntEnum):
     CENTER = 4
 
 
-def _translate(
-    centers: np.ndarray, turns: tuple[np.ndarray, ...], lon: np.ndarray | float, lat: np.ndarray | float
+def _boxes(
+    x: np.ndarray, y: np.ndarray, headings: np.ndarray, along: tuple[np.ndarray, np.ndarray], length: Size, width: Size
 ) -> np.ndarray:
-    """``centers`` moved ``lon`` along the heading and ``lat`` across it; ``turns``: the cosine and sine of the
-    heading plus pi/2 and of the heading (computed once for the four corners)."""
-    cos_across, sin_across, cos_along, sin_along = turns
-    offset = np.stack([lat * cos_across + lon * cos_along, lat * sin_across + lon * sin_along], axis=-1)
-    return centers + offset
-
-
-def box_coords(
-    centers: np.ndarray, headings: np.ndarray, length: np.ndarray | float, width: np.ndarray | float
-) -> np.ndarray:
-    """``(..., 5, 2)`` corners and centre of boxes given by centre ``(..., 2)``, heading ``(...)`` and size."""
+    """``(..., 5, 2)`` corners and centre of boxes of centre ``(x, y)``, heading ``headings`` (``along``: its cosine
+    and sine) and size: each corner moved ``lon`` along the heading and ``lat`` across it (nuPlan's
+    ``translate_lon_and_lat``), x and y apart (numpy's loops over an axis of 2 cost far more)."""
     half_length, half_width = np.asarray(length) / 2.0, np.asarray(width) / 2.0
     across = headings + np.pi / 2.0
-    turns = (np.cos(across), np.sin(across), np.cos(headings), np.sin(headings))
+    cos_across, sin_across = np.cos(across), np.sin(across)
+    cos_along, sin_along = along
     coords = np.empty((*headings.shape, len(Corner), 2))
-    coords[..., Corner.CENTER, :] = centers
-    coords[..., Corner.FRONT_LEFT, :] = _translate(centers, turns, half_length, half_width)
-    coords[..., Corner.REAR_LEFT, :] = _translate(centers, turns, -half_length, half_width)
-    coords[..., Corner.REAR_RIGHT, :] = _translate(centers, turns, -half_length, -half_width)
-    coords[..., Corner.FRONT_RIGHT, :] = _translate(centers, turns, half_length, -half_width)
+    coords[..., Corner.CENTER, 0] = x
+    coords[..., Corner.CENTER, 1] = y
+    for corner, lon, lat in (
+        (Corner.FRONT_LEFT, half_length, half_width),
+        (Corner.REAR_LEFT, -half_length, half_width),
+        (Corner.REAR_RIGHT, -half_length, -half_width),
+        (Corner.FRONT_RIGHT, half_length, -half_width),
+    ):
+        coords[..., corner, 0] = x + (lat * cos_across + lon * cos_along)
+        coords[..., corner, 1] = y + (lat * sin_across + lon * sin_along)
     return coords
+
+
+def box_coords(centers: np.ndarray, headings: np.ndarray, length: Size, width: Size) -> np.ndarray:
+    """``(..., 5, 2)`` corners and centre of boxes given by centre ``(..., 2)``, heading ``(...)`` and size."""
+    return _boxes(centers[..., 0], centers[..., 1], headings, (np.cos(headings), np.sin(headings)), length, width)
 
 
 def ego_coords(states: np.ndarray, vehicle: VehicleParameters) -> np.ndarray:
     """Ego boxes ``(N, T, 5, 2)`` from rear-axle states ``(N, T, 11)``: centre ``rear_axle_to_center`` ahead."""
     headings = states[..., StateIndex.HEADING]
     shift = vehicle.rear_axle_to_center
-    centers = states[..., StateIndex.X : StateIndex.Y + 1] + np.stack(
-        [shift * np.cos(headings), shift * np.sin(headings)], -1
-    )
-    return box_coords(centers, headings, vehicle.length, vehicle.width)
+    cos, sin = np.cos(headings), np.sin(headings)
+    x, y = states[..., StateIndex.X] + shift * cos, states[..., StateIndex.Y] + shift * sin
+    return _boxes(x, y, headings, (cos, sin), vehicle.length, vehicle.width)
 
 
 def box_polygons(coords: np.ndarray) -> np.ndarray:

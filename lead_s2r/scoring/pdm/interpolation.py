@@ -48,8 +48,10 @@ def interpolate_knots(knot_us: np.ndarray, knots: np.ndarray, sample_us: np.ndar
     lo = hi - 1
     values = np.array(knots, np.float64)
     values[..., 2] = np.unwrap(values[..., 2], axis=-1)
-    slope = (values[..., hi, :] - values[..., lo, :]) / (knot_us[hi] - knot_us[lo]).astype(np.float64)[:, None]
-    out = slope * (sample_us - knot_us[lo]).astype(np.float64)[:, None] + values[..., lo, :]
+    # np.take: the same rows, far faster than fancy indexing
+    high, low = np.take(values, hi, axis=-2), np.take(values, lo, axis=-2)
+    slope = (high - low) / (knot_us[hi] - knot_us[lo]).astype(np.float64)[:, None]
+    out = slope * (sample_us - knot_us[lo]).astype(np.float64)[:, None] + low
     out[..., 2] = (out[..., 2] + np.pi) % (2 * np.pi) - np.pi
     return out
 

@@ -3,9 +3,11 @@
 (:class:`BoundsGrid`, numpy only: no point geometry is built) picks candidate polygons for every point. Each
 (cell, polygon) pair is classified once, when a point first falls in it (GEOS on the cell's square grown by
 :data:`CELL_MARGIN_M`): the square inside the polygon's interior (every point of the cell is inside), clear of the
-polygon (none is), or crossed by its edge; only points in crossed cells go on to the bounding-box test and prepared
-``shapely.contains_xy``. A point's computed cell is off its true position by rounding far below the margin, so the
-grid only decides points whose answer is certain, and the answer is ``contains_xy``'s for every point.
+polygon (none is), or crossed by its edge. A cell no polygon edge crosses answers all its points at once
+(:class:`SettledCells`: the layers and lanes whose interior holds it); only points in crossed cells go on to their
+candidates, the bounding-box test and prepared ``shapely.contains_xy``. A point's computed cell is off its true
+position by rounding far below the margin, so the grid only decides points whose answer is certain, and the answer
+is ``contains_xy``'s for every point.
 
 The map is what ``PDMDrivableMap.from_simulation`` holds: ROADBLOCK, LANE, LANE_CONNECTOR, INTERSECTION and
 CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are left out, as NAVSIM leaves them out
@@ -20,6 +22,7 @@ CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are
 """
 
 from dataclasses import dataclass
+from functools import reduce
 
 import numpy as np
 import shapely
@@ -94,22 +97,33 @@ class BoundsGrid:
     def _cells(origin: np.ndarray, cell: float, xy: np.ndarray) -> np.ndarray:
         return np.floor((xy - origin) / cell).astype(np.int64)
 
-    def candidates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(point, entry)`` pairs for points ``(B, 2)``, grouped by point in increasing order: ``members[entry]``
-        is a superset of the boxes that hold each point (none for points outside the grid, which lie outside every
-        box)."""
-        cells = self._cells(self.origin, self.cell, xy)
+    def cells_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The flat cell of each point ``(x, y)``, each ``(B,)``; points off the grid get the empty cell after the
+        last. The axes are handled apart: numpy's loops over an axis of 2 cost far more."""
+        row = np.floor((x - self.origin[0]) / self.cell).astype(np.int64)
+        column = np.floor((y - self.origin[1]) / self.cell).astype(np.int64)
         rows, columns = self.shape
         # a cell index below 0 is huge as unsigned, so one comparison per axis tells the points on the grid
-        on_grid = (cells[:, 0].view(np.uint64) < rows) & (cells[:, 1].view(np.uint64) < columns)
-        flat = np.where(on_grid, cells[:, 0] * columns + cells[:, 1], rows * columns)  # off the grid: no members
-        first = self.starts[flat]
-        counts = self.starts[flat + 1] - first
+        on_grid = (row.view(np.uint64) < rows) & (column.view(np.uint64) < columns)
+        row *= columns
+        row += column
+        return np.where(on_grid, row, rows * columns)
+
+    def expand(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(position, entry)``: every member entry of each of ``cells``, grouped by position in ``cells``."""
+        first = self.starts[cells]
+        counts = self.starts[cells + 1] - first
         ends = np.cumsum(counts)
         # entry j of the expansion is first[point] + (j - the expansion's start for that point)
-        return np.repeat(np.arange(len(xy)), counts), np.arange(ends[-1] if len(ends) else 0) + np.repeat(
+        return np.repeat(np.arange(len(cells)), counts), np.arange(ends[-1] if len(ends) else 0) + np.repeat(
             first - (ends - counts), counts
         )
+
+    def candidates(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, entry)`` pairs for points ``(x, y)``, each ``(B,)``, grouped by point in increasing order:
+        ``members[entry]`` is a superset of the boxes that hold each point (none for points outside the grid, which
+        lie outside every box)."""
+        return self.expand(self.cells_of(x, y))
 
     def squares(self, entries: np.ndarray, margin: float) -> np.ndarray:
         """Shapely boxes of the cells of member ``entries``, grown by ``margin``."""
@@ -129,6 +143,7 @@ class DrivableMap:
     grid: BoundsGrid
     bounds: np.ndarray  # (4, K) rows xmin, ymin, xmax, ymax (gathers by polygon stay 1-D)
     cover: np.ndarray  # per grid entry: how its cell lies against its polygon (UNKNOWN until a point falls in it)
+    settled: "SettledCells"
 
     @classmethod
     def from_scene(cls, scene: PDMScene) -> "DrivableMap":
@@ -147,16 +162,17 @@ class DrivableMap:
         bounds = shapely.bounds(polygons).reshape(-1, 4)
         grid = BoundsGrid.build(bounds, GRID_CELL_M)
         cover = np.full(len(grid.members), UNKNOWN, np.int8)
-        return cls(polygons, ids, kinds, grid, np.ascontiguousarray(bounds.T), cover)
+        settled = SettledCells.empty(grid, IS_LANE[kinds])
+        return cls(polygons, ids, kinds, grid, np.ascontiguousarray(bounds.T), cover, settled)
 
-    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(index, polygon)`` for every point of ``points (B, P, 2)`` strictly inside a polygon, ``index`` the
+    def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(index, polygon)`` for every point ``(x, y)`` (each ``(B, P)``) strictly inside a polygon, ``index`` the
         point's flat position ``box * P + point`` in increasing order: the grid's candidates, those in cells inside
         a polygon taken, those in crossed cells narrowed to polygons whose bounding box holds the point and decided
         by ``contains_xy``."""
-        flat = points.reshape(-1, 2)
-        index, entry = self.grid.candidates(flat)
-        cover = self.cover[entry]
+        x, y = x.reshape(-1), y.reshape(-1)
+        index, entry = self.grid.candidates(x, y)
+        cover = np.take(self.cover, entry)
         unknown = cover == UNKNOWN
         if unknown.any():
             self._classify(np.unique(entry[unknown]))
@@ -164,9 +180,9 @@ class DrivableMap:
         held = cover == INSIDE
         crossed = np.flatnonzero(cover == CROSSED)
         crossed_points = index[crossed]
-        x, y = flat[crossed_points, 0], flat[crossed_points, 1]
+        x, y = x[crossed_points], y[crossed_points]
         polygon = self.grid.members[entry[crossed]]
-        xmin, ymin, xmax, ymax = self.bounds[:, polygon]
+        xmin, ymin, xmax, ymax = np.take(self.bounds, polygon, axis=1)  # np.take: far faster than fancy indexing
         near = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
         held[crossed[near[shapely.contains_xy(self.polygons[polygon[near]], x[near], y[near])]]] = True
         held = np.flatnonzero(held)  # one pass over the mask for both gathers
@@ -178,6 +194,101 @@ class DrivableMap:
         polygons = self.polygons[self.grid.members[entries]]
         crossed = np.where(shapely.intersects(polygons, squares), CROSSED, CLEAR)
         self.cover[entries] = np.where(shapely.contains_properly(polygons, squares), INSIDE, crossed)
+
+    def layers(self, x: np.ndarray, y: np.ndarray) -> "PointLayers":
+        """What the ego-area flags need of points ``(x, y)`` (each ``(B,)``): the answer of a point whose cell no
+        polygon edge crosses is its cell's (:class:`SettledCells`), and only points in crossed cells are located one
+        by one (:meth:`locate`)."""
+        cells = self.grid.cells_of(x, y)
+        settled = self.settled
+        state = settled.state[cells]
+        if (state == CELL_UNKNOWN).any():
+            self._settle(np.unique(cells[state == CELL_UNKNOWN]))
+            state = settled.state[cells]
+        # as many lane slots as these points' cells can fill (a crossed cell: as many as it lists lanes)
+        width = max(1, int(settled.lane_count[cells].max(initial=0)))
+        out = PointLayers(
+            np.take(settled.drivable, cells),
+            np.take(settled.intersection, cells),
+            np.empty((width, len(cells)), np.int32),
+        )
+        for slot in range(width):
+            np.take(settled.lanes[slot], cells, out=out.lanes[slot])
+        crossed = np.flatnonzero(state == CELL_CROSSED)  # their cells' answers are empty: set them here
+        index, polygon = self.locate(x[crossed], y[crossed])
+        point, kind = crossed[index], self.kinds[polygon]
+        out.drivable[point[IS_DRIVABLE[kind]]] = True
+        out.intersection[point[kind == MapKind.INTERSECTION]] = True
+        lane = IS_LANE[kind]
+        np.put(out.lanes, _ranks(index[lane]) * len(cells) + point[lane], polygon[lane])  # lanes[rank, point]
+        return out
+
+    def _settle(self, cells: np.ndarray) -> None:
+        """Classify every member of ``cells`` and record, for those no polygon edge crosses, the answer every point
+        in them gets: the polygons whose interior holds the cell's grown square."""
+        position, entry = self.grid.expand(cells)
+        unknown = self.cover[entry] == UNKNOWN
+        if unknown.any():
+            self._classify(entry[unknown])
+        cover = self.cover[entry]
+        crossed = np.zeros(len(cells), bool)
+        crossed[position[cover == CROSSED]] = True
+        inside = (cover == INSIDE) & ~crossed[position]
+        position, polygon = position[inside], self.grid.members[entry[inside]]
+        kind = self.kinds[polygon]
+        settled = self.settled
+        settled.drivable[cells[position[IS_DRIVABLE[kind]]]] = True
+        settled.intersection[cells[position[kind == MapKind.INTERSECTION]]] = True
+        lane = IS_LANE[kind]
+        rank = _ranks(position[lane])
+        settled.lanes[rank, cells[position[lane]]] = polygon[lane]
+        settled.lane_count[cells[~crossed]] = 0
+        np.maximum.at(settled.lane_count, cells[position[lane]], rank + 1)
+        settled.state[cells] = np.where(crossed, CELL_CROSSED, CELL_SETTLED)
+
+
+#: How a grid cell stands (``SettledCells.state``): not yet classified, every point of it answered by the cell,
+#: or crossed by some polygon's edge (its points are located one by one).
+CELL_UNKNOWN, CELL_SETTLED, CELL_CROSSED = -1, 0, 1
+
+
+@dataclass
+class SettledCells:
+    """Per grid cell (and the empty cell off the grid), once its members are classified: its state and, where no
+    polygon edge crosses it, what holds every point of it (a drivable polygon, an intersection, which lanes)."""
+
+    state: np.ndarray  # (cells,) int8
+    drivable: np.ndarray  # (cells,) bool
+    intersection: np.ndarray  # (cells,) bool
+    lanes: np.ndarray  # (W, cells) lane polygons holding the cell, slot by slot, -1 pads; W: the most any cell lists
+    lane_count: np.ndarray  # (cells,) slots of ``lanes`` in use; a crossed (or unknown) cell: the lanes it lists
+
+    @classmethod
+    def empty(cls, grid: BoundsGrid, is_lane: np.ndarray) -> "SettledCells":
+        count = len(grid.starts) - 1
+        listed = np.bincount(grid.member_cells[is_lane[grid.members]], minlength=count)
+        state = np.full(count, CELL_UNKNOWN, np.int8)
+        state[-1] = CELL_SETTLED  # off the grid: no polygon
+        lanes = np.full((max(1, int(listed.max(initial=0))), count), -1, np.int32)
+        return cls(state, np.zeros(count, bool), np.zeros(count, bool), lanes, listed)
+
+
+@dataclass
+class PointLayers:
+    """Per point: inside a drivable polygon (ROADBLOCK, INTERSECTION, CARPARK_AREA), inside an INTERSECTION, and
+    the lane polygons holding it, slot by slot ``(W, B)`` (-1 pads)."""
+
+    drivable: np.ndarray
+    intersection: np.ndarray
+    lanes: np.ndarray
+
+
+def _ranks(group: np.ndarray) -> np.ndarray:
+    """Each element's rank within its run of equal values in ``group`` (runs consecutive)."""
+    position = np.arange(len(group))
+    new_run = np.ones(len(group), bool)
+    new_run[1:] = group[1:] != group[:-1]
+    return position - np.maximum.accumulate(np.where(new_run, position, 0))
 
 
 @dataclass
@@ -200,32 +311,28 @@ def ego_areas(
     """The ego-area flags of ego boxes ``(N, T, 5, 2)`` (4 corners + centre) with rear axles ``(N, T, 2)``."""
     n_rows, n_steps = coords.shape[:2]
     num_boxes = n_rows * n_steps
-    points = np.concatenate([coords.reshape(num_boxes, -1, 2), rear_axles.reshape(num_boxes, 1, 2)], axis=1)
-    per_box = points.shape[1]
-    index, polygon = drivable_map.locate(points)
-    kind = drivable_map.kinds[polygon]
-
-    def held(wanted: np.ndarray) -> np.ndarray:
-        """``(boxes, points)``: some polygon where ``wanted`` holds the point."""
-        flags = np.zeros(num_boxes * per_box, bool)
-        flags[index[wanted]] = True
-        return flags.reshape(num_boxes, per_box)
-
-    drivable = held(IS_DRIVABLE[kind])
+    # per box its corners, centre and rear axle, x and y apart
+    x, y = (
+        np.concatenate([coords[..., axis].reshape(num_boxes, -1), rear_axles[..., axis].reshape(num_boxes, 1)], axis=1)
+        for axis in range(2)
+    )
+    per_box = x.shape[1]
+    layers = drivable_map.layers(x.reshape(-1), y.reshape(-1))
+    drivable = layers.drivable.reshape(num_boxes, per_box)
     corners_drivable = drivable[:, Corner.FRONT_LEFT]
     for corner in range(1, NUM_CORNERS):
         corners_drivable = corners_drivable & drivable[:, corner]
-
-    lane = IS_LANE[kind]
-    several_lanes = multiple_lanes(corner_lanes(index[lane], polygon[lane], per_box, num_boxes))
-    on_route = held(lane & np.isin(drivable_map.ids, route_lane_ids)[polygon])[:, Corner.CENTER]
-    in_intersection = held(kind == MapKind.INTERSECTION)
+    lanes = layers.lanes.reshape(-1, num_boxes, per_box)  # (W, boxes, points)
+    # a lane index -1 (a pad) reads the appended False
+    on_route_lane = np.append(np.isin(drivable_map.ids, route_lane_ids) & IS_LANE[drivable_map.kinds], False)
+    on_route = on_route_lane[lanes[:, :, Corner.CENTER]].any(axis=0)
+    in_intersection = layers.intersection.reshape(num_boxes, per_box)
 
     def grid(flags: np.ndarray) -> np.ndarray:
         return flags.reshape(n_rows, n_steps)
 
     return EgoAreas(
-        grid(several_lanes),
+        grid(multiple_lanes(lanes[:, :, :NUM_CORNERS].transpose(2, 0, 1))),
         grid(~corners_drivable),
         grid(~on_route),
         grid(in_intersection[:, -1]),
@@ -233,38 +340,21 @@ def ego_areas(
     )
 
 
-def corner_lanes(index: np.ndarray, polygon: np.ndarray, per_box: int, num_boxes: int) -> np.ndarray:
-    """``(boxes, 4, W)``: the lane polygons holding each corner (-1 pads), from the lane hits ``(index, polygon)``
-    of ``ego_areas`` (``index`` sorted: a point's hits are consecutive)."""
-    box = index // per_box
-    corner = index - box * per_box
-    at_corner = corner < NUM_CORNERS
-    index, polygon = index[at_corner], polygon[at_corner]
-    new_point = np.ones(len(index), bool)
-    new_point[1:] = index[1:] != index[:-1]
-    # a hit's rank among its point's hits: its position minus the position of the point's first hit
-    position = np.arange(len(index))
-    rank = position - np.maximum.accumulate(np.where(new_point, position, 0))
-    lanes = np.full((num_boxes * per_box, int(rank.max()) + 1 if len(rank) else 1), -1)
-    lanes[index, rank] = polygon
-    return lanes.reshape(num_boxes, per_box, -1)[:, :NUM_CORNERS]
-
-
-def multiple_lanes(lanes: np.ndarray) -> np.ndarray:
-    """NAVSIM's MULTIPLE_LANES from the corners' lane polygons ``(boxes, 4, W)`` (-1 pads): more than one distinct
+def multiple_lanes(by_corner: np.ndarray) -> np.ndarray:
+    """NAVSIM's MULTIPLE_LANES from the corners' lane polygons ``(4, W, boxes)`` (-1 pads): more than one distinct
     polygon among the corners, and none holding all four."""
-    by_corner = np.ascontiguousarray(lanes.transpose(1, 2, 0))  # (4, W, boxes): each slot a contiguous row
-    slots = by_corner.reshape(-1, len(lanes))  # corner-major: slot j is corner j // W
-    distinct = np.zeros(len(lanes), np.int64)
-    for j, lane in enumerate(slots):
-        new = lane >= 0
-        for earlier in slots[:j]:
-            new &= earlier != lane
-        distinct += new
-    in_all = np.zeros(len(lanes), bool)
+    by_corner = np.ascontiguousarray(by_corner)  # each slot a contiguous row
+    num_boxes = by_corner.shape[-1]
+    slots = by_corner.reshape(-1, num_boxes)
+    # more than one distinct lane: some lane other than the largest one present (pads are -1, below every lane)
+    largest = reduce(np.maximum, slots)
+    several = np.zeros(num_boxes, bool)
+    for lane in slots:
+        several |= (lane >= 0) & (lane < largest)
+    in_all = np.zeros(num_boxes, bool)
     for lane in by_corner[0]:  # each lane of corner 0: also held by the three others?
         held_by_all = lane >= 0
         for other in by_corner[1:]:
             held_by_all &= np.logical_or.reduce([slot == lane for slot in other])
         in_all |= held_by_all
-    return (distinct > 1) & ~in_all
+    return several & ~in_all

@@ -71,7 +71,7 @@ def on_red_light(ego_coords: np.ndarray, red_lights: list[list[shapely.Polygon]]
             low, high = reduce(np.minimum, corners), reduce(np.maximum, corners)
             meets = (low[:, :1] <= xmax) & (high[:, :1] >= xmin) & (low[:, 1:] <= ymax) & (high[:, 1:] >= ymin)
             near = np.flatnonzero(meets.any(axis=1))
-            boxes = box_polygons(ego_coords[near, step])
+            boxes = box_polygons(np.take(ego_coords[:, step], near, axis=0))  # np.take: faster than fancy indexing
             touching[near, step] = shapely.intersects(shapes[None], boxes[:, None]).any(-1)
     return touching
 
