@@ -238,23 +238,31 @@ def _slow_chain(chain: tuple, seed: int, out, caches=None) -> tuple[dict, list[s
     return {}, []
 
 
-def test_ctrl_c_stops_the_trainings_in_flight_at_once(tmp_path, monkeypatch):
+def test_ctrl_c_stops_the_trainings_in_flight_at_once(tmp_path, monkeypatch, request):
     """Ctrl-C reaches every process of the terminal's group: the training processes leave it to the quickstart,
     which stops them instead of waiting for their runs (Lightning would catch it in there and go on scoring)."""
     monkeypatch.setattr(qs, "train_chain", _slow_chain)  # forked: the processes run the patched module
+    # a SIGTERM handler the processes inherit (as after an earlier Lightning fit or Ray driver in this process)
+    previous = signal.signal(signal.SIGTERM, lambda *_: None)
+    request.addfinalizer(lambda: signal.signal(signal.SIGTERM, previous))
+
+    pressed: list[float] = []
+    others = set(multiprocessing.active_children())  # left by earlier tests: not the quickstart's to stop
 
     def ctrl_c() -> None:
-        time.sleep(2)  # the processes have started
-        for process in multiprocessing.active_children():
+        while len(set(multiprocessing.active_children()) - others) < 2:  # both training processes have started
+            time.sleep(0.1)
+        time.sleep(1)
+        for process in set(multiprocessing.active_children()) - others:
             os.kill(process.pid, signal.SIGINT)
+        pressed.append(time.monotonic())
         os.kill(os.getpid(), signal.SIGINT)
 
     threading.Thread(target=ctrl_c, daemon=True).start()
-    started = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
-        qs.train_every_seed(tmp_path, 2, Console(file=io.StringIO()), started, {})
-    assert time.monotonic() - started < 30
-    assert multiprocessing.active_children() == []
+        qs.train_every_seed(tmp_path, 2, Console(file=io.StringIO()), time.perf_counter(), {})
+    assert time.monotonic() - pressed[0] < 30  # a chain in flight sleeps for 120 s
+    assert set(multiprocessing.active_children()) <= others
 
 
 def test_ctrl_c_in_any_verb_is_one_line_and_status_130(monkeypatch, capsys):

@@ -319,13 +319,14 @@ def train_every_seed(
         finally:
             torch.set_num_threads(threads)
     context = multiprocessing.get_context("fork" if sys.platform == "linux" else "spawn")
+    others = set(multiprocessing.active_children())  # the caller's own, left alone
     with ProcessPoolExecutor(workers, context, initializer=_start_training_process, initargs=(caches,)) as pool:
-        futures = [pool.submit(train_chain, chain, seed, out) for chain, seed in jobs]
         try:
+            futures = [pool.submit(train_chain, chain, seed, out) for chain, seed in jobs]
             return _merged((future.result() for future in futures), console, started)
         except BaseException:  # a run that failed, or Ctrl-C: the runs in flight are stopped, not waited for
-            for process in multiprocessing.active_children():
-                process.terminate()
+            for process in set(multiprocessing.active_children()) - others:
+                process.kill()  # not terminate(): a SIGTERM handler inherited or set by Lightning's fit would hold
             raise
         finally:  # and those not yet started never start
             pool.shutdown(cancel_futures=True)
