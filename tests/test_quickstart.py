@@ -250,7 +250,8 @@ def test_ctrl_c_stops_the_trainings_in_flight_at_once(tmp_path, monkeypatch, req
     others = set(multiprocessing.active_children())  # left by earlier tests: not the quickstart's to stop
 
     def ctrl_c() -> None:
-        while len(set(multiprocessing.active_children()) - others) < 2:  # both training processes have started
+        waited = time.monotonic()  # until both training processes have started (bounded: the test must end)
+        while len(set(multiprocessing.active_children()) - others) < 2 and time.monotonic() - waited < 60:
             time.sleep(0.1)
         time.sleep(1)
         for process in set(multiprocessing.active_children()) - others:
