@@ -17,7 +17,10 @@ import pytest
 from lead_s2r.scoring.pdm.elementwise import NUMPY
 from lead_s2r.scoring.pdm.interpolation import interpolate_proposals, interpolate_reference, sample_times_us
 from lead_s2r.scoring.pdm.lqr import (
+    CURVATURE_RATE_PENALTY,
+    INITIAL_CURVATURE_PENALTY,
     JERK_PENALTY,
+    SCALAR_ROWS,
     StepReference,
     curvature_profile,
     normalize_angle,
@@ -251,6 +254,29 @@ def test_speed_fit_is_the_regularised_least_squares_of_its_definition() -> None:
     expected = solution[0] + dt * np.concatenate([[0.0], np.cumsum(solution[1:])])
     projected = np.cos(headings) * displacements[:, 0] + np.sin(headings) * displacements[:, 1]
     np.testing.assert_allclose(speed_fit_matrix(m, dt) @ projected, expected, rtol=0, atol=1e-9)
+
+
+def test_curvature_fit_is_the_regularised_least_squares_of_its_definition() -> None:
+    """Heading step i = v_i dt kappa_i, kappa_i = kappa_0 + dt sum_{1 <= c <= i} rate_c; penalties 1e-10 on kappa_0
+    and 1e-2 on every rate. Speeds include standing rows and stops, the rows a vocabulary holds; a row's bits are
+    the same alone (Python floats) as among many (numpy columns)."""
+    rng = np.random.default_rng(3)
+    m, dt, count = 40, 0.1, 3 * SCALAR_ROWS
+    speed = rng.uniform(0.0, 20.0, (count, m))
+    speed[0] = 0.0
+    speed[1, 20:] = 0.0
+    heading_steps = rng.normal(0.0, 0.03, (count, m))
+    weights = np.concatenate([[dt], np.full(m - 1, dt**2)])
+    penalty = np.sqrt(np.concatenate([[INITIAL_CURVATURE_PENALTY], np.full(m - 1, CURVATURE_RATE_PENALTY)]))
+    together = curvature_profile(heading_steps, speed, dt)
+    for row in range(count):
+        design = speed[row, :, None] * np.tril(np.ones((m, m))) * weights
+        stacked = np.vstack([design, np.diag(penalty)])
+        solution = np.linalg.lstsq(stacked, np.concatenate([heading_steps[row], np.zeros(m)]), rcond=None)[0]
+        expected = solution[0] + dt * np.concatenate([[0.0], np.cumsum(solution[1:])])
+        np.testing.assert_allclose(together[row], expected, rtol=0, atol=1e-9)
+        alone = curvature_profile(heading_steps[row : row + 1], speed[row : row + 1], dt)
+        assert np.array_equal(alone[0], together[row])
 
 
 def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:

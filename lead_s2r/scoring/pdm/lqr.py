@@ -13,8 +13,9 @@ computed with less work, equal up to float rounding (``tests/test_pdm_simulation
 
 - speed: the normal matrix does not depend on the poses (cos^2 + sin^2 = 1), so the whole fit is one constant
   (40 x 40) matrix applied to the displacements projected on the target headings;
-- curvature: the normal matrix ``w_c w_c' sum_{i >= max(c, c')} v_i^2 + Q`` is built from suffix sums and solved
-  (``np.linalg.solve``; positive definite thanks to the 1e-10 initial-curvature penalty);
+- curvature: the normal matrix ``w_c w_c' sum_{i >= max(c, c')} v_i^2 + Q`` becomes tridiagonal after a change
+  of variables and is solved in O(M) per proposal (``curvature_profile``; positive definite thanks to the 1e-10
+  initial-curvature penalty);
 - lateral dynamics: the product of the 10 step matrices is unrolled into sums over the lookahead that are
   polynomials in the ego speed, their coefficients precomputed for every step (``tracking_reference``); each
   step then costs ~50 arithmetic operations per proposal.
@@ -49,8 +50,8 @@ CURVATURE_RATE_PENALTY = 1e-2
 INITIAL_CURVATURE_PENALTY = 1e-10
 STOPPING_GAIN = 0.5
 STOPPING_VELOCITY = 0.2
-#: rows per curvature fit (``curvature_profile``): 64 (M, M) systems of 40 poses fill about 800 kB
-CURVATURE_BLOCK = 64
+#: up to this many rows the curvature fit runs on Python floats (cheaper than ~300 numpy calls on tiny arrays)
+SCALAR_ROWS = 8
 
 
 def normalize_angle(angle: Values, ops: Elementwise = NUMPY) -> Values:
@@ -85,31 +86,43 @@ def speed_fit_matrix(num_displacements: int, dt: float) -> np.ndarray:
 def curvature_profile(heading_steps: np.ndarray, speed: np.ndarray, dt: float) -> np.ndarray:
     """``(N, M)`` curvature at each pose from heading displacements and fitted speeds ``(N, M)``.
 
-    Unknowns: initial curvature and M - 1 curvature rates; row i predicts ``speed_i * dt * curvature_i``. Rows are
-    fitted :data:`CURVATURE_BLOCK` at a time: each row's system is solved on its own either way, and a block's
-    (M, M) matrices stay in cache, which halves the cost of thousands of rows.
+    Unknowns: initial curvature x_0 and M - 1 curvature rates x_c; row i predicts ``speed_i * dt * curvature_i``.
+    The normal matrix ``w_c w_c' S_max(c, c') + P_c`` (S: suffix sums of v^2) is, in y_c = w_c x_c, U diag(v^2) U^T
+    plus a diagonal (U: the upper triangle of ones). With z = U^T y (prefix sums of y) the system is tridiagonal,
+    ``(v_i^2 + d_i + d_i+1) z_i - d_i z_i-1 - d_i+1 z_i+1 = v_i h_i`` with d_c = P_c / w_c^2, and the curvature at
+    pose k, x_0 + dt (x_1 + ... + x_k), telescopes to z_k / dt. Thomas' recursion solves it without pivoting (the
+    matrix is diagonally dominant) in O(M) per row instead of a dense solve; a few rows run on Python floats, more
+    on columns of all rows, the same operations in the same order, so a row's bits do not depend on its neighbours.
     """
-    blocks = [
-        _fit_curvature(heading_steps[start : start + CURVATURE_BLOCK], speed[start : start + CURVATURE_BLOCK], dt)
-        for start in range(0, len(speed), CURVATURE_BLOCK)
-    ]
-    return np.concatenate(blocks) if blocks else np.zeros(speed.shape)
-
-
-def _fit_curvature(heading_steps: np.ndarray, speed: np.ndarray, dt: float) -> np.ndarray:
-    m = speed.shape[1]
+    count, m = speed.shape
     weights = np.full(m, dt**2)
     weights[0] = dt
-    index = np.arange(m)
-    suffix_sq = np.cumsum((speed**2)[:, ::-1], axis=1)[:, ::-1]  # sum_{i >= c} v_i^2
-    # entry (c, c') reads the suffix sum at max(c, c') (np.take: a gather far cheaper than fancy indexing or a select)
-    normal = np.take(suffix_sq, np.maximum.outer(index, index), axis=1)
-    normal *= np.outer(weights, weights)
-    normal.reshape(len(speed), -1)[:, m + 1 :: m + 1] += CURVATURE_RATE_PENALTY  # the diagonal after (0, 0)
-    normal[:, 0, 0] += INITIAL_CURVATURE_PENALTY
-    rhs = np.cumsum((speed * heading_steps)[:, ::-1], axis=1)[:, ::-1] * weights
-    solution = np.linalg.solve(normal, rhs[..., None])[..., 0]
-    return solution[:, :1] + np.concatenate([np.zeros((len(speed), 1)), np.cumsum(solution[:, 1:] * dt, 1)], 1)
+    penalties = np.full(m, CURVATURE_RATE_PENALTY)
+    penalties[0] = INITIAL_CURVATURE_PENALTY
+    coupling = np.append(penalties / weights**2, 0.0).tolist()  # d_0 .. d_M-1, and 0 past the last pose
+    diagonal = (speed * speed).T + np.add(coupling[:-1], coupling[1:])[:, None]  # (M, N)
+    rhs = (speed * heading_steps).T
+    if count <= SCALAR_ROWS:
+        rows = [_tridiagonal(diagonal[:, n].tolist(), rhs[:, n].tolist(), coupling) for n in range(count)]
+        return np.array(rows, dtype=np.float64).reshape(count, m) / dt
+    return np.stack(_tridiagonal(list(diagonal), list(rhs), coupling), axis=1) / dt
+
+
+def _tridiagonal(diagonal: list[Values], rhs: list[Values], coupling: list[float]) -> list[Values]:
+    """z solving ``diagonal_i z_i - coupling_i z_i-1 - coupling_i+1 z_i+1 = rhs_i`` (Thomas' recursion)."""
+    ratios, scaled = [], []
+    for i, (pivot_base, right) in enumerate(zip(diagonal, rhs, strict=True)):
+        if i:
+            pivot = pivot_base - coupling[i] * ratios[-1]
+            scaled.append((right + coupling[i] * scaled[-1]) / pivot)
+        else:
+            pivot = pivot_base
+            scaled.append(right / pivot)
+        ratios.append(coupling[i + 1] / pivot)
+    solution = [scaled[-1]]
+    for ratio, value in zip(ratios[-2::-1], scaled[-2::-1], strict=True):
+        solution.append(value + ratio * solution[-1])
+    return solution[::-1]
 
 
 @lru_cache(maxsize=8)

@@ -40,8 +40,7 @@ from lead_s2r.scoring.pdm.traffic_lights import red_light_polygons
 #: entries scored together: big enough that numpy's per-call cost vanishes, small enough that a chunk's map points
 #: and TTC queries (chunk x 41 x 6 and x 4) stay near the cache (1,024 is slower than 512 here, 1 MB of L2 per core)
 CHUNK = 512
-#: entries simulated together: the simulation's ~3,000 numpy calls per block cost less per entry over more rows (its
-#: curvature fits run in cache-sized blocks of their own, ``lqr.CURVATURE_BLOCK``)
+#: entries simulated together: the simulation's ~3,000 numpy calls per block cost less per entry over more rows
 SIMULATION_BLOCK = 1024
 PROGRESS_PAIR = "pair"
 PROGRESS_VOCABULARY = "vocabulary"
