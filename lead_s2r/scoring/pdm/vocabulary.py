@@ -22,7 +22,7 @@ recomputed from that EP. Masking, the 5 m threshold and the formulas are v1.1's 
 import numpy as np
 
 from lead_s2r.scoring.pdm import epdms
-from lead_s2r.scoring.pdm.map_flags import DrivableMap
+from lead_s2r.scoring.pdm.map_flags import VOCABULARY_GRID, DrivableMap
 from lead_s2r.scoring.pdm.metrics import PROGRESS_THRESHOLD_M, pdms_v11
 from lead_s2r.scoring.pdm.observation import V2_STEPS, log_observation
 from lead_s2r.scoring.pdm.scene import PDMScene
@@ -91,7 +91,7 @@ def score_vocabulary(
     if chunk < 1 or simulation_block < 1:
         raise ValueError(f"chunk {chunk}, simulation_block {simulation_block}: give at least 1 entry to each")
     vocabulary = check_vocabulary(vocabulary)
-    arguments = {"drivable_map": DrivableMap.from_scene(scene)}
+    arguments = {"drivable_map": DrivableMap.from_scene(scene, *VOCABULARY_GRID)}
     if metric == EPDMS_METRIC:
         arguments |= {
             "observation": log_observation(scene, V2_STEPS, replay=True),
