@@ -212,10 +212,9 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
     reference_speed = np.take(speed, ahead[:, -1], axis=1).T  # (S, N); np.take: far faster than fancy indexing
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
-    # the lookahead fancy-indexed, not np.take-n: its (strided) layout decides how numpy multiplies each row, so the
-    # bits of the products
+    # one (S, H) @ (H, 5) product per proposal (a stack of them: a proposal's bits do not depend on the others)
     lookahead = curvature[:, ahead[:, :-1]]
-    moments = np.moveaxis(row_products(lookahead, weights), -1, 0).transpose(0, 2, 1)  # (5, S, N)
+    moments = np.moveaxis(lookahead @ weights, -1, 0).transpose(0, 2, 1)  # (5, S, N)
 
     horizon_time = TRACKING_HORIZON * dt
     gain = -1.0 / (horizon_time * Q_LONGITUDINAL * horizon_time + R_LONGITUDINAL) * horizon_time * Q_LONGITUDINAL
