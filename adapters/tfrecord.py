@@ -18,10 +18,9 @@ from typing import Any
 
 import crc32c
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from lead_s2r.errors import UserError
-from lead_s2r.files import write_atomically
+from lead_s2r.files import read_parquet, write_parquet
 from lead_s2r.processes import exit_with_parent
 
 HEADER = 12  # uint64 length + uint32 crc of the length
@@ -29,6 +28,7 @@ FOOTER = 4  # uint32 crc of the payload
 _MASK_DELTA = 0xA282EAD8
 _INDEX_COLUMNS = {"shard": pa.string(), "offset": pa.int64(), "length": pa.int64()}
 _STAMP_KEY = b"lead_s2r.shards"
+_SKIPPED_KEY = b"lead_s2r.skipped"
 
 
 class TFRecordError(UserError, ValueError):
@@ -187,16 +187,28 @@ def build_index(
 def cached_index(
     shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], cache: Path | None, workers: int = 1
 ) -> RecordIndex:
-    """:func:`build_index`, stored at ``cache`` (parquet, skipped records in its metadata) and reused while valid."""
+    """:func:`build_index`, stored at ``cache`` (parquet, skipped records in its metadata) and reused while valid.
+
+    A stale or damaged cache is rebuilt: its pages carry CRCs, and the stamp covers the shards and the skipped
+    records' JSON (footer metadata no page CRC protects), so a flipped bit never passes for another index."""
     stamp = _stamp(shards)
     if cache is not None and cache.exists():
-        table = pq.read_table(cache)
-        metadata = table.schema.metadata or {}
-        if metadata.get(_STAMP_KEY, b"").decode() == stamp:
-            return RecordIndex(table.replace_schema_metadata(None), json.loads(metadata[b"lead_s2r.skipped"]))
+        try:
+            table = read_parquet(cache)
+            metadata = table.schema.metadata or {}
+            skipped = metadata[_SKIPPED_KEY]
+            if metadata[_STAMP_KEY].decode() == _cache_stamp(stamp, skipped):
+                return RecordIndex(table.replace_schema_metadata(None), json.loads(skipped))
+        except (OSError, KeyError, ValueError, pa.ArrowException):
+            pass  # damaged: rebuilt below, as a stale one is
     index = build_index(shards, describe, schema, workers)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
-        metadata = {_STAMP_KEY: stamp.encode(), b"lead_s2r.skipped": json.dumps(index.skipped).encode()}
-        write_atomically(cache, lambda partial: pq.write_table(index.table.replace_schema_metadata(metadata), partial))
+        skipped = json.dumps(index.skipped).encode()
+        metadata = {_STAMP_KEY: _cache_stamp(stamp, skipped).encode(), _SKIPPED_KEY: skipped}
+        write_parquet(cache, index.table.replace_schema_metadata(metadata))
     return index
+
+
+def _cache_stamp(shards_stamp: str, skipped: bytes) -> str:
+    return f"{shards_stamp} skipped:{crc32c.crc32c(skipped)}"

@@ -142,6 +142,30 @@ def test_index_rows_skips_and_cache(tmp_path):
     assert rebuilt.table["n"].to_pylist() == [1, 2, 3, 4]
 
 
+def test_a_damaged_index_cache_is_rebuilt_never_believed(tmp_path):
+    """Every single-bit flip anywhere in the cache file: the index returned is the one a fresh scan builds."""
+    shards = [tmp_path / "a.tfrecord", tmp_path / "b.tfrecord"]
+    write(shards[0], [b"rec1", b"junk", b"rec2"])
+    write(shards[1], [b"rec3"])
+    cache = tmp_path / "index.parquet"
+    fresh = cached_index(shards, describe, {"n": pa.int64()}, cache)
+    intact = cache.read_bytes()
+    rescans = 0
+
+    def counting(payload: bytes) -> dict:
+        nonlocal rescans
+        rescans += 1
+        return describe(payload)
+
+    for position in range(len(intact)):
+        damaged = bytearray(intact)
+        damaged[position] ^= 1 << (position % 8)
+        cache.write_bytes(bytes(damaged))
+        index = cached_index(shards, counting, {"n": pa.int64()}, cache)
+        assert index.table.equals(fresh.table) and index.skipped == fresh.skipped, f"bit flipped at byte {position}"
+    assert rescans > 0  # most flips are caught and rebuilt (the rest land where parquet never reads)
+
+
 def test_header_layout_is_little_endian_length_then_crc(tmp_path):
     path = tmp_path / "shard.tfrecord"
     write(path, [b"x" * 300])
