@@ -166,8 +166,10 @@ SCENE_ANNOTATIONS = ("boxes", "names", "velocity_3d", "track_tokens")
 
 
 def read_annotations(anns: dict[str, Any], fields: tuple[str, str, str, str], where: str) -> dict[str, Any]:
-    """Boxes (N, 7), class ``names``, velocities (N, 3) in the lidar frame (NaN as 0), track tokens and
-    :class:`~lead_s2r.schema.BoxClass` ids (N,) of one frame's annotations, checked to agree in length and class."""
+    """Boxes (N, 7), class ``names``, velocities (N, 3) in the lidar frame, track tokens and
+    :class:`~lead_s2r.schema.BoxClass` ids (N,) of one frame's annotations, checked to agree in length and class.
+    OpenScene writes NaN for a velocity it does not know: a box with NaN in x or y keeps NaN in all three (unknown,
+    as the schema says, never 0 m/s); a NaN z alone is 0, as the schema keeps only x and y."""
     boxes_field, names_field, velocity_field, tracks_field = fields
     boxes = np.asarray(required(anns, boxes_field, where), np.float64).reshape(-1, 7)
     names = [str(n) for n in required(anns, names_field, where)]
@@ -178,5 +180,10 @@ def read_annotations(anns: dict[str, Any], fields: tuple[str, str, str, str], wh
     unknown = sorted(set(names) - set(BOX_CLASSES))
     if unknown:
         raise NavsimFormatError(f"{where}: field {names_field!r} has unknown classes {unknown}")
+    if np.isinf(velocity).any():
+        raise NavsimFormatError(f"{where}: field {velocity_field!r} holds infinite values")
     classes = np.array([BOX_CLASSES[n] for n in names], np.float64)
-    return {"boxes": boxes, "names": names, "velocity": np.nan_to_num(velocity), "tracks": tracks, "classes": classes}
+    unknown = np.isnan(velocity[:, :2]).any(axis=1)
+    velocity = np.nan_to_num(velocity)
+    velocity[unknown] = np.nan
+    return {"boxes": boxes, "names": names, "velocity": velocity, "tracks": tracks, "classes": classes}

@@ -283,6 +283,48 @@ def test_broken_inputs_are_isolated(raw: Path, tmp_path: Path) -> None:
     assert {s["meta"]["log_id"] for s in read_samples(tmp_path / "out")} == {names[2]}
 
 
+def test_unknown_box_velocities_stay_unknown(raw: Path, tmp_path: Path, samples: dict) -> None:
+    """OpenScene's NaN velocity is unknown, never 0 m/s: NaN in x or y makes the box's vx, vy NaN (and its future
+    velocities); a NaN z alone changes nothing; an infinite one is one error naming the field."""
+    src = tmp_path / "src"
+    shutil.copytree(raw, src)
+    name = synth.LOGS[0].name
+    log_path = src / "navsim_logs" / "mini" / f"{name}.pkl"
+    frames = pickle.loads(log_path.read_bytes())
+    unknown_track = frames[0]["anns"]["track_tokens"][0]
+    for frame in frames:
+        anns = frame["anns"]
+        velocity = np.array(anns["gt_velocity_3d"], np.float64)
+        velocity[np.asarray(anns["track_tokens"]) == unknown_track, 1] = np.nan
+        velocity[np.asarray(anns["track_tokens"]) != unknown_track, 2] = np.nan
+        anns["gt_velocity_3d"] = velocity
+    log_path.write_bytes(pickle.dumps(frames))
+    adapter = NavsimAdapter(scene_filter=str(src / "scene_filters" / "navmini.yaml"), maps=str(src / "maps"))
+    assert convert(adapter, src, tmp_path / "out").ok
+    checked = 0
+    for sample in read_samples(tmp_path / "out"):
+        if sample["meta"]["log_id"] != name:
+            continue
+        token = sample["meta"]["extras"]["navsim"]["scene_token"]
+        current = next(frame for frame in frames if frame["token"] == token)
+        is_unknown = np.asarray(current["anns"]["track_tokens"]) == unknown_track
+        velocity, before = sample["boxes"][:, 7:9], samples[token]["boxes"][:, 7:9]
+        assert np.isnan(velocity[is_unknown]).all() and np.isfinite(before[is_unknown]).all()
+        np.testing.assert_array_equal(velocity[~is_unknown], before[~is_unknown])
+        future = sample["agents_future"]
+        assert np.isnan(
+            future["velocity"][: len(is_unknown)][is_unknown][future["valid"][: len(is_unknown)][is_unknown]]
+        ).all()
+        checked += int(is_unknown.any())
+    assert checked > 0
+    frames[3]["anns"]["gt_velocity_3d"] = np.full_like(frames[3]["anns"]["gt_velocity_3d"], np.inf)
+    log_path.write_bytes(pickle.dumps(frames))
+    result = convert(adapter, src, tmp_path / "again")
+    (error,) = [json.loads(line) for line in (tmp_path / "again" / "errors.jsonl").read_text().splitlines()]
+    assert error["log"] == name and "field 'gt_velocity_3d' holds infinite values" in error["error"]
+    assert result.samples == len(samples) - SCENES_PER_LOG
+
+
 def test_a_scene_filter_cut_at_a_line_names_the_logs_it_drops(raw: Path, tmp_path: Path) -> None:
     """Fuzzing found it: navmini.yaml cut short still parses, and the scenes of the last log it reaches vanished."""
     src = tmp_path / "src"
