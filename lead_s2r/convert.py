@@ -51,7 +51,17 @@ from lead_s2r.files import write_text
 from lead_s2r.processes import Executor, WorkerDied, make_executor
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, SchemaError, validate
-from lead_s2r.shards import ERRORS, IDENTITY, INFO, MANIFEST, SHARD_DIR, ShardFile, write_manifest, write_sample
+from lead_s2r.shards import (
+    ERRORS,
+    IDENTITY,
+    INFO,
+    MANIFEST,
+    SHARD_DIR,
+    ShardFile,
+    value_range,
+    write_manifest,
+    write_sample,
+)
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -444,30 +454,13 @@ def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _statistics(table: "pa.Table") -> dict[str, Any]:
-    """Ranges of the data and a few sanity figures, for people reading info.json (models normalise by their own
-    constants: LEAD divides target points by (200, 50)).
-
-    ``target_points`` {low, high} holds the 1st/99th percentiles of the current target point's [x, y] (at least
-    1 m apart).
-    """
+    """Ranges of the data with their 1st/99th percentiles, for people reading info.json (models normalise by their
+    own constants: LEAD divides target points by (200, 50))."""
     stats: dict[str, Any] = {}
     for column in ("speed", "tp_x", "tp_y"):
         values = table[column].to_numpy(zero_copy_only=False).astype(np.float64)
-        values = values[np.isfinite(values)]
-        if len(values):
-            stats[column] = {
-                "min": float(values.min()),
-                "max": float(values.max()),
-                "mean": float(values.mean()),
-                "p01": float(np.percentile(values, 1)),
-                "p99": float(np.percentile(values, 99)),
-            }
-    if "tp_x" in stats and "tp_y" in stats:
-        low = [stats[axis]["p01"] for axis in ("tp_x", "tp_y")]
-        high = [stats[axis]["p99"] for axis in ("tp_x", "tp_y")]
-        for i in range(2):  # a constant coordinate still needs a non-empty range to normalise by
-            if high[i] - low[i] < 1.0:
-                centre = (high[i] + low[i]) / 2
-                low[i], high[i] = centre - 0.5, centre + 0.5
-        stats["target_points"] = {"low": low, "high": high}
+        summary = value_range(values)
+        if summary is not None:
+            p01, p99 = np.percentile(values[np.isfinite(values)], [1, 99])
+            stats[column] = summary | {"p01": float(p01), "p99": float(p99)}
     return stats

@@ -464,6 +464,15 @@ def load_info(path: str | Path) -> dict[str, Any]:
     return info
 
 
+def value_range(values: np.ndarray) -> dict[str, float] | None:
+    """min, max and mean of a manifest column's finite ``values`` (None: none is finite), as info.json's statistics
+    and ``inspect`` report them."""
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return None
+    return {"min": float(values.min()), "max": float(values.max()), "mean": float(values.mean())}
+
+
 def _first_line(err: Exception) -> str:
     """The first line of a library's message (Arrow's run over several)."""
     return (str(err).strip().splitlines() or [type(err).__name__])[0]

@@ -18,17 +18,10 @@ import pyarrow.compute as pc
 from lead_s2r.errors import UserError
 from lead_s2r.report.render import render_sample
 from lead_s2r.schema import SchemaError, validate
-from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples
+from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples, value_range
 
 #: Manifest columns the report reads.
 _READ = ("key", "shard", "dataset", "split", "log", "speed", "command", "tp_x", "tp_y")
-
-
-def _range(values: np.ndarray) -> dict[str, float] | None:
-    values = values[np.isfinite(values)]
-    if not len(values):
-        return None
-    return {"min": float(values.min()), "max": float(values.max()), "mean": float(values.mean())}
 
 
 def inspect_dataset(
@@ -51,7 +44,7 @@ def inspect_dataset(
     has = {name[4:]: int(pc.sum(manifest[name]).as_py() or 0) for name in manifest.column_names if name[:4] == "has_"}
     stats: dict[str, Any] = {}
     for column in ("speed", "tp_x", "tp_y"):
-        stats[column] = _range(manifest[column].to_numpy(zero_copy_only=False).astype(np.float64))
+        stats[column] = value_range(manifest[column].to_numpy(zero_copy_only=False).astype(np.float64))
     commands = manifest["command"].to_pylist()
     stats["command"] = {str(c): commands.count(c) for c in sorted(set(commands))}
     invalid: list[str] = []
@@ -71,7 +64,7 @@ def inspect_dataset(
         lengths["past_s"].append(-float(sample["past"][0, 0]))
         if "future" in sample:
             lengths["future_s"].append(float(sample["future"][-1, 0]))
-    stats.update({name: _range(np.array(v)) for name, v in lengths.items()})
+    stats.update({name: value_range(np.array(v)) for name, v in lengths.items()})
     report = {
         "path": str(path),
         "adapter": f"{info.get('adapter')} {info.get('adapter_version')}",
