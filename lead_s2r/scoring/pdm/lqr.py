@@ -205,7 +205,8 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     count = len(targets)
     steps = np.diff(targets, axis=1)
     headings = targets[:, :-1, 2]
-    projected = np.cos(headings) * steps[..., 0] + np.sin(headings) * steps[..., 1]
+    sin, cos = np.sin(headings), np.cos(headings)  # the fit's projection and the tracker's target frames alike
+    projected = cos * steps[..., 0] + sin * steps[..., 1]
     num_fits = steps.shape[1]
     speed = row_products(projected, speed_fit_matrix(num_fits, dt).T)
     curvature = curvature_profile(normalize_angle(steps[..., 2]), speed, dt)
@@ -223,8 +224,8 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     rows = [
         poses[0],
         poses[1],
-        np.sin(poses[2]),
-        np.cos(poses[2]),
+        sin.T,
+        cos.T,
         poses[2],
         reference_speed,
         gain,
