@@ -22,7 +22,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm import epdms, score_proposals, score_vocabulary
-from lead_s2r.scoring.pdm.collisions import find_hits
+from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, find_hits, step_hits, time_to_collision
 from lead_s2r.scoring.pdm.elementwise import row_products
 from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
 from lead_s2r.scoring.pdm.map_flags import (
@@ -44,6 +44,7 @@ from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.score import human_trajectory, simulate_rows
+from lead_s2r.scoring.pdm.state import StateIndex
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES
 from lead_s2r.scoring.vocab_targets import MANIFEST, PARQUET, PARTS, PICKLE, logged_futures
 from lead_s2r.shards import read_samples
@@ -179,6 +180,38 @@ def test_hostile_entries_and_scenes_equal_scoring_each_alone(
         failing |= {column for column, values in together.items() if {0.0, 1.0} <= set(values.tolist())}
     # every sub-score is 0 for some entries and 1 for others (TLC: the entries that run the scene's red light)
     assert set(together) & {*epdms.FILTERED, "comfort"} <= failing
+
+
+def test_ttc_takes_its_unmoved_overlaps_from_ncs(converted: Path) -> None:
+    """TTC's offset-0 queries are NC's boxes at their own steps: taken from :func:`step_hits` they give what TTC
+    finds afresh, on hostile entries in every scene variant (standing rows included, which TTC skips), for v1.1's
+    steps and v2's."""
+    rng = np.random.default_rng(2)
+    standing, violations = 0, 0
+    variants = scene_variants(first_scene(converted))
+    parked = variants["ego standing"]
+    poses = parked.agent_poses.copy()
+    poses[0] = [2.0, 0.0, 0.0]  # an agent on the standing ego, at every keyframe: overlaps TTC must skip
+    variants["agent on the standing ego"] = replace(
+        parked, agent_poses=poses, agent_valid=np.ones_like(parked.agent_valid)
+    )
+    for scene in variants.values():
+        states = simulate_rows(scene, hostile_entries(scene), 0.1, plan_reference(scene), None)
+        standing += int((np.hypot(states[..., StateIndex.VELOCITY_X], states[..., StateIndex.VELOCITY_Y]) < 5e-3).sum())
+        coords = ego_coords(states, scene.vehicle)
+        observation = log_observation(scene)
+        radius = float(np.hypot(scene.vehicle.length, scene.vehicle.width) / 2)
+        hits = step_hits(coords, radius, observation)
+        flags = rng.random(states.shape[:2]) < 0.3, rng.random(states.shape[:2]) < 0.3
+        for num_steps in (None, states.shape[1] - max(TTC_OFFSETS)):
+            fresh = time_to_collision(states, coords, radius, observation, *flags, num_steps=num_steps)
+            reused = time_to_collision(
+                states, coords, radius, observation, *flags, num_steps=num_steps, hits_at_rest=hits
+            )
+            for got, expected in zip(reused, fresh, strict=True):
+                np.testing.assert_array_equal(got, expected)
+            violations += int((fresh[0] == 0.0).sum())
+    assert standing > 0 and violations > 0
 
 
 def test_simulated_rows_must_match_the_proposals(converted: Path, vocabulary: np.ndarray) -> None:

@@ -158,16 +158,10 @@ def enclosing_radius(length: float, width: float) -> float:
     return float(np.hypot(length / 2.0, width / 2.0))
 
 
-def no_at_fault_collisions(
-    states: np.ndarray,
-    ego_coords: np.ndarray,
-    ego_radius: float,
-    observation: Observation,
-    lanes_or_off_road: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """NC ``(N,)`` in {0, 0.5, 1}, the first at-fault step ``(N,)`` and the observation object hit there ``(N,)``
-    (a track index: the scene's agent row; -1 if none), for states ``(N, T, 11)`` and their boxes ``(N, T, 5, 2)``
-    (enclosing radius ``ego_radius``); ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or NON_DRIVABLE_AREA."""
+def step_hits(ego_coords: np.ndarray, ego_radius: float, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
+    """``(query, geometry)`` pairs where the ego box of (row, step), query ``step * N + row``, intersects a geometry
+    of the observation at its own step (red lights and initially ignored objects left out), for boxes ``(N, T, 5,
+    2)`` of enclosing radius ``ego_radius``: NC's overlaps, and TTC's at offset 0 (the same boxes and steps)."""
     num_rows, num_steps = ego_coords.shape[:2]
     centers = ego_coords[:, :, Corner.CENTER].transpose(2, 1, 0)  # (2, T, N): a step's rows side by side
 
@@ -175,7 +169,21 @@ def no_at_fault_collisions(
         step, row = np.divmod(query, num_rows)
         return _at(ego_coords, row, step)
 
-    query, geom = find_hits(observation, *centers, np.arange(num_steps), boxes, ego_radius)
+    return find_hits(observation, *centers, np.arange(num_steps), boxes, ego_radius)
+
+
+def no_at_fault_collisions(
+    states: np.ndarray,
+    ego_coords: np.ndarray,
+    hits: tuple[np.ndarray, np.ndarray],
+    observation: Observation,
+    lanes_or_off_road: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NC ``(N,)`` in {0, 0.5, 1}, the first at-fault step ``(N,)`` and the observation object hit there ``(N,)``
+    (a track index: the scene's agent row; -1 if none), for states ``(N, T, 11)``, their boxes ``(N, T, 5, 2)`` and
+    the boxes' :func:`step_hits`; ``lanes_or_off_road (N, T)`` = MULTIPLE_LANES or NON_DRIVABLE_AREA."""
+    num_rows = ego_coords.shape[0]
+    query, geom = hits
     step, row = np.divmod(query, num_rows)
     obj = observation.objects[geom]
     ego = _at(states, row, step)
@@ -209,10 +217,12 @@ def time_to_collision(
     interval: float = 0.1,
     offsets: tuple[int, ...] = TTC_OFFSETS,
     num_steps: int | None = None,
+    hits_at_rest: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """TTC ``(N,)`` in {0, 1} and the first violating ego step ``(N,)`` (-1 if none). Ego steps ``0..num_steps-1`` are
     checked (v1.1: all 41, the observation reaching 0.9 s further; v2: ``num_steps = 41 - 9``).
-    ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon."""
+    ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon. ``hits_at_rest``: the boxes'
+    :func:`step_hits`, which are offset 0's (not moved, the same step): found once for NC and TTC."""
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
     # per (step, row), laid out (S, N) so that the queries' grid (K, S, N) has the rows as its long axis
@@ -239,9 +249,22 @@ def time_to_collision(
         return _at(ego_coords, row, step) + shift[:, None]
 
     valid_steps = np.minimum(obs_steps, observation.num_steps - 1).reshape(-1)  # the NaN centres' steps are never read
+    first = 1 if hits_at_rest is not None and offsets[0] == 0 else 0  # queries before it come from hits_at_rest
+    skipped = first * num_steps * num_rows
     query, geom = find_hits(
-        observation, x.reshape(-1, num_rows), y.reshape(-1, num_rows), valid_steps, boxes, ego_radius
+        observation,
+        x[first:].reshape(-1, num_rows),
+        y[first:].reshape(-1, num_rows),
+        valid_steps[first * num_steps :],
+        lambda moved: boxes(moved + skipped),
+        ego_radius,
     )
+    query += skipped
+    if first:
+        at_rest, at_rest_geom = hits_at_rest
+        keep = at_rest < skipped  # the steps TTC checks
+        keep[keep] = ~np.isnan(np.take(x.reshape(-1), at_rest[keep]))  # not standing (nor past the observation)
+        query, geom = np.concatenate([at_rest[keep], query]), np.concatenate([at_rest_geom[keep], geom])
     offset, step, row = np.unravel_index(query, x.shape)
     order = step * len(offsets) + offset  # the official walk: steps in order, offsets in order within a step
     rear_axle = _at(states, row, step)[:, : StateIndex.HEADING + 1]

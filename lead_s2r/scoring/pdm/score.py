@@ -25,7 +25,13 @@ import numpy as np
 import shapely
 
 from lead_s2r.scoring.pdm import epdms
-from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, enclosing_radius, no_at_fault_collisions, time_to_collision
+from lead_s2r.scoring.pdm.collisions import (
+    TTC_OFFSETS,
+    enclosing_radius,
+    no_at_fault_collisions,
+    step_hits,
+    time_to_collision,
+)
 from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
 from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
 from lead_s2r.scoring.pdm.footprint import Corner, ego_coords
@@ -125,10 +131,12 @@ def _footprints(scene: PDMScene, states: np.ndarray, drivable_map: DrivableMap |
 
 @dataclass
 class _Prelude:
-    """What v1.1 and v2.2 score alike before they part: checked states, footprints, NC (and when) and DAC."""
+    """What v1.1 and v2.2 score alike before they part: checked states, footprints, the boxes' overlaps at their own
+    steps (NC's, and TTC's without a move), NC (and when) and DAC."""
 
     states: np.ndarray
     fp: _Footprints
+    hits: tuple[np.ndarray, np.ndarray]
     nc: np.ndarray
     collision_idx: np.ndarray
     collision_object: np.ndarray
@@ -142,7 +150,7 @@ class _Prelude:
         areas = fp.areas
         return time_to_collision(
             self.states, fp.coords, fp.radius, observation, fp.lanes_or_off_road, areas.rear_axle_in_intersection,
-            INTERVAL_S, num_steps=num_steps,
+            INTERVAL_S, num_steps=num_steps, hits_at_rest=self.hits,
         )  # fmt: skip
 
 
@@ -152,8 +160,9 @@ def _prelude(
     states = np.asarray(states, np.float64)
     _check_states(scene, states, observation, lookahead)
     fp = _footprints(scene, states, drivable_map)
-    nc, step, hit = no_at_fault_collisions(states, fp.coords, fp.radius, observation, fp.lanes_or_off_road)
-    return _Prelude(states, fp, nc, step, hit, drivable_area_compliance(fp.areas.non_drivable_area))
+    hits = step_hits(fp.coords, fp.radius, observation)
+    nc, step, hit = no_at_fault_collisions(states, fp.coords, hits, observation, fp.lanes_or_off_road)
+    return _Prelude(states, fp, hits, nc, step, hit, drivable_area_compliance(fp.areas.non_drivable_area))
 
 
 def score_states(
