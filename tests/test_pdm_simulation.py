@@ -21,10 +21,10 @@ from lead_s2r.scoring.pdm.lqr import (
     INITIAL_CURVATURE_PENALTY,
     JERK_PENALTY,
     SCALAR_ROWS,
-    StepReference,
     curvature_profile,
     normalize_angle,
     speed_fit_matrix,
+    step_references,
     track,
     tracking_reference,
 )
@@ -284,7 +284,7 @@ def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:
     rng = np.random.default_rng(1)
     dt, wheel_base, horizon = 0.1, 3.089, 10
     targets = interpolate_proposals(np.concatenate([arc(40.0, 9.0), arc(-25.0, 5.0), straight(3.0)]), 0.5)
-    table, _ = tracking_reference(targets, dt, wheel_base)
+    references = step_references(tracking_reference(targets, dt, wheel_base)[0])
     steps = np.diff(targets, axis=1)
     speed_fit = (np.cos(targets[:, :-1, 2]) * steps[..., 0] + np.sin(targets[:, :-1, 2]) * steps[..., 1]) @ (
         speed_fit_matrix(40, dt).T
@@ -294,7 +294,7 @@ def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:
         ahead = np.minimum(step + np.arange(horizon + 1), 39)
         x, y, heading = targets[:, step].T + rng.normal(0, [0.5, 0.5, 0.05], (3, 3)).T
         speed, steering = rng.uniform(1, 12, 3), rng.normal(0, 0.1, 3)
-        accel, rate = track(StepReference(*table[step]), x, y, heading, speed, steering, NUMPY)
+        accel, rate = track(references[step], x, y, heading, speed, steering, NUMPY)
         for n in range(3):
             expected_accel = -10.0 / 11.0 * (speed[n] - speed_fit[n, ahead[-1]])
             lookahead = speed[n] + dt * expected_accel * np.arange(horizon)

@@ -199,10 +199,12 @@ def _quadratic_in_speed(coefficients: np.ndarray, accel: tuple[float, np.ndarray
     return [c_vv + c_va * a_1 + c_aa * a_1 * a_1, c_va * a_0 + 2 * c_aa * a_1 * a_0, c_aa * a_0 * a_0]
 
 
-def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tuple[np.ndarray, list[bool]]:
-    """Targets ``(N, T, 3)`` -> ``(T - 1, fields, N)``: the ``StepReference`` fields at each tracking step; and
-    whether any reference speed is slow enough for the stopping controller at that step."""
-    count = len(targets)
+def tracking_reference(
+    targets: np.ndarray, dt: float, wheel_base: float
+) -> tuple[list[np.ndarray | float], list[bool]]:
+    """Targets ``(N, T, 3)`` -> the ``StepReference`` fields, each ``(T - 1, N)`` laid out step-major (a step's row
+    of proposals contiguous) or one float for every step and proposal; and whether any reference speed is slow
+    enough for the stopping controller at each step."""
     steps = np.diff(targets, axis=1)
     headings = targets[:, :-1, 2]
     sin, cos = np.sin(headings), np.cos(headings)  # the fit's projection and the tracker's target frames alike
@@ -211,21 +213,23 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     speed = row_products(projected, speed_fit_matrix(num_fits, dt).T)
     curvature = curvature_profile(normalize_angle(steps[..., 2]), speed, dt)
     ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
-    reference_speed = np.take(speed, ahead[:, -1], axis=1).T  # (S, N); np.take: far faster than fancy indexing
+    # laid out step-major once here, so that the fields computed from them are too (np.take: far faster than fancy
+    # indexing)
+    reference_speed = np.ascontiguousarray(np.take(speed, ahead[:, -1], axis=1).T)  # (S, N)
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
     # one (S, H) @ (H, 5) product per proposal (a stack of them: a proposal's bits do not depend on the others)
     lookahead = curvature[:, ahead[:, :-1]]
-    moments = np.moveaxis(lookahead @ weights, -1, 0).transpose(0, 2, 1)  # (5, S, N)
+    moments = np.ascontiguousarray(np.moveaxis(lookahead @ weights, -1, 0).transpose(0, 2, 1))  # (5, S, N)
 
     horizon_time = TRACKING_HORIZON * dt
     gain = -1.0 / (horizon_time * Q_LONGITUDINAL * horizon_time + R_LONGITUDINAL) * horizon_time * Q_LONGITUDINAL
     accel = (gain, -gain * reference_speed)  # the longitudinal LQR: a = gain (v - v_ref)
-    poses = targets[:, :-1].transpose(2, 1, 0)
-    rows = [
+    poses = np.ascontiguousarray(targets[:, :-1].transpose(2, 1, 0))
+    fields = [
         poses[0],
         poses[1],
-        sin.T,
-        cos.T,
+        np.ascontiguousarray(sin.T),
+        np.ascontiguousarray(cos.T),
         poses[2],
         reference_speed,
         gain,
@@ -240,19 +244,21 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
         Q_LATERAL[1],
         R_LATERAL,
     ]
-    # filled field by field, each a contiguous (S, N) block, and handed out as (S, fields, N)
-    table = np.empty((len(rows), num_fits, count))
-    for field, row in enumerate(rows):
-        table[field] = row
     may_stop = (reference_speed <= STOPPING_VELOCITY).any(axis=1).tolist()
-    return table.transpose(1, 0, 2), may_stop
+    return fields, may_stop
 
 
-def step_references(table: np.ndarray, proposal: int | None = None) -> list[StepReference]:
-    """Per step, the rows of all proposals, or the Python floats of one ``proposal``."""
+def step_references(fields: list[np.ndarray | float], proposal: int | None = None) -> list[StepReference]:
+    """Per step, the rows of all proposals (each field's ``(N,)`` row; a constant one array shared by every step),
+    or the Python floats of one ``proposal``."""
+    num_steps, count = next(field.shape for field in fields if isinstance(field, np.ndarray))
+    rows = [
+        field if isinstance(field, np.ndarray) else np.broadcast_to(np.full(count, field), (num_steps, count))
+        for field in fields
+    ]
     if proposal is None:
-        return [StepReference(*step) for step in table]
-    return [StepReference(*step) for step in table[:, :, proposal].tolist()]
+        return [StepReference(*(row[step] for row in rows)) for step in range(num_steps)]
+    return [StepReference(*step) for step in zip(*(row[:, proposal].tolist() for row in rows), strict=True)]
 
 
 def track(

@@ -95,19 +95,19 @@ def simulate_proposals(
         raise ValueError(f"targets: expected shape (N, T >= 4, 3) of x, y, heading every 0.1 s, got {targets.shape}")
     count, num_states, _ = targets.shape
     wheel_base = vehicle.wheel_base
-    table, may_stop = tracking_reference(targets, PROPOSAL_INTERVAL, wheel_base)
+    fields, may_stop = tracking_reference(targets, PROPOSAL_INTERVAL, wheel_base)
     first = initial_state(np.asarray(ego_velocity), np.asarray(ego_acceleration), tire_steering_angle)
     states = np.zeros((count, num_states, STATE_SIZE))
     if count <= scalar_proposals:
         constants = bicycle_constants(SIMULATION_DT, wheel_base)
         start = BicycleState(*first[_BICYCLE_COLUMNS].tolist())
         for proposal in range(count):
-            history = _run(step_references(table, proposal), may_stop, start, constants, wheel_base, FLOATS)
+            history = _run(step_references(fields, proposal), may_stop, start, constants, wheel_base, FLOATS)
             states[proposal][:, _BICYCLE_COLUMNS] = history
     else:
         constants = bicycle_constants(SIMULATION_DT, wheel_base, count)
         start = BicycleState(*(np.full(count, first[column]) for column in _BICYCLE_COLUMNS))
-        history = _run(step_references(table), may_stop, start, constants, wheel_base, NUMPY)
+        history = _run(step_references(fields), may_stop, start, constants, wheel_base, NUMPY)
         for step, state in enumerate(history):  # column by column: cheaper than stacking the history first
             for column, values in zip(_BICYCLE_COLUMNS, state, strict=True):
                 states[:, step, column] = values
