@@ -71,7 +71,10 @@ def driving_direction_compliance(
 
 
 def progress_along(centerline: shapely.LineString, start: np.ndarray, end: np.ndarray) -> np.ndarray:
-    """Raw progress ``(N,)`` [m] from centres ``start``/``end`` ``(N, 2)`` projected onto the centreline, >= 0."""
+    """Raw progress ``(N,)`` [m] from centres ``start``/``end`` ``(N, 2)`` projected onto the centreline, >= 0.
+    Rows that all start at one point (every simulated row starts at the logged ego) project it once."""
+    if len(start) and (start == start[0]).all():
+        start = start[:1]
     along = shapely.line_locate_point(centerline, shapely.points(np.concatenate([start, end])))
     return np.clip(along[len(start) :] - along[: len(start)], 0.0, None)
 
