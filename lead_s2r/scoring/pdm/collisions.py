@@ -32,7 +32,7 @@ from collections.abc import Callable
 import numpy as np
 import shapely
 
-from lead_s2r.scoring.pdm.footprint import Corner, box_polygons
+from lead_s2r.scoring.pdm.footprint import Corner, box_polygons, heading_directions
 from lead_s2r.scoring.pdm.observation import Observation
 from lead_s2r.scoring.pdm.overlap import convex_intersects
 from lead_s2r.scoring.pdm.state import StateIndex
@@ -218,19 +218,21 @@ def time_to_collision(
     offsets: tuple[int, ...] = TTC_OFFSETS,
     num_steps: int | None = None,
     hits_at_rest: tuple[np.ndarray, np.ndarray] | None = None,
+    along: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """TTC ``(N,)`` in {0, 1} and the first violating ego step ``(N,)`` (-1 if none). Ego steps ``0..num_steps-1`` are
     checked (v1.1: all 41, the observation reaching 0.9 s further; v2: ``num_steps = 41 - 9``).
     ``in_intersection (N, T)``: the rear axle lies inside an INTERSECTION polygon. ``hits_at_rest``: the boxes'
-    :func:`step_hits`, which are offset 0's (not moved, the same step): found once for NC and TTC."""
+    :func:`step_hits`, which are offset 0's (not moved, the same step): found once for NC and TTC. ``along``: the
+    states' :func:`~lead_s2r.scoring.pdm.footprint.heading_directions`, which the ego boxes were built with."""
     num_rows, total_steps = states.shape[:2]
     num_steps = total_steps if num_steps is None else num_steps
     # per (step, row), laid out (S, N) so that the queries' grid (K, S, N) has the rows as its long axis
     speed = np.ascontiguousarray(
         np.hypot(states[:, :num_steps, StateIndex.VELOCITY_X], states[:, :num_steps, StateIndex.VELOCITY_Y]).T
     )
-    heading = np.ascontiguousarray(states[:, :num_steps, StateIndex.HEADING].T)
-    per_second = np.cos(heading) * speed, np.sin(heading) * speed
+    cos, sin = heading_directions(states) if along is None else along
+    per_second = np.ascontiguousarray(cos[:, :num_steps].T) * speed, np.ascontiguousarray(sin[:, :num_steps].T) * speed
     center = ego_coords[:, :num_steps, Corner.CENTER].transpose(2, 1, 0)  # (2, S, N)
     # queries (offset k, step, row): the box moved along its heading at its speed by float(k) * interval, as NAVSIM
     # computes it; none (NaN centre) where the ego stands or the observation ends

@@ -57,11 +57,21 @@ def box_coords(centers: np.ndarray, headings: np.ndarray, length: Size, width: S
     return _boxes(centers[..., 0], centers[..., 1], headings, (np.cos(headings), np.sin(headings)), length, width)
 
 
-def ego_coords(states: np.ndarray, vehicle: VehicleParameters) -> np.ndarray:
-    """Ego boxes ``(N, T, 5, 2)`` from rear-axle states ``(N, T, 11)``: centre ``rear_axle_to_center`` ahead."""
+def heading_directions(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cosine and sine ``(N, T)`` of the headings of rear-axle states ``(N, T, 11)``: the ego boxes and TTC's moves
+    along the heading share them."""
+    headings = states[..., StateIndex.HEADING]
+    return np.cos(headings), np.sin(headings)
+
+
+def ego_coords(
+    states: np.ndarray, vehicle: VehicleParameters, along: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
+    """Ego boxes ``(N, T, 5, 2)`` from rear-axle states ``(N, T, 11)``: centre ``rear_axle_to_center`` ahead.
+    ``along``: the states' :func:`heading_directions` where the caller has them."""
     headings = states[..., StateIndex.HEADING]
     shift = vehicle.rear_axle_to_center
-    cos, sin = np.cos(headings), np.sin(headings)
+    cos, sin = heading_directions(states) if along is None else along
     x, y = states[..., StateIndex.X] + shift * cos, states[..., StateIndex.Y] + shift * sin
     return _boxes(x, y, headings, (cos, sin), vehicle.length, vehicle.width)
 

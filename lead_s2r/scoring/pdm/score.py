@@ -34,7 +34,7 @@ from lead_s2r.scoring.pdm.collisions import (
 )
 from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
 from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
-from lead_s2r.scoring.pdm.footprint import Corner, ego_coords
+from lead_s2r.scoring.pdm.footprint import Corner, ego_coords, heading_directions
 from lead_s2r.scoring.pdm.interpolation import interpolate_proposals, interpolate_reference
 from lead_s2r.scoring.pdm.map_flags import DrivableMap, EgoAreas, ego_areas
 from lead_s2r.scoring.pdm.metrics import (
@@ -111,6 +111,7 @@ class _Footprints:
     coords: np.ndarray  # (N, T, 5, 2)
     radius: float
     areas: EgoAreas
+    along: tuple[np.ndarray, np.ndarray]  # cosine and sine of the headings (N, T), for TTC's moves
 
     @property
     def centers(self) -> np.ndarray:
@@ -123,10 +124,11 @@ class _Footprints:
 
 def _footprints(scene: PDMScene, states: np.ndarray, drivable_map: DrivableMap | None) -> _Footprints:
     drivable_map = DrivableMap.from_scene(scene) if drivable_map is None else drivable_map
-    coords = ego_coords(states, scene.vehicle)
+    along = heading_directions(states)
+    coords = ego_coords(states, scene.vehicle, along)
     rear_axles = states[..., StateIndex.X : StateIndex.Y + 1]
     areas = ego_areas(drivable_map, coords, rear_axles, np.asarray(scene.route_lane_ids, np.int64))
-    return _Footprints(coords, enclosing_radius(scene.vehicle.length, scene.vehicle.width), areas)
+    return _Footprints(coords, enclosing_radius(scene.vehicle.length, scene.vehicle.width), areas, along)
 
 
 @dataclass
@@ -150,7 +152,7 @@ class _Prelude:
         areas = fp.areas
         return time_to_collision(
             self.states, fp.coords, fp.radius, observation, fp.lanes_or_off_road, areas.rear_axle_in_intersection,
-            INTERVAL_S, num_steps=num_steps, hits_at_rest=self.hits,
+            INTERVAL_S, num_steps=num_steps, hits_at_rest=self.hits, along=fp.along,
         )  # fmt: skip
 
 
