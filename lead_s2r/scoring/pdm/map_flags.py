@@ -21,7 +21,7 @@ CARPARK_AREA polygons. ROADBLOCK_CONNECTOR and WALKWAY polygons of the scene are
 * INTERSECTION membership of the rear axle (v1.1 TTC, ``is_in_layer``) and of the centre (v2's DDC/LK exclusions).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import reduce
 
 import numpy as np
@@ -51,6 +51,9 @@ GRID_CELL_M = 2.0
 #: [m] a cell's square is grown by this before it is classified: far above the rounding of a point's cell
 #: (~1e-9 m at UTM coordinates), far below any map feature
 CELL_MARGIN_M = 1e-6
+#: Fine cells per side of the blocks a cell's polygons are first classified on (``DrivableMap._classify``): a block
+#: inside or clear of a polygon answers its cells without a GEOS call each.
+BLOCK_CELLS = 4
 #: How a cell lies against a polygon (``DrivableMap.cover``): not yet known, clear of it, inside it, crossed by it.
 UNKNOWN, CLEAR, INSIDE, CROSSED = -1, 0, 1, 2
 #: Grid cells per axis at most (a map's extent over its cell size; bounds the index for huge maps).
@@ -129,11 +132,19 @@ class BoundsGrid:
         lie outside every box)."""
         return self.expand(self.cells_of(x, y))
 
-    def squares(self, entries: np.ndarray, margin: float) -> np.ndarray:
-        """Shapely boxes of the cells of member ``entries``, grown by ``margin``."""
+    def squares(self, entries: np.ndarray, margin: float, block: int = 1) -> np.ndarray:
+        """Shapely boxes of the cells of member ``entries``, grown by ``margin``; with ``block``, of the blocks of
+        ``block`` x ``block`` cells that hold them."""
         column, row = np.divmod(self.member_cells[entries], self.shape[1])
+        column, row = column - column % block, row - row % block
         x, y = self.origin[0] + self.cell * column, self.origin[1] + self.cell * row
-        return shapely.box(x - margin, y - margin, x + self.cell + margin, y + self.cell + margin)
+        side = self.cell * block
+        return shapely.box(x - margin, y - margin, x + side + margin, y + side + margin)
+
+    def blocks(self, entries: np.ndarray, block: int) -> np.ndarray:
+        """The block of ``block`` x ``block`` cells that holds the cell of each member entry, as one flat index."""
+        column, row = np.divmod(self.member_cells[entries], self.shape[1])
+        return (column // block) * (self.shape[1] // block + 1) + row // block
 
 
 @dataclass
@@ -148,6 +159,7 @@ class DrivableMap:
     bounds: np.ndarray  # (4, K) rows xmin, ymin, xmax, ymax (gathers by polygon stay 1-D)
     cover: np.ndarray  # per grid entry: how its cell lies against its polygon (UNKNOWN until a point falls in it)
     settled: "SettledCells"
+    block_cover: dict[int, int] = field(default_factory=dict)  # (block, polygon) key -> how the block lies against it
 
     @classmethod
     def from_scene(cls, scene: PDMScene, cell: float = GRID_CELL_M, max_cells: int = MAX_GRID_CELLS) -> "DrivableMap":
@@ -195,11 +207,32 @@ class DrivableMap:
         return index[held], self.grid.members[entry[held]]
 
     def _classify(self, entries: np.ndarray) -> None:
-        """Set ``cover`` of grid ``entries``: the cell's grown square inside its polygon, clear of it or crossed."""
-        squares = self.grid.squares(entries, CELL_MARGIN_M)
+        """Set ``cover`` of grid ``entries``: the cell's grown square inside its polygon, clear of it or crossed.
+        The block of :data:`BLOCK_CELLS` x :data:`BLOCK_CELLS` cells holding the cell is classified first (once per
+        block and polygon): a cell of a block inside or clear of the polygon is so too (its grown square lies within
+        the block's), and only cells of crossed blocks get a GEOS call each."""
+        polygon = self.grid.members[entries]
+        keys, first, of_entry = np.unique(
+            self.grid.blocks(entries, BLOCK_CELLS) * len(self.polygons) + polygon,
+            return_index=True,
+            return_inverse=True,
+        )
+        known = self.block_cover
+        new = [i for i, key in enumerate(keys.tolist()) if key not in known]
+        if new:
+            states = self._cover_of(entries[first[new]], BLOCK_CELLS)
+            known.update(zip(keys[new].tolist(), states.tolist(), strict=True))
+        by_block = np.array([known[key] for key in keys.tolist()], np.int8)[of_entry]
+        self.cover[entries] = by_block
+        crossed = entries[by_block == CROSSED]
+        self.cover[crossed] = self._cover_of(crossed, 1)
+
+    def _cover_of(self, entries: np.ndarray, block: int) -> np.ndarray:
+        """How the grown square of each entry's cell (or of its block of ``block`` cells) lies against its polygon."""
+        squares = self.grid.squares(entries, CELL_MARGIN_M, block)
         polygons = self.polygons[self.grid.members[entries]]
         crossed = np.where(shapely.intersects(polygons, squares), CROSSED, CLEAR)
-        self.cover[entries] = np.where(shapely.contains_properly(polygons, squares), INSIDE, crossed)
+        return np.where(shapely.contains_properly(polygons, squares), INSIDE, crossed).astype(np.int8)
 
     def layers(self, x: np.ndarray, y: np.ndarray) -> "PointLayers":
         """What the ego-area flags need of points ``(x, y)`` (each ``(B,)``): the answer of a point whose cell no
