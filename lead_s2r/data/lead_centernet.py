@@ -45,6 +45,14 @@ def gaussian_radius(height: float, width: float, min_overlap: float = MIN_OVERLA
     return min(r1, r2, r3)
 
 
+@lru_cache(maxsize=4096)
+def kernel_radius(half_width: float, half_length: float) -> int:
+    """LEAD's integer Gaussian radius of a box, in cells. Per box in Python floats, as LEAD computes it (numpy's
+    square is not ``pow``'s in the last bit, and an integer radius can hang on it); cached, as a recording's actors
+    keep their sizes from frame to frame."""
+    return max(MIN_RADIUS, int(gaussian_radius(half_width, half_length)))
+
+
 @lru_cache(maxsize=64)
 def gaussian_kernel(radius: int) -> np.ndarray:
     """(2r+1)^2 float32 ``exp(-d^2 / (2 sigma^2))`` with sigma = (2r+1) / 6, values below float32 eps x max zeroed."""
@@ -89,8 +97,8 @@ def lead_centernet_targets(
     half_length, half_width = picked[:, 3] / 2 / cell, picked[:, 4] / 2 / cell
     # LEAD truncates its y right: a centre on a cell edge is in the cell to our right, offset 1 (LEAD's 0)
     rows, cols = np.floor(row_f).astype(np.int64), np.ceil(col_f).astype(np.int64) - 1
-    extents = zip(half_width.tolist(), half_length.tolist(), strict=True)  # Python's pow: numpy's square differs
-    radii = [max(MIN_RADIUS, int(gaussian_radius(width, length))) for width, length in extents]
+    extents = zip(half_width.tolist(), half_length.tolist(), strict=True)
+    radii = [kernel_radius(width, length) for width, length in extents]
     paste_kernels(heatmap, np.asarray(classes, np.int64)[kept], rows, cols, np.array(radii, np.int64))
     cells = last_per_cell(rows * w + cols)  # a later box in the same cell overwrites the earlier one's values
     rows, cols, picked = rows[cells], cols[cells], picked[cells]
@@ -129,7 +137,7 @@ def paste_phantom(
     LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and LEAD's lateral
     offset 0 (measured from the cell's other edge) is our 1."""
     col = heatmap.shape[2] - 1
-    paste_max(heatmap[0], 0, col, gaussian_kernel(max(MIN_RADIUS, int(gaussian_radius(0.0, 0.0)))))
+    paste_max(heatmap[0], 0, col, gaussian_kernel(kernel_radius(0.0, 0.0)))
     size[:, 0, col] = 0.0
     offset[:, 0, col] = 0.0, 1.0
     yaw_class[0, col], yaw_residual[0, col], speed[0, col] = 0, 0.0, 0.0
