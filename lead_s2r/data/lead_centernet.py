@@ -45,6 +45,14 @@ def gaussian_radius(height: float, width: float, min_overlap: float = MIN_OVERLA
     return min(r1, r2, r3)
 
 
+@lru_cache(maxsize=4096)
+def kernel_radius(half_width: float, half_length: float) -> int:
+    """LEAD's integer Gaussian radius of a box, in cells. Per box in Python floats, as LEAD computes it (numpy's
+    square is not ``pow``'s in the last bit, and an integer radius can hang on it); cached, as a recording's actors
+    keep their sizes from frame to frame."""
+    return max(MIN_RADIUS, int(gaussian_radius(half_width, half_length)))
+
+
 @lru_cache(maxsize=64)
 def gaussian_kernel(radius: int) -> np.ndarray:
     """(2r+1)^2 float32 ``exp(-d^2 / (2 sigma^2))`` with sigma = (2r+1) / 6, values below float32 eps x max zeroed."""
@@ -56,12 +64,13 @@ def gaussian_kernel(radius: int) -> np.ndarray:
     return kernel
 
 
-def angle_bin(angle: float, bins: int) -> tuple[int, float]:
-    """(bin, residual) of ``angle``: bin k is centred on k * 2 pi / bins (LEAD's ``angle2class``)."""
+def angle_bin(angles: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """(bin, residual) of each of ``angles``: bin k is centred on k * 2 pi / bins (LEAD's ``angle2class``). numpy's
+    ``%`` and ``//`` on floats are Python's (fmod, then the divisor's sign), so the values are LEAD's bit for bit."""
     width = 2 * math.pi / bins
-    shifted = (angle % (2 * math.pi) + width / 2) % (2 * math.pi)
-    k = int(shifted // width)
-    return k, shifted - (k * width + width / 2)
+    shifted = (np.asarray(angles, np.float64) % (2 * math.pi) + width / 2) % (2 * math.pi)
+    k = shifted // width
+    return k.astype(np.int64), shifted - (k * width + width / 2)
 
 
 def lead_centernet_targets(
@@ -86,19 +95,18 @@ def lead_centernet_targets(
     kept = np.flatnonzero((np.asarray(classes) >= 0) & on_grid)[:LEAD_MAX_BOXES]  # LEAD filters, then keeps 90
     picked, row_f, col_f = boxes[kept], row_f[kept], col_f[kept]
     half_length, half_width = picked[:, 3] / 2 / cell, picked[:, 4] / 2 / cell
-    speeds = np.hypot(picked[:, 7], picked[:, 8])
-    values = zip(np.asarray(classes, np.int64)[kept].tolist(), row_f.tolist(), col_f.tolist(), half_length.tolist(),
-                 half_width.tolist(), picked[:, 6].tolist(), speeds.tolist(), strict=True)  # fmt: skip
-    for label, x, y, length, width, yaw, box_speed in values:  # Python numbers: cheaper than numpy scalars per box
-        # LEAD truncates its y right: a centre on a cell edge is in the cell to our right, offset 1 (LEAD's 0)
-        row, col = math.floor(x), math.ceil(y) - 1
-        radius = max(MIN_RADIUS, int(gaussian_radius(width, length)))
-        paste_max(heatmap[label], row, col, gaussian_kernel(radius))
-        size[:, row, col] = length, width
-        offset[:, row, col] = x - row, y - col
-        yaw_class[row, col], yaw_residual[row, col] = angle_bin(yaw, yaw_bins)
-        speed[row, col] = box_speed
-        weight[row, col] = True
+    # LEAD truncates its y right: a centre on a cell edge is in the cell to our right, offset 1 (LEAD's 0)
+    rows, cols = np.floor(row_f).astype(np.int64), np.ceil(col_f).astype(np.int64) - 1
+    extents = zip(half_width.tolist(), half_length.tolist(), strict=True)
+    radii = [kernel_radius(width, length) for width, length in extents]
+    paste_kernels(heatmap, np.asarray(classes, np.int64)[kept], rows, cols, np.array(radii, np.int64))
+    cells = last_per_cell(rows * w + cols)  # a later box in the same cell overwrites the earlier one's values
+    rows, cols, picked = rows[cells], cols[cells], picked[cells]
+    size[:, rows, cols] = half_length[cells], half_width[cells]
+    offset[:, rows, cols] = row_f[cells] - rows, col_f[cells] - cols
+    yaw_class[rows, cols], yaw_residual[rows, cols] = angle_bin(picked[:, 6], yaw_bins)
+    speed[rows, cols] = np.hypot(picked[:, 7], picked[:, 8])
+    weight[rows, cols] = True
     if len(kept) < LEAD_MAX_BOXES:
         paste_phantom(heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
     out = {
@@ -129,11 +137,36 @@ def paste_phantom(
     LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and LEAD's lateral
     offset 0 (measured from the cell's other edge) is our 1."""
     col = heatmap.shape[2] - 1
-    paste_max(heatmap[0], 0, col, gaussian_kernel(max(MIN_RADIUS, int(gaussian_radius(0.0, 0.0)))))
+    paste_max(heatmap[0], 0, col, gaussian_kernel(kernel_radius(0.0, 0.0)))
     size[:, 0, col] = 0.0
     offset[:, 0, col] = 0.0, 1.0
     yaw_class[0, col], yaw_residual[0, col], speed[0, col] = 0, 0.0, 0.0
     weight[0, col] = True
+
+
+def paste_kernels(
+    heatmap: np.ndarray, labels: np.ndarray, rows: np.ndarray, cols: np.ndarray, radii: np.ndarray
+) -> None:
+    """:func:`paste_max` of every box's Gaussian of ``radii`` on channel ``labels`` at (``rows``, ``cols``), one
+    ``np.maximum.at`` per radius instead of a call per box: a maximum does not depend on the order it is taken in,
+    so the heatmap is the per-box loop's bit for bit."""
+    _, h, w = heatmap.shape
+    flat = heatmap.reshape(-1)
+    for radius in np.unique(radii).tolist():
+        of_radius = radii == radius
+        kernel = gaussian_kernel(radius)
+        offsets = np.arange(-radius, radius + 1)
+        r = rows[of_radius, None, None] + offsets[None, :, None]
+        c = cols[of_radius, None, None] + offsets[None, None, :]
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w) & (kernel > 0)
+        cell = (labels[of_radius, None, None] * h + r) * w + c
+        np.maximum.at(flat, cell[inside], np.broadcast_to(kernel, inside.shape)[inside])
+
+
+def last_per_cell(cells: np.ndarray) -> np.ndarray:
+    """Indices of the last entry of each distinct value of ``cells``, in ascending order of value."""
+    _, first_from_end = np.unique(cells[::-1], return_index=True)
+    return len(cells) - 1 - first_from_end
 
 
 def paste_max(heatmap: np.ndarray, row: int, col: int, window: np.ndarray) -> None:
