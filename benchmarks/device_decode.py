@@ -15,7 +15,8 @@ import torch
 from camera_input import scene_jpeg
 from cpu_time import cpu_times_ms
 
-from lead_s2r.data.device_inputs import RGB_JPEG, decode_images, decode_rgb, jpeg_tensor
+from lead_s2r.data.camera_layout import Tile, camera_layout
+from lead_s2r.data.device_inputs import RGB_JPEG, RGB_LAYOUT, decode_images, decode_rgb, jpeg_tensor
 
 
 def main() -> None:
@@ -26,6 +27,7 @@ def main() -> None:
     torch.set_num_threads(1)  # as in a dataloader worker
     jpegs = [jpeg_tensor(scene_jpeg(384, 1152, seed)) for seed in range(args.batch_size)]
     print(f"{args.batch_size} mosaics, {sum(len(j) for j in jpegs) / len(jpegs) / 1e3:.0f} KB each")
+    mosaic = camera_layout((((384, 1152), (Tile(0, 1152),)),), (384, 1152), None)  # the model's image as stored
 
     def in_loader() -> torch.Tensor:
         images = decode_rgb(jpegs, "cpu")
@@ -38,7 +40,7 @@ def main() -> None:
         return
 
     def on_device() -> torch.Tensor:
-        rgb = decode_images({RGB_JPEG: jpegs}, "cuda")["rgb"]
+        rgb = decode_images({RGB_JPEG: [[jpeg] for jpeg in jpegs], RGB_LAYOUT: [mosaic] * len(jpegs)}, "cuda")["rgb"]
         torch.cuda.synchronize()
         return rgb
 

@@ -17,7 +17,8 @@ same round (a busy machine slows both alike), with the spread of that ratio over
 - ``navsim``: generated NAVSIM logs (``lead-s2r synth navsim``) for the NAVSIM LTFv6 recipe's inputs
   (recipes/navsim/ltfv6.yaml: four cameras at NAVSIM's vertical field of view into 1920x270, BEV semantics, boxes);
 - ``wod``: generated WOD-E2E segments for the WOD-E2E LTFv6 recipe's inputs (recipes/wod/ltfv6.yaml: three front
-  cameras into 972x360).
+  cameras into 972x360), ours twice: everything in the loader and the camera JPEGs left for the GPU (decoded and laid
+  out there, ``lead_s2r.data.device_inputs``).
 
 Ours is ``DriveDataModule``'s training loader (shard resampling, shuffle buffer, decoding the fields the transform
 reads, ``SourceTransform``, collation into batches of ``--batch-size``); one epoch's stream serves every round, as in
@@ -167,7 +168,7 @@ def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Callabl
         PIXELS: lambda: (_decode_jpegs(sample) for sample in _samples(data, args)),
         OURS: ours(training_stream(kind, data, args, config, False, 0)),
     }
-    if source == "carla":
+    if source in ("carla", "wod"):  # rigs the device lays out: CARLA's mosaic as stored, WOD-E2E's three cameras
         runs[OURS_DEVICE] = ours(training_stream(kind, data, args, config, True, 0))
     if args.two_workers:
         runs[OURS_TWO] = ours(training_stream(kind, data, args, config, False, 2))

@@ -83,7 +83,9 @@ def case_samples(data: dict[str, Path], case: str, limit: int = 4) -> list[dict[
 
 
 def digest(value: Any) -> str:
-    """dtype, shape and bytes of a tensor (in its logical order), or the value's repr."""
+    """dtype, shape and bytes of a tensor (in its logical order), those of each in a list, or the value's repr."""
+    if isinstance(value, list):
+        return "[" + ", ".join(digest(item) for item in value) + "]"
     if isinstance(value, torch.Tensor):
         array = value.contiguous().numpy()
         return f"{array.dtype}{list(array.shape)}:{hashlib.sha256(array.tobytes()).hexdigest()[:24]}"

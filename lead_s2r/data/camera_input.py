@@ -13,6 +13,10 @@ before any pixel is decoded:
   tests/test_transform_speed.py). Where the reduced sizes' rounding would move the letterbox (labels laid out at
   full size would not line up), the plan is :data:`FULL` instead;
 - :data:`FULL`: every other rig, decoded at full size and laid out (:mod:`lead_s2r.data.camera_layout`).
+
+With ``inputs_on_device`` none of these runs for a rig of JPEGs whose layout the device can apply
+(:attr:`CameraPlan.on_device`): its JPEGs go to the training device as bytes with the layout, decoded there at full
+size and laid out by area weights (:mod:`lead_s2r.data.device_inputs`).
 """
 
 import math
@@ -27,7 +31,7 @@ import numpy as np
 import torch
 
 from lead_s2r.data.camera_layout import Calibration, CameraLayout, calibration, camera_layout, render, tiles_at
-from lead_s2r.data.device_inputs import decode_rgb, jpeg_tensor
+from lead_s2r.data.device_inputs import decode_rgb, jpeg_tensor, on_device_layout
 from lead_s2r.image_headers import jpeg_size, png_size
 
 #: The decode paths (module docstring).
@@ -66,12 +70,15 @@ class CameraPlan:
         layout: the layout of the stored images, which the perspective labels follow.
         decoded: the layout of the images as decoded (the reduced sizes on the :data:`REDUCED` path, else ``layout``).
         flag: the imdecode flag of the reduction (0 unless :data:`REDUCED`).
+        on_device: the rig's images are JPEGs that the training device can decode and lay out instead of the loader
+            (:func:`~lead_s2r.data.device_inputs.on_device_layout`).
     """
 
     path: str
     layout: CameraLayout
     decoded: CameraLayout
     flag: int = 0
+    on_device: bool = False
 
 
 def rig_layout(rig: Rig, image_size: tuple[int, int], vertical_fov_deg: float | None) -> CameraLayout:
@@ -83,15 +90,16 @@ def rig_layout(rig: Rig, image_size: tuple[int, int], vertical_fov_deg: float | 
 def camera_plan(rig: Rig, image_size: tuple[int, int], vertical_fov_deg: float | None, jpeg: bool) -> CameraPlan:
     """The plan of ``rig`` (its images JPEGs or not) for the model's ``image_size`` (module docstring)."""
     layout = rig_layout(rig, image_size, vertical_fov_deg)
+    on_device = jpeg and on_device_layout(layout)
     if layout.identity and jpeg:
-        return CameraPlan(AS_STORED, layout, layout)
+        return CameraPlan(AS_STORED, layout, layout, on_device=on_device)
     factor, flag = jpeg_reduction(layout)
     if factor > 1 and all(cal is not None for _, cal in rig):
         reduced_rig = tuple(((math.ceil(h / factor), math.ceil(w / factor)), cal) for (h, w), cal in rig)
         reduced = rig_layout(reduced_rig, image_size, vertical_fov_deg)  # libjpeg rounds scaled sizes up
         if reduced.box == layout.box:
-            return CameraPlan(REDUCED, layout, reduced, flag)
-    return CameraPlan(FULL, layout, layout)
+            return CameraPlan(REDUCED, layout, reduced, flag, on_device)
+    return CameraPlan(FULL, layout, layout, on_device=on_device)
 
 
 @dataclass

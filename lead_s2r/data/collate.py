@@ -6,7 +6,7 @@ from typing import Any
 import torch
 from torch.utils.data import default_collate
 
-from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, decode_rgb
+from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, RGB_LAYOUT, decode_images
 from lead_s2r.models.inputs import IGNORE_CLASS, on_image_grid
 
 #: Fill value of a label a sample lacks: the loss ignores it (masks are False, depth 0 means "no label").
@@ -18,18 +18,18 @@ IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
 
-    Identity entries (``__key__``, ``__dataset__``) and the inputs left for the device (:data:`RGB_JPEG`,
-    :data:`LIDAR_POINTS`) become lists; where only some samples' rigs let their JPEG go encoded, those are decoded
-    here. The filler is masked out by construction: validity masks are False, class maps :data:`IGNORE_CLASS`, depth
-    0. Perspective labels left at their stored size by rigs of different sizes (one source, several camera rigs) are
-    brought onto the image's grid here, as the loss would. In a dataloader worker each tensor is stacked straight
-    into shared memory (torch's ``default_collate``), not into private memory that the worker then copies into
-    shared memory to send the batch.
+    Identity entries (``__key__``, ``__dataset__``) and the inputs left for the device (:data:`RGB_JPEG` with
+    :data:`RGB_LAYOUT`, :data:`LIDAR_POINTS`) become lists; where only some samples' rigs let their JPEGs go encoded,
+    those are decoded and laid out here, as the device would. The filler is masked out by construction: validity
+    masks are False, class maps :data:`IGNORE_CLASS`, depth 0. Perspective labels left at their stored size by rigs of
+    different sizes (one source, several camera rigs) are brought onto the image's grid here, as the loss would. In a
+    dataloader worker each tensor is stacked straight into shared memory (torch's ``default_collate``), not into
+    private memory that the worker then copies into shared memory to send the batch.
     """
     if any(RGB_JPEG in sample for sample in samples) and not all(RGB_JPEG in sample for sample in samples):
         samples = [_decoded(sample) for sample in samples]
     names = set().union(*samples)
-    listed = {name for name in names if name.startswith("__")} | ({RGB_JPEG, LIDAR_POINTS} & names)
+    listed = {name for name in names if name.startswith("__")} | ({RGB_JPEG, RGB_LAYOUT, LIDAR_POINTS} & names)
     batch: dict[str, Any] = {name: [sample[name] for sample in samples] for name in listed}
     for key in sorted(names - listed):
         values = [sample.get(key) for sample in samples]
@@ -55,11 +55,12 @@ def _stack(key: str, values: list[torch.Tensor]) -> torch.Tensor:
 
 
 def _decoded(sample: dict[str, Any]) -> dict[str, Any]:
-    """``sample`` with a JPEG left for the device decoded into ``rgb`` here."""
+    """``sample`` with JPEGs left for the device decoded and laid out into ``rgb`` here."""
     if RGB_JPEG not in sample:
         return sample
     sample = dict(sample)
-    sample["rgb"] = decode_rgb([sample.pop(RGB_JPEG)], "cpu")[0]
+    one = decode_images({RGB_JPEG: [sample.pop(RGB_JPEG)], RGB_LAYOUT: [sample.pop(RGB_LAYOUT)]}, "cpu")
+    sample["rgb"] = one["rgb"][0]
     return sample
 
 

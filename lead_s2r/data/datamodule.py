@@ -23,7 +23,7 @@ import torch
 import webdataset as wds
 
 from lead_s2r.data.collate import collate
-from lead_s2r.data.device_inputs import RGB_JPEG, check_device_decode, decode_images, rasterize_points
+from lead_s2r.data.device_inputs import RGB_JPEG, RGB_LAYOUT, check_device_decode, decode_images, rasterize_points
 from lead_s2r.data.mixing import MixingSchedule
 from lead_s2r.data.streams import SampleShare, SeededShuffle, StreamSeed, TrainShare, manifest_samples
 from lead_s2r.data.transforms import SourceTransform
@@ -101,10 +101,10 @@ class DriveDataModule(L.LightningDataModule):
             :func:`~lead_s2r.models.input_spec.input_spec`); ``lead-s2r fit|predict`` links the model's here.
         seed: seed of shard resampling and shuffling (with the epoch, rank, worker and source); by default the
             one ``seed_everything`` set, else 0.
-        inputs_on_device: send a camera JPEG that is the model's image as stored (CARLA's mosaic at TFv6's size) to the
-            training device encoded, to be decoded there (nvJPEG on a GPU) instead of in the loader (other rigs are
-            decoded in the loader), and the LiDAR points to be rasterised there. None (default): when the trainer
-            runs on a GPU.
+        inputs_on_device: send the camera JPEGs to the training device encoded, with their rig's layout, to be decoded
+            (nvJPEG on a GPU) and laid out there instead of in the loader (PNG cameras and layouts that enlarge are
+            laid out in the loader; :mod:`~lead_s2r.data.device_inputs`), and the LiDAR points to be rasterised
+            there. None (default): when the trainer runs on a GPU.
     """
 
     def __init__(
@@ -209,7 +209,8 @@ class DriveDataModule(L.LightningDataModule):
 
     def on_before_batch_transfer(self, batch: dict[str, Batch], dataloader_idx: int) -> dict[str, Batch]:
         """Build the inputs the loaders left for the device on the trainer's device, before the rest of the batch
-        moves: the camera JPEGs (``rgb_jpeg``) decoded, in one nvJPEG call per source on a GPU, and the LiDAR points
+        moves: the camera JPEGs (``rgb_jpeg``) decoded, in one nvJPEG call per source on a GPU, and laid out by their
+        rigs' layouts (``rgb_layout``), and the LiDAR points
         (``lidar_points``) rasterised. The first image a GPU decodes in this process is held to the CPU's decode
         (:func:`check_device_decode`): a broken decoder fails the run at once instead of training on garbage."""
         device = self.trainer.strategy.root_device if self.trainer is not None else torch.device("cpu")
@@ -218,7 +219,8 @@ class DriveDataModule(L.LightningDataModule):
         if device.type != "cpu" and not self._device_decode_checked:
             source = next((source for source, source_batch in batch.items() if RGB_JPEG in source_batch), None)
             if source is not None:
-                check_device_decode(batch[source][RGB_JPEG][0], decoded[source]["rgb"][0])
+                first = batch[source]
+                check_device_decode(first[RGB_JPEG][0], first[RGB_LAYOUT][0], decoded[source]["rgb"][0])
                 self._device_decode_checked = True
         return decoded
 

@@ -14,8 +14,9 @@ a depth or semantic label smaller than the image under a plain resize
 (:attr:`~lead_s2r.data.camera_layout.CameraLayout.whole`) is not upsampled here; the model and the losses scale,
 widen and resize them on the device. Images stay in the (H, W, 3) order decoders write: a sample's ``rgb`` is a
 (3, H, W) view of it and a batch's a channels-last (B, 3, H, W) tensor, the memory format convolutions run fastest
-in on the GPU. With ``inputs_on_device`` a camera JPEG that is the model's image as stored is not decoded at all:
-the bytes go to the training device, and so do the LiDAR points, unrasterised (:mod:`lead_s2r.data.device_inputs`).
+in on the GPU. With ``inputs_on_device`` camera JPEGs the training device can lay out are not decoded at all: the
+bytes go to the device with their rig's layout, and so do the LiDAR points, unrasterised
+(:mod:`lead_s2r.data.device_inputs`).
 """
 
 from dataclasses import dataclass, field
@@ -25,10 +26,10 @@ import cv2
 import numpy as np
 import torch
 
-from lead_s2r.data.camera_input import AS_STORED, CameraInput
+from lead_s2r.data.camera_input import CameraInput
 from lead_s2r.data.camera_layout import CameraLayout, label_on_layout
 from lead_s2r.data.collate import IGNORE_VALUE
-from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, jpeg_tensor
+from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, RGB_LAYOUT, jpeg_tensor
 from lead_s2r.data.lead_centernet import lead_centernet_targets
 from lead_s2r.data.lead_labels import (
     bev_labels,
@@ -57,8 +58,9 @@ class SourceTransform:
         spec: what the model reads (image size, BEV grid, trajectory grids, labels): its config's
             :func:`~lead_s2r.models.input_spec.input_spec`.
         cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
-        inputs_on_device: leave a camera JPEG that is the model's image as stored encoded (``rgb_jpeg``), for
-            :func:`~lead_s2r.data.device_inputs.decode_images` on the training device (other rigs are decoded here), and
+        inputs_on_device: leave the camera JPEGs encoded (``rgb_jpeg``, with the rig's layout: ``rgb_layout``) where
+            the training device can lay them out (:attr:`~lead_s2r.data.camera_input.CameraPlan.on_device`; PNGs and
+            layouts that enlarge are laid out here), for :func:`~lead_s2r.data.device_inputs.decode_images`, and
             the LiDAR points unrasterised (``lidar_points``), for :func:`~lead_s2r.data.device_inputs.rasterize_points`.
     """
 
@@ -113,8 +115,9 @@ class SourceTransform:
             out["origin_x"] = torch.scalar_tensor(float(meta["vehicle"]["rear_axle_to_center"]))
         if self.cameras:  # a model without cameras (the ego-status MLP) decodes no image
             plan = self.camera.plan(sample)
-            if self.inputs_on_device and plan.path == AS_STORED:
-                out[RGB_JPEG] = jpeg_tensor(self.camera.jpeg(sample, self.cameras[0]))
+            if self.inputs_on_device and plan.on_device:
+                out[RGB_JPEG] = [jpeg_tensor(self.camera.jpeg(sample, camera)) for camera in self.cameras]
+                out[RGB_LAYOUT] = plan.layout
             else:
                 out["rgb"] = self.camera.image(sample, plan)
         out.update(self.target_points(sample))

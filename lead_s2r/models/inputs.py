@@ -14,8 +14,9 @@ loss resizes them onto the image's grid on the device (:func:`on_image_grid`) ex
 would have (bilinear / nearest, pixel centres aligned), so a depth stored at 1/4 size is not shipped 16x larger.
 Float rasters and signed class maps (-1 = ignore) are accepted too, so a batch built by hand needs no uint8 coding.
 
-On a GPU the loader may leave two inputs raw, ``rgb_jpeg`` instead of ``rgb`` and ``lidar_points`` instead of
-``lidar_bev``, which :mod:`lead_s2r.data.device_inputs` builds on the training device before the batch moves.
+On a GPU the loader may leave two inputs raw, ``rgb_jpeg`` (with ``rgb_layout``) instead of ``rgb`` and
+``lidar_points`` instead of ``lidar_bev``, which :mod:`lead_s2r.data.device_inputs` builds on the training device
+before the batch moves.
 """
 
 from typing import TypedDict
@@ -37,7 +38,8 @@ class Batch(TypedDict, total=False):
     __dataset__: list[str]  # each sample's meta.dataset, for predictions and per-dataset scoring
     # --- inputs
     rgb: Tensor  # (B, 3, H, W) uint8 (or float in [0, 255]), RGB order; normalised inside the model
-    rgb_jpeg: list[Tensor]  # instead of rgb: each sample's JPEG bytes (1-D uint8, CPU), see lead_s2r.data.device_inputs
+    rgb_jpeg: list[list[Tensor]]  # instead of rgb: each sample's camera JPEGs (1-D uint8, CPU), see data.device_inputs
+    rgb_layout: list  # with rgb_jpeg: each sample's data.camera_layout.CameraLayout (the device lays the cameras out)
     lidar_bev: Tensor  # (B, C, Hb, Wb) uint8 hits per cell, 0..LIDAR_HITS_MAX (or float in [0, 1]) (TFv6 only)
     lidar_points: list[Tensor]  # instead of lidar_bev: each sample's (N, 2) x, y, see lead_s2r.data.device_inputs
     speed: Tensor  # (B,) m/s
