@@ -74,7 +74,7 @@ PLAIN, PIXELS, OURS, OURS_DEVICE, OURS_TWO, LEAD_BOTH, LEAD_ONE = (
     "plain decoding (read_samples, every field)",
     "plain decoding + JPEG to pixels",
     "ours (DriveDataModule), everything in the loader",
-    "ours, JPEG and LiDAR left for the GPU (inputs_on_device)",
+    "ours, camera JPEGs and LiDAR points left for the GPU (inputs_on_device)",
     "ours, 2 workers (samples/s of both; CPU: the main process only)",
     "LEAD-style per-file, both rigs (LEAD uncached)",
     "LEAD-style per-file, one rig",

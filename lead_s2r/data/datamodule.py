@@ -210,9 +210,9 @@ class DriveDataModule(L.LightningDataModule):
     def on_before_batch_transfer(self, batch: dict[str, Batch], dataloader_idx: int) -> dict[str, Batch]:
         """Build the inputs the loaders left for the device on the trainer's device, before the rest of the batch
         moves: the camera JPEGs (``rgb_jpeg``) decoded, in one nvJPEG call per source on a GPU, and laid out by their
-        rigs' layouts (``rgb_layout``), and the LiDAR points
-        (``lidar_points``) rasterised. The first image a GPU decodes in this process is held to the CPU's decode
-        (:func:`check_device_decode`): a broken decoder fails the run at once instead of training on garbage."""
+        rigs' layouts (``rgb_layout``); the LiDAR points (``lidar_points``) rasterised. The first image a GPU decodes
+        and lays out in this process is held to the CPU's (:func:`check_device_decode`): a broken decoder fails the
+        run at once instead of training on garbage."""
         device = self.trainer.strategy.root_device if self.trainer is not None else torch.device("cpu")
         grid = self.inputs.bev
         decoded = {source: rasterize_points(decode_images(b, device), grid, device) for source, b in batch.items()}
