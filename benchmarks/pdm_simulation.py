@@ -3,8 +3,8 @@
 .venv/bin/python benchmarks/pdm_simulation.py --proposals 1 2 16 256 --repeats 50
 
 A scene's PDMS simulates 2 proposals (PDM-Closed reference + agent); a planner's candidate set many more.
-Proposals are 8 poses at 0.5 s on arcs of mixed speed and curvature, some braking to a stop. Up to
-``SCALAR_PROPOSALS`` proposals are simulated one by one on Python floats, more on numpy arrays.
+Proposals are 8 poses at 0.5 s on arcs of mixed speed and curvature, some braking to a stop. The first call
+compiles the simulator (or loads numba's cache) and is left out.
 """
 
 import argparse
@@ -14,7 +14,7 @@ import numpy as np
 from cpu_time import cpu_times_ms
 
 from lead_s2r.scoring.pdm.interpolation import interpolate_proposals
-from lead_s2r.scoring.pdm.simulation import SCALAR_PROPOSALS, simulate_proposals
+from lead_s2r.scoring.pdm.simulation import simulate_proposals
 
 
 def proposals(count: int, seed: int = 0) -> np.ndarray:
@@ -43,15 +43,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=50)
     args = parser.parse_args()
     velocity, acceleration = np.array([8.0, 0.0]), np.array([0.3, 0.0])
-    print("proposals  path    interpolation ms (median / min)  simulation ms (median / min)  ms per proposal")
+    print("proposals  interpolation ms (median / min)  simulation ms (median / min)  ms per proposal")
     for count in args.proposals:
         poses = proposals(count)
         targets = interpolate_proposals(poses, 0.5)
         interp = timed(partial(interpolate_proposals, poses, 0.5, t0_us=1624385736449714), args.repeats)
         sim = timed(partial(simulate_proposals, targets, velocity, acceleration), args.repeats)
-        path = "floats" if count <= SCALAR_PROPOSALS else "arrays"
         per = (interp[0] + sim[0]) / count
-        print(f"{count:9d}  {path}  {interp[0]:13.3f} / {interp[1]:.3f}  {sim[0]:19.3f} / {sim[1]:.3f}  {per:15.3f}")
+        print(f"{count:9d}  {interp[0]:13.3f} / {interp[1]:.3f}  {sim[0]:19.3f} / {sim[1]:.3f}  {per:15.3f}")
 
 
 if __name__ == "__main__":

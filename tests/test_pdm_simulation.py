@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from lead_s2r.scoring.pdm.elementwise import NUMPY
 from lead_s2r.scoring.pdm.interpolation import interpolate_proposals, interpolate_reference, sample_times_us
 from lead_s2r.scoring.pdm.lqr import (
     CURVATURE_RATE_PENALTY,
@@ -24,7 +23,6 @@ from lead_s2r.scoring.pdm.lqr import (
     curvature_profile,
     normalize_angle,
     speed_fit_matrix,
-    step_references,
     track,
     tracking_reference,
 )
@@ -95,9 +93,8 @@ def frames(scene: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
-@pytest.mark.parametrize("scalar_proposals", [0, 64], ids=["arrays", "floats"])
 @pytest.mark.parametrize(("name", "scene_id"), golden_scenes())
-def test_golden_targets_and_simulation(name: str, scene_id: str, scalar_proposals: int) -> None:
+def test_golden_targets_and_simulation(name: str, scene_id: str) -> None:
     scene = next(s for s in golden(name)["scenes"] if s["id"] == scene_id)
     for frame in frames(scene):
         ego, t0_us = frame["ego"], frame["t0_us"]
@@ -114,7 +111,6 @@ def test_golden_targets_and_simulation(name: str, scene_id: str, scalar_proposal
             np.array([ego["vx"], ego["vy"]]),
             np.array([ego["ax"], ego["ay"]]),
             ego.get("tire_steering_angle", 0.0),
-            scalar_proposals=scalar_proposals,
         )
         for (case_id, *_, official), states in zip(frame["cases"], simulated, strict=True):
             states = np.concatenate([to_global(states[:, :3], ego), states[:, 3:]], axis=1)
@@ -221,16 +217,15 @@ def test_stopping_controller_takes_over_at_or_below_20_cm_per_s() -> None:
     assert simulate_proposals(aside, np.array([0.25, 0.0]), np.zeros(2))[0, 2, StateIndex.STEERING_ANGLE] > 0.0
 
 
-def test_proposals_are_simulated_independently_on_arrays_or_floats() -> None:
+def test_proposals_are_simulated_independently() -> None:
+    """A proposal's states are the same bits alone as among others (a vocabulary entry scored alone)."""
     batch = np.concatenate([straight(10.0), arc(100.0, 8.0), np.zeros((1, 8, 3)), arc(-30.0, 4.0)])
     targets = interpolate_proposals(batch, 0.5)
     velocity, acceleration = np.array([9.0, 0.0]), np.array([-0.5, 0.0])
-    together = simulate_proposals(targets, velocity, acceleration, scalar_proposals=0)
-    one_by_one = simulate_proposals(targets, velocity, acceleration, scalar_proposals=len(batch))
-    np.testing.assert_allclose(together, one_by_one, rtol=0, atol=1e-10)
+    together = simulate_proposals(targets, velocity, acceleration)
     for index in range(len(batch)):
-        alone = simulate_proposals(targets[index : index + 1], velocity, acceleration, scalar_proposals=0)
-        np.testing.assert_allclose(together[index], alone[0], rtol=0, atol=1e-12)
+        alone = simulate_proposals(targets[index : index + 1], velocity, acceleration)
+        assert together[index].tobytes() == alone[0].tobytes()
 
 
 def test_speed_fit_is_the_regularised_least_squares_of_its_definition() -> None:
@@ -284,7 +279,7 @@ def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:
     rng = np.random.default_rng(1)
     dt, wheel_base, horizon = 0.1, 3.089, 10
     targets = interpolate_proposals(np.concatenate([arc(40.0, 9.0), arc(-25.0, 5.0), straight(3.0)]), 0.5)
-    references = step_references(tracking_reference(targets, dt, wheel_base)[0])
+    reference, terms = tracking_reference(targets, dt, wheel_base)
     steps = np.diff(targets, axis=1)
     speed_fit = (np.cos(targets[:, :-1, 2]) * steps[..., 0] + np.sin(targets[:, :-1, 2]) * steps[..., 1]) @ (
         speed_fit_matrix(40, dt).T
@@ -294,7 +289,8 @@ def test_lateral_lqr_equals_the_step_by_step_lookahead() -> None:
         ahead = np.minimum(step + np.arange(horizon + 1), 39)
         x, y, heading = targets[:, step].T + rng.normal(0, [0.5, 0.5, 0.05], (3, 3)).T
         speed, steering = rng.uniform(1, 12, 3), rng.normal(0, 0.1, 3)
-        accel, rate = track(references[step], x, y, heading, speed, steering, NUMPY)
+        commands = [track(reference, n, step, x[n], y[n], heading[n], speed[n], steering[n], terms) for n in range(3)]
+        accel, rate = np.array(commands).T
         for n in range(3):
             expected_accel = -10.0 / 11.0 * (speed[n] - speed_fit[n, ahead[-1]])
             lookahead = speed[n] + dt * expected_accel * np.arange(horizon)

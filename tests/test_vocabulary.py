@@ -23,7 +23,6 @@ from lead_s2r.gtrs_targets import EPDMS_NAMES, read_targets
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm import epdms, score_proposals, score_vocabulary
 from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, find_hits, step_hits, time_to_collision
-from lead_s2r.scoring.pdm.elementwise import row_products
 from lead_s2r.scoring.pdm.footprint import box_polygons, ego_coords
 from lead_s2r.scoring.pdm.map_flags import (
     CELL_CROSSED,
@@ -41,6 +40,7 @@ from lead_s2r.scoring.pdm.map_flags import (
 from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.overlap import Axes, convex_intersects
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
+from lead_s2r.scoring.pdm.rowwise import row_products
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.score import human_trajectory, simulate_rows

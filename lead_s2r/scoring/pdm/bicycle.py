@@ -14,76 +14,53 @@ Behaviours reproduced on purpose:
   ``v tan(delta) / L`` and the first yaw acceleration is the new yaw rate over dt (``heading_rate``).
 """
 
+import math
 from typing import NamedTuple
 
-import numpy as np
+from numba import njit
 
-from lead_s2r.scoring.pdm.elementwise import Elementwise, Values
-
-MAX_STEERING_ANGLE = np.pi / 3
+MAX_STEERING_ANGLE = math.pi / 3
 ACCEL_TIME_CONSTANT = 0.2
 STEERING_ANGLE_TIME_CONSTANT = 0.05
 
 
 class BicycleState(NamedTuple):
-    """The ego states of all proposals at one time, one ``(N,)`` array (or one proposal's float) per quantity;
-    vy = ay = 0 after t0."""
+    """One proposal's ego state at one time; vy = ay = 0 after t0."""
 
-    x: Values
-    y: Values
-    heading: Values
-    speed: Values
-    accel: Values
-    steering: Values
-    steering_rate: Values
-    yaw_rate: Values
-    yaw_accel: Values
+    x: float
+    y: float
+    heading: float
+    speed: float
+    accel: float
+    steering: float
+    steering_rate: float
+    yaw_rate: float
+    yaw_accel: float
 
 
 class BicycleConstants(NamedTuple):
-    """The model's constants, as ``(N,)`` rows (numpy multiplies two arrays faster than a float and an array) or
-    as floats for one proposal."""
+    """The model's constants for one step length."""
 
-    dt: Values
-    accel_lag: Values
-    steering_lag: Values
-    wheel_base: Values
-    max_steering: Values
-    min_steering: Values
-    pi: Values
-    two_pi: Values
+    dt: float
+    accel_lag: float
+    steering_lag: float
+    wheel_base: float
 
 
-def bicycle_constants(dt: float, wheel_base: float, count: int | None = None) -> BicycleConstants:
-    """Constants for stepping by ``dt`` seconds, as rows for ``count`` proposals or floats (None); the lags are
-    ``dt / (dt + tau)`` blends."""
-    values = (
-        dt,
-        dt / (dt + ACCEL_TIME_CONSTANT),
-        dt / (dt + STEERING_ANGLE_TIME_CONSTANT),
-        wheel_base,
-        MAX_STEERING_ANGLE,
-        -MAX_STEERING_ANGLE,
-        np.pi,
-        2 * np.pi,
-    )
-    if count is None:
-        return BicycleConstants(*values)
-    return BicycleConstants(*(np.full(count, value) for value in values))
+def bicycle_constants(dt: float, wheel_base: float) -> BicycleConstants:
+    """Constants for stepping by ``dt`` seconds; the lags are ``dt / (dt + tau)`` blends."""
+    return BicycleConstants(dt, dt / (dt + ACCEL_TIME_CONSTANT), dt / (dt + STEERING_ANGLE_TIME_CONSTANT), wheel_base)
 
 
-def heading_rate(state: BicycleState, wheel_base: float, ops: Elementwise) -> Values:
+@njit(cache=True)
+def heading_rate(state: BicycleState, wheel_base: float) -> float:
     """``v tan(delta) / L``: the state's yaw rate, except at t0 where NAVSIM stores 0 but still turns at this rate."""
-    return state.speed * ops.tan(state.steering) / wheel_base
+    return state.speed * math.tan(state.steering) / wheel_base
 
 
+@njit(cache=True)
 def propagate(
-    state: BicycleState,
-    turn_rate: Values,
-    accel_cmd: Values,
-    steering_rate_cmd: Values,
-    const: BicycleConstants,
-    ops: Elementwise,
+    state: BicycleState, turn_rate: float, accel_cmd: float, steering_rate_cmd: float, const: BicycleConstants
 ) -> BicycleState:
     """The state after ``const.dt`` seconds under commanded acceleration and steering rate.
 
@@ -96,16 +73,16 @@ def propagate(
     lagged_rate = (lagged_steering - steering) / dt
 
     new_speed = speed + lagged_accel * dt
-    new_steering = ops.minimum(ops.maximum(steering + lagged_rate * dt, const.min_steering), const.max_steering)
-    new_yaw_rate = new_speed * ops.tan(new_steering) / const.wheel_base
+    new_steering = min(max(steering + lagged_rate * dt, -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
+    new_yaw_rate = new_speed * math.tan(new_steering) / const.wheel_base
     return BicycleState(
-        x=state.x + speed * ops.cos(heading) * dt,
-        y=state.y + speed * ops.sin(heading) * dt,
-        heading=(heading + turn_rate * dt + const.pi) % const.two_pi - const.pi,
-        speed=new_speed,
-        accel=lagged_accel,
-        steering=new_steering,
-        steering_rate=lagged_rate,
-        yaw_rate=new_yaw_rate,
-        yaw_accel=(new_yaw_rate - state.yaw_rate) / dt,
+        state.x + speed * math.cos(heading) * dt,
+        state.y + speed * math.sin(heading) * dt,
+        (heading + turn_rate * dt + math.pi) % (2 * math.pi) - math.pi,
+        new_speed,
+        lagged_accel,
+        new_steering,
+        lagged_rate,
+        new_yaw_rate,
+        (new_yaw_rate - state.yaw_rate) / dt,
     )

@@ -35,8 +35,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.signal import savgol_filter
 
-from lead_s2r.scoring.pdm.elementwise import row_products
 from lead_s2r.scoring.pdm.interpolation import interpolate_knots
+from lead_s2r.scoring.pdm.rowwise import row_products
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
 

@@ -17,8 +17,8 @@ computed with less work, equal up to float rounding (``tests/test_pdm_simulation
   of variables and is solved in O(M) per proposal (``curvature_profile``; positive definite thanks to the 1e-10
   initial-curvature penalty);
 - lateral dynamics: the product of the 10 step matrices is unrolled into sums over the lookahead that are
-  polynomials in the ego speed, their coefficients precomputed for every step (``tracking_reference``); each
-  step then costs ~50 arithmetic operations per proposal.
+  polynomials in the ego speed and acceleration command, their curvature moments precomputed for every step
+  (``tracking_reference``); each step then costs ~50 arithmetic operations per proposal (``track``, compiled).
 
 Reproduced on purpose (official behaviours, not ours to fix):
 
@@ -26,9 +26,9 @@ Reproduced on purpose (official behaviours, not ours to fix):
   +1 band, then *overwrites* the diagonal band with ``-eye``, erasing every +1 but the last row's; ignoring this
   moves the simulated speed by up to ~0.05 m/s (found against the golden files);
 - the reference index is clipped to the last fitted speed (39) and the curvature lookahead padded with the
-  curvature there; the heading (and steering) entries of the zero-input lateral error are wrapped with
-  ``arctan2(sin, cos)``; the lookahead speeds of the lateral problem are the ego's own speed under the new
-  acceleration command, not the reference's;
+  curvature there; the heading (and steering) entries of the zero-input lateral error are wrapped to
+  [-pi, pi] (NAVSIM: ``arctan2(sin, cos)``; here by whole turns, ``normalize_angle``); the lookahead speeds of
+  the lateral problem are the ego's own speed under the new acceleration command, not the reference's;
 - the tracker uses ``discretization_time = 0.1`` while the bicycle steps by nuPlan's ``TimeDuration(100000
   us).time_s`` (0.09999999999999999); both are kept.
 """
@@ -37,8 +37,9 @@ from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from lead_s2r.scoring.pdm.elementwise import NUMPY, Elementwise, Values, row_products
+from lead_s2r.scoring.pdm.rowwise import Values, row_products
 
 Q_LONGITUDINAL = 10.0
 R_LONGITUDINAL = 1.0
@@ -52,11 +53,16 @@ STOPPING_GAIN = 0.5
 STOPPING_VELOCITY = 0.2
 #: up to this many rows the curvature fit runs on Python floats (cheaper than ~300 numpy calls on tiny arrays)
 SCALAR_ROWS = 8
+TWO_PI = 2 * np.pi
 
 
-def normalize_angle(angle: Values, ops: Elementwise = NUMPY) -> Values:
-    """NAVSIM ``normalize_angle``: ``arctan2(sin, cos)``, in (-pi, pi]."""
-    return ops.arctan2(ops.sin(angle), ops.cos(angle))
+@njit(cache=True)
+def normalize_angle(angle: Values) -> Values:
+    """NAVSIM's ``normalize_angle``, ``arctan2(sin, cos)``, as a wrap by whole turns: an angle in [-pi, pi] is kept
+    (``arctan2`` gives it back up to its rounding), one beyond loses one turn, which lands on ``arctan2``'s branch
+    at +-pi too (ties round to the even turn, 0). Three transcendentals per angle were a third of the simulation.
+    """
+    return angle - TWO_PI * np.rint(angle / TWO_PI)
 
 
 @lru_cache(maxsize=8)
@@ -125,8 +131,39 @@ def _tridiagonal(diagonal: list[Values], rhs: list[Values], coupling: list[float
     return solution[::-1]
 
 
+class LateralTerms(NamedTuple):
+    """The scene-independent coefficients of the unrolled lateral problem (``_lookahead_terms``) and the gains, as
+    floats the compiled tracker reads: linear forms ``c_v v + c_a a``, quadratic ones ``c_vv v^2 + c_va v a +
+    c_aa a^2`` in the ego speed v and the acceleration command a."""
+
+    accel_gain: float  # the longitudinal LQR: a = gain (v - v_ref)
+    u_sum_v: float  # sum_k u_k
+    u_sum_a: float
+    pairs_vv: float  # sum_{j<k} u_j u_k
+    pairs_va: float
+    pairs_aa: float
+    input_heading_v: float  # heading response to a unit steering rate
+    input_heading_a: float
+    input_error_vv: float  # lateral-error response to a unit steering rate
+    input_error_va: float
+    input_error_aa: float
+    inverse_wheel_base: float
+
+
+class TrackingReference(NamedTuple):
+    """What the tracker reads at step s of proposal n: the target pose ``poses[n, s]`` (x, y, heading) with its
+    ``sin`` / ``cos``, the fitted ``speed`` ten steps ahead, and the curvature ``moments[n, s]``: sum u_k kappa_k
+    (linear: v, a) and sum_{j<k} kappa_j u_j u_k (quadratic: vv, va, aa) over the lookahead."""
+
+    poses: np.ndarray  # (N, S, 3)
+    sin: np.ndarray  # (N, S)
+    cos: np.ndarray  # (N, S)
+    speed: np.ndarray  # (N, S)
+    moments: np.ndarray  # (N, S, 5)
+
+
 @lru_cache(maxsize=8)
-def _lookahead_terms(horizon: int, dt: float, wheel_base: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def _lookahead_terms(horizon: int, dt: float, wheel_base: float) -> tuple[np.ndarray, LateralTerms]:
     """The unrolled lateral dynamics as polynomials in the ego speed v and acceleration command a.
 
     Over the lookahead the speed is v + k dt a, so u_k = v_k dt = dt v + dt^2 k a and every sum below is linear
@@ -142,160 +179,72 @@ def _lookahead_terms(horizon: int, dt: float, wheel_base: float) -> tuple[np.nda
     curvature[:, 0] = dt
     curvature[:, 1] = dt**2 * k
     np.add.at(curvature[:, 2:], first, pair_terms)
-    fixed = {
-        "u_sum": np.array([dt * horizon, dt**2 * k.sum()]),  # sum_k u_k
-        "pairs": pair_terms.sum(0),  # sum_{j<k} u_j u_k
+    horizon_time = horizon * dt
+    gain = -1.0 / (horizon_time * Q_LONGITUDINAL * horizon_time + R_LONGITUDINAL) * horizon_time * Q_LONGITUDINAL
+    fixed = LateralTerms(
+        gain,
+        dt * horizon,
+        dt**2 * k.sum(),
+        *pair_terms.sum(0).tolist(),
         # response to a unit steering rate: steering k dt before step k, heading sum_k u_k k dt / L, lateral error
-        "input_heading": dt / wheel_base * np.array([dt * k.sum(), dt**2 * (k * k).sum()]),
-        "input_error": dt / wheel_base * (first[:, None] * pair_terms).sum(0),
-    }
+        *(dt / wheel_base * np.array([dt * k.sum(), dt**2 * (k * k).sum()])).tolist(),
+        *(dt / wheel_base * (first[:, None] * pair_terms).sum(0)).tolist(),
+        1.0 / wheel_base,
+    )
     return curvature, fixed
 
 
-class StepReference(NamedTuple):
-    """What the tracker needs at one step, each ``(N,)`` (or a float per proposal): the target pose and the lateral
-    problem's polynomials in the ego speed v (the acceleration command being ``accel_per_speed * v +
-    accel_offset``), highest power first. Constants are rows too: numpy multiplies two arrays faster than a Python
-    float and an array."""
-
-    x: Values
-    y: Values
-    sin: Values
-    cos: Values
-    heading: Values
-    speed: Values
-    accel_per_speed: Values
-    accel_offset: Values
-    u_sum_1: Values  # sum_k u_k
-    u_sum_0: Values
-    curvature_1: Values  # sum_k u_k kappa_k
-    curvature_0: Values
-    pairs_2: Values  # sum_{j<k} u_j u_k
-    pairs_1: Values
-    pairs_0: Values
-    curvature_pairs_2: Values  # sum_{j<k} kappa_j u_j u_k
-    curvature_pairs_1: Values
-    curvature_pairs_0: Values
-    input_heading_1: Values
-    input_heading_0: Values
-    input_error_2: Values
-    input_error_1: Values
-    input_error_0: Values
-    inverse_wheel_base: Values
-    q_heading: Values
-    r_lateral: Values
-
-
-def _linear_in_speed(coefficients: np.ndarray, accel: tuple[float, np.ndarray]) -> list[np.ndarray]:
-    """``c_v v + c_a a`` with ``a = a_1 v + a_0`` as ``[coefficient of v, constant]``."""
-    c_v, c_a = coefficients
-    return [c_v + c_a * accel[0], c_a * accel[1]]
-
-
-def _quadratic_in_speed(coefficients: np.ndarray, accel: tuple[float, np.ndarray]) -> list[np.ndarray]:
-    """``c_vv v^2 + c_va v a + c_aa a^2`` with ``a = a_1 v + a_0`` as ``[coefficient of v^2, of v, constant]``."""
-    c_vv, c_va, c_aa = coefficients
-    a_1, a_0 = accel
-    return [c_vv + c_va * a_1 + c_aa * a_1 * a_1, c_va * a_0 + 2 * c_aa * a_1 * a_0, c_aa * a_0 * a_0]
-
-
-def tracking_reference(
-    targets: np.ndarray, dt: float, wheel_base: float
-) -> tuple[list[np.ndarray | float], list[bool]]:
-    """Targets ``(N, T, 3)`` -> the ``StepReference`` fields, each ``(T - 1, N)`` laid out step-major (a step's row
-    of proposals contiguous) or one float for every step and proposal; and whether any reference speed is slow
-    enough for the stopping controller at each step."""
+def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tuple[TrackingReference, LateralTerms]:
+    """Targets ``(N, T, 3)`` -> what the tracker reads at each of the T - 1 steps, and the fixed terms."""
     steps = np.diff(targets, axis=1)
-    headings = targets[:, :-1, 2]
-    sin, cos = np.sin(headings), np.cos(headings)  # the fit's projection and the tracker's target frames alike
+    poses = np.ascontiguousarray(targets[:, :-1])
+    sin, cos = np.sin(poses[..., 2]), np.cos(poses[..., 2])  # the fit's projection and the tracker's target frames
     projected = cos * steps[..., 0] + sin * steps[..., 1]
     num_fits = steps.shape[1]
     speed = row_products(projected, speed_fit_matrix(num_fits, dt).T)
     curvature = curvature_profile(normalize_angle(steps[..., 2]), speed, dt)
     ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
-    # laid out step-major once here, so that the fields computed from them are too (np.take: far faster than fancy
-    # indexing)
-    reference_speed = np.ascontiguousarray(np.take(speed, ahead[:, -1], axis=1).T)  # (S, N)
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
     # one (S, H) @ (H, 5) product per proposal (a stack of them: a proposal's bits do not depend on the others)
-    lookahead = curvature[:, ahead[:, :-1]]
-    moments = np.ascontiguousarray(np.moveaxis(lookahead @ weights, -1, 0).transpose(0, 2, 1))  # (5, S, N)
-
-    horizon_time = TRACKING_HORIZON * dt
-    gain = -1.0 / (horizon_time * Q_LONGITUDINAL * horizon_time + R_LONGITUDINAL) * horizon_time * Q_LONGITUDINAL
-    accel = (gain, -gain * reference_speed)  # the longitudinal LQR: a = gain (v - v_ref)
-    poses = np.ascontiguousarray(targets[:, :-1].transpose(2, 1, 0))
-    fields = [
-        poses[0],
-        poses[1],
-        np.ascontiguousarray(sin.T),
-        np.ascontiguousarray(cos.T),
-        poses[2],
-        reference_speed,
-        gain,
-        accel[1],
-        *_linear_in_speed(fixed["u_sum"], accel),
-        *_linear_in_speed(moments[:2], accel),
-        *_quadratic_in_speed(fixed["pairs"], accel),
-        *_quadratic_in_speed(moments[2:], accel),
-        *_linear_in_speed(fixed["input_heading"], accel),
-        *_quadratic_in_speed(fixed["input_error"], accel),
-        1.0 / wheel_base,
-        Q_LATERAL[1],
-        R_LATERAL,
-    ]
-    may_stop = (reference_speed <= STOPPING_VELOCITY).any(axis=1).tolist()
-    return fields, may_stop
+    moments = curvature[:, ahead[:, :-1]] @ weights
+    reference_speed = np.take(speed, ahead[:, -1], axis=1)  # np.take: far faster than fancy indexing
+    return TrackingReference(poses, sin, cos, reference_speed, moments), fixed
 
 
-def step_references(fields: list[np.ndarray | float], proposal: int | None = None) -> list[StepReference]:
-    """Per step, the rows of all proposals (each field's ``(N,)`` row; a constant one array shared by every step),
-    or the Python floats of one ``proposal``."""
-    num_steps, count = next(field.shape for field in fields if isinstance(field, np.ndarray))
-    rows = [
-        field if isinstance(field, np.ndarray) else np.broadcast_to(np.full(count, field), (num_steps, count))
-        for field in fields
-    ]
-    if proposal is None:
-        return [StepReference(*(row[step] for row in rows)) for step in range(num_steps)]
-    return [StepReference(*step) for step in zip(*(row[:, proposal].tolist() for row in rows), strict=True)]
-
-
+@njit(cache=True)
 def track(
-    ref: StepReference, x: Values, y: Values, heading: Values, speed: Values, steering: Values, ops: Elementwise
-) -> tuple[Values, Values]:
-    """Acceleration and steering-rate commands for the ego pose, speed and steering angle (arrays or floats).
+    reference: TrackingReference, n: int, s: int, x: float, y: float, heading: float, speed: float, steering: float,
+    terms: LateralTerms,
+) -> tuple[float, float]:  # fmt: skip
+    """Acceleration and steering-rate commands of proposal ``n`` at step ``s`` for its ego pose, speed and steering.
 
     Lateral problem unrolled over the lookahead (u_k = v_k dt, steering s constant, U_k / W_k the sums of u_j and
     u_j kappa_j over j < k): heading error h_k = h + s U_k / L - W_k, lateral error e + sum_k u_k h_k
     = e + h U + s / L sum_{j<k} u_j u_k - sum_{j<k} kappa_j u_j u_k; a unit steering rate adds k dt to the
     steering angle before step k. Q_LATERAL's lateral-error weight is 1 and its steering weight 0, so neither
-    appears below.
+    appears below. The stopping P controller replaces the LQR where reference and ego speed are both <= 0.2 m/s.
     """
-    lateral_error = (y - ref.y) * ref.cos - (x - ref.x) * ref.sin
-    heading_error = normalize_angle(heading - ref.heading, ops)
-    accel = ref.accel_per_speed * speed + ref.accel_offset
+    target_x, target_y, target_heading = reference.poses[n, s, 0], reference.poses[n, s, 1], reference.poses[n, s, 2]
+    sin, cos, reference_speed = reference.sin[n, s], reference.cos[n, s], reference.speed[n, s]
+    moment = reference.moments[n, s]
+    lateral_error = (y - target_y) * cos - (x - target_x) * sin
+    heading_error = normalize_angle(heading - target_heading)
+    accel = terms.accel_gain * (speed - reference_speed)
 
-    u_sum = ref.u_sum_1 * speed + ref.u_sum_0
-    steer_per_length = steering * ref.inverse_wheel_base
-    final_heading = normalize_angle(
-        heading_error + steer_per_length * u_sum - (ref.curvature_1 * speed + ref.curvature_0), ops
-    )
-    pairs = (ref.pairs_2 * speed + ref.pairs_1) * speed + ref.pairs_0
-    curvature_pairs = (ref.curvature_pairs_2 * speed + ref.curvature_pairs_1) * speed + ref.curvature_pairs_0
+    u_sum = terms.u_sum_v * speed + terms.u_sum_a * accel
+    steer_per_length = steering * terms.inverse_wheel_base
+    curvature_sum = moment[0] * speed + moment[1] * accel
+    final_heading = normalize_angle(heading_error + steer_per_length * u_sum - curvature_sum)
+    pairs = (terms.pairs_vv * speed + terms.pairs_va * accel) * speed + terms.pairs_aa * accel * accel
+    curvature_pairs = (moment[2] * speed + moment[3] * accel) * speed + moment[4] * accel * accel
     final_error = lateral_error + heading_error * u_sum + steer_per_length * pairs - curvature_pairs
-    input_heading = ref.input_heading_1 * speed + ref.input_heading_0
-    input_error = (ref.input_error_2 * speed + ref.input_error_1) * speed + ref.input_error_0
-    weighted_heading = ref.q_heading * input_heading
-    denominator = input_error * input_error + weighted_heading * input_heading + ref.r_lateral
+    input_heading = terms.input_heading_v * speed + terms.input_heading_a * accel
+    input_error = (
+        terms.input_error_vv * speed + terms.input_error_va * accel
+    ) * speed + terms.input_error_aa * accel * accel
+    weighted_heading = Q_LATERAL[1] * input_heading
+    denominator = input_error * input_error + weighted_heading * input_heading + R_LATERAL
     steering_rate = (input_error * final_error + weighted_heading * final_heading) / denominator
+    if reference_speed <= STOPPING_VELOCITY and speed <= STOPPING_VELOCITY:
+        return -STOPPING_GAIN * (speed - reference_speed), 0.0
     return accel, -steering_rate
-
-
-def stop_where_slow(
-    ref: StepReference, speed: Values, accel: Values, steering_rate: Values, ops: Elementwise
-) -> tuple[Values, Values]:
-    """The stopping P controller replaces the LQR where reference and ego speed are both <= 0.2 m/s."""
-    stopping = (ref.speed <= STOPPING_VELOCITY) & (speed <= STOPPING_VELOCITY)
-    accel = ops.where(stopping, -STOPPING_GAIN * (speed - ref.speed), accel)
-    return accel, ops.where(stopping, 0.0, steering_rate)

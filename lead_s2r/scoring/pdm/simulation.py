@@ -8,25 +8,23 @@ gives the agent's states zero velocity and acceleration and the tracker never re
 
 The result equals the official one within the 1e-6 rounding of the golden files (``tests/test_pdm_simulation.py``,
 every trajectory of the v1.1 and v2.2 files), in the ego frame instead of the global frame: every step is
-invariant to a rigid motion of the scene. The 40 steps are sequential; each is ~80 tiny operations per proposal,
-so up to ``SCALAR_PROPOSALS`` proposals run one by one on Python floats and more run together on numpy arrays,
-through the same step code (``elementwise.py``). Costs: ``benchmarks/pdm_simulation.py``.
+invariant to a rigid motion of the scene. The 40 steps are sequential and each is ~80 scalar operations per
+proposal, which numpy would spend ~0.5 us apiece on, so they run compiled (numba), one proposal after another;
+the fits that feed them (``tracking_reference``) stay vectorised over proposals. Costs:
+``benchmarks/pdm_simulation.py``.
 """
 
 import numpy as np
+from numba import njit
 
 from lead_s2r.scoring.pdm.bicycle import BicycleConstants, BicycleState, bicycle_constants, heading_rate, propagate
-from lead_s2r.scoring.pdm.elementwise import FLOATS, NUMPY, Elementwise
 from lead_s2r.scoring.pdm.interpolation import PROPOSAL_INTERVAL
-from lead_s2r.scoring.pdm.lqr import StepReference, step_references, stop_where_slow, track, tracking_reference
+from lead_s2r.scoring.pdm.lqr import LateralTerms, TrackingReference, track, tracking_reference
 from lead_s2r.scoring.pdm.state import STATE_SIZE, StateIndex
 from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
 
 #: nuPlan steps the bicycle by ``TimeDuration.from_s(0.1).time_s`` = 100000 us * 1e-6 (0.09999999999999999).
 SIMULATION_DT = int(PROPOSAL_INTERVAL * 1e6) * 1e-6
-
-#: Up to this many proposals, stepping each on Python floats beats numpy on tiny arrays (``elementwise.py``).
-SCALAR_PROPOSALS = 6
 
 #: The state columns the bicycle integrates, in ``BicycleState`` order (vy and ay are 0 after t0).
 _BICYCLE_COLUMNS = [
@@ -56,25 +54,29 @@ def initial_state(
     return state
 
 
-def _run(
-    references: list[StepReference],
-    may_stop: list[bool],
-    state: BicycleState,
-    constants: BicycleConstants,
-    wheel_base: float,
-    ops: Elementwise,
-) -> list[BicycleState]:
-    """The states at every step, the given one first."""
-    turn_rate = heading_rate(state, wheel_base, ops)
-    history = [state]
-    for reference, slow in zip(references, may_stop, strict=True):
-        accel, steering_rate = track(reference, state.x, state.y, state.heading, state.speed, state.steering, ops)
-        if slow:
-            accel, steering_rate = stop_where_slow(reference, state.speed, accel, steering_rate, ops)
-        state = propagate(state, turn_rate, accel, steering_rate, constants, ops)
-        turn_rate = state.yaw_rate
-        history.append(state)
-    return history
+@njit(cache=True)
+def _simulate(
+    reference: TrackingReference, terms: LateralTerms, start: BicycleState, constants: BicycleConstants,
+    states: np.ndarray,
+) -> None:  # fmt: skip
+    """Steps every proposal from ``start`` through its targets, writing the bicycle's columns of ``states[:, 1:]``.
+
+    One proposal at a time, step after step: a row's bits are its own, whatever rows come with it."""
+    count, num_steps = reference.speed.shape
+    for n in range(count):
+        state = start
+        turn_rate = heading_rate(state, constants.wheel_base)
+        for s in range(num_steps):
+            accel, steering_rate = track(
+                reference, n, s, state.x, state.y, state.heading, state.speed, state.steering, terms
+            )
+            state = propagate(state, turn_rate, accel, steering_rate, constants)
+            turn_rate = state.yaw_rate
+            row = states[n, s + 1]
+            row[StateIndex.X], row[StateIndex.Y], row[StateIndex.HEADING] = state.x, state.y, state.heading
+            row[StateIndex.VELOCITY_X], row[StateIndex.ACCELERATION_X] = state.speed, state.accel
+            row[StateIndex.STEERING_ANGLE], row[StateIndex.STEERING_RATE] = state.steering, state.steering_rate
+            row[StateIndex.ANGULAR_VELOCITY], row[StateIndex.ANGULAR_ACCELERATION] = state.yaw_rate, state.yaw_accel
 
 
 def simulate_proposals(
@@ -83,33 +85,15 @@ def simulate_proposals(
     ego_acceleration: np.ndarray,
     tire_steering_angle: float = 0.0,
     vehicle: VehicleParameters = PACIFICA,
-    scalar_proposals: int = SCALAR_PROPOSALS,
 ) -> np.ndarray:
-    """Targets ``(N, T, 3)`` (T = 41: t = 0..4 s every 0.1 s, ego frame) -> simulated states ``(N, T, 11)``.
-
-    Up to ``scalar_proposals`` proposals are stepped one by one on Python floats, more together on arrays; both
-    give the same states to float rounding.
-    """
+    """Targets ``(N, T, 3)`` (T = 41: t = 0..4 s every 0.1 s, ego frame) -> simulated states ``(N, T, 11)``."""
     targets = np.asarray(targets, np.float64)
     if targets.ndim != 3 or targets.shape[-1] != 3 or targets.shape[1] < 4:
         raise ValueError(f"targets: expected shape (N, T >= 4, 3) of x, y, heading every 0.1 s, got {targets.shape}")
-    count, num_states, _ = targets.shape
-    wheel_base = vehicle.wheel_base
-    fields, may_stop = tracking_reference(targets, PROPOSAL_INTERVAL, wheel_base)
+    reference, terms = tracking_reference(targets, PROPOSAL_INTERVAL, vehicle.wheel_base)
     first = initial_state(np.asarray(ego_velocity), np.asarray(ego_acceleration), tire_steering_angle)
-    states = np.zeros((count, num_states, STATE_SIZE))
-    if count <= scalar_proposals:
-        constants = bicycle_constants(SIMULATION_DT, wheel_base)
-        start = BicycleState(*first[_BICYCLE_COLUMNS].tolist())
-        for proposal in range(count):
-            history = _run(step_references(fields, proposal), may_stop, start, constants, wheel_base, FLOATS)
-            states[proposal][:, _BICYCLE_COLUMNS] = history
-    else:
-        constants = bicycle_constants(SIMULATION_DT, wheel_base, count)
-        start = BicycleState(*(np.full(count, first[column]) for column in _BICYCLE_COLUMNS))
-        history = _run(step_references(fields), may_stop, start, constants, wheel_base, NUMPY)
-        for step, state in enumerate(history):  # column by column: cheaper than stacking the history first
-            for column, values in zip(_BICYCLE_COLUMNS, state, strict=True):
-                states[:, step, column] = values
+    states = np.zeros((len(targets), targets.shape[1], STATE_SIZE))
     states[:, 0] = first
+    start = BicycleState(*first[_BICYCLE_COLUMNS].tolist())
+    _simulate(reference, terms, start, bicycle_constants(SIMULATION_DT, vehicle.wheel_base), states)
     return states
