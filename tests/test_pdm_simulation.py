@@ -19,7 +19,6 @@ from lead_s2r.scoring.pdm.lqr import (
     CURVATURE_RATE_PENALTY,
     INITIAL_CURVATURE_PENALTY,
     JERK_PENALTY,
-    SCALAR_ROWS,
     curvature_profile,
     normalize_angle,
     speed_fit_matrix,
@@ -254,9 +253,9 @@ def test_speed_fit_is_the_regularised_least_squares_of_its_definition() -> None:
 def test_curvature_fit_is_the_regularised_least_squares_of_its_definition() -> None:
     """Heading step i = v_i dt kappa_i, kappa_i = kappa_0 + dt sum_{1 <= c <= i} rate_c; penalties 1e-10 on kappa_0
     and 1e-2 on every rate. Speeds include standing rows and stops, the rows a vocabulary holds; a row's bits are
-    the same alone (Python floats) as among many (numpy columns)."""
+    the same alone as among many."""
     rng = np.random.default_rng(3)
-    m, dt, count = 40, 0.1, 3 * SCALAR_ROWS
+    m, dt, count = 40, 0.1, 24
     speed = rng.uniform(0.0, 20.0, (count, m))
     speed[0] = 0.0
     speed[1, 20:] = 0.0

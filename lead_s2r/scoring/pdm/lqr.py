@@ -51,8 +51,6 @@ CURVATURE_RATE_PENALTY = 1e-2
 INITIAL_CURVATURE_PENALTY = 1e-10
 STOPPING_GAIN = 0.5
 STOPPING_VELOCITY = 0.2
-#: up to this many rows the curvature fit runs on Python floats (cheaper than ~300 numpy calls on tiny arrays)
-SCALAR_ROWS = 8
 TWO_PI = 2 * np.pi
 
 
@@ -97,38 +95,52 @@ def curvature_profile(heading_steps: np.ndarray, speed: np.ndarray, dt: float) -
     plus a diagonal (U: the upper triangle of ones). With z = U^T y (prefix sums of y) the system is tridiagonal,
     ``(v_i^2 + d_i + d_i+1) z_i - d_i z_i-1 - d_i+1 z_i+1 = v_i h_i`` with d_c = P_c / w_c^2, and the curvature at
     pose k, x_0 + dt (x_1 + ... + x_k), telescopes to z_k / dt. Thomas' recursion solves it without pivoting (the
-    matrix is diagonally dominant) in O(M) per row instead of a dense solve; a few rows run on Python floats, more
-    on columns of all rows, the same operations in the same order, so a row's bits do not depend on its neighbours.
+    matrix is diagonally dominant) in O(M) per row instead of a dense solve.
     """
-    count, m = speed.shape
+    m = speed.shape[1]
     weights = np.full(m, dt**2)
     weights[0] = dt
     penalties = np.full(m, CURVATURE_RATE_PENALTY)
     penalties[0] = INITIAL_CURVATURE_PENALTY
-    coupling = np.append(penalties / weights**2, 0.0).tolist()  # d_0 .. d_M-1, and 0 past the last pose
-    diagonal = (speed * speed).T + np.add(coupling[:-1], coupling[1:])[:, None]  # (M, N)
-    rhs = (speed * heading_steps).T
-    if count <= SCALAR_ROWS:
-        rows = [_tridiagonal(diagonal[:, n].tolist(), rhs[:, n].tolist(), coupling) for n in range(count)]
-        return np.array(rows, dtype=np.float64).reshape(count, m) / dt
-    return np.stack(_tridiagonal(list(diagonal), list(rhs), coupling), axis=1) / dt
+    coupling = np.append(penalties / weights**2, 0.0)  # d_0 .. d_M-1, and 0 past the last pose
+    diagonal = speed * speed + (coupling[:-1] + coupling[1:])
+    return _tridiagonal(diagonal, speed * heading_steps, coupling) / dt
 
 
-def _tridiagonal(diagonal: list[Values], rhs: list[Values], coupling: list[float]) -> list[Values]:
-    """z solving ``diagonal_i z_i - coupling_i z_i-1 - coupling_i+1 z_i+1 = rhs_i`` (Thomas' recursion)."""
-    ratios, scaled = [], []
-    for i, (pivot_base, right) in enumerate(zip(diagonal, rhs, strict=True)):
-        if i:
-            pivot = pivot_base - coupling[i] * ratios[-1]
-            scaled.append((right + coupling[i] * scaled[-1]) / pivot)
-        else:
-            pivot = pivot_base
-            scaled.append(right / pivot)
-        ratios.append(coupling[i + 1] / pivot)
-    solution = [scaled[-1]]
-    for ratio, value in zip(ratios[-2::-1], scaled[-2::-1], strict=True):
-        solution.append(value + ratio * solution[-1])
-    return solution[::-1]
+@njit(cache=True)
+def _tridiagonal(diagonal: np.ndarray, rhs: np.ndarray, coupling: np.ndarray) -> np.ndarray:
+    """Per row of ``(N, M)``, z solving ``diagonal_i z_i - coupling_i z_i-1 - coupling_i+1 z_i+1 = rhs_i``
+    (Thomas' recursion, row by row)."""
+    count, m = diagonal.shape
+    solution = np.empty((count, m))
+    ratios = np.empty(m)
+    for n in range(count):
+        pivot = diagonal[n, 0]
+        solution[n, 0] = rhs[n, 0] / pivot
+        ratios[0] = coupling[1] / pivot
+        for i in range(1, m):
+            pivot = diagonal[n, i] - coupling[i] * ratios[i - 1]
+            solution[n, i] = (rhs[n, i] + coupling[i] * solution[n, i - 1]) / pivot
+            ratios[i] = coupling[i + 1] / pivot
+        for i in range(m - 2, -1, -1):
+            solution[n, i] += ratios[i] * solution[n, i + 1]
+    return solution
+
+
+@njit(cache=True)
+def _lookahead_moments(curvature: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``(N, M, 5)``: at each pose, the curvatures of the lookahead (clipped to the last pose) times ``weights (H,
+    5)``, summed in lookahead order."""
+    count, m = curvature.shape
+    horizon, width = weights.shape
+    moments = np.zeros((count, m, width))
+    for n in range(count):
+        for s in range(m):
+            for h in range(horizon):
+                kappa = curvature[n, min(s + h, m - 1)]
+                for j in range(width):
+                    moments[n, s, j] += kappa * weights[h, j]
+    return moments
 
 
 class LateralTerms(NamedTuple):
@@ -203,12 +215,10 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     num_fits = steps.shape[1]
     speed = row_products(projected, speed_fit_matrix(num_fits, dt).T)
     curvature = curvature_profile(normalize_angle(steps[..., 2]), speed, dt)
-    ahead = np.minimum(np.arange(num_fits)[:, None] + np.arange(TRACKING_HORIZON + 1), num_fits - 1)  # (S, H + 1)
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
-    # one (S, H) @ (H, 5) product per proposal (a stack of them: a proposal's bits do not depend on the others)
-    moments = curvature[:, ahead[:, :-1]] @ weights
-    reference_speed = np.take(speed, ahead[:, -1], axis=1)  # np.take: far faster than fancy indexing
-    return TrackingReference(poses, sin, cos, reference_speed, moments), fixed
+    ahead = np.minimum(np.arange(num_fits) + TRACKING_HORIZON, num_fits - 1)  # the reference speed's pose
+    reference_speed = np.take(speed, ahead, axis=1)  # np.take: far faster than fancy indexing
+    return TrackingReference(poses, sin, cos, reference_speed, _lookahead_moments(curvature, weights)), fixed
 
 
 @njit(cache=True)
