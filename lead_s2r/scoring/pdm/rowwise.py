@@ -2,8 +2,8 @@
 
 One proposal scored alone must get the bits it gets among thousands (``score_vocabulary``). numpy's elementwise
 functions and the compiled simulator (``simulation.py``) give that by construction; a BLAS product over all rows
-does not: it rounds a row differently depending on how many rows come with it, so :func:`row_products`
-multiplies each row by the matrix on its own.
+does not: it rounds a row differently depending on how many rows come with it, so :func:`row_products` multiplies
+each row by the matrix on its own.
 """
 
 import numpy as np
