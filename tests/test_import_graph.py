@@ -163,7 +163,8 @@ def test_formats_import_only_contracts() -> None:
 
 
 def test_pdm_is_plain_numpy_and_shapely() -> None:
-    """scoring/pdm/ imports only the contracts, formats and itself of ours, and neither torch nor Lightning."""
+    """scoring/pdm/ imports only the contracts, formats and itself of ours, and neither torch nor Lightning (numba,
+    which compiles its sequential loops, is a numpy compiler, not a framework)."""
     allowed = (*CONTRACTS, "lead_s2r.formats", "lead_s2r.scoring.pdm")
     pdm = [e for e in GRAPH if in_layer(e.source, "lead_s2r.scoring.pdm")]
     broken = [e for e in pdm if in_layer(e.target, "torch", *LIGHTNING) or beyond(e.target, *allowed)]
