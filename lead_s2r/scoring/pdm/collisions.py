@@ -31,6 +31,7 @@ from collections.abc import Callable
 
 import numpy as np
 import shapely
+from numba import njit
 
 from lead_s2r.scoring.pdm.footprint import Corner, box_polygons, heading_directions
 from lead_s2r.scoring.pdm.observation import Observation
@@ -56,31 +57,37 @@ def candidate_pairs(
     """``(query, geometry)`` pairs whose enclosing circles overlap: query boxes of centre ``(x, y)``, each
     ``(P, N)`` (NaN: no query), and enclosing radius ``radius``, query ``(p, n)`` (flat index ``p * N + n``) against
     the geometries of observation step ``obs_steps[p]``. Every intersecting pair is among them, so the exact test
-    runs on few pairs and no STRtree is needed. Query slot p meets the same geometries in every row, so each
-    geometry slot is one pass over the ``(P, N)`` grid, its long axis the rows (numpy's loops over an axis of a few
-    geometries cost far more)."""
-    geoms = observation.step_geoms[obs_steps]  # (P, Gmax)
-    valid = geoms >= 0
-    safe = np.maximum(geoms, 0)
-    # per query slot and geometry: centroid (NaN pads, which no comparison passes) and the squared reach of a hit
-    step_x = np.where(valid, observation.centroids[safe, 0], np.nan)
-    step_y = np.where(valid, observation.centroids[safe, 1], np.nan)
-    step_reach = observation.radius[safe] + (radius + CIRCLE_SLACK)
-    step_reach *= step_reach
-    dx, dy = np.empty_like(x), np.empty_like(y)
-    queries, geometries = [], []
+    runs on few pairs and no STRtree is needed. Ordered by geometry slot, then query."""
+    reach = observation.radius + (radius + CIRCLE_SLACK)
+    geoms = observation.step_geoms[obs_steps]  # (P, Gmax), -1 pads
+    x, y = np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64)
+    count = _overlapping_circles(geoms, observation.centroids, reach, x, y, None, None)
+    queries, geometries = np.empty(count, np.int64), np.empty(count, np.int64)
+    _overlapping_circles(geoms, observation.centroids, reach, x, y, queries, geometries)
+    return queries, geometries
+
+
+@njit(cache=True)
+def _overlapping_circles(
+    geoms: np.ndarray, centroids: np.ndarray, reach: np.ndarray, x: np.ndarray, y: np.ndarray,
+    queries: np.ndarray | None, geometries: np.ndarray | None,
+) -> int:  # fmt: skip
+    """Counts the pairs of :func:`candidate_pairs` or, given arrays of that length, writes them."""
+    num_slots, num_rows = x.shape
+    found = 0
     for slot in range(geoms.shape[1]):
-        np.subtract(step_x[:, slot, None], x, out=dx)
-        np.subtract(step_y[:, slot, None], y, out=dy)
-        dx *= dx
-        dy *= dy
-        dx += dy
-        query = np.flatnonzero(dx <= step_reach[:, slot, None])
-        queries.append(query)
-        geometries.append(geoms[query // x.shape[1], slot])
-    if not queries:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return np.concatenate(queries), np.concatenate(geometries)
+        for p in range(num_slots):
+            geom = geoms[p, slot]
+            if geom < 0:
+                continue
+            centre_x, centre_y, limit = centroids[geom, 0], centroids[geom, 1], reach[geom] * reach[geom]
+            for n in range(num_rows):
+                dx, dy = centre_x - x[p, n], centre_y - y[p, n]
+                if dx * dx + dy * dy <= limit:
+                    if queries is not None and geometries is not None:
+                        queries[found], geometries[found] = p * num_rows + n, geom
+                    found += 1
+    return found
 
 
 def find_hits(
