@@ -49,10 +49,11 @@ def _read_las(path: Path) -> Any:
 
 def _decode(path: Path) -> np.ndarray:
     """(N, 4) float64 x, y, z, time of one LEAD ``.laz`` file, decoded in this process."""
-    columns = _decode_every(path)
-    if "time" not in columns:
+    las = _read_las(path)
+    if "time" not in set(las.point_format.extra_dimension_names):
         raise LazDecodeError("LAS file has no extra dimension 'time'")
-    return np.column_stack([columns[name] for name in ("x", "y", "z", "time")]).astype(np.float64)
+    columns = [np.asarray(las.x), np.asarray(las.y), np.asarray(las.z), np.asarray(las["time"])]
+    return np.column_stack(columns).astype(np.float64)
 
 
 def _decode_every(path: Path) -> dict[str, np.ndarray]:
