@@ -382,18 +382,15 @@ class CarlaLeadAdapter(Adapter):
     def _sensors(self, folder: Path, name: str, suffix: str) -> dict[str, Any]:
         """Camera mosaic, perspective labels, hdmap and radar of one frame and rig, each where its file exists."""
         out: dict[str, Any] = {}
-        rgb = frame_file(folder, f"rgb{suffix}", name, ".jpg")
-        if rgb is not None:
-            out[f"cam_{MOSAIC_ID}"] = read_jpeg(rgb)
-        semantic = frame_file(folder, f"semantics{suffix}", name, ".png")
-        if semantic is not None:
-            out[f"semantic_{MOSAIC_ID}"] = read_png(semantic)
-        depth = frame_file(folder, f"depth{suffix}", name, ".png")
-        if depth is not None:
-            out[f"depth_{MOSAIC_ID}"] = read_png(depth)
-        hdmap = frame_file(folder, f"hdmap{suffix}", name, ".png")
-        if hdmap is not None:
-            out["bev_semantic"] = np.ascontiguousarray(np.rot90(read_png(hdmap)))
+        for sensor, ext, key, read in (
+            ("rgb", ".jpg", f"cam_{MOSAIC_ID}", read_jpeg),
+            ("semantics", ".png", f"semantic_{MOSAIC_ID}", read_png),
+            ("depth", ".png", f"depth_{MOSAIC_ID}", read_png),
+            ("hdmap", ".png", "bev_semantic", lambda path: np.ascontiguousarray(np.rot90(read_png(path)))),
+        ):
+            path = frame_file(folder, f"{sensor}{suffix}", name, ext)
+            if path is not None:
+                out[key] = read(path)
         radar = frame_file(folder, f"radar{suffix}", name, ".npz")
         if radar is not None:  # the perturbated radar was recorded from the perturbated rig, in its frame
             clouds = read_radar(radar)
@@ -415,7 +412,7 @@ class CarlaLeadAdapter(Adapter):
                 "rig": rig,
                 "perturbation_translation": meta.get("perturbation_translation"),
                 "perturbation_rotation_deg": meta.get("perturbation_rotation"),
-                "target_speed": _number(meta.get("target_speed")),
+                "target_speed": None if meta.get("target_speed") is None else float(meta["target_speed"]),
                 "brake": bool(meta.get("brake", False)),
                 "box_ids": [int(box.get("id", -1)) for box in others],
                 "box_classes": [str(box.get("class")) for box in others],
@@ -466,10 +463,9 @@ class CarlaLeadAdapter(Adapter):
             "has": {name: True for name in sample if name != "__key__"},
             "extras": extras,
         }
-        for name in ("future", "lidar", "radar", "route", f"cam_{MOSAIC_ID}", "bev_semantic", "agents_future"):
+        optional = ("future", "lidar", "radar", "route", f"cam_{MOSAIC_ID}", "bev_semantic", "agents_future")
+        for name in (*optional, f"depth_{MOSAIC_ID}", f"semantic_{MOSAIC_ID}"):
             out["has"].setdefault(name, False)
-        out["has"].setdefault(f"depth_{MOSAIC_ID}", False)
-        out["has"].setdefault(f"semantic_{MOSAIC_ID}", False)
         if "lidar" in sample:
             out["lidar_columns"] = ["x", "y", "z", "time"]
         if "radar" in sample:
@@ -481,7 +477,3 @@ class CarlaLeadAdapter(Adapter):
         if f"semantic_{MOSAIC_ID}" in sample:
             out["semantic"] = {"classes": "carla_semantic"}
         return out
-
-
-def _number(value: Any) -> float | None:
-    return None if value is None else float(value)

@@ -11,7 +11,7 @@ import numpy as np
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats import restricted_pickle
-from lead_s2r.geometry import quaternion_matrix
+from lead_s2r.geometry import homogeneous, quaternion_matrix
 from lead_s2r.image_headers import jpeg_size as frame_size
 from lead_s2r.schema import BoxClass
 
@@ -106,13 +106,6 @@ def quaternion_yaw(q: Any) -> float:
     """Heading (rotation about z) of a [w, x, y, z] quaternion."""
     w, x, y, z = np.asarray(q, np.float64)
     return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
-def homogeneous(rotation: Any, translation: Any) -> np.ndarray:
-    """4x4 rigid transform of a 3x3 rotation and a translation."""
-    matrix = np.eye(4)
-    matrix[:3, :3], matrix[:3, 3] = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
-    return matrix
 
 
 def required(frame: dict[str, Any], name: str, where: str, kind: type | None = None) -> Any:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import quaternion_matrix, to_global, to_local, wrap_angle
+from lead_s2r.geometry import homogeneous, quaternion_matrix, to_global, to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
@@ -17,7 +17,6 @@ from lead_s2r_adapters.navsim_io import (
     CAMERAS,
     LOG_ANNOTATIONS,
     NavsimFormatError,
-    homogeneous,
     quaternion_yaw,
     read_annotations,
     read_camera,

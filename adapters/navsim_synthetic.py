@@ -96,21 +96,12 @@ def _record(value: Any, name: str, where: str) -> Record:
     return value
 
 
-def _xy_heading(pose: Record, where: str) -> tuple[float, float, float]:
-    """A ``StateSE2`` from its constructor arguments (``__reduce__``) or its attributes."""
-    pose = _record(pose, "StateSE2", where)
-    if len(pose.args) == 3:
-        return tuple(float(v) for v in pose.args)
-    return float(pose.state["x"]), float(pose.state["y"]), float(pose.state["heading"])
-
-
-def _vector(vector: Record | None, where: str) -> tuple[float, float]:
-    if vector is None:
-        return 0.0, 0.0
-    vector = _record(vector, "StateVector2D", where)
-    if len(vector.args) == 2:
-        return float(vector.args[0]), float(vector.args[1])
-    return float(vector.state["x"]), float(vector.state["y"])
+def _numbers(value: Any, name: str, fields: tuple[str, ...], where: str) -> tuple[float, ...]:
+    """A nuPlan ``name`` record's ``fields`` from its constructor arguments (``__reduce__``) or its attributes."""
+    value = _record(value, name, where)
+    if len(value.args) == len(fields):
+        return tuple(float(v) for v in value.args)
+    return tuple(float(value.state[field]) for field in fields)
 
 
 def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
@@ -128,13 +119,14 @@ def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
         if not 0 <= kind < len(OBJECT_TYPES):
             raise NavsimFormatError(f"{at}: TrackedObjectType {kind} is not an OpenScene class")
         metadata = _record(item.state.get("_metadata"), "SceneObjectMetadata", at)
+        velocity = item.state.get("_velocity")
         out.append(
             {
                 "track_token": str(metadata.state["track_token"]),
                 "name": OBJECT_TYPES[kind],
-                "pose": _xy_heading(box.state["_center"], at),
+                "pose": _numbers(box.state["_center"], "StateSE2", ("x", "y", "heading"), at),
                 "size": (float(box.state["_length"]), float(box.state["_width"]), float(box.state["_height"])),
-                "velocity": _vector(item.state.get("_velocity"), at),
+                "velocity": (0.0, 0.0) if velocity is None else _numbers(velocity, "StateVector2D", ("x", "y"), at),
             }
         )
     return out

@@ -255,9 +255,8 @@ def _timestamps(values: pa.Array, path: Path) -> np.ndarray:
 def _row_indices(values: pa.Array, path: Path, name: str) -> np.ndarray:
     """A sync column as one row index per iteration (-1 where absent: null). py123d 0.7 writes one int64 per
     iteration; earlier versions wrote a list of the rows within the iteration, of which we take the first."""
-    if pa.types.is_list(values.type) or pa.types.is_large_list(values.type):
-        if not pa.types.is_integer(values.type.value_type):
-            raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)
+    lists = pa.types.is_list(values.type) or pa.types.is_large_list(values.type)
+    if lists and pa.types.is_integer(values.type.value_type):
         values = pa.array([rows[0] if rows else None for rows in values.to_pylist()], pa.int64())  # a few thousand
     if not pa.types.is_integer(values.type):
         raise Py123dFormatError(path, f"expected integer row indices, got {values.type}", name)

@@ -83,10 +83,6 @@ def split_name(name: str) -> tuple[str, int]:
     return sequence, int(frame)
 
 
-def n_rated(message: E2EDFrame) -> int:
-    return sum(1 for p in message.preference_trajectories if _rated(p))
-
-
 def _rated(states: Any) -> bool:
     """A usable rater trajectory: a score that was set and is not the -1 'no label' marker, and some points."""
     return states.HasField("preference_score") and states.preference_score >= 0 and len(states.pos_x) > 0
@@ -99,7 +95,7 @@ def _index_columns(payload: bytes) -> dict[str, Any]:
         "sequence": sequence,
         "frame": frame,
         "has_future": len(message.future_states.pos_x) > 0,
-        "n_rated": n_rated(message),
+        "n_rated": sum(1 for p in message.preference_trajectories if _rated(p)),
     }
 
 

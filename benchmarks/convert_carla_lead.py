@@ -33,10 +33,13 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
+from functools import partial
 from pathlib import Path
 
 if "--import-torch" in sys.argv:  # at the top, as in a user's script: whatever re-imports __main__ pays for it
     import torch  # noqa: F401
+
+from cpu_time import timed
 
 from lead_s2r.convert import convert, manifest_row, one_thread_per_worker
 from lead_s2r.processes import RayExecutor
@@ -132,26 +135,18 @@ def stage_split(adapter: Adapter, src: Path, out: Path) -> tuple[int, dict[str, 
     for log in adapter.list_logs(src):
         samples = iter(adapter.iter_samples(log))
         while True:
-            start = time.process_time()
-            sample = next(samples, None)
-            cpu["adapter (read + build)"] += time.process_time() - start
+            sample, cpu_s = timed(partial(next, samples, None), time.process_time)
+            cpu["adapter (read + build)"] += cpu_s
             if sample is None:
                 break
-            start = time.process_time()
-            validate(sample)
-            cpu["validate"] += time.process_time() - start
-            start = time.process_time()
-            encode_sample(sample)
-            encode = time.process_time() - start
+            cpu["validate"] += timed(partial(validate, sample), time.process_time)[1]
+            encode = timed(partial(encode_sample, sample), time.process_time)[1]
             cpu["encode fields (PNG, npy, json)"] += encode
-            start = time.process_time()
-            shard.write(sample)  # encodes again: the encode time just measured is taken off
-            manifest_row(sample)
-            cpu["tar write + manifest row"] += max(time.process_time() - start - encode, 0.0)
+            written = timed(partial(shard.write, sample), time.process_time)[1]  # encodes again: taken off below
+            written += timed(partial(manifest_row, sample), time.process_time)[1]
+            cpu["tar write + manifest row"] += max(written - encode, 0.0)
             count += 1
-    start = time.process_time()
-    shard.close()
-    cpu["close (fsync)"] += time.process_time() - start
+    cpu["close (fsync)"] += timed(shard.close, time.process_time)[1]
     return count, cpu
 
 

@@ -5,8 +5,9 @@
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
+
+from cpu_time import timed
 
 from lead_s2r.convert import convert
 from lead_s2r.synthetic import navsim
@@ -17,9 +18,7 @@ from lead_s2r_adapters.navsim import NavsimAdapter
 def run(src: Path, out: Path, maps: Path | None) -> tuple[int, float]:
     navsim_map.load_map.cache_clear()  # count the one map load per location in the timing
     adapter = NavsimAdapter(split=navsim.DATA_SPLIT, maps=str(maps) if maps else None)
-    started = time.perf_counter()
-    result = convert(adapter, src, out, workers=1, force=True)
-    elapsed = time.perf_counter() - started
+    result, elapsed = timed(lambda: convert(adapter, src, out, workers=1, force=True))
     if not result.ok:
         raise SystemExit(f"conversion failed: {result.errors}")
     return result.samples, elapsed

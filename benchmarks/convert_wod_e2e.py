@@ -7,8 +7,9 @@ JPEGs at 0.7 of the real resolution compress to roughly that. Run:
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
+
+from cpu_time import timed
 
 from lead_s2r.convert import convert
 from lead_s2r.synthetic.wod_e2e import make_dataset, write_dataset
@@ -28,21 +29,15 @@ def main() -> None:
         size = sum(p.stat().st_size for p in paths)
 
         adapter = WodE2EAdapter(history=args.history)
-        start = time.perf_counter()
-        logs = adapter.list_logs(src)
-        index_s = time.perf_counter() - start
+        logs, index_s = timed(lambda: adapter.list_logs(src))
         frames = sum(len(log.extra["records"]) for log in logs)
         print(f"records: {frames}, {size / 1e6:.1f} MB, {size / frames / 1e6:.2f} MB/record")
         print(f"index pass: {frames / index_s:.0f} records/s, {size / index_s / 1e6:.0f} MB/s")
 
-        start = time.perf_counter()
-        n = sum(1 for log in logs for _ in adapter.iter_samples(log))
-        adapter_s = time.perf_counter() - start
+        n, adapter_s = timed(lambda: sum(1 for log in logs for _ in adapter.iter_samples(log)))
         print(f"adapter iter_samples (1 process, history={args.history}): {n / adapter_s:.1f} frames/s")
 
-        start = time.perf_counter()
-        result = convert(WodE2EAdapter(history=args.history), src, out, workers=args.workers)
-        convert_s = time.perf_counter() - start
+        result, convert_s = timed(lambda: convert(WodE2EAdapter(history=args.history), src, out, workers=args.workers))
         assert result.ok and result.samples == frames, result.errors
         per_worker = result.samples / convert_s / args.workers
         print(f"convert (workers={args.workers}; index, validate, shards): {per_worker:.1f} frames/s/worker")

@@ -8,25 +8,16 @@ The frame's boxes are repeated to ``--boxes`` rows (LEAD encodes at most 90).
 
 import argparse
 import tempfile
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from cpu_time import wall_times_ms
 
 from lead_s2r.data.lead_centernet import lead_centernet_targets
 from lead_s2r.data.lead_labels import bev_labels, lead_bev_labels, lead_box_classes
 from lead_s2r.models.config import CARLA_BEV
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic.carla_lead import generate
-
-
-def mean_ms(call: Callable[[], object], calls: int) -> float:
-    call()
-    start = time.perf_counter()
-    for _ in range(calls):
-        call()
-    return (time.perf_counter() - start) / calls * 1e3
 
 
 def main() -> None:
@@ -42,8 +33,8 @@ def main() -> None:
     hdmap = bev_labels(sample["bev_semantic"], sample["meta"]["bev"], CARLA_BEV)
     lights = np.full(len(boxes), -1)  # no traffic light affects the ego
     classes = lead_box_classes(boxes[:, 9].astype(np.int64), True, lights)
-    bev_ms = mean_ms(lambda: lead_bev_labels(hdmap, boxes, CARLA_BEV, True, lights), args.calls)
-    boxes_ms = mean_ms(lambda: lead_centernet_targets(boxes, classes, CARLA_BEV, 8, 12), args.calls)
+    bev_ms = wall_times_ms(lambda: lead_bev_labels(hdmap, boxes, CARLA_BEV, True, lights), args.calls).mean()
+    boxes_ms = wall_times_ms(lambda: lead_centernet_targets(boxes, classes, CARLA_BEV, 8, 12), args.calls).mean()
     print(f"lead_bev_labels: {bev_ms:.2f} ms, lead_centernet_targets: {boxes_ms:.2f} ms ({args.boxes} boxes)")
 
 

@@ -30,11 +30,6 @@ from lead_s2r.scoring.pdm.score import EPDMS_METRIC, METRIC, METRICS, score_prop
 GOLDEN_FILES = {METRIC: GOLDEN, EPDMS_METRIC: GOLDEN_V22}
 
 
-def cpu_ms(function, repeats: int) -> float:
-    """Median CPU time in ms after one warm-up call."""
-    return float(np.median(cpu_times_ms(function, repeats)))
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--proposals", type=int, nargs="+", default=[1, 16, 256])
@@ -57,7 +52,7 @@ def main() -> None:
             for trajectory in case["trajectories"]:
                 proposals = np.repeat(np.asarray(trajectory["poses"], np.float64)[None], count, axis=0)
                 call = partial(score_proposals, scene, proposals, trajectory["interval_s"], reference, **cached)
-                calls.append(cpu_ms(call, args.repeats))
+                calls.append(float(np.median(cpu_times_ms(call, args.repeats))))
             per_scene[count].append(float(np.mean(calls)))
     official = 1e3 * golden["official_seconds_per_scene"]
     print(f"official {args.metric}, one pdm_score call: {official:.2f} ms per scene (wall time, from the golden file)")

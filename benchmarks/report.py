@@ -6,11 +6,11 @@ Command: ``.venv/bin/python benchmarks/report.py --out /tmp/report_bench`` (re-r
 """
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+from cpu_time import timed
 
 from lead_s2r.convert import convert
 from lead_s2r.predictions import write_predictions
@@ -53,9 +53,7 @@ def main() -> None:
     keys = []
     for dataset, (metric, count) in PAGES_PER_DATASET.items():
         keys += pq.read_table(run / "scores" / dataset / metric / "scores.parquet")["key"].to_pylist()[:count]
-    started = time.perf_counter()
-    index = build_report(run, args.out / "report", samples=keys)
-    seconds = time.perf_counter() - started
+    index, seconds = timed(lambda: build_report(run, args.out / "report", samples=keys))
     pages = len(list((index.parent / "samples").glob("*.html")))
     print(f"report: {pages} sample pages, {len(list((index.parent / 'img').glob('*.png')))} PNGs in {seconds:.1f} s")
 

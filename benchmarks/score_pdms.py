@@ -18,11 +18,11 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from cpu_time import wall_times_ms  # noqa: E402
 
 from lead_s2r.convert import convert  # noqa: E402
 from lead_s2r.registry import get_adapter  # noqa: E402
@@ -61,12 +61,7 @@ def proposals_around(human: np.ndarray, count: int, rng: np.random.Generator) ->
 
 
 def median_ms(run: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times) * 1e3
+    return float(np.median(wall_times_ms(run, repeats, warm_up=False)))
 
 
 def main() -> None:

@@ -9,10 +9,10 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_name] = "1"
 
 import argparse  # noqa: E402
-import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
+from cpu_time import wall_times_ms  # noqa: E402
 
 from lead_s2r.predictions import Prediction, regular_grid  # noqa: E402
 from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_raters, rater_feedback_score  # noqa: E402
@@ -35,15 +35,9 @@ def synthetic_frames(count: int, seed: int = 0) -> dict[str, np.ndarray]:
 
 
 def rate(label: str, frames: int, run: Callable[[], object], repeats: int = 3) -> float:
-    best = min(_timed(run) for _ in range(repeats))
+    best = wall_times_ms(run, repeats, warm_up=False).min() / 1e3
     print(f"{label:<52} {frames / best:>12,.0f} frames/s  ({best * 1e3:8.1f} ms for {frames:,} frames)")
     return frames / best
-
-
-def _timed(run: Callable[[], object]) -> float:
-    start = time.perf_counter()
-    run()
-    return time.perf_counter() - start
 
 
 def main() -> None:

@@ -10,8 +10,10 @@ samples are decoded with PDMS's fields, the quickstart's split (test) and tag (s
 import argparse
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
+from cpu_time import timed
 from rich.console import Console
 
 from lead_s2r.demo.quickstart import prepare
@@ -30,20 +32,14 @@ def main() -> None:
         prepare("navsim", Path(tmp), 2, Console(quiet=True), time.perf_counter())  # as the quickstart
         data = Path(tmp) / "data" / "navsim"
         for round_ in range(args.rounds):
-            start = time.perf_counter()
-            baseline = [s for s in read_samples(data, fields=fields) if s["meta"]["split"] == split]
-            decode_all = time.perf_counter() - start
-            start = time.perf_counter()
-            chosen = select_samples([data], fields, split)
-            manifest_first = time.perf_counter() - start
-            start = time.perf_counter()
-            tagged = select_samples([data], fields, split, tag=tag)
-            with_tag = time.perf_counter() - start
+            baseline, decode_all = timed(
+                lambda: [s for s in read_samples(data, fields=fields) if s["meta"]["split"] == split]
+            )
+            chosen, manifest_first = timed(lambda: select_samples([data], fields, split))
+            tagged, with_tag = timed(lambda: select_samples([data], fields, split, tag=tag))
             cache = SampleCache()
             choose_samples([data], fields, split, cache=cache)
-            start = time.perf_counter()
-            again = choose_samples([data], fields, split, cache=cache)[0]
-            cached = time.perf_counter() - start
+            (again, _), cached = timed(partial(choose_samples, [data], fields, split, cache=cache))
             assert [s["__key__"] for s in chosen] == [s["__key__"] for s in baseline] == [s["__key__"] for s in again]
             print(
                 f"round {round_}: decode all, keep {split}: {len(baseline)} samples {decode_all:.2f} s; manifest "

@@ -28,7 +28,6 @@ from carla_driver_interface import protocol
 from carla_driver_interface.geometry import Pose, waypoints_to_proto
 from carla_driver_interface.testing import FakeCamera, render_road
 from PIL import Image
-from torch import nn
 
 from lead_s2r.closed_loop.alpasim import serve
 from lead_s2r.closed_loop.alpasim_model import ServedModel, camera_slots
@@ -48,21 +47,9 @@ def lead_config(*recipes: str) -> LeadConfig:
     return LeadConfig.from_json(fields)
 
 
-class Timed(nn.Module):
-    """The network, recording the seconds of each forward."""
-
-    def __init__(self, inner: nn.Module, seconds: list[float]) -> None:
-        super().__init__()
-        self.inner, self.seconds = inner, seconds
-
-    def forward(self, *args: Any) -> Any:
-        start = time.perf_counter()
-        out = self.inner(*args)
-        self.seconds.append(time.perf_counter() - start)
-        return out
-
-
 def timed(function: Callable, seconds: list[float]) -> Callable:
+    """``function``, appending the wall seconds of each call to ``seconds`` (the network's forward, the decode)."""
+
     def call(*args: Any) -> Any:
         start = time.perf_counter()
         out = function(*args)
@@ -120,7 +107,7 @@ def measure(name: str, config: LeadConfig, steps: int) -> None:
         slots = camera_slots(config, spec, "navsim", Path(folder))
     served = ServedModel(model, "navsim", spec, slots, torch.device("cpu"), Path(name))
     forward, decode = [], []
-    served.model = Timed(model, forward)
+    served.model = timed(model, forward)
     served.transform.camera.image = timed(served.transform.camera.image, decode)
     server, port = serve(served, "127.0.0.1", 0)
     try:

@@ -68,6 +68,13 @@ def quaternion_matrix(q: np.ndarray) -> np.ndarray:
     )
 
 
+def homogeneous(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """4x4 rigid transform of a 3x3 rotation and a translation (NAVSIM's and WOD's extrinsics, CARLA matrices)."""
+    matrix = np.eye(4)
+    matrix[:3, :3], matrix[:3, 3] = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
+    return matrix
+
+
 def box_corners(boxes: np.ndarray) -> np.ndarray:
     """(N, 4, 2) footprint corners of boxes laid out like the schema's ``boxes`` (x, y, z, length, width, height,
     yaw, ...), counter-clockwise from front-left."""

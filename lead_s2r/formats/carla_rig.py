@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, carla_points_to_iso, rotate
+from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, carla_points_to_iso, homogeneous, rotate
 from lead_s2r.schema import Command
 
 MOSAIC_ID = "carla_mosaic"
@@ -98,9 +98,8 @@ def camera_calibration(target_dataset: str = DEFAULT_TARGET_DATASET, height: int
     cameras, x0 = [], 0
     for camera in CAMERA_RIGS[target_dataset]:
         focal = camera.width / (2 * math.tan(math.radians(camera.fov_deg) / 2))
-        cam_to_ego = np.eye(4)
-        cam_to_ego[:3, :3] = rotate(cam_axes, -math.radians(camera.yaw_deg)).T  # CARLA yaw is clockwise
-        cam_to_ego[:3, 3] = carla_points_to_iso(np.array(camera.position))
+        rotation = rotate(cam_axes, -math.radians(camera.yaw_deg)).T  # CARLA yaw is clockwise
+        cam_to_ego = homogeneous(rotation, carla_points_to_iso(np.array(camera.position)))
         cameras.append(
             {
                 "id": MOSAIC_ID,

@@ -365,21 +365,10 @@ def write_route(
     town = TOWNS[index % len(TOWNS)]
     route_id = 1000 + index
     folder = root / "data" / SCENARIOS[kind] / f"{town}_Rep0_{route_id}_route0_01_10_05_46_{index % 60:02d}"
-    for name in (
-        "rgb",
-        "rgb_perturbated",
-        "semantics",
-        "semantics_perturbated",
-        "depth",
-        "depth_perturbated",
-        "hdmap",
-        "hdmap_perturbated",
-        "lidar",
-        "radar",
-        "radar_perturbated",
-        "bboxes",
-        "metas",
-    ):
+    rigs = [
+        f"{sensor}{rig}" for sensor in ("rgb", "semantics", "depth", "hdmap", "radar") for rig in ("", "_perturbated")
+    ]
+    for name in (*rigs, "lidar", "bboxes", "metas"):  # one LiDAR for both rigs, as LEAD records it
         (folder / name).mkdir(parents=True, exist_ok=True)
     steps = (frames - 1) * SAVE_FREQ + EGO_FUTURE_STEPS + 1
     drive = make_drive(kind, steps, rng)

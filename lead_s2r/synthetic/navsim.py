@@ -42,7 +42,7 @@ import numpy as np
 import shapely
 import yaml
 
-from lead_s2r.geometry import rotate, to_local
+from lead_s2r.geometry import homogeneous, rotate, to_local
 from lead_s2r.synthetic import navsim_camera, navsim_map, pedestrians_ahead
 
 DATA_SPLIT = "mini"
@@ -191,12 +191,6 @@ def ego_states(spec: LogSpec) -> dict[str, np.ndarray]:
 def yaw_quaternion(yaw: float) -> np.ndarray:
     """[w, x, y, z] of a rotation about z."""
     return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-
-
-def homogeneous(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    matrix = np.eye(4)
-    matrix[:3, :3], matrix[:3, 3] = rotation, translation
-    return matrix
 
 
 def rot_z(yaw: float) -> np.ndarray:

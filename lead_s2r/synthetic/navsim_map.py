@@ -93,16 +93,12 @@ def lane_polygon(lane: Lane) -> shapely.Polygon:
     return shapely.LineString(lane.centerline).buffer(HALF_LANE, cap_style="flat")
 
 
-def _global(geometry: shapely.Geometry) -> shapely.Geometry:
-    return shapely.transform(geometry, lambda xy: xy + ORIGIN)
-
-
 def _boxes(table: dict[int, tuple[float, float, float, float]]) -> tuple[list[int], list[shapely.Geometry]]:
     return list(table), [shapely.box(*bounds) for bounds in table.values()]
 
 
 def _write(path: Path, layer: str, fids: list[int], geometries: list, geometry_type: str, **columns: list) -> None:
-    wkb = shapely.to_wkb([_global(g) for g in geometries])
+    wkb = shapely.to_wkb([shapely.transform(g, lambda xy: xy + ORIGIN) for g in geometries])  # local -> global
     data = {"fid": pa.array(fids, pa.int64()), **columns, "geometry": pa.array(list(wkb), pa.binary())}
     pyogrio.write_arrow(
         pa.table(data), path, layer=layer, driver="GPKG", geometry_name="geometry", geometry_type=geometry_type, crs=CRS

@@ -129,8 +129,9 @@ def shifted_pose(pose: np.ndarray, offset: float) -> np.ndarray:
 
 def synthetic_scene(
     out: Path, spec: navsim.LogSpec, log_frames: list[dict], start: int, offset: float, rng: np.random.Generator
-) -> tuple[str, dict]:
-    """One synthetic scene whose current frame is log frame ``start`` with the ego shifted by ``offset``."""
+) -> str:
+    """Write one synthetic scene whose current frame is log frame ``start`` with the ego shifted by ``offset``;
+    return its token."""
     states = navsim.ego_states(spec)
     agents = navsim.agents_for(states["poses"][0], spec.speed, spec.accel)
     tokens = next(list(f["anns"]["track_tokens"]) for f in log_frames if len(f["anns"]["track_tokens"]) == len(agents))
@@ -140,6 +141,7 @@ def synthetic_scene(
     for frame in range(start - HISTORY + 1, start + 1):
         pose = shifted_pose(states["poses"][frame], offset)
         vx, vy, ax, ay = states["dynamics"][frame]
+        anns = navsim.annotations(agents, frame, pose, tokens)
         cameras = {}
         for name in navsim.CAMERAS:
             if frame != start:
@@ -147,10 +149,8 @@ def synthetic_scene(
                 continue
             blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
             (out / SPLIT / "sensor_blobs" / blob).parent.mkdir(parents=True, exist_ok=True)
-            image = navsim.render_camera(name, pose, navsim.annotations(agents, frame, pose, tokens), rng)
-            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, image)
+            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, navsim.render_camera(name, pose, anns, rng))
             cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
-        anns = navsim.annotations(agents, frame, pose, tokens)
         frames.append(
             {
                 "token": initial if frame == start else _token17(rng),
@@ -194,7 +194,7 @@ def synthetic_scene(
     path = out / SPLIT / "synthetic_scene_pickles" / f"{initial}.pkl"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(dumps(scene))
-    return initial, scene
+    return initial
 
 
 def write_configs(out: Path, logs: dict[str, list[dict]], mapping: list) -> None:
@@ -221,10 +221,9 @@ def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
             out, spec, rng, logs=out / SPLIT / "openscene_meta_datas", blobs=out / SPLIT / "sensor_blobs"
         )
         logs[spec.name] = frames
-        pairs = []
-        for offset in OFFSETS:
-            now, _ = synthetic_scene(out, spec, frames, ORIGINAL_FRAME + FUTURE, offset, rng)
-            before, _ = synthetic_scene(out, spec, frames, ORIGINAL_FRAME + FUTURE - 1, offset, rng)
-            pairs.append([now, before])
+        pairs = [  # per offset: the scene now and the one a frame before
+            [synthetic_scene(out, spec, frames, ORIGINAL_FRAME + FUTURE - back, offset, rng) for back in (0, 1)]
+            for offset in OFFSETS
+        ]
         mapping.append([frames[ORIGINAL_FRAME]["token"], frames[ORIGINAL_FRAME - 1]["token"], pairs])
     write_configs(out, logs, mapping)

@@ -31,7 +31,7 @@ import crc32c
 import cv2
 import numpy as np
 
-from lead_s2r.geometry import rotate
+from lead_s2r.geometry import homogeneous, rotate
 from lead_s2r.synthetic import pedestrians_ahead, wod_e2e_camera
 from lead_s2r.synthetic.wod_e2e_proto import States, camera_calibration, camera_image, e2ed_frame
 
@@ -169,10 +169,7 @@ def _camera(name: int, rng: np.random.Generator, scale: float, pedestrians: np.n
     yaw, pitch = math.radians(yaw_deg), 0.02  # a slight downward pitch about the camera's y axis
     rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
     ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]])
-    matrix = np.eye(4)
-    matrix[:3, :3] = rz @ ry
-    matrix[:3, 3] = (px, py, pz)
-    extrinsic = matrix.ravel().tolist()
+    extrinsic = homogeneous(rz @ ry, (px, py, pz)).ravel().tolist()
     image = wod_e2e_camera.render((height, width), intrinsic, extrinsic, pedestrians, rng)
     jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 70])[1].tobytes()
     return SynthCamera(name, jpeg, intrinsic, extrinsic, width, height)
