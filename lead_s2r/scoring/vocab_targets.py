@@ -28,7 +28,7 @@ import io
 import json
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -83,16 +83,9 @@ class VocabRun:
     split: str | None
 
     def identity(self) -> dict[str, Any]:
-        return {
-            "vocabulary_sha256": self.vocabulary_sha256,
-            "shape": list(self.shape),
-            "interval": self.interval,
-            "metric": self.metric,
-            "progress": self.progress,
-            "human_filter": self.human_filter,
-            "data": list(self.data),
-            "split": self.split,
-        }
+        """Every field but the vocabulary's path (a copy elsewhere is the same vocabulary), as JSON writes it."""
+        fields = asdict(self).items()
+        return {name: list(v) if isinstance(v, tuple) else v for name, v in fields if name != "vocabulary"}
 
 
 def load_vocabulary(path: Path) -> np.ndarray:
