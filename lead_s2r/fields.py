@@ -8,7 +8,7 @@ float, and a float must be finite; ``X | None`` admits null; ``Literal[...]`` ad
 """
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from numbers import Integral, Real
 from types import UnionType
 from typing import Any, Literal, Union, get_args, get_origin
@@ -66,13 +66,17 @@ def check_fields(
     error: type[Exception] = UserError,
     advice: str = "",
     at: str = "",
+    required: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """``mapping`` when it is a mapping whose fields named in ``hints`` have their types; otherwise ``error`` with
-    one line naming the file (``where``), the position in it (``at``, e.g. ``columns[0]``), the field, its value and
-    what it should be, then ``advice``."""
+    """``mapping`` when it is a mapping that holds the ``required`` fields and whose fields named in ``hints`` have
+    their types; otherwise ``error`` with one line naming the file (``where``), the position in it (``at``, e.g.
+    ``columns[0]``), the field, its value and what it should be, then ``advice``."""
     tail = f"; {advice}" if advice else ""
     if not isinstance(mapping, dict):
         raise error(f"{where}: {at or 'the file'} is {mapping!r}, not a mapping{tail}")
+    missing = [name for name in required if name not in mapping]
+    if missing:
+        raise error(f"{where}: {f'{at}: ' if at else ''}missing field {missing[0]!r}{tail}")
     for name, hint in hints.items():
         if name in mapping and not fits(mapping[name], hint):
             field = f"{at}.{name}" if at else name

@@ -412,6 +412,17 @@ def sample_offsets(shard: str) -> dict[str, int]:
     return offsets
 
 
+def shard_parts(rows: Iterable[Mapping[str, Any]], size: int) -> list[tuple[str, list[str], int]]:
+    """Manifest rows (``shard``, ``key``) -> parts of up to ``size`` consecutive samples of one tar, each with the
+    offset :func:`read_part` starts at: the jobs of a parallel reader. A tar read in one part is read from its start,
+    sparing the walk over its headers."""
+    parts = []
+    for shard, keys in keys_by_shard((row["shard"], row["key"]) for row in rows).items():
+        offsets = sample_offsets(shard) if len(keys) > size else {keys[0]: 0}
+        parts += [(shard, keys[start : start + size], offsets[keys[start]]) for start in range(0, len(keys), size)]
+    return parts
+
+
 def _member_bytes(tar: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
     file = tar.extractfile(member)
     if file is None:

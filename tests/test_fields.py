@@ -63,3 +63,12 @@ def test_check_fields_names_where_field_value_and_type() -> None:
         check_fields({"seeds": [0.5]}, hints, "t.yaml", at="rows[1]")
     with pytest.raises(ValueError, match=r"^t\.yaml: the file is 7, not a mapping$"):
         check_fields(7, hints, "t.yaml", ValueError)
+
+
+def test_check_fields_names_the_first_required_field_missing() -> None:
+    hints = {"metric": str}
+    assert check_fields({"metric": "ade"}, hints, "s.json", required=("metric",)) == {"metric": "ade"}
+    with pytest.raises(UserError, match=r"^s\.json: missing field 'metric'; rescore$"):
+        check_fields({"tag": None}, hints, "s.json", advice="rescore", required=("metric", "tag"))
+    with pytest.raises(UserError, match=r"^r\.json: records\[0\]: missing field 'meta'$"):
+        check_fields({}, {}, "r.json", at="records[0]", required=("meta",))

@@ -7,8 +7,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 
-def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--executor`` and ``--address``: where the jobs of ``convert`` and ``score`` run."""
+def add_executor_arguments(parser: argparse.ArgumentParser, workers_help: str) -> None:
+    """``--workers``, ``--executor`` and ``--address``: where the jobs of ``convert``, ``score`` and ``vocab score``
+    run."""
+    parser.add_argument("--workers", type=int, default=1, help=workers_help)
     parser.add_argument(
         "--executor",
         choices=["processes", "ray"],

@@ -161,10 +161,7 @@ def add_verbs(verbs: Any) -> None:
     sub.add_argument("adapter")
     sub.add_argument("--src", required=True)
     sub.add_argument("--out", required=True)
-    sub.add_argument(
-        "--workers", type=int, default=1, help="processes converting on this machine (the output is the same)"
-    )
-    add_executor_arguments(sub)
+    add_executor_arguments(sub, "processes converting on this machine (the output is the same)")
     sub.add_argument("--shard-size", type=int, default=1000, help="samples per shard (closed at a log boundary)")
     sub.add_argument("--limit-logs", type=int, default=None)
     sub.add_argument("--force", action="store_true", help="start over instead of resuming")

@@ -72,10 +72,7 @@ def add_verbs(verbs: Any) -> None:
     sub.add_argument("--strict", action="store_true", help="a sample without a prediction is an error")
     sub.add_argument("--json", action="store_true", help="print scores.json instead of the summary table")
     sub.add_argument("--reference-cache", default=None, help="PDMS: folder caching PDM-Closed references per sample")
-    sub.add_argument(
-        "--workers", type=int, default=1, help="processes scoring on this machine (the scores are the same)"
-    )
-    add_executor_arguments(sub)
+    add_executor_arguments(sub, "processes scoring on this machine (the scores are the same)")
     sub.set_defaults(run=cmd_score)
 
     sub = verbs.add_parser("carla-metrics", help="CARLA leaderboard 2.0 results -> DS, RC, IS, SR, NDS, per 100 km")

@@ -67,11 +67,8 @@ def add_verbs(verbs: Any) -> None:
         help="EPDMS without v2.2's human penalty filter (SimScale's GTRS targets: with --progress vocabulary)",
     )  # fmt: skip
     sub.add_argument("--split", default=None, help="score only this split of --data")
-    sub.add_argument(
-        "--workers", type=int, default=1, help="processes scoring on this machine (the files are the same)"
-    )
     sub.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_executor_arguments(sub)
+    add_executor_arguments(sub, "processes scoring on this machine (the files are the same)")
     sub.set_defaults(run=cmd_vocab_score)
 
     sub = vocab_verbs.add_parser("build", help="k-means over the logged futures: a (size, 40, 3) vocabulary")

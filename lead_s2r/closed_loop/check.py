@@ -8,6 +8,7 @@ controllers. It proves the plumbing (rig, shapes, route state, controls in range
 cannot follow a CARLA route (a NAVSIM LTFv6 without target points) is refused at ``setup`` with one line.
 """
 
+import importlib.util
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.closed_loop.agent import LeadS2RAgent, vehicle_control
+from lead_s2r.closed_loop.agent import BRAKE, LeadS2RAgent, vehicle_control
 from lead_s2r.closed_loop.controllers import Control
 from lead_s2r.closed_loop.route import EARTH_RADIUS_EQUA
 from lead_s2r.closed_loop.sensors import GNSS_ID, IMU_ID, SPEED_ID
@@ -105,20 +106,14 @@ def check_run(run: str | Path, ticks: int = 5, seed: int = 0) -> CheckResult:
     agent.setup(str(run))
     specs = agent.sensors()
     rng = np.random.default_rng(seed)
-    controls = [Control(0.0, 0.0, 1.0)]  # the agent's first tick brakes
+    controls = [BRAKE]  # the agent's first tick brakes
     agent.preprocess(synthetic_input(specs, 0, rng), 0.0)
     for tick in range(1, ticks):
         batch = agent.preprocess(synthetic_input(specs, tick, rng), tick * 0.05)
         control = agent.control(agent.predict(batch), speed=0.0)
         assert -1.0 <= control.steer <= 1.0 and 0.0 <= control.throttle <= 1.0 and 0.0 <= control.brake <= 1.0
         controls.append(control)
-    if _carla_installed():
+    if importlib.util.find_spec("carla") is not None:
         vehicle_control(controls[-1])  # the type the leaderboard receives
     agent.destroy()
     return CheckResult(str(run), agent.rig.cameras, [spec["id"] for spec in specs], controls)
-
-
-def _carla_installed() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("carla") is not None

@@ -31,6 +31,7 @@ from lead_s2r.formats.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibratio
 from lead_s2r.models.input_spec import InputSpec, input_spec
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
+from lead_s2r.training.weights import find_checkpoint
 
 #: The file LightningCLI writes the resolved run configuration to.
 CONFIG_NAME = "config.yaml"
@@ -40,23 +41,6 @@ LEAD_CONFIG_NAME = "config.json"
 
 class UnsupportedCheckpoint(ValueError):
     """A checkpoint this agent cannot drive with; the message says why and what to do."""
-
-
-def find_checkpoint(path: str | Path) -> Path:
-    """``path`` itself if it is a file; in a run folder ``checkpoints/last.ckpt``, ``last.ckpt``, else the newest
-    ``*.ckpt`` below it."""
-    path = Path(path)
-    if path.is_file():
-        return path
-    if not path.is_dir():
-        raise FileNotFoundError(f"agent config {path}: no such checkpoint file or run folder")
-    for candidate in (path / "checkpoints" / "last.ckpt", path / "last.ckpt"):
-        if candidate.is_file():
-            return candidate
-    found = sorted(path.rglob("*.ckpt"), key=lambda p: p.stat().st_mtime)
-    if not found:
-        raise FileNotFoundError(f"run folder {path} holds no *.ckpt; pass a checkpoint file or a run of `lead-s2r fit`")
-    return found[-1]
 
 
 def saved_config(checkpoint: Path) -> Path:

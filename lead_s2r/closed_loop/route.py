@@ -37,8 +37,6 @@ MAX_LOOK_DISTANCE = 50.0
 DENSE_DISTANCE = 10.0
 #: A next target point farther than this is replaced by the current one (``sensor_agent_skip_distant_target_point``).
 DISTANT_NEXT = 50.0
-#: RoadOption of a missing command (CARLA's VOID).
-VOID = -1
 #: LEAD's UKF: initial covariance, measurement and process noise (x, y, yaw, speed), Merwe sigma-point parameters.
 UKF_P = (0.5, 0.5, 1e-6, 1e-6)
 UKF_R = (0.5, 0.5, 1e-15, 1e-15)

@@ -77,8 +77,6 @@ SEEDS = (0, 1, 2)
 VAL_BATCHES = 4
 #: dataset -> the family folder its runs sit in (``runs/<family>/<name>/seed<k>``, as in the recipes and Table 4).
 FAMILIES = {"navsim": "navsim", "wod_e2e": "wod"}
-#: dataset -> the horizon its scorers read (s): the Expert replays that much of the logged future.
-HORIZONS = {"navsim": 4.0, "wod_e2e": 5.0}
 #: Training name -> its length in the quickstart: (epochs, optimizer steps per epoch). The Ego MLP's steps cost
 #: next to nothing and it needs a few hundred to fit the WOD-E2E futures; the LTFv6 twins cost most of the run.
 STEPS: dict[str, tuple[int, int]] = {
@@ -193,7 +191,7 @@ def score_expert(out: Path, caches: dict[str, ScoringCaches]) -> dict[str, Any]:
         data, run = out / "data" / dataset, run_folder(out, dataset, "expert", 0)
         run.mkdir(parents=True, exist_ok=True)
         held_out = (s for s in read_samples(data, fields=["future"]) if s["meta"]["split"] == split)
-        path = write_predictions(run / "predictions.parquet", [predict_human(s, HORIZONS[dataset]) for s in held_out])
+        path = write_predictions(run / "predictions.parquet", [predict_human(s) for s in held_out])
         results[dataset] = score(path, data, dataset, run / "scores", caches[dataset])
     return results
 

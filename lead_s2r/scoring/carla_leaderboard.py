@@ -162,16 +162,6 @@ def is_success(record: RouteRecord) -> bool:
     return record.status in SUCCESS_STATUSES and clean
 
 
-def _checked(raw: Any, hints: dict[str, Any], source: str, at: str, required: tuple[str, ...]) -> dict[str, Any]:
-    """``raw`` when it is a mapping holding ``required`` and its fields have their types; else one line naming
-    ``source``, the record and the field."""
-    check_fields(raw, hints, source, ResultsError, _ADVICE, at)
-    missing = [name for name in required if name not in raw]
-    if missing:
-        raise ResultsError(f"{source}: {at}: missing field {missing[0]!r}; {_ADVICE}")
-    return raw
-
-
 def _infractions(raw: dict[str, Any], where: str) -> dict[str, list[str]]:
     """The infraction messages by type; those whose percentage the scores read (off-lane, min speed) are parsed here,
     where the file and record are known."""
@@ -194,9 +184,9 @@ def _infractions(raw: dict[str, Any], where: str) -> dict[str, list[str]]:
 def parse_record(raw: Any, source: str, position: int) -> RouteRecord:
     """One entry of ``_checkpoint.records``; errors name the file, record and field."""
     at = f"_checkpoint.records[{position}]"
-    raw = _checked(raw, RECORD_FIELDS, source, at, ("route_id", "scores", "meta"))
-    scores = _checked(raw["scores"], SCORES_FIELDS, source, f"{at}.scores", ("score_route",))
-    meta = _checked(raw["meta"], META_FIELDS, source, f"{at}.meta", ("route_length",))
+    raw = check_fields(raw, RECORD_FIELDS, source, ResultsError, _ADVICE, at, ("route_id", "scores", "meta"))
+    scores = check_fields(raw["scores"], SCORES_FIELDS, source, ResultsError, _ADVICE, f"{at}.scores", ("score_route",))
+    meta = check_fields(raw["meta"], META_FIELDS, source, ResultsError, _ADVICE, f"{at}.meta", ("route_length",))
     match = _ROUTE_ID.match(raw["route_id"])
     if match is None:
         raise ResultsError(f"{source}: {at}.route_id: {raw['route_id']!r} names no route")

@@ -26,7 +26,7 @@ from lead_s2r.shards import (
     listed_samples,
     read_part,
     read_samples,
-    sample_offsets,
+    shard_parts,
 )
 
 #: Samples one job of a parallel read decodes: NAVSIM's take 4 ms each, a job's messages a few ms.
@@ -130,15 +130,7 @@ def decode_listed(
     field), by ``executor``'s workers or here."""
     if chosen and "sample" in chosen[0]:
         return [entry["sample"] for entry in chosen]
-    by_shard: dict[str, list[str]] = {}
-    for entry in chosen:
-        by_shard.setdefault(entry["shard"], []).append(entry["key"])
-    parts = []
-    for shard, keys in by_shard.items():
-        # one walk over the headers says where each part starts; one part reads from the start, skipping the rest
-        offsets = sample_offsets(shard) if len(keys) > SAMPLES_PER_READ else {keys[0]: 0}
-        starts = range(0, len(keys), SAMPLES_PER_READ)
-        parts += [(shard, keys[start : start + SAMPLES_PER_READ], fields, offsets[keys[start]]) for start in starts]
+    parts = [(shard, keys, fields, offset) for shard, keys, offset in shard_parts(chosen, SAMPLES_PER_READ)]
     decoded = executor.map(read_part, parts, per_job=1) if executor is not None else (read_part(*p) for p in parts)
     return [sample for part in decoded for sample in part]
 

@@ -51,9 +51,7 @@ class ScoresFile:
         except (OSError, ValueError, pa.ArrowException) as err:  # ValueError: UTF-8, JSON, base64 (read_parquet)
             where = f"{folder}: cannot read {SCORES_JSON} / {SCORES_TABLE}" if rows else f"{json_path}: cannot read it"
             raise error(f"{where} ({err})") from None
-        check_fields(report, FIELDS, str(json_path), error, ADVICE)
-        if "metric" not in report:
-            raise error(f"{json_path}: no 'metric'; {ADVICE}")
+        check_fields(report, FIELDS, str(json_path), error, ADVICE, required=("metric",))
         if table is not None:
             check_fields(report, SCORED_FIELDS, str(json_path), error, ADVICE)
             check_fields(report.get("config", {}), {"reference_cache": str | None}, str(json_path), error, at="config")

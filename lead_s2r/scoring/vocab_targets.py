@@ -28,7 +28,7 @@ import io
 import json
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +49,7 @@ from lead_s2r.scoring.pdm.score import EPDMS_METRIC, METRIC, METRICS
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES, PROGRESS_MODES, check_vocabulary
 from lead_s2r.scoring.pdm.vocabulary import score_vocabulary as score_entries
 from lead_s2r.scoring.run import sample_listing, select_samples
-from lead_s2r.shards import load_manifest, read_part, sample_offsets
+from lead_s2r.shards import load_manifest, read_part, shard_parts
 
 PICKLE = "vocab_scores.pkl"
 PARQUET = "vocab_scores.parquet"
@@ -83,16 +83,9 @@ class VocabRun:
     split: str | None
 
     def identity(self) -> dict[str, Any]:
-        return {
-            "vocabulary_sha256": self.vocabulary_sha256,
-            "shape": list(self.shape),
-            "interval": self.interval,
-            "metric": self.metric,
-            "progress": self.progress,
-            "human_filter": self.human_filter,
-            "data": list(self.data),
-            "split": self.split,
-        }
+        """Every field but the vocabulary's path (a copy elsewhere is the same vocabulary), as JSON writes it."""
+        fields = asdict(self).items()
+        return {name: list(v) if isinstance(v, tuple) else v for name, v in fields if name != "vocabulary"}
 
 
 def load_vocabulary(path: Path) -> np.ndarray:
@@ -262,25 +255,12 @@ def _jobs(data: list[Path], split: str | None) -> list[list[dict[str, Any]] | tu
             flags = table["has_scoring"].to_pylist() if "has_scoring" in table.column_names else [False] * len(table)
             scoring = dict(zip(table["key"].to_pylist(), flags, strict=True))
             without = [entry["key"] for entry in entries if not scoring.get(entry["key"])]
-            jobs += _shard_jobs(entries)
+            jobs += shard_parts(entries, SCENES_PER_JOB)
         if without:
             more = f" (and {len(without) - 1} more)" if len(without) > 1 else ""
             raise UserError(f"--data {folder}: sample {without[0]!r} has no field 'scoring'{more}; {NEEDS_MAPS}")
     if not jobs:
         raise UserError(f"--split {split}: {', '.join(map(str, data))} holds no sample of it")
-    return jobs
-
-
-def _shard_jobs(entries: list[dict[str, Any]]) -> list[tuple[str, list[str], int]]:
-    by_shard: dict[str, list[str]] = {}
-    for entry in entries:
-        by_shard.setdefault(entry["shard"], []).append(entry["key"])
-    jobs = []
-    for shard, keys in by_shard.items():
-        offsets = sample_offsets(shard)
-        for start in range(0, len(keys), SCENES_PER_JOB):
-            part = keys[start : start + SCENES_PER_JOB]
-            jobs.append((shard, part, offsets[part[0]]))
     return jobs
 
 

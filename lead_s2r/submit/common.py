@@ -29,14 +29,19 @@ def listing(names: Iterable[str]) -> str:
     return shown if len(names) <= LISTED else f"{shown} ... ({len(names)} in all)"
 
 
-def require_coverage(what: str, expected: Iterable[str], given: Iterable[str], source: str) -> None:
-    """Raise naming every expected ``what`` (token, frame) that ``source`` has no prediction for."""
-    expected = set(expected)
-    missing = expected - set(given)
+def require_coverage(
+    what: str, expected: Iterable[str], given: Iterable[str], source: str, exact: bool = False
+) -> None:
+    """Raise naming every expected ``what`` (token, frame) that ``source`` has no prediction for; with ``exact``, also
+    every one it has that the split does not."""
+    expected, given = set(expected), set(given)
+    missing = expected - given
     if missing:
         raise SubmissionError(
             f"{source}: {len(missing)} of {len(expected)} {what}s have no prediction: {listing(missing)}"
         )
+    if exact and given - expected:
+        raise SubmissionError(f"{source}: {what}s not in the split: {listing(given - expected)}")
 
 
 def split_metas(data: Sequence[Path], dataset: str) -> dict[str, dict[str, Any]]:

@@ -169,10 +169,7 @@ def validate(shards: dict[str, Any], expected: Sequence[str] | None = None) -> i
             _check_frame(name, entry, seen)
             seen[entry.frame_name] = name
     if expected is not None:
-        require_coverage("frame", expected, seen, "submission")
-        extra = set(seen) - set(expected)
-        if extra:
-            raise SubmissionError(f"submission: frames not in the split: {listing(extra)}")
+        require_coverage("frame", expected, seen, "submission", exact=True)
     return len(seen)
 
 

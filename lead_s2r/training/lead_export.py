@@ -28,6 +28,7 @@ from lead_s2r.models.lead import export_checkpoint
 from lead_s2r.models.lead_config import TOY_SCALES, LeadConfig
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_tfv6 import LeadTFv6
+from lead_s2r.training.weights import find_checkpoint
 
 #: Our config fields that LEAD's loader never reads from config.json (plain properties it derives, or fields it does
 #: not have), each with the attribute that holds its effect on the network.
@@ -65,19 +66,6 @@ def check_lead_reads(config: LeadConfig, source: Path) -> None:
             )
 
 
-def run_checkpoint(run: Path) -> Path:
-    """A ``.ckpt`` file as given, else ``<run>/checkpoints/last.ckpt``, else the run's newest checkpoint."""
-    if run.is_file():
-        return run
-    folder = run / "checkpoints"
-    if (folder / "last.ckpt").is_file():
-        return folder / "last.ckpt"
-    found = sorted(folder.glob("*.ckpt"), key=lambda p: p.stat().st_mtime)
-    if not found:
-        raise UserError(f"{run}: no checkpoint (a .ckpt file, or a run folder with checkpoints/*.ckpt)")
-    return found[-1]
-
-
 def read_network(checkpoint: Path) -> LeadTFv6:
     """The LEAD network of a ``DrivingModule`` checkpoint, rebuilt from its ``hyper_parameters`` (as LightningCLI
     saved them) and loaded strictly; anything else is a :class:`UserError` naming the file."""
@@ -109,7 +97,7 @@ def read_network(checkpoint: Path) -> LeadTFv6:
 
 def export_run(run: Path, out: Path) -> Path:
     """Export the run's checkpoint to ``out`` (config.json + model_0000.pth), or refuse before writing anything."""
-    checkpoint = run_checkpoint(run)
+    checkpoint = find_checkpoint(run)
     network = read_network(checkpoint)
     check_lead_reads(network.config, checkpoint)
     return export_checkpoint(network.eval(), out)

@@ -45,6 +45,27 @@ class LoadReport:
         return "\n".join(lines)
 
 
+class CheckpointNotFound(UserError, FileNotFoundError):
+    """A path that is neither a checkpoint file nor a run folder holding one."""
+
+
+def find_checkpoint(path: str | Path) -> Path:
+    """``path`` itself if it is a file; in a run folder ``checkpoints/last.ckpt``, ``last.ckpt``, else the newest
+    ``*.ckpt`` below it."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise CheckpointNotFound(f"{path}: no such checkpoint file or run folder")
+    for candidate in (path / "checkpoints" / "last.ckpt", path / "last.ckpt"):
+        if candidate.is_file():
+            return candidate
+    found = sorted(path.rglob("*.ckpt"), key=lambda p: p.stat().st_mtime)
+    if not found:
+        raise CheckpointNotFound(f"{path} holds no *.ckpt; pass a checkpoint file or a run folder of `lead-s2r fit`")
+    return found[-1]
+
+
 def _roots(keys: list[str], depth: int = 2) -> list[str]:
     """Collapse parameter names to their first ``depth`` components (after a LEAD driver's ``network.``)."""
     return sorted({".".join(k.removeprefix("network.").split(".")[:depth]) for k in keys})
@@ -68,12 +89,8 @@ def lead_folder_weights(folder: Path) -> Path:
 
 
 def _strip(key: str) -> str:
-    changed = True
-    while changed:
-        changed = False
-        for prefix in PREFIXES:
-            if key.startswith(prefix):
-                key, changed = key[len(prefix) :], True
+    while key.startswith(PREFIXES):  # in any order, as often as they are nested
+        key = next(key.removeprefix(prefix) for prefix in PREFIXES if key.startswith(prefix))
     return key
 
 
