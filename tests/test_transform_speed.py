@@ -21,6 +21,8 @@ from lead_s2r.data.lead_labels import (
     _bev_tables,
     _footprint_pixels,
     bev_cell_centres,
+    bev_gather,
+    bev_gather_index,
     bev_labels,
     box_points,
     canvas_crop,
@@ -149,6 +151,25 @@ def test_lead_bev_labels_from_the_raster_equal_the_remap_and_turns_after_the_gat
     assert got.dtype == expected.dtype and got.shape == expected.shape
     np.testing.assert_array_equal(got, expected)
     np.testing.assert_array_equal(bev_labels(raster, spec, grid), gathered)  # the two cached indices stay apart
+
+
+def test_bev_gather_copies_rows_and_columns_where_they_read_the_flat_indexs_pixels() -> None:
+    """LEAD's hdmap in LEAD's layout (and an axis-aligned raster in ours) is gathered by rows and columns, a rotated
+    raster by the flat index; each reads, cell by cell, the pixel (or the fill) the flat index does."""
+    lead_hdmap, aligned, rotated = (
+        [[0.0, -0.5, 65.139], [-0.5, 0.0, 63.75]],
+        [[0.25, 0.0, -20.0], [0.0, 0.25, -31.0]],
+        [[0.3, -0.4, 3.0], [0.4, 0.3, -7.0]],
+    )
+    padded = np.random.default_rng(4).integers(0, 255, (257, 201), dtype=np.uint8)
+    for pixel_to_ego, turned, separable in ((lead_hdmap, True, True), (aligned, False, True), (rotated, True, False)):
+        key = tuple(tuple(row) for row in pixel_to_ego)
+        gather = bev_gather(key, (256, 200), CARLA_BEV, turned)
+        assert (gather.flat is None) == separable
+        index = bev_gather_index(key, (256, 200), CARLA_BEV, turned)
+        values = np.append(padded[:256, :200].reshape(-1), padded[256, 200])
+        padded[256, :], padded[:, 200] = padded[256, 200], padded[256, 200]  # one fill value, as the transform pads
+        np.testing.assert_array_equal(gather(padded), values[index])
 
 
 def test_lidar_raster_equals_the_saturated_histogram() -> None:
