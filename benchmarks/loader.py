@@ -28,7 +28,9 @@ workers (its ratio is to plain decoding in one process). ``--lead-style`` adds, 
 LEAD builds them uncached, and one rig), checked against ours on one frame.
 
 Both sides of a ratio run over as many samples (plain decoding cycles over the shards until it has read
-``--steps`` x ``--batch-size``), and the process's Python heap is frozen before the first round (``gc.freeze``,
+``--steps`` x ``--batch-size``), and within a round they take turns: each loader's pass is cut into ``--slices``
+slices run alternately (plain decoding, ours, ours for the GPU, then back), so a change in the shared machine's load
+weighs on both sides of a ratio alike (docs/benchmarks.md, "Fifth round"). The process's Python heap is frozen before the first round (``gc.freeze``,
 as the loader's workers do) and collected before every pass: otherwise the occasional full collection over the
 half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in whichever pass is
 running (docs/benchmarks.md, "Third round").
@@ -99,31 +101,42 @@ KINDS: dict[str, tuple[str, dict[str, Any], list[str]]] = {
 
 @dataclass
 class Timing:
-    """One loader's pass: samples, wall and CPU seconds; ``steady_*`` leave out its first batch."""
+    """One loader's round: samples, wall and CPU seconds, summed over its slices."""
 
-    samples: int
-    wall: float
-    cpu: float
-    steady_samples: int
-    steady_wall: float
+    samples: int = 0
+    wall: float = 0.0
+    cpu: float = 0.0
 
     @property
     def rate(self) -> float:
         return self.samples / self.wall
 
-    @property
-    def steady_rate(self) -> float:
-        return self.steady_samples / self.steady_wall
+    def add(self, batches: Iterator[int]) -> None:
+        """Run ``batches`` (an iterator over batch sizes) and count it in."""
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.samples += sum(batches)
+        self.wall += time.perf_counter() - wall
+        self.cpu += time.process_time() - cpu
 
 
-def timed(batches: Iterator[int]) -> Timing:
-    """Time a loader given as an iterator over its batch sizes."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    first = next(batches)
-    after_first = time.perf_counter()
-    rest = sum(batches)
-    end = time.perf_counter()
-    return Timing(first + rest, end - wall, time.process_time() - cpu, rest, end - after_first)
+def timed_round(runs: dict[str, Callable[[], Iterator[int]]], steps: int, slices: int) -> dict[str, Timing]:
+    """One round of every loader of a kind, ``steps`` batches each, interleaved: each pass is cut into ``slices``
+    slices, run in turn (in reverse order every other slice), so a change in the machine's load during the round
+    weighs on every loader alike, and a ratio of two loaders is taken over the same stretch of time. A loader with
+    dataloader workers runs its pass whole afterwards: its workers would fill their prefetch queue while the other
+    loaders' slices run."""
+    passes = {name: run() for name, run in runs.items()}
+    timings = {name: Timing() for name in runs}
+    sliced = [name for name in runs if name != OURS_TWO]
+    bounds = [steps * k // slices for k in range(slices + 1)]
+    for k, (start, stop) in enumerate(itertools.pairwise(bounds)):
+        for name in sliced if k % 2 == 0 else sliced[::-1]:
+            gc.collect()  # every slice starts from empty GC generations
+            timings[name].add(itertools.islice(passes[name], stop - start))
+    for name in set(runs) - set(sliced):
+        gc.collect()
+        timings[name].add(passes[name])
+    return timings
 
 
 def check_agreement(data: Path, lead: LeadStyleFrames, transform: SourceTransform) -> None:
@@ -164,8 +177,8 @@ def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Callabl
         return lambda: (len(next(stream)["__key__"]) for _ in range(args.steps))
 
     runs = {
-        PLAIN: lambda: (1 for _ in _samples(data, args)),
-        PIXELS: lambda: (_decode_jpegs(sample) for sample in _samples(data, args)),
+        PLAIN: lambda: _batched((1 for _ in _samples(data, args)), args.batch_size),
+        PIXELS: lambda: _batched((_decode_jpegs(sample) for sample in _samples(data, args)), args.batch_size),
         OURS: ours(training_stream(kind, data, args, config, False, 0)),
     }
     if source in ("carla", "wod"):  # rigs the device lays out: CARLA's mosaic as stored, WOD-E2E's three cameras
@@ -225,6 +238,9 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--steps", type=int, default=40, help="batches per round for ours and the LEAD-style loader")
     parser.add_argument("--rounds", type=int, default=3, help="timed rounds, after one warm-up round")
+    parser.add_argument(
+        "--slices", type=int, default=8, help="slices of each round, in which the loaders of a kind take turns"
+    )
     parser.add_argument("--two-workers", action="store_true", help="also ours with 2 dataloader workers")
     parser.add_argument("--lead-style", action="store_true", help="also the LEAD-style loader (CARLA kinds)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (collation)")
@@ -239,9 +255,7 @@ def main() -> None:
         gc.freeze()  # what the loader's workers do (datamodule._freeze_inherited_objects): see the module docstring
         for round_index in range(-1, args.rounds):  # round -1: the warm-up, not counted
             for kind, per_kind in runs.items():
-                for name, run in per_kind.items():
-                    gc.collect()  # every pass starts from empty GC generations
-                    timing = timed(run())
+                for name, timing in timed_round(per_kind, args.steps, args.slices).items():
                     if round_index >= 0:
                         timings[kind, name].append(timing)
                     print(
@@ -288,6 +302,12 @@ def _samples(data: Path, args: argparse.Namespace) -> Iterator[dict[str, Any]]:
     both sides of a ratio run equally long over the same kind of samples."""
     passes = itertools.chain.from_iterable(read_samples(data) for _ in itertools.count())
     return itertools.islice(passes, args.steps * args.batch_size)
+
+
+def _batched(per_sample: Iterator[int], size: int) -> Iterator[int]:
+    """Samples counted in batches of ``size``, so plain decoding is sliced in batches as the loaders are."""
+    while count := sum(itertools.islice(per_sample, size)):
+        yield count
 
 
 def _decode_jpegs(sample: dict[str, Any]) -> int:
