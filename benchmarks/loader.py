@@ -29,10 +29,11 @@ LEAD builds them uncached, and one rig), checked against ours on one frame.
 
 Both sides of a ratio run over as many samples (plain decoding cycles over the shards until it has read
 ``--steps`` x ``--batch-size``), and within a round they take turns: each loader's pass is cut into ``--slices``
-slices run alternately (plain decoding, ours, ours for the GPU, then back), so a change in the shared machine's load
-weighs on both sides of a ratio alike (docs/benchmarks.md, "Fifth round"). The process's Python heap is frozen before the first round (``gc.freeze``,
-as the loader's workers do) and collected before every pass: otherwise the occasional full collection over the
-half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in whichever pass is
+slices run alternately (plain decoding, ours, ours for the GPU, then back), so a change in the shared machine's
+load weighs on both sides of a ratio alike (docs/benchmarks.md, "Fifth round"). The process's Python heap is frozen
+before the first round (``gc.freeze``, as the loader's workers do) and collected before every slice: otherwise the
+occasional full collection over the half a million objects torch, Lightning and the generated data leave (0.2 s of
+CPU) lands in whichever pass is
 running (docs/benchmarks.md, "Third round").
 
 Torch runs one intra-op thread (``--threads``), as a dataloader worker does. CPU time is this process's (user +
