@@ -7,7 +7,8 @@ One core: every loader but the 2-worker one runs in this one process (no dataloa
 Prints, per kind of generated data, the median over ``--rounds`` rounds (after one warm-up round) of: plain shard
 decoding samples/s (``read_samples`` over the converted shards, every field decoded, JPEG bytes left as bytes: the
 floor any shard loader pays); our training loader's samples/s and CPU ms per sample; their ratio, measured in the
-same round (a busy machine slows both alike), with the spread of that ratio over the rounds. Kinds:
+same round (a busy machine slows both alike), with the spread of that ratio over the rounds; the same by CPU
+time and by each loader's fastest slice of the round (``--slices`` below). Kinds:
 
 - ``light`` / ``realistic``: generated LEAD CARLA routes (light: five actors, about 700 LiDAR points, the tests'
   frames; realistic: about 60 actors, about 60,000 LiDAR + radar points, metas with every target-point planner),
@@ -43,6 +44,7 @@ system); with workers it is the workers' too (their CPU is not this process's: t
 import argparse
 import gc
 import itertools
+import math
 import os
 import statistics
 import tempfile
@@ -102,11 +104,13 @@ KINDS: dict[str, tuple[str, dict[str, Any], list[str]]] = {
 
 @dataclass
 class Timing:
-    """One loader's round: samples, wall and CPU seconds, summed over its slices."""
+    """One loader's round: samples, wall and CPU seconds, summed over its slices; ``fastest``: the wall seconds per
+    sample of its fastest slice (another process on the core only ever slows a slice down)."""
 
     samples: int = 0
     wall: float = 0.0
     cpu: float = 0.0
+    fastest: float = math.inf
 
     @property
     def rate(self) -> float:
@@ -115,9 +119,15 @@ class Timing:
     def add(self, batches: Iterator[int]) -> None:
         """Run ``batches`` (an iterator over batch sizes) and count it in."""
         wall, cpu = time.perf_counter(), time.process_time()
-        self.samples += sum(batches)
-        self.wall += time.perf_counter() - wall
-        self.cpu += time.process_time() - cpu
+        samples = sum(batches)
+        wall = time.perf_counter() - wall
+        self.samples, self.wall, self.cpu = (
+            self.samples + samples,
+            self.wall + wall,
+            self.cpu + time.process_time() - cpu,
+        )
+        if samples:
+            self.fastest = min(self.fastest, wall / samples)
 
 
 def timed_round(runs: dict[str, Callable[[], Iterator[int]]], steps: int, slices: int) -> dict[str, Timing]:
@@ -270,7 +280,8 @@ def main() -> None:
 def summary(
     runs: dict[str, dict[str, Callable[[], Iterator[int]]]], timings: dict[tuple[str, str], list[Timing]], rounds: int
 ) -> None:
-    """Medians over the rounds; each ratio is the median of the per-round ratios, with their spread."""
+    """Medians over the rounds; each ratio is the median of the per-round ratios, with their spread: by samples/s,
+    by CPU time (one process), and of the fastest slices (the least disturbed stretch of each loader's round)."""
     print(
         f"\nmedian over {rounds} rounds; ratio: samples/s over plain decoding's in the same round (spread: max/min-1)"
     )
@@ -291,6 +302,10 @@ def summary(
                 cpu_ratios = [y.cpu / y.samples / (x.cpu / x.samples) for x, y in zip(of, plain, strict=True)]
                 cpu_spread = max(cpu_ratios) / min(cpu_ratios) - 1
                 line += f", by CPU time {statistics.median(cpu_ratios):.2f}x (spread {cpu_spread:.0%})"
+                fastest = [y.fastest / x.fastest for x, y in zip(of, plain, strict=True)]
+                line += (
+                    f", fastest slices {statistics.median(fastest):.2f}x (spread {max(fastest) / min(fastest) - 1:.0%})"
+                )
             print(line)
 
 
