@@ -311,7 +311,7 @@ def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.nd
     outside it.
 
     The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
-    (:func:`bev_gather_index`) and each sample is one gather."""
+    (:func:`bev_gather`) and each sample is one gather."""
     return _gathered(labels, spec, grid)
 
 
@@ -367,10 +367,12 @@ def bev_gather(
     flat = rows * (w + 1) + columns
     separable = BevGather(rows=rows.min(axis=0), columns=columns.min(axis=1))  # a real pixel where any cell has one
     read = separable(np.arange((h + 1) * (w + 1)).reshape(h + 1, w + 1))  # the flat pixel each cell reads
-    read_outside = (read // (w + 1) == h) | (read % (w + 1) == w)
-    if np.array_equal(np.where(read_outside, h * (w + 1) + w, read), flat):  # the same pixel, or the fill
-        return separable
-    return BevGather(flat=flat)
+    read_outside = (read // (w + 1) == h) | (read % (w + 1) == w)  # read the fill: the same as the flat index's
+    gather = separable if np.array_equal(np.where(read_outside, h * (w + 1) + w, read), flat) else BevGather(flat=flat)
+    for array in (gather.flat, gather.rows, gather.columns):
+        if array is not None:
+            array.flags.writeable = False  # shared by every sample
+    return gather
 
 
 @lru_cache(maxsize=64)
