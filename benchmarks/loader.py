@@ -7,7 +7,8 @@ One core: every loader but the 2-worker one runs in this one process (no dataloa
 Prints, per kind of generated data, the median over ``--rounds`` rounds (after one warm-up round) of: plain shard
 decoding samples/s (``read_samples`` over the converted shards, every field decoded, JPEG bytes left as bytes: the
 floor any shard loader pays); our training loader's samples/s and CPU ms per sample; their ratio, measured in the
-same round (a busy machine slows both alike), with the spread of that ratio over the rounds. Kinds:
+same round (a busy machine slows both alike), with the spread of that ratio over the rounds; the same by CPU
+time and by each loader's fastest slice of the round (``--slices`` below). Kinds:
 
 - ``light`` / ``realistic``: generated LEAD CARLA routes (light: five actors, about 700 LiDAR points, the tests'
   frames; realistic: about 60 actors, about 60,000 LiDAR + radar points, metas with every target-point planner),
@@ -28,9 +29,12 @@ workers (its ratio is to plain decoding in one process). ``--lead-style`` adds, 
 LEAD builds them uncached, and one rig), checked against ours on one frame.
 
 Both sides of a ratio run over as many samples (plain decoding cycles over the shards until it has read
-``--steps`` x ``--batch-size``), and the process's Python heap is frozen before the first round (``gc.freeze``,
-as the loader's workers do) and collected before every pass: otherwise the occasional full collection over the
-half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in whichever pass is
+``--steps`` x ``--batch-size``), and within a round they take turns: each loader's pass is cut into ``--slices``
+slices run alternately (plain decoding, ours, ours for the GPU, then back), so a change in the shared machine's
+load weighs on both sides of a ratio alike (docs/benchmarks.md, "Fifth round"). The process's Python heap is frozen
+before the first round (``gc.freeze``, as the loader's workers do) and collected before every slice: otherwise the
+occasional full collection over the half a million objects torch, Lightning and the generated data leave (0.2 s of
+CPU) lands in whichever pass is
 running (docs/benchmarks.md, "Third round").
 
 Torch runs one intra-op thread (``--threads``), as a dataloader worker does. CPU time is this process's (user +
@@ -40,6 +44,7 @@ system); with workers it is the workers' too (their CPU is not this process's: t
 import argparse
 import gc
 import itertools
+import math
 import os
 import statistics
 import tempfile
@@ -99,31 +104,50 @@ KINDS: dict[str, tuple[str, dict[str, Any], list[str]]] = {
 
 @dataclass
 class Timing:
-    """One loader's pass: samples, wall and CPU seconds; ``steady_*`` leave out its first batch."""
+    """One loader's round: samples, wall and CPU seconds, summed over its slices; ``fastest``: the wall seconds per
+    sample of its fastest slice (another process on the core only ever slows a slice down)."""
 
-    samples: int
-    wall: float
-    cpu: float
-    steady_samples: int
-    steady_wall: float
+    samples: int = 0
+    wall: float = 0.0
+    cpu: float = 0.0
+    fastest: float = math.inf
 
     @property
     def rate(self) -> float:
         return self.samples / self.wall
 
-    @property
-    def steady_rate(self) -> float:
-        return self.steady_samples / self.steady_wall
+    def add(self, batches: Iterator[int]) -> None:
+        """Run ``batches`` (an iterator over batch sizes) and count it in."""
+        wall, cpu = time.perf_counter(), time.process_time()
+        samples = sum(batches)
+        wall = time.perf_counter() - wall
+        self.samples, self.wall, self.cpu = (
+            self.samples + samples,
+            self.wall + wall,
+            self.cpu + time.process_time() - cpu,
+        )
+        if samples:
+            self.fastest = min(self.fastest, wall / samples)
 
 
-def timed(batches: Iterator[int]) -> Timing:
-    """Time a loader given as an iterator over its batch sizes."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    first = next(batches)
-    after_first = time.perf_counter()
-    rest = sum(batches)
-    end = time.perf_counter()
-    return Timing(first + rest, end - wall, time.process_time() - cpu, rest, end - after_first)
+def timed_round(runs: dict[str, Callable[[], Iterator[int]]], steps: int, slices: int) -> dict[str, Timing]:
+    """One round of every loader of a kind, ``steps`` batches each, interleaved: each pass is cut into ``slices``
+    slices, run in turn (in reverse order every other slice), so a change in the machine's load during the round
+    weighs on every loader alike, and a ratio of two loaders is taken over the same stretch of time. A loader with
+    dataloader workers runs its pass whole afterwards: its workers would fill their prefetch queue while the other
+    loaders' slices run."""
+    passes = {name: run() for name, run in runs.items()}
+    timings = {name: Timing() for name in runs}
+    sliced = [name for name in runs if name != OURS_TWO]
+    bounds = [steps * k // slices for k in range(slices + 1)]
+    for k, (start, stop) in enumerate(itertools.pairwise(bounds)):
+        for name in sliced if k % 2 == 0 else sliced[::-1]:
+            gc.collect()  # every slice starts from empty GC generations
+            timings[name].add(itertools.islice(passes[name], stop - start))
+    for name in set(runs) - set(sliced):
+        gc.collect()
+        timings[name].add(passes[name])
+    return timings
 
 
 def check_agreement(data: Path, lead: LeadStyleFrames, transform: SourceTransform) -> None:
@@ -164,8 +188,8 @@ def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Callabl
         return lambda: (len(next(stream)["__key__"]) for _ in range(args.steps))
 
     runs = {
-        PLAIN: lambda: (1 for _ in _samples(data, args)),
-        PIXELS: lambda: (_decode_jpegs(sample) for sample in _samples(data, args)),
+        PLAIN: lambda: _batched((1 for _ in _samples(data, args)), args.batch_size),
+        PIXELS: lambda: _batched((_decode_jpegs(sample) for sample in _samples(data, args)), args.batch_size),
         OURS: ours(training_stream(kind, data, args, config, False, 0)),
     }
     if source in ("carla", "wod"):  # rigs the device lays out: CARLA's mosaic as stored, WOD-E2E's three cameras
@@ -225,6 +249,9 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--steps", type=int, default=40, help="batches per round for ours and the LEAD-style loader")
     parser.add_argument("--rounds", type=int, default=3, help="timed rounds, after one warm-up round")
+    parser.add_argument(
+        "--slices", type=int, default=8, help="slices of each round, in which the loaders of a kind take turns"
+    )
     parser.add_argument("--two-workers", action="store_true", help="also ours with 2 dataloader workers")
     parser.add_argument("--lead-style", action="store_true", help="also the LEAD-style loader (CARLA kinds)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (collation)")
@@ -239,9 +266,7 @@ def main() -> None:
         gc.freeze()  # what the loader's workers do (datamodule._freeze_inherited_objects): see the module docstring
         for round_index in range(-1, args.rounds):  # round -1: the warm-up, not counted
             for kind, per_kind in runs.items():
-                for name, run in per_kind.items():
-                    gc.collect()  # every pass starts from empty GC generations
-                    timing = timed(run())
+                for name, timing in timed_round(per_kind, args.steps, args.slices).items():
                     if round_index >= 0:
                         timings[kind, name].append(timing)
                     print(
@@ -255,7 +280,8 @@ def main() -> None:
 def summary(
     runs: dict[str, dict[str, Callable[[], Iterator[int]]]], timings: dict[tuple[str, str], list[Timing]], rounds: int
 ) -> None:
-    """Medians over the rounds; each ratio is the median of the per-round ratios, with their spread."""
+    """Medians over the rounds; each ratio is the median of the per-round ratios, with their spread: by samples/s,
+    by CPU time (one process), and of the fastest slices (the least disturbed stretch of each loader's round)."""
     print(
         f"\nmedian over {rounds} rounds; ratio: samples/s over plain decoding's in the same round (spread: max/min-1)"
     )
@@ -276,6 +302,10 @@ def summary(
                 cpu_ratios = [y.cpu / y.samples / (x.cpu / x.samples) for x, y in zip(of, plain, strict=True)]
                 cpu_spread = max(cpu_ratios) / min(cpu_ratios) - 1
                 line += f", by CPU time {statistics.median(cpu_ratios):.2f}x (spread {cpu_spread:.0%})"
+                fastest = [y.fastest / x.fastest for x, y in zip(of, plain, strict=True)]
+                line += (
+                    f", fastest slices {statistics.median(fastest):.2f}x (spread {max(fastest) / min(fastest) - 1:.0%})"
+                )
             print(line)
 
 
@@ -288,6 +318,12 @@ def _samples(data: Path, args: argparse.Namespace) -> Iterator[dict[str, Any]]:
     both sides of a ratio run equally long over the same kind of samples."""
     passes = itertools.chain.from_iterable(read_samples(data) for _ in itertools.count())
     return itertools.islice(passes, args.steps * args.batch_size)
+
+
+def _batched(per_sample: Iterator[int], size: int) -> Iterator[int]:
+    """Samples counted in batches of ``size``, so plain decoding is sliced in batches as the loaders are."""
+    while count := sum(itertools.islice(per_sample, size)):
+        yield count
 
 
 def _decode_jpegs(sample: dict[str, Any]) -> int:

@@ -13,6 +13,7 @@ import torch
 from test_transform_speed import random_boxes, reference_lidar
 from tiny_models import sensor_spec
 
+from lead_s2r.data.lead_route import _dot_sign, lead_route
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.data.radar import MAX_RADAR_TARGETS, RADAR_HIT_MARGIN_M, radar_targets
 from lead_s2r.data.transforms import SourceTransform
@@ -46,6 +47,42 @@ def reference_trajectory(future: np.ndarray, times: tuple[float, ...]) -> dict[s
         out["headings"] = np.nan_to_num(poses[:, 2]).astype(np.float32)
         out["headings_valid"] = heading_valid
     return out
+
+
+def reference_lead_route(route: np.ndarray, count: int) -> dict[str, np.ndarray]:
+    """LEAD's pursuit on numpy 2-vectors (the code before the Python-float loop): ``np.unique`` rows, numpy's
+    ``hypot`` and dot."""
+    route = np.asarray(route, np.float64)[:, :2]
+    _, first = np.unique(route, axis=0, return_index=True)
+    route = route[np.sort(first)]
+    points, invalid = (
+        np.zeros((count, 2)),
+        {"route": np.zeros((count, 2), np.float32), "route_valid": np.zeros(count, bool)},
+    )
+    if len(route) < min(2, count):
+        return invalid
+    last, previous = np.zeros(2), np.zeros(2)
+    for i in range(count):
+        radius = 2.5 if i == 0 else 1.0
+        if i < len(route):
+            line = route[i] - last
+            length = float(np.hypot(*line))
+            if length == 0.0:
+                return invalid
+            unit = line / length
+            point = last + radius * unit if float(unit @ (route[i] - previous)) > 0 else last - radius * unit
+            previous = route[i]
+        else:
+            direction, offset = route[-1] - route[-2], route[-2] - last
+            a, b = float(direction @ direction), 2 * float(direction @ offset)
+            discriminant = b * b - 4 * a * (float(offset @ offset) - radius**2)
+            if a == 0.0 or discriminant < 0:
+                return invalid
+            point = route[-2] + (-b + np.sqrt(discriminant)) / (2 * a) * direction
+        points[i] = last = point
+    if not np.isfinite(points).all():
+        return invalid
+    return {"route": points.astype(np.float32), "route_valid": np.ones(count, bool)}
 
 
 def assert_bit_identical(got: dict[str, torch.Tensor], expected: dict[str, np.ndarray]) -> None:
@@ -174,6 +211,44 @@ def test_trajectory_equals_the_nan_to_num_definition(knots: np.ndarray, source: 
     transform = SourceTransform(source, sensor_spec(), [])
     expected = reference_trajectory(knots, transform.spec.trajectory_grids[source].times)
     assert_bit_identical(transform.trajectory(knots), expected)
+
+
+def random_routes(rng: np.random.Generator) -> list[np.ndarray]:
+    """Routes that reach every path of the pursuit: repeated rows (adjacent or not, -0.0 beside 0.0), routes shorter
+    than the targets (continued on their last line) down to a single point, points on the ego, chords that turn
+    back, grid-like values whose steps are perpendicular to the chord (dot products of 0), NaN and inf points."""
+    routes = []
+    for _ in range(400):
+        k = int(rng.integers(0, 16))
+        route = np.cumsum(rng.normal(0.0, rng.choice([0.3, 1.0, 4.0]), (k, 2)), axis=0) + rng.normal(2.0, 3.0, 2)
+        if rng.random() < 0.3:
+            route = np.round(route * 2) / 2  # a half-metre lattice: exact steps, perpendicular ones among them
+        if k and rng.random() < 0.1:
+            route[rng.integers(0, k)] = (-0.0, 0.0) if rng.random() < 0.5 else (0.0, -0.0)
+        if k and rng.random() < 0.1:
+            route[rng.integers(0, k), int(rng.integers(0, 2))] = rng.choice([np.nan, np.inf, -np.inf])
+        if k and rng.random() < 0.4:
+            route = route[rng.integers(0, k, k + 3)]  # repeats (NaN rows too), in and out of order
+        routes.append(route.astype(rng.choice([np.float32, np.float64])))
+    return [*routes, np.array([[0.0, 0.0], [-0.0, 0.0], [0.0, -0.0], [3.0, 0.0]]), np.array([[0.0, 1.0], [1.0, 1.0]])]
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("count", [0, 1, 3, 10, 20])
+def test_lead_route_equals_the_numpy_pursuit(count: int) -> None:
+    for route in random_routes(np.random.default_rng(count)):
+        assert_bit_identical(lead_route(route, count), reference_lead_route(route, count))
+
+
+def test_dot_sign_near_zero_is_numpys() -> None:
+    """Nearly perpendicular unit vectors and steps: where the plain sum of the products could round to the other
+    side of 0 than numpy's dot, the sign is numpy's."""
+    rng = np.random.default_rng(5)
+    for ax, ay, scale in zip(
+        rng.normal(size=2000), rng.normal(size=2000), 10.0 ** rng.uniform(-8, 3, 2000), strict=True
+    ):
+        bx, by = -ay * scale * (1 + rng.normal() * 1e-15), ax * scale
+        assert np.sign(_dot_sign(ax, ay, bx, by)) == np.sign(np.array([ax, ay]) @ np.array([bx, by]))
 
 
 # --------------------------------------------------------------------------- ego scalars

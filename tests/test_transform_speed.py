@@ -21,11 +21,15 @@ from lead_s2r.data.lead_labels import (
     _bev_tables,
     _footprint_pixels,
     bev_cell_centres,
+    bev_gather,
+    bev_gather_index,
     bev_labels,
     box_points,
     canvas_crop,
+    draw_lead_boxes,
     footprint_rects,
     lead_bev_labels,
+    lead_hdmap_canvas,
 )
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.data.transforms import SourceTransform
@@ -114,6 +118,58 @@ def test_bev_labels_follow_each_samples_raster_not_a_cached_one() -> None:
     first, second = np.zeros((256, 256), np.uint8), np.full((256, 256), 7, np.uint8)
     bev_labels(first, spec, CARLA_BEV)
     assert set(np.unique(bev_labels(second, spec, CARLA_BEV))) <= {IGNORE_CLASS, 7}
+
+
+@pytest.mark.parametrize(
+    "pixel_to_ego",
+    [
+        [[0.0, -0.5, 65.139], [-0.5, 0.0, 63.75]],  # LEAD's hdmap
+        [[0.25, 0.0, -20.0], [0.0, 0.25, -31.0]],  # axis-aligned, partly outside the grid
+        [[0.3, -0.4, 3.0], [0.4, 0.3, -7.0]],  # rotated and scaled
+    ],
+)
+@pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV])
+@pytest.mark.parametrize("leaderboard", [True, False])
+def test_lead_bev_labels_from_the_raster_equal_the_remap_and_turns_after_the_gather(
+    pixel_to_ego: list, grid: BEVGrid, leaderboard: bool
+) -> None:
+    """The remap and the first quarter turn folded into the gather (:func:`lead_hdmap_canvas`) give
+    :func:`lead_bev_labels` of the gathered hdmap, boxes and lights drawn over: every id, IGNORE_CLASS included,
+    through the LUT; the index turned, not transposed."""
+    rng = np.random.default_rng(3)
+    raster = rng.integers(0, 256, (256, 200), dtype=np.uint8)
+    raster[:, :20] = IGNORE_CLASS
+    boxes = random_boxes(rng, 60).astype(np.float64)
+    boxes[:, 9] = rng.integers(0, len(BoxClass), 60)
+    lights = np.where(rng.random(60) < 0.1, rng.integers(0, 13, 60), -1)
+    spec = {"pixel_to_ego": pixel_to_ego}
+    gathered = bev_labels(raster, spec, grid)
+    expected = lead_bev_labels(gathered.copy(), boxes, grid, leaderboard, lights)
+    canvas = lead_hdmap_canvas(raster, spec, grid, leaderboard)
+    assert canvas.flags.c_contiguous and canvas.shape == grid.shape[::-1]
+    got = draw_lead_boxes(canvas, boxes, grid, leaderboard, lights)
+    assert got.dtype == expected.dtype and got.shape == expected.shape
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(bev_labels(raster, spec, grid), gathered)  # the two cached indices stay apart
+
+
+def test_bev_gather_copies_rows_and_columns_where_they_read_the_flat_indexs_pixels() -> None:
+    """LEAD's hdmap in LEAD's layout (and an axis-aligned raster in ours) is gathered by rows and columns, a rotated
+    raster by the flat index; each reads, cell by cell, the pixel (or the fill) the flat index does."""
+    lead_hdmap, aligned, rotated = (
+        [[0.0, -0.5, 65.139], [-0.5, 0.0, 63.75]],
+        [[0.25, 0.0, -20.0], [0.0, 0.25, -31.0]],
+        [[0.3, -0.4, 3.0], [0.4, 0.3, -7.0]],
+    )
+    padded = np.random.default_rng(4).integers(0, 255, (257, 201), dtype=np.uint8)
+    for pixel_to_ego, turned, separable in ((lead_hdmap, True, True), (aligned, False, True), (rotated, True, False)):
+        key = tuple(tuple(row) for row in pixel_to_ego)
+        gather = bev_gather(key, (256, 200), CARLA_BEV, turned)
+        assert (gather.flat is None) == separable
+        index = bev_gather_index(key, (256, 200), CARLA_BEV, turned)
+        values = np.append(padded[:256, :200].reshape(-1), padded[256, 200])
+        padded[256, :], padded[:, 200] = padded[256, 200], padded[256, 200]  # one fill value, as the transform pads
+        np.testing.assert_array_equal(gather(padded), values[index])
 
 
 def test_lidar_raster_equals_the_saturated_histogram() -> None:

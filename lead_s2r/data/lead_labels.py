@@ -23,6 +23,7 @@ and parked-car meshes, and LEAD's LiDAR-hit visibility filter.
 """
 
 import math
+from dataclasses import dataclass
 from enum import IntEnum
 from functools import lru_cache
 from typing import Any
@@ -190,9 +191,27 @@ def lead_bev_labels(
     order, then the hull of the traffic lights affecting the ego (``lights``: :func:`traffic_light_classes`).
 
     ``hdmap`` is uint8: the remap is one ``cv2.LUT`` (numpy's ``lookup[hdmap]`` widens the 123k indices to int64
-    first, 10x slower), and LEAD's layout is a ``cv2.rotate`` either way (a quarter turn: ``labels.T[::-1]``)."""
-    convert, lookup, bev_class = _bev_tables(leaderboard)
-    canvas = cv2.rotate(cv2.LUT(hdmap, lookup), cv2.ROTATE_90_COUNTERCLOCKWISE)  # LEAD's layout, where it draws
+    first, 10x slower), and LEAD's layout is a ``cv2.rotate`` either way (a quarter turn: ``labels.T[::-1]``). From
+    a stored raster, :func:`lead_hdmap_canvas` and :func:`draw_lead_boxes` do the same, the remap and the first
+    rotation folded into the gather."""
+    _, lookup, _ = _bev_tables(leaderboard)
+    canvas = cv2.rotate(cv2.LUT(hdmap, lookup), cv2.ROTATE_90_COUNTERCLOCKWISE)
+    return draw_lead_boxes(canvas, boxes, grid, leaderboard, lights)
+
+
+def lead_hdmap_canvas(raster: np.ndarray, spec: dict[str, Any], grid: BEVGrid, leaderboard: bool) -> np.ndarray:
+    """``cv2.rotate(cv2.LUT(bev_labels(raster, spec, grid), lookup), cv2.ROTATE_90_COUNTERCLOCKWISE)``, the first
+    step of :func:`lead_bev_labels` from a stored hdmap raster, as one gather: the remap applied to the raster's
+    pixels (fewer than the grid's cells) and the quarter turn to the cached gather index."""
+    return _gathered(raster, spec, grid, _bev_tables(leaderboard)[1], quarter_turn=True)
+
+
+def draw_lead_boxes(
+    canvas: np.ndarray, boxes: np.ndarray, grid: BEVGrid, leaderboard: bool, lights: np.ndarray
+) -> np.ndarray:
+    """The rest of :func:`lead_bev_labels`: the boxes drawn into LEAD's remapped hdmap ``canvas`` in LEAD's layout
+    (written in place), returned in ours."""
+    convert, _, bev_class = _bev_tables(leaderboard)
     boxes = np.asarray(boxes, np.float64).reshape(-1, 10)
     ours = boxes[:, 9].astype(np.int64)
     known = (ours >= 0) & (ours < len(BoxClass))
@@ -292,23 +311,83 @@ def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.nd
     outside it.
 
     The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
-    (:func:`bev_gather_index`) and each sample is one gather."""
+    (:func:`bev_gather`) and each sample is one gather."""
+    return _gathered(labels, spec, grid)
+
+
+def _gathered(
+    labels: np.ndarray,
+    spec: dict[str, Any],
+    grid: BEVGrid,
+    lookup: np.ndarray | None = None,
+    quarter_turn: bool = False,
+) -> np.ndarray:
+    """:func:`bev_labels`, its ids (and :data:`IGNORE_CLASS`) mapped through the uint8 ``lookup``, turned a quarter
+    counterclockwise (``cv2.ROTATE_90_COUNTERCLOCKWISE``): the raster's uint8 values with a last row and column of
+    the fill, remapped, then gathered by the cached :class:`BevGather`."""
     pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
-    index = bev_gather_index(pixel_to_ego, labels.shape[:2], grid)
-    values = np.empty(labels.shape[0] * labels.shape[1] + 1, np.uint8)
-    values[:-1] = labels.reshape(-1)
-    values[-1] = IGNORE_CLASS  # where the index points for cells outside the raster
-    return values[index]
+    gather = bev_gather(pixel_to_ego, labels.shape[:2], grid, quarter_turn)
+    h, w = labels.shape[:2]
+    padded = np.empty((h + 1, w + 1), np.uint8)
+    padded[:h, :w] = labels
+    padded[h], padded[:, w] = IGNORE_CLASS, IGNORE_CLASS  # where the gather points for cells outside the raster
+    if lookup is not None:
+        cv2.LUT(padded, lookup, dst=padded)
+    return gather(padded)
+
+
+@dataclass(frozen=True)
+class BevGather:
+    """Where each grid cell reads a stored raster padded with a fill row and column (index h or w: outside).
+
+    Where the raster's rows run along the grid's columns and its columns along the grid's rows (LEAD's hdmap in
+    LEAD's layout), cell (i, j) reads pixel (``rows[j]``, ``columns[i]``): a copy of rows, then a take of columns,
+    half the time of a flat gather, which reads an 8-byte index per cell. Otherwise ``flat`` is the flat index of
+    every cell (a separable gather with the axes not swapped was no faster: numpy's column take is slow)."""
+
+    flat: np.ndarray | None = None
+    rows: np.ndarray | None = None
+    columns: np.ndarray | None = None
+
+    def __call__(self, padded: np.ndarray) -> np.ndarray:
+        if self.flat is not None:
+            return padded.reshape(-1)[self.flat]
+        return padded[self.rows].T.take(self.columns, axis=0)
 
 
 @lru_cache(maxsize=64)
-def bev_gather_index(pixel_to_ego: tuple[tuple[float, ...], ...], shape: tuple[int, int], grid: BEVGrid) -> np.ndarray:
+def bev_gather(
+    pixel_to_ego: tuple[tuple[float, ...], ...], shape: tuple[int, int], grid: BEVGrid, quarter_turn: bool = False
+) -> BevGather:
+    """The :class:`BevGather` of :func:`bev_gather_index`: by rows and columns where that reads the same pixels."""
+    index = bev_gather_index(pixel_to_ego, shape, grid, quarter_turn)
+    h, w = shape
+    inside = index < h * w
+    rows, columns = np.where(inside, index // w, h), np.where(inside, index % w, w)  # pixel read, (h, w) outside
+    flat = rows * (w + 1) + columns
+    separable = BevGather(rows=rows.min(axis=0), columns=columns.min(axis=1))  # a real pixel where any cell has one
+    read = separable(np.arange((h + 1) * (w + 1)).reshape(h + 1, w + 1))  # the flat pixel each cell reads
+    read_outside = (read // (w + 1) == h) | (read % (w + 1) == w)  # read the fill: the same as the flat index's
+    gather = separable if np.array_equal(np.where(read_outside, h * (w + 1) + w, read), flat) else BevGather(flat=flat)
+    for array in (gather.flat, gather.rows, gather.columns):
+        if array is not None:
+            array.flags.writeable = False  # shared by every sample
+    return gather
+
+
+@lru_cache(maxsize=64)
+def bev_gather_index(
+    pixel_to_ego: tuple[tuple[float, ...], ...], shape: tuple[int, int], grid: BEVGrid, quarter_turn: bool = False
+) -> np.ndarray:
     """(H, W) flat index into a raster of ``shape`` of every grid cell; ``shape[0] * shape[1]`` (one past the end)
-    outside it. :func:`~lead_s2r.geometry.raster_lookup` of a raster of flat indices, so both agree by construction."""
+    outside it. :func:`~lead_s2r.geometry.raster_lookup` of a raster of flat indices, so both agree by construction;
+    with ``quarter_turn`` laid out in LEAD's layout, (W, H), as ``cv2.ROTATE_90_COUNTERCLOCKWISE`` turns it."""
     xs, ys = bev_cell_centres(grid)
     x, y = np.meshgrid(xs, ys, indexing="ij")
     size = shape[0] * shape[1]
     index = raster_lookup(np.arange(size).reshape(shape), np.asarray(pixel_to_ego), x, y, fill=size)
+    if quarter_turn:
+        index = np.ascontiguousarray(np.rot90(index))
     index.flags.writeable = False  # shared by every sample
     return index
 

@@ -33,8 +33,9 @@ from lead_s2r.data.device_inputs import LIDAR_POINTS, RGB_JPEG, RGB_LAYOUT, jpeg
 from lead_s2r.data.lead_centernet import lead_centernet_targets
 from lead_s2r.data.lead_labels import (
     bev_labels,
-    lead_bev_labels,
+    draw_lead_boxes,
     lead_box_classes,
+    lead_hdmap_canvas,
     radar_priority,
     traffic_light_classes,
 )
@@ -166,9 +167,8 @@ class SourceTransform:
         """The stored BEV classes on the BEV grid; for LEAD's CARLA head its 13 classes with the boxes drawn over
         (``lead``: :meth:`lead_carla_boxes`, None without boxes)."""
         bev = sample["meta"]["bev"]
-        labels = bev_labels(sample["bev_semantic"], bev, self.spec.bev)
         if not self.lead_carla:
-            return labels
+            return bev_labels(sample["bev_semantic"], bev, self.spec.bev)
         if bev.get("classes") != "carla_hdmap":
             raise UserError(
                 f"sample {sample['__key__']!r}, field 'meta.bev.classes': LEAD's CARLA BEV head is built from the "
@@ -176,7 +176,9 @@ class SourceTransform:
             )
         boxes = sample.get("boxes", np.zeros((0, 10), np.float32))
         lights = np.zeros(0, np.int64) if lead is None else lead[0]
-        return lead_bev_labels(labels, boxes, self.spec.bev, self.spec.lead_carla_labels == "leaderboard", lights)
+        leaderboard = self.spec.lead_carla_labels == "leaderboard"
+        canvas = lead_hdmap_canvas(sample["bev_semantic"], bev, self.spec.bev, leaderboard)
+        return draw_lead_boxes(canvas, boxes, self.spec.bev, leaderboard, lights)  # = lead_bev_labels, from the raster
 
     def lead_boxes(
         self, sample: dict[str, Any], num_classes: int, lead: tuple[np.ndarray, np.ndarray] | None
