@@ -26,6 +26,7 @@ from functools import reduce
 
 import numpy as np
 import shapely
+from numba import njit
 
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm.footprint import Corner
@@ -105,16 +106,10 @@ class BoundsGrid:
         return np.floor((xy - origin) / cell).astype(np.int64)
 
     def cells_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """The flat cell of each point ``(x, y)``, each ``(B,)``; points off the grid get the empty cell after the
-        last. The axes are handled apart: numpy's loops over an axis of 2 cost far more."""
-        row = np.floor((x - self.origin[0]) / self.cell).astype(np.int64)
-        column = np.floor((y - self.origin[1]) / self.cell).astype(np.int64)
-        rows, columns = self.shape
-        # a cell index below 0 is huge as unsigned, so one comparison per axis tells the points on the grid
-        on_grid = (row.view(np.uint64) < rows) & (column.view(np.uint64) < columns)
-        row *= columns
-        row += column
-        return np.where(on_grid, row, rows * columns)
+        """The flat cell of each point ``(x, y)``, each ``(B,)``; points off the grid (or NaN) get the empty cell
+        after the last."""
+        x, y = np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64)
+        return _cells_of(x, y, float(self.origin[0]), float(self.origin[1]), self.cell, *self.shape)
 
     def expand(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(position, entry)``: every member entry of each of ``cells``, grouped by position in ``cells``."""
@@ -246,13 +241,7 @@ class DrivableMap:
             state = settled.state[cells]
         # as many lane slots as these points' cells can fill (a crossed cell: as many as it lists lanes)
         width = max(1, int(settled.lane_count[cells].max(initial=0)))
-        out = PointLayers(
-            np.take(settled.drivable, cells),
-            np.take(settled.intersection, cells),
-            np.empty((width, len(cells)), np.int32),
-        )
-        for slot in range(width):
-            np.take(settled.lanes[slot], cells, out=out.lanes[slot])
+        out = PointLayers(*_settled_answers(cells, settled.drivable, settled.intersection, settled.lanes, width))
         crossed = np.flatnonzero(state == CELL_CROSSED)  # their cells' answers are empty: set them here
         index, polygon = self.locate(x[crossed], y[crossed])
         point, kind = crossed[index], self.kinds[polygon]
@@ -289,6 +278,37 @@ class DrivableMap:
 #: How a grid cell stands (``SettledCells.state``): not yet classified, every point of it answered by the cell,
 #: or crossed by some polygon's edge (its points are located one by one).
 CELL_UNKNOWN, CELL_SETTLED, CELL_CROSSED = -1, 0, 1
+
+
+@njit(cache=True)
+def _cells_of(
+    x: np.ndarray, y: np.ndarray, origin_x: float, origin_y: float, cell: float, rows: int, columns: int
+) -> np.ndarray:  # fmt: skip
+    """:meth:`BoundsGrid.cells_of` in one pass: floor((coordinate - origin) / cell) per axis."""
+    cells = np.empty(len(x), np.int64)
+    for i in range(len(x)):
+        row, column = np.floor((x[i] - origin_x) / cell), np.floor((y[i] - origin_y) / cell)
+        if 0.0 <= row < rows and 0.0 <= column < columns:  # NaN fails both
+            cells[i] = int(row) * columns + int(column)
+        else:
+            cells[i] = rows * columns
+    return cells
+
+
+@njit(cache=True)
+def _settled_answers(
+    cells: np.ndarray, drivable: np.ndarray, intersection: np.ndarray, lanes: np.ndarray, width: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Each point's cell's answers (:class:`SettledCells`): drivable, intersection and ``width`` lane slots."""
+    count = len(cells)
+    point_drivable, point_intersection = np.empty(count, np.bool_), np.empty(count, np.bool_)
+    point_lanes = np.empty((width, count), lanes.dtype)
+    for i in range(count):
+        cell = cells[i]
+        point_drivable[i], point_intersection[i] = drivable[cell], intersection[cell]
+        for slot in range(width):
+            point_lanes[slot, i] = lanes[slot, cell]
+    return point_drivable, point_intersection, point_lanes
 
 
 @dataclass
