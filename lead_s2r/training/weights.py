@@ -62,7 +62,10 @@ def find_checkpoint(path: str | Path) -> Path:
             return candidate
     found = sorted(path.rglob("*.ckpt"), key=lambda p: p.stat().st_mtime)
     if not found:
-        raise CheckpointNotFound(f"{path} holds no *.ckpt; pass a checkpoint file or a run folder of `lead-s2r fit`")
+        raise CheckpointNotFound(
+            f"{path}: no checkpoint (neither checkpoints/last.ckpt nor any *.ckpt below it); pass a checkpoint file "
+            "or a run folder of `lead-s2r fit`"
+        )
     return found[-1]
 
 
