@@ -9,7 +9,6 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 from cpu_time import timed
 
 from lead_s2r.convert import convert
@@ -18,6 +17,7 @@ from lead_s2r.registry import get_adapter
 from lead_s2r.report.site import build_report
 from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.run import score_predictions
+from lead_s2r.scoring.scores_file import ScoresFile
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim, wod_e2e
 
@@ -52,7 +52,7 @@ def main() -> None:
     run = prepare(args.out)
     keys = []
     for dataset, (metric, count) in PAGES_PER_DATASET.items():
-        keys += pq.read_table(run / "scores" / dataset / metric / "scores.parquet")["key"].to_pylist()[:count]
+        keys += ScoresFile.read(run / "scores" / dataset / metric).table["key"].to_pylist()[:count]
     index, seconds = timed(lambda: build_report(run, args.out / "report", samples=keys))
     pages = len(list((index.parent / "samples").glob("*.html")))
     print(f"report: {pages} sample pages, {len(list((index.parent / 'img').glob('*.png')))} PNGs in {seconds:.1f} s")
