@@ -171,7 +171,7 @@ class TrackingReference(NamedTuple):
     ``sin`` / ``cos``, the fitted ``speed`` ten steps ahead, and the curvature ``moments[n, s]``: sum u_k kappa_k
     (linear: v, a) and sum_{j<k} kappa_j u_j u_k (quadratic: vv, va, aa) over the lookahead."""
 
-    poses: np.ndarray  # (N, S, 3)
+    poses: np.ndarray  # (N, S + 1, 3): the targets themselves, the last one read only by the fits
     sin: np.ndarray  # (N, S)
     cos: np.ndarray  # (N, S)
     speed: np.ndarray  # (N, S)
@@ -213,8 +213,8 @@ def _lookahead_terms(horizon: int, dt: float, wheel_base: float) -> tuple[np.nda
 def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tuple[TrackingReference, LateralTerms]:
     """Targets ``(N, T, 3)`` -> what the tracker reads at each of the T - 1 steps, and the fixed terms."""
     steps = np.diff(targets, axis=1)
-    poses = np.ascontiguousarray(targets[:, :-1])
-    sin, cos = np.sin(poses[..., 2]), np.cos(poses[..., 2])  # the fit's projection and the tracker's target frames
+    headings = targets[:, :-1, 2]
+    sin, cos = np.sin(headings), np.cos(headings)  # the fit's projection and the tracker's target frames
     projected = cos * steps[..., 0] + sin * steps[..., 1]
     num_fits = steps.shape[1]
     speed = row_products(projected, speed_fit_matrix(num_fits, dt).T)
@@ -222,7 +222,7 @@ def tracking_reference(targets: np.ndarray, dt: float, wheel_base: float) -> tup
     weights, fixed = _lookahead_terms(TRACKING_HORIZON, dt, wheel_base)
     ahead = np.minimum(np.arange(num_fits) + TRACKING_HORIZON, num_fits - 1)  # the reference speed's pose
     reference_speed = np.take(speed, ahead, axis=1)  # np.take: far faster than fancy indexing
-    return TrackingReference(poses, sin, cos, reference_speed, _lookahead_moments(curvature, weights)), fixed
+    return TrackingReference(targets, sin, cos, reference_speed, _lookahead_moments(curvature, weights)), fixed
 
 
 @njit(cache=True)
