@@ -18,13 +18,7 @@ from tiny_models import TINY, sensor_spec
 from lead_s2r.closed_loop import agent as agent_module
 from lead_s2r.closed_loop.agent import AgentConfigError, ClosedLoopConfig, LeadS2RAgent, parse_bool
 from lead_s2r.closed_loop.check import straight_route, synthetic_input
-from lead_s2r.closed_loop.checkpoint import (
-    UnsupportedCheckpoint,
-    check_drivable,
-    find_checkpoint,
-    rig_for,
-    saved_config,
-)
+from lead_s2r.closed_loop.checkpoint import UnsupportedCheckpoint, check_drivable, rig_for, saved_config
 from lead_s2r.closed_loop.sensors import Rig, SensorInputError, sensor_specs
 from lead_s2r.convert import convert
 from lead_s2r.data.transforms import SourceTransform
@@ -36,6 +30,7 @@ from lead_s2r.registry import LogRef
 from lead_s2r.schema import validate
 from lead_s2r.synthetic import carla_lead as synth
 from lead_s2r.training.cli import run_lightning_cli
+from lead_s2r.training.weights import find_checkpoint
 from lead_s2r_adapters.carla_lead import CarlaLeadAdapter
 
 #: Tests that drive need the leaderboard's types; lead-s2r[carla] installs the client wherever PyPI has a wheel.

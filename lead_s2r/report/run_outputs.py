@@ -177,8 +177,9 @@ def load_samples(folders: Iterable[Path], keys: Iterable[str]) -> dict[str, dict
     missing = sorted(wanted - {row["key"] for row in chosen})
     if missing:
         where = ", ".join(str(folder) for folder in folders) or "no --data folder"
-        raise UserError(f"sample {missing[0]!r} (and {len(missing) - 1} more) is not in {where}; pass the converted "
-                        "folders the run was scored on with --data")  # fmt: skip
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise UserError(f"sample {missing[0]!r}{more} is not in {where}; pass the converted folders the run was "
+                        "scored on with --data")  # fmt: skip
     return {sample["__key__"]: sample for sample in decode_listed(chosen, None)}
 
 
