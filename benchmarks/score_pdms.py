@@ -10,31 +10,29 @@ numpy loads. Per scene, timed separately (the scene is built from the sample bef
   prebuilt observation and drivable map; the ``prebuilt`` rows pass those in too, the others build them per call.
 """
 
-import os
+import one_core  # noqa: F401  (first: pins BLAS threads before numpy loads)
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_name] = "1"
+# isort: split
+import argparse
+import statistics
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
 
-import argparse  # noqa: E402
-import statistics  # noqa: E402
-import tempfile  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from pathlib import Path  # noqa: E402
+import numpy as np
+from cpu_time import wall_times_ms
 
-import numpy as np  # noqa: E402
-from cpu_time import wall_times_ms  # noqa: E402
-
-from lead_s2r.convert import convert  # noqa: E402
-from lead_s2r.registry import get_adapter  # noqa: E402
-from lead_s2r.scoring.baselines import predict_human  # noqa: E402
-from lead_s2r.scoring.navsim.proposals import proposal_of  # noqa: E402
-from lead_s2r.scoring.pdm.map_flags import DrivableMap  # noqa: E402
-from lead_s2r.scoring.pdm.observation import log_observation  # noqa: E402
-from lead_s2r.scoring.pdm.pdm_closed import plan_reference  # noqa: E402
-from lead_s2r.scoring.pdm.sample import scene_from_sample  # noqa: E402
-from lead_s2r.scoring.pdm.score import score_proposals  # noqa: E402
-from lead_s2r.shards import read_samples  # noqa: E402
-from lead_s2r.synthetic import navsim as synth  # noqa: E402
+from lead_s2r.convert import convert
+from lead_s2r.registry import get_adapter
+from lead_s2r.scoring.baselines import predict_human
+from lead_s2r.scoring.navsim.proposals import proposal_of
+from lead_s2r.scoring.pdm.map_flags import DrivableMap
+from lead_s2r.scoring.pdm.observation import log_observation
+from lead_s2r.scoring.pdm.pdm_closed import plan_reference
+from lead_s2r.scoring.pdm.sample import scene_from_sample
+from lead_s2r.scoring.pdm.score import score_proposals
+from lead_s2r.shards import read_samples
+from lead_s2r.synthetic import navsim as synth
 
 PROPOSALS = (1, 16, 256)
 

@@ -3,19 +3,17 @@
 Run: ``.venv/bin/python benchmarks/score_rfs.py [--frames N]``. Threads are pinned to 1 before numpy loads.
 """
 
-import os
+import one_core  # noqa: F401  (first: pins BLAS threads before numpy loads)
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_name] = "1"
+# isort: split
+import argparse
+from collections.abc import Callable
 
-import argparse  # noqa: E402
-from collections.abc import Callable  # noqa: E402
+import numpy as np
+from cpu_time import wall_times_ms
 
-import numpy as np  # noqa: E402
-from cpu_time import wall_times_ms  # noqa: E402
-
-from lead_s2r.predictions import Prediction, regular_grid  # noqa: E402
-from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_raters, rater_feedback_score  # noqa: E402
+from lead_s2r.predictions import Prediction, regular_grid
+from lead_s2r.scoring.rfs import RFSConfig, RFSScorer, pad_raters, rater_feedback_score
 
 
 def synthetic_frames(count: int, seed: int = 0) -> dict[str, np.ndarray]:

@@ -11,27 +11,26 @@ cores) and runs every executor in turn, so a machine shared with other jobs slow
 machine before the clock starts (the throughput of a running cluster). BLAS threads are pinned to 1.
 """
 
+import one_core  # noqa: F401  (first: pins BLAS threads before numpy loads)
+
+# isort: split
+import argparse
+import hashlib
 import os
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_name] = "1"
+import psutil
+from convert_carla_lead import machine_parallelism  # (benchmarks/ is the script's folder)
 
-import argparse  # noqa: E402
-import hashlib  # noqa: E402
-import tempfile  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import psutil  # noqa: E402
-from convert_carla_lead import machine_parallelism  # noqa: E402  (benchmarks/ is the script's folder)
-
-from lead_s2r.convert import convert  # noqa: E402
-from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, RayExecutor  # noqa: E402
-from lead_s2r.registry import get_adapter  # noqa: E402
-from lead_s2r.scoring.run import SCORES_TABLE, make_scorer, planner_predictions, score_predictions  # noqa: E402
-from lead_s2r.synthetic import navsim as synth  # noqa: E402
+from lead_s2r.convert import convert
+from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, RayExecutor
+from lead_s2r.registry import get_adapter
+from lead_s2r.scoring.run import SCORES_TABLE, make_scorer, planner_predictions, score_predictions
+from lead_s2r.synthetic import navsim as synth
 
 METRIC = "pdms@navsim-1.1"
 SCORER_MODULE = "lead_s2r.scoring.navsim.pdms_scorer"
