@@ -29,7 +29,8 @@ from convert_carla_lead import machine_parallelism  # (benchmarks/ is the script
 from lead_s2r.convert import convert
 from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, RayExecutor
 from lead_s2r.registry import get_adapter
-from lead_s2r.scoring.run import SCORES_TABLE, make_scorer, planner_predictions, score_predictions
+from lead_s2r.scoring.run import make_scorer, planner_predictions, score_predictions
+from lead_s2r.scoring.scores_file import SCORES_TABLE
 from lead_s2r.synthetic import navsim as synth
 
 METRIC = "pdms@navsim-1.1"
