@@ -54,12 +54,12 @@ def test_inspect_reports_and_draws(tmp_path, capsys):
     assert report["fields_present"]["lidar"] == 10
     assert report["statistics"]["future_s"] == {"min": 4.0, "max": 4.0, "mean": 4.0}
     image = cv2.imread(str(png))
-    assert image.shape[1] == 960 and image.shape[0] > 640
-    # the future (green) is drawn ahead of the ego, i.e. above the ego marker in the BEV panel
-    green = (image[:, :, 1] > 200) & (image[:, :, 0] < 100) & (image[:, :, 2] < 100)
-    rows = green.nonzero()[0]
-    ego_row = image.shape[0] - 16 * 10  # x = 0 lies 16 m above the bottom edge at 10 px/m
-    assert len(rows) and rows.max() < ego_row
+    assert image.shape[1] == 960 and image.shape[0] > 640  # the camera above the BEV
+    # the logged future (green) is drawn ahead of the ego, i.e. above the ego box (its dark grey fill) in the BEV
+    bev = image[-600:]  # the lower 6.4 in at 100 dpi hold the BEV
+    future_rows = (bev == (81, 166, 0)).all(axis=2).nonzero()[0]
+    ego_rows = (bev == (74, 74, 74)).all(axis=2).nonzero()[0]
+    assert len(future_rows) and len(ego_rows) and np.median(future_rows) < ego_rows.min()
     assert cli.main(["inspect", str(tmp_path / "out"), "--png", str(png), "--key", "nope"]) == 2
     assert "--key 'nope': no sample with that key" in capsys.readouterr().err
 

@@ -8,7 +8,8 @@ Drawn when the sample holds them: drivable-area polygons and lane centrelines of
 with a red light at t0, agent boxes at t0 with their future tracks (numbered by agent row, the number NC's failure
 names), the ego box, the logged future, the prediction(s), the PDM-Closed reference, and WOD-E2E's rater trajectories
 with their scores and the RFS trust regions at the checkpoints (the box inside which a prediction keeps the rater's
-score, :mod:`lead_s2r.scoring.rfs`).
+score, :mod:`lead_s2r.scoring.rfs`). With ``inputs`` (``inspect --png``), also what the model reads beside the
+cameras: the BEV semantic classes underneath, LiDAR points, the route and the target points.
 """
 
 from itertools import pairwise
@@ -19,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
-from lead_s2r.geometry import box_corners
+from lead_s2r.geometry import box_corners, raster_lookup
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.rfs import RFSConfig, speed_scale
 
@@ -28,15 +29,18 @@ PREDICTED = "#e4007c"
 COMPARED = "#1f5fd6"
 REFERENCE = "#ff8c00"
 RED_LIGHT = "#ff0000"
+PAST = "#a0a0a0"
 DRIVABLE = {MapKind.LANE, MapKind.LANE_CONNECTOR, MapKind.INTERSECTION, MapKind.CARPARK_AREA}
 #: the smallest half-width of the picture [m]; it grows to hold every trajectory
 MIN_HALF_RANGE_M = 20.0
+#: the BEV semantic raster is resampled onto the picture at this many metres per pixel
+SEMANTIC_STEP_M = 0.1
 BEV_INCHES, BEV_DPI = 6.0, 100
 
 
 def trajectory_colors(labels: list[str]) -> dict[str, str]:
-    """The colour of each trajectory label: logged and reference fixed, predictions in the order given."""
-    fixed = {"logged": LOGGED, "reference": REFERENCE}
+    """The colour of each trajectory label: past, logged and reference fixed, predictions in the order given."""
+    fixed = {"past": PAST, "logged": LOGGED, "reference": REFERENCE}
     predictions = iter([PREDICTED, COMPARED] * len(labels))
     return {label: fixed[label] if label in fixed else next(predictions) for label in labels}
 
@@ -132,11 +136,37 @@ def _limits(axes: Any, trajectories: dict[str, np.ndarray]) -> None:
     axes.set_xlim(centre[1] + half, centre[1] - half)  # inverted: +y (left) on the left
 
 
-def bev_figure(sample: dict[str, Any], trajectories: dict[str, np.ndarray], title: str = "") -> Figure:
-    """The BEV of ``sample`` with ``{label: (T, 2) ego-frame xy}`` drawn on top (``logged``, ``reference`` or a
-    prediction's label; colours by :func:`trajectory_colors`). Axes are metres, forward up, left left."""
-    figure = Figure(figsize=(BEV_INCHES, BEV_INCHES), dpi=BEV_DPI)
-    axes = figure.add_axes((0.1, 0.08, 0.85, 0.85))
+def _semantic(axes: Any, sample: dict[str, Any]) -> None:
+    """The stored BEV semantic raster resampled onto the axes' limits, one colour per class, class 0 (unlabeled)
+    left clear."""
+    (y_left, y_right), (x_bottom, x_top) = axes.get_xlim(), axes.get_ylim()
+    x = np.arange(x_top, x_bottom, -SEMANTIC_STEP_M) - SEMANTIC_STEP_M / 2
+    y = np.arange(y_left, y_right, -SEMANTIC_STEP_M) - SEMANTIC_STEP_M / 2
+    labels = raster_lookup(
+        sample["bev_semantic"], sample["meta"]["bev"]["pixel_to_ego"], *np.meshgrid(x, y, indexing="ij"), fill=0
+    )
+    classes = np.ma.masked_equal(np.clip(labels, 0, 15), 0)
+    extent = (y_left, y_right, x_bottom, x_top)
+    axes.imshow(classes, cmap="turbo", vmin=0, vmax=15, alpha=0.35, extent=extent, interpolation="nearest", zorder=0)
+
+
+def _inputs(axes: Any, sample: dict[str, Any]) -> None:
+    """What the model reads beside the cameras: BEV semantic classes, LiDAR points, route, target points."""
+    if "bev_semantic" in sample and "pixel_to_ego" in sample["meta"].get("bev", {}):
+        _semantic(axes, sample)
+    if "lidar" in sample:
+        plot_xy(axes, sample["lidar"][:, :2], ",", color="#9a9a9a", zorder=0.5)
+    if "route" in sample:
+        plot_xy(axes, sample["route"], "-", color="#2896e6", linewidth=1.5, label="route")
+    if "target_points" in sample:
+        points = sample["target_points"][np.isfinite(sample["target_points"]).all(axis=1)]
+        plot_xy(axes, points, "o", color="#e62828", markersize=7, linestyle="none", label="target points")
+
+
+def draw_bev(axes: Any, sample: dict[str, Any], trajectories: dict[str, np.ndarray], inputs: bool = False) -> None:
+    """The BEV of ``sample`` on ``axes`` with ``{label: (T, 2) ego-frame xy}`` drawn on top (``past``, ``logged``,
+    ``reference`` or a prediction's label; colours by :func:`trajectory_colors`), and with ``inputs`` the model's
+    inputs beside the cameras underneath. Axes are metres, forward up, left left."""
     if "scoring" in sample:
         _map(axes, sample["scoring"])
     _agents(axes, sample)
@@ -147,14 +177,23 @@ def bev_figure(sample: dict[str, Any], trajectories: dict[str, np.ndarray], titl
     for label, xy in trajectories.items():
         plot_xy(axes, xy, "o-", color=colors[label], linewidth=2, markersize=3, label=label)
     _limits(axes, trajectories)
+    if inputs:
+        _inputs(axes, sample)
     axes.set_aspect("equal")
     axes.set_xlabel("y [m] (left is left)")
     axes.set_ylabel("x [m] (forward is up)")
-    axes.set_title(title, fontsize=9)
     handles, labels = axes.get_legend_handles_labels()
     unique = dict(zip(labels, handles, strict=True))
     if unique:
         axes.legend(unique.values(), unique.keys(), loc="lower right", fontsize=7)
+
+
+def bev_figure(sample: dict[str, Any], trajectories: dict[str, np.ndarray], title: str = "") -> Figure:
+    """:func:`draw_bev` as a figure of its own, the report's picture of a sample."""
+    figure = Figure(figsize=(BEV_INCHES, BEV_INCHES), dpi=BEV_DPI)
+    axes = figure.add_axes((0.1, 0.08, 0.85, 0.85))
+    draw_bev(axes, sample, trajectories)
+    axes.set_title(title, fontsize=9)
     return figure
 
 

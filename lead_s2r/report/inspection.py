@@ -14,12 +14,15 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+from matplotlib.figure import Figure
 
 from lead_s2r.errors import UserError
-from lead_s2r.report.render import render_sample
+from lead_s2r.report.bev import draw_bev, save_figure
 from lead_s2r.schema import SchemaError, validate
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples, value_range
 
+#: the picture's width and the height of its BEV [inches, at 100 dpi]
+PICTURE_INCHES, BEV_INCHES = 9.6, 6.4
 #: Manifest columns the report reads.
 _READ = ("key", "shard", "dataset", "split", "log", "speed", "command", "tp_x", "tp_y")
 
@@ -79,8 +82,10 @@ def inspect_dataset(
     }
     if png is not None:
         drawn = turning if key is None else find_sample(path, manifest, key)
-        if not cv2.imwrite(str(png), render_sample(drawn)):
-            raise UserError(f"--png {png}: cannot be written there; choose a writable folder")
+        try:
+            save_figure(sample_figure(drawn), png)
+        except OSError:
+            raise UserError(f"--png {png}: cannot be written there; choose a writable folder") from None
         report["png"] = str(png)
         report["png_key"] = drawn["__key__"]
     return report
@@ -94,6 +99,33 @@ def heading_change(sample: dict[str, Any]) -> float:
         return 0.0
     x, y, yaw = (float(v) for v in future[-1, 1:])
     return abs(yaw) if np.isfinite(yaw) else abs(float(np.arctan2(y, x)))
+
+
+def sample_figure(sample: dict[str, Any]) -> Figure:
+    """The picture a person checks a sample by: its cameras side by side above the BEV (the report's, with the
+    model's inputs drawn: LiDAR, BEV semantic classes, route, target points; past and logged future on top), the
+    key and ego state as the title."""
+    images = [cv2.imdecode(np.frombuffer(sample[name], np.uint8), cv2.IMREAD_COLOR) for name in sorted(sample)
+              if name.startswith("cam_")]  # fmt: skip
+    images = [cv2.cvtColor(image, cv2.COLOR_BGR2RGB) for image in images if image is not None]
+    height = min((image.shape[0] for image in images), default=0)
+    strip = [cv2.resize(image, (image.shape[1] * height // image.shape[0], height)) for image in images]
+    strip_inches = PICTURE_INCHES * height / sum(image.shape[1] for image in strip) if strip else 0.0
+    figure = Figure(figsize=(PICTURE_INCHES, strip_inches + BEV_INCHES), dpi=100, layout="constrained")
+    if strip:
+        cameras, bev = figure.subplots(2, 1, height_ratios=(strip_inches, BEV_INCHES))
+        cameras.imshow(np.hstack(strip))
+        cameras.set_axis_off()
+    else:
+        bev = figure.add_subplot()
+    trajectories = {"past": sample["past"][:, 1:3]} | (
+        {"logged": sample["future"][:, 1:3]} if "future" in sample else {}
+    )
+    draw_bev(bev, sample, trajectories, inputs=True)
+    ego = sample["meta"]["ego"]
+    figure.suptitle(f"{sample['__key__']}\nspeed {ego['speed']:.2f} m/s, command {ego['command']} (raw "
+                    f"{ego['command_raw']})", fontsize=9)  # fmt: skip
+    return figure
 
 
 def list_keys(path: str | Path) -> list[str]:
