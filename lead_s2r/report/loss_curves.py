@@ -8,10 +8,7 @@ logged that step), so they work for any run with Lightning's default logger.
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")  # files only: no display on a training node
-import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
 
 from lead_s2r.errors import UserError
 from lead_s2r.report.training_log import TrainingLog
@@ -38,7 +35,8 @@ def plot_loss_curves(metrics_csv: Path, out: Path, title: str = "") -> Path:
         raise UserError(f"{metrics_csv}: no train/ or val/ loss terms logged")
     columns = min(3, len(terms))
     rows = math.ceil(len(terms) / columns)
-    figure, axes = plt.subplots(rows, columns, figsize=(4 * columns, 3 * rows), squeeze=False)
+    figure = Figure(figsize=(4 * columns, 3 * rows))
+    axes = figure.subplots(rows, columns, squeeze=False)
     for ax, term in zip(axes.flat, terms, strict=False):
         for stage, style in (("train", "-"), ("val", "o-")):
             points = curves.get(f"{stage}/{term}")
@@ -54,5 +52,4 @@ def plot_loss_curves(metrics_csv: Path, out: Path, title: str = "") -> Path:
     figure.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=80)
-    plt.close(figure)
     return out
