@@ -46,19 +46,7 @@ from lead_s2r.closed_loop.route import (
     road_option,
     world_to_iso,
 )
-from lead_s2r.closed_loop.sensors import (
-    COMPASS,
-    GNSS_ID,
-    GNSS_SIZE,
-    IMU_ID,
-    IMU_SIZE,
-    Rig,
-    build_sample,
-    sensor_specs,
-    speed_reading,
-    unusable_reading,
-    vector,
-)
+from lead_s2r.closed_loop.sensors import COMPASS, PoseReading, Rig, build_sample, sensor_specs
 from lead_s2r.data.collate import collate
 from lead_s2r.data.lead_centernet import CENTERNET_STRIDE
 from lead_s2r.data.lead_labels import LeadBoxClass, bev_cell_centres
@@ -260,22 +248,24 @@ class LeadS2RAgent(Base):
             world_to_iso(world), commands, self.config.adaptive_pop_distance, self.config.skip_distant_target_point
         )
 
-    def pose(self, input_data: dict[str, Any]) -> np.ndarray:
+    def pose(self, reading: PoseReading) -> np.ndarray:
         """World ISO (x, y, yaw) of the vehicle centre from GNSS and compass, filtered when configured."""
-        lat, lon = vector(input_data, GNSS_ID, GNSS_SIZE)[:2]
-        xy = world_to_iso(gnss_to_world(lat, lon, self.reference))
-        yaw = compass_to_yaw(float(vector(input_data, IMU_ID, IMU_SIZE)[COMPASS]))
-        speed = speed_reading(input_data)
+        xy = world_to_iso(gnss_to_world(reading.gnss[0], reading.gnss[1], self.reference))
+        yaw = compass_to_yaw(float(reading.imu[COMPASS]))
         if self.position_filter is not None:
-            xy = self.position_filter.step(np.r_[xy, yaw, speed])[:2]
+            xy = self.position_filter.step(np.r_[xy, yaw, reading.speed])[:2]
         return np.r_[xy, yaw]
 
-    def preprocess(self, input_data: dict[str, Any], timestamp: float) -> dict[str, Any]:
-        """One tick -> the model's input batch (of one sample), stepping the route state."""
+    def preprocess(
+        self, input_data: dict[str, Any], timestamp: float, reading: PoseReading | None = None
+    ) -> dict[str, Any]:
+        """One tick -> the model's input batch (of one sample), stepping the route state; ``reading``: the tick's
+        pose readings where the caller has parsed them already."""
+        reading = PoseReading.read(input_data) if reading is None else reading
         if self.navigator is None:
             self._start_route()
-        navigation = self.navigator.step(self.pose(input_data))
-        sample = build_sample(input_data, self.rig, navigation, self.step, timestamp, self.config.jpeg_quality)
+        navigation = self.navigator.step(self.pose(reading))
+        sample = build_sample(input_data, reading, self.rig, navigation, self.step, timestamp, self.config.jpeg_quality)
         self.last_sample = sample
         return collate([self.transform(sample)])
 
@@ -320,13 +310,14 @@ class LeadS2RAgent(Base):
         """One tick: the route state advances; the first tick brakes (LEAD's initial frame delay). A tick whose
         GNSS, IMU or speed is not a number brakes and leaves the route state as it was; so does a prediction that is
         not a number. A sensor missing or misshapen is a :class:`~.sensors.SensorInputError` naming it."""
-        unusable, control = unusable_reading(input_data), BRAKE
+        reading = PoseReading.read(input_data)
+        unusable, control = reading.unusable(), BRAKE
         if unusable is None:
-            batch = self.preprocess(input_data, timestamp)
+            batch = self.preprocess(input_data, timestamp, reading)
             if self.step > 0:
                 prediction = self.predict(batch)
                 if all(bool(value.isfinite().all()) for value in prediction.values()):
-                    control = self.control(prediction, speed_reading(input_data))
+                    control = self.control(prediction, reading.speed)
                 else:
                     unusable = "the model's prediction is not a number"
         if unusable is not None:

@@ -13,7 +13,7 @@ current tick's two half sweeps, unfiltered, as LEAD's recorded point clouds are.
 A tick's data is checked as it is read: a sensor missing, a reading of another shape or type is a
 :class:`SensorInputError` naming the sensor (the rig and the simulator disagree: no later tick would be better); a
 LiDAR or radar row that is not a number (or 10 km away) is no return and is dropped; a GNSS, IMU or speedometer value
-that is not a number or out of range makes the tick unusable (:func:`unusable_reading`; the agent brakes that tick,
+that is not a number or out of range makes the tick unusable (:meth:`PoseReading.unusable`; the agent brakes that tick,
 docs/closed_loop.md).
 """
 
@@ -127,7 +127,7 @@ def _numbers(value: Any, sensor_id: str, shape: str) -> np.ndarray:
 
 
 def vector(input_data: dict[str, Any], sensor_id: str, size: int) -> np.ndarray:
-    """A GNSS or IMU reading as float64 (size,), any value possibly NaN (:func:`unusable_reading` says)."""
+    """A GNSS or IMU reading as float64 (size,), any value possibly NaN (:meth:`PoseReading.unusable` says)."""
     values = _numbers(reading(input_data, sensor_id), sensor_id, f"{size} numbers")
     if values.shape != (size,):
         raise SensorInputError(f"sensor {sensor_id!r}: expected {size} numbers, got shape {values.shape}")
@@ -138,24 +138,34 @@ def speed_reading(input_data: dict[str, Any]) -> float:
     """The speedometer's m/s (the leaderboard's ``{"speed": value}``)."""
     data = reading(input_data, SPEED_ID)
     value = data.get("speed") if isinstance(data, dict) else None
-    if not is_number(value, finite=False):  # NaN or out of range: unusable_reading brakes the tick
+    if not is_number(value, finite=False):  # NaN or out of range: PoseReading.unusable brakes the tick
         raise SensorInputError(f"sensor {SPEED_ID!r}: expected {{'speed': a number}}, got {data!r:.80}")
     return float(value)
 
 
-def unusable_reading(input_data: dict[str, Any]) -> str | None:
-    """Why this tick's position, heading or speed cannot be used (a GNSS, IMU or speedometer value that is not a
-    number or beyond :data:`POSE_READING_LIMITS`: the position filter would diverge on it), None when they can; a
-    missing or misshapen reading raises :class:`SensorInputError`."""
-    imu = vector(input_data, IMU_ID, IMU_SIZE).copy()  # the simulator's array stays as it came
-    imu[COMPASS] = 0.0 if np.isnan(imu[COMPASS]) else imu[COMPASS]  # CARLA's first ticks: north (route.compass_to_yaw)
-    readings = {
-        GNSS_ID: vector(input_data, GNSS_ID, GNSS_SIZE),
-        IMU_ID: imu,
-        SPEED_ID: np.array([speed_reading(input_data)]),
-    }
-    bad = [sensor for sensor, values in readings.items() if not (np.abs(values) <= POSE_READING_LIMITS[sensor]).all()]
-    return f"sensors {bad}: a value that is not a number or out of range" if bad else None
+@dataclass(frozen=True)
+class PoseReading:
+    """A tick's GNSS [lat, lon, alt], IMU [ax, ay, az, gx, gy, gz, compass] and speedometer (m/s), read once: the
+    pose, the ego state and the controllers use the same values."""
+
+    gnss: np.ndarray
+    imu: np.ndarray
+    speed: float
+
+    @classmethod
+    def read(cls, input_data: dict[str, Any]) -> "PoseReading":
+        """The tick's readings; a missing or misshapen one raises :class:`SensorInputError`."""
+        gnss, imu = vector(input_data, GNSS_ID, GNSS_SIZE), vector(input_data, IMU_ID, IMU_SIZE)
+        return cls(gnss, imu, speed_reading(input_data))
+
+    def unusable(self) -> str | None:
+        """Why this tick's position, heading or speed cannot be used (a value that is not a number or beyond
+        :data:`POSE_READING_LIMITS`: the position filter would diverge on it), None when they can."""
+        imu = self.imu.copy()  # the simulator's array stays as it came
+        imu[COMPASS] = 0.0 if np.isnan(imu[COMPASS]) else imu[COMPASS]  # CARLA's first ticks: north (compass_to_yaw)
+        readings = {GNSS_ID: self.gnss, IMU_ID: imu, SPEED_ID: np.array([self.speed])}
+        bad = [name for name, values in readings.items() if not (np.abs(values) <= POSE_READING_LIMITS[name]).all()]
+        return f"sensors {bad}: a value that is not a number or out of range" if bad else None
 
 
 def sensor_points(input_data: dict[str, Any], sensor_id: str) -> np.ndarray:
@@ -206,9 +216,9 @@ def radar_points(input_data: dict[str, Any]) -> np.ndarray:
     return np.concatenate(rows).astype(np.float32)
 
 
-def ego_state(input_data: dict[str, Any], navigation: Navigation) -> dict[str, Any]:
+def ego_state(pose: PoseReading, navigation: Navigation) -> dict[str, Any]:
     """``meta.ego`` from the speedometer, the IMU (CARLA's y-right vehicle axes) and the route command."""
-    imu, speed = vector(input_data, IMU_ID, IMU_SIZE), speed_reading(input_data)
+    imu, speed = pose.imu, pose.speed
     return {
         "speed": speed,
         "velocity": [speed, 0.0],
@@ -220,10 +230,11 @@ def ego_state(input_data: dict[str, Any], navigation: Navigation) -> dict[str, A
 
 
 def build_sample(
-    input_data: dict[str, Any], rig: Rig, navigation: Navigation, frame: int, timestamp: float,
+    input_data: dict[str, Any], pose: PoseReading, rig: Rig, navigation: Navigation, frame: int, timestamp: float,
     jpeg_quality: int = JPEG_QUALITY,
 ) -> dict[str, Any]:  # fmt: skip
-    """One tick of sensor data as a schema v1 sample of the CARLA source (what the adapter writes)."""
+    """One tick of sensor data (``pose``: its readings already parsed) as a schema v1 sample of the CARLA source
+    (what the adapter writes)."""
     sample: dict[str, Any] = {
         "__key__": f"closed_loop_{frame:06d}",
         "past": np.zeros((1, 4), np.float32),
@@ -248,7 +259,7 @@ def build_sample(
         "location": None,
         "adapter": "closed_loop",
         "adapter_version": "1",
-        "ego": ego_state(input_data, navigation),
+        "ego": ego_state(pose, navigation),
         "vehicle": dict(EGO_VEHICLE),
         "cameras": camera_calibration(rig.cameras),
         "has": {name: True for name in sample if name != "__key__"} | {"future": False, "route": False},
