@@ -71,9 +71,9 @@ def forward_cameras(sample: dict[str, Any]) -> list[dict[str, Any]]:
     ]
 
 
-def decode(sample: dict[str, Any], camera: dict[str, Any]) -> np.ndarray | None:
-    """The camera's stored JPEG as RGB (None when it does not decode)."""
-    image = cv2.imdecode(np.frombuffer(sample[f"cam_{camera['id']}"], np.uint8), cv2.IMREAD_COLOR)
+def decode(sample: dict[str, Any], field: str) -> np.ndarray | None:
+    """A stored camera image (``cam_<id>``) as RGB (None when it does not decode)."""
+    image = cv2.imdecode(np.frombuffer(sample[field], np.uint8), cv2.IMREAD_COLOR)
     return None if image is None else cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
@@ -82,7 +82,7 @@ def camera_figure(
 ) -> bool:
     """Draw ``{label: (T, 2) ego-frame xy}`` into the camera's image and save it to ``out``; False when the image
     does not decode. Colours are the BEV's (:func:`~lead_s2r.report.bev.trajectory_colors`)."""
-    image = decode(sample, camera)
+    image = decode(sample, f"cam_{camera['id']}")
     if image is None:
         return False
     x0, width = camera.get("tile", (0, image.shape[1]))

@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 
 from lead_s2r.errors import UserError
 from lead_s2r.report.bev import draw_bev, save_figure
+from lead_s2r.report.camera import decode
 from lead_s2r.schema import SchemaError, validate
 from lead_s2r.shards import MANIFEST, SHARD_DIR, load_info, load_manifest, read_samples, value_range
 
@@ -105,9 +106,8 @@ def sample_figure(sample: dict[str, Any]) -> Figure:
     """The picture a person checks a sample by: its cameras side by side above the BEV (the report's, with the
     model's inputs drawn: LiDAR, BEV semantic classes, route, target points; past and logged future on top), the
     key and ego state as the title."""
-    images = [cv2.imdecode(np.frombuffer(sample[name], np.uint8), cv2.IMREAD_COLOR) for name in sorted(sample)
-              if name.startswith("cam_")]  # fmt: skip
-    images = [cv2.cvtColor(image, cv2.COLOR_BGR2RGB) for image in images if image is not None]
+    images = [decode(sample, name) for name in sorted(sample) if name.startswith("cam_")]
+    images = [image for image in images if image is not None]
     height = min((image.shape[0] for image in images), default=0)
     strip = [cv2.resize(image, (image.shape[1] * height // image.shape[0], height)) for image in images]
     strip_inches = PICTURE_INCHES * height / sum(image.shape[1] for image in strip) if strip else 0.0
