@@ -55,17 +55,18 @@ def _fill(axes: Any, xy: np.ndarray, **kwargs: Any) -> None:
     axes.add_patch(Polygon(np.asarray(xy, np.float64)[:, ::-1], closed=True, **kwargs))
 
 
-def _pieces(flat: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
-    return [flat[a:b] for a, b in pairwise(offsets.tolist())]
+def pieces(flat: Any, offsets: Any) -> list[np.ndarray]:
+    """A ragged field of the ``scoring`` context (flat points, offsets) as one array of points per piece."""
+    return [np.asarray(flat, np.float64)[a:b] for a, b in pairwise(np.asarray(offsets).tolist())]
 
 
 def _map(axes: Any, scoring: dict[str, np.ndarray]) -> None:
     """Drivable polygons, centrelines and the lanes under a red light at the step nearest t0."""
-    polygons = _pieces(np.asarray(scoring["polygon_xy"]), np.asarray(scoring["polygon_offsets"]))
+    polygons = pieces(scoring["polygon_xy"], scoring["polygon_offsets"])
     for polygon, kind in zip(polygons, np.asarray(scoring["polygon_kind"]), strict=True):
         drivable = int(kind) in DRIVABLE
         _fill(axes, polygon, facecolor="#d9d9d9" if drivable else "#eef3e8", edgecolor="#b0b0b0", linewidth=0.5)
-    lines = _pieces(np.asarray(scoring["centerline_xy"]), np.asarray(scoring["centerline_offsets"]))
+    lines = pieces(scoring["centerline_xy"], scoring["centerline_offsets"])
     red = set()
     if len(scoring.get("red_light_t", ())):
         step = int(np.argmin(np.abs(np.asarray(scoring["red_light_t"]))))

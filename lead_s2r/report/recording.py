@@ -21,7 +21,6 @@ cameras, the sub-scores' curves); its viewer opens it (``rerun FILE.rrd``).
 
 import subprocess
 import sys
-from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +28,7 @@ import numpy as np
 
 from lead_s2r.errors import UserError
 from lead_s2r.files import write_atomically
+from lead_s2r.report.bev import pieces
 from lead_s2r.report.camera import on_ground
 from lead_s2r.report.run_outputs import HEADLINES, RunOutputs, load_run, load_samples
 from lead_s2r.report.sample_page import is_score, sub_scores, top_xy
@@ -184,14 +184,10 @@ def _boxes(rr: Any, recording: Any, boxes: np.ndarray, meta: dict[str, Any]) -> 
     )
 
 
-def _pieces(flat: Any, offsets: Any) -> list[np.ndarray]:
-    flat, offsets = np.asarray(flat, np.float64), np.asarray(offsets).tolist()
-    return [on_ground(flat[a:b]) for a, b in pairwise(offsets)]
-
-
 def _map(rr: Any, recording: Any, scoring: dict[str, Any]) -> None:
-    lanes = _pieces(scoring["centerline_xy"], scoring["centerline_offsets"])
-    areas = [np.vstack([p, p[:1]]) for p in _pieces(scoring["polygon_xy"], scoring["polygon_offsets"]) if len(p)]
+    lanes = [on_ground(p) for p in pieces(scoring["centerline_xy"], scoring["centerline_offsets"])]
+    polygons = pieces(scoring["polygon_xy"], scoring["polygon_offsets"])
+    areas = [on_ground(np.vstack([p, p[:1]])) for p in polygons if len(p)]
     recording.log("/map/lanes", rr.LineStrips3D(lanes, colors=[[150, 150, 150]]))
     recording.log("/map/areas", rr.LineStrips3D(areas, colors=[[90, 90, 90]]))
 
