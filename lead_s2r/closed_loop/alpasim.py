@@ -26,6 +26,7 @@ FAILED_PRECONDITION); it ends that call only, every other session goes on. ``get
 camera convention it speaks (AlpaSim's) as carla-driver-interface's metadata, so that package's clients agree.
 """
 
+import functools
 import logging
 import threading
 from collections.abc import Callable
@@ -59,6 +60,26 @@ logger = logging.getLogger(__name__)
 #: The camera convention spoken: ``rig_to_camera`` is the optical frame in the rig, as AlpaSim's renderers declare it.
 CONTRACT_REVISION = 2
 T = TypeVar("T")
+#: A service method: (servicer, request, context) -> response.
+Method = Callable[[Any, Any, grpc.ServicerContext], T]
+
+
+def rpc(method: Method[T]) -> Method[T]:
+    """A service method as one call: a client's mistake aborts it with its status, anything else with INTERNAL
+    (logged)."""
+
+    @functools.wraps(method)
+    def call(self: Any, request: Any, context: grpc.ServicerContext) -> T:
+        try:
+            return method(self, request, context)
+        except RequestError as err:
+            context.abort(err.code, str(err))
+        except Exception as err:  # a bug: this call fails, the server and every other session go on
+            logger.exception("egodriver call failed")
+            context.abort(grpc.StatusCode.INTERNAL, f"{type(err).__name__}: {err}")
+        raise AssertionError("unreachable: context.abort raises")
+
+    return call
 
 
 class EgodriverServicer(protocol.EgodriverServiceServicer):
@@ -69,17 +90,6 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
         self.sessions: dict[str, Session] = {}
         self.sessions_lock = threading.Lock()
         self.model_lock = threading.Lock()  # one forward at a time: torch's own threads use every core
-
-    def _call(self, context: grpc.ServicerContext, body: Callable[[], T]) -> T:
-        """Run one call; a client's mistake aborts it with its status, anything else with INTERNAL (logged)."""
-        try:
-            return body()
-        except RequestError as err:
-            context.abort(err.code, str(err))
-        except Exception as err:  # a bug: this call fails, the server and every other session go on
-            logger.exception("egodriver call failed")
-            context.abort(grpc.StatusCode.INTERNAL, f"{type(err).__name__}: {err}")
-        raise AssertionError("unreachable: context.abort raises")
 
     def session(self, uuid: str) -> Session:
         with self.sessions_lock:
@@ -98,118 +108,106 @@ class EgodriverServicer(protocol.EgodriverServiceServicer):
             grpc_api_version=protocol.ALPASIM_API_VERSION,
         )
 
+    @rpc
     def start_session(self, request: Any, context: grpc.ServicerContext) -> Any:
-        def body() -> Any:
-            if not request.session_uuid:
-                raise invalid("session_uuid: empty")
-            declared = list(request.rollout_spec.vehicle.available_cameras)
-            revision = contract.client_revision(context, CONTRACT_REVISION)
-            declared = contract.cameras_to_revision(declared, revision, CONTRACT_REVISION)
-            read = [scene_camera(camera, index) for index, camera in enumerate(declared)]
-            cameras = [camera for camera in read if camera is not None]
-            unread = [camera.logical_id for camera, seen in zip(declared, read, strict=True) if seen is None]
-            slot_of = match_cameras(self.served.slots, cameras, unread)
-            used = {c.logical_id: c for c in cameras if c.logical_id in slot_of}
-            with self.sessions_lock:
-                if request.session_uuid in self.sessions:
-                    raise precondition(f"session_uuid {request.session_uuid!r}: already started")
-                self.sessions[request.session_uuid] = Session(used, slot_of)
-            return protocol.SessionRequestStatus()
+        if not request.session_uuid:
+            raise invalid("session_uuid: empty")
+        declared = list(request.rollout_spec.vehicle.available_cameras)
+        revision = contract.client_revision(context, CONTRACT_REVISION)
+        declared = contract.cameras_to_revision(declared, revision, CONTRACT_REVISION)
+        read = [scene_camera(camera, index) for index, camera in enumerate(declared)]
+        cameras = [camera for camera in read if camera is not None]
+        unread = [camera.logical_id for camera, seen in zip(declared, read, strict=True) if seen is None]
+        slot_of = match_cameras(self.served.slots, cameras, unread)
+        used = {c.logical_id: c for c in cameras if c.logical_id in slot_of}
+        with self.sessions_lock:
+            if request.session_uuid in self.sessions:
+                raise precondition(f"session_uuid {request.session_uuid!r}: already started")
+            self.sessions[request.session_uuid] = Session(used, slot_of)
+        return protocol.SessionRequestStatus()
 
-        return self._call(context, body)
-
+    @rpc
     def close_session(self, request: Any, context: grpc.ServicerContext) -> Any:
-        def body() -> Any:
-            self.session(request.session_uuid)
-            with self.sessions_lock:
-                self.sessions.pop(request.session_uuid, None)
-            return protocol.Empty()
+        self.session(request.session_uuid)
+        with self.sessions_lock:
+            self.sessions.pop(request.session_uuid, None)
+        return protocol.Empty()
 
-        return self._call(context, body)
-
+    @rpc
     def submit_image_observation(self, request: Any, context: grpc.ServicerContext) -> Any:
-        def body() -> Any:
-            session, image = self.session(request.session_uuid), request.camera_image
-            slot = session.slot_of.get(image.logical_id)
-            if slot is None:  # a camera the model does not read (or one the scene never declared)
-                return protocol.Empty()
-            shape = jpeg_shape(image.image_bytes)
-            if shape is None:
-                raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: not a decodable JPEG "
-                              "(set AlpaSim's image_format: jpeg)")  # fmt: skip
-            declared = session.cameras[image.logical_id].calibration
-            if shape != (declared["height"], declared["width"]):
-                raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: {shape[1]}x{shape[0]} "
-                              f"pixels, but the camera is declared {declared['width']}x{declared['height']} "
-                              "(rollout_spec.vehicle.available_cameras)")  # fmt: skip
-            with session.lock:
-                previous = session.images.get(slot, (-(2**63), b""))[0]
-                if image.frame_end_us < previous:
-                    raise invalid(f"camera_image.frame_end_us of camera {image.logical_id!r}: {image.frame_end_us} "
-                                  f"is before the previous frame's {previous}")  # fmt: skip
-                session.images[slot] = (image.frame_end_us, bytes(image.image_bytes))
+        session, image = self.session(request.session_uuid), request.camera_image
+        slot = session.slot_of.get(image.logical_id)
+        if slot is None:  # a camera the model does not read (or one the scene never declared)
             return protocol.Empty()
+        shape = jpeg_shape(image.image_bytes)
+        if shape is None:
+            raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: not a decodable JPEG "
+                          "(set AlpaSim's image_format: jpeg)")  # fmt: skip
+        declared = session.cameras[image.logical_id].calibration
+        if shape != (declared["height"], declared["width"]):
+            raise invalid(f"camera_image.image_bytes of camera {image.logical_id!r}: {shape[1]}x{shape[0]} "
+                          f"pixels, but the camera is declared {declared['width']}x{declared['height']} "
+                          "(rollout_spec.vehicle.available_cameras)")  # fmt: skip
+        with session.lock:
+            previous = session.images.get(slot, (-(2**63), b""))[0]
+            if image.frame_end_us < previous:
+                raise invalid(f"camera_image.frame_end_us of camera {image.logical_id!r}: {image.frame_end_us} "
+                              f"is before the previous frame's {previous}")  # fmt: skip
+            session.images[slot] = (image.frame_end_us, bytes(image.image_bytes))
+        return protocol.Empty()
 
-        return self._call(context, body)
-
+    @rpc
     def submit_egomotion_observation(self, request: Any, context: grpc.ServicerContext) -> Any:
-        def body() -> Any:
-            session = self.session(request.session_uuid)
-            poses, states = list(request.trajectory.poses), list(request.dynamic_states)
-            if states and len(states) != len(poses):
-                raise invalid(f"dynamic_states: {len(states)} states for {len(poses)} poses (one per pose)")
-            entries = [
-                (p.timestamp_us, pose_matrix(p.pose, f"trajectory.poses[{i}].pose")) for i, p in enumerate(poses)
-            ]
-            for index, state in enumerate(states):
-                check_dynamics(state, f"dynamic_states[{index}]")
-            with session.lock:
-                known = {timestamp for timestamp, _ in session.poses}  # a runtime may send its history again
-                last, new = (session.poses[-1][0] if session.poses else -(2**63)), []
-                for index, (timestamp, pose) in enumerate(entries):
-                    if timestamp in known:
-                        continue
-                    if timestamp <= last:
-                        raise invalid(f"trajectory.poses[{index}].timestamp_us: {timestamp} is not after the "
-                                      f"previous pose's {last}")  # fmt: skip
-                    last = timestamp
-                    new.append((timestamp, pose))
-                session.poses.extend(new)
-                if states:
-                    session.dynamics = states[-1]
-            return protocol.Empty()
+        session = self.session(request.session_uuid)
+        poses, states = list(request.trajectory.poses), list(request.dynamic_states)
+        if states and len(states) != len(poses):
+            raise invalid(f"dynamic_states: {len(states)} states for {len(poses)} poses (one per pose)")
+        entries = [(p.timestamp_us, pose_matrix(p.pose, f"trajectory.poses[{i}].pose")) for i, p in enumerate(poses)]
+        for index, state in enumerate(states):
+            check_dynamics(state, f"dynamic_states[{index}]")
+        with session.lock:
+            known = {timestamp for timestamp, _ in session.poses}  # a runtime may send its history again
+            last, new = (session.poses[-1][0] if session.poses else -(2**63)), []
+            for index, (timestamp, pose) in enumerate(entries):
+                if timestamp in known:
+                    continue
+                if timestamp <= last:
+                    raise invalid(f"trajectory.poses[{index}].timestamp_us: {timestamp} is not after the "
+                                  f"previous pose's {last}")  # fmt: skip
+                last = timestamp
+                new.append((timestamp, pose))
+            session.poses.extend(new)
+            if states:
+                session.dynamics = states[-1]
+        return protocol.Empty()
 
-        return self._call(context, body)
-
+    @rpc
     def submit_route(self, request: Any, context: grpc.ServicerContext) -> Any:
-        def body() -> Any:
-            session = self.session(request.session_uuid)
-            points = np.array([[w.x, w.y] for w in request.route.waypoints], np.float64).reshape(-1, 2)
-            if not (np.abs(points) < MAX_COORDINATE_M).all():  # False for NaN
-                raise invalid(f"route.waypoints: not finite or {MAX_COORDINATE_M:g} m or more away")
-            with session.lock:
-                session.route = (request.route.timestamp_us, points)
-            return protocol.Empty()
+        session = self.session(request.session_uuid)
+        points = np.array([[w.x, w.y] for w in request.route.waypoints], np.float64).reshape(-1, 2)
+        if not (np.abs(points) < MAX_COORDINATE_M).all():  # False for NaN
+            raise invalid(f"route.waypoints: not finite or {MAX_COORDINATE_M:g} m or more away")
+        with session.lock:
+            session.route = (request.route.timestamp_us, points)
+        return protocol.Empty()
 
-        return self._call(context, body)
-
+    @rpc
     def submit_recording_ground_truth(self, request: Any, context: grpc.ServicerContext) -> Any:
         """Accepted and unused: the model plans from its sensors, never from the recording."""
-        return self._call(context, lambda: (self.session(request.session_uuid), protocol.Empty())[1])
+        self.session(request.session_uuid)
+        return protocol.Empty()
 
+    @rpc
     def drive(self, request: Any, context: grpc.ServicerContext) -> Any:
-        def body() -> Any:
-            session = self.session(request.session_uuid)
-            with session.lock:
-                sample, anchor = self.prepare(session, request.time_now_us)
-            with self.model_lock:
-                plan = self.served.plan(sample)
-            if not np.isfinite(plan).all():  # never a pose that is not a number to the simulator
-                raise RuntimeError("the model's plan is not finite")
-            return protocol.DriveResponse(trajectory=local_trajectory(plan, self.served.grid_times, anchor,
-                                                                      request.time_now_us))  # fmt: skip
-
-        return self._call(context, body)
+        session = self.session(request.session_uuid)
+        with session.lock:
+            sample, anchor = self.prepare(session, request.time_now_us)
+        with self.model_lock:
+            plan = self.served.plan(sample)
+        if not np.isfinite(plan).all():  # never a pose that is not a number to the simulator
+            raise RuntimeError("the model's plan is not finite")
+        return protocol.DriveResponse(trajectory=local_trajectory(plan, self.served.grid_times, anchor,
+                                                                  request.time_now_us))  # fmt: skip
 
     def prepare(self, session: Session, time_now_us: int) -> tuple[dict[str, Any], tuple[int, np.ndarray]]:
         """The sample of this step and the anchor pose (timestamp, 4x4 local), after the step's checks."""
