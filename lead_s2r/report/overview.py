@@ -51,18 +51,8 @@ def headline_tables(runs: list[Run]) -> list[FamilyTable]:
         seeds = {run_id: sorted(run.seed for run in members if run.run_id == run_id) for run_id in ids}
         rows = tuple(Row(run_id, run_id, (None,) * len(columns), tuple(seeds[run_id])) for run_id in ids)
         cells = collect(TableSpec(family, tuple(columns), rows), members)
-        tables.append(
-            FamilyTable(
-                family,
-                [c.name for c in columns],
-                [
-                    (
-                        " / ".join(Path(run_id).parts[-2:]),
-                        seeds[run_id],
-                        [format_cell(cell, DIGITS) for cell in row_cells],
-                    )
-                    for run_id, row_cells in zip(ids, cells, strict=True)
-                ],
-            )
-        )
+        texts = [[format_cell(cell, DIGITS) for cell in row_cells] for row_cells in cells]
+        names = [" / ".join(Path(run_id).parts[-2:]) for run_id in ids]
+        listed = list(zip(names, [seeds[run_id] for run_id in ids], texts, strict=True))
+        tables.append(FamilyTable(family, [column.name for column in columns], listed))
     return tables
