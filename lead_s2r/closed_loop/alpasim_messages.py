@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from lead_s2r.closed_loop.alpasim_model import CameraSlot, ServedModel
 from lead_s2r.data.device_inputs import decode_rgb, jpeg_tensor
-from lead_s2r.geometry import to_global, to_local, wrap_angle
+from lead_s2r.geometry import homogeneous, to_global, to_local, wrap_angle
 from lead_s2r.schema import SCHEMA_VERSION, Command
 
 #: A scene camera serves a model camera whose field of view is within this factor of its own.
@@ -68,10 +68,7 @@ def pose_matrix(pose: Any, name: str) -> np.ndarray:
     if not (np.abs(values) < MAX_COORDINATE_M).all() or np.linalg.norm(values[3:]) < 1e-9:  # False for NaN
         raise invalid(f"{name}: not a finite pose {MAX_COORDINATE_M:g} m or less from the origin with a unit "
                       f"quaternion ({values.tolist()})")  # fmt: skip
-    matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
-    matrix[:3, 3] = values[:3]
-    return matrix
+    return homogeneous(Rotation.from_quat(values[3:]).as_matrix(), values[:3])
 
 
 def check_dynamics(state: Any, name: str) -> None:
@@ -170,13 +167,9 @@ def route_command(route: np.ndarray) -> Command:
     if len(ahead) == 0:
         return Command.STRAIGHT
     lateral = route[ahead[0], 1]
-    return (
-        Command.LEFT
-        if lateral > COMMAND_OFFSET_M
-        else Command.RIGHT
-        if lateral < -COMMAND_OFFSET_M
-        else Command.STRAIGHT
-    )
+    if lateral > COMMAND_OFFSET_M:
+        return Command.LEFT
+    return Command.RIGHT if lateral < -COMMAND_OFFSET_M else Command.STRAIGHT
 
 
 def route_target_points(route: np.ndarray) -> np.ndarray:
