@@ -159,8 +159,9 @@ def _inputs(axes: Any, sample: dict[str, Any]) -> None:
         plot_xy(axes, sample["lidar"][:, :2], ",", color="#9a9a9a", zorder=0.5)
     if "route" in sample:
         plot_xy(axes, sample["route"], "-", color="#2896e6", linewidth=1.5, label="route")
-    if "target_points" in sample:
-        points = sample["target_points"][np.isfinite(sample["target_points"]).all(axis=1)]
+    points = np.asarray(sample.get("target_points", np.zeros((0, 2))), np.float64)
+    points = points[np.isfinite(points).all(axis=1)]  # absent ones are NaN rows
+    if len(points):
         plot_xy(axes, points, "o", color="#e62828", markersize=7, linestyle="none", label="target points")
 
 
