@@ -161,7 +161,7 @@ class LogScenes:
                 )
             )
         t = (self.stamps[index] - self.stamps[current]) / 1e6
-        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["classes"], steps, self.poses[current], t)
+        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["classes"], steps, t, self.poses[current])
 
     def ego_past(self, current: int) -> np.ndarray:
         """The history frames up to and including ``current`` (:func:`~navsim_scene.ego_past`), from each frame's
