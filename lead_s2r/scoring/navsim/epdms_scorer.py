@@ -38,8 +38,8 @@ from lead_s2r.predictions import Prediction, most_probable
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
+from lead_s2r.scoring.navsim.pdms_scorer import EXTRA_COLUMNS, PDMSScorer
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
-from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
 from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, proposal_of
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
@@ -52,7 +52,6 @@ from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
 NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
-EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
 STEP_COLUMNS = (*PDMS_STEP_COLUMNS, "lane_keeping_fail_idx")
 CSV_NAME = "navsim_epdms.csv"
 AVERAGE_TOKEN = "average_all_frames"

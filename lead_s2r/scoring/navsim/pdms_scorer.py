@@ -25,25 +25,15 @@ from lead_s2r.predictions import Prediction, most_probable
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
 from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, proposal_of
+from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import scene_from_sample
-from lead_s2r.scoring.pdm.score import score_proposals
+from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS as EXTRA_COLUMNS
+from lead_s2r.scoring.pdm.score import STEP_COLUMNS, score_proposals
 
 METRIC = "pdms@navsim-1.1"
 #: NAVSIM v1.1 ``PDMResults`` fields, in the order its CSV writes them.
-NAVSIM_COLUMNS = (
-    "no_at_fault_collisions",
-    "drivable_area_compliance",
-    "ego_progress",
-    "time_to_collision_within_bound",
-    "comfort",
-    "driving_direction_compliance",
-    "score",
-)
-EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
-#: the 0.1 s simulation step where NC, TTC and DAC failed and the agent row NC hit (-1: none; null in an invalid row),
-#: so a report can say when a sub-score was lost and to whom
-STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx", "collision_object_idx")
+NAVSIM_COLUMNS = (epdms.NC, epdms.DAC, epdms.EP, epdms.TTC, "comfort", epdms.DDC, "score")
 CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
