@@ -21,13 +21,11 @@ from typing import Any, ClassVar
 import numpy as np
 import pyarrow as pa
 
-from lead_s2r.predictions import Prediction, most_probable
+from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, proposal_of
+from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of
 from lead_s2r.scoring.pdm import epdms
-from lead_s2r.scoring.pdm.route import RouteError
-from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS as EXTRA_COLUMNS
 from lead_s2r.scoring.pdm.score import STEP_COLUMNS, score_proposals
 
@@ -54,6 +52,7 @@ class PDMSScorer(Scorer):
     #: the CSV's score columns (after ``token``, ``valid``), the aggregate naming the split score, the CSV file
     #: and its average row's token: what ``epdms@navsim-2.2`` (:mod:`lead_s2r.scoring.navsim.epdms_scorer`) changes
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
+    step_columns: ClassVar[tuple[str, ...]] = STEP_COLUMNS
     headline: ClassVar[str] = "pdms"
     csv_name: ClassVar[str] = CSV_NAME
     average_token: ClassVar[str] = "average"
@@ -78,23 +77,32 @@ class PDMSScorer(Scorer):
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": len(pairs) - len(ours)})
 
-    def score_sample(self, sample: dict[str, Any], frame: list[Prediction]) -> dict[str, Any]:
+    def score_sample(self, sample: dict[str, Any], predictions: list[Prediction]) -> dict[str, Any]:
         """One row of the table: NAVSIM's sub-scores of the most probable inference, or an invalid row."""
-        proposals, interval = proposal_of(most_probable(frame))
+        return self.row(frame_of(sample, predictions), None)
+
+    def row(self, frame: Frame, earlier: Frame | None) -> dict[str, Any]:
+        """One row of the table: the frame's columns (EPDMS: EC against ``earlier``), or an invalid row."""
+        sample = frame.sample
         row: dict[str, Any] = {
             "key": sample["__key__"],
             "dataset": sample["meta"]["dataset"],
             "token": navsim_scene_token(sample),
-            "valid": True,
-            "error": None,
+            "valid": frame.scene is not None,
+            "previous_key": None if earlier is None else earlier.sample["__key__"],
+            "error": frame.error,
         }
-        try:
-            scene = scene_from_sample(sample)
-        except RouteError as err:
-            return {**row, **dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan")), "valid": False,
-                    "error": str(err)}  # fmt: skip
-        result = score_proposals(scene, proposals[None], interval, reference=self.references.get(scene))
-        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
+        if frame.scene is None:
+            return row | dict.fromkeys((*self.csv_columns, *EXTRA_COLUMNS), float("nan"))
+        result = self.proposal_scores(frame, earlier)
+        return row | first_row(result, (*self.csv_columns, *EXTRA_COLUMNS), self.step_columns)
+
+    def proposal_scores(self, frame: Frame, earlier: Frame | None) -> dict[str, np.ndarray]:
+        """``score_proposals`` of the frame's plan."""
+        assert frame.scene is not None, "invalid frames have no scores"
+        return score_proposals(
+            frame.scene, frame.poses[None], frame.interval, reference=self.references.get(frame.scene)
+        )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]
