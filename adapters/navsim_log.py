@@ -3,7 +3,6 @@ current frame, plus ``num_future_frames``). nuPlan data is already ISO 8855 with
 nothing is flipped. Layout of every field: ``docs/datasets/navsim.md``.
 """
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -110,14 +109,19 @@ class LogScenes:
 
     def ego(self, current: int, where: str, previous: np.ndarray) -> dict[str, Any]:
         """``meta.ego`` of frame ``current``; ``previous`` is the pose before it, [t < 0, x, y, yaw] in its frame."""
-        frame = self.frames[current]
-        state = [float(v) for v in required(frame, "ego_dynamic_state", where)]
-        if len(state) != 4 or not all(math.isfinite(v) for v in state):
-            raise NavsimFormatError(f"{where}: field 'ego_dynamic_state' must be 4 finite numbers, got {state!r}")
-        one_hot = np.asarray(required(frame, "driving_command", where)).ravel()
+        state = self.dynamic_state(current).tolist()
+        one_hot = np.asarray(required(self.frames[current], "driving_command", where)).ravel()
         if one_hot.shape != (4,):
             raise NavsimFormatError(f"{where}: field 'driving_command' must be a (4,) one-hot, got {one_hot!r}")
         return ego_meta(state[:2], state[2:], one_hot, previous)
+
+    def dynamic_state(self, index: int) -> np.ndarray:
+        """Frame ``index``'s ``ego_dynamic_state``: vx, vy, ax, ay in the body frame."""
+        state = np.asarray(required(self.frames[index], "ego_dynamic_state", self.where(index)), np.float64).ravel()
+        if state.shape != (4,) or not np.isfinite(state).all():
+            problem = f"field 'ego_dynamic_state' must be 4 finite numbers, got {state.tolist()!r}"
+            raise NavsimFormatError(f"{self.where(index)}: {problem}")
+        return state
 
     def cameras(self, frame: dict, where: str, lidar2ego: np.ndarray, sample: dict) -> list[dict[str, Any]]:
         cameras = []
@@ -167,11 +171,6 @@ class LogScenes:
         """The history frames up to and including ``current`` (:func:`~navsim_scene.ego_past`), from each frame's
         ``ego_dynamic_state``."""
         index = np.arange(current - self.source.history + 1, current + 1)
-        dynamics = []
-        for i in index:
-            state = np.asarray(required(self.frames[i], "ego_dynamic_state", self.where(i)), np.float64).ravel()
-            if state.shape != (4,) or not np.isfinite(state).all():
-                raise NavsimFormatError(f"{self.where(i)}: field 'ego_dynamic_state' must be 4 finite numbers")
-            dynamics.append(state)
+        dynamics = np.array([self.dynamic_state(i) for i in index])
         origin, now_us = self.poses[current], int(self.stamps[current])
-        return ego_past(self.stamps[index], self.poses[index], np.array(dynamics), origin, now_us)
+        return ego_past(self.stamps[index], self.poses[index], dynamics, origin, now_us)
