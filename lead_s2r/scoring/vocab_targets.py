@@ -154,8 +154,8 @@ def score_scenes(
 def _part_bytes(result: dict[str, Any]) -> bytes:
     """A job's result as a .npz (arrays ``<key>/<metric>``) with tokens and failures as JSON: no pickle on disk."""
     arrays = {f"{key}/{name}": values for key, columns in result["scores"].items() for name, values in columns.items()}
-    listing = {"tokens": result["tokens"], "failed": result["failed"]}
-    arrays[PART_LISTING] = np.frombuffer(json.dumps(listing).encode(), np.uint8)
+    listed = {"tokens": result["tokens"], "failed": result["failed"]}
+    arrays[PART_LISTING] = np.frombuffer(json.dumps(listed).encode(), np.uint8)
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     return buffer.getvalue()
