@@ -123,12 +123,12 @@ class PDMSScorer(Scorer):
             writer = csv.writer(file)
             writer.writerow(["", "token", "valid", *columns])
             for index, row in enumerate(rows):
-                writer.writerow([index, row["token"], row["valid"], *(_number(row[name]) for name in columns)])
+                writer.writerow([index, row["token"], row["valid"], *(csv_number(row[name]) for name in columns)])
             means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in columns]
             valid = all(row["valid"] for row in rows)
-            writer.writerow([len(rows), self.average_token, valid, *(_number(value) for value in means)])
+            writer.writerow([len(rows), self.average_token, valid, *(csv_number(value) for value in means)])
 
 
-def _number(value: float | None) -> str:
-    """pandas' CSV spelling: repr of the float, empty for NaN / missing."""
+def csv_number(value: float | None) -> str:
+    """pandas' CSV spelling of a float, as NAVSIM's CSVs have it: its repr, empty for NaN / missing."""
     return "" if value is None or not np.isfinite(value) else repr(float(value))
