@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import homogeneous, quaternion_matrix, to_global, to_local, wrap_angle
+from lead_s2r.geometry import to_global, to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
@@ -16,6 +16,7 @@ from lead_s2r_adapters.navsim_io import (
     CAMERAS,
     LOG_ANNOTATIONS,
     NavsimFormatError,
+    lidar2ego,
     quaternion_yaw,
     read_annotations,
     read_camera,
@@ -64,10 +65,7 @@ class LogScenes:
         index = np.arange(start, current + source.future + 1)
         t = ((self.stamps[index] - self.stamps[current]) / 1e6).astype(np.float32)
         trajectory = np.column_stack([t, to_local(self.poses[index], origin)]).astype(np.float32)
-        lidar2ego = homogeneous(
-            quaternion_matrix(required(frame, "lidar2ego_rotation", where)),
-            required(frame, "lidar2ego_translation", where),
-        )
+        to_ego = lidar2ego(frame, where)
         token = required(frame, "token", where, str)
         location = required(frame, "map_location", where, str)
         sample: dict[str, Any] = {
@@ -75,9 +73,9 @@ class LogScenes:
             "past": trajectory[: source.history],
             "future": trajectory[source.history :],
         }
-        cameras = self.cameras(frame, where, lidar2ego, sample)
+        cameras = self.cameras(frame, where, to_ego, sample)
         points, columns = read_pcd(self.sensors / required(frame, "lidar_path", where, str))
-        points[:, :3] = (points[:, :3].astype(np.float64) @ lidar2ego[:3, :3].T + lidar2ego[:3, 3]).astype(np.float32)
+        points[:, :3] = (points[:, :3].astype(np.float64) @ to_ego[:3, :3].T + to_ego[:3, 3]).astype(np.float32)
         sample["lidar"] = points
         extras: dict[str, Any] = {
             "scene_token": token,
@@ -146,7 +144,7 @@ class LogScenes:
     def _read_annotations(self, index: int) -> dict[str, Any]:
         where = f"{self.where(index)} anns"
         anns = read_annotations(required(self.frames[index], "anns", self.where(index)), LOG_ANNOTATIONS, where)
-        rotation = quaternion_matrix(required(self.frames[index], "lidar2ego_rotation", self.where(index)))
+        rotation = lidar2ego(self.frames[index], self.where(index))[:3, :3]
         velocity = anns["velocity"] @ rotation.T  # OpenScene rotates velocities into the lidar frame
         global_poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])  # for the scenes it is a future of
         return anns | {"velocity": velocity[:, :2], "global_poses": global_poses}
