@@ -13,14 +13,12 @@ meta, and the stored mosaic's width (read from the JPEG header with Pillow, neve
 or the calibration written beside it would be wrong.
 """
 
-import io
 import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-from PIL import Image
 
 from lead_s2r.fields import fits
 from lead_s2r.formats.carla_rig import (
@@ -41,6 +39,7 @@ from lead_s2r.geometry import (
     rotate,
     to_local,
 )
+from lead_s2r.image_headers import jpeg_size
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, TARGET_DATASET_BEFORE_ONE_CAMERA, BoxClass, Command, make_key
 from lead_s2r_adapters.carla_lead_io import (
@@ -111,10 +110,10 @@ def target_dataset(meta: dict[str, Any], path: Path) -> str:
 def mosaic_height(data: bytes, rig: str, path: Path) -> int:
     """Rows of a stored mosaic, which must have the rig's width and its kept (or full rendered) height, or the
     calibration written beside it would be wrong."""
-    try:
-        width, height = Image.open(io.BytesIO(data)).size
-    except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError) as err:  # Pillow's, by plugin
-        raise LeadFormatError(path, f"unreadable JPEG header ({err})") from err
+    size = jpeg_size(data)
+    if size is None:
+        raise LeadFormatError(path, "unreadable JPEG header (no frame header with the image size)")
+    width, height = size
     cameras = CAMERA_RIGS[rig]
     want_width, heights = sum(c.width for c in cameras), (cameras[0].stored_height, cameras[0].height)
     if width != want_width or height not in heights:
