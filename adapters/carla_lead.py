@@ -13,14 +13,12 @@ meta, and the stored mosaic's width (read from the JPEG header with Pillow, neve
 or the calibration written beside it would be wrong.
 """
 
-import io
 import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-from PIL import Image
 
 from lead_s2r.fields import fits
 from lead_s2r.formats.carla_rig import (
@@ -41,6 +39,7 @@ from lead_s2r.geometry import (
     rotate,
     to_local,
 )
+from lead_s2r.image_headers import jpeg_size
 from lead_s2r.registry import Adapter, LogRef, SkipLog
 from lead_s2r.schema import SCHEMA_VERSION, TARGET_DATASET_BEFORE_ONE_CAMERA, BoxClass, Command, make_key
 from lead_s2r_adapters.carla_lead_io import (
@@ -57,6 +56,7 @@ from lead_s2r_adapters.carla_lead_io import (
     read_radar,
     route_frames,
     route_skip_reason,
+    track_poses,
 )
 
 FPS = 20.0  # simulator and future-label rate
@@ -110,10 +110,10 @@ def target_dataset(meta: dict[str, Any], path: Path) -> str:
 def mosaic_height(data: bytes, rig: str, path: Path) -> int:
     """Rows of a stored mosaic, which must have the rig's width and its kept (or full rendered) height, or the
     calibration written beside it would be wrong."""
-    try:
-        width, height = Image.open(io.BytesIO(data)).size
-    except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError) as err:  # Pillow's, by plugin
-        raise LeadFormatError(path, f"unreadable JPEG header ({err})") from err
+    size = jpeg_size(data)
+    if size is None:
+        raise LeadFormatError(path, "unreadable JPEG header (no frame header with the image size)")
+    width, height = size
     cameras = CAMERA_RIGS[rig]
     want_width, heights = sum(c.width for c in cameras), (cameras[0].stored_height, cameras[0].height)
     if width != want_width or height not in heights:
@@ -299,30 +299,20 @@ class CarlaLeadAdapter(Adapter):
 
     def _future(self, meta: dict[str, Any], path: Path, frame: _Frame) -> np.ndarray | None:
         """``future_positions``/``future_yaws`` at 20 Hz, index 0 = now (dropped), in the current ego frame."""
-        positions = array(meta, "future_positions", path, columns=2)
-        yaws = array(meta, "future_yaws", path)
-        if len(yaws) != len(positions):
-            raise LeadFormatError(path, f"{len(yaws)} yaws for {len(positions)} future positions", "future_yaws")
-        if len(positions) < 2:
+        future = track_poses(meta, "future", path)
+        if len(future) < 2:
             return None
-        poses = frame.poses(np.column_stack([positions[1:, :2], yaws[1:]]))
-        t = np.arange(1, len(positions)) / FPS
-        return np.column_stack([t, poses]).astype(np.float32)
+        t = np.arange(1, len(future)) / FPS
+        return np.column_stack([t, frame.poses(future[1:])]).astype(np.float32)
 
     def _past(self, meta: dict[str, Any], path: Path, frame: _Frame) -> np.ndarray:
         """``past_positions``/``past_yaws`` at 20 Hz, newest first (index 0 = now); just t = 0 when absent."""
-        if "past_positions" in meta and "past_yaws" in meta:
-            positions = array(meta, "past_positions", path, columns=2)[::-1]
-            yaws = array(meta, "past_yaws", path)[::-1]
-            if len(yaws) != len(positions):
-                raise LeadFormatError(path, f"{len(yaws)} yaws for {len(positions)} past positions", "past_yaws")
-        else:
-            positions, yaws = np.zeros((0, 2)), np.zeros(0)
-        if len(positions) == 0:
-            positions, yaws = np.zeros((1, 2)), np.zeros(1)
-        poses = frame.poses(np.column_stack([positions[:, :2], yaws]))
-        t = (np.arange(len(positions)) - (len(positions) - 1)) / FPS
-        return np.column_stack([t, poses]).astype(np.float32)
+        has_past = "past_positions" in meta and "past_yaws" in meta
+        past = track_poses(meta, "past", path)[::-1] if has_past else np.zeros((0, 3))
+        if len(past) == 0:
+            past = np.zeros((1, 3))
+        t = (np.arange(len(past)) - (len(past) - 1)) / FPS
+        return np.column_stack([t, frame.poses(past)]).astype(np.float32)
 
     def _navigation(self, meta: dict[str, Any], path: Path, frame: _Frame) -> tuple[int, np.ndarray]:
         """Previous / current / next target point (NaN row = absent) and the command of the previous one.
@@ -363,11 +353,8 @@ class CarlaLeadAdapter(Adapter):
             rows[i, 2:6] = position[2], *(2 * extent)
             rows[i, 9] = box_class(box)
             if "future_positions" in box:
-                future = array(box, "future_positions", path, columns=2)[1:, :2]
-                yaws = array(box, "future_yaws", path)[1:]
-                if len(yaws) != len(future):
-                    raise LeadFormatError(path, f"box {i}: {len(yaws)} future yaws for {len(future)} positions")
-                futures[i, : len(future)] = np.column_stack([future, yaws])
+                future = track_poses(box, "future", path, f"box {i}: ")[1:]
+                futures[i, : len(future)] = future
         rows[:, [0, 1, 6]] = frame.box_poses(centres)
         heading = np.column_stack([np.cos(centres[:, 2]), np.sin(centres[:, 2])])
         rows[:, 7:9] = frame.vectors(speeds[:, None] * heading)

@@ -64,6 +64,15 @@ def array(record: dict[str, Any], name: str, path: Path, columns: int | None = N
     return values
 
 
+def track_poses(record: dict[str, Any], kind: str, path: Path, where: str = "") -> np.ndarray:
+    """(N, 3) x, y, yaw of LEAD's ``<kind>_positions`` and ``<kind>_yaws`` (past / future), which must agree in length;
+    ``where`` says whose they are in an error (a box's)."""
+    positions, yaws = array(record, f"{kind}_positions", path, columns=2), array(record, f"{kind}_yaws", path)
+    if len(yaws) != len(positions):
+        raise LeadFormatError(path, f"{where}{len(yaws)} yaws for {len(positions)} {kind} positions", f"{kind}_yaws")
+    return np.column_stack([positions[:, :2], yaws])
+
+
 def read_laz(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file.
 

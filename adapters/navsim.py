@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from lead_s2r.errors import UserError
+from lead_s2r.errors import UserError, listing
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r_adapters import navsim_map
 from lead_s2r_adapters.navsim_filter import (
@@ -202,10 +202,10 @@ class NavsimAdapter(Adapter):
         problems = []
         missing_logs = sorted((self.filter.log_names or set()) - {ref.log_id for ref in logs})
         if missing_logs:
-            names = ", ".join(missing_logs[:20])
+            names = listing(missing_logs)
             problems.append(f"{where}: field 'log_names' has {len(missing_logs)} logs with no pickle: {names}")
         if missing_synthetic:
-            names = ", ".join(missing_synthetic[:20])
+            names = listing(missing_synthetic)
             problems.append(f"{where}: {len(missing_synthetic)} synthetic scene tokens with no pickle: {names}")
         if self.filter.tokens is not None:
             scenes, unreadable = {}, []
@@ -220,9 +220,8 @@ class NavsimAdapter(Adapter):
             if missing:
                 problems.append(
                     f"{where}: field 'tokens' has {len(missing)} tokens in no readable log with a full "
-                    f"{self.history}+{self.future}-frame window: {', '.join(missing[:20])}"
-                    + (" ..." if len(missing) > 20 else "")
-                    + (f" (unreadable logs: {', '.join(unreadable)})" if unreadable else "")
+                    f"{self.history}+{self.future}-frame window: {listing(missing)}"
+                    + (f" (unreadable logs: {listing(unreadable)})" if unreadable else "")
                 )
             problems += [f"{where}: {problem}" for problem in cut_short(scenes, self.filter)]
         return [{"scene_filter": str(self.filter_path), "error": problem} for problem in problems]
@@ -260,8 +259,7 @@ def cut_short(scenes: dict[str, set[str]], scene_filter: SceneFilter) -> list[st
     if unselected:
         problems.append(
             f"field 'log_names' names {len(unselected)} logs none of whose scenes field 'tokens' selects (cut short?): "
-            + ", ".join(unselected[:20])
-            + (" ..." if len(unselected) > 20 else "")
+            + listing(unselected)
         )
     last = next((log for log, windows in scenes.items() if scene_filter.last_token in windows), None)
     others = [len(w & tokens) / len(w) for log, w in scenes.items() if log != last and w & tokens]

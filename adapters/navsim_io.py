@@ -144,12 +144,15 @@ def read_camera(
     return data, entry
 
 
-def log_lidar2ego(log_path: Path) -> np.ndarray:
-    """The lidar2ego of a log's first frame (constant over a log: one vehicle, one rig)."""
-    frame = load_log(log_path)[0]
-    where = f"{log_path} frame 0"
+def lidar2ego(frame: dict[str, Any], where: str) -> np.ndarray:
+    """A log frame's 4x4 lidar-to-ego transform, from its ``lidar2ego_rotation`` quaternion and translation."""
     rotation = quaternion_matrix(required(frame, "lidar2ego_rotation", where))
     return homogeneous(rotation, required(frame, "lidar2ego_translation", where))
+
+
+def log_lidar2ego(log_path: Path) -> np.ndarray:
+    """The lidar2ego of a log's first frame (constant over a log: one vehicle, one rig)."""
+    return lidar2ego(load_log(log_path)[0], f"{log_path} frame 0")
 
 
 #: Annotation field names: (boxes, class names, 3-D velocities, track tokens) in a log frame's ``anns`` and in a

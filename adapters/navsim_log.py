@@ -3,13 +3,12 @@ current frame, plus ``num_future_frames``). nuPlan data is already ISO 8855 with
 nothing is flipped. Layout of every field: ``docs/datasets/navsim.md``.
 """
 
-import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import homogeneous, quaternion_matrix, to_global, to_local, wrap_angle
+from lead_s2r.geometry import to_global, to_local, wrap_angle
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
@@ -17,6 +16,7 @@ from lead_s2r_adapters.navsim_io import (
     CAMERAS,
     LOG_ANNOTATIONS,
     NavsimFormatError,
+    lidar2ego,
     quaternion_yaw,
     read_annotations,
     read_camera,
@@ -65,10 +65,7 @@ class LogScenes:
         index = np.arange(start, current + source.future + 1)
         t = ((self.stamps[index] - self.stamps[current]) / 1e6).astype(np.float32)
         trajectory = np.column_stack([t, to_local(self.poses[index], origin)]).astype(np.float32)
-        lidar2ego = homogeneous(
-            quaternion_matrix(required(frame, "lidar2ego_rotation", where)),
-            required(frame, "lidar2ego_translation", where),
-        )
+        to_ego = lidar2ego(frame, where)
         token = required(frame, "token", where, str)
         location = required(frame, "map_location", where, str)
         sample: dict[str, Any] = {
@@ -76,9 +73,9 @@ class LogScenes:
             "past": trajectory[: source.history],
             "future": trajectory[source.history :],
         }
-        cameras = self.cameras(frame, where, lidar2ego, sample)
+        cameras = self.cameras(frame, where, to_ego, sample)
         points, columns = read_pcd(self.sensors / required(frame, "lidar_path", where, str))
-        points[:, :3] = (points[:, :3].astype(np.float64) @ lidar2ego[:3, :3].T + lidar2ego[:3, 3]).astype(np.float32)
+        points[:, :3] = (points[:, :3].astype(np.float64) @ to_ego[:3, :3].T + to_ego[:3, 3]).astype(np.float32)
         sample["lidar"] = points
         extras: dict[str, Any] = {
             "scene_token": token,
@@ -110,14 +107,19 @@ class LogScenes:
 
     def ego(self, current: int, where: str, previous: np.ndarray) -> dict[str, Any]:
         """``meta.ego`` of frame ``current``; ``previous`` is the pose before it, [t < 0, x, y, yaw] in its frame."""
-        frame = self.frames[current]
-        state = [float(v) for v in required(frame, "ego_dynamic_state", where)]
-        if len(state) != 4 or not all(math.isfinite(v) for v in state):
-            raise NavsimFormatError(f"{where}: field 'ego_dynamic_state' must be 4 finite numbers, got {state!r}")
-        one_hot = np.asarray(required(frame, "driving_command", where)).ravel()
+        state = self.dynamic_state(current).tolist()
+        one_hot = np.asarray(required(self.frames[current], "driving_command", where)).ravel()
         if one_hot.shape != (4,):
             raise NavsimFormatError(f"{where}: field 'driving_command' must be a (4,) one-hot, got {one_hot!r}")
         return ego_meta(state[:2], state[2:], one_hot, previous)
+
+    def dynamic_state(self, index: int) -> np.ndarray:
+        """Frame ``index``'s ``ego_dynamic_state``: vx, vy, ax, ay in the body frame."""
+        state = np.asarray(required(self.frames[index], "ego_dynamic_state", self.where(index)), np.float64).ravel()
+        if state.shape != (4,) or not np.isfinite(state).all():
+            problem = f"field 'ego_dynamic_state' must be 4 finite numbers, got {state.tolist()!r}"
+            raise NavsimFormatError(f"{self.where(index)}: {problem}")
+        return state
 
     def cameras(self, frame: dict, where: str, lidar2ego: np.ndarray, sample: dict) -> list[dict[str, Any]]:
         cameras = []
@@ -142,7 +144,7 @@ class LogScenes:
     def _read_annotations(self, index: int) -> dict[str, Any]:
         where = f"{self.where(index)} anns"
         anns = read_annotations(required(self.frames[index], "anns", self.where(index)), LOG_ANNOTATIONS, where)
-        rotation = quaternion_matrix(required(self.frames[index], "lidar2ego_rotation", self.where(index)))
+        rotation = lidar2ego(self.frames[index], self.where(index))[:3, :3]
         velocity = anns["velocity"] @ rotation.T  # OpenScene rotates velocities into the lidar frame
         global_poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])  # for the scenes it is a future of
         return anns | {"velocity": velocity[:, :2], "global_poses": global_poses}
@@ -161,17 +163,12 @@ class LogScenes:
                 )
             )
         t = (self.stamps[index] - self.stamps[current]) / 1e6
-        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["classes"], steps, self.poses[current], t)
+        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["classes"], steps, t, self.poses[current])
 
     def ego_past(self, current: int) -> np.ndarray:
         """The history frames up to and including ``current`` (:func:`~navsim_scene.ego_past`), from each frame's
         ``ego_dynamic_state``."""
         index = np.arange(current - self.source.history + 1, current + 1)
-        dynamics = []
-        for i in index:
-            state = np.asarray(required(self.frames[i], "ego_dynamic_state", self.where(i)), np.float64).ravel()
-            if state.shape != (4,) or not np.isfinite(state).all():
-                raise NavsimFormatError(f"{self.where(i)}: field 'ego_dynamic_state' must be 4 finite numbers")
-            dynamics.append(state)
+        dynamics = np.array([self.dynamic_state(i) for i in index])
         origin, now_us = self.poses[current], int(self.stamps[current])
-        return ego_past(self.stamps[index], self.poses[index], np.array(dynamics), origin, now_us)
+        return ego_past(self.stamps[index], self.poses[index], dynamics, origin, now_us)

@@ -100,8 +100,9 @@ def scene_meta(
 
 @dataclass(frozen=True)
 class TrackStep:
-    """The boxes of one future keyframe: track tokens, global poses (N, 3) [x, y, yaw], velocities (N, 2) in a frame
-    rotated by ``velocity_yaw`` from the global one, sizes (N, 3) and :class:`~lead_s2r.schema.BoxClass` ids."""
+    """The boxes of one future keyframe: track tokens, poses (N, 3) [x, y, yaw], velocities (N, 2), sizes (N, 3) and
+    :class:`~lead_s2r.schema.BoxClass` ids. Poses are global and velocities in a frame rotated by ``velocity_yaw``
+    from the global one when :func:`agents_future` gets an ``origin``, else both are in the current ego frame."""
 
     tracks: list[str]
     poses: np.ndarray
@@ -116,12 +117,13 @@ def agents_future(
     now_size: np.ndarray,
     now_classes: np.ndarray,
     steps: list[TrackStep],
-    origin: np.ndarray,
     t: np.ndarray,
+    origin: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
-    """Future poses of every track seen after the current frame, in the current ego frame (global pose ``origin``):
-    the current boxes' tracks first (row i = box i), then tracks that appear later; NaN and ``valid`` False where a
-    track is unseen. ``t`` (seconds after the current frame) has one entry per step."""
+    """Future poses of every track seen after the current frame, in the current ego frame (global pose ``origin``;
+    None: the steps are in it already): the current boxes' tracks first (row i = box i), then tracks that appear
+    later; NaN and ``valid`` False where a track is unseen. ``t`` (seconds after the current frame) has one entry per
+    step. One layout for NAVSIM's logs and scenes and 123D's logs (docs/datasets/navsim.md)."""
     horizon = len(steps)
     order = {token: i for i, token in enumerate(now_tracks)}
     size = dict(zip(now_tracks, np.asarray(now_size).reshape(-1, 3), strict=True))
@@ -135,11 +137,11 @@ def agents_future(
             rows.append(order[token])
     # every future box of every step in one frame change: the step of each box, its pose and its velocity
     index = np.repeat(np.arange(horizon), [len(step.tracks) for step in steps])
-    poses = to_local(np.concatenate([step.poses.reshape(-1, 3) for step in steps] or [np.zeros((0, 3))]), origin)
-    velocity_yaw = np.array([step.velocity_yaw for step in steps])[index] - origin[2]
-    velocity = rotate(
-        np.concatenate([step.velocity.reshape(-1, 2) for step in steps] or [np.zeros((0, 2))]), velocity_yaw
-    )
+    poses = np.concatenate([step.poses.reshape(-1, 3) for step in steps] or [np.zeros((0, 3))])
+    velocity = np.concatenate([step.velocity.reshape(-1, 2) for step in steps] or [np.zeros((0, 2))])
+    if origin is not None:
+        poses = to_local(poses, origin)
+        velocity = rotate(velocity, np.array([step.velocity_yaw for step in steps])[index] - origin[2])
     count = len(order)
     out_poses = np.full((count, horizon, 3), np.nan, np.float32)
     out_velocity = np.full((count, horizon, 2), np.nan, np.float32)

@@ -263,7 +263,7 @@ class SyntheticScene:
             for k, d in enumerate(self.scene["extended_detections_tracks"] or [])
         ]
         t = np.arange(1, len(steps) + 1) * 0.5
-        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["boxes"][:, 9], steps, self.origin, t)
+        return agents_future(now["tracks"], now["boxes"][:, 3:6], now["boxes"][:, 9], steps, t, self.origin)
 
     def ego_past(self) -> np.ndarray:
         """The history frames (:func:`~navsim_scene.ego_past`), from each frame's ``ego_status``."""

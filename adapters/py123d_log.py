@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from lead_s2r.geometry import to_local, wrap_angle
+from lead_s2r_adapters.navsim_scene import TrackStep, agents_future
 from lead_s2r_adapters.py123d_arrow import (
     BOX_KEY,
     EGO_KEY,
@@ -191,34 +192,15 @@ class LogData:
         return self._box_cache[j]
 
     def agents_future(self, i: int, now: Boxes, span: np.ndarray) -> dict[str, np.ndarray]:
-        """Tracks seen at iterations ``span`` in the frame of ``i``: the current boxes first (row k = box k), then
-        tracks that appear later; NaN and ``valid`` False where a track is unseen (layout: docs/datasets/navsim.md)."""
-        order = {token: k for k, token in enumerate(now.tokens)}
-        size = {t: row[3:6] for t, row in zip(now.tokens, now.rows, strict=True)}
-        classes = {t: int(row[9]) for t, row in zip(now.tokens, now.rows, strict=True)}
-        seen = []
-        for step, j in enumerate(span):
+        """Tracks seen at iterations ``span`` in the frame of ``i``, laid out as NAVSIM's
+        (:func:`~lead_s2r_adapters.navsim_scene.agents_future`)."""
+        steps = []
+        for j in span:
             later = self.boxes_in(int(j), i)
-            for token, row in zip(later.tokens if later else [], later.rows if later is not None else [], strict=True):
-                if token not in order:
-                    order[token], size[token], classes[token] = len(order), row[3:6], int(row[9])
-                seen.append((order[token], step, row))
-        count = len(order)
-        poses = np.full((count, len(span), 3), np.nan, np.float32)
-        velocity = np.full((count, len(span), 2), np.nan, np.float32)
-        valid = np.zeros((count, len(span)), bool)
-        for k, step, row in seen:
-            poses[k, step], velocity[k, step], valid[k, step] = row[[0, 1, 6]], row[7:9], True
-        ordered = sorted(order, key=order.get)
-        return {
-            "t": ((self.t_us[span] - self.t_us[i]) / 1e6).astype(np.float32),
-            "poses": poses,
-            "velocity": velocity,
-            "valid": valid,
-            "size": np.array([size[t] for t in ordered], np.float32).reshape(count, 3),
-            "class": np.array([classes[t] for t in ordered], np.int8),
-            "num_boxes": np.array(len(now.tokens), np.int64),
-        }
+            rows, tokens = (np.zeros((0, 10)), []) if later is None else (later.rows, later.tokens)
+            steps.append(TrackStep(tokens, rows[:, [0, 1, 6]], rows[:, 7:9], 0.0, rows[:, 3:6], rows[:, 9]))
+        t = (self.t_us[span] - self.t_us[i]) / 1e6
+        return agents_future(now.tokens, now.rows[:, 3:6], now.rows[:, 9], steps, t)
 
     # ------------------------------------------------------------------ sensors
 

@@ -114,22 +114,26 @@ def find_shards(src: Path) -> dict[str, list[Path]]:
     return shards
 
 
+def shard_sets(shards: list[Path]) -> dict[tuple[Path, str, int], list[tuple[int, Path]]]:
+    """Shards named as one of a set (``<name>.tfrecord-00001-of-00003``): (folder, name, N) -> (index, path) each."""
+    sets: dict[tuple[Path, str, int], list[tuple[int, Path]]] = {}
+    for path in shards:
+        match = SHARD_NAME.match(path.name)
+        if match:
+            sets.setdefault((path.parent, match["set"], int(match["count"])), []).append((int(match["index"]), path))
+    return sets
+
+
 def missing_shards(shards: list[Path]) -> list[Path]:
     """Files a shard set names but lacks: ``<name>.tfrecord-00001-of-00003`` says its set has three files.
 
     Records of a segment are shuffled over every shard of its split, so a set short of one file leaves most of its
     segments short of frames, and nothing else tells.
     """
-    sets: dict[tuple[Path, str, int], set[int]] = {}
-    for path in shards:
-        match = SHARD_NAME.match(path.name)
-        if match:
-            sets.setdefault((path.parent, match["set"], int(match["count"])), set()).add(int(match["index"]))
     return [
         folder / f"{name}-{index:05d}-of-{count:05d}"
-        for (folder, name, count), present in sorted(sets.items())
-        for index in range(count)
-        if index not in present
+        for (folder, name, count), members in sorted(shard_sets(shards).items())
+        for index in sorted(set(range(count)) - {present for present, _ in members})
     ]
 
 
@@ -138,12 +142,8 @@ def thin_shards(shards: list[Path], records: Counter[str]) -> list[str]:
     (``records``: indexed records by shard path), each named with its count: a file cut at a record boundary or
     emptied in a copy frames cleanly, and without this the frames it held vanish from their segments unreported.
     The set's last shard may hold a writer's remainder, so it is held to "not empty" only."""
-    sets: dict[tuple[Path, str, int], list[tuple[int, Path]]] = {}
-    for path in shards:
-        match = SHARD_NAME.match(path.name)
-        if match and int(match["count"]) > 1:
-            sets.setdefault((path.parent, match["set"], int(match["count"])), []).append((int(match["index"]), path))
     thin = []
+    sets = {key: members for key, members in shard_sets(shards).items() if key[2] > 1}
     for (_, _, count), members in sorted(sets.items()):
         median = statistics.median(records[str(path)] for _, path in members)
         for index, path in sorted(members):

@@ -8,6 +8,11 @@ errors) derive from it, so callers of the Python API can still catch them by the
 This module imports nothing, so every layer (``schema.py`` included) may use it.
 """
 
+from collections.abc import Iterable
+
+#: How many names an error message lists before "...".
+LISTED = 10
+
 
 class UserError(Exception):
     """Bad input a user can fix; the message names what is wrong and where, and says what to do."""
@@ -15,3 +20,11 @@ class UserError(Exception):
     def one_line(self) -> str:
         """The message on one line, as ``main()`` prints it."""
         return " ".join(str(self).split())
+
+
+def listing(names: Iterable[str]) -> str:
+    """``a, b, c`` (the first :data:`LISTED`, sorted), then ``... (N in all)`` if there are more: the one way a
+    message lists what is missing, however many there are."""
+    names = sorted(names)
+    shown = ", ".join(names[:LISTED])
+    return shown if len(names) <= LISTED else f"{shown} ... ({len(names)} in all)"

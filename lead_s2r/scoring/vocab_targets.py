@@ -36,7 +36,7 @@ import numpy as np
 import pyarrow as pa
 
 from lead_s2r import __version__
-from lead_s2r.errors import UserError
+from lead_s2r.errors import UserError, listing
 from lead_s2r.files import write_bytes, write_parquet
 from lead_s2r.geometry import resample
 from lead_s2r.gtrs_targets import EPDMS_NAMES, PDMS_NAMES, targets_bytes
@@ -154,8 +154,8 @@ def score_scenes(
 def _part_bytes(result: dict[str, Any]) -> bytes:
     """A job's result as a .npz (arrays ``<key>/<metric>``) with tokens and failures as JSON: no pickle on disk."""
     arrays = {f"{key}/{name}": values for key, columns in result["scores"].items() for name, values in columns.items()}
-    listing = {"tokens": result["tokens"], "failed": result["failed"]}
-    arrays[PART_LISTING] = np.frombuffer(json.dumps(listing).encode(), np.uint8)
+    listed = {"tokens": result["tokens"], "failed": result["failed"]}
+    arrays[PART_LISTING] = np.frombuffer(json.dumps(listed).encode(), np.uint8)
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     return buffer.getvalue()
@@ -257,8 +257,7 @@ def _jobs(data: list[Path], split: str | None) -> list[list[dict[str, Any]] | tu
             without = [entry["key"] for entry in entries if not scoring.get(entry["key"])]
             jobs += shard_parts(entries, SCENES_PER_JOB)
         if without:
-            more = f" (and {len(without) - 1} more)" if len(without) > 1 else ""
-            raise UserError(f"--data {folder}: sample {without[0]!r} has no field 'scoring'{more}; {NEEDS_MAPS}")
+            raise UserError(f"--data {folder}: no field 'scoring' in samples {listing(without)}; {NEEDS_MAPS}")
     if not jobs:
         raise UserError(f"--split {split}: {', '.join(map(str, data))} holds no sample of it")
     return jobs

@@ -10,23 +10,13 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from lead_s2r.errors import UserError
+from lead_s2r.errors import UserError, listing
 from lead_s2r.predictions import Prediction, group_by_key, most_probable, read_predictions
 from lead_s2r.shards import read_samples
-
-#: How many missing names an error message lists before "...".
-LISTED = 10
 
 
 class SubmissionError(UserError, ValueError):
     """A submission the server would reject; the message names the file, token/frame or field."""
-
-
-def listing(names: Iterable[str]) -> str:
-    """``a, b, c`` (the first :data:`LISTED`, sorted), then ``... (N in all)`` if there are more."""
-    names = sorted(names)
-    shown = ", ".join(names[:LISTED])
-    return shown if len(names) <= LISTED else f"{shown} ... ({len(names)} in all)"
 
 
 def require_coverage(

@@ -23,7 +23,6 @@ NAVSIM's two-stage run simulates reactive IDM traffic, this scorer replays the l
 import csv
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
 from typing import Any, ClassVar
@@ -34,25 +33,22 @@ import pyarrow as pa
 from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup
 from lead_s2r.geometry import resample
-from lead_s2r.predictions import Prediction, most_probable
+from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
+from lead_s2r.scoring.navsim.pdms_scorer import EXTRA_COLUMNS, PDMSScorer
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
-from lead_s2r.scoring.navsim.pdms_scorer import PDMSScorer
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, proposal_of
+from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, frame_of
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
-from lead_s2r.scoring.pdm.route import RouteError
-from lead_s2r.scoring.pdm.sample import scene_from_sample
-from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
+from lead_s2r.scoring.pdm.scene import PreviousFrame
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
 from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
 NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
-EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
 STEP_COLUMNS = (*PDMS_STEP_COLUMNS, "lane_keeping_fail_idx")
 CSV_NAME = "navsim_epdms.csv"
 AVERAGE_TOKEN = "average_all_frames"
@@ -72,25 +68,6 @@ SCHEMA = pa.schema(
     + [(name, pa.int64()) for name in STEP_COLUMNS]
     + [("previous_key", pa.string()), ("error", pa.string())]
 )
-
-
-@dataclass
-class Frame:
-    """One predicted sample on its way to a row: the scene (None if it cannot be built) and the plan."""
-
-    sample: dict[str, Any]
-    scene: PDMScene | None
-    poses: np.ndarray
-    interval: float
-    error: str | None
-
-    @property
-    def time_s(self) -> float:
-        return int(self.sample["meta"]["timestamp_us"]) * 1e-6
-
-    @property
-    def log(self) -> str:
-        return str(self.sample["meta"]["log_id"])
 
 
 def adjacent_frames(frames: Sequence[Frame]) -> dict[int, int]:
@@ -140,6 +117,7 @@ class EPDMSScorer(PDMSScorer):
     #: NAVSIM's frames only: EC pairs adjacent frames by NAVSIM's scene tokens and navhard's two stages
     datasets: ClassVar[tuple[str, ...] | None] = ("navsim",)
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
+    step_columns: ClassVar[tuple[str, ...]] = STEP_COLUMNS
     headline: ClassVar[str] = "epdms"
     csv_name: ClassVar[str] = CSV_NAME
     average_token: ClassVar[str] = AVERAGE_TOKEN
@@ -175,7 +153,7 @@ class EPDMSScorer(PDMSScorer):
                 "with the adapter's two_stage_mapping (docs/datasets/navsim.md)"
             )
         pairs = join(predictions, data, self.allow_missing)
-        frames = self.map_samples(self.frame, [pair for pair in pairs if pair[0]["meta"]["dataset"] in self.datasets])
+        frames = self.map_samples(frame_of, [pair for pair in pairs if pair[0]["meta"]["dataset"] in self.datasets])
         skipped = {"frames_skipped_other_dataset": len(pairs) - len(frames)}
         self.two_stage_result = None
         if mapping:
@@ -214,29 +192,6 @@ class EPDMSScorer(PDMSScorer):
         counts = {"frames": len(table), "frames_valid": len(table), "frames_failed": 0, "groups": len(mapping)}
         counts |= {"frames_stage_one": stage_one, "frames_stage_two": len(table) - stage_one}
         return pa.Table.from_pylist(table, schema=navhard.SCHEMA), navhard.summaries(self.two_stage_result) | counts
-
-    def frame(self, sample: dict[str, Any], predictions: list[Prediction]) -> Frame:
-        poses, interval = proposal_of(most_probable(predictions))
-        try:
-            return Frame(sample, scene_from_sample(sample), poses, interval, None)
-        except RouteError as err:
-            return Frame(sample, None, poses, interval, str(err))
-
-    def row(self, frame: Frame, earlier: Frame | None) -> dict[str, Any]:
-        """One row of the table: the frame's EPDMS columns (EC against ``earlier``), or an invalid row."""
-        sample = frame.sample
-        row: dict[str, Any] = {
-            "key": sample["__key__"],
-            "dataset": sample["meta"]["dataset"],
-            "token": navsim_scene_token(sample),
-            "valid": frame.scene is not None,
-            "previous_key": None if earlier is None else earlier.sample["__key__"],
-            "error": frame.error,
-        }
-        if frame.scene is None:
-            return row | dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan"))
-        result = self.proposal_scores(frame, earlier)
-        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
 
     def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
         """``score_proposals`` of the frame's plan (EC against ``earlier``'s plan, NaN without one)."""

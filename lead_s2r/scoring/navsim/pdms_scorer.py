@@ -21,29 +21,17 @@ from typing import Any, ClassVar
 import numpy as np
 import pyarrow as pa
 
-from lead_s2r.predictions import Prediction, most_probable
+from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import ReferenceCache, first_row, proposal_of
-from lead_s2r.scoring.pdm.route import RouteError
-from lead_s2r.scoring.pdm.sample import scene_from_sample
-from lead_s2r.scoring.pdm.score import score_proposals
+from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of
+from lead_s2r.scoring.pdm import epdms
+from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS as EXTRA_COLUMNS
+from lead_s2r.scoring.pdm.score import STEP_COLUMNS, score_proposals
 
 METRIC = "pdms@navsim-1.1"
 #: NAVSIM v1.1 ``PDMResults`` fields, in the order its CSV writes them.
-NAVSIM_COLUMNS = (
-    "no_at_fault_collisions",
-    "drivable_area_compliance",
-    "ego_progress",
-    "time_to_collision_within_bound",
-    "comfort",
-    "driving_direction_compliance",
-    "score",
-)
-EXTRA_COLUMNS = ("progress_m", "ep_normaliser_m")
-#: the 0.1 s simulation step where NC, TTC and DAC failed and the agent row NC hit (-1: none; null in an invalid row),
-#: so a report can say when a sub-score was lost and to whom
-STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx", "collision_object_idx")
+NAVSIM_COLUMNS = (epdms.NC, epdms.DAC, epdms.EP, epdms.TTC, "comfort", epdms.DDC, "score")
 CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
@@ -64,6 +52,7 @@ class PDMSScorer(Scorer):
     #: the CSV's score columns (after ``token``, ``valid``), the aggregate naming the split score, the CSV file
     #: and its average row's token: what ``epdms@navsim-2.2`` (:mod:`lead_s2r.scoring.navsim.epdms_scorer`) changes
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
+    step_columns: ClassVar[tuple[str, ...]] = STEP_COLUMNS
     headline: ClassVar[str] = "pdms"
     csv_name: ClassVar[str] = CSV_NAME
     average_token: ClassVar[str] = "average"
@@ -88,23 +77,32 @@ class PDMSScorer(Scorer):
         table = pa.Table.from_pylist(rows, schema=SCHEMA)
         return ScoreResult(table, {**self._aggregate(rows), "frames_skipped_other_dataset": len(pairs) - len(ours)})
 
-    def score_sample(self, sample: dict[str, Any], frame: list[Prediction]) -> dict[str, Any]:
+    def score_sample(self, sample: dict[str, Any], predictions: list[Prediction]) -> dict[str, Any]:
         """One row of the table: NAVSIM's sub-scores of the most probable inference, or an invalid row."""
-        proposals, interval = proposal_of(most_probable(frame))
+        return self.row(frame_of(sample, predictions), None)
+
+    def row(self, frame: Frame, earlier: Frame | None) -> dict[str, Any]:
+        """One row of the table: the frame's columns (EPDMS: EC against ``earlier``), or an invalid row."""
+        sample = frame.sample
         row: dict[str, Any] = {
             "key": sample["__key__"],
             "dataset": sample["meta"]["dataset"],
             "token": navsim_scene_token(sample),
-            "valid": True,
-            "error": None,
+            "valid": frame.scene is not None,
+            "previous_key": None if earlier is None else earlier.sample["__key__"],
+            "error": frame.error,
         }
-        try:
-            scene = scene_from_sample(sample)
-        except RouteError as err:
-            return {**row, **dict.fromkeys((*NAVSIM_COLUMNS, *EXTRA_COLUMNS), float("nan")), "valid": False,
-                    "error": str(err)}  # fmt: skip
-        result = score_proposals(scene, proposals[None], interval, reference=self.references.get(scene))
-        return row | first_row(result, (*NAVSIM_COLUMNS, *EXTRA_COLUMNS), STEP_COLUMNS)
+        if frame.scene is None:
+            return row | dict.fromkeys((*self.csv_columns, *EXTRA_COLUMNS), float("nan"))
+        result = self.proposal_scores(frame, earlier)
+        return row | first_row(result, (*self.csv_columns, *EXTRA_COLUMNS), self.step_columns)
+
+    def proposal_scores(self, frame: Frame, earlier: Frame | None) -> dict[str, np.ndarray]:
+        """``score_proposals`` of the frame's plan."""
+        assert frame.scene is not None, "invalid frames have no scores"
+        return score_proposals(
+            frame.scene, frame.poses[None], frame.interval, reference=self.references.get(frame.scene)
+        )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]
@@ -125,12 +123,12 @@ class PDMSScorer(Scorer):
             writer = csv.writer(file)
             writer.writerow(["", "token", "valid", *columns])
             for index, row in enumerate(rows):
-                writer.writerow([index, row["token"], row["valid"], *(_number(row[name]) for name in columns)])
+                writer.writerow([index, row["token"], row["valid"], *(csv_number(row[name]) for name in columns)])
             means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in columns]
             valid = all(row["valid"] for row in rows)
-            writer.writerow([len(rows), self.average_token, valid, *(_number(value) for value in means)])
+            writer.writerow([len(rows), self.average_token, valid, *(csv_number(value) for value in means)])
 
 
-def _number(value: float | None) -> str:
-    """pandas' CSV spelling: repr of the float, empty for NaN / missing."""
+def csv_number(value: float | None) -> str:
+    """pandas' CSV spelling of a float, as NAVSIM's CSVs have it: its repr, empty for NaN / missing."""
     return "" if value is None or not np.isfinite(value) else repr(float(value))

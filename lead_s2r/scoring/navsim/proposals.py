@@ -1,6 +1,8 @@
 """What every NAVSIM scorer does per sample before scoring: the scene token, the most probable inference put on
-NAVSIM's input grid, and PDM-Closed's reference (planned once per scene and cached)."""
+NAVSIM's input grid, the scene (or why there is none), and PDM-Closed's reference (planned once per scene and
+cached)."""
 
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -9,8 +11,10 @@ import numpy as np
 
 from lead_s2r.files import write_atomically
 from lead_s2r.geometry import resample
-from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError
+from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError, most_probable
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
+from lead_s2r.scoring.pdm.route import RouteError
+from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene
 
 #: NAVSIM's agent output: 8 poses at 0.5 s (``TrajectorySampling(time_horizon=4, interval_length=0.5)``).
@@ -18,6 +22,35 @@ NAVSIM_INTERVAL = 0.5
 NAVSIM_POSES = 8
 #: PDM-Closed's output: 51 poses at 0.1 s from t = 0.
 REFERENCE_SHAPE = (51, 3)
+
+
+@dataclass
+class Frame:
+    """One predicted sample on its way to a row: the scene (None if it cannot be built) and the plan."""
+
+    sample: dict[str, Any]
+    scene: PDMScene | None
+    poses: np.ndarray
+    interval: float
+    error: str | None
+
+    @property
+    def time_s(self) -> float:
+        return int(self.sample["meta"]["timestamp_us"]) * 1e-6
+
+    @property
+    def log(self) -> str:
+        return str(self.sample["meta"]["log_id"])
+
+
+def frame_of(sample: dict[str, Any], predictions: list[Prediction]) -> Frame:
+    """The most probable inference of ``predictions`` on NAVSIM's grid, and the sample's scene; a scene without a
+    route PDM-Closed can follow is None with the error, an invalid row (NAVSIM isolates a failing token)."""
+    poses, interval = proposal_of(most_probable(predictions))
+    try:
+        return Frame(sample, scene_from_sample(sample), poses, interval, None)
+    except RouteError as err:
+        return Frame(sample, None, poses, interval, str(err))
 
 
 def proposal_of(prediction: Prediction) -> tuple[np.ndarray, float]:

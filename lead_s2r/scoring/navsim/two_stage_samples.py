@@ -30,14 +30,16 @@ from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
 from lead_s2r.schema import navsim_scene_token
+from lead_s2r.scoring.navsim.pdms_scorer import csv_number
 from lead_s2r.scoring.pdm import epdms, two_stage
+from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS
 
 #: per-token table of a two-stage run: the one-stage columns, the token's stage, role and pseudo closed-loop weight.
 TABLE_COLUMNS = (*epdms.SUB_SCORES, "score")
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [("stage", pa.int8()), ("two_stage_role", pa.string()), ("weight", pa.float64())]
-    + [(name, pa.float64()) for name in (*TABLE_COLUMNS, "progress_m", "ep_normaliser_m")]
+    + [(name, pa.float64()) for name in (*TABLE_COLUMNS, *PROGRESS_COLUMNS)]
     + [("error", pa.string())]
 )
 CSV_NAME = "navsim_epdms_two_stage.csv"
@@ -135,7 +137,4 @@ def csv_table(result: two_stage.TwoStageResult) -> tuple[list[str], list[list[st
 
 
 def _cell(value: object) -> str:
-    if isinstance(value, bool | str):
-        return str(value)
-    number = float(value)  # type: ignore[arg-type]
-    return "" if not math.isfinite(number) else repr(number)
+    return str(value) if isinstance(value, bool | str) else csv_number(value)  # type: ignore[arg-type]

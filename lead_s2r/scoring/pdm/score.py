@@ -58,24 +58,13 @@ EPDMS_METRIC = "epdms@navsim-2.2"
 METRICS = (METRIC, EPDMS_METRIC)
 INTERVAL_S = 0.1
 REFERENCE_INTERVAL_S = 0.1
-COLUMNS = (
-    "no_at_fault_collisions",
-    "drivable_area_compliance",
-    "driving_direction_compliance",
-    "ego_progress",
-    "time_to_collision_within_bound",
-    "comfort",
-    "score",
-    "progress_m",
-    "ep_normaliser_m",
-    "collision_time_idx",
-    "ttc_time_idx",
-    "dac_time_idx",
-    "collision_object_idx",
-)
-#: the columns after the sub-scores: EP's metres, the 0.1 s step where NC, TTC and DAC failed and the agent row NC hit
-#: (-1: they did not)
-DIAGNOSTICS = COLUMNS[-6:]
+#: the columns after the sub-scores: EP's metres, and the 0.1 s step where NC, TTC and DAC failed and the agent row NC
+#: hit (-1: they did not), so a report can say when a sub-score was lost and to whom
+PROGRESS_COLUMNS = ("progress_m", "ep_normaliser_m")
+STEP_COLUMNS = ("collision_time_idx", "ttc_time_idx", "dac_time_idx", "collision_object_idx")
+DIAGNOSTICS = (*PROGRESS_COLUMNS, *STEP_COLUMNS)
+#: ``pdms@navsim-1.1`` columns: NAVSIM's names of the sub-scores (v1.1's comfort), the score, the diagnostics
+COLUMNS = (epdms.NC, epdms.DAC, epdms.DDC, epdms.EP, epdms.TTC, "comfort", "score", *DIAGNOSTICS)
 #: ``epdms@navsim-2.2`` columns: NAVSIM v2's names (after the human filter, ``score`` = final EPDMS) + v1.1's
 #: diagnostics and the step where LK failed
 EPDMS_COLUMNS = (*epdms.SUB_SCORES, "score", *DIAGNOSTICS, "lane_keeping_fail_idx")
