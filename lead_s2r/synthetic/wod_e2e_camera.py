@@ -15,10 +15,10 @@ NOISE = 4
 #: Points closer than this along the optical axis (m) are not drawn.
 NEAR = 0.5
 #: The pedestrians are drawn this many times their size, across and up, about the row's centre: a real front camera
-#: shows the row over a hundred pixels, these cameras 1/18 of its size over a block of about 4x7, which the
-#: quickstart's LTFv6 twins do not learn to see in a few hundred steps; three times larger, they read their cameras
-#: (docs/training.md, "Toy cameras: the pedestrians drawn larger"). Only the pixels change: the positions, the
-#: driving and the labels are the world's.
+#: shows the row 60-270 pixels across, these cameras at 1/18 of its size 3-15, which the quickstart's LTFv6 twins do
+#: not learn to see in a few hundred steps; three times larger, they read their cameras (docs/training.md, "Toy
+#: cameras: the pedestrians drawn larger"). Only the pixels change: the positions, the driving and the labels are the
+#: world's.
 DRAWN_SCALE = 3.0
 
 
