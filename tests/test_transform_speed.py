@@ -183,6 +183,32 @@ def test_lidar_raster_equals_the_saturated_histogram() -> None:
     np.testing.assert_array_equal(scaled.numpy(), expected)  # bit-identical to LEAD's float32 min(k, 5) / 5
 
 
+def numpy_lidar_raster(points: np.ndarray, grid: BEVGrid, x_shift: float) -> np.ndarray:
+    """The raster as numpy's passes built it before the compiled count: the cell index formed in the points' dtype."""
+    h, w = grid.shape
+    with np.errstate(over="ignore", invalid="ignore"):
+        rows = ((points[:, 0] - points.dtype.type(x_shift)) - grid.x_min) * grid.pixels_per_meter
+        cols = (points[:, 1] - grid.y_min) * grid.pixels_per_meter
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        cells = np.trunc(rows) * w + np.trunc(cols)
+    counts = np.bincount(cells[inside].astype(np.intp), minlength=h * w).reshape(h, w)
+    return np.minimum(counts, LIDAR_HITS_MAX).astype(np.uint8)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("x_shift", [0.0, 1.3716])
+def test_compiled_lidar_count_equals_numpys_passes(dtype: type, x_shift: float) -> None:
+    rng = np.random.default_rng(5)
+    points = rng.uniform([-40, -50, -3, 0], [70, 50, 3, 1], (60_000, 4)).astype(dtype)
+    points[:20_000, :2] = np.round(points[:20_000, :2] * 4) / 4  # on cell edges, the grids' borders among them
+    shifted = points[:20_000:2, 0] + dtype(x_shift)  # on them once shifted, or a float either side
+    points[:20_000:2, 0] = np.nextafter(shifted, shifted + np.sign(rng.uniform(-1, 1, len(shifted))).astype(dtype))
+    points[:100:7, 0], points[1:100:7, 1], points[2:100:7, 0] = np.nan, np.inf, -np.inf
+    points[3000:3300, :2] = [2.1, -3.3]  # one cell, past saturation
+    for grid in (CARLA_BEV, NAVSIM_BEV):
+        np.testing.assert_array_equal(rasterize_lidar(points, grid, x_shift), numpy_lidar_raster(points, grid, x_shift))
+
+
 def test_lidar_counts_scale_to_the_float32_levels_of_the_old_raster() -> None:
     counts = torch.arange(LIDAR_HITS_MAX + 1, dtype=torch.uint8)
     old = (np.minimum(np.arange(9), 5) / 5.0).astype(np.float32)[: LIDAR_HITS_MAX + 1]
