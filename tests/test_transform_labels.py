@@ -13,6 +13,7 @@ import torch
 from test_transform_speed import random_boxes, reference_lidar
 from tiny_models import sensor_spec
 
+from lead_s2r.data.lead_labels import RADAR_PRIORITY, LeadBoxClass, radar_priority
 from lead_s2r.data.lead_route import _dot_sign, lead_route
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.data.radar import MAX_RADAR_TARGETS, RADAR_HIT_MARGIN_M, radar_targets
@@ -139,6 +140,15 @@ def test_radar_points_on_the_grown_footprint_edge_hit_and_one_ulp_beyond_miss() 
     assert out["radar_targets_valid"].tolist()[:3] == [True, True, False]
     assert out["radar_targets"][:2].tolist() == [[30.0, 5.0, 2.0], [10.0, 5.0, 1.0]]  # edge and corner hit
     assert_bit_identical(out, reference_radar_targets(radar, boxes))
+
+
+def test_radar_priority_ranks_every_lead_class_by_leads_order_and_the_rest_last() -> None:
+    classes = np.array([*LeadBoxClass, -1, len(LeadBoxClass), 99, LeadBoxClass.PARKING, LeadBoxClass.SPECIAL])
+    last = len(RADAR_PRIORITY)
+    expected = [RADAR_PRIORITY.index(c) if c in RADAR_PRIORITY else last for c in classes.tolist()]
+    got = radar_priority(classes)
+    assert got.dtype == np.int64 and got.tolist() == expected
+    assert radar_priority(np.zeros(0, np.int64)).shape == (0,)
 
 
 # --------------------------------------------------------------------------- LiDAR

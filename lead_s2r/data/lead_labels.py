@@ -178,9 +178,22 @@ RADAR_PRIORITY = (
 
 
 def radar_priority(lead_classes: np.ndarray) -> np.ndarray:
-    """(N,) rank of each LEAD box class in :data:`RADAR_PRIORITY` (classes not listed rank last)."""
-    rank = {int(cls): i for i, cls in enumerate(RADAR_PRIORITY)}
-    return np.array([rank.get(int(cls), len(RADAR_PRIORITY)) for cls in lead_classes], np.int64)
+    """(N,) rank of each LEAD box class in :data:`RADAR_PRIORITY` (classes not listed rank last): one lookup in a
+    table of every :class:`LeadBoxClass`, not a Python loop over the boxes."""
+    classes = np.asarray(lead_classes, np.int64)
+    table = _radar_rank_table()
+    listed = (classes >= 0) & (classes < len(table))
+    return np.where(listed, table[np.clip(classes, 0, len(table) - 1)], len(RADAR_PRIORITY))
+
+
+@lru_cache(maxsize=1)
+def _radar_rank_table() -> np.ndarray:
+    """LEAD box class -> its rank in :data:`RADAR_PRIORITY` (unlisted: last); built once (read-only)."""
+    table = np.full(len(LeadBoxClass), len(RADAR_PRIORITY), np.int64)
+    for rank, cls in enumerate(RADAR_PRIORITY):
+        table[cls] = rank
+    table.flags.writeable = False
+    return table
 
 
 def lead_bev_labels(
