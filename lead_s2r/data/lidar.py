@@ -41,14 +41,15 @@ def _count_hits(points: np.ndarray, offsets: np.ndarray, raster: np.ndarray, sat
     truncation: numpy's ``(rows - x_min) * ppm`` operation for operation (subtracting a zero shift changes no
     value), so every point lands where the former histogram put it."""
     h, w = raster.shape
+    cells = raster.reshape(-1)
     shift, x_min, y_min, ppm = offsets[0], offsets[1], offsets[2], offsets[3]
     for i in range(points.shape[0]):
         row = ((points[i, 0] - shift) - x_min) * ppm
         col = (points[i, 1] - y_min) * ppm
         if row >= 0 and row < h and col >= 0 and col < w:
-            r, c = int(row), int(col)
-            if raster[r, c] < saturation:
-                raster[r, c] += 1
+            cell = int(row) * w + int(col)
+            count = cells[cell]
+            cells[cell] = count + (count < saturation)  # no branch on the count: a saturated cell stays
 
 
 def lidar_xy(points: np.ndarray | None, x_shift: float = 0.0) -> torch.Tensor:
