@@ -11,9 +11,8 @@ that ratio over the rounds. The headline rate is by CPU time: samples per CPU se
 on a core of its own. On a shared machine the wall rate also counts the time the process waited for its core while
 other processes ran (the kernel's run delay), and how much of that lands on which side moved the wall ratio by up to
 44% between runs; so the wall rate and ratio are printed beside it, and so is each loader's time off the CPU that is
-not such a wait (``blocked``: reading a file, waiting on a lock or another thread), which the CPU rate would hide. It
-is below 0.1 ms a sample for every loader here, except plain decoding's pyarrow reader threads (the manifest, read on
-each pass), which wait for the pinned core in turn. Kinds:
+not such a wait (``blocked``: reading a file, waiting on a lock or another thread), which the CPU rate would hide;
+it is below 0.1 ms a sample for every loader here. Kinds:
 
 - ``light`` / ``realistic``: generated LEAD CARLA routes (light: five actors, about 700 LiDAR points, the tests'
   frames; realistic: about 60 actors, about 60,000 LiDAR + radar points, metas with every target-point planner),
@@ -34,11 +33,12 @@ decoding in one process). ``--lead-style`` adds, for the CARLA kinds, ``lead_sty
 route folders (LEAD's per-frame steps and tensor contract, both rigs as LEAD builds them uncached, and one rig),
 checked against ours on one frame.
 
-Within a round the loaders of a kind take turns: ``--slices`` turns, in each of which every loader (plain decoding,
-ours, ours for the GPU, then back) runs for ``--slice-seconds`` of CPU time, so each gets the same CPU time and a
-change in the shared machine's load weighs on every side of a ratio alike (docs/benchmarks.md, "Fifth round"); a
-round lasts seconds for every kind, not the fraction of a second 320 WOD-E2E samples take plain decoding (the
-spread of its ratio was 28-44% over such rounds). Every loader is one stream that the rounds go on with: plain
+Within a round the loaders of a kind take turns: ``--slices`` turns (24), in each of which every loader (plain
+decoding, ours, ours for the GPU, then back) runs for ``--slice-seconds`` of CPU time (0.1 s), so each gets the same
+CPU time, 2.4 s a round, and a change in the shared machine's load weighs on every side of a ratio alike
+(docs/benchmarks.md, "Fifth round" and "Sixth round"). Before, a round was 320 samples a loader, a third of a second
+for WOD-E2E's plain decoding cut into 8 slices, and that ratio spread by 28-44% over the rounds; 8 turns of 0.25 s
+still spread it by 47%, 24 turns of 0.1 s by 4%. Every loader is one stream that the rounds go on with: plain
 decoding cycles over the shards, ours is one long epoch. The process's Python heap is frozen before the first round
 (``gc.freeze``, as the loader's workers do) and collected before every slice: otherwise the occasional full
 collection over the half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in
@@ -275,8 +275,8 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--steps", type=int, default=40, help="batches per round of ours with 2 workers")
     parser.add_argument("--rounds", type=int, default=3, help="timed rounds, after one warm-up round")
-    parser.add_argument("--slices", type=int, default=8, help="turns of each round, in which the loaders take turns")
-    parser.add_argument("--slice-seconds", type=float, default=0.25, help="CPU seconds of each loader's turn")
+    parser.add_argument("--slices", type=int, default=24, help="turns of each round, in which the loaders take turns")
+    parser.add_argument("--slice-seconds", type=float, default=0.1, help="CPU seconds of each loader's turn")
     parser.add_argument("--two-workers", action="store_true", help="also ours with 2 dataloader workers")
     parser.add_argument("--lead-style", action="store_true", help="also the LEAD-style loader (CARLA kinds)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (collation)")
