@@ -193,16 +193,10 @@ def _centernet_box_by_box(boxes: np.ndarray, classes: np.ndarray, grid: BEVGrid)
     paste_max(heat[0], 0, w - 1, gaussian_kernel(2))  # LEAD's padding box (fewer than 90 boxes), written last
     size[:, 0, w - 1], offset[:, 0, w - 1], yaw_class[0, w - 1] = 0.0, (0.0, 1.0), 0
     yaw_residual[0, w - 1], speed[0, w - 1], weight[0, w - 1] = 0.0, 0.0, True
-    return {
-        "lead_box_heatmap": heat,
-        "lead_box_size": size,
-        "lead_box_offset": offset,
-        "lead_box_yaw_class": yaw_class,
-        "lead_box_yaw_residual": yaw_residual,
-        "lead_box_velocity": speed,
-        "lead_box_weight": weight,
-        "lead_box_count": np.float32(max(1, int((heat == 1).sum()))),
-    }
+    count = np.float32(max(1, int((heat == 1).sum())))
+    names = ("heatmap", "size", "offset", "yaw_class", "yaw_residual", "velocity", "weight", "count")
+    maps = (heat, size, offset, yaw_class, yaw_residual, speed, weight, count)
+    return {f"lead_box_{name}": value for name, value in zip(names, maps, strict=True)}
 
 
 def test_centernet_targets_equal_the_box_by_box_loop_bit_for_bit() -> None:

@@ -105,9 +105,9 @@ def lead_centernet_targets(
     values = np.stack([half_length, half_width, row_f - rows, col_f - cols, yaw_rest, speeds]).reshape(6, -1)
     bank, starts = kernel_bank(int(radii.max(initial=0)))
     maps = (heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
-    _encode_boxes(*maps, np.asarray(classes, np.int64)[kept], rows, cols, radii, bank, starts, values, yaw_bin)
+    _encode_boxes(maps, np.asarray(classes, np.int64)[kept], rows, cols, radii, bank, starts, values, yaw_bin)
     if len(kept) < LEAD_MAX_BOXES:
-        paste_phantom(heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
+        paste_phantom(maps)
     out = {
         "lead_box_heatmap": heatmap,
         "lead_box_size": size,
@@ -123,18 +123,15 @@ def lead_centernet_targets(
     return {**{k: torch.from_numpy(v) for k, v in out.items()}, "lead_box_count": torch.scalar_tensor(count)}
 
 
-def paste_phantom(
-    heatmap: np.ndarray,
-    size: np.ndarray,
-    offset: np.ndarray,
-    yaw_class: np.ndarray,
-    yaw_residual: np.ndarray,
-    speed: np.ndarray,
-    weight: np.ndarray,
-) -> None:
-    """LEAD's padding box, written after the real ones as LEAD's loop writes it: class 0, size 0, yaw 0, speed 0, at
-    LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and LEAD's lateral
-    offset 0 (measured from the cell's other edge) is our 1."""
+#: The target maps :func:`lead_centernet_targets` writes: heatmap, size, offset, yaw class, yaw residual, speed, weight.
+Maps = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def paste_phantom(maps: Maps) -> None:
+    """LEAD's padding box, written into ``maps`` after the real ones as LEAD's loop writes it: class 0, size 0, yaw
+    0, speed 0, at LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and
+    LEAD's lateral offset 0 (measured from the cell's other edge) is our 1."""
+    heatmap, size, offset, yaw_class, yaw_residual, speed, weight = maps
     col = heatmap.shape[2] - 1
     paste_max(heatmap[0], 0, col, gaussian_kernel(kernel_radius(0.0, 0.0)))
     size[:, 0, col] = 0.0
@@ -156,13 +153,7 @@ def kernel_bank(radius: int) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True, nogil=True)
 def _encode_boxes(
-    heatmap: np.ndarray,
-    size: np.ndarray,
-    offset: np.ndarray,
-    yaw_class: np.ndarray,
-    yaw_residual: np.ndarray,
-    speed: np.ndarray,
-    weight: np.ndarray,
+    maps: Maps,
     labels: np.ndarray,
     rows: np.ndarray,
     cols: np.ndarray,
@@ -172,10 +163,12 @@ def _encode_boxes(
     values: np.ndarray,
     yaw_bin: np.ndarray,
 ) -> None:
-    """LEAD's per-box loop, compiled: each box's Gaussian (:func:`paste_max` of the kernel of its radius, from
-    :func:`kernel_bank`) on channel ``labels`` at (``rows``, ``cols``), then its cell's values (``values``: half
-    length, half width, row and column offsets, yaw residual and speed, float64, each cast to float32 on writing as
-    numpy casts it; ``yaw_bin``), a later box in a cell overwriting an earlier one's, as LEAD's loop does."""
+    """LEAD's per-box loop into ``maps``, compiled: each box's Gaussian (:func:`paste_max` of the kernel of its
+    radius, from :func:`kernel_bank`) on channel ``labels`` at (``rows``, ``cols``), then its cell's values
+    (``values``: half length, half width, row and column offsets, yaw residual and speed, float64, each cast to
+    float32 on writing as numpy casts it; ``yaw_bin``), a later box in a cell overwriting an earlier one's, as LEAD's
+    loop does."""
+    heatmap, size, offset, yaw_class, yaw_residual, speed, weight = maps
     _, h, w = heatmap.shape
     for box in range(len(rows)):
         radius, label, row, col = radii[box], labels[box], rows[box], cols[box]
