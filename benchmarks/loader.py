@@ -86,7 +86,7 @@ PLAIN, PIXELS, OURS, OURS_DEVICE, OURS_TWO, LEAD_BOTH, LEAD_ONE = (
     "plain decoding + JPEG to pixels",
     "ours (DriveDataModule), everything in the loader",
     "ours, camera JPEGs and LiDAR points left for the GPU (inputs_on_device)",
-    "ours, 2 workers (samples/s of both; CPU: the main process only)",
+    "ours, 2 workers (samples/s of both, by wall time)",
     "LEAD-style per-file, both rigs (LEAD uncached)",
     "LEAD-style per-file, one rig",
 )
