@@ -5,10 +5,14 @@
 One core: every loader but the 2-worker one runs in this one process (no dataloader workers, one torch thread).
 
 Prints, per kind of generated data, the median over ``--rounds`` rounds (after one warm-up round) of: plain shard
-decoding samples/s (``read_samples`` over the converted shards, every field decoded, JPEG bytes left as bytes: the
-floor any shard loader pays); our training loader's samples/s and CPU ms per sample; their ratio, measured in the
-same round (a busy machine slows both alike), with the spread of that ratio over the rounds; the same by CPU
-time and by each loader's fastest slice of the round (``--slices`` below). Kinds:
+decoding's samples/s (``read_samples`` over the converted shards, every field decoded, JPEG bytes left as bytes: the
+floor any shard loader pays); our training loader's; and their ratio, measured in the same round, with the spread of
+that ratio over the rounds. The headline rate is by CPU time: samples per CPU second of the process, i.e. samples/s
+on a core of its own. On a shared machine the wall rate also counts the time the process waited for its core while
+other processes ran (the kernel's run delay), and how much of that lands on which side moved the wall ratio by up to
+44% between runs; so the wall rate and ratio are printed beside it, and so is each loader's time off the CPU that is
+not such a wait (``blocked``: reading a file, waiting on a lock or another thread), which the CPU rate would hide;
+it is below 0.1 ms a sample for every loader here. Kinds:
 
 - ``light`` / ``realistic``: generated LEAD CARLA routes (light: five actors, about 700 LiDAR points, the tests'
   frames; realistic: about 60 actors, about 60,000 LiDAR + radar points, metas with every target-point planner),
@@ -24,21 +28,24 @@ time and by each loader's fastest slice of the round (``--slices`` below). Kinds
 Ours is ``DriveDataModule``'s training loader (shard resampling, shuffle buffer, decoding the fields the transform
 reads, ``SourceTransform``, collation into batches of ``--batch-size``); one epoch's stream serves every round, as in
 training: the shuffle buffer fills once (timed and printed apart). ``--two-workers`` adds ours with 2 dataloader
-workers (its ratio is to plain decoding in one process). ``--lead-style`` adds, for the CARLA kinds,
-``lead_style.LeadStyleFrames`` over the raw route folders (LEAD's per-frame steps and tensor contract, both rigs as
-LEAD builds them uncached, and one rig), checked against ours on one frame.
+workers (``--steps`` batches a round, by wall time: its workers' CPU is not this process's; its ratio is to plain
+decoding in one process). ``--lead-style`` adds, for the CARLA kinds, ``lead_style.LeadStyleFrames`` over the raw
+route folders (LEAD's per-frame steps and tensor contract, both rigs as LEAD builds them uncached, and one rig),
+checked against ours on one frame.
 
-Both sides of a ratio run over as many samples (plain decoding cycles over the shards until it has read
-``--steps`` x ``--batch-size``), and within a round they take turns: each loader's pass is cut into ``--slices``
-slices run alternately (plain decoding, ours, ours for the GPU, then back), so a change in the shared machine's
-load weighs on both sides of a ratio alike (docs/benchmarks.md, "Fifth round"). The process's Python heap is frozen
-before the first round (``gc.freeze``, as the loader's workers do) and collected before every slice: otherwise the
-occasional full collection over the half a million objects torch, Lightning and the generated data leave (0.2 s of
-CPU) lands in whichever pass is
-running (docs/benchmarks.md, "Third round").
+Within a round the loaders of a kind take turns: ``--slices`` turns (24), in each of which every loader (plain
+decoding, ours, ours for the GPU, then back) runs for ``--slice-seconds`` of CPU time (0.1 s), so each gets the same
+CPU time, 2.4 s a round, and a change in the shared machine's load weighs on every side of a ratio alike
+(docs/benchmarks.md, "Fifth round" and "Sixth round"). Before, a round was 320 samples a loader, a third of a second
+for WOD-E2E's plain decoding cut into 8 slices, and that ratio spread by 28-44% over the rounds; 8 turns of 0.25 s
+still spread it by 47%, 24 turns of 0.1 s by 4%. Every loader is one stream that the rounds go on with: plain
+decoding cycles over the shards, ours is one long epoch. The process's Python heap is frozen before the first round
+(``gc.freeze``, as the loader's workers do) and collected before every slice: otherwise the occasional full
+collection over the half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in
+whichever pass is running (docs/benchmarks.md, "Third round").
 
 Torch runs one intra-op thread (``--threads``), as a dataloader worker does. CPU time is this process's (user +
-system); with workers it is the workers' too (their CPU is not this process's: the row says so).
+system, every thread).
 """
 
 import argparse
@@ -51,7 +58,6 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -80,10 +86,13 @@ PLAIN, PIXELS, OURS, OURS_DEVICE, OURS_TWO, LEAD_BOTH, LEAD_ONE = (
     "plain decoding + JPEG to pixels",
     "ours (DriveDataModule), everything in the loader",
     "ours, camera JPEGs and LiDAR points left for the GPU (inputs_on_device)",
-    "ours, 2 workers (samples/s of both; CPU: the main process only)",
+    "ours, 2 workers (samples/s of both, by wall time)",
     "LEAD-style per-file, both rigs (LEAD uncached)",
     "LEAD-style per-file, one rig",
 )
+
+#: Batches in the epoch of our loaders' streams: more than any run takes.
+EPOCH_STEPS = 10**6
 
 #: LEAD config switches of each kind's model (the recipes' ``model.config``), its source and its cameras.
 KINDS: dict[str, tuple[str, dict[str, Any], list[str]]] = {
@@ -104,49 +113,70 @@ KINDS: dict[str, tuple[str, dict[str, Any], list[str]]] = {
 
 @dataclass
 class Timing:
-    """One loader's round: samples, wall and CPU seconds, summed over its slices; ``fastest``: the wall seconds per
-    sample of its fastest slice (another process on the core only ever slows a slice down)."""
+    """One loader's round: samples, wall, CPU and run-queue seconds, summed over its slices."""
 
     samples: int = 0
     wall: float = 0.0
     cpu: float = 0.0
-    fastest: float = math.inf
+    waiting: float = 0.0
 
     @property
     def rate(self) -> float:
         return self.samples / self.wall
 
-    def add(self, batches: Iterator[int]) -> None:
-        """Run ``batches`` (an iterator over batch sizes) and count it in."""
-        wall, cpu = time.perf_counter(), time.process_time()
-        samples = sum(batches)
-        wall = time.perf_counter() - wall
-        self.samples, self.wall, self.cpu = (
+    @property
+    def cpu_rate(self) -> float:
+        """Samples per CPU second of this process (every thread): its samples/s on a core of its own, as long as it
+        is not blocked (:attr:`blocked`, printed beside it)."""
+        return self.samples / self.cpu
+
+    @property
+    def blocked(self) -> float:
+        """Seconds off the CPU other than waiting for it: blocked on a file, a lock or another thread (for plain
+        decoding: pyarrow's reader threads, which read the manifest on each pass and wait for the core in turn)."""
+        return self.wall - self.cpu - self.waiting
+
+    def add(self, batches: Iterator[int], cpu_budget: float = math.inf) -> None:
+        """Take batches (their sizes) from ``batches`` until it ends or ``cpu_budget`` CPU seconds are spent."""
+        waiting, wall, cpu = _run_delay(), time.perf_counter(), time.process_time()
+        samples = 0
+        for size in batches:
+            samples += size
+            if time.process_time() - cpu >= cpu_budget:
+                break
+        self.samples, self.wall, self.cpu, self.waiting = (
             self.samples + samples,
-            self.wall + wall,
+            self.wall + time.perf_counter() - wall,
             self.cpu + time.process_time() - cpu,
+            self.waiting + _run_delay() - waiting,
         )
-        if samples:
-            self.fastest = min(self.fastest, wall / samples)
 
 
-def timed_round(runs: dict[str, Callable[[], Iterator[int]]], steps: int, slices: int) -> dict[str, Timing]:
-    """One round of every loader of a kind, ``steps`` batches each, interleaved: each pass is cut into ``slices``
-    slices, run in turn (in reverse order every other slice), so a change in the machine's load during the round
-    weighs on every loader alike, and a ratio of two loaders is taken over the same stretch of time. A loader with
-    dataloader workers runs its pass whole afterwards: its workers would fill their prefetch queue while the other
-    loaders' slices run."""
-    passes = {name: run() for name, run in runs.items()}
+def _run_delay() -> float:
+    """Seconds this thread has spent runnable but waiting for a CPU (``/proc/thread-self/schedstat``, Linux; 0.0
+    elsewhere, where the own-core rate is then the wall rate)."""
+    try:
+        with open("/proc/thread-self/schedstat") as stat:
+            return int(stat.read().split()[1]) / 1e9
+    except OSError:
+        return 0.0
+
+
+def timed_round(runs: dict[str, Iterator[int]], args: argparse.Namespace) -> dict[str, Timing]:
+    """One round of every loader of a kind, interleaved: ``--slices`` turns, in each of which every loader runs for
+    ``--slice-seconds`` of CPU (in reverse order every other turn), so every loader gets the same CPU time and a
+    change in the machine's load during the round weighs on every loader alike. A loader with dataloader workers
+    runs ``--steps`` batches whole afterwards: its workers would fill their prefetch queue while the other loaders'
+    slices run."""
     timings = {name: Timing() for name in runs}
     sliced = [name for name in runs if name != OURS_TWO]
-    bounds = [steps * k // slices for k in range(slices + 1)]
-    for k, (start, stop) in enumerate(itertools.pairwise(bounds)):
-        for name in sliced if k % 2 == 0 else sliced[::-1]:
+    for turn in range(args.slices):
+        for name in sliced if turn % 2 == 0 else sliced[::-1]:
             gc.collect()  # every slice starts from empty GC generations
-            timings[name].add(itertools.islice(passes[name], stop - start))
-    for name in set(runs) - set(sliced):
+            timings[name].add(runs[name], args.slice_seconds)
+    if OURS_TWO in runs:
         gc.collect()
-        timings[name].add(passes[name])
+        timings[OURS_TWO].add(itertools.islice(runs[OURS_TWO], args.steps))
     return timings
 
 
@@ -177,48 +207,44 @@ def generate_data(kind: str, raw: Path, data: Path, args: argparse.Namespace) ->
     convert(adapter, raw, data)
 
 
-def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Callable[[], Iterator[int]]]:
-    """The loaders over one kind of generated data, as callables that start a pass and yield batch sizes."""
+def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Iterator[int]]:
+    """The loaders over one kind of generated data, each an endless stream of batch sizes that every round goes on
+    with (ours: one epoch's stream, as in training)."""
     raw, data = tmp / kind / "raw", tmp / kind / "data"
     generate_data(kind, raw, data, args)
     source, switches, _ = KINDS[kind]
     config = input_spec(LeadConfig(**switches))
 
-    def ours(stream: Iterator[dict[str, Any]]) -> Callable[[], Iterator[int]]:
-        return lambda: (len(next(stream)["__key__"]) for _ in range(args.steps))
+    def ours(inputs_on_device: bool, workers: int) -> Iterator[int]:
+        return (len(batch["__key__"]) for batch in training_stream(kind, data, args, config, inputs_on_device, workers))
 
     runs = {
-        PLAIN: lambda: _batched((1 for _ in _samples(data, args)), args.batch_size),
-        PIXELS: lambda: _batched((_decode_jpegs(sample) for sample in _samples(data, args)), args.batch_size),
-        OURS: ours(training_stream(kind, data, args, config, False, 0)),
+        PLAIN: _batched((1 for _ in _samples(data)), args.batch_size),
+        PIXELS: _batched((_decode_jpegs(sample) for sample in _samples(data)), args.batch_size),
+        OURS: ours(False, 0),
     }
     if source in ("carla", "wod"):  # rigs the device lays out: CARLA's mosaic as stored, WOD-E2E's three cameras
-        runs[OURS_DEVICE] = ours(training_stream(kind, data, args, config, True, 0))
+        runs[OURS_DEVICE] = ours(True, 0)
     if args.two_workers:
-        runs[OURS_TWO] = ours(training_stream(kind, data, args, config, False, 2))
+        runs[OURS_TWO] = ours(False, 2)
     if args.lead_style and source == "carla":
         check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
-        lead = {
-            views: DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=0)
-            for views in (1, 2)
-        }
         for name, views in ((LEAD_BOTH, 2), (LEAD_ONE, 1)):
-            runs[name] = partial(
-                lambda views: (len(b["key"]) for _, b in zip(range(args.steps), _forever(lead[views]), strict=False)),
-                views,
-            )
+            lead = DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=0)
+            runs[name] = (len(batch["key"]) for batch in _forever(lead))
     return runs
 
 
 def training_stream(
     kind: str, data: Path, args: argparse.Namespace, config: InputSpec, inputs_on_device: bool, workers: int
 ) -> Iterator[dict[str, Any]]:
-    """One epoch's stream of our training loader, as in training: every round goes on with it."""
+    """One epoch's stream of our training loader (longer than the benchmark), as in training: the shuffle buffer
+    fills once (timed here), and every round goes on with it."""
     source, _, cameras = KINDS[kind]
     dm = DriveDataModule(
         train={source: SourceSpec([str(data)], cameras=cameras)},
         schedule=MixingSchedule.constant({source: 1.0}, args.batch_size),
-        steps_per_epoch=args.steps * (args.rounds + 1) + 1,
+        steps_per_epoch=EPOCH_STEPS,
         num_workers=workers,
         inputs=config,
         inputs_on_device=inputs_on_device,
@@ -247,11 +273,10 @@ def main() -> None:
         help="WOD-E2E camera size as a fraction of the real cameras' (1.0: real size; 0.0556: generator default)",
     )
     parser.add_argument("--batch-size", type=int, default=8)
-    parser.add_argument("--steps", type=int, default=40, help="batches per round for ours and the LEAD-style loader")
+    parser.add_argument("--steps", type=int, default=40, help="batches per round of ours with 2 workers")
     parser.add_argument("--rounds", type=int, default=3, help="timed rounds, after one warm-up round")
-    parser.add_argument(
-        "--slices", type=int, default=8, help="slices of each round, in which the loaders of a kind take turns"
-    )
+    parser.add_argument("--slices", type=int, default=24, help="turns of each round, in which the loaders take turns")
+    parser.add_argument("--slice-seconds", type=float, default=0.1, help="CPU seconds of each loader's turn")
     parser.add_argument("--two-workers", action="store_true", help="also ours with 2 dataloader workers")
     parser.add_argument("--lead-style", action="store_true", help="also the LEAD-style loader (CARLA kinds)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (collation)")
@@ -266,58 +291,60 @@ def main() -> None:
         gc.freeze()  # what the loader's workers do (datamodule._freeze_inherited_objects): see the module docstring
         for round_index in range(-1, args.rounds):  # round -1: the warm-up, not counted
             for kind, per_kind in runs.items():
-                for name, timing in timed_round(per_kind, args.steps, args.slices).items():
+                for name, timing in timed_round(per_kind, args).items():
                     if round_index >= 0:
                         timings[kind, name].append(timing)
                     print(
                         f"round {'warm-up' if round_index < 0 else round_index}, {kind}: {name}: {timing.samples} "
-                        f"samples, {timing.rate:.1f} samples/s, {timing.cpu / timing.samples * 1e3:.2f} ms CPU/sample"
+                        f"samples, {timing.cpu / timing.samples * 1e3:.2f} ms CPU/sample, {timing.rate:.1f} samples/s "
+                        f"wall, blocked {timing.blocked / timing.samples * 1e3:.2f} ms/sample"
                     )
         print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
         summary(runs, timings, args.rounds)
 
 
 def summary(
-    runs: dict[str, dict[str, Callable[[], Iterator[int]]]], timings: dict[tuple[str, str], list[Timing]], rounds: int
+    runs: dict[str, dict[str, Iterator[int]]], timings: dict[tuple[str, str], list[Timing]], rounds: int
 ) -> None:
-    """Medians over the rounds; each ratio is the median of the per-round ratios, with their spread: by samples/s,
-    by CPU time (one process), and of the fastest slices (the least disturbed stretch of each loader's round)."""
-    print(
-        f"\nmedian over {rounds} rounds; ratio: samples/s over plain decoding's in the same round (spread: max/min-1)"
-    )
+    """Medians over the rounds; each ratio is the median of the per-round ratios to plain decoding's, with their
+    spread: by CPU time (the headline: samples/s on a core of its own, :attr:`Timing.cpu_rate`) and by wall time."""
+    print(f"\nmedian over {rounds} rounds; ratios to plain decoding in the same round (spread: max/min - 1)")
     for kind in runs:
         source, switches, _ = KINDS[kind]
         print(f"{kind} ({source}, LeadConfig({', '.join(f'{k}={v}' for k, v in switches.items())})):")
         plain = timings[kind, PLAIN]
         for name in runs[kind]:
             of = timings[kind, name]
-            rate = statistics.median(t.rate for t in of)
-            cpu = statistics.median(t.cpu / t.samples * 1e3 for t in of)
-            line = f"  {name}: {rate:.1f} samples/s, {cpu:.2f} ms CPU/sample"
+            wall = f"{statistics.median(t.rate for t in of):.1f} samples/s wall"
+            if name == OURS_TWO:  # its workers' CPU is not this process's: wall time only
+                print(f"  {name}: {wall}, {_ratio(of, plain, lambda t: t.rate)} plain decoding by wall samples/s")
+                continue
+            line = (
+                f"  {name}: {statistics.median(t.cpu_rate for t in of):.1f} samples/s on a core of its own "
+                f"({statistics.median(t.cpu / t.samples * 1e3 for t in of):.2f} ms CPU/sample, blocked "
+                f"{statistics.median(t.blocked / t.samples * 1e3 for t in of):.2f} ms/sample), {wall}"
+            )
             if name != PLAIN:
-                ratios = [x.rate / y.rate for x, y in zip(of, plain, strict=True)]
-                spread = max(ratios) / min(ratios) - 1
-                line += f", {statistics.median(ratios):.2f}x plain decoding (spread {spread:.0%})"
-            if name not in (PLAIN, OURS_TWO):  # one process: CPU per sample, steadier than wall time on a busy machine
-                cpu_ratios = [y.cpu / y.samples / (x.cpu / x.samples) for x, y in zip(of, plain, strict=True)]
-                cpu_spread = max(cpu_ratios) / min(cpu_ratios) - 1
-                line += f", by CPU time {statistics.median(cpu_ratios):.2f}x (spread {cpu_spread:.0%})"
-                fastest = [y.fastest / x.fastest for x, y in zip(of, plain, strict=True)]
                 line += (
-                    f", fastest slices {statistics.median(fastest):.2f}x (spread {max(fastest) / min(fastest) - 1:.0%})"
+                    f"; {_ratio(of, plain, lambda t: t.cpu_rate)} plain decoding by CPU time, "
+                    f"{_ratio(of, plain, lambda t: t.rate)} by wall samples/s"
                 )
             print(line)
+
+
+def _ratio(ours: list[Timing], plain: list[Timing], rate: Callable[[Timing], float]) -> str:
+    """The median over the rounds of ``rate(ours) / rate(plain)`` in each round, with its spread."""
+    ratios = [rate(x) / rate(y) for x, y in zip(ours, plain, strict=True)]
+    return f"{statistics.median(ratios):.2f}x (spread {max(ratios) / min(ratios) - 1:.0%})"
 
 
 def _cpus() -> int:
     return len(os.sched_getaffinity(0))
 
 
-def _samples(data: Path, args: argparse.Namespace) -> Iterator[dict[str, Any]]:
-    """As many samples as ours reads in a round (``--steps`` x ``--batch-size``), over the shards again and again:
-    both sides of a ratio run equally long over the same kind of samples."""
-    passes = itertools.chain.from_iterable(read_samples(data) for _ in itertools.count())
-    return itertools.islice(passes, args.steps * args.batch_size)
+def _samples(data: Path) -> Iterator[dict[str, Any]]:
+    """Every sample of the shards, every field decoded, over and over (a ``read_samples`` call per pass)."""
+    return itertools.chain.from_iterable(read_samples(data) for _ in itertools.count())
 
 
 def _batched(per_sample: Iterator[int], size: int) -> Iterator[int]:

@@ -170,7 +170,13 @@ def _centernet_box_by_box(boxes: np.ndarray, classes: np.ndarray, grid: BEVGrid)
     padding box."""
     cell = CENTERNET_STRIDE / grid.pixels_per_meter
     h, w = grid.shape[0] // CENTERNET_STRIDE, grid.shape[1] // CENTERNET_STRIDE
-    heat, size, yaw_class = np.zeros((3, h, w), np.float32), np.zeros((2, h, w), np.float32), np.zeros((h, w), np.uint8)
+    heat, size, offset = (
+        np.zeros((3, h, w), np.float32),
+        np.zeros((2, h, w), np.float32),
+        np.zeros((2, h, w), np.float32),
+    )
+    yaw_class, yaw_residual = np.zeros((h, w), np.uint8), np.zeros((h, w), np.float32)
+    speed, weight = np.zeros((h, w), np.float32), np.zeros((h, w), bool)
     for box, label in zip(boxes.tolist(), classes.tolist(), strict=True):
         x, y = (box[0] - grid.x_min) / cell, (box[1] - grid.y_min) / cell
         if label < 0 or not (0 <= x < h and 0 < y <= w):
@@ -180,15 +186,23 @@ def _centernet_box_by_box(boxes: np.ndarray, classes: np.ndarray, grid: BEVGrid)
             heat[label], row, col, gaussian_kernel(max(2, int(gaussian_radius(box[4] / 2 / cell, box[3] / 2 / cell))))
         )
         size[:, row, col] = box[3] / 2 / cell, box[4] / 2 / cell
-        yaw_class[row, col] = int(angle_bin(box[6], 12)[0])
+        offset[:, row, col] = x - row, y - col
+        yaw_bin, residual = angle_bin(np.array([box[6]]), 12)
+        yaw_class[row, col], yaw_residual[row, col] = int(yaw_bin[0]), float(residual[0])
+        speed[row, col], weight[row, col] = np.hypot(box[7], box[8]), True
     paste_max(heat[0], 0, w - 1, gaussian_kernel(2))  # LEAD's padding box (fewer than 90 boxes), written last
-    size[:, 0, w - 1], yaw_class[0, w - 1] = 0.0, 0
-    return {"lead_box_heatmap": heat, "lead_box_size": size, "lead_box_yaw_class": yaw_class}
+    size[:, 0, w - 1], offset[:, 0, w - 1], yaw_class[0, w - 1] = 0.0, (0.0, 1.0), 0
+    yaw_residual[0, w - 1], speed[0, w - 1], weight[0, w - 1] = 0.0, 0.0, True
+    count = np.float32(max(1, int((heat == 1).sum())))
+    names = ("heatmap", "size", "offset", "yaw_class", "yaw_residual", "velocity", "weight", "count")
+    maps = (heat, size, offset, yaw_class, yaw_residual, speed, weight, count)
+    return {f"lead_box_{name}": value for name, value in zip(names, maps, strict=True)}
 
 
 def test_centernet_targets_equal_the_box_by_box_loop_bit_for_bit() -> None:
-    """Boxes pasted per radius in one pass and cell values written once per cell equal LEAD's per-box loop, byte for
-    byte, with many boxes sharing cells (the last one's values win), centres on cell edges and off the grid."""
+    """Boxes encoded in one compiled pass equal LEAD's per-box loop, every map byte for byte, with many boxes sharing
+    cells (the last one's values win), centres on cell edges and off the grid, kernels cut at every edge (large
+    boxes, up to 90 m), and speeds unknown (NaN)."""
     rng = np.random.default_rng(7)
     grid = BEVGrid()
     for trial in range(40):
@@ -198,9 +212,14 @@ def test_centernet_targets_equal_the_box_by_box_loop_bit_for_bit() -> None:
         if trial % 2:
             boxes[:, :2] = np.round(boxes[:, :2])  # on cell edges, and many boxes in one cell
         boxes[:, 3], boxes[:, 4], boxes[:, 6] = rng.uniform(0.1, 12, n), rng.uniform(0.1, 4, n), rng.uniform(-7, 7, n)
+        boxes[:, 7:9] = rng.normal(0, 5, (n, 2))
+        if trial % 3 == 0:
+            boxes[:3, 3:5] = rng.uniform(10, 90, (min(n, 3), 2))  # radii past 8 cells: the kernel bank grows
+            boxes[rng.random(n) < 0.2, 7:9] = np.nan
         classes = rng.integers(-1, 3, n)
         ours = lead_centernet_targets(boxes, classes, grid, 3, 12)
         reference = _centernet_box_by_box(boxes, classes, grid)
+        assert set(ours) == set(reference)
         for key, expected in reference.items():
             assert ours[key].numpy().tobytes() == expected.tobytes(), (trial, key)
     assert kernel_radius(1.0, 2.0) == 2 and kernel_radius(6.0, 20.0) == int(gaussian_radius(6.0, 20.0))

@@ -13,6 +13,7 @@ import torch
 from test_transform_speed import random_boxes, reference_lidar
 from tiny_models import sensor_spec
 
+from lead_s2r.data.lead_labels import RADAR_PRIORITY, LeadBoxClass, radar_priority
 from lead_s2r.data.lead_route import _dot_sign, lead_route
 from lead_s2r.data.lidar import rasterize_lidar
 from lead_s2r.data.radar import MAX_RADAR_TARGETS, RADAR_HIT_MARGIN_M, radar_targets
@@ -141,6 +142,15 @@ def test_radar_points_on_the_grown_footprint_edge_hit_and_one_ulp_beyond_miss() 
     assert_bit_identical(out, reference_radar_targets(radar, boxes))
 
 
+def test_radar_priority_ranks_every_lead_class_by_leads_order_and_the_rest_last() -> None:
+    classes = np.array([*LeadBoxClass, -1, len(LeadBoxClass), 99, LeadBoxClass.PARKING, LeadBoxClass.SPECIAL])
+    last = len(RADAR_PRIORITY)
+    expected = [RADAR_PRIORITY.index(c) if c in RADAR_PRIORITY else last for c in classes.tolist()]
+    got = radar_priority(classes)
+    assert got.dtype == np.int64 and got.tolist() == expected
+    assert radar_priority(np.zeros(0, np.int64)).shape == (0,)
+
+
 # --------------------------------------------------------------------------- LiDAR
 
 
@@ -186,10 +196,11 @@ def test_lidar_points_just_below_cell_edges_and_past_mid_cell_equal_the_histogra
         np.testing.assert_array_equal(got.numpy(), reference_lidar(points, CARLA_BEV))
 
 
-def test_lidar_inputs_the_float_cell_index_would_miscount_are_refused() -> None:
-    grid = BEVGrid(0.0, 4097.0, 0.0, 4096.0, 1.0)  # 4097 * 4096 > 2**24
-    with pytest.raises(ValueError, match="2\\*\\*24"):
-        rasterize_lidar(np.zeros((1, 4), np.float32), grid)
+def test_lidar_cells_past_float32s_exact_integers_count_and_half_floats_are_refused() -> None:
+    grid = BEVGrid(0.0, 4097.0, 0.0, 4096.0, 1.0)  # 4097 * 4096 > 2**24: a float32 cell index would round
+    points = np.array([[4096.5, 4095.5, 0, 0], [4096.5, 4094.5, 0, 0], [4096.5, 4095.5, 0, 0]], np.float32)
+    raster = rasterize_lidar(points, grid)
+    assert raster[4096, 4095] == 2 and raster[4096, 4094] == 1 and raster.sum() == 3
     with pytest.raises(TypeError, match=r"'lidar'.*float16"):  # 11 bits of mantissa: cell 2049 would round
         rasterize_lidar(np.zeros((1, 4), np.float16), CARLA_BEV)
 

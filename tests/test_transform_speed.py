@@ -18,8 +18,10 @@ from tiny_models import sensor_spec
 from lead_s2r.data.camera_input import jpeg_reduction
 from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
 from lead_s2r.data.lead_labels import (
+    LeadBevClass,
     _bev_tables,
     _footprint_pixels,
+    _on_occupancy_canvas,
     bev_cell_centres,
     bev_gather,
     bev_gather_index,
@@ -183,6 +185,32 @@ def test_lidar_raster_equals_the_saturated_histogram() -> None:
     np.testing.assert_array_equal(scaled.numpy(), expected)  # bit-identical to LEAD's float32 min(k, 5) / 5
 
 
+def numpy_lidar_raster(points: np.ndarray, grid: BEVGrid, x_shift: float) -> np.ndarray:
+    """The raster as numpy's passes built it before the compiled count: the cell index formed in the points' dtype."""
+    h, w = grid.shape
+    with np.errstate(over="ignore", invalid="ignore"):
+        rows = ((points[:, 0] - points.dtype.type(x_shift)) - grid.x_min) * grid.pixels_per_meter
+        cols = (points[:, 1] - grid.y_min) * grid.pixels_per_meter
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        cells = np.trunc(rows) * w + np.trunc(cols)
+    counts = np.bincount(cells[inside].astype(np.intp), minlength=h * w).reshape(h, w)
+    return np.minimum(counts, LIDAR_HITS_MAX).astype(np.uint8)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("x_shift", [0.0, 1.3716])
+def test_compiled_lidar_count_equals_numpys_passes(dtype: type, x_shift: float) -> None:
+    rng = np.random.default_rng(5)
+    points = rng.uniform([-40, -50, -3, 0], [70, 50, 3, 1], (60_000, 4)).astype(dtype)
+    points[:20_000, :2] = np.round(points[:20_000, :2] * 4) / 4  # on cell edges, the grids' borders among them
+    shifted = points[:20_000:2, 0] + dtype(x_shift)  # on them once shifted, or a float either side
+    points[:20_000:2, 0] = np.nextafter(shifted, shifted + np.sign(rng.uniform(-1, 1, len(shifted))).astype(dtype))
+    points[:100:7, 0], points[1:100:7, 1], points[2:100:7, 0] = np.nan, np.inf, -np.inf
+    points[3000:3300, :2] = [2.1, -3.3]  # one cell, past saturation
+    for grid in (CARLA_BEV, NAVSIM_BEV):
+        np.testing.assert_array_equal(rasterize_lidar(points, grid, x_shift), numpy_lidar_raster(points, grid, x_shift))
+
+
 def test_lidar_counts_scale_to_the_float32_levels_of_the_old_raster() -> None:
     counts = torch.arange(LIDAR_HITS_MAX + 1, dtype=torch.uint8)
     old = (np.minimum(np.arange(9), 5) / 5.0).astype(np.float32)[: LIDAR_HITS_MAX + 1]
@@ -328,3 +356,40 @@ def test_footprints_and_the_bev_remap_are_leads_box_by_box_and_numpys(grid: BEVG
         _, lookup, _ = _bev_tables(leaderboard)
         no_boxes = lead_bev_labels(hdmap, boxes[:0], grid, leaderboard, np.zeros(0, np.int64))
         np.testing.assert_array_equal(no_boxes, lookup[hdmap])  # the LUT and both quarter turns: numpy's gather
+
+
+def every_footprint_filled(canvas: np.ndarray, boxes: np.ndarray, grid: BEVGrid, leaderboard: bool) -> np.ndarray:
+    """The boxes drawn as LEAD's loop draws them (no traffic lights affecting the ego): every footprint on the
+    occupancy canvas filled in order, off the grid or not, then the quarter turn."""
+    convert, _, bev_class = _bev_tables(leaderboard)
+    for box in boxes:
+        label = bev_class[int(box[9])] if 0 <= box[9] < len(BoxClass) else LeadBevClass.UNLABELED
+        if label != LeadBevClass.UNLABELED and _on_occupancy_canvas(box[None], grid)[0]:
+            cv2.fillPoly(canvas, [_footprint_pixels(box[None], grid)[0]], int(convert[label]))
+    return cv2.rotate(canvas, cv2.ROTATE_90_CLOCKWISE)
+
+
+@pytest.mark.parametrize("grid", [CARLA_BEV, NAVSIM_BEV])
+def test_footprints_off_the_grid_are_skipped_and_the_drawing_is_the_per_box_loops(grid: BEVGrid) -> None:
+    rng = np.random.default_rng(12)
+    boxes = random_boxes(rng, 300).astype(np.float64)
+    boxes[:100, :2] = rng.uniform(-140, 140, (100, 2))  # far off the grid, some off LEAD's 256 m canvas
+    half_pixel = 0.5 / grid.pixels_per_meter  # tiny boxes in the pixels just inside and just outside each edge
+    along_x, along_y = rng.uniform(grid.x_min, grid.x_max, 100), rng.uniform(grid.y_min, grid.y_max, 100)
+    boxes[100:200, :2] = np.concatenate(
+        [
+            np.stack([np.full(25, edge + side * half_pixel), along_y[:25]], 1)
+            if axis == 0
+            else np.stack([along_x[:25], np.full(25, edge + side * half_pixel)], 1)
+            for axis, edge, side in ((0, grid.x_min, 1), (0, grid.x_max, -1), (1, grid.y_min, 1), (1, grid.y_max, -1))
+        ]
+    )
+    boxes[100:200, 3:5], boxes[100:200, 6] = 0.05, 0.0
+    boxes[200:300:2, :2] = boxes[100:200:2, :2] - np.sign(boxes[100:200:2, :2]) * 2 * half_pixel  # one pixel outside
+    boxes[:, 9] = rng.integers(-1, len(BoxClass) + 1, 300)
+    boxes[100:, 9] = BoxClass.VEHICLE  # drawn, and not grown as pedestrians are
+    hdmap = rng.integers(0, 256, grid.shape).astype(np.uint8)
+    for leaderboard in (True, False):
+        canvas = cv2.rotate(cv2.LUT(hdmap, _bev_tables(leaderboard)[1]), cv2.ROTATE_90_COUNTERCLOCKWISE)
+        got = draw_lead_boxes(canvas.copy(), boxes, grid, leaderboard, np.full(300, -1))
+        np.testing.assert_array_equal(got, every_footprint_filled(canvas, boxes, grid, leaderboard))

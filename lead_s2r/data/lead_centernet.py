@@ -22,6 +22,7 @@ from functools import lru_cache
 
 import numpy as np
 import torch
+from numba import njit
 
 from lead_s2r.models.config import BEVGrid
 
@@ -98,17 +99,15 @@ def lead_centernet_targets(
     # LEAD truncates its y right: a centre on a cell edge is in the cell to our right, offset 1 (LEAD's 0)
     rows, cols = np.floor(row_f).astype(np.int64), np.ceil(col_f).astype(np.int64) - 1
     extents = zip(half_width.tolist(), half_length.tolist(), strict=True)
-    radii = [kernel_radius(width, length) for width, length in extents]
-    paste_kernels(heatmap, np.asarray(classes, np.int64)[kept], rows, cols, np.array(radii, np.int64))
-    cells = last_per_cell(rows * w + cols)  # a later box in the same cell overwrites the earlier one's values
-    rows, cols, picked = rows[cells], cols[cells], picked[cells]
-    size[:, rows, cols] = half_length[cells], half_width[cells]
-    offset[:, rows, cols] = row_f[cells] - rows, col_f[cells] - cols
-    yaw_class[rows, cols], yaw_residual[rows, cols] = angle_bin(picked[:, 6], yaw_bins)
-    speed[rows, cols] = np.hypot(picked[:, 7], picked[:, 8])
-    weight[rows, cols] = True
+    radii = np.array([kernel_radius(width, length) for width, length in extents], np.int64)
+    yaw_bin, yaw_rest = angle_bin(picked[:, 6], yaw_bins)
+    speeds = np.hypot(picked[:, 7], picked[:, 8])
+    values = np.stack([half_length, half_width, row_f - rows, col_f - cols, yaw_rest, speeds]).reshape(6, -1)
+    bank, starts = kernel_bank(int(radii.max(initial=0)))
+    maps = (heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
+    _encode_boxes(maps, np.asarray(classes, np.int64)[kept], rows, cols, radii, bank, starts, values, yaw_bin)
     if len(kept) < LEAD_MAX_BOXES:
-        paste_phantom(heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
+        paste_phantom(maps)
     out = {
         "lead_box_heatmap": heatmap,
         "lead_box_size": size,
@@ -120,22 +119,19 @@ def lead_centernet_targets(
     }
     if not velocity:
         del out["lead_box_velocity"]
-    count = np.float32(max(1, int((heatmap == 1).sum())))
+    count = np.float32(max(1, np.count_nonzero(heatmap == 1)))
     return {**{k: torch.from_numpy(v) for k, v in out.items()}, "lead_box_count": torch.scalar_tensor(count)}
 
 
-def paste_phantom(
-    heatmap: np.ndarray,
-    size: np.ndarray,
-    offset: np.ndarray,
-    yaw_class: np.ndarray,
-    yaw_residual: np.ndarray,
-    speed: np.ndarray,
-    weight: np.ndarray,
-) -> None:
-    """LEAD's padding box, written after the real ones as LEAD's loop writes it: class 0, size 0, yaw 0, speed 0, at
-    LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and LEAD's lateral
-    offset 0 (measured from the cell's other edge) is our 1."""
+#: The target maps :func:`lead_centernet_targets` writes: heatmap, size, offset, yaw class, yaw residual, speed, weight.
+Maps = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def paste_phantom(maps: Maps) -> None:
+    """LEAD's padding box, written into ``maps`` after the real ones as LEAD's loop writes it: class 0, size 0, yaw
+    0, speed 0, at LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and
+    LEAD's lateral offset 0 (measured from the cell's other edge) is our 1."""
+    heatmap, size, offset, yaw_class, yaw_residual, speed, weight = maps
     col = heatmap.shape[2] - 1
     paste_max(heatmap[0], 0, col, gaussian_kernel(kernel_radius(0.0, 0.0)))
     size[:, 0, col] = 0.0
@@ -144,29 +140,48 @@ def paste_phantom(
     weight[0, col] = True
 
 
-def paste_kernels(
-    heatmap: np.ndarray, labels: np.ndarray, rows: np.ndarray, cols: np.ndarray, radii: np.ndarray
+@lru_cache(maxsize=8)
+def kernel_bank(radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every :func:`gaussian_kernel` of radius 0 to at least ``radius`` (a power of two, at least 8), flattened one
+    after another, and the index where each radius's starts: the kernels :func:`_encode_boxes` reads."""
+    largest = max(8, 1 << (radius - 1).bit_length())
+    kernels = [gaussian_kernel(r).reshape(-1) for r in range(largest + 1)]
+    bank, starts = np.concatenate(kernels), np.cumsum([0] + [len(kernel) for kernel in kernels[:-1]])
+    bank.flags.writeable = starts.flags.writeable = False
+    return bank, starts
+
+
+@njit(cache=True, nogil=True)
+def _encode_boxes(
+    maps: Maps,
+    labels: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    radii: np.ndarray,
+    bank: np.ndarray,
+    starts: np.ndarray,
+    values: np.ndarray,
+    yaw_bin: np.ndarray,
 ) -> None:
-    """:func:`paste_max` of every box's Gaussian of ``radii`` on channel ``labels`` at (``rows``, ``cols``), one
-    ``np.maximum.at`` per radius instead of a call per box: a maximum does not depend on the order it is taken in,
-    so the heatmap is the per-box loop's bit for bit."""
+    """LEAD's per-box loop into ``maps``, compiled: each box's Gaussian (:func:`paste_max` of the kernel of its
+    radius, from :func:`kernel_bank`) on channel ``labels`` at (``rows``, ``cols``), then its cell's values
+    (``values``: half length, half width, row and column offsets, yaw residual and speed, float64, each cast to
+    float32 on writing as numpy casts it; ``yaw_bin``), a later box in a cell overwriting an earlier one's, as LEAD's
+    loop does."""
+    heatmap, size, offset, yaw_class, yaw_residual, speed, weight = maps
     _, h, w = heatmap.shape
-    flat = heatmap.reshape(-1)
-    for radius in np.unique(radii).tolist():
-        of_radius = radii == radius
-        kernel = gaussian_kernel(radius)
-        offsets = np.arange(-radius, radius + 1)
-        r = rows[of_radius, None, None] + offsets[None, :, None]
-        c = cols[of_radius, None, None] + offsets[None, None, :]
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w) & (kernel > 0)
-        cell = (labels[of_radius, None, None] * h + r) * w + c
-        np.maximum.at(flat, cell[inside], np.broadcast_to(kernel, inside.shape)[inside])
-
-
-def last_per_cell(cells: np.ndarray) -> np.ndarray:
-    """Indices of the last entry of each distinct value of ``cells``, in ascending order of value."""
-    _, first_from_end = np.unique(cells[::-1], return_index=True)
-    return len(cells) - 1 - first_from_end
+    for box in range(len(rows)):
+        radius, label, row, col = radii[box], labels[box], rows[box], cols[box]
+        side, start = 2 * radius + 1, starts[radius]
+        for i in range(max(0, radius - row), min(side, h - row + radius)):
+            for j in range(max(0, radius - col), min(side, w - col + radius)):
+                value = bank[start + i * side + j]
+                if value > heatmap[label, row + i - radius, col + j - radius]:
+                    heatmap[label, row + i - radius, col + j - radius] = value
+        size[0, row, col], size[1, row, col] = values[0, box], values[1, box]
+        offset[0, row, col], offset[1, row, col] = values[2, box], values[3, box]
+        yaw_class[row, col], yaw_residual[row, col], speed[row, col] = yaw_bin[box], values[4, box], values[5, box]
+        weight[row, col] = True
 
 
 def paste_max(heatmap: np.ndarray, row: int, col: int, window: np.ndarray) -> None:

@@ -178,9 +178,22 @@ RADAR_PRIORITY = (
 
 
 def radar_priority(lead_classes: np.ndarray) -> np.ndarray:
-    """(N,) rank of each LEAD box class in :data:`RADAR_PRIORITY` (classes not listed rank last)."""
-    rank = {int(cls): i for i, cls in enumerate(RADAR_PRIORITY)}
-    return np.array([rank.get(int(cls), len(RADAR_PRIORITY)) for cls in lead_classes], np.int64)
+    """(N,) rank of each LEAD box class in :data:`RADAR_PRIORITY` (classes not listed rank last): one lookup in a
+    table of every :class:`LeadBoxClass`, not a Python loop over the boxes."""
+    classes = np.asarray(lead_classes, np.int64)
+    table = _radar_rank_table()
+    listed = (classes >= 0) & (classes < len(table))
+    return np.where(listed, table[np.clip(classes, 0, len(table) - 1)], len(RADAR_PRIORITY))
+
+
+@lru_cache(maxsize=1)
+def _radar_rank_table() -> np.ndarray:
+    """LEAD box class -> its rank in :data:`RADAR_PRIORITY` (unlisted: last); built once (read-only)."""
+    table = np.full(len(LeadBoxClass), len(RADAR_PRIORITY), np.int64)
+    for rank, cls in enumerate(RADAR_PRIORITY):
+        table[cls] = rank
+    table.flags.writeable = False
+    return table
 
 
 def lead_bev_labels(
@@ -218,8 +231,13 @@ def draw_lead_boxes(
     drawn_class = np.where(lights >= 0, lights, bev_class[np.where(known, ours, 0)])
     drawn = np.flatnonzero(known & (drawn_class != LeadBevClass.UNLABELED) & _on_occupancy_canvas(boxes, grid))
     corners = _footprint_pixels(boxes[drawn], grid)
-    for polygon, label in zip(corners, drawn_class[drawn].tolist(), strict=True):
-        cv2.fillPoly(canvas, [polygon], int(convert[label]))
+    labels = convert[drawn_class[drawn]].tolist()
+    # fillPoly draws nothing outside the polygon's corners: a footprint off the canvas is not drawn (the hull below
+    # still takes its corners)
+    low, high = corners.min(axis=1), corners.max(axis=1)
+    touches = (high[:, 0] >= 0) & (low[:, 0] < canvas.shape[1]) & (high[:, 1] >= 0) & (low[:, 1] < canvas.shape[0])
+    for index in np.flatnonzero(touches).tolist():
+        cv2.fillPoly(canvas, [corners[index]], labels[index])
     for light in (LeadBevClass.TRAFFIC_RED_NOT_NORMAL, LeadBevClass.TRAFFIC_RED_NORMAL, LeadBevClass.TRAFFIC_GREEN):
         of_light = drawn_class[drawn] == light
         if of_light.any():  # LEAD fills the hull of one kind only, the first present in this order

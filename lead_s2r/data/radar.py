@@ -3,6 +3,7 @@ points fall on (LEAD's radar detector's labels)."""
 
 import numpy as np
 import torch
+from numba import njit
 
 #: Radar points kept per sample (LEAD: 4 sensors x 75).
 MAX_RADAR_POINTS = 300
@@ -46,15 +47,35 @@ def _radar_hits(radar: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """(N boxes,) bool: whether any radar point lies inside the box's footprint grown by
     :data:`RADAR_HIT_MARGIN_M`.
 
-    Every (box, point) pair is tested on (boxes, points) planes, x and y apart (docs/benchmarks.md, "Training
-    targets"); the arithmetic is :func:`~lead_s2r.geometry.rotate`'s, element for element, so every pair decides as
-    rotate would.
+    The per-box terms (cosine, sine, grown half extents) are numpy's, in the boxes' dtype; the (box, point) pairs are
+    tested compiled, a box's scan stopping at its first hit, with :func:`~lead_s2r.geometry.rotate`'s arithmetic in
+    the arrays' dtypes operation for operation (numpy's elementwise results, which numba's scalar IEEE arithmetic
+    gives bit for bit), so every pair decides as rotate would.
     """
-    dx = radar[None, :, 0] - boxes[:, 0, None]
-    dy = radar[None, :, 1] - boxes[:, 1, None]
-    yaw = -boxes[:, 6, None]
-    cos, sin = np.cos(yaw), np.sin(yaw)
+    yaw = -boxes[:, 6]
     half = boxes[:, 3:5] / 2 + RADAR_HIT_MARGIN_M
-    inside = np.abs(cos * dx - sin * dy) <= half[:, 0, None]
-    inside &= np.abs(sin * dx + cos * dy) <= half[:, 1, None]
-    return inside.any(axis=1)
+    return _any_point_inside(radar[:, 0], radar[:, 1], boxes[:, 0], boxes[:, 1], np.cos(yaw), np.sin(yaw), half)
+
+
+@njit(cache=True, nogil=True)
+def _any_point_inside(
+    xs: np.ndarray,
+    ys: np.ndarray,
+    centre_x: np.ndarray,
+    centre_y: np.ndarray,
+    cos: np.ndarray,
+    sin: np.ndarray,
+    half: np.ndarray,
+) -> np.ndarray:
+    """Per box: whether a point (``xs``, ``ys``) lies within ``half`` (N, 2) of its centre in the box's frame."""
+    hit = np.zeros(len(centre_x), np.bool_)
+    for box in range(len(centre_x)):
+        for point in range(len(xs)):
+            dx, dy = xs[point] - centre_x[box], ys[point] - centre_y[box]
+            if (
+                abs(cos[box] * dx - sin[box] * dy) <= half[box, 0]
+                and abs(sin[box] * dx + cos[box] * dy) <= half[box, 1]
+            ):
+                hit[box] = True
+                break
+    return hit
