@@ -20,7 +20,6 @@ from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, rende
 from lead_s2r.data.lead_labels import (
     LeadBevClass,
     _bev_tables,
-    _cos_sin_deg,
     _footprint_pixels,
     _on_occupancy_canvas,
     bev_cell_centres,
@@ -394,14 +393,3 @@ def test_footprints_off_the_grid_are_skipped_and_the_drawing_is_the_per_box_loop
         canvas = cv2.rotate(cv2.LUT(hdmap, _bev_tables(leaderboard)[1]), cv2.ROTATE_90_COUNTERCLOCKWISE)
         got = draw_lead_boxes(canvas.copy(), boxes, grid, leaderboard, np.full(300, -1))
         np.testing.assert_array_equal(got, every_footprint_filled(canvas, boxes, grid, leaderboard))
-
-
-def test_compiled_cosine_and_sine_of_degrees_are_maths_bit_for_bit() -> None:
-    """:func:`box_points`' compiled angles: ``math.cos``/``math.sin`` of ``angle * math.pi / 180.0`` (OpenCV's
-    order), the C library's double results, on every angle kind a box takes."""
-    rng = np.random.default_rng(6)
-    angles = np.concatenate([rng.uniform(-400, 400, 100_000), [0.0, -0.0, 90.0, -90.0, 180.0, 270.0, 45.0, 1e-300]])
-    cos, sin = _cos_sin_deg(angles)
-    radians = [angle * math.pi / 180.0 for angle in angles.tolist()]
-    np.testing.assert_array_equal(cos, [math.cos(r) for r in radians])
-    np.testing.assert_array_equal(sin, [math.sin(r) for r in radians])

@@ -30,7 +30,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numba import njit
 
 from lead_s2r.geometry import raster_lookup
 from lead_s2r.models.config import BEVGrid
@@ -284,8 +283,9 @@ def box_points(centres: np.ndarray, sizes: np.ndarray, angles_deg: np.ndarray) -
     (``math``: the C library's, as OpenCV's) and halved in float32, and every corner formed from the centre in
     float32 in OpenCV's order of operations."""
     centre, size = np.asarray(centres, np.float32), np.asarray(sizes, np.float32)
-    cos, sin = _cos_sin_deg(np.asarray(angles_deg, np.float32).astype(np.float64))
-    half_cos, half_sin = cos.astype(np.float32) * np.float32(0.5), sin.astype(np.float32) * np.float32(0.5)
+    radians = [angle * math.pi / 180.0 for angle in np.asarray(angles_deg, np.float32).tolist()]
+    half_cos = np.array([math.cos(r) for r in radians], np.float32) * np.float32(0.5)
+    half_sin = np.array([math.sin(r) for r in radians], np.float32) * np.float32(0.5)
     cx, cy, width, height = centre[:, 0], centre[:, 1], size[:, 0], size[:, 1]
     corners = np.empty((len(centre), 4, 2), np.float32)
     corners[:, 0, 0] = cx - half_sin * height - half_cos * width
@@ -297,16 +297,6 @@ def box_points(centres: np.ndarray, sizes: np.ndarray, angles_deg: np.ndarray) -
     corners[:, 3, 0] = cx - half_sin * height + half_cos * width
     corners[:, 3, 1] = cy + half_cos * height + half_sin * width
     return corners
-
-
-@njit(cache=True, nogil=True)
-def _cos_sin_deg(angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The C library's cosine and sine of ``angle * pi / 180`` per angle, in double (``math``'s, compiled)."""
-    cos, sin = np.empty_like(angles_deg), np.empty_like(angles_deg)
-    for i in range(len(angles_deg)):
-        radians = angles_deg[i] * math.pi / 180.0
-        cos[i], sin[i] = math.cos(radians), math.sin(radians)
-    return cos, sin
 
 
 def footprint_rects(boxes: np.ndarray, grid: BEVGrid) -> tuple[np.ndarray, np.ndarray]:
