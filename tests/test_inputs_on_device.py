@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 import torch
 from tiny_models import TINY, sensor_spec
-from torchvision.io import ImageReadMode, decode_jpeg
 
 from lead_s2r.convert import convert
 from lead_s2r.data.camera_layout import CameraLayout, Tile, camera_layout, render
@@ -70,11 +69,6 @@ def test_libjpeg_turbo_through_torch_decodes_what_opencv_decodes(quality: int, g
     opencv = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR_RGB)
     assert ours.shape == (3, 96, 160)
     np.testing.assert_array_equal(ours.permute(1, 2, 0).numpy(), opencv)
-    with pytest.warns(
-        DeprecationWarning, match="deprecated"
-    ):  # torchvision's wrapper, which decode_rgb skips on the CPU
-        wrapped = decode_jpeg(jpeg_tensor(data), mode=ImageReadMode.RGB)
-    assert torch.equal(ours, wrapped)
 
 
 def on_the_device(batch: dict, config: InputSpec) -> dict:

@@ -71,8 +71,6 @@ def decode_rgb(encoded: list[Tensor], device: torch.device | str) -> list[Tensor
     first (see the module docstring); training syncs once a step anyway (the progress bar reads the loss), so this
     costs little overlap."""
     device = torch.device(device)
-    if device.type == "cpu":  # torchvision's op: its wrapper's checks and warning cost 10 us a call
-        return [torch.ops.image.decode_jpeg(jpeg, ImageReadMode.RGB.value, False) for jpeg in encoded]
     if device.type == "cuda":
         torch.cuda.current_stream(device).synchronize()
     with warnings.catch_warnings():  # torchvision 0.29 deprecates its codecs for torchcodec, whose wheels each fit
