@@ -31,6 +31,7 @@ from lead_s2r.data.datamodule import DriveDataModule
 from lead_s2r.errors import UserError
 from lead_s2r.formats import torch_file
 from lead_s2r.models.input_spec import InputSpec, input_spec
+from lead_s2r.training.distributed import close_process_group
 from lead_s2r.training.feedback import fit_summary, run_loggers
 from lead_s2r.training.module import DrivingModule
 
@@ -133,6 +134,7 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
         if not configs:
             raise
         raise UserError(f"{err} (--config {', '.join(map(str, configs))})") from err
+    close_process_group()  # on success only: after a failure another rank may still wait in a collective
 
 
 def config_files(argv: list[str]) -> list[Path]:

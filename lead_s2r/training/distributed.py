@@ -1,4 +1,5 @@
-"""The one collective the evaluation callbacks need, a no-op outside distributed runs."""
+"""The one collective the evaluation callbacks need, and the end of a run's process group; no-ops outside
+distributed runs."""
 
 from typing import Any
 
@@ -12,3 +13,11 @@ def gather_lists(items: list[Any]) -> list[Any]:
     gathered: list[list[Any] | None] = [None] * dist.get_world_size()
     dist.all_gather_object(gathered, items)
     return [item for part in gathered for item in part or []]
+
+
+def close_process_group() -> None:
+    """Destroy the process group a finished run joined. Lightning does so only for NCCL; a gloo group (DDP on CPUs)
+    left to the interpreter's exit can abort the process (SIGABRT, "terminate called without an active exception":
+    its worker threads still hold tensors while Python is torn down), failing a run that trained to the end."""
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
