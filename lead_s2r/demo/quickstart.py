@@ -189,7 +189,6 @@ def score_expert(out: Path, caches: dict[str, ScoringCaches]) -> dict[str, Any]:
     results = {}
     for dataset, split in EVAL_SPLITS.items():
         data, run = out / "data" / dataset, run_folder(out, dataset, "expert", 0)
-        run.mkdir(parents=True, exist_ok=True)
         held_out = (s for s in read_samples(data, fields=["future"]) if s["meta"]["split"] == split)
         path = write_predictions(run / "predictions.parquet", [predict_human(s) for s in held_out])
         results[dataset] = score(path, data, dataset, run / "scores", caches[dataset])

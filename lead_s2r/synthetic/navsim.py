@@ -42,6 +42,7 @@ import numpy as np
 import shapely
 import yaml
 
+from lead_s2r.files import write_bytes, write_text
 from lead_s2r.geometry import homogeneous, rotate, to_local
 from lead_s2r.synthetic import navsim_camera, navsim_map, pedestrians_ahead
 
@@ -236,7 +237,7 @@ def render_camera(name: str, pose: np.ndarray, anns: dict[str, np.ndarray], rng:
 def write_jpeg(path: Path, image: np.ndarray) -> None:
     ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
     assert ok, path
-    path.write_bytes(data.tobytes())
+    write_bytes(path, data.tobytes())
 
 
 def write_pcd(path: Path, points: np.ndarray) -> None:
@@ -247,7 +248,7 @@ def write_pcd(path: Path, points: np.ndarray) -> None:
         f"FIELDS {' '.join(PCD_FIELDS)}\nSIZE 4 4 4 4 4 4\nTYPE F F F F F F\nCOUNT 1 1 1 1 1 1\n"
         f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
     )
-    path.write_bytes(header.encode("ascii") + points.astype("<f4").tobytes())
+    write_bytes(path, header.encode("ascii") + points.astype("<f4").tobytes())
 
 
 def lidar_points(rng: np.random.Generator) -> np.ndarray:
@@ -305,9 +306,6 @@ def write_log(
     ``navsim_logs`` and ``sensor_blobs`` folders of ``out``); return its frames."""
     logs = out / "navsim_logs" / DATA_SPLIT if logs is None else logs
     blobs = out / "sensor_blobs" / DATA_SPLIT if blobs is None else blobs
-    sensors = blobs / spec.name
-    for folder in [*CAMERAS, "MergedPointCloud"]:
-        (sensors / folder).mkdir(parents=True, exist_ok=True)
     states = ego_states(spec)
     poses, dynamics = states["poses"], states["dynamics"]
     stop = None if spec.brake_at is None else pedestrians_ahead.stopping_distance(spec.speed, spec.accel, spec.brake_at)
@@ -364,9 +362,7 @@ def write_log(
                 "flow_gt_final_path": None,
             }
         )
-    path = logs / f"{spec.name}.pkl"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(pickle.dumps(frames, protocol=pickle.HIGHEST_PROTOCOL))
+    write_bytes(logs / f"{spec.name}.pkl", pickle.dumps(frames, protocol=pickle.HIGHEST_PROTOCOL))
     return frames
 
 
@@ -391,8 +387,7 @@ def scene_filter(
 def write_scene_filter(path: Path, logs: dict[str, list[dict]]) -> None:
     """A NAVSIM SceneFilter yaml listing every scene of ``logs`` with a full history and future."""
     tokens = [frames[i]["token"] for frames in logs.values() for i in range(HISTORY - 1, FRAMES - FUTURE)]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(scene_filter(logs, tokens), sort_keys=False))
+    write_text(path, yaml.safe_dump(scene_filter(logs, tokens), sort_keys=False))
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from lead_s2r.files import write_bytes, write_text
 from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps
 from lead_s2r.synthetic import navsim, navsim_map
 
@@ -148,7 +149,6 @@ def synthetic_scene(
                 cameras[name.lower()] = {}
                 continue
             blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
-            (out / SPLIT / "sensor_blobs" / blob).parent.mkdir(parents=True, exist_ok=True)
             navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, navsim.render_camera(name, pose, anns, rng))
             cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
         frames.append(
@@ -191,9 +191,7 @@ def synthetic_scene(
         "extended_traffic_light_data": [traffic_light_statuses(f, t0_us + f * navsim.DT_US) for f in future],
         "extended_detections_tracks": [detections(agents, tokens, f, t0_us + f * navsim.DT_US) for f in future],
     }
-    path = out / SPLIT / "synthetic_scene_pickles" / f"{initial}.pkl"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(dumps(scene))
+    write_bytes(out / SPLIT / "synthetic_scene_pickles" / f"{initial}.pkl", dumps(scene))
     return initial
 
 
@@ -205,9 +203,7 @@ def write_configs(out: Path, logs: dict[str, list[dict]], mapping: list) -> None
     scene_filter["reactive_synthetic_initial_tokens"] = synthetic
     split = {"defaults": [{"scene_filter": SPLIT}], "data_split": SPLIT, "reactive_all_mapping": mapping}
     for folder, config in (("scene_filters", scene_filter), ("train_test_split", split)):
-        path = out / folder / f"{SPLIT}.yaml"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(yaml.safe_dump(config, sort_keys=False))
+        write_text(out / folder / f"{SPLIT}.yaml", yaml.safe_dump(config, sort_keys=False))
 
 
 def generate(out: Path, count: int | None = None, seed: int = 0) -> None:

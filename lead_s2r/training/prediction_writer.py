@@ -51,6 +51,5 @@ class PredictionWriter(BasePredictionWriter):
         predictions = gather_lists(self._predictions)
         if trainer.is_global_zero:
             output = self.output or Path(trainer.default_root_dir) / "predictions.parquet"
-            output.parent.mkdir(parents=True, exist_ok=True)
             write_predictions(output, drop_repeats(predictions))  # a padding sampler may repeat samples
         self._predictions = []
