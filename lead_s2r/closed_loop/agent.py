@@ -44,7 +44,6 @@ from lead_s2r.closed_loop.route import (
     estimate_geo_reference,
     gnss_to_world,
     road_option,
-    world_to_iso,
 )
 from lead_s2r.closed_loop.sensors import COMPASS, PoseReading, Rig, build_sample, sensor_specs
 from lead_s2r.data.collate import collate
@@ -55,7 +54,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.fields import check_fields
 from lead_s2r.files import write_text
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
-from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER
+from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, flip_y
 from lead_s2r.models.input_spec import InputSpec
 
 try:  # pragma: no cover - depends on the environment
@@ -245,12 +244,12 @@ class LeadS2RAgent(Base):
         self.reference = estimate_geo_reference(gnss, world)
         commands = [road_option(option) for _, option in self._global_plan_world_coord]
         self.navigator = TargetPoints(
-            world_to_iso(world), commands, self.config.adaptive_pop_distance, self.config.skip_distant_target_point
+            flip_y(world), commands, self.config.adaptive_pop_distance, self.config.skip_distant_target_point
         )
 
     def pose(self, reading: PoseReading) -> np.ndarray:
         """World ISO (x, y, yaw) of the vehicle centre from GNSS and compass, filtered when configured."""
-        xy = world_to_iso(gnss_to_world(reading.gnss[0], reading.gnss[1], self.reference))
+        xy = flip_y(gnss_to_world(reading.gnss[0], reading.gnss[1], self.reference))
         yaw = compass_to_yaw(float(reading.imu[COMPASS]))
         if self.position_filter is not None:
             xy = self.position_filter.step(np.r_[xy, yaw, reading.speed])[:2]

@@ -88,13 +88,6 @@ def compass_to_yaw(compass: float) -> float:
     return float(wrap_angle(math.pi / 2 - compass))
 
 
-def world_to_iso(points: np.ndarray) -> np.ndarray:
-    """CARLA world (x, y-right) -> world ISO (x, y-left)."""
-    out = np.array(points, np.float64, copy=True)
-    out[..., 1] = -out[..., 1]
-    return out
-
-
 class PositionFilter:
     """filterpy's unscented Kalman filter on (x, y, yaw, speed) with LEAD's noise settings; yaw residuals wrap."""
 
