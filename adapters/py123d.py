@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from lead_s2r.formats.carla_rig import ROAD_OPTION
+from lead_s2r.formats.lead_route import RoutePlanner, previous_current_next
 from lead_s2r.geometry import points_to_local
 from lead_s2r.registry import Adapter, LogRef
 from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
@@ -38,7 +39,9 @@ class Py123dAdapter(Adapter):
     """
 
     name: ClassVar[str] = "py123d"
-    version: ClassVar[str] = "1"
+    #: 2: LEAD's target points popped exactly as LEAD pops them (formats.lead_route: from the second point, the
+    #: look-ahead ending after the point that passes 50 m; every consecutive duplicate merged)
+    version: ClassVar[str] = "2"
     extras: ClassVar[str | None] = "py123d"
 
     def __init__(
@@ -139,12 +142,13 @@ class _Builder:
         poses = self.data.pose2d[self.data.valid]
         route = py123d_lead.centre_path(poses, offset)
         points, options = py123d_lead.sparse_plan(route, py123d_lead.road_options(route), self.adapter.plan_spacing)
-        planner = py123d_lead.RoutePlanner(points, options, self.adapter.tp_distance)
-        out = []
+        planner = RoutePlanner(points, options, self.adapter.tp_distance)
+        route, out = list(planner.route), []
         for pose, valid in zip(self.data.pose2d, self.data.valid, strict=True):
             if valid:  # an iteration without an ego state has no sample and must not move the planner
-                planner.step(pose[:2] + offset * np.array([np.cos(pose[2]), np.sin(pose[2])]))
-            out.append(planner.targets(pose))
+                route = planner.step(pose[:2] + offset * np.array([np.cos(pose[2]), np.sin(pose[2])]))
+            targets, commands = previous_current_next(route)
+            out.append((points_to_local(targets, pose).astype(np.float32), commands[0]))
         return out
 
     def sample(self, i: int) -> dict[str, Any]:

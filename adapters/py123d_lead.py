@@ -17,15 +17,15 @@ LEAD's expert (``lead/expert/expert_py123d.py``) writes logs of dataset ``carla`
 LEAD's logs carry no target points and no command, and their route is py123d's driven path of the IMU (rear
 axle). LEAD's planner tracks the vehicle *centre* along a plan of centre positions, so :func:`centre_path` rebuilds
 the driven path of the centre (one point a metre); :func:`road_options` and :func:`sparse_plan` label and thin it
-the way CARLA's planner and the leaderboard's ``downsample_route`` do, and :class:`RoutePlanner` pops it the way
-LEAD's ``RoutePlanner.run_step`` does (facts: closed_loop_and_submissions.md §2.4).
+the way CARLA's planner and the leaderboard's ``downsample_route`` do, and LEAD's planner
+(:mod:`lead_s2r.formats.lead_route`, the closed-loop agent's too) pops it.
 """
 
 from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import points_to_local, rotate
+from lead_s2r.geometry import rotate
 
 LEAD_DATASETS = ("carla", "lead123d")
 LEAD_VEHICLE = "carla_lincoln_mkz_2020"
@@ -99,40 +99,3 @@ def sparse_plan(route: np.ndarray, options: np.ndarray, spacing: float) -> tuple
         else:
             travelled += float(np.hypot(*(route[k] - route[k - 1])))
     return route[keep], options[keep]
-
-
-class RoutePlanner:
-    """LEAD's ``RoutePlanner.run_step``: walk the remaining plan until ``max_distance`` of path; among those
-    points take the one farthest from the ego that is still within ``min_distance`` and pop everything before it
-    (at least two points stay)."""
-
-    def __init__(self, points: np.ndarray, options: np.ndarray, min_distance: float, max_distance: float = 50.0):
-        self.points, self.options = points, options
-        self.min_distance, self.max_distance = min_distance, max_distance
-
-    def step(self, position: np.ndarray) -> None:
-        if len(self.points) <= 2:
-            return
-        pop, farthest, length = 0, -np.inf, 0.0
-        for k in range(len(self.points)):
-            if k > 0:
-                length += float(np.hypot(*(self.points[k] - self.points[k - 1])))
-                if length > self.max_distance:
-                    break
-            distance = float(np.hypot(*(self.points[k] - position)))
-            if farthest < distance <= self.min_distance:
-                pop, farthest = k, distance
-        cut = min(pop, len(self.points) - 2)
-        self.points, self.options = self.points[cut:], self.options[cut:]
-
-    def targets(self, origin: np.ndarray) -> tuple[np.ndarray, int]:
-        """Previous, current and next target point in the frame of ``origin`` (x, y, yaw), consecutive duplicates
-        merged, and the RoadOption of the previous one (the command LEAD feeds its model)."""
-        points = self.points[:3]
-        if len(points) > 2 and np.allclose(points[1], points[2]):
-            points = points[:2]
-        if len(points) == 2:
-            points = np.vstack([points, points[1:]])
-        rows = np.full((3, 2), np.nan)
-        rows[: len(points)] = points_to_local(points, origin)
-        return rows.astype(np.float32), int(self.options[0])

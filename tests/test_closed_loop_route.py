@@ -13,7 +13,6 @@ from lead_s2r.closed_loop.route import (
     compass_to_yaw,
     estimate_geo_reference,
     gnss_to_world,
-    merge_duplicates,
 )
 
 
@@ -83,9 +82,3 @@ def test_target_points_are_in_the_iso_ego_frame():
     navigator = TargetPoints(np.array([[0.0, 0.0], [0.0, 10.0], [10.0, 10.0]]), [4, 1, 4], adaptive=False)
     navigation = navigator.step(np.array([0.0, 0.0, math.pi / 2]))
     np.testing.assert_allclose(navigation.target_points, [[AXLE, 0], [10 + AXLE, 0], [10 + AXLE, -10]], atol=1e-5)
-
-
-def test_consecutive_duplicates_merge_unless_two_remain():
-    p, q = np.array([1.0, 2.0]), np.array([5.0, 2.0])
-    assert [c for _, c in merge_duplicates([(p, 4), (p.copy(), 1), (q, 2)])] == [4, 2]
-    assert len(merge_duplicates([(p, 4), (p.copy(), 1)])) == 2

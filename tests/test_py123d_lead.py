@@ -128,22 +128,6 @@ def test_lead_logs_are_recognised_by_their_metadata() -> None:
         Py123dAdapter(lead="maybe")
 
 
-def test_route_planner_pops_like_leads() -> None:
-    points = np.array([[0.0, 0.0], [4.0, 0.0], [6.0, 0.0], [20.0, 0.0], [90.0, 0.0]])
-    options = np.array([4, 1, 1, 4, 4])
-    planner = py123d_lead.RoutePlanner(points, options, min_distance=5.0)
-    planner.step(np.array([1.0, 0.0]))  # within 5 m: points 0 (1 m), 1 (3 m), 2 (5 m) -> the farthest is 2
-    assert planner.points[0].tolist() == [6.0, 0.0]
-    targets, command = planner.targets(np.array([1.0, 0.0, 0.0]))
-    assert targets.tolist() == [[5.0, 0.0], [19.0, 0.0], [89.0, 0.0]] and command == 1
-    planner.step(np.array([100.0, 0.0]))  # nothing within reach: keeps at least two points
-    planner.step(np.array([19.0, 0.0]))
-    assert len(planner.points) == 2
-    targets, command = planner.targets(np.array([19.0, 0.0, np.pi / 2]))
-    np.testing.assert_allclose(targets, [[0.0, -1.0], [0.0, -71.0], [0.0, -71.0]], atol=1e-9)
-    assert command == 4
-
-
 def test_road_options_and_sparse_plan_of_a_left_turn() -> None:
     drive = lead.make_drive("left", 200, np.random.default_rng(0))
     route = synth.iso(drive.path[::10])[:, :2]  # a point a metre

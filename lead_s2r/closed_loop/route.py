@@ -17,11 +17,11 @@ centre, where the GNSS sits. Target points come out in the ISO rear-axle ego fra
 """
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
+from lead_s2r.formats.lead_route import RoutePlanner, previous_current_next
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, centre_points_to_rear_axle, points_to_local, wrap_angle
 
 #: CARLA's ``EARTH_RADIUS_EQUA`` (LibCarla ``GeoLocation.cpp``), metres.
@@ -31,8 +31,6 @@ GEO_REFERENCE_ITERATIONS = 8
 #: ``route_planner_min_distance`` of LEAD's sensor agent, and the planner used when target points are dense.
 POP_DISTANCE = 5.0
 DENSE_POP_DISTANCE = 4.0
-#: The planner only looks this far (path length) down the route when popping.
-MAX_LOOK_DISTANCE = 50.0
 #: Target points closer than this to each other and to the ego count as dense (``sensor_agent_pop_distance_adaptive``).
 DENSE_DISTANCE = 10.0
 #: A next target point farther than this is replaced by the current one (``sensor_agent_skip_distant_target_point``).
@@ -144,34 +142,6 @@ def _mean(sigmas: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return out
 
 
-class RoutePlanner:
-    """LEAD's popping rule over the sparse plan: among the points within ``MAX_LOOK_DISTANCE`` of path, pop every
-    point before the farthest one that lies within ``min_distance`` of the ego; at least 2 points always stay."""
-
-    def __init__(self, points: np.ndarray, commands: list[int], min_distance: float) -> None:
-        if len(points) != len(commands) or not len(points):
-            raise ValueError(f"a route needs one command per point and at least one point; got {len(points)} points"
-                             f" and {len(commands)} commands")  # fmt: skip
-        self.route = deque(zip(np.asarray(points, np.float64)[:, :2], commands, strict=True))
-        self.min_distance = min_distance
-
-    def step(self, position: np.ndarray) -> list[tuple[np.ndarray, int]]:
-        """The remaining route after popping for the ego at ``position`` (world ISO x, y)."""
-        if len(self.route) > 2:
-            pop, farthest, path = 0, -math.inf, 0.0
-            for i in range(1, len(self.route)):
-                if path > MAX_LOOK_DISTANCE:
-                    break
-                path += float(np.linalg.norm(self.route[i][0] - self.route[i - 1][0]))
-                distance = float(np.linalg.norm(self.route[i][0] - position[:2]))
-                if farthest < distance <= self.min_distance:
-                    pop, farthest = i, distance
-            for _ in range(pop):
-                if len(self.route) > 2:
-                    self.route.popleft()
-        return list(self.route)
-
-
 @dataclass(frozen=True)
 class Navigation:
     """Previous / current / next target point (3, 2) in the ISO rear-axle ego frame, and the RoadOptions of the
@@ -180,25 +150,6 @@ class Navigation:
     target_points: np.ndarray
     command: int
     next_command: int
-
-
-def merge_duplicates(route: list[tuple[np.ndarray, int]]) -> list[tuple[np.ndarray, int]]:
-    """Drop a point equal (``np.allclose``) to the one before it, unless only 2 remain."""
-    if len(route) <= 2:
-        return route
-    merged = [route[0]]
-    for point, command in route[1:]:
-        if not np.allclose(point, merged[-1][0]):
-            merged.append((point, command))
-    return merged
-
-
-def _select(route: list[tuple[np.ndarray, int]], pose: np.ndarray) -> tuple[np.ndarray, list[int]]:
-    """(3, 2) previous / current / next in the vehicle-centre ISO ego frame, and their commands."""
-    route = merge_duplicates(route)
-    chosen = [route[0], route[1], route[2]] if len(route) > 2 else [route[0], route[-1], route[-1]]
-    points = points_to_local(np.array([p for p, _ in chosen]), pose)
-    return points, [c for _, c in chosen]
 
 
 def dense(points: np.ndarray) -> bool:
@@ -227,9 +178,11 @@ class TargetPoints:
     def step(self, pose: np.ndarray) -> Navigation:
         """Navigation for the ego at world ISO ``pose`` (x, y, yaw) of its vehicle centre."""
         route, dense_route = self.planner.step(pose), self.dense_planner.step(pose)
-        points, commands = _select(route, pose)
+        points, commands = previous_current_next(route)
+        points = points_to_local(points, pose)
         if self.adaptive and dense(points):
-            points, commands = _select(dense_route, pose)
+            points, commands = previous_current_next(dense_route)
+            points = points_to_local(points, pose)
         if self.skip_distant and np.linalg.norm(points[2]) > DISTANT_NEXT:
             points[2] = points[1]
         target_points = centre_points_to_rear_axle(points, CARLA_REAR_AXLE_TO_CENTER)
