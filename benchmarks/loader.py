@@ -36,10 +36,9 @@ checked against ours on one frame.
 Within a round the loaders of a kind take turns: ``--slices`` turns (24), in each of which every loader (plain
 decoding, ours, ours for the GPU, then back) runs for ``--slice-seconds`` of CPU time (0.1 s), so each gets the same
 CPU time, 2.4 s a round, and a change in the shared machine's load weighs on every side of a ratio alike
-(docs/benchmarks.md, "Fifth round" and "Sixth round"). Before, a round was 320 samples a loader, a third of a second
-for WOD-E2E's plain decoding cut into 8 slices, and that ratio spread by 28-44% over the rounds; 8 turns of 0.25 s
-still spread it by 47%, 24 turns of 0.1 s by 4%. Every loader is one stream that the rounds go on with: plain
-decoding cycles over the shards, ours is one long epoch. The process's Python heap is frozen before the first round
+(docs/benchmarks.md, "Fifth round" and "Sixth round": 24 turns of 0.1 s spread the ratios over the rounds by 4%, a
+round of 320 samples a loader by up to 44%). Every loader is one stream that the rounds go on with: plain decoding
+cycles over the shards, ours is one long epoch. The process's Python heap is frozen before the first round
 (``gc.freeze``, as the loader's workers do) and collected before every slice: otherwise the occasional full
 collection over the half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in
 whichever pass is running (docs/benchmarks.md, "Third round").
