@@ -59,7 +59,6 @@ class Observation:
     radius: np.ndarray  # (G,)
     step_offsets: np.ndarray  # (S + 1,) geometries of step s are [step_offsets[s], step_offsets[s + 1])
     step_geoms: np.ndarray  # (S, Gmax) geometry index, -1 pads
-    object_class: np.ndarray  # (O,) BoxClass codes (-1 for red lights)
     object_is_agent: np.ndarray  # (O,) nuPlan Agent (moving kind) rather than static object
     object_speed: np.ndarray  # (O,) speed at the first appearance
     object_is_red_light: np.ndarray  # (O,)
@@ -202,7 +201,6 @@ def dense_observation(
         radius=_enclosing_radius(polygons, centroids),
         step_offsets=step_offsets,
         step_geoms=step_geoms,
-        object_class=np.concatenate([np.asarray(agent_class, np.int64), np.full(num_red, -1)]),
         object_is_agent=np.concatenate([is_agent, np.zeros(num_red, bool)]),
         object_speed=np.concatenate([np.hypot(first_velocity[:, 0], first_velocity[:, 1]), np.zeros(num_red)]),
         object_is_red_light=np.concatenate([np.zeros(num_tracks, bool), np.ones(num_red, bool)]),
