@@ -36,10 +36,9 @@ checked against ours on one frame.
 Within a round the loaders of a kind take turns: ``--slices`` turns (24), in each of which every loader (plain
 decoding, ours, ours for the GPU, then back) runs for ``--slice-seconds`` of CPU time (0.1 s), so each gets the same
 CPU time, 2.4 s a round, and a change in the shared machine's load weighs on every side of a ratio alike
-(docs/benchmarks.md, "Fifth round" and "Sixth round"). Before, a round was 320 samples a loader, a third of a second
-for WOD-E2E's plain decoding cut into 8 slices, and that ratio spread by 28-44% over the rounds; 8 turns of 0.25 s
-still spread it by 47%, 24 turns of 0.1 s by 4%. Every loader is one stream that the rounds go on with: plain
-decoding cycles over the shards, ours is one long epoch. The process's Python heap is frozen before the first round
+(docs/benchmarks.md, "Fifth round" and "Sixth round": 24 turns of 0.1 s spread the ratios over the rounds by 4%, a
+round of 320 samples a loader by up to 44%). Every loader is one stream that the rounds go on with: plain decoding
+cycles over the shards, ours is one long epoch. The process's Python heap is frozen before the first round
 (``gc.freeze``, as the loader's workers do) and collected before every slice: otherwise the occasional full
 collection over the half a million objects torch, Lightning and the generated data leave (0.2 s of CPU) lands in
 whichever pass is running (docs/benchmarks.md, "Third round").
@@ -144,12 +143,10 @@ class Timing:
             samples += size
             if time.process_time() - cpu >= cpu_budget:
                 break
-        self.samples, self.wall, self.cpu, self.waiting = (
-            self.samples + samples,
-            self.wall + time.perf_counter() - wall,
-            self.cpu + time.process_time() - cpu,
-            self.waiting + _run_delay() - waiting,
-        )
+        self.samples += samples
+        self.wall += time.perf_counter() - wall
+        self.cpu += time.process_time() - cpu
+        self.waiting += _run_delay() - waiting
 
 
 def _run_delay() -> float:
@@ -231,7 +228,7 @@ def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Iterato
         check_agreement(data, LeadStyleFrames(raw), SourceTransform("carla", config))
         for name, views in ((LEAD_BOTH, 2), (LEAD_ONE, 1)):
             lead = DataLoader(LeadStyleFrames(raw, views), args.batch_size, shuffle=True, num_workers=0)
-            runs[name] = (len(batch["key"]) for batch in _forever(lead))
+            runs[name] = (len(batch["key"]) for batch in itertools.chain.from_iterable(itertools.repeat(lead)))
     return runs
 
 
@@ -283,7 +280,8 @@ def main() -> None:
     parser.add_argument("--kinds", nargs="+", default=["realistic", "navsim", "wod"], choices=list(KINDS))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; CPUs usable: {_cpus()}")
+    cpus = len(os.sched_getaffinity(0))
+    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; CPUs usable: {cpus}")
     with tempfile.TemporaryDirectory() as tmp:
         runs = {kind: loaders(kind, Path(tmp), args) for kind in args.kinds}
         timings: dict[tuple[str, str], list[Timing]] = {(k, n): [] for k, per in runs.items() for n in per}
@@ -338,10 +336,6 @@ def _ratio(ours: list[Timing], plain: list[Timing], rate: Callable[[Timing], flo
     return f"{statistics.median(ratios):.2f}x (spread {max(ratios) / min(ratios) - 1:.0%})"
 
 
-def _cpus() -> int:
-    return len(os.sched_getaffinity(0))
-
-
 def _samples(data: Path) -> Iterator[dict[str, Any]]:
     """Every sample of the shards, every field decoded, over and over (a ``read_samples`` call per pass)."""
     return itertools.chain.from_iterable(read_samples(data) for _ in itertools.count())
@@ -358,11 +352,6 @@ def _decode_jpegs(sample: dict[str, Any]) -> int:
         if name.startswith("cam_"):
             cv2.imdecode(np.frombuffer(value, np.uint8), cv2.IMREAD_COLOR)
     return 1
-
-
-def _forever(loader: DataLoader):
-    while True:
-        yield from loader
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import psutil
-from convert_carla_lead import machine_parallelism  # (benchmarks/ is the script's folder)
+from convert_throughput import machine_parallelism  # (benchmarks/ is the script's folder)
 
 from lead_s2r.convert import convert
 from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, RayExecutor

@@ -282,23 +282,21 @@ def test_drivable_map_ignores_roadblock_connectors_and_walkways() -> None:
     assert scores["drivable_area_compliance"][0] == 0.0  # lanes alone are not drivable area
 
 
-def test_dense_observation_red_lights_and_ignored_tracks_never_count() -> None:
-    """PDM-Closed's forecasts: a red-light polygon across the lane and a stopped car the ego overlapped at t0 are
-    skipped by NC and TTC; the same car, not ignored, is a collision."""
+def test_dense_observation_red_lights_never_count() -> None:
+    """PDM-Closed's forecasts: a red-light polygon across the lane is skipped by NC and TTC; a stopped car beyond it
+    is a collision."""
     scene = road_scene()
     poses = np.zeros((1, 51, 3))
     poses[0, :, 0] = 20.0
-    boxes = dict(velocity=np.zeros((1, 51, 2)), valid=np.ones((1, 51), bool), size=[[4.8, 2.0, 1.6]])
+    boxes = dict(velocity=np.zeros((1, 51, 2)), size=[[4.8, 2.0, 1.6]], agent_class=[BoxClass.VEHICLE])
     red = [[shapely.box(10.0, -1.75, 12.0, 1.75)]] * 51
     path = drive(10.0 * TIMES)
-    for ignored, expected in (([True], 1.0), ([False], 0.0)):
-        observation = dense_observation(
-            poses, agent_class=[BoxClass.VEHICLE], red_light_polygons=red, initially_ignored=np.array(ignored), **boxes
-        )
+    for car, expected in ((False, 1.0), (True, 0.0)):
+        observation = dense_observation(poses, valid=np.full((1, 51), car), red_light_polygons=red, **boxes)
         scores = score_states(scene, path, observation, ep_reference=None)
         assert scores["no_at_fault_collisions"][0] == expected
         assert scores["time_to_collision_within_bound"][0] == expected
-    assert len(observation.tree(7).query(shapely.box(9.0, -1.0, 25.0, 1.0))) == 2  # the light and the car
+    assert np.diff(observation.step_offsets).tolist() == [2] * 51  # the light and the car at every step
 
 
 def test_log_observation_reads_keyframes_up_to_its_horizon() -> None:

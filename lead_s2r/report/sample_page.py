@@ -132,10 +132,9 @@ def draw_sample(sample: dict[str, Any], runs: dict[str, RunOutputs], site: Path,
     """Write the BEV and forward-camera PNGs of ``sample`` under ``site/img`` as ``<stem>_*.png``; return
     ``(caption, relative path)`` of each."""
     drawn = trajectories(sample, runs)
-    images = []
     path = f"img/{stem}_bev.png"
     save_figure(bev_figure(sample, drawn, title=sample["__key__"]), site / path)
-    images.append(("bird's-eye view (ego frame: forward up, left left)", path))
+    images = [("bird's-eye view (ego frame: forward up, left left)", path)]
     for camera in forward_cameras(sample):
         name = camera.get("tile_name", camera["id"])
         path = f"img/{stem}_cam_{name}.png"

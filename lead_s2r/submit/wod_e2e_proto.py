@@ -38,5 +38,3 @@ _MESSAGES: dict[str, list[Field]] = {
 
 _CLASSES = message_classes("lead_s2r/wod_e2e_submission.proto", "lead_s2r.wod_e2e_submission", _MESSAGES)
 E2EDChallengeSubmission = _CLASSES["E2EDChallengeSubmission"]
-FrameTrajectoryPredictions = _CLASSES["FrameTrajectoryPredictions"]
-TrajectoryPrediction = _CLASSES["TrajectoryPrediction"]

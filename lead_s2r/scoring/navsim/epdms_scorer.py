@@ -20,7 +20,6 @@ closed-loop weights and the ``extended_pdm_score_stage_one`` / ``_stage_two`` / 
 NAVSIM's two-stage run simulates reactive IDM traffic, this scorer replays the log (``config.known_difference``).
 """
 
-import csv
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from itertools import pairwise
@@ -37,7 +36,7 @@ from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
-from lead_s2r.scoring.navsim.pdms_scorer import EXTRA_COLUMNS, PDMSScorer
+from lead_s2r.scoring.navsim.pdms_scorer import EXTRA_COLUMNS, PDMSScorer, write_csv
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
 from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, frame_of
 from lead_s2r.scoring.pdm import epdms
@@ -214,7 +213,5 @@ class EPDMSScorer(PDMSScorer):
         """``navsim_epdms.csv`` (one stage) or ``navsim_epdms_two_stage.csv`` (NAVSIM's two-stage layout)."""
         if self.two_stage_result is None:
             return super().write_files(result, out)
-        header, rows = navhard.csv_table(self.two_stage_result)
-        with open(Path(out) / navhard.CSV_NAME, "w", newline="") as file:
-            csv.writer(file).writerows([header, *rows])
+        write_csv(Path(out) / navhard.CSV_NAME, *navhard.csv_table(self.two_stage_result))
         return None

@@ -14,6 +14,7 @@ order, then the ``average`` row), so it diffs cleanly against an official CSV.
 """
 
 import csv
+import io
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, ClassVar
@@ -21,6 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pyarrow as pa
 
+from lead_s2r.files import write_text
 from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
@@ -119,16 +121,22 @@ class PDMSScorer(Scorer):
         """``navsim_pdms.csv``: NAVSIM v1.1's CSV layout (see the module docstring)."""
         rows = result.table.to_pylist()
         columns = self.csv_columns
-        with open(Path(out) / self.csv_name, "w", newline="") as file:
-            writer = csv.writer(file)
-            writer.writerow(["", "token", "valid", *columns])
-            for index, row in enumerate(rows):
-                writer.writerow([index, row["token"], row["valid"], *(csv_number(row[name]) for name in columns)])
-            means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in columns]
-            valid = all(row["valid"] for row in rows)
-            writer.writerow([len(rows), self.average_token, valid, *(csv_number(value) for value in means)])
+        means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in columns]
+        body = [[str(i), row["token"], row["valid"], *(row[name] for name in columns)] for i, row in enumerate(rows)]
+        body.append([str(len(rows)), self.average_token, all(row["valid"] for row in rows), *means])
+        write_csv(Path(out) / self.csv_name, ["", "token", "valid", *columns], body)
 
 
-def csv_number(value: float | None) -> str:
-    """pandas' CSV spelling of a float, as NAVSIM's CSVs have it: its repr, empty for NaN / missing."""
-    return "" if value is None or not np.isfinite(value) else repr(float(value))
+def write_csv(path: Path, header: list[str], rows: list[list[Any]]) -> None:
+    """A CSV laid out as NAVSIM's (pandas': ``\\r\\n`` line ends, cells by :func:`csv_cell`), put in place whole."""
+    text = io.StringIO()
+    csv.writer(text).writerows([header, *([csv_cell(cell) for cell in row] for row in rows)])
+    write_text(path, text.getvalue())
+
+
+def csv_cell(value: object) -> str:
+    """pandas' CSV spelling of a cell, as NAVSIM's CSVs have it: a string or bool as it is, a float by its repr, empty
+    for NaN / missing."""
+    if isinstance(value, str | bool):
+        return str(value)
+    return "" if value is None or not np.isfinite(value) else repr(float(value))  # type: ignore[arg-type]

@@ -2,14 +2,14 @@
 NAVSIM's input grid, the scene (or why there is none), and PDM-Closed's reference (planned once per scene and
 cached)."""
 
+import io
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lead_s2r.files import write_atomically
+from lead_s2r.files import write_bytes
 from lead_s2r.geometry import resample
 from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError, most_probable
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
@@ -104,12 +104,8 @@ class ReferenceCache:
         else:
             reference = plan_reference(scene)
             if path is not None:
-                write_atomically(path, partial(_save_npy, reference))
+                buffer = io.BytesIO()
+                np.save(buffer, reference)
+                write_bytes(path, buffer.getvalue())
         self.memory[key] = reference
         return reference
-
-
-def _save_npy(array: np.ndarray, path: Path) -> None:
-    """``np.save`` to exactly ``path`` (given a name, np.save appends ``.npy`` to it)."""
-    with open(path, "wb") as file:
-        np.save(file, array)

@@ -30,7 +30,6 @@ from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
 from lead_s2r.schema import navsim_scene_token
-from lead_s2r.scoring.navsim.pdms_scorer import csv_number
 from lead_s2r.scoring.pdm import epdms, two_stage
 from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS
 
@@ -127,14 +126,9 @@ def summaries(result: two_stage.TwoStageResult) -> dict[str, Any]:
     }
 
 
-def csv_table(result: two_stage.TwoStageResult) -> tuple[list[str], list[list[str]]]:
-    """NAVSIM's two-stage CSV (``navsim_csv_rows``) as a header and rows of strings: pandas' index column first,
-    NaN written empty."""
+def csv_table(result: two_stage.TwoStageResult) -> tuple[list[str], list[list[Any]]]:
+    """NAVSIM's two-stage CSV (``navsim_csv_rows``) as a header and rows for :func:`write_csv`: pandas' index column
+    first."""
     rows = two_stage.navsim_csv_rows(result)
     header = list(rows[0])
-    body = [[str(index), *(_cell(row[name]) for name in header)] for index, row in enumerate(rows)]
-    return ["", *header], body
-
-
-def _cell(value: object) -> str:
-    return str(value) if isinstance(value, bool | str) else csv_number(value)  # type: ignore[arg-type]
+    return ["", *header], [[str(index), *(row[name] for name in header)] for index, row in enumerate(rows)]

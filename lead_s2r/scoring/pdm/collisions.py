@@ -20,9 +20,9 @@ overlap with the same object". Official behaviours reproduced on purpose:
   while the ego is in MULTIPLE_LANES, NON_DRIVABLE_AREA or has its rear axle inside an INTERSECTION. TTC's ignore
   list is its own (NC's does not carry over).
 * NAVSIM queries an STRtree per step with predicate "intersects"; here candidate pairs come from overlapping
-  enclosing circles (a superset of the intersecting pairs), red lights and ignored objects are dropped (NC and TTC
-  skip them), and the separating-axis test decides, GEOS ``intersects`` where floats cannot (``overlap``), so the
-  pairs are the same and polygons are built only for the few pairs that touch within rounding.
+  enclosing circles (a superset of the intersecting pairs), red lights are dropped (NC and TTC skip them), and the
+  separating-axis test decides, GEOS ``intersects`` where floats cannot (``overlap``), so the pairs are the same
+  and polygons are built only for the few pairs that touch within rounding.
 * The relative angle is ``arccos`` of the dot product without clipping; a centroid exactly at the rear axle gives
   NaN, which is neither ahead nor behind.
 """
@@ -103,8 +103,7 @@ def find_hits(
     ``(n, 5, 2)`` corners and centre of the queries asked for: only those with a candidate geometry are built, and
     polygons only for the pairs floats cannot decide. The pairs come in no particular order."""
     query, geom = candidate_pairs(observation, x, y, obs_steps, radius)
-    obj = observation.objects[geom]
-    usable = ~observation.object_is_red_light[obj] & ~observation.initially_ignored[obj]
+    usable = ~observation.object_is_red_light[observation.objects[geom]]
     query, geom = query[usable], geom[usable]
     coords = boxes(query)
 
@@ -167,7 +166,7 @@ def enclosing_radius(length: float, width: float) -> float:
 
 def step_hits(ego_coords: np.ndarray, ego_radius: float, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
     """``(query, geometry)`` pairs where the ego box of (row, step), query ``step * N + row``, intersects a geometry
-    of the observation at its own step (red lights and initially ignored objects left out), for boxes ``(N, T, 5,
+    of the observation at its own step (red lights left out), for boxes ``(N, T, 5,
     2)`` of enclosing radius ``ego_radius``: NC's overlaps, and TTC's at offset 0 (the same boxes and steps)."""
     num_rows, num_steps = ego_coords.shape[:2]
     centers = ego_coords[:, :, Corner.CENTER].transpose(2, 1, 0)  # (2, T, N): a step's rows side by side

@@ -12,7 +12,7 @@ behaviours reproduced on purpose:
 * The box size is the first sighting's; static classes (cone, barrier, sign, generic object) carry zero velocity.
 * The object a collision is classified with (nuPlan's ``unique_objects``) is the track's *first* 10 Hz appearance:
   the "track stopped" test of NC reads the speed there, not the speed at the time of the collision.
-* Red-light pseudo-objects (EPDMS, PDM-Closed) live in the same per-step trees and are skipped by NC and TTC.
+* Red-light pseudo-objects (EPDMS, PDM-Closed) live among the same per-step boxes and are skipped by NC and TTC.
 
 Constants: v1.1 keyframes every 0.5 s up to 5 s, 51 steps of 0.1 s (TTC looks 0.9 s past the 4 s horizon).
 v2.2 reads the 9 keyframes up to 4 s and builds 41 steps (``extend_observation_for_ttc=False``), and its log replay
@@ -20,14 +20,13 @@ v2.2 reads the 9 keyframes up to 4 s and builds 41 steps (``extend_observation_f
 at t0 (its step-0 box, so a track seen once at a later keyframe counts with that box). v1.1 removes nothing.
 
 NAVSIM keeps one STRtree per step; NC and TTC here find candidate pairs by enclosing circles instead (see
-``collisions``), and :meth:`Observation.tree` builds a step's STRtree on demand for other searches.
+``collisions``).
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from shapely import STRtree
 
 from lead_s2r.schema import BoxClass
 from lead_s2r.scoring.pdm.footprint import box_coords, box_polygons
@@ -60,22 +59,13 @@ class Observation:
     radius: np.ndarray  # (G,)
     step_offsets: np.ndarray  # (S + 1,) geometries of step s are [step_offsets[s], step_offsets[s + 1])
     step_geoms: np.ndarray  # (S, Gmax) geometry index, -1 pads
-    object_class: np.ndarray  # (O,) BoxClass codes (-1 for red lights)
     object_is_agent: np.ndarray  # (O,) nuPlan Agent (moving kind) rather than static object
     object_speed: np.ndarray  # (O,) speed at the first appearance
     object_is_red_light: np.ndarray  # (O,)
-    initially_ignored: np.ndarray  # (O,) objects NC and TTC ignore from the start (PDM-Closed's collided tracks)
-    trees: dict[int, STRtree] = field(default_factory=dict, repr=False)
 
     @property
     def num_steps(self) -> int:
         return len(self.step_offsets) - 1
-
-    def tree(self, step: int) -> STRtree:
-        """An STRtree over the polygons of ``step`` (built on first use), for callers that search the boxes."""
-        if step not in self.trees:
-            self.trees[step] = STRtree(self.polygons[self.step_offsets[step] : self.step_offsets[step + 1]])
-        return self.trees[step]
 
 
 def interpolate_track(times: np.ndarray, states: np.ndarray, query_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -175,12 +165,10 @@ def dense_observation(
     size: np.ndarray,
     agent_class: np.ndarray,
     red_light_polygons: list[list[shapely.Polygon]] | None = None,
-    initially_ignored: np.ndarray | None = None,
 ) -> Observation:
     """Boxes at every 10 Hz step: centre poses ``(M, S, 3)``, velocity ``(M, S, 2)``, valid ``(M, S)``, size ``(M, 3)``
     (length, width, height), ``BoxClass`` codes ``(M,)``. ``red_light_polygons[s]`` are step ``s``'s red-light
-    pseudo-objects; ``initially_ignored (M,)`` marks tracks NC and TTC never count (PDM-Closed ignores the tracks its
-    ego overlaps at t0)."""
+    pseudo-objects."""
     num_tracks, num_steps = valid.shape
     size = np.asarray(size, np.float64).reshape(num_tracks, 3)
     coords = box_coords(poses[..., :2], poses[..., 2], size[:, None, 0], size[:, None, 1])
@@ -202,7 +190,6 @@ def dense_observation(
     first = np.argmax(valid, axis=1)
     first_velocity = velocity[np.arange(num_tracks), first] if num_steps else np.zeros((num_tracks, 2))
     is_agent = np.isin(agent_class, AGENT_CLASSES)
-    ignored = np.zeros(num_tracks, bool) if initially_ignored is None else np.asarray(initially_ignored, bool)
     centroids = shapely.get_coordinates(shapely.centroid(polygons)).reshape(-1, 2)
     step_offsets, step_geoms = _step_layout(step_of, num_steps)
     return Observation(
@@ -214,9 +201,7 @@ def dense_observation(
         radius=_enclosing_radius(polygons, centroids),
         step_offsets=step_offsets,
         step_geoms=step_geoms,
-        object_class=np.concatenate([np.asarray(agent_class, np.int64), np.full(num_red, -1)]),
         object_is_agent=np.concatenate([is_agent, np.zeros(num_red, bool)]),
         object_speed=np.concatenate([np.hypot(first_velocity[:, 0], first_velocity[:, 1]), np.zeros(num_red)]),
         object_is_red_light=np.concatenate([np.zeros(num_tracks, bool), np.ones(num_red, bool)]),
-        initially_ignored=np.concatenate([ignored, np.zeros(num_red, bool)]),
     )

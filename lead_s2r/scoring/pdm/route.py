@@ -358,19 +358,16 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
 
 @dataclass
 class Route:
-    """What PDM-Closed derives from the route: corrected roadblocks, their lanes, the start lane, the centreline."""
+    """PDM-Closed's route as a scene takes it: the corrected roadblocks' lanes, the centreline from the start lane."""
 
-    roadblock_ids: list[int]
     lane_ids: list[int]
-    start_lane: int
     centerline: np.ndarray  # (L, 3)
     speed_limit: float  # of the start lane; NaN where the map has none
 
 
-def plan_route(graph: LaneGraph, route_ids: Sequence[int], pose: np.ndarray | None = None) -> Route:
-    """Route correction, start lane and Dijkstra centreline for an ego at the rear-axle ``pose`` (default: the
-    origin of the ego frame)."""
-    pose = np.zeros(3) if pose is None else np.asarray(pose, np.float64)
+def plan_route(graph: LaneGraph, route_ids: Sequence[int]) -> Route:
+    """Route correction, start lane and Dijkstra centreline for the ego at the origin of its frame (rear axle)."""
+    pose = np.zeros(3)
     roadblocks = correct_route(graph, route_ids, pose)
     lanes = route_lanes(graph, roadblocks)
     if not lanes:
@@ -383,4 +380,4 @@ def plan_route(graph: LaneGraph, route_ids: Sequence[int], pose: np.ndarray | No
     paths = [graph.lane_path[lane] for lane in plan if lane in graph.lane_path]
     if not paths:
         raise RouteError("the route's lanes have no baseline path in the map context")
-    return Route(roadblocks, lanes, start, np.concatenate(paths), graph.lane_speed_limit[start])
+    return Route(lanes, np.concatenate(paths), graph.lane_speed_limit[start])

@@ -1,21 +1,27 @@
-"""Conversion throughput of the LEAD CARLA adapter on generated routes: scaling over workers, and CPU by stage.
+"""Conversion throughput of an adapter on generated data (LEAD CARLA routes, NAVSIM logs or WOD-E2E segments):
+scaling over workers, and CPU by stage.
 
-.venv/bin/python benchmarks/convert_carla_lead.py --routes 64 --frames 16 --workers 1 2 --rounds 3
-.venv/bin/python benchmarks/convert_carla_lead.py --import-torch --workers 1 2 --rounds 3   # a user's script
-.venv/bin/python benchmarks/convert_carla_lead.py --executor ray --workers 1 2 --rounds 3    # Ray, N CPUs
-.venv/bin/python benchmarks/convert_carla_lead.py --cli --routes 64 --frames 16 --workers 1 2 --rounds 2 --no-stages
+.venv/bin/python benchmarks/convert_throughput.py --routes 64 --frames 16 --workers 1 2 --rounds 3
+.venv/bin/python benchmarks/convert_throughput.py --import-torch --workers 1 2 --rounds 3   # a user's script
+.venv/bin/python benchmarks/convert_throughput.py --executor ray --workers 1 2 --rounds 3    # Ray, N CPUs
+.venv/bin/python benchmarks/convert_throughput.py --cli --routes 64 --frames 16 --workers 1 2 --rounds 2 --no-stages
     # issue 42's check: `lead-s2r convert` from the shell on 1024 samples, 1 and 2 workers interleaved, best of two
+.venv/bin/python benchmarks/convert_throughput.py --dataset navsim --routes 6 --workers 1 --rounds 1 [--no-maps]
+.venv/bin/python benchmarks/convert_throughput.py --dataset wod_e2e --routes 4 --image-scale 0.7 --workers 1 --rounds 1
 
-Runs ``convert`` with each worker count in turn, ``--rounds`` times (interleaved, so a machine shared with other
-jobs slows every count alike), and reports per round: wall time, samples/s in total and per worker, the CPU
-seconds of the driver and of its worker processes, and the speed-up over the first worker count measured in the
-same round, beside a machine check (how much faster two processes run a plain CPU loop than one at that
-moment), and whether every worker count wrote the same bytes (every file of the converted folder). Then one
-process converts the routes again stage by stage and splits its CPU time: the adapter (reading LZMA pickles, LAZ,
-PNGs and building the sample), schema validation, encoding the fields, writing the tar.
+``--dataset`` picks the generator and adapter (``carla_lead``: ``--routes`` routes of ``--frames`` frames, ``--rig``;
+``navsim``: ``--routes`` logs of 20 frames, 7 scenes each, with the generated maps unless ``--no-maps``; ``wod_e2e``:
+``--routes`` segments of 12 frames per split, JPEGs at ``--image-scale`` of the real cameras, ``--history``). Runs
+``convert`` with each worker count in turn, ``--rounds`` times (interleaved, so a machine shared with other jobs slows
+every count alike), and reports per round: wall time, samples/s in total and per worker, the CPU seconds of the
+driver and of its worker processes, and the speed-up over the first worker count measured in the same round, beside a
+machine check (how much faster two processes run a plain CPU loop than one at that moment), and whether every worker
+count wrote the same bytes (every file of the converted folder). Then one process converts the data again stage by
+stage and splits its CPU time: indexing the logs, the adapter (reading the raw files and building the sample),
+schema validation, encoding the fields, writing the tar. Each run loads NAVSIM's maps anew, as a fresh worker does.
 
 ``--import-torch`` imports torch first, as a user's training script calling ``convert`` would (the workers must not
-pay for it again). ``--cli`` runs each conversion as a user does, ``lead-s2r convert carla_lead --src ... --out ...
+pay for it again). ``--cli`` runs each conversion as a user does, ``lead-s2r convert <dataset> --src ... --out ...
 --workers N`` in a subprocess (start-up and imports included in its wall time). The summary gives, per worker count,
 the median of the same-round speed-ups and the speed-up of its best round over the first count's best round.
 ``--executor ray`` runs each worker count on a Ray started on this machine with that many CPUs (started before the
@@ -46,7 +52,26 @@ from lead_s2r.processes import RayExecutor
 from lead_s2r.registry import Adapter, get_adapter
 from lead_s2r.schema import validate
 from lead_s2r.shards import ShardFile, encode_sample, load_manifest
-from lead_s2r.synthetic.carla_lead import generate
+from lead_s2r.synthetic import carla_lead, navsim, wod_e2e
+from lead_s2r_adapters import navsim_map
+
+
+def generate(dataset: str, src: Path, args: argparse.Namespace) -> None:
+    """``--routes`` routes, logs or segments of ``dataset``'s generator in ``src``."""
+    if dataset == "carla_lead":
+        carla_lead.generate(src, count=args.routes, frames=args.frames)
+    elif dataset == "navsim":
+        navsim.generate(src, count=args.routes)
+    else:
+        wod_e2e.generate(src, count=args.routes, image_scale=args.image_scale)
+
+
+def adapter_options(dataset: str, src: Path, args: argparse.Namespace) -> dict[str, object]:
+    return {
+        "carla_lead": {"rig": args.rig},
+        "navsim": {"split": navsim.DATA_SPLIT, "maps": None if args.no_maps else str(src / "maps")},
+        "wod_e2e": {"history": args.history},
+    }[dataset]
 
 
 def spin(n: int) -> int:
@@ -94,6 +119,7 @@ def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> d
 
         ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
         executor = RayExecutor(initializer=one_thread_per_worker)
+    navsim_map.load_map.cache_clear()  # a run in this process loads the maps again, as a fresh worker does
     load = os.getloadavg()[0]
     wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
     try:
@@ -114,10 +140,11 @@ def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> d
     }
 
 
-def run_cli(src: Path, out: Path, workers: int, rig: str) -> dict[str, float]:
+def run_cli(dataset: str, src: Path, out: Path, workers: int, options: dict[str, object]) -> dict[str, float]:
     """One conversion by the ``lead-s2r`` command beside this Python: wall time and the CPU of the reaped command."""
-    command = [str(Path(sys.executable).with_name("lead-s2r")), "convert", "carla_lead", "--src", str(src)]
-    command += ["--out", str(out), "--workers", str(workers), "--force", "--quiet", "--rig", rig]
+    command = [str(Path(sys.executable).with_name("lead-s2r")), "convert", dataset, "--src", str(src)]
+    command += ["--out", str(out), "--workers", str(workers), "--force", "--quiet"]
+    command += [text for name, value in options.items() if value is not None for text in (f"--{name}", str(value))]
     load = os.getloadavg()[0]
     wall, child = time.perf_counter(), children_cpu()
     subprocess.run(command, check=True)
@@ -132,7 +159,8 @@ def stage_split(adapter: Adapter, src: Path, out: Path) -> tuple[int, dict[str, 
     count = 0
     out.mkdir(parents=True, exist_ok=True)
     shard = ShardFile(out / "stages-000000.tar")
-    for log in adapter.list_logs(src):
+    logs, cpu["index (list_logs)"] = timed(partial(adapter.list_logs, src), time.process_time)
+    for log in logs:
         samples = iter(adapter.iter_samples(log))
         while True:
             sample, cpu_s = timed(partial(next, samples, None), time.process_time)
@@ -152,12 +180,16 @@ def stage_split(adapter: Adapter, src: Path, out: Path) -> tuple[int, dict[str, 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--routes", type=int, default=64)
-    parser.add_argument("--frames", type=int, default=16)
+    parser.add_argument("--dataset", default="carla_lead", choices=["carla_lead", "navsim", "wod_e2e"])
+    parser.add_argument("--routes", type=int, default=64, help="CARLA routes, NAVSIM logs or WOD-E2E segments")
+    parser.add_argument("--frames", type=int, default=16, help="frames per CARLA route")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--rig", default="normal", choices=["normal", "perturbated", "both"])
-    parser.add_argument("--raw", type=Path, help="reuse (or create) the generated routes here")
+    parser.add_argument("--no-maps", action="store_true", help="NAVSIM: convert without the map context")
+    parser.add_argument("--image-scale", type=float, default=0.7, help="WOD-E2E: JPEG size relative to the real")
+    parser.add_argument("--history", type=int, default=0, help="WOD-E2E: previous front images per sample")
+    parser.add_argument("--raw", type=Path, help="reuse (or create) the generated data here")
     parser.add_argument("--executor", choices=["processes", "ray"], default="processes")
     parser.add_argument("--import-torch", action="store_true", help="import torch first, as a training script does")
     parser.add_argument("--cli", action="store_true", help="convert with the lead-s2r command, as a user does")
@@ -165,11 +197,12 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         src = args.raw or Path(tmp) / "raw"
-        if not (src / "data").is_dir():
-            started = time.perf_counter()
-            generate(src, count=args.routes, frames=args.frames)
-            print(f"generated {args.routes} routes x {args.frames} frames in {time.perf_counter() - started:.2f} s")
-        adapter = get_adapter("carla_lead", rig=args.rig)
+        if not src.is_dir() or not any(src.iterdir()):
+            _, seconds = timed(partial(generate, args.dataset, src, args))
+            size = sum(path.stat().st_size for path in src.rglob("*") if path.is_file())
+            print(f"generated {args.dataset} x {args.routes} in {seconds:.2f} s, {size / 1e6:.1f} MB")
+        options = adapter_options(args.dataset, src, args)
+        adapter = get_adapter(args.dataset, **options)
         speedups: dict[int, list[float]] = defaultdict(list)
         per_worker: dict[int, list[float]] = defaultdict(list)
         cpu_per_sample: dict[int, list[float]] = defaultdict(list)
@@ -181,7 +214,7 @@ def main() -> None:
             for workers in args.workers:
                 out = Path(tmp) / f"out{workers}"
                 if args.cli:
-                    r = run_cli(src, out, workers, args.rig)
+                    r = run_cli(args.dataset, src, out, workers, options)
                 else:
                     r = run(adapter, src, out, workers, args.executor == "ray")
                 written.append(digests(Path(tmp) / f"out{workers}"))
