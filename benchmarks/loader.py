@@ -5,14 +5,15 @@
 One core: every loader but the 2-worker one runs in this one process (no dataloader workers, one torch thread).
 
 Prints, per kind of generated data, the median over ``--rounds`` rounds (after one warm-up round) of: plain shard
-decoding's samples/s (``read_samples`` over the converted shards, every field decoded, JPEG bytes left as bytes: the
-floor any shard loader pays); our training loader's; and their ratio, measured in the same round, with the spread of
-that ratio over the rounds. The headline rate is by CPU time: samples per CPU second of the process, i.e. samples/s
-on a core of its own. On a shared machine the wall rate also counts the time the process waited for its core while
-other processes ran (the kernel's run delay), and how much of that lands on which side moved the wall ratio by up to
-44% between runs; so the wall rate and ratio are printed beside it, and so is each loader's time off the CPU that is
-not such a wait (``blocked``: reading a file, waiting on a lock or another thread), which the CPU rate would hide;
-it is below 0.1 ms a sample for every loader here. Kinds:
+decoding's samples/s (``read_samples`` over the converted shards: webdataset's tar reader, every field decoded, JPEG
+bytes left as bytes); our training loader's; and their ratio, measured in the same round, with the spread of that ratio
+over the rounds. Our loaders read the tars with ``shards.TarSamples`` instead (only the members the transform decodes,
+each in one read), which costs less than webdataset's reader (docs/benchmarks.md, "Eighth round"). The headline rate is
+by CPU time: samples per CPU second of the process, i.e. samples/s on a core of its own. On a shared machine the wall
+rate also counts the time the process waited for its core while other processes ran (the kernel's run delay), and how
+much of that lands on which side moved the wall ratio by up to 44% between runs; so the wall rate and ratio are printed
+beside it, and so is each loader's time off the CPU that is not such a wait (``blocked``: reading a file, waiting on a
+lock or another thread), which the CPU rate would hide; it is below 0.1 ms a sample for every loader here. Kinds:
 
 - ``light`` / ``realistic``: generated LEAD CARLA routes (light: five actors, about 700 LiDAR points, the tests'
   frames; realistic: about 60 actors, about 60,000 LiDAR + radar points, metas with every target-point planner),
@@ -25,13 +26,13 @@ it is below 0.1 ms a sample for every loader here. Kinds:
   cameras into 972x360), ours twice: everything in the loader and the camera JPEGs left for the GPU (decoded and laid
   out there, ``lead_s2r.data.device_inputs``).
 
-Ours is ``DriveDataModule``'s training loader (shard resampling, shuffle buffer, decoding the fields the transform
-reads, ``SourceTransform``, collation into batches of ``--batch-size``); one epoch's stream serves every round, as in
-training: the shuffle buffer fills once (timed and printed apart). ``--two-workers`` adds ours with 2 dataloader
-workers (``--steps`` batches a round, by wall time: its workers' CPU is not this process's; its ratio is to plain
-decoding in one process). ``--lead-style`` adds, for the CARLA kinds, ``lead_style.LeadStyleFrames`` over the raw
-route folders (LEAD's per-frame steps and tensor contract, both rigs as LEAD builds them uncached, and one rig),
-checked against ours on one frame.
+Ours is ``DriveDataModule``'s training loader (shard resampling, reading the members of the fields the transform reads,
+shuffle buffer, decoding them, ``SourceTransform``, collation into batches of ``--batch-size``); one epoch's stream
+serves every round, as in training: the shuffle buffer fills once (timed and printed apart). ``--two-workers`` adds ours
+with 2 dataloader workers (``--steps`` batches a round, by wall time: its workers' CPU is not this process's; its ratio
+is to plain decoding in one process). ``--lead-style`` adds, for the CARLA kinds, ``lead_style.LeadStyleFrames`` over
+the raw route folders (LEAD's per-frame steps and tensor contract, both rigs as LEAD builds them uncached, and one
+rig), checked against ours on one frame.
 
 Within a round the loaders of a kind take turns: ``--slices`` turns (24), in each of which every loader (plain
 decoding, ours, ours for the GPU, then back) runs for ``--slice-seconds`` of CPU time (0.1 s), so each gets the same

@@ -19,10 +19,12 @@ from lead_s2r.shards import (
     SHARD_DIR,
     ShardError,
     ShardFile,
+    TarSamples,
     decode_field,
     encode_field,
     listed_keys,
     load_manifest,
+    raise_shard_error,
     read_part,
     read_samples,
     sample_offsets,
@@ -233,3 +235,47 @@ def test_a_part_of_a_shard_decodes_what_reading_the_folder_gives(toy_data):
         read_part(shard, keys[1:3], (), offsets[keys[2]])  # the part starts past its first sample
     with pytest.raises(ShardError, match=f"sample {keys[2]!r}, which the manifest lists in it, is not in the tar"):
         read_part(shard, keys[2:3], (), offsets[keys[2]] + 512)  # mid-member: tarfile sees no header, yields nothing
+
+
+def _tar_reading(shard: str, fields: tuple[str, ...] | None = None, ours: bool = True) -> list[dict] | str:
+    """The raw samples of ``shard`` as :class:`TarSamples` reads them, or as webdataset's own reader does (which it
+    replaces in the loaders); or the ShardError's message."""
+    read = TarSamples(fields) if ours else wds.tarfile_to_samples(handler=raise_shard_error)
+    try:
+        return list(wds.DataPipeline(lambda: iter([{"url": shard}]), read))
+    except ShardError as err:
+        return f"ShardError: {err}"
+
+
+def _members(reading: list[dict] | str) -> list[list[str]] | str:
+    return reading if isinstance(reading, str) else [list(raw) for raw in reading]
+
+
+def test_tar_samples_are_webdatasets_samples_with_only_the_wanted_members_read(one_log, tmp_path):
+    (shard,) = (one_log / SHARD_DIR).glob("*.tar")
+    theirs = _tar_reading(str(shard), ours=False)
+    assert len(theirs) == 3 and _tar_reading(str(shard)) == theirs  # every key, member and byte, in their order
+    wanted = _tar_reading(str(shard), ("future", "cam_front"))
+    assert _members(wanted) == _members(theirs)  # unread members still listed
+    for mine, raw in zip(wanted, theirs, strict=True):
+        for name, data in raw.items():
+            read = name.startswith("__") or name.split(".")[0] in ("meta", "future", "cam_front")
+            assert mine[name] == (data if read else b""), name
+    data = shard.read_bytes()
+    header = data.index(b"toy_log000_000001.meta.json")
+    damaged = {
+        "cut inside a member": data[: header + 700],
+        "cut after a header": data[: header + 512],
+        "cut at a header": data[:header],
+        "a header's checksum broken": data[: header + 148] + b"0000000\0" + data[header + 156 :],
+        "a header zeroed": data[:header] + bytes(512) + data[header + 512 :],
+        "not a tar": b"x" * 4096,
+        "empty": b"",
+    }
+    for what, content in damaged.items():
+        broken = tmp_path / "broken.tar"
+        broken.write_bytes(content)
+        theirs = _tar_reading(str(broken), ours=False)
+        assert _tar_reading(str(broken)) == theirs, what
+        assert _members(_tar_reading(str(broken), ("future",))) == _members(theirs), what
+    assert "cannot be read (No such file or directory)" in _tar_reading(str(tmp_path / "gone.tar"))

@@ -31,13 +31,7 @@ from lead_s2r.data.vocab_scores import VocabScores
 from lead_s2r.errors import UserError
 from lead_s2r.models.input_spec import InputSpec
 from lead_s2r.models.inputs import Batch
-from lead_s2r.shards import (
-    ManifestCheck,
-    ShardError,
-    decode_sample,
-    raise_shard_error,
-    shard_paths,
-)
+from lead_s2r.shards import ManifestCheck, ShardError, TarSamples, decode_sample, shard_paths
 
 
 @dataclass
@@ -68,8 +62,13 @@ class _Prepare:
         self.transform = transform
         self.vocab_scores = vocab_scores
 
+    @property
+    def fields(self) -> list[str]:
+        """The fields the transform reads: the only ones read from the tar and decoded."""
+        return self.transform.fields
+
     def __call__(self, raw: dict[str, Any]) -> dict[str, Any]:
-        sample = decode_sample(raw, self.transform.fields)
+        sample = decode_sample(raw, self.fields)
         out = self.transform(sample)
         return out if self.vocab_scores is None else self.vocab_scores(sample, out)
 
@@ -229,12 +228,13 @@ class DriveDataModule(L.LightningDataModule):
         return _Prepare(SourceTransform(name, self.inputs, list(spec.cameras), self.inputs_on_device), vocab_scores)
 
     def _train_pipeline(self, name: str, share: TrainShare, batch_size: int) -> wds.DataPipeline:
+        prepare = self._decode(name, self.train_sources[name])
         return wds.DataPipeline(
             share.shards,
-            wds.tarfile_to_samples(handler=raise_shard_error),
+            TarSamples(prepare.fields),
             share,
             SeededShuffle(self.shuffle_buffer, share.seed),
-            wds.map(self._decode(name, self.train_sources[name])),
+            wds.map(prepare),
             wds.batched(batch_size, collation_fn=collate, partial=False),
         )
 
@@ -254,12 +254,13 @@ class DriveDataModule(L.LightningDataModule):
     ) -> wds.DataPipeline:
         _, rank, world_size = self._where()
         mine = SampleShare(samples, rank, world_size)
+        prepare = self._decode(name, spec)
         return wds.DataPipeline(
             mine.shards,
-            wds.tarfile_to_samples(handler=raise_shard_error),
+            TarSamples(prepare.fields),
             ManifestCheck(listed),
             mine,
-            wds.map(self._decode(name, spec)),
+            wds.map(prepare),
             wds.batched(self.eval_batch_size, collation_fn=collate, partial=True),
             wds.map(_Tag(name)),
         )
