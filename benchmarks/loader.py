@@ -5,10 +5,11 @@
 One core: every loader but the 2-worker one runs in this one process (no dataloader workers, one torch thread).
 
 Prints, per kind of generated data, the median over ``--rounds`` rounds (after one warm-up round) of: plain shard
-decoding's samples/s (``read_samples`` over the converted shards: webdataset's tar reader, every field decoded, JPEG
-bytes left as bytes); our training loader's; and their ratio, measured in the same round, with the spread of that ratio
-over the rounds. Our loaders read the tars with ``shards.TarSamples`` instead (only the members the transform decodes,
-each in one read), which costs less than webdataset's reader (docs/benchmarks.md, "Eighth round"). The headline rate is
+decoding's samples/s (webdataset's tar reader over the converted shards, every field decoded, JPEG bytes left as
+bytes: what ``read_samples`` did up to e98a452, the issue's baseline); our training loader's; and their ratio, measured
+in the same round, with the spread of that ratio over the rounds. Since then every reader of ours reads tars with
+``shards.TarSamples`` (only the members it decodes, each in one read; docs/benchmarks.md, "Eighth round"), so plain
+decoding through it (``read_samples``) is printed too, with each loader's ratio to it. The headline rate is
 by CPU time: samples per CPU second of the process, i.e. samples/s on a core of its own. On a shared machine the wall
 rate also counts the time the process waited for its core while other processes ran (the kernel's run delay), and how
 much of that lands on which side moved the wall ratio by up to 44% between runs; so the wall rate and ratio are printed
@@ -65,6 +66,7 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
+import webdataset as wds
 from lead_style import LeadStyleFrames
 from torch.utils.data import DataLoader
 
@@ -77,12 +79,20 @@ from lead_s2r.models.inputs import on_image_grid
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.registry import get_adapter
 from lead_s2r.schema import make_key
-from lead_s2r.shards import read_samples
+from lead_s2r.shards import (
+    ManifestCheck,
+    check_listed_shards,
+    decode_sample,
+    listed_keys,
+    read_samples,
+    shard_paths,
+)
 from lead_s2r.synthetic import navsim, wod_e2e
 from lead_s2r.synthetic.carla_lead import generate
 
-PLAIN, PIXELS, OURS, OURS_DEVICE, OURS_TWO, LEAD_BOTH, LEAD_ONE = (
-    "plain decoding (read_samples, every field)",
+PLAIN, PLAIN_OURS, PIXELS, OURS, OURS_DEVICE, OURS_TWO, LEAD_BOTH, LEAD_ONE = (
+    "plain decoding (webdataset's tar reader, every field)",
+    "plain decoding through our tar reader (read_samples, every field)",
     "plain decoding + JPEG to pixels",
     "ours (DriveDataModule), everything in the loader",
     "ours, camera JPEGs and LiDAR points left for the GPU (inputs_on_device)",
@@ -218,6 +228,7 @@ def loaders(kind: str, tmp: Path, args: argparse.Namespace) -> dict[str, Iterato
 
     runs = {
         PLAIN: _batched((1 for _ in _samples(data)), args.batch_size),
+        PLAIN_OURS: _batched((1 for _ in _samples(data, read_samples)), args.batch_size),
         PIXELS: _batched((_decode_jpegs(sample) for sample in _samples(data)), args.batch_size),
         OURS: ours(False, 0),
     }
@@ -328,6 +339,8 @@ def summary(
                     f"; {_ratio(of, plain, lambda t: t.cpu_rate)} plain decoding by CPU time, "
                     f"{_ratio(of, plain, lambda t: t.rate)} by wall samples/s"
                 )
+            if name not in (PLAIN, PLAIN_OURS):
+                line += f"; {_ratio(of, timings[kind, PLAIN_OURS], lambda t: t.cpu_rate)} {PLAIN_OURS} by CPU time"
             print(line)
 
 
@@ -337,9 +350,23 @@ def _ratio(ours: list[Timing], plain: list[Timing], rate: Callable[[Timing], flo
     return f"{statistics.median(ratios):.2f}x (spread {max(ratios) / min(ratios) - 1:.0%})"
 
 
-def _samples(data: Path) -> Iterator[dict[str, Any]]:
-    """Every sample of the shards, every field decoded, over and over (a ``read_samples`` call per pass)."""
-    return itertools.chain.from_iterable(read_samples(data) for _ in itertools.count())
+def _samples(data: Path, read: Callable[[Path], Iterator[dict[str, Any]]] | None = None) -> Iterator[dict[str, Any]]:
+    """Every sample of the shards, every field decoded, over and over: one ``read`` (default: webdataset's reader)
+    a pass."""
+    return itertools.chain.from_iterable(map(read or _webdataset_pass, itertools.repeat(data)))
+
+
+def _webdataset_pass(data: Path) -> Iterator[dict[str, Any]]:
+    """One pass as ``read_samples`` made it up to e98a452, with webdataset's own tar reader: the issue's baseline,
+    which every ratio keeps."""
+    listed = listed_keys(data)
+    shards = shard_paths(data)
+    check_listed_shards(listed)
+    dataset = wds.WebDataset(
+        shards, shardshuffle=False, empty_check=False, nodesplitter=None, workersplitter=None,
+        handler=wds.reraise_exception,
+    )  # fmt: skip
+    return (decode_sample(raw) for raw in ManifestCheck(listed)(dataset))
 
 
 def _batched(per_sample: Iterator[int], size: int) -> Iterator[int]:

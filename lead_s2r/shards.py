@@ -2,11 +2,12 @@
 
 Tar members are ``<key>.<field>.<ext>`` (``meta.json``, ``future.npy``, ``cam_front.jpg``...). Arrays are stored
 with ``np.save(allow_pickle=False)``, JPEG bytes untouched, nothing is pickled. Shards are written by our own
-small tar writer (deterministic headers: the same samples give the same bytes) and read with webdataset, which is
-imported where it reads: it brings torch (4 s of start-up), and conversion workers, which only write, are spawned
-processes that must not pay it. A tar is a sequence of members closed by two zero blocks, so the members of one log
-written to a file of their own (:func:`write_sample`) and appended to a shard (:meth:`ShardFile.append`) give the bytes
-:meth:`ShardFile.write` gives: conversion workers write logs apart and the driver puts them in order.
+small tar writer (deterministic headers: the same samples give the same bytes) and read by our own reader
+(:class:`TarSamples`), which webdataset's pipelines in ``data/`` use as a stage; this module does not import
+webdataset, which brings torch (4 s of start-up) into every process that reads or writes a shard. A tar is a
+sequence of members closed by two zero blocks, so the members of one log written to a file of their own
+(:func:`write_sample`) and appended to a shard (:meth:`ShardFile.append`) give the bytes :meth:`ShardFile.write`
+gives: conversion workers write logs apart and the driver puts them in order.
 
 Reading trusts nothing: a tar cut at a member boundary reads as a shorter, valid stream (tarfile raises nothing),
 so :func:`shard_paths` checks that every shard ends with the two zero blocks :meth:`ShardFile.close` writes; a tar
@@ -195,19 +196,6 @@ def check_whole(shard: str | Path) -> None:
         raise ShardError(f"{shard}: truncated tar ({size} bytes, no end-of-archive blocks); {_REDO}")
 
 
-def raise_shard_error(exn: Exception) -> bool:
-    """webdataset handler: a tar that cannot be read becomes a :class:`ShardError` naming it.
-
-    webdataset calls the handler first from inside the tar (no url yet), then again with the url appended to
-    ``exn.args``; the first call re-raises so the second can name the file.
-    """
-    url = next((arg for arg in reversed(exn.args[1:]) if isinstance(arg, str)), None)
-    if url is None:
-        raise exn
-    problem = str(exn.args[0]).split(" @ ")[0] if exn.args else type(exn).__name__
-    raise _unreadable(url, problem) from exn
-
-
 def _unreadable(shard: str, problem: str) -> ShardError:
     return ShardError(f"{shard}: cannot be read ({problem}); the tar is truncated or corrupt: {_REDO}")
 
@@ -219,18 +207,19 @@ _TAR_META = re.compile(r"__[^/]*__($|/)")
 
 
 class TarSamples:
-    """A webdataset stage: ``{"url": tar}`` items in, the tars' raw samples out, grouped as webdataset's
-    ``tarfile_to_samples`` groups them (``__key__``, ``__url__``, each member's bytes under its lower-cased suffix
-    ``<field>.<ext>``), except that only the members of ``fields`` (and ``meta``) are read; the others are listed with
-    no bytes (``b""``) for :func:`decode_sample`'s completeness check. ``fields`` None reads every member.
+    """Every reader's tar reader, and a webdataset stage (``{"url": tar}`` items in): a tar's raw samples grouped as
+    webdataset's ``tarfile_to_samples`` groups them (``__key__``, ``__url__``, each member's bytes under its
+    lower-cased suffix ``<field>.<ext>``), except that only the members of ``fields`` (and ``meta``) are read; the
+    others are listed with no bytes (``b""``) for :func:`decode_sample`'s completeness check. ``fields`` None reads
+    every member.
 
     Why not webdataset's own: it reads a tar as a stream (tarfile's ``r|*`` mode), so tarfile reads a member's bytes
     in 8 KB pieces and joins and slices them (a realistic CARLA frame's 1 MB LiDAR array: about 120 Python calls and
     three copies), and it reads every member, decoded or not: 0.8-1.2 ms a realistic CARLA sample, against 0.35-0.45 ms
-    here, where each wanted member is one read of the opened file (docs/benchmarks.md, "Eighth round"). A tar that
-    cannot be read is a :class:`ShardError` worded as :func:`raise_shard_error` words webdataset's; a header that
-    ends the tar early ends it quietly in both (tarfile's behaviour), which :func:`decode_sample` and
-    :class:`ManifestCheck` catch.
+    here, where each wanted member is one read of the opened file (docs/benchmarks.md, "Eighth round"); and it cannot
+    start at a sample inside a tar, which a parallel reader's parts do (:func:`read_part`). A tar that cannot be read
+    is a :class:`ShardError` naming it; a header that ends the tar early ends it quietly (tarfile's behaviour, as in
+    webdataset's), which :func:`decode_sample` and :class:`ManifestCheck` catch.
     """
 
     def __init__(self, fields: Iterable[str] | None = None) -> None:
@@ -240,27 +229,33 @@ class TarSamples:
         for source in sources:
             yield from self.read(source["url"])
 
-    def read(self, shard: str) -> Iterator[dict[str, Any]]:
-        """The raw samples of the tar ``shard``, in order."""
+    def read(self, shard: str, offset: int = 0) -> Iterator[dict[str, Any]]:
+        """The raw samples of the tar ``shard`` from byte ``offset`` on (a sample's first header:
+        :func:`sample_offsets`), in order."""
         try:
-            with open(shard, "rb") as file, tarfile.open(fileobj=file, mode="r:") as tar:
-                raw: dict[str, Any] | None = None
-                for member in tar:
-                    named = _MEMBER_NAME.match(member.name) if member.isreg() else None
-                    if named is None or _TAR_META.match(member.name):
-                        continue
-                    key, suffix = named.group(1), named.group(2).lower()
-                    if raw is None or key != raw["__key__"]:
-                        if raw is not None:
-                            yield raw
-                        raw = {"__key__": key, "__url__": shard}
-                    if suffix in raw:
-                        raise ShardError(f"{shard}: sample {key!r} holds {suffix!r} twice; {_REDO}")
-                    raw[suffix] = self._member_bytes(file, member) if self._reads(suffix) else b""
-                if raw is not None:
-                    yield raw
+            with open(shard, "rb") as file:
+                file.seek(offset)
+                yield from self._samples(shard, file)
         except (OSError, tarfile.TarError) as err:
             raise _unreadable(shard, (err.strerror if isinstance(err, OSError) else None) or str(err)) from err
+
+    def _samples(self, shard: str, file: BinaryIO) -> Iterator[dict[str, Any]]:
+        with tarfile.open(fileobj=file, mode="r:") as tar:  # reads from where the file stands
+            raw: dict[str, Any] | None = None
+            for member in tar:
+                named = _MEMBER_NAME.match(member.name) if member.isreg() else None
+                if named is None or _TAR_META.match(member.name):
+                    continue
+                key, suffix = named.group(1), named.group(2).lower()
+                if raw is None or key != raw["__key__"]:
+                    if raw is not None:
+                        yield raw
+                    raw = {"__key__": key, "__url__": shard}
+                if suffix in raw:
+                    raise ShardError(f"{shard}: sample {key!r} holds {suffix!r} twice; {_REDO}")
+                raw[suffix] = self._member_bytes(file, member) if self._reads(suffix) else b""
+            if raw is not None:
+                yield raw
 
     def _reads(self, suffix: str) -> bool:
         return self.wanted is None or suffix.rsplit(".", 1)[0] in self.wanted
@@ -329,7 +324,7 @@ class ManifestCheck:
 
     Each tar's count is checked when the next tar starts or the stream ends, so the stream must open every tar once
     (evaluation, :func:`read_samples`; not the resampled training stream). A tar that yields nothing cannot slip
-    through: a bad first header is a ``ReadError`` that :func:`raise_shard_error` names.
+    through: a bad first header is a ``ReadError`` that :class:`TarSamples` names.
     """
 
     def __init__(self, listed: Mapping[str, Sequence[str]]) -> None:
@@ -412,22 +407,14 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
     no splitting over ranks or workers (webdataset's default refuses to run under DDP), the caller decides. In a
     converted folder every tar must yield the samples the manifest lists for it (:class:`ManifestCheck`).
     """
-    import webdataset as wds  # here, not at the top: see the module docstring
-
     fields = None if fields is None else tuple(fields)
     listed = listed_keys(path)
     shards = shard_paths(path)
     if listed is not None and Path(path).is_dir():
         check_listed_shards(listed)
-    dataset = wds.WebDataset(
-        shards,
-        shardshuffle=False,
-        empty_check=False,
-        nodesplitter=None,
-        workersplitter=None,
-        handler=raise_shard_error,
-    )
-    for raw in dataset if listed is None else ManifestCheck(listed)(dataset):
+    reader = TarSamples(fields)
+    raws = (raw for shard in shards for raw in reader.read(shard))
+    for raw in raws if listed is None else ManifestCheck(listed)(raws):
         yield decode_sample(raw, fields)
 
 
@@ -438,32 +425,21 @@ def read_part(
     ``offset``: :func:`sample_offsets`), in tar order: one job of a parallel reader (``score --workers``), which
     hands a big tar out in parts.
 
-    A part reads from its offset to its last sample, where webdataset would read every byte of the tar for every
-    part. Members of fields nobody decodes are listed for :func:`decode_sample`'s completeness check, not read. A key
-    the tar does not yield there is a :class:`ShardError`.
+    A part reads from its offset to its last sample, not every byte of the tar for every part. Members of fields
+    nobody decodes are listed for :func:`decode_sample`'s completeness check, not read. A key the tar does not yield
+    there is a :class:`ShardError`.
     """
-    wanted = None if fields is None else {*fields, "meta"}
     asked = set(keys)
     raws: dict[str, dict[str, Any]] = {}
-    try:
-        with open(shard, "rb") as file:
-            file.seek(offset)
-            with tarfile.open(fileobj=file, mode="r:") as tar:  # reads from where the file stands
-                for member in tar:
-                    key, _, ext = member.name.partition(".")
-                    if key not in asked:
-                        if len(raws) == len(asked):  # past the last sample asked for
-                            break
-                        continue
-                    raw = raws.setdefault(key, {"__key__": key, "__url__": shard})
-                    read = wanted is None or ext.rsplit(".", 1)[0] in wanted
-                    raw[ext] = _member_bytes(tar, member) if read else b""
-    except tarfile.TarError as err:
-        raise ShardError(f"{shard}: cannot be read as a tar ({err}); {_REDO}") from None
+    for raw in TarSamples(fields).read(shard, offset):
+        if raw["__key__"] in asked:
+            raws[raw["__key__"]] = raw
+        elif len(raws) == len(asked):  # past the last sample asked for
+            break
     if len(raws) < len(asked):
         missing = next(key for key in keys if key not in raws)
         raise ShardError(f"{shard}: sample {missing!r}, which the manifest lists in it, is not in the tar; {_REDO}")
-    return [decode_sample(raw, wanted) for raw in raws.values()]
+    return [decode_sample(raw, fields) for raw in raws.values()]
 
 
 def sample_offsets(shard: str) -> dict[str, int]:
@@ -488,13 +464,6 @@ def shard_parts(rows: Iterable[Mapping[str, Any]], size: int) -> list[tuple[str,
         offsets = sample_offsets(shard) if len(keys) > size else {keys[0]: 0}
         parts += [(shard, keys[start : start + size], offsets[keys[start]]) for start in range(0, len(keys), size)]
     return parts
-
-
-def _member_bytes(tar: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
-    file = tar.extractfile(member)
-    if file is None:
-        raise ShardError(f"{tar.name}: member {member.name!r} is not a file; {_REDO}")
-    return file.read()
 
 
 def write_manifest(folder: Path, table: pa.Table) -> Path:
