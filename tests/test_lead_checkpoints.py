@@ -5,6 +5,7 @@ ran to our outputs; what LEAD cannot represent, or a damaged run checkpoint, is 
 
 import io
 import json
+import re
 import shutil
 import zipfile
 from pathlib import Path
@@ -495,6 +496,16 @@ def test_a_config_value_of_its_type_that_no_layer_takes_is_named(tmp_path: Path)
     (tmp_path / "lead" / "config.json").write_text(json.dumps(dict(values, resid_pdrop=7)))
     with pytest.raises(UserError, match=r"config\.json: LEAD's network cannot be built from it \(dropout probability"):
         lead.load_checkpoint(tmp_path / "lead")
+
+
+def test_a_config_naming_no_timm_architecture_names_its_file(tmp_path: Path) -> None:
+    """The fuzz at seed 10501: one flipped byte made ``test_sonvnext``, and the error named the field only."""
+    values = json.loads((TINY / "config.json").read_text())
+    (tmp_path / "config.json").write_text(json.dumps(dict(values, image_architecture="test_sonvnext")))
+    with pytest.raises(
+        UserError, match=rf"^{re.escape(str(tmp_path / 'config.json'))}: image_architecture 'test_sonvnext' is no timm"
+    ):
+        lead.read_config(tmp_path)
 
 
 def test_a_config_that_is_not_utf8_is_named(tmp_path: Path) -> None:

@@ -86,7 +86,10 @@ def read_config(folder: Path) -> LeadConfig:
         raise UserError(f"{path}: not valid JSON ({err})") from err
     if not isinstance(values, dict):
         raise UserError(f"{path}: expected a JSON object of LEAD TrainingConfig fields")
-    return LeadConfig.from_json(values)
+    try:
+        return LeadConfig.from_json(values)
+    except UserError as err:  # LeadConfig names the field; the file is this folder's
+        raise UserError(f"{path}: {str(err).removeprefix('config.json: ').removeprefix('config: ')}") from err
 
 
 def weight_files(folder: Path, pattern: str = "model*.pth") -> list[Path]:
