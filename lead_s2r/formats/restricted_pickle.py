@@ -9,7 +9,9 @@ attribute dict. Nothing is imported and none of the foreign code runs, so readin
 """
 
 import _compat_pickle
+import io
 import pickle
+import pickletools
 from collections.abc import Collection
 from functools import cache
 from typing import IO, Any, ClassVar
@@ -20,6 +22,8 @@ _BUILTINS = frozenset(
     {"dict", "list", "tuple", "set", "frozenset", "int", "float", "complex", "bool", "str", "bytes", "bytearray"}
     | {"slice", "range"}
 )
+#: The opcodes that store into the memo at an index they name.
+_MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
 _NUMPY_RECONSTRUCTORS = frozenset({"_reconstruct", "scalar", "ndarray", "dtype", "_frombuffer"})
 _NUMPY_MODULES = frozenset(
     {"numpy", "numpy.core.multiarray", "numpy._core.multiarray", "numpy.core.numeric", "numpy._core.numeric"}
@@ -92,8 +96,9 @@ def _allowed(module: str, name: str) -> bool:
 
 
 #: What unpickling a damaged (truncated, bit-flipped, retyped) pickle raises: the pickle machine's own errors, and
-#: those of constructors (numpy's among them) called with arguments of the wrong type or value. Readers catch these
-#: and name the file; anything else is a bug.
+#: those of constructors (numpy's among them) called with arguments of the wrong type or value (numpy's dtype
+#: ``__setstate__`` answers some with SystemError, "bad argument to internal function"). Readers catch these and name
+#: the file; anything else is a bug.
 DAMAGED = (
     pickle.UnpicklingError,
     EOFError,
@@ -105,10 +110,29 @@ DAMAGED = (
     OverflowError,
     MemoryError,
     RecursionError,
+    SystemError,
 )
 
 
 def load(file: IO[bytes], records: Collection[tuple[str, str]] = ()) -> Any:
     """Unpickle one object from a binary file with :class:`RestrictedUnpickler` (``records``: foreign classes to
-    rebuild as :class:`Record`)."""
-    return RestrictedUnpickler(file, records).load()
+    rebuild as :class:`Record`), once :func:`check_sizes` has passed its bytes."""
+    data = file.read()
+    check_sizes(data)
+    return RestrictedUnpickler(io.BytesIO(data), records).load()
+
+
+def check_sizes(data: bytes) -> None:
+    """Raise UnpicklingError unless every size the pickle declares fits in it. The C unpickler allocates a counted
+    bytes or bytearray, and grows its memo to a PUT's index, before it reads a byte of them: one flipped bit in a
+    length or an index asked for gigabytes (a MemoryError, or the process killed when the memo's zeroed slots fit in
+    memory). :mod:`pickletools` walks the opcodes reading what each declares, so a length past the end fails here;
+    a memo index above the opcodes seen so far, or a frame longer than the rest, cannot come from a pickler."""
+    try:
+        for count, (opcode, argument, position) in enumerate(pickletools.genops(data)):
+            if opcode.name in _MEMO_PUTS and argument > count:
+                raise pickle.UnpicklingError(f"memo index {argument} at byte {position} after {count} opcodes")
+            if opcode.name == "FRAME" and argument > len(data) - position:
+                raise pickle.UnpicklingError(f"a frame of {argument} bytes at byte {position} of {len(data)}")
+    except ValueError as err:  # pickletools' words for a length past the end, or an unknown opcode
+        raise pickle.UnpicklingError(str(err)) from None
