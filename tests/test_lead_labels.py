@@ -15,7 +15,6 @@ from lead_s2r.data.lead_centernet import (
     gaussian_radius,
     kernel_radius,
     lead_centernet_targets,
-    paste_max,
 )
 from lead_s2r.data.lead_labels import (
     LeadBevClass,
@@ -165,6 +164,16 @@ def test_leads_encoding_of_one_box_by_hand() -> None:
     assert kernel[0, 0] == pytest.approx(math.exp(-18 / (2 * (7 / 6) ** 2)))
 
 
+def _paste_max(heatmap: np.ndarray, row: int, col: int, window: np.ndarray) -> None:
+    """``heatmap = max(heatmap, window)`` with the (2r+1)^2 ``window`` centred on (row, col), cut at the edges."""
+    radius = window.shape[0] // 2
+    for i in range(window.shape[0]):
+        for j in range(window.shape[1]):
+            r, c = row + i - radius, col + j - radius
+            if 0 <= r < heatmap.shape[0] and 0 <= c < heatmap.shape[1]:
+                heatmap[r, c] = max(heatmap[r, c], window[i, j])
+
+
 def _centernet_box_by_box(boxes: np.ndarray, classes: np.ndarray, grid: BEVGrid) -> dict[str, np.ndarray]:
     """LEAD's per-box loop, written plainly: each box's Gaussian pasted, then its cell's values overwritten; then LEAD's
     padding box."""
@@ -182,7 +191,7 @@ def _centernet_box_by_box(boxes: np.ndarray, classes: np.ndarray, grid: BEVGrid)
         if label < 0 or not (0 <= x < h and 0 < y <= w):
             continue
         row, col = math.floor(x), math.ceil(y) - 1
-        paste_max(
+        _paste_max(
             heat[label], row, col, gaussian_kernel(max(2, int(gaussian_radius(box[4] / 2 / cell, box[3] / 2 / cell))))
         )
         size[:, row, col] = box[3] / 2 / cell, box[4] / 2 / cell
@@ -190,7 +199,7 @@ def _centernet_box_by_box(boxes: np.ndarray, classes: np.ndarray, grid: BEVGrid)
         yaw_bin, residual = angle_bin(np.array([box[6]]), 12)
         yaw_class[row, col], yaw_residual[row, col] = int(yaw_bin[0]), float(residual[0])
         speed[row, col], weight[row, col] = np.hypot(box[7], box[8]), True
-    paste_max(heat[0], 0, w - 1, gaussian_kernel(2))  # LEAD's padding box (fewer than 90 boxes), written last
+    _paste_max(heat[0], 0, w - 1, gaussian_kernel(2))  # LEAD's padding box (fewer than 90 boxes), written last
     size[:, 0, w - 1], offset[:, 0, w - 1], yaw_class[0, w - 1] = 0.0, (0.0, 1.0), 0
     yaw_residual[0, w - 1], speed[0, w - 1], weight[0, w - 1] = 0.0, 0.0, True
     count = np.float32(max(1, int((heat == 1).sum())))

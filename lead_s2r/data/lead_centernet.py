@@ -14,7 +14,8 @@ turns LEAD's predictions into the same frame, so the loss equals LEAD's.
 LEAD pads its box list to 90 rows with zeros and encodes the padding too (both its CARLA and NAVSIM loaders): a
 phantom box of class 0 and size 0 in the corner cell of its map at (min x, min y right), i.e. our row 0 and last
 column, with a radius-2 peak that counts in the normaliser and a weight of 1 there. LEAD's released networks were
-trained with it, so we encode it as LEAD does (:func:`paste_phantom`); tests/test_lead_data_parity.py pins it.
+trained with it, so we encode it as LEAD does, as one more box after the real ones; tests/test_lead_data_parity.py
+pins it.
 """
 
 import math
@@ -100,14 +101,19 @@ def lead_centernet_targets(
     rows, cols = np.floor(row_f).astype(np.int64), np.ceil(col_f).astype(np.int64) - 1
     extents = zip(half_width.tolist(), half_length.tolist(), strict=True)
     radii = np.array([kernel_radius(width, length) for width, length in extents], np.int64)
+    labels = np.asarray(classes, np.int64)[kept]
     yaw_bin, yaw_rest = angle_bin(picked[:, 6], yaw_bins)
     speeds = np.hypot(picked[:, 7], picked[:, 8])
     values = np.stack([half_length, half_width, row_f - rows, col_f - cols, yaw_rest, speeds]).reshape(6, -1)
+    if len(kept) < LEAD_MAX_BOXES:
+        # LEAD's padding box, after the real ones as LEAD's loop writes it: class 0, size, yaw and speed 0, at LEAD's
+        # cell (0, 0) with sub-cell offset (0, 0); in our frame row 0, last column, and lateral offset 1
+        labels, rows, cols, yaw_bin = np.r_[labels, 0], np.r_[rows, 0], np.r_[cols, w - 1], np.r_[yaw_bin, 0]
+        radii = np.r_[radii, kernel_radius(0.0, 0.0)]
+        values = np.c_[values, [0.0, 0.0, 0.0, 1.0, 0.0, 0.0]]
     bank, starts = kernel_bank(int(radii.max(initial=0)))
     maps = (heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
-    _encode_boxes(maps, np.asarray(classes, np.int64)[kept], rows, cols, radii, bank, starts, values, yaw_bin)
-    if len(kept) < LEAD_MAX_BOXES:
-        paste_phantom(maps)
+    _encode_boxes(maps, labels, rows, cols, radii, bank, starts, values, yaw_bin)
     out = {
         "lead_box_heatmap": heatmap,
         "lead_box_size": size,
@@ -125,19 +131,6 @@ def lead_centernet_targets(
 
 #: The target maps :func:`lead_centernet_targets` writes: heatmap, size, offset, yaw class, yaw residual, speed, weight.
 Maps = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-
-
-def paste_phantom(maps: Maps) -> None:
-    """LEAD's padding box, written into ``maps`` after the real ones as LEAD's loop writes it: class 0, size 0, yaw
-    0, speed 0, at LEAD's cell (0, 0) with sub-cell offset (0, 0). In our frame that cell is row 0, last column, and
-    LEAD's lateral offset 0 (measured from the cell's other edge) is our 1."""
-    heatmap, size, offset, yaw_class, yaw_residual, speed, weight = maps
-    col = heatmap.shape[2] - 1
-    paste_max(heatmap[0], 0, col, gaussian_kernel(kernel_radius(0.0, 0.0)))
-    size[:, 0, col] = 0.0
-    offset[:, 0, col] = 0.0, 1.0
-    yaw_class[0, col], yaw_residual[0, col], speed[0, col] = 0, 0.0, 0.0
-    weight[0, col] = True
 
 
 @lru_cache(maxsize=8)
@@ -163,11 +156,11 @@ def _encode_boxes(
     values: np.ndarray,
     yaw_bin: np.ndarray,
 ) -> None:
-    """LEAD's per-box loop into ``maps``, compiled: each box's Gaussian (:func:`paste_max` of the kernel of its
-    radius, from :func:`kernel_bank`) on channel ``labels`` at (``rows``, ``cols``), then its cell's values
-    (``values``: half length, half width, row and column offsets, yaw residual and speed, float64, each cast to
-    float32 on writing as numpy casts it; ``yaw_bin``), a later box in a cell overwriting an earlier one's, as LEAD's
-    loop does."""
+    """LEAD's per-box loop into ``maps``, compiled: each box's Gaussian (the elementwise maximum with the kernel of
+    its radius, from :func:`kernel_bank`, cut at the map's edges) on channel ``labels`` at (``rows``, ``cols``), then
+    its cell's values (``values``: half length, half width, row and column offsets, yaw residual and speed, float64,
+    each cast to float32 on writing as numpy casts it; ``yaw_bin``), a later box in a cell overwriting an earlier
+    one's, as LEAD's loop does."""
     heatmap, size, offset, yaw_class, yaw_residual, speed, weight = maps
     _, h, w = heatmap.shape
     for box in range(len(rows)):
@@ -182,13 +175,3 @@ def _encode_boxes(
         offset[0, row, col], offset[1, row, col] = values[2, box], values[3, box]
         yaw_class[row, col], yaw_residual[row, col], speed[row, col] = yaw_bin[box], values[4, box], values[5, box]
         weight[row, col] = True
-
-
-def paste_max(heatmap: np.ndarray, row: int, col: int, window: np.ndarray) -> None:
-    """``heatmap = max(heatmap, window)`` with the (2r+1)^2 ``window`` centred on (row, col), cut at the heatmap's
-    edges."""
-    radius = window.shape[0] // 2
-    r0, r1 = max(row - radius, 0), min(row + radius + 1, heatmap.shape[0])
-    c0, c1 = max(col - radius, 0), min(col + radius + 1, heatmap.shape[1])
-    target = heatmap[r0:r1, c0:c1]
-    np.maximum(target, window[r0 - row + radius : r1 - row + radius, c0 - col + radius : c1 - col + radius], out=target)

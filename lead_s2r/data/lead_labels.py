@@ -177,23 +177,18 @@ RADAR_PRIORITY = (
 )
 
 
+#: LEAD box class -> its rank in :data:`RADAR_PRIORITY` (unlisted: last).
+_RADAR_RANK = np.full(len(LeadBoxClass), len(RADAR_PRIORITY), np.int64)
+_RADAR_RANK[list(RADAR_PRIORITY)] = np.arange(len(RADAR_PRIORITY))
+_RADAR_RANK.flags.writeable = False
+
+
 def radar_priority(lead_classes: np.ndarray) -> np.ndarray:
-    """(N,) rank of each LEAD box class in :data:`RADAR_PRIORITY` (classes not listed rank last): one lookup in a
-    table of every :class:`LeadBoxClass`, not a Python loop over the boxes."""
+    """(N,) rank of each LEAD box class in :data:`RADAR_PRIORITY` (classes not listed rank last): one lookup in
+    :data:`_RADAR_RANK`, not a Python loop over the boxes."""
     classes = np.asarray(lead_classes, np.int64)
-    table = _radar_rank_table()
-    listed = (classes >= 0) & (classes < len(table))
-    return np.where(listed, table[np.clip(classes, 0, len(table) - 1)], len(RADAR_PRIORITY))
-
-
-@lru_cache(maxsize=1)
-def _radar_rank_table() -> np.ndarray:
-    """LEAD box class -> its rank in :data:`RADAR_PRIORITY` (unlisted: last); built once (read-only)."""
-    table = np.full(len(LeadBoxClass), len(RADAR_PRIORITY), np.int64)
-    for rank, cls in enumerate(RADAR_PRIORITY):
-        table[cls] = rank
-    table.flags.writeable = False
-    return table
+    listed = (classes >= 0) & (classes < len(_RADAR_RANK))
+    return np.where(listed, _RADAR_RANK[np.clip(classes, 0, len(_RADAR_RANK) - 1)], len(RADAR_PRIORITY))
 
 
 def lead_bev_labels(
