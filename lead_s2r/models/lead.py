@@ -88,8 +88,8 @@ def read_config(folder: Path) -> LeadConfig:
         raise UserError(f"{path}: expected a JSON object of LEAD TrainingConfig fields")
     try:
         return LeadConfig.from_json(values)
-    except UserError as err:  # LeadConfig names the field; the file is this folder's
-        raise UserError(f"{path}: {str(err).removeprefix('config.json: ').removeprefix('config: ')}") from err
+    except UserError as err:  # LeadConfig names the field as config.json's; the file is this folder's
+        raise UserError(f"{path}: {str(err).removeprefix('config.json: ')}") from err
 
 
 def weight_files(folder: Path, pattern: str = "model*.pth") -> list[Path]:

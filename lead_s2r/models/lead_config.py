@@ -150,8 +150,8 @@ class LeadConfig:
         for f in fields(self):
             setattr(self, f.name, _typed(f.name, getattr(self, f.name), hints[f.name]))
         for name in ("image_architecture", "lidar_architecture"):
-            if not timm.is_model(getattr(self, name)):
-                raise UserError(f"config: {name} {getattr(self, name)!r} is no timm architecture (timm.list_models())")
+            if not timm.is_model(architecture := getattr(self, name)):
+                raise UserError(f"config.json: {name} {architecture!r} is no timm architecture (timm.list_models())")
         target = self.target_dataset
         wod = self.is_wod
         defaults = {
