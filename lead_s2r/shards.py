@@ -404,8 +404,8 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
     """Yield decoded samples from a converted folder or shard(s), in shard order.
 
     ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
-    no splitting over ranks or workers (webdataset's default refuses to run under DDP), the caller decides. In a
-    converted folder every tar must yield the samples the manifest lists for it (:class:`ManifestCheck`).
+    no splitting over ranks or workers, the caller decides. In a converted folder every tar must yield the samples
+    the manifest lists for it (:class:`ManifestCheck`).
     """
     fields = None if fields is None else tuple(fields)
     listed = listed_keys(path)
