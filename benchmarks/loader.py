@@ -363,9 +363,13 @@ def _webdataset_pass(data: Path) -> Iterator[dict[str, Any]]:
     shards = shard_paths(data)
     check_listed_shards(listed)
     dataset = wds.WebDataset(
-        shards, shardshuffle=False, empty_check=False, nodesplitter=None, workersplitter=None,
+        shards,
+        shardshuffle=False,
+        empty_check=False,
+        nodesplitter=None,
+        workersplitter=None,
         handler=wds.reraise_exception,
-    )  # fmt: skip
+    )
     return (decode_sample(raw) for raw in ManifestCheck(listed)(dataset))
 
 

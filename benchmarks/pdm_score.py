@@ -63,16 +63,17 @@ def main() -> None:
     for scene, reference, trajectories in cases:
         reference_ms.append(float(np.median(cpu_times_ms(partial(plan_reference, scene), args.repeats))))
         v2 = args.metric == EPDMS_METRIC
-        cached = {} if args.per_call else {
-            "observation": log_observation(scene, V2_STEPS, replay=True) if v2 else log_observation(scene),
-            "drivable_map": DrivableMap.from_scene(scene),
-        }  # fmt: skip
+        cached = {}  # the metric cache, built once per scene unless --per-call
+        if not args.per_call:
+            cached["observation"] = log_observation(scene, V2_STEPS, replay=True) if v2 else log_observation(scene)
+            cached["drivable_map"] = DrivableMap.from_scene(scene)
         for count in args.proposals:
             calls = []
             for trajectory in trajectories:
                 proposals = np.repeat(np.asarray(trajectory["poses"], np.float64)[None], count, axis=0)
-                call = partial(score_proposals, scene, proposals, trajectory["interval_s"], reference, args.metric,
-                               **cached)  # fmt: skip
+                call = partial(
+                    score_proposals, scene, proposals, trajectory["interval_s"], reference, args.metric, **cached
+                )
                 calls.append(float(np.median(cpu_times_ms(call, args.repeats))))
             per_scene[count].append(float(np.mean(calls)))
     print(f"{len(cases)} scenes; PDM-Closed reference (plan_reference): {median(reference_ms):.2f} ms per scene")
