@@ -29,6 +29,7 @@ clock starts: the throughput of a running cluster).
 """
 
 import argparse
+import contextlib
 import hashlib
 import multiprocessing as mp
 import os
@@ -45,7 +46,7 @@ from pathlib import Path
 if "--import-torch" in sys.argv:  # at the top, as in a user's script: whatever re-imports __main__ pays for it
     import torch  # noqa: F401
 
-from cpu_time import timed
+from cpu_time import local_ray, timed
 
 from lead_s2r.convert import convert, manifest_row, one_thread_per_worker
 from lead_s2r.processes import RayExecutor
@@ -113,21 +114,13 @@ def digests(out: Path) -> dict[str, str]:
 
 def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> dict[str, float]:
     """One conversion: wall time, CPU of this process and of its reaped children (NaN for a process pool's)."""
-    executor = None
-    if on_ray:
-        import ray
-
-        ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
-        executor = RayExecutor(initializer=one_thread_per_worker)
-    navsim_map.load_map.cache_clear()  # a run in this process loads the maps again, as a fresh worker does
-    load = os.getloadavg()[0]
-    wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
-    try:
+    with local_ray(workers) if on_ray else contextlib.nullcontext():
+        executor = RayExecutor(initializer=one_thread_per_worker) if on_ray else None
+        navsim_map.load_map.cache_clear()  # a run in this process loads the maps again, as a fresh worker does
+        load = os.getloadavg()[0]
+        wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
         result = convert(adapter, src, out, workers=workers, force=True, executor=executor)
         wall = time.perf_counter() - wall
-    finally:
-        if on_ray:
-            ray.shutdown()
     if not result.ok:
         raise RuntimeError(f"conversion failed: {result.errors[:3]}")
     return {
