@@ -120,10 +120,9 @@ def build_site(
     ``compare`` = (A, B) model B against model A; return ``out/index.html``."""
     _check_worst(worst)
     table_runs = find_runs(patterns)
-    identities = {run.path: (run.run_id, run.seed) for run in table_runs}
     runs = {run.path: load_run(run.path) for run in table_runs if run.scores}
     folders = same_data(list(runs.values()))
-    models = None if compare is None else [select_model(runs, identities, name) for name in compare]
+    models = None if compare is None else [select_model(runs, table_runs, name) for name in compare]
     shown = {path: choose_samples(run, worst, random=random) for path, run in runs.items()}
     deltas = [] if models is None else scene_deltas(*models, sample_tags(folders, _scored_keys(models)))
     drawn = _pair_keys(deltas, worst, threshold)
