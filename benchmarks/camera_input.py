@@ -7,10 +7,10 @@ decoded at 1/4 size. The images are smooth synthetic scenes encoded at q=90, eac
 """
 
 import argparse
-import time
 
 import cv2
 import numpy as np
+from cpu_time import cpu_times_ms
 
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.models.input_spec import input_spec
@@ -38,11 +38,8 @@ def main() -> None:
     ltfv6 = LeadConfig(use_navsim_data=True, LTF=True, use_planning_decoder=True)
     transform = SourceTransform("navsim", input_spec(ltfv6), list(CAMERAS))
     camera = transform.camera
-    rgb = camera.image(sample, camera.plan(sample))  # warm-up: the plan is made once per rig
-    started = time.process_time()
-    for _ in range(args.repeats):
-        camera.image(sample, camera.plan(sample))
-    per_sample = (time.process_time() - started) / args.repeats * 1e3
+    rgb = camera.image(sample, camera.plan(sample))  # the plan is made once per rig: cpu_times_ms warms up too
+    per_sample = cpu_times_ms(lambda: camera.image(sample, camera.plan(sample)), args.repeats).mean()
     print(f"LTFv6 camera input {tuple(rgb.shape)} from 4 x 1920x1080 JPEGs: {per_sample:.1f} ms CPU per sample")
 
 

@@ -29,6 +29,7 @@ clock starts: the throughput of a running cluster).
 """
 
 import argparse
+import contextlib
 import hashlib
 import multiprocessing as mp
 import os
@@ -45,7 +46,7 @@ from pathlib import Path
 if "--import-torch" in sys.argv:  # at the top, as in a user's script: whatever re-imports __main__ pays for it
     import torch  # noqa: F401
 
-from cpu_time import timed
+from cpu_time import local_ray, timed
 
 from lead_s2r.convert import convert, manifest_row, one_thread_per_worker
 from lead_s2r.processes import RayExecutor
@@ -113,21 +114,13 @@ def digests(out: Path) -> dict[str, str]:
 
 def run(adapter: Adapter, src: Path, out: Path, workers: int, on_ray: bool) -> dict[str, float]:
     """One conversion: wall time, CPU of this process and of its reaped children (NaN for a process pool's)."""
-    executor = None
-    if on_ray:
-        import ray
-
-        ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
-        executor = RayExecutor(initializer=one_thread_per_worker)
-    navsim_map.load_map.cache_clear()  # a run in this process loads the maps again, as a fresh worker does
-    load = os.getloadavg()[0]
-    wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
-    try:
+    with local_ray(workers) if on_ray else contextlib.nullcontext():
+        executor = RayExecutor(initializer=one_thread_per_worker) if on_ray else None
+        navsim_map.load_map.cache_clear()  # a run in this process loads the maps again, as a fresh worker does
+        load = os.getloadavg()[0]
+        wall, cpu, child = time.perf_counter(), time.process_time(), children_cpu()
         result = convert(adapter, src, out, workers=workers, force=True, executor=executor)
         wall = time.perf_counter() - wall
-    finally:
-        if on_ray:
-            ray.shutdown()
     if not result.ok:
         raise RuntimeError(f"conversion failed: {result.errors[:3]}")
     return {
@@ -203,10 +196,8 @@ def main() -> None:
             print(f"generated {args.dataset} x {args.routes} in {seconds:.2f} s, {size / 1e6:.1f} MB")
         options = adapter_options(args.dataset, src, args)
         adapter = get_adapter(args.dataset, **options)
-        speedups: dict[int, list[float]] = defaultdict(list)
-        per_worker: dict[int, list[float]] = defaultdict(list)
-        cpu_per_sample: dict[int, list[float]] = defaultdict(list)
-        rates: dict[int, list[float]] = defaultdict(list)
+        #: per worker count, each round's (samples/s, speed-up over the first count in the round, ms CPU/sample)
+        rounds: dict[int, list[tuple[float, float, float]]] = defaultdict(list)
         for round_index in range(args.rounds):
             print(f"round {round_index}: machine check, 2 processes of a CPU loop: {machine_parallelism():.2f}x one")
             base = None
@@ -217,14 +208,11 @@ def main() -> None:
                     r = run_cli(args.dataset, src, out, workers, options)
                 else:
                     r = run(adapter, src, out, workers, args.executor == "ray")
-                written.append(digests(Path(tmp) / f"out{workers}"))
+                written.append(digests(out))
                 rate = r["samples"] / r["wall"]
-                rates[workers].append(rate)
                 base = base or rate
                 cpu_ms = (r["driver_cpu"] + r["worker_cpu"]) / r["samples"] * 1e3
-                speedups[workers].append(rate / base)
-                per_worker[workers].append(rate / workers)
-                cpu_per_sample[workers].append(cpu_ms)
+                rounds[workers].append((rate, rate / base, cpu_ms))
                 print(
                     f"round {round_index} workers={workers}: {r['samples']} samples in {r['wall']:.2f} s = "
                     f"{rate:.1f} samples/s, {rate / workers:.1f} per worker, {rate / base:.2f}x workers="
@@ -234,12 +222,14 @@ def main() -> None:
             same = all(files == written[0] for files in written)
             print(f"round {round_index}: {len(written[0])} files, the same bytes for every worker count: {same}")
         print(f"median over {args.rounds} rounds:")
+        best_first = max(rate for rate, _, _ in rounds[args.workers[0]])
         for workers in args.workers:
+            rates, speedups, cpu_ms = zip(*rounds[workers], strict=True)
             print(
-                f"  workers={workers}: {statistics.median(per_worker[workers]):.1f} samples/s per worker, "
-                f"{statistics.median(speedups[workers]):.2f}x workers={args.workers[0]} (same-round ratios), "
-                f"{statistics.median(cpu_per_sample[workers]):.1f} ms CPU/sample; best round "
-                f"{max(rates[workers]):.1f} samples/s = {max(rates[workers]) / max(rates[args.workers[0]]):.2f}x the "
+                f"  workers={workers}: {statistics.median(rate / workers for rate in rates):.1f} samples/s per worker, "
+                f"{statistics.median(speedups):.2f}x workers={args.workers[0]} (same-round ratios), "
+                f"{statistics.median(cpu_ms):.1f} ms CPU/sample; best round "
+                f"{max(rates):.1f} samples/s = {max(rates) / best_first:.2f}x the "
                 f"best of workers={args.workers[0]}"
             )
         if args.no_stages:

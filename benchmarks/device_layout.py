@@ -10,6 +10,7 @@ frames, and the share of values that differ.
 """
 
 import argparse
+import itertools
 import tempfile
 from pathlib import Path
 
@@ -51,14 +52,12 @@ def main() -> None:
             rgb = decode_images(collate([device(sample)]), "cpu")["rgb"][0]
             images["device"].append(rgb.permute(1, 2, 0).numpy())
     print(f"{len(images['device'])} frames, plan {plan.path!r}, {plan.layout.strip} -> {plan.layout.box[2:]}")
-    names = list(images)
-    for i, a in enumerate(names):
-        for b in names[i + 1 :]:
-            difference = np.abs(np.stack(images[a]).astype(int) - np.stack(images[b]).astype(int))
-            print(
-                f"{a} vs {b}: mean {difference.mean():.2f}, max {difference.max()}, "
-                f"{(difference > 0).mean():.0%} of values differ"
-            )
+    for a, b in itertools.combinations(images, 2):
+        difference = np.abs(np.stack(images[a]).astype(int) - np.stack(images[b]).astype(int))
+        print(
+            f"{a} vs {b}: mean {difference.mean():.2f}, max {difference.max()}, "
+            f"{(difference > 0).mean():.0%} of values differ"
+        )
 
 
 if __name__ == "__main__":

@@ -19,12 +19,13 @@ import hashlib
 import os
 import tempfile
 import threading
-import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import psutil
 from convert_throughput import machine_parallelism  # (benchmarks/ is the script's folder)
+from cpu_time import local_ray, wall_and_cpu
 
 from lead_s2r.convert import convert
 from lead_s2r.processes import Executor, InlineExecutor, ProcessExecutor, RayExecutor
@@ -75,10 +76,9 @@ class DescendantsCPU:
 def timed(executor: Executor, predictions: Path, data: Path, out: Path) -> dict[str, float]:
     """Samples scored, wall and CPU seconds (driver, processes under it), sha256 of scores.parquet, load average."""
     load = os.getloadavg()[0]
+    score = partial(score_predictions, METRIC, predictions, data, out, executor=executor, allow_missing=True)
     with DescendantsCPU() as workers:
-        start, cpu = time.perf_counter(), time.process_time()
-        report = score_predictions(METRIC, predictions, data, out, executor=executor, allow_missing=True)
-        wall, driver = time.perf_counter() - start, time.process_time() - cpu
+        report, wall, driver = wall_and_cpu(score)
     digest = hashlib.sha256((out / SCORES_TABLE).read_bytes()).hexdigest()
     load = max(load, os.getloadavg()[0])
     return {"samples": report["aggregates"]["frames"], "wall": wall, "driver": driver, "workers": workers.seconds,
@@ -86,13 +86,8 @@ def timed(executor: Executor, predictions: Path, data: Path, out: Path) -> dict[
 
 
 def on_ray(cpus: int, predictions: Path, data: Path, out: Path) -> dict[str, float]:
-    import ray
-
-    ray.init(address="local", num_cpus=cpus, include_dashboard=False, log_to_driver=False)
-    try:
+    with local_ray(cpus):
         return timed(RayExecutor(), predictions, data, out)
-    finally:
-        ray.shutdown()
 
 
 def prepare(data: Path, logs: int) -> Path:

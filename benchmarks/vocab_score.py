@@ -18,14 +18,13 @@ import os
 import resource
 import sys
 import tempfile
-import time
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cpu_time import cpu_times_ms
+from cpu_time import cpu_times_ms, wall_and_cpu
 
 from lead_s2r.convert import convert
 from lead_s2r.scoring.pdm import score_proposals, score_vocabulary
@@ -61,13 +60,6 @@ def scenes(count: int) -> list[PDMScene]:
         assert convert(NavsimAdapter(maps=str(raw / "maps")), raw, out, progress=False).ok
         samples = list(read_samples(out, fields=("scoring", "boxes", "agents_future", "future")))
     return [scene_from_sample(sample) for sample in samples[:: max(1, len(samples) // count)][:count]]
-
-
-def cpu_and_wall_s(call: partial) -> tuple[float, float]:
-    """CPU time of this process and wall time of one call [s]."""
-    cpu, wall = time.process_time(), time.perf_counter()
-    call()
-    return time.process_time() - cpu, time.perf_counter() - wall
 
 
 def peak_growth_mb(call: partial) -> float:
@@ -107,9 +99,11 @@ def main() -> None:
     for size in args.sizes:
         cpu, wall = [], []
         for scene, reference in zip(chosen, references, strict=True):
-            seconds = cpu_and_wall_s(partial(score_vocabulary, scene, largest[:size], 0.1, reference, args.metric))
-            cpu.append(1e6 * seconds[0] / size)
-            wall.append(1e6 * seconds[1] / size)
+            _, wall_s, cpu_s = wall_and_cpu(
+                partial(score_vocabulary, scene, largest[:size], 0.1, reference, args.metric)
+            )
+            cpu.append(1e6 * cpu_s / size)
+            wall.append(1e6 * wall_s / size)
         us = float(np.median(cpu))
         print(f"{size:7d} | {us:26.1f} | {float(np.median(wall)):4.1f} | {single / us:6.1f}x")
     if args.memory:

@@ -11,7 +11,7 @@ from pdm_scenes import TIMES, agent, drive, road_scene
 from lead_s2r.report.bev import LOGGED, PREDICTED, bev_figure, save_figure, trust_region
 from lead_s2r.report.camera import camera_figure, forward_cameras, monotonic_radius, project_points
 from lead_s2r.report.run_outputs import MetricScores, training_curves
-from lead_s2r.report.sample_page import failures
+from lead_s2r.report.sample_page import named_failures
 from lead_s2r.schema import BoxClass
 from lead_s2r.scoring.pdm.observation import log_observation
 from lead_s2r.scoring.pdm.score import score_states
@@ -103,6 +103,11 @@ def test_left_turn_bends_to_the_left_of_the_picture(tmp_path: Path) -> None:
 
 def _scores(family: str) -> MetricScores:
     return MetricScores(Path("."), {"metric": f"{family}@x"}, {})
+
+
+def failures(scores: MetricScores, row: dict) -> list[str]:
+    """The words of each failure :func:`named_failures` names: the list a sample page shows."""
+    return [words for _, words in named_failures(scores, row)]
 
 
 def test_failing_sub_scores_are_named_with_their_time() -> None:

@@ -152,10 +152,7 @@ def _with_bar(samples: Iterator[dict[str, Any]], total: int, progress: bool) -> 
 
     console = Console(stderr=True)
     with Progress(console=console, disable=not (progress and console.is_terminal)) as bar:
-        task = bar.add_task("checking samples", total=total)
-        for sample in samples:
-            yield sample
-            bar.advance(task)
+        yield from bar.track(samples, total=total, description="checking samples")
 
 
 def _manifest(path: Path) -> pa.Table:

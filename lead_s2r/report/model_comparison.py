@@ -18,7 +18,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.report.comparison import paired_metrics
 from lead_s2r.report.run_outputs import HEADLINES, MetricScores, RunOutputs
 from lead_s2r.report.sample_page import is_score, named_failures, sub_scores
-from lead_s2r.report.tables import id_ends_with
+from lead_s2r.report.tables import Run, id_ends_with
 
 ALL_SCENES = "all scenes"
 
@@ -31,12 +31,12 @@ class Model:
     runs: tuple[tuple[int, RunOutputs], ...]
 
 
-def select_model(runs: dict[Path, RunOutputs], identities: dict[Path, tuple[str, int]], name: str) -> Model:
-    """The runs whose id (``identities``: run folder -> (run id, seed)) ends with ``name``; none is a
-    :class:`UserError` that lists the models there are."""
-    chosen = tuple((identities[path][1], run) for path, run in runs.items() if id_ends_with(identities[path][0], name))
+def select_model(runs: dict[Path, RunOutputs], found: list[Run], name: str) -> Model:
+    """The scored ``runs`` (by folder) whose id (``found``: the runs ``lead-s2r table`` sees) ends with ``name``; none
+    is a :class:`UserError` that lists the models there are."""
+    chosen = tuple((run.seed, runs[run.path]) for run in found if run.path in runs and id_ends_with(run.run_id, name))
     if not chosen:
-        known = sorted({"/".join(Path(run_id).parts[-2:]) for run_id, _ in identities.values()})
+        known = sorted({"/".join(Path(run.run_id).parts[-2:]) for run in found})
         raise UserError(f"--compare {name}: no scored run of that name; the runs are {', '.join(known)}")
     return Model(name, chosen)
 

@@ -40,14 +40,6 @@ APPLICATION = "lead_s2r"
 TRACK_FIELDS = ("track_tokens", "track_ids", "object_ids")
 
 
-def _rerun() -> Any:
-    try:
-        import rerun
-    except ImportError:
-        raise UserError("lead-s2r view needs Rerun: pip install 'lead-s2r[viewer]'") from None
-    return rerun
-
-
 def find_log(target: Path, log: str | None) -> tuple[Path, str, RunOutputs | None]:
     """The converted folder holding ``log``, the log, and the run when ``target`` is a run folder (its scores.json
     name the converted folders) rather than a converted folder; a log not there is a :class:`UserError`."""
@@ -68,21 +60,19 @@ def find_log(target: Path, log: str | None) -> tuple[Path, str, RunOutputs | Non
     return logs[log], log, run
 
 
-def log_samples(folder: Path, log: str) -> list[dict[str, Any]]:
-    """The samples of ``log`` in ``folder``, in frame order (only the shards that hold them are read)."""
-    keys = [row["key"] for row in listed_samples(folder, ("log",)) if row["log"] == log]
-    return sorted(load_samples([folder], keys).values(), key=lambda s: s["meta"]["frame_idx"])
-
-
 def write_recording(target: str | Path, rrd: str | Path, log: str | None = None, spawn: bool = False) -> Path:
     """Write the recording of ``log`` of converted folder or run ``target`` to ``rrd``; with ``spawn``, also open
     it in the Rerun viewer. Returns ``rrd``."""
-    rr = _rerun()
+    try:
+        import rerun as rr
+    except ImportError:
+        raise UserError("lead-s2r view needs Rerun: pip install 'lead-s2r[viewer]'") from None
     rrd = Path(rrd)
     if rrd.suffix != ".rrd":
         raise UserError(f"--rrd {rrd}: a Rerun recording file ends in .rrd")
     folder, log, run = find_log(Path(target), log)
-    samples = log_samples(folder, log)
+    keys = [row["key"] for row in listed_samples(folder, ("log",)) if row["log"] == log]
+    samples = sorted(load_samples([folder], keys).values(), key=lambda s: s["meta"]["frame_idx"])
     recording = rr.RecordingStream(APPLICATION, recording_id=log)
 
     def record(partial: Path) -> None:

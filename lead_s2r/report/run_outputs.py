@@ -76,8 +76,22 @@ class RunOutputs:
 
     @property
     def name(self) -> str:
-        """What the run is: ``navsim / ltfv6 / seed0`` (see :func:`run_name`)."""
-        return run_name(self.path)
+        """``<family> / <name> / seed<k>`` from the run layout ``runs/<family>/<name>/seed<k>``, else from the
+        ``config.yaml`` ``lead-s2r fit`` saved (``trainer.default_root_dir``, ``seed_everything``: what
+        ``lead-s2r table`` reads), else the folder's own name: a run is named by what it is, never by its last folder
+        alone."""
+        path = self.path.resolve()  # "." is a run too
+        identity = folder_identity(path)
+        configs = sorted(path.rglob("config.yaml"))
+        if identity is None and configs:
+            try:
+                identity = run_identity(configs[0])
+            except TableError:  # a config without the run's identity (hand-written): the folder names the run
+                identity = None
+        if identity is None:
+            return path.name
+        run_id, seed = identity
+        return " / ".join([*Path(run_id).parts[-2:], f"seed{seed}"])
 
     @property
     def slug(self) -> str:
@@ -88,24 +102,6 @@ class RunOutputs:
         """The converted folders the scores.json files record, in first-seen order."""
         folders = [Path(folder) for scores in self.scores for folder in scores.report.get("data", [])]
         return list(dict.fromkeys(folders))
-
-
-def run_name(path: Path) -> str:
-    """``<family> / <name> / seed<k>`` from the run layout ``runs/<family>/<name>/seed<k>``, else from the
-    ``config.yaml`` ``lead-s2r fit`` saved (``trainer.default_root_dir``, ``seed_everything``: what ``lead-s2r table``
-    reads), else the folder's own name: a run is named by what it is, never by its last folder alone."""
-    path = path.resolve()  # "." is a run too
-    identity = folder_identity(path)
-    configs = sorted(path.rglob("config.yaml"))
-    if identity is None and configs:
-        try:
-            identity = run_identity(configs[0])
-        except TableError:  # a config without the run's identity (hand-written): the folder names the run
-            identity = None
-    if identity is None:
-        return path.name
-    run_id, seed = identity
-    return " / ".join([*Path(run_id).parts[-2:], f"seed{seed}"])
 
 
 def load_run(path: str | Path) -> RunOutputs:

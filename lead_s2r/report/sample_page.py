@@ -61,11 +61,6 @@ def named_failures(scores: MetricScores, row: dict[str, Any]) -> list[tuple[str,
     return named
 
 
-def failures(scores: MetricScores, row: dict[str, Any]) -> list[str]:
-    """The sub-scores ``row`` lost, named, with the time they were lost where the scorer records it."""
-    return [words for _, words in named_failures(scores, row)]
-
-
 def sub_scores(family: str) -> tuple[str, ...]:
     """The columns of a family's per-sample table that are sub-scores (NAVSIM's multipliers and weighted terms, RFS,
     ADE and FDE): progress in metres or a normaliser is a number, not a sub-score to compare or plot."""
@@ -150,5 +145,6 @@ def sample_view(sample: dict[str, Any], run: RunOutputs, site: Path) -> SampleVi
     for scores in run.scores:
         row = scores.rows.get(key)
         if row is not None:
-            view.metrics.append({"label": scores.label, "cells": score_cells(row), "failures": failures(scores, row)})
+            failed = [words for _, words in named_failures(scores, row)]
+            view.metrics.append({"label": scores.label, "cells": score_cells(row), "failures": failed})
     return view

@@ -18,10 +18,6 @@ def _number(value: Any) -> str:
     return "-" if value is None else str(value)
 
 
-def _is_count(name: str) -> bool:
-    return name == "frames" or name.startswith("frames_")
-
-
 def summary_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
     """(label, value) rows: aggregate scores (a nested breakdown indented under its name), then frame counts and
     the predictions left aside. A breakdown of breakdowns (``per_dataset``) shows each group's first value."""
@@ -34,7 +30,7 @@ def summary_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
                 shown = next(iter(inner.items())) if isinstance(inner, dict) and inner else (None, inner)
                 label = f"  {group}" if shown[0] is None else f"  {group}: {shown[0]}"
                 scores.append((label, _number(shown[1])))
-        elif _is_count(name):
+        elif name == "frames" or name.startswith("frames_"):
             counts.append((name.replace("_", " "), _number(value)))
         else:
             scores.append((name, _number(value)))
@@ -52,10 +48,7 @@ def summary_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
 def score_table(report: dict[str, Any]) -> Table:
     """The rich table ``lead-s2r score`` prints (headline first)."""
     split = f", split {report['split']}" if report.get("split") else ""
-    table = Table(
-        title=f"{report['metric']} ({report['metric_version']}{split})",
-        show_header=False,
-    )
+    table = Table(title=f"{report['metric']} ({report['metric_version']}{split})", show_header=False)
     table.add_column("", style="bold")
     table.add_column("", justify="right")
     for label, value in summary_rows(report):

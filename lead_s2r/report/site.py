@@ -73,12 +73,6 @@ def choose_samples(
     return chosen
 
 
-def data_folders(run: RunOutputs, data: list[Path] | None) -> list[Path]:
-    """``--data`` when given, else the folders the run's scores.json record (each must exist)."""
-    folders = [Path(folder) for folder in data] if data else run.data_folders()
-    return existing(folders, "pass the run's converted data with --data")
-
-
 def existing(folders: list[Path], fix: str) -> list[Path]:
     """``folders``, each checked to exist (``fix``: what the error tells the user to do)."""
     missing = [folder for folder in folders if not folder.is_dir()]
@@ -102,7 +96,8 @@ def build_report(
     b = None if baseline is None else load_run(baseline)
     shown = choose_samples(a, worst, samples)
     changed = [] if b is None else differences(a, b, threshold)
-    folders = data_folders(a, data)
+    folders = [Path(folder) for folder in data] if data else a.data_folders()
+    folders = existing(folders, "pass the run's converted data with --data")
     loaded = load_samples(folders, list(dict.fromkeys([*shown, *(d.key for d in changed)])))
     with staged_folder(Path(out)) as staging:
         pages = Pages(staging)
@@ -125,10 +120,9 @@ def build_site(
     ``compare`` = (A, B) model B against model A; return ``out/index.html``."""
     _check_worst(worst)
     table_runs = find_runs(patterns)
-    identities = {run.path: (run.run_id, run.seed) for run in table_runs}
     runs = {run.path: load_run(run.path) for run in table_runs if run.scores}
     folders = same_data(list(runs.values()))
-    models = None if compare is None else [select_model(runs, identities, name) for name in compare]
+    models = None if compare is None else [select_model(runs, table_runs, name) for name in compare]
     shown = {path: choose_samples(run, worst, random=random) for path, run in runs.items()}
     deltas = [] if models is None else scene_deltas(*models, sample_tags(folders, _scored_keys(models)))
     drawn = _pair_keys(deltas, worst, threshold)

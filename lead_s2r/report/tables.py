@@ -369,20 +369,17 @@ def layout(spec: TableSpec, cells: list[list[Cell]]) -> tuple[list[str], list[li
     return header, body
 
 
-def _footnotes(spec: TableSpec, cells: list[list[Cell]]) -> list[str]:
-    notes = []
-    for row, row_cells in zip(spec.rows, cells, strict=True):
-        for column, cell in zip(spec.columns, row_cells, strict=True):
-            if cell.missing_seeds and cell.values:
-                notes.append(f"* {row.name} / {column.name}: seeds {list(cell.missing_seeds)} missing")
-    return notes
-
-
 def to_markdown(spec: TableSpec, cells: list[list[Cell]]) -> str:
     header, body = layout(spec, cells)
     lines = [f"**{spec.title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(row) + " |" for row in body]
-    extra = _footnotes(spec, cells) + ([spec.notes.strip()] if spec.notes.strip() else [])
+    extra = [
+        f"* {row.name} / {column.name}: seeds {list(cell.missing_seeds)} missing"
+        for row, row_cells in zip(spec.rows, cells, strict=True)
+        for column, cell in zip(spec.columns, row_cells, strict=True)
+        if cell.missing_seeds and cell.values
+    ]
+    extra += [spec.notes.strip()] if spec.notes.strip() else []
     return "\n".join(lines + (["", *extra] if extra else [])) + "\n"
 
 
