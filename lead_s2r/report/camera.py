@@ -73,7 +73,8 @@ def forward_cameras(sample: dict[str, Any]) -> list[dict[str, Any]]:
 
 def decode(sample: dict[str, Any], field: str) -> np.ndarray | None:
     """A stored camera image (``cam_<id>``) as RGB (None when it does not decode)."""
-    return cv2.imdecode(np.frombuffer(sample[field], np.uint8), cv2.IMREAD_COLOR_RGB)
+    image = cv2.imdecode(np.frombuffer(sample[field], np.uint8), cv2.IMREAD_COLOR)
+    return None if image is None else cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
 def camera_figure(
