@@ -30,7 +30,7 @@ from numba import njit
 
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm.footprint import Corner
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.scene import PDMScene, ragged_polygons
 
 SCORED_KINDS = (MapKind.ROADBLOCK, MapKind.LANE, MapKind.LANE_CONNECTOR, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
 DRIVABLE_KINDS = (MapKind.ROADBLOCK, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
@@ -160,16 +160,14 @@ class DrivableMap:
     def from_scene(cls, scene: PDMScene, cell: float = GRID_CELL_M, max_cells: int = MAX_GRID_CELLS) -> "DrivableMap":
         """The scene's map with a grid of ``cell`` metres (coarser past ``max_cells`` per axis); the grid changes
         only how fast points are located, never their answers."""
-        offsets = np.asarray(scene.polygon_offsets, np.int64)
-        ring_of_point = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-        rings = shapely.linearrings(np.asarray(scene.polygon_xy, np.float64), indices=ring_of_point)
+        polygons = ragged_polygons(scene.polygon_xy, scene.polygon_offsets)
         keep = np.isin(scene.polygon_kind, SCORED_KINDS)
-        if len(rings) != len(keep):
+        if len(polygons) != len(keep):
             raise ValueError(
-                f"scene {scene.key!r}: polygon_offsets describe {len(rings)} polygons with points, polygon_kind has "
-                f"{len(keep)}; every polygon needs at least one point (rebuild scoring.npz)"
+                f"scene {scene.key!r}: polygon_offsets describe {len(polygons)} polygons with points, polygon_kind "
+                f"has {len(keep)}; every polygon needs at least one point (rebuild scoring.npz)"
             )
-        polygons = shapely.polygons(rings[keep])
+        polygons = polygons[keep]
         shapely.prepare(polygons)
         ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
         bounds = shapely.bounds(polygons).reshape(-1, 4)

@@ -7,8 +7,16 @@ converted sample maps onto a scene without renaming. v2-only fields are optional
 from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 
 from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
+
+
+def ragged_polygons(xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Shapely polygons from exterior rings laid end to end (``polygon_xy`` / ``polygon_offsets``)."""
+    counts = np.diff(np.asarray(offsets, np.int64))
+    rings = shapely.linearrings(np.asarray(xy, np.float64), indices=np.repeat(np.arange(len(counts)), counts))
+    return shapely.polygons(rings)
 
 
 def _empty_ids() -> np.ndarray:
