@@ -65,15 +65,6 @@ def _require_finite(poses: np.ndarray, name: str) -> None:
         raise ValueError(f"{name}: NaN or infinite pose values at index {bad[:5].tolist()} (first 5); remove them")
 
 
-def proposal_knot_us(num_poses: int, interval: float, t0_us: int | None = None) -> np.ndarray:
-    """Knot times (us after t0) of the initial pose and ``num_poses`` poses at ``interval * (k + 1)``.
-
-    nuPlan ``_get_fixed_timesteps``: ``np.arange(0, num_poses * interval, interval) + interval`` seconds.
-    """
-    times = np.arange(0.0, num_poses * interval, interval)[:num_poses] + interval
-    return np.concatenate([[0], truncated_us(times, t0_us)])
-
-
 def interpolate_proposals(proposals: np.ndarray, interval: float, t0_us: int | None = None) -> np.ndarray:
     """Ego-frame poses ``(N, K, 3)`` at t = interval * (k + 1) -> the 41 tracker targets ``(N, 41, 3)``."""
     proposals = np.asarray(proposals, np.float64)
@@ -83,8 +74,11 @@ def interpolate_proposals(proposals: np.ndarray, interval: float, t0_us: int | N
         raise ValueError(f"interval: expected a positive number of seconds, got {interval}")
     _require_finite(proposals, "proposals")
     count, num_poses, _ = proposals.shape
+    # the initial pose at 0, the proposal's at nuPlan's ``_get_fixed_timesteps``: arange(0, K * dt, dt) + dt seconds
+    times = np.arange(0.0, num_poses * interval, interval)[:num_poses] + interval
+    knot_us = np.concatenate([[0], truncated_us(times, t0_us)])
     knots = np.concatenate([np.zeros((count, 1, 3)), proposals], axis=1)
-    return interpolate_knots(proposal_knot_us(num_poses, interval, t0_us), knots, sample_times_us(t0_us))
+    return interpolate_knots(knot_us, knots, sample_times_us(t0_us))
 
 
 def interpolate_reference(reference: np.ndarray, t0_us: int | None = None) -> np.ndarray:
