@@ -25,13 +25,7 @@ import numpy as np
 import shapely
 
 from lead_s2r.scoring.pdm import epdms
-from lead_s2r.scoring.pdm.collisions import (
-    TTC_OFFSETS,
-    enclosing_radius,
-    no_at_fault_collisions,
-    step_hits,
-    time_to_collision,
-)
+from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, no_at_fault_collisions, step_hits, time_to_collision
 from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
 from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
 from lead_s2r.scoring.pdm.footprint import Corner, ego_coords, heading_directions
@@ -137,7 +131,7 @@ def _prelude(
     coords = ego_coords(states, scene.vehicle, along)
     rear_axles = states[..., StateIndex.X : StateIndex.Y + 1]
     areas = ego_areas(drivable_map, coords, rear_axles, np.asarray(scene.route_lane_ids, np.int64))
-    radius = enclosing_radius(scene.vehicle.length, scene.vehicle.width)
+    radius = float(np.hypot(scene.vehicle.length / 2.0, scene.vehicle.width / 2.0))  # a circle holding the box
     hits = step_hits(coords, radius, observation)
     lanes_or_off_road = areas.multiple_lanes | areas.non_drivable_area
     nc, step, hit = no_at_fault_collisions(states, coords, hits, observation, lanes_or_off_road)
