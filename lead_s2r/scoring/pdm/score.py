@@ -239,21 +239,15 @@ def score_states_v2(
     }
 
 
-def _poses(scene: PDMScene, poses: Any, name: str, dims: str) -> np.ndarray:
-    """``poses`` as float64 with the axes named in ``dims`` (ending in 3) and only finite values."""
+def _poses(scene: PDMScene, poses: Any, name: str, dims: str, least: int = 1) -> np.ndarray:
+    """``poses`` as float64 with the axes named in ``dims`` (ending in 3), at least ``least`` of them along the axis
+    before the last, and only finite values."""
     array = np.asarray(poses, np.float64)
-    if array.ndim != len(dims.split(",")) or array.shape[-1] != 3 or array.shape[-2] < 1:
+    if array.ndim != len(dims.split(",")) or array.shape[-1] != 3 or array.shape[-2] < least:
         raise ValueError(f"scene {scene.key!r}: {name} must be ({dims}) ego-frame poses, got shape {array.shape}")
     if not np.isfinite(array).all():
         raise ValueError(f"scene {scene.key!r}: {name} holds NaN or inf poses; the planner's output is invalid here")
     return array
-
-
-def _reference(scene: PDMScene, reference: np.ndarray) -> np.ndarray:
-    reference = _poses(scene, reference, "reference", "M, 3")
-    if len(reference) < 2:
-        raise ValueError(f"scene {scene.key!r}: reference needs poses after t = 0, got shape {reference.shape}")
-    return reference
 
 
 def human_trajectory(scene: PDMScene) -> np.ndarray | None:
@@ -270,7 +264,7 @@ def simulate_rows(
     ``(N, K, 3)``, then the human trajectory where it is given (the human filter's). Every row is simulated on its
     own, so a row's states do not depend on the rows simulated with it."""
     targets = [
-        interpolate_reference(_reference(scene, reference), t0_us=scene.t0_us)[None],
+        interpolate_reference(_poses(scene, reference, "reference", "M >= 2, 3", least=2), t0_us=scene.t0_us)[None],
         interpolate_proposals(proposals, interval, scene.t0_us),
     ]
     if human is not None:
