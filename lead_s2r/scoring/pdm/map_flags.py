@@ -376,9 +376,7 @@ def ego_areas(
     per_box = x.shape[1]
     layers = drivable_map.layers(x.reshape(-1), y.reshape(-1))
     drivable = layers.drivable.reshape(num_boxes, per_box)
-    corners_drivable = drivable[:, Corner.FRONT_LEFT]
-    for corner in range(1, NUM_CORNERS):
-        corners_drivable = corners_drivable & drivable[:, corner]
+    corners_drivable = reduce(np.logical_and, [drivable[:, corner] for corner in range(NUM_CORNERS)])
     lanes = layers.lanes.reshape(-1, num_boxes, per_box)  # (W, boxes, points)
     # a lane index -1 (a pad) reads the appended False
     on_route_lane = np.append(np.isin(drivable_map.ids, route_lane_ids) & IS_LANE[drivable_map.kinds], False)
