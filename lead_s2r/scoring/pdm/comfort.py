@@ -103,19 +103,11 @@ def _within(values: np.ndarray, low: float, high: float) -> np.ndarray:
 
 
 def comfort_checks(
-    states: np.ndarray,
-    times: np.ndarray,
-    lon_lat_states: np.ndarray | None = None,
-    accel_window: int | None = None,
-    jerk_window: int | None = None,
+    states: np.ndarray, times: np.ndarray, lon_lat: np.ndarray, accel_window: int, jerk_window: int
 ) -> np.ndarray:
-    """``(N, 6)`` checks: lon accel, lat accel, jerk, lon jerk, yaw accel, yaw rate (``ego_is_comfortable``).
-    Defaults are v1.1's (rear-axle accelerations, windows of the whole horizon); v2 passes centre-frame
-    ``lon_lat_states`` and windows 8 and 15 (:func:`history_comfort_checks`)."""
-    horizon = states.shape[-2]
-    lon_lat = states if lon_lat_states is None else lon_lat_states
-    accel_window = horizon if accel_window is None else accel_window
-    jerk_window = horizon if jerk_window is None else jerk_window
+    """``(N, 6)`` checks: lon accel, lat accel, jerk, lon jerk, yaw accel, yaw rate (``ego_is_comfortable``), the
+    accelerations read from the states ``lon_lat``: v1.1 the rear-axle states themselves and windows of the whole
+    horizon (:func:`comfort`), v2 the centre-frame ones and windows 8 and 15 (:func:`history_comfort_checks`)."""
     lon, lat = lon_lat[..., StateIndex.ACCELERATION_X], lon_lat[..., StateIndex.ACCELERATION_Y]
     # computed once where two checks read the same numbers: the longitudinal acceleration where the jerk smooths it
     # with the same window (v2), the unwrapped heading
@@ -138,8 +130,9 @@ def comfort_checks(
 
 def comfort(states: np.ndarray, interval: float = 0.1) -> np.ndarray:
     """C ``(N,)`` in {0, 1} of states ``(N, T, 11)`` at ``interval``: 1 when all six checks hold at every step."""
-    times = np.arange(0, states.shape[-2]).astype(np.float64) * interval
-    return comfort_checks(states, times).all(axis=-1).astype(np.float64)
+    horizon = states.shape[-2]
+    times = np.arange(0, horizon).astype(np.float64) * interval
+    return comfort_checks(states, times, states, horizon, horizon).all(axis=-1).astype(np.float64)
 
 
 def center_frame(states: np.ndarray, vehicle: VehicleParameters) -> np.ndarray:
