@@ -311,9 +311,7 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
     allowed = set(candidates)
     queue, dist, depth = [start], [1.0], [1]
     parent: dict[int, int | None] = {start: None}
-    expanded: list[int] = []
-    expanded_dist: list[float] = []
-    expanded_depth: list[int] = []
+    expanded: dict[int, tuple[float, int]] = {}  # lane -> (distance, depth), in the order of expansion
     end = None
     while queue:
         index = min(range(len(dist)), key=lambda i: (dist[i], i))
@@ -321,9 +319,7 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
         if graph.lane_block.get(lane) == target_block:
             end = lane
             break
-        expanded.append(lane)
-        expanded_dist.append(lane_dist)
-        expanded_depth.append(lane_depth)
+        expanded[lane] = (lane_dist, lane_depth)
         for successor in graph.lane_out.get(lane, []):
             if successor not in allowed:
                 continue
@@ -340,8 +336,8 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
                     dist[position] = alternative
                     depth[position] = lane_depth + 1
     if end is None:
-        deepest = max(expanded_depth)
-        end = min((expanded_dist[i], i, expanded[i]) for i in range(len(expanded)) if expanded_depth[i] == deepest)[2]
+        deepest = max(level for _, level in expanded.values())
+        end = min((cost, i, lane) for i, (lane, (cost, level)) in enumerate(expanded.items()) if level == deepest)[2]
     path = [end]
     while parent[path[-1]] is not None:
         path.append(parent[path[-1]])
