@@ -146,17 +146,6 @@ def _first_step(rows: np.ndarray, steps: np.ndarray, num_rows: int) -> np.ndarra
     return np.where(first == np.iinfo(np.int64).max, -1, first)
 
 
-def _first_hit(
-    rows: np.ndarray, steps: np.ndarray, objects: np.ndarray, num_rows: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per row the smallest step and the object hit at it (the lowest index on a tie), -1 for rows without any."""
-    first = _first_step(rows, steps, num_rows)
-    at_first = steps == first[rows]
-    hit = np.full(num_rows, np.iinfo(np.int64).max)
-    np.minimum.at(hit, rows[at_first], objects[at_first].astype(np.int64))
-    return first, np.where(first >= 0, hit, -1)
-
-
 def step_hits(ego_coords: np.ndarray, ego_radius: float, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
     """``(query, geometry)`` pairs where the ego box of (row, step), query ``step * N + row``, intersects a geometry
     of the observation at its own step (red lights left out), for boxes ``(N, T, 5,
@@ -199,11 +188,15 @@ def no_at_fault_collisions(
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
     at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & _at(lanes_or_off_road, row, step)))
     counted = counted_before_release(row, obj, step, at_fault)
+    row, step, obj = row[counted], step[counted], obj[counted]
 
-    severity = np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE)
     scores = np.ones(num_rows)
-    np.minimum.at(scores, row[counted], severity[counted])
-    return scores, *_first_hit(row[counted], step[counted], obj[counted], num_rows)
+    np.minimum.at(scores, row, np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE))
+    first = _first_step(row, step, num_rows)
+    at_first = step == first[row]  # the object hit at a row's first step: the lowest index on a tie
+    hit = np.full(num_rows, np.iinfo(np.int64).max)
+    np.minimum.at(hit, row[at_first], obj[at_first].astype(np.int64))
+    return scores, first, np.where(first >= 0, hit, -1)
 
 
 def time_to_collision(
