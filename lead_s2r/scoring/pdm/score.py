@@ -169,14 +169,13 @@ def score_states(
         "time_to_collision_within_bound": ttc,
         "comfort": c,
         "score": pdms_v11(nc, dac, ep, ttc, c, ddc),
-        **_progress_and_failures(base, normaliser, ttc_idx),
-        **_flags(base.areas),
+        **_shared_columns(base, normaliser, ttc_idx),
     }
 
 
-def _progress_and_failures(base: _Prelude, normaliser: np.ndarray, ttc_idx: np.ndarray) -> dict[str, np.ndarray]:
-    """The columns v1.1 and v2.2 share beside their sub-scores: progress and its normaliser, and the step (or agent)
-    where NC, TTC and DAC were lost, so a report can name when a sub-score failed."""
+def _shared_columns(base: _Prelude, normaliser: np.ndarray, ttc_idx: np.ndarray) -> dict[str, np.ndarray]:
+    """The columns v1.1 and v2.2 share beside their sub-scores: progress and its normaliser, the step (or agent)
+    where NC, TTC and DAC were lost, so a report can name when a sub-score failed, and the ``(N, T)`` area flags."""
     return {
         "progress_m": base.progress,
         "ep_normaliser_m": normaliser,
@@ -184,14 +183,9 @@ def _progress_and_failures(base: _Prelude, normaliser: np.ndarray, ttc_idx: np.n
         "ttc_time_idx": ttc_idx,
         "dac_time_idx": first_step(base.areas.non_drivable_area),
         "collision_object_idx": base.collision_object,
-    }
-
-
-def _flags(areas: EgoAreas) -> dict[str, np.ndarray]:
-    return {
-        "multiple_lanes": areas.multiple_lanes,
-        "non_drivable_area": areas.non_drivable_area,
-        "oncoming_traffic": areas.oncoming_traffic,
+        "multiple_lanes": base.areas.multiple_lanes,
+        "non_drivable_area": base.areas.non_drivable_area,
+        "oncoming_traffic": base.areas.oncoming_traffic,
     }
 
 
@@ -231,9 +225,8 @@ def score_states_v2(
         epdms.LK: lk,
         epdms.HC: history_comfort(base.states, scene.ego_past, scene.vehicle, INTERVAL_S),
         "multiplicative_metrics_prod": product,
-        **_progress_and_failures(base, normaliser, ttc_idx),
+        **_shared_columns(base, normaliser, ttc_idx),
         "lane_keeping_fail_idx": lk_idx,
-        **_flags(base.areas),
         "in_intersection": in_intersection,
         "on_red_light": touching,
     }
@@ -317,18 +310,17 @@ def score_proposals(
             f"scene {scene.key!r}: {len(simulated)} simulated rows for {len(proposals)} proposals; pass "
             "simulate_rows' rows (the reference, the proposals, the human trajectory where the filter scores it)"
         )
-    states = simulated
     agents = slice(1, 1 + len(proposals))
-    extra = {"simulated_states": states[agents]} if with_states else {}
+    extra = {"simulated_states": simulated[agents]} if with_states else {}
     if metric == METRIC:
         observation = log_observation(scene) if observation is None else observation
-        scores = score_states(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
+        scores = score_states(scene, simulated, observation, ep_reference=0, drivable_map=drivable_map)
         if with_masked_progress:
             extra |= _masked_progress(scores, scores[epdms.NC] * scores[epdms.DAC], agents)
         return {name: scores[name][agents] for name in COLUMNS} | extra
     observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
     scores = score_states_v2(
-        scene, states, observation, ep_reference=0, drivable_map=drivable_map, red_lights=red_lights
+        scene, simulated, observation, ep_reference=0, drivable_map=drivable_map, red_lights=red_lights
     )
     if with_masked_progress:
         extra |= _masked_progress(scores, scores["multiplicative_metrics_prod"], agents)
@@ -336,7 +328,7 @@ def score_proposals(
         None if human is None else {name: scores[name][-1] for name in epdms.FILTERED} | {epdms.EP: 1.0, epdms.HC: 1.0}
     )
     columns = epdms.human_penalty_filter({name: scores[name][agents] for name in epdms.FILTERED}, human_row)
-    columns[epdms.EC] = extended_comfort(scene, states[agents], previous)
+    columns[epdms.EC] = extended_comfort(scene, simulated[agents], previous)
     columns["score"] = epdms.epdms(columns)
     return columns | {name: scores[name][agents] for name in EPDMS_COLUMNS[len(epdms.SUB_SCORES) + 1 :]} | extra
 
