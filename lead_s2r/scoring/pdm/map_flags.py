@@ -347,10 +347,7 @@ class EgoAreas:
 
 
 def ego_areas(
-    drivable_map: DrivableMap,
-    coords: np.ndarray,
-    rear_axles: np.ndarray,
-    route_lane_ids: np.ndarray,
+    drivable_map: DrivableMap, coords: np.ndarray, rear_axles: np.ndarray, route_lane_ids: np.ndarray
 ) -> EgoAreas:
     """The ego-area flags of ego boxes ``(N, T, 5, 2)`` (4 corners + centre) with rear axles ``(N, T, 2)``."""
     n_rows, n_steps = coords.shape[:2]

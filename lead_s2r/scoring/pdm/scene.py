@@ -19,10 +19,6 @@ def ragged_polygons(xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return shapely.polygons(rings)
 
 
-def _empty_ids() -> np.ndarray:
-    return np.zeros(0, np.int64)
-
-
 @dataclass
 class PDMScene:
     """One scene to score. M agents over T keyframes (2 Hz, t = 0 included); K map polygons."""
@@ -53,10 +49,10 @@ class PDMScene:
     t0_us: int | None = None
     # red lights per 2 Hz keyframe: lane-connector ids red at red_light_t[i] are red_light_ids[offsets[i]:offsets[i+1]]
     red_light_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    red_light_ids: np.ndarray = field(default_factory=_empty_ids)
+    red_light_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     red_light_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
     # v2 (EPDMS): lanes of the uncorrected route (only their red lights count), the logged past, the logged future
-    light_route_lane_ids: np.ndarray = field(default_factory=_empty_ids)
+    light_route_lane_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     ego_past: np.ndarray | None = None  # (P, 8) t, x, y, heading, vx, vy, ax, ay (body frame)
     human_poses: np.ndarray | None = None  # (K, 3) at human_interval * (k + 1)
     human_interval: float = 0.5
