@@ -336,8 +336,7 @@ def score_proposals(
 def _masked_progress(scores: dict[str, np.ndarray], multiplier: np.ndarray, agents: slice) -> dict[str, np.ndarray]:
     """EP's masked progress of the proposals, and the reference's (row 0) repeated beside them."""
     masked = scores["progress_m"] * multiplier
-    count = agents.stop - agents.start
-    return {"masked_progress_m": masked[agents], "reference_masked_progress_m": np.full(count, masked[0])}
+    return {"masked_progress_m": masked[agents], "reference_masked_progress_m": np.full_like(masked[agents], masked[0])}
 
 
 def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:
