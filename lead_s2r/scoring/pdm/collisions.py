@@ -45,8 +45,6 @@ AHEAD_DEG = 30.0
 BEHIND_DEG = 150.0
 STATIC_AT_FAULT_SCORE = 0.5
 TTC_OFFSETS = (0, 3, 6, 9)  # steps: np.arange(0, int(1.0 / 0.1), 3)
-
-
 #: Slack [m] on the bounding-circle test that picks candidate pairs, far above any rounding in the box corners.
 CIRCLE_SLACK = 1e-6
 
@@ -148,22 +146,6 @@ def _first_step(rows: np.ndarray, steps: np.ndarray, num_rows: int) -> np.ndarra
     return np.where(first == np.iinfo(np.int64).max, -1, first)
 
 
-def _first_hit(
-    rows: np.ndarray, steps: np.ndarray, objects: np.ndarray, num_rows: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per row the smallest step and the object hit at it (the lowest index on a tie), -1 for rows without any."""
-    first = _first_step(rows, steps, num_rows)
-    at_first = steps == first[rows]
-    hit = np.full(num_rows, np.iinfo(np.int64).max)
-    np.minimum.at(hit, rows[at_first], objects[at_first].astype(np.int64))
-    return first, np.where(first >= 0, hit, -1)
-
-
-def enclosing_radius(length: float, width: float) -> float:
-    """Radius of the circle about a box's centre that holds the box."""
-    return float(np.hypot(length / 2.0, width / 2.0))
-
-
 def step_hits(ego_coords: np.ndarray, ego_radius: float, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
     """``(query, geometry)`` pairs where the ego box of (row, step), query ``step * N + row``, intersects a geometry
     of the observation at its own step (red lights left out), for boxes ``(N, T, 5,
@@ -206,11 +188,15 @@ def no_at_fault_collisions(
     lateral = ~ego_stopped & ~track_stopped & ~behind & ~front_hit
     at_fault = ~ego_stopped & (track_stopped | (~behind & front_hit) | (lateral & _at(lanes_or_off_road, row, step)))
     counted = counted_before_release(row, obj, step, at_fault)
+    row, step, obj = row[counted], step[counted], obj[counted]
 
-    severity = np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE)
     scores = np.ones(num_rows)
-    np.minimum.at(scores, row[counted], severity[counted])
-    return scores, *_first_hit(row[counted], step[counted], obj[counted], num_rows)
+    np.minimum.at(scores, row, np.where(observation.object_is_agent[obj], 0.0, STATIC_AT_FAULT_SCORE))
+    first = _first_step(row, step, num_rows)
+    at_first = step == first[row]  # the object hit at a row's first step: the lowest index on a tie
+    hit = np.full(num_rows, np.iinfo(np.int64).max)
+    np.minimum.at(hit, row[at_first], obj[at_first].astype(np.int64))
+    return scores, first, np.where(first >= 0, hit, -1)
 
 
 def time_to_collision(
@@ -221,7 +207,6 @@ def time_to_collision(
     lanes_or_off_road: np.ndarray,
     in_intersection: np.ndarray,
     interval: float = 0.1,
-    offsets: tuple[int, ...] = TTC_OFFSETS,
     num_steps: int | None = None,
     hits_at_rest: tuple[np.ndarray, np.ndarray] | None = None,
     along: tuple[np.ndarray, np.ndarray] | None = None,
@@ -242,8 +227,8 @@ def time_to_collision(
     center = ego_coords[:, :num_steps, Corner.CENTER].transpose(2, 1, 0)  # (2, S, N)
     # queries (offset k, step, row): the box moved along its heading at its speed by float(k) * interval, as NAVSIM
     # computes it; none (NaN centre) where the ego stands or the observation ends
-    lengths = [float(offset) * interval for offset in offsets]
-    obs_steps = np.arange(num_steps) + np.asarray(offsets)[:, None]  # (K, S)
+    lengths = [float(offset) * interval for offset in TTC_OFFSETS]
+    obs_steps = np.arange(num_steps) + np.asarray(TTC_OFFSETS)[:, None]  # (K, S)
     resting = (speed < TTC_STOPPED_SPEED) | (obs_steps[..., None] >= observation.num_steps)  # (K, S, N)
     x, y = (
         np.stack([axis + along * length for length in lengths]) for axis, along in zip(center, per_second, strict=True)
@@ -257,7 +242,7 @@ def time_to_collision(
         return _at(ego_coords, row, step) + shift[:, None]
 
     valid_steps = np.minimum(obs_steps, observation.num_steps - 1).reshape(-1)  # the NaN centres' steps are never read
-    first = 1 if hits_at_rest is not None and offsets[0] == 0 else 0  # queries before it come from hits_at_rest
+    first = 0 if hits_at_rest is None else 1  # offset 0's queries come from hits_at_rest where it is given
     skipped = first * num_steps * num_rows
     query, geom = find_hits(
         observation,
@@ -274,7 +259,7 @@ def time_to_collision(
         keep[keep] = ~np.isnan(np.take(x.reshape(-1), at_rest[keep]))  # not standing (nor past the observation)
         query, geom = np.concatenate([at_rest[keep], query]), np.concatenate([at_rest_geom[keep], geom])
     offset, step, row = np.unravel_index(query, x.shape)
-    order = step * len(offsets) + offset  # the official walk: steps in order, offsets in order within a step
+    order = step * len(TTC_OFFSETS) + offset  # the official walk: steps in order, offsets in order within a step
     rear_axle = _at(states, row, step)[:, : StateIndex.HEADING + 1]
     angle = relative_angle(rear_axle, np.take(observation.centroids, geom, axis=0))
     risky_area = _at(lanes_or_off_road, row, step) | _at(in_intersection, row, step)

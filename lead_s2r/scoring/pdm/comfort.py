@@ -65,43 +65,29 @@ def savgol(values: np.ndarray, window_length: int, polyorder: int, deriv: int = 
     return row_products(values, _savgol_matrix(values.shape[-1], window_length, polyorder, deriv, delta).T)
 
 
-def acceleration(states: np.ndarray, coordinate: str, window: int = ACCEL_WINDOW, poly_order: int = 2) -> np.ndarray:
-    """Smoothed acceleration ``(N, T)``: ``coordinate`` "x", "y" or "magnitude" of ``ACCELERATION_X/Y``."""
-    ax, ay = states[..., StateIndex.ACCELERATION_X], states[..., StateIndex.ACCELERATION_Y]
-    if coordinate == "x":
-        signal = ax
-    elif coordinate == "y":
-        signal = ay
-    elif coordinate == "magnitude":
-        signal = np.hypot(ax, ay)
-    else:
-        raise ValueError(f"acceleration coordinate {coordinate!r}: use 'x', 'y' or 'magnitude'")
-    smoothed = savgol(signal, window_length=min(window, states.shape[-2]), polyorder=poly_order)
-    return np.round(smoothed, DECIMALS)
+def smoothed(signal: np.ndarray, window: int) -> np.ndarray:
+    """A Savitzky-Golay smoothed acceleration ``(N, T)`` (order 2, the window at most T), rounded."""
+    return np.round(savgol(signal, window_length=min(window, signal.shape[-1]), polyorder=2), DECIMALS)
 
 
 def derivative(
-    values: np.ndarray, times: np.ndarray, window: int = 5, poly_order: int = 2, order: int = 1
+    values: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW, poly_order: int = 2, order: int = 1
 ) -> np.ndarray:
-    """nuPlan ``_approximate_derivatives``: Savitzky-Golay derivative of ``values (N, T)`` over equally spaced times."""
+    """nuPlan ``_approximate_derivatives``, rounded: Savitzky-Golay derivative of ``values (N, T)`` over equally spaced
+    times (yaw rate by default)."""
     window = min(window, len(times))
     if not poly_order < window:
         raise ValueError(f"Savitzky-Golay polynomial order {poly_order} needs a window longer than {window}")
     step = np.diff(times)
     if not (step > 0).all():
         raise ValueError("comfort times must increase strictly")
-    return savgol(values, window_length=window, polyorder=poly_order, deriv=order, delta=float(step.mean()))
+    derived = savgol(values, window_length=window, polyorder=poly_order, deriv=order, delta=float(step.mean()))
+    return np.round(derived, DECIMALS)
 
 
-def jerk(
-    states: np.ndarray, coordinate: str, times: np.ndarray, window: int, accel_window: int = ACCEL_WINDOW
-) -> np.ndarray:
-    """Jerk ``(N, T)``: derivative (``window``, order 2) of the acceleration smoothed with ``accel_window``."""
-    return _jerk_of(acceleration(states, coordinate, accel_window), times, window)
-
-
-def _jerk_of(smoothed: np.ndarray, times: np.ndarray, window: int) -> np.ndarray:
-    return np.round(derivative(smoothed, times, window), DECIMALS)
+def _magnitude(states: np.ndarray) -> np.ndarray:
+    """The magnitude ``(N, T)`` of the rear-axle ``ACCELERATION_X/Y``."""
+    return np.hypot(states[..., StateIndex.ACCELERATION_X], states[..., StateIndex.ACCELERATION_Y])
 
 
 def phase_unwrap(headings: np.ndarray) -> np.ndarray:
@@ -112,51 +98,31 @@ def phase_unwrap(headings: np.ndarray) -> np.ndarray:
     return headings - two_pi * adjustments
 
 
-def yaw_rate(states: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW) -> np.ndarray:
-    """Yaw rate ``(N, T)``: first derivative (order 2) of the unwrapped heading."""
-    return _yaw_rate_of(phase_unwrap(states[..., StateIndex.HEADING]), times, window)
-
-
-def _yaw_rate_of(heading: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW) -> np.ndarray:
-    return np.round(derivative(heading, times, window, poly_order=2, order=1), DECIMALS)
-
-
-def yaw_acceleration(heading: np.ndarray, times: np.ndarray, window: int = YAW_WINDOW) -> np.ndarray:
-    """Yaw acceleration ``(N, T)``: second derivative (order 3) of the unwrapped heading ``(N, T)``."""
-    return np.round(derivative(heading, times, window, poly_order=3, order=2), DECIMALS)
-
-
 def _within(values: np.ndarray, low: float, high: float) -> np.ndarray:
     return ((values > low) & (values < high)).all(axis=-1)
 
 
 def comfort_checks(
-    states: np.ndarray,
-    times: np.ndarray,
-    lon_lat_states: np.ndarray | None = None,
-    accel_window: int | None = None,
-    jerk_window: int | None = None,
+    states: np.ndarray, times: np.ndarray, lon_lat: np.ndarray, accel_window: int, jerk_window: int
 ) -> np.ndarray:
-    """``(N, 6)`` checks: lon accel, lat accel, jerk, lon jerk, yaw accel, yaw rate (``ego_is_comfortable``).
-    Defaults are v1.1's (rear-axle accelerations, windows of the whole horizon); v2 passes centre-frame
-    ``lon_lat_states`` and windows 8 and 15 (:func:`history_comfort_checks`)."""
-    horizon = states.shape[-2]
-    lon_lat = states if lon_lat_states is None else lon_lat_states
-    accel_window = horizon if accel_window is None else accel_window
-    jerk_window = horizon if jerk_window is None else jerk_window
+    """``(N, 6)`` checks: lon accel, lat accel, jerk, lon jerk, yaw accel, yaw rate (``ego_is_comfortable``), the
+    accelerations read from the states ``lon_lat``: v1.1 the rear-axle states themselves and windows of the whole
+    horizon (:func:`comfort`), v2 the centre-frame ones and windows 8 and 15 (:func:`history_comfort_checks`)."""
+    lon, lat = lon_lat[..., StateIndex.ACCELERATION_X], lon_lat[..., StateIndex.ACCELERATION_Y]
     # computed once where two checks read the same numbers: the longitudinal acceleration where the jerk smooths it
     # with the same window (v2), the unwrapped heading
-    lon_accel = acceleration(lon_lat, "x", accel_window)
-    smoothed_lon = lon_accel if accel_window == ACCEL_WINDOW else acceleration(lon_lat, "x", ACCEL_WINDOW)
+    lon_accel = smoothed(lon, accel_window)
+    smoothed_lon = lon_accel if accel_window == ACCEL_WINDOW else smoothed(lon, ACCEL_WINDOW)
     heading = phase_unwrap(states[..., StateIndex.HEADING])
+    jerk = derivative(smoothed(_magnitude(states), ACCEL_WINDOW), times, jerk_window)
     return np.stack(
         [
             _within(lon_accel, MIN_LON_ACCEL, MAX_LON_ACCEL),
-            _within(acceleration(lon_lat, "y", accel_window), -MAX_ABS_LAT_ACCEL, MAX_ABS_LAT_ACCEL),
-            _within(jerk(states, "magnitude", times, jerk_window), -MAX_ABS_JERK, MAX_ABS_JERK),
-            _within(_jerk_of(smoothed_lon, times, jerk_window), -MAX_ABS_LON_JERK, MAX_ABS_LON_JERK),
-            _within(yaw_acceleration(heading, times), -MAX_ABS_YAW_ACCEL, MAX_ABS_YAW_ACCEL),
-            _within(_yaw_rate_of(heading, times), -MAX_ABS_YAW_RATE, MAX_ABS_YAW_RATE),
+            _within(smoothed(lat, accel_window), -MAX_ABS_LAT_ACCEL, MAX_ABS_LAT_ACCEL),
+            _within(jerk, -MAX_ABS_JERK, MAX_ABS_JERK),
+            _within(derivative(smoothed_lon, times, jerk_window), -MAX_ABS_LON_JERK, MAX_ABS_LON_JERK),
+            _within(derivative(heading, times, poly_order=3, order=2), -MAX_ABS_YAW_ACCEL, MAX_ABS_YAW_ACCEL),
+            _within(derivative(heading, times), -MAX_ABS_YAW_RATE, MAX_ABS_YAW_RATE),
         ],
         axis=-1,
     )
@@ -164,8 +130,9 @@ def comfort_checks(
 
 def comfort(states: np.ndarray, interval: float = 0.1) -> np.ndarray:
     """C ``(N,)`` in {0, 1} of states ``(N, T, 11)`` at ``interval``: 1 when all six checks hold at every step."""
-    times = np.arange(0, states.shape[-2]).astype(np.float64) * interval
-    return comfort_checks(states, times).all(axis=-1).astype(np.float64)
+    horizon = states.shape[-2]
+    times = np.arange(0, horizon).astype(np.float64) * interval
+    return comfort_checks(states, times, states, horizon, horizon).all(axis=-1).astype(np.float64)
 
 
 def center_frame(states: np.ndarray, vehicle: VehicleParameters) -> np.ndarray:
@@ -219,9 +186,10 @@ def extended_comfort_features(states: np.ndarray, times: np.ndarray) -> dict[str
     """EC's features of states ``(..., T, 11)`` (``extract_features``): rear-axle acceleration magnitude (window 8),
     its jerk (window 15), yaw rate and the order-2 yaw acceleration (window 5)."""
     heading = phase_unwrap(states[..., StateIndex.HEADING])
+    acceleration = smoothed(_magnitude(states), ACCEL_WINDOW)
     return {
-        "acceleration": acceleration(states, "magnitude", ACCEL_WINDOW),
-        "jerk": jerk(states, "magnitude", times, V2_JERK_WINDOW),
-        "yaw_rate": yaw_rate(states, times),
-        "yaw_accel": np.round(derivative(heading, times, YAW_WINDOW, poly_order=2, order=2), DECIMALS),
+        "acceleration": acceleration,
+        "jerk": derivative(acceleration, times, V2_JERK_WINDOW),
+        "yaw_rate": derivative(heading, times),
+        "yaw_accel": derivative(heading, times, order=2),
     }

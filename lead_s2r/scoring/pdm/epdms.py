@@ -54,10 +54,8 @@ def multiplicative_product(columns: Columns) -> np.ndarray:
 def weighted_metrics(columns: Columns) -> tuple[np.ndarray, np.ndarray]:
     """``weighted_metrics`` and ``weighted_metrics_array`` as ``compute_final_scores`` leaves them: ``(N, 5)`` values
     and weights in :data:`WEIGHTS` order, with EC's value and weight set to 0 where EC is NaN (or absent)."""
-    values = [_column(columns, name) for name in (EP, TTC, LK, HC)]
     ec = np.asarray(columns.get(EC, np.nan), np.float64)
-    values.append(ec)
-    values = np.stack(np.broadcast_arrays(*values), axis=-1)
+    values = np.stack(np.broadcast_arrays(*(_column(columns, name) for name in (EP, TTC, LK, HC)), ec), axis=-1)
     weights = np.broadcast_to(np.array(list(WEIGHTS.values())), values.shape).copy()
     missing = np.isnan(values[..., -1])
     values[..., -1] = np.where(missing, 0.0, values[..., -1])

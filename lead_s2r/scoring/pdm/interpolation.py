@@ -36,22 +36,25 @@ def sample_times_us(t0_us: int | None = None) -> np.ndarray:
     return truncated_us(np.arange(0.0, horizon + PROPOSAL_INTERVAL, PROPOSAL_INTERVAL), t0_us)
 
 
-def interpolate_knots(knot_us: np.ndarray, knots: np.ndarray, sample_us: np.ndarray) -> np.ndarray:
-    """Poses ``(..., T, 3)`` at knot times ``(T,)`` (us, increasing) sampled at ``sample_us (S,)`` -> ``(..., S, 3)``.
-
-    scipy ``interp1d`` arithmetic (left neighbour by ``searchsorted``, slope times offset plus left value), with
-    samples clipped to the knot span; headings unwrapped along the knots first and wrapped to [-pi, pi) after.
-    """
-    knot_us = np.asarray(knot_us, np.int64)
-    sample_us = np.clip(sample_us, knot_us[0], knot_us[-1])
-    hi = np.clip(np.searchsorted(knot_us, sample_us, side="left"), 1, len(knot_us) - 1)
+def interp1d(times: np.ndarray, values: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """scipy ``interp1d``'s linear arithmetic (left neighbour by ``searchsorted``, slope times offset plus left value)
+    of ``values (..., T, D)`` at knot times ``times (T,)`` (increasing), sampled at ``samples (S,)`` -> ``(..., S, D)``;
+    the headings (column 2) are unwrapped along the knots first and left unwrapped."""
+    hi = np.clip(np.searchsorted(times, samples, side="left"), 1, len(times) - 1)
     lo = hi - 1
-    values = np.array(knots, np.float64)
+    values = np.array(values, np.float64)
     values[..., 2] = np.unwrap(values[..., 2], axis=-1)
     # np.take: the same rows, far faster than fancy indexing
     high, low = np.take(values, hi, axis=-2), np.take(values, lo, axis=-2)
-    slope = (high - low) / (knot_us[hi] - knot_us[lo]).astype(np.float64)[:, None]
-    out = slope * (sample_us - knot_us[lo]).astype(np.float64)[:, None] + low
+    slope = (high - low) / (times[hi] - times[lo]).astype(np.float64)[:, None]
+    return slope * (samples - times[lo]).astype(np.float64)[:, None] + low
+
+
+def interpolate_knots(knot_us: np.ndarray, knots: np.ndarray, sample_us: np.ndarray) -> np.ndarray:
+    """Poses ``(..., T, 3)`` at knot times ``(T,)`` (us, increasing) sampled at ``sample_us (S,)`` -> ``(..., S, 3)``:
+    :func:`interp1d` with the samples clipped to the knot span and the headings wrapped to [-pi, pi) after."""
+    knot_us = np.asarray(knot_us, np.int64)
+    out = interp1d(knot_us, knots, np.clip(sample_us, knot_us[0], knot_us[-1]))
     out[..., 2] = (out[..., 2] + np.pi) % (2 * np.pi) - np.pi
     return out
 
@@ -60,15 +63,6 @@ def _require_finite(poses: np.ndarray, name: str) -> None:
     if not np.isfinite(poses).all():
         bad = np.unique(np.argwhere(~np.isfinite(poses))[:, :-1], axis=0)
         raise ValueError(f"{name}: NaN or infinite pose values at index {bad[:5].tolist()} (first 5); remove them")
-
-
-def proposal_knot_us(num_poses: int, interval: float, t0_us: int | None = None) -> np.ndarray:
-    """Knot times (us after t0) of the initial pose and ``num_poses`` poses at ``interval * (k + 1)``.
-
-    nuPlan ``_get_fixed_timesteps``: ``np.arange(0, num_poses * interval, interval) + interval`` seconds.
-    """
-    times = np.arange(0.0, num_poses * interval, interval)[:num_poses] + interval
-    return np.concatenate([[0], truncated_us(times, t0_us)])
 
 
 def interpolate_proposals(proposals: np.ndarray, interval: float, t0_us: int | None = None) -> np.ndarray:
@@ -80,14 +74,15 @@ def interpolate_proposals(proposals: np.ndarray, interval: float, t0_us: int | N
         raise ValueError(f"interval: expected a positive number of seconds, got {interval}")
     _require_finite(proposals, "proposals")
     count, num_poses, _ = proposals.shape
+    # the initial pose at 0, the proposal's at nuPlan's ``_get_fixed_timesteps``: arange(0, K * dt, dt) + dt seconds
+    times = np.arange(0.0, num_poses * interval, interval)[:num_poses] + interval
+    knot_us = np.concatenate([[0], truncated_us(times, t0_us)])
     knots = np.concatenate([np.zeros((count, 1, 3)), proposals], axis=1)
-    return interpolate_knots(proposal_knot_us(num_poses, interval, t0_us), knots, sample_times_us(t0_us))
+    return interpolate_knots(knot_us, knots, sample_times_us(t0_us))
 
 
-def interpolate_reference(
-    reference: np.ndarray, interval: float = PROPOSAL_INTERVAL, t0_us: int | None = None
-) -> np.ndarray:
-    """A reference ``(M, 3)`` at t = interval * m from t = 0 (pose 0 = the ego, PDM-Closed's layout) -> ``(41, 3)``.
+def interpolate_reference(reference: np.ndarray, t0_us: int | None = None) -> np.ndarray:
+    """A reference ``(M, 3)`` at t = 0.1 s * m from t = 0 (pose 0 = the ego, PDM-Closed's layout) -> ``(41, 3)``.
 
     The knots are at exact microseconds (PDM-Closed's states carry integer time points); only the samples are
     truncated, so with ``t0_us`` a sample may fall 1 us before its knot, as in NAVSIM.
@@ -96,5 +91,5 @@ def interpolate_reference(
     if reference.ndim != 2 or reference.shape[-1] != 3 or len(reference) < 2:
         raise ValueError(f"reference: expected shape (M >= 2, 3) of x, y, heading from t = 0, got {reference.shape}")
     _require_finite(reference, "reference")
-    knot_us = np.round(np.arange(len(reference)) * interval * 1e6).astype(np.int64)
+    knot_us = np.round(np.arange(len(reference)) * PROPOSAL_INTERVAL * 1e6).astype(np.int64)
     return interpolate_knots(knot_us, reference, sample_times_us(t0_us))

@@ -132,18 +132,13 @@ def _lookahead_moments(curvature: np.ndarray, weights: np.ndarray) -> np.ndarray
     """``(N, M, 5)``: at each pose, the curvatures of the lookahead (clipped to the last pose) times ``weights (H,
     5)``, summed in lookahead order."""
     count, m = curvature.shape
-    moments = np.empty((count, m, 5))
+    moments = np.zeros((count, m, weights.shape[1]))
     for n in range(count):
         for s in range(m):
-            linear_v = linear_a = pairs_vv = pairs_va = pairs_aa = 0.0
             for h in range(weights.shape[0]):
                 kappa = curvature[n, min(s + h, m - 1)]
-                linear_v += kappa * weights[h, 0]
-                linear_a += kappa * weights[h, 1]
-                pairs_vv += kappa * weights[h, 2]
-                pairs_va += kappa * weights[h, 3]
-                pairs_aa += kappa * weights[h, 4]
-            moments[n, s] = linear_v, linear_a, pairs_vv, pairs_va, pairs_aa
+                for moment in range(weights.shape[1]):
+                    moments[n, s, moment] += kappa * weights[h, moment]
     return moments
 
 

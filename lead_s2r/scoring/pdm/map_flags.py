@@ -30,7 +30,7 @@ from numba import njit
 
 from lead_s2r.schema import MapKind
 from lead_s2r.scoring.pdm.footprint import Corner
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.scene import PDMScene, ragged_polygons
 
 SCORED_KINDS = (MapKind.ROADBLOCK, MapKind.LANE, MapKind.LANE_CONNECTOR, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
 DRIVABLE_KINDS = (MapKind.ROADBLOCK, MapKind.INTERSECTION, MapKind.CARPARK_AREA)
@@ -38,15 +38,9 @@ LANE_KINDS = (MapKind.LANE, MapKind.LANE_CONNECTOR)
 NUM_CORNERS = 4
 
 
-def _kind_table(kinds: tuple[MapKind, ...]) -> np.ndarray:
-    """Membership of every MapKind code in ``kinds`` as a lookup table (``table[codes]``)."""
-    table = np.zeros(max(MapKind) + 1, bool)
-    table[list(kinds)] = True
-    return table
-
-
-IS_DRIVABLE = _kind_table(DRIVABLE_KINDS)
-IS_LANE = _kind_table(LANE_KINDS)
+#: Membership of every MapKind code in the kinds as lookup tables (``table[codes]``)
+IS_DRIVABLE = np.isin(np.arange(max(MapKind) + 1), DRIVABLE_KINDS)
+IS_LANE = np.isin(np.arange(max(MapKind) + 1), LANE_KINDS)
 #: [m] side of a grid cell: about a lane's width, so most cells list one or two polygons per layer.
 GRID_CELL_M = 2.0
 #: [m] a cell's square is grown by this before it is classified: far above the rounding of a point's cell
@@ -160,16 +154,14 @@ class DrivableMap:
     def from_scene(cls, scene: PDMScene, cell: float = GRID_CELL_M, max_cells: int = MAX_GRID_CELLS) -> "DrivableMap":
         """The scene's map with a grid of ``cell`` metres (coarser past ``max_cells`` per axis); the grid changes
         only how fast points are located, never their answers."""
-        offsets = np.asarray(scene.polygon_offsets, np.int64)
-        ring_of_point = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-        rings = shapely.linearrings(np.asarray(scene.polygon_xy, np.float64), indices=ring_of_point)
+        polygons = ragged_polygons(scene.polygon_xy, scene.polygon_offsets)
         keep = np.isin(scene.polygon_kind, SCORED_KINDS)
-        if len(rings) != len(keep):
+        if len(polygons) != len(keep):
             raise ValueError(
-                f"scene {scene.key!r}: polygon_offsets describe {len(rings)} polygons with points, polygon_kind has "
-                f"{len(keep)}; every polygon needs at least one point (rebuild scoring.npz)"
+                f"scene {scene.key!r}: polygon_offsets describe {len(polygons)} polygons with points, polygon_kind "
+                f"has {len(keep)}; every polygon needs at least one point (rebuild scoring.npz)"
             )
-        polygons = shapely.polygons(rings[keep])
+        polygons = polygons[keep]
         shapely.prepare(polygons)
         ids, kinds = np.asarray(scene.polygon_id, np.int64)[keep], np.asarray(scene.polygon_kind)[keep]
         bounds = shapely.bounds(polygons).reshape(-1, 4)
@@ -229,10 +221,11 @@ class DrivableMap:
         crossed = np.where(shapely.intersects(polygons, squares), CROSSED, CLEAR)
         return np.where(shapely.contains_properly(polygons, squares), INSIDE, crossed).astype(np.int8)
 
-    def layers(self, x: np.ndarray, y: np.ndarray) -> "PointLayers":
-        """What the ego-area flags need of points ``(x, y)`` (each ``(B,)``): the answer of a point whose cell no
-        polygon edge crosses is its cell's (:class:`SettledCells`), and only points in crossed cells are located one
-        by one (:meth:`locate`)."""
+    def layers(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the ego-area flags need of points ``(x, y)`` (each ``(B,)``): per point, inside a drivable polygon
+        (ROADBLOCK, INTERSECTION, CARPARK_AREA), inside an INTERSECTION, and the lane polygons holding it, slot by slot
+        ``(W, B)`` (-1 pads). The answer of a point whose cell no polygon edge crosses is its cell's
+        (:class:`SettledCells`), and only points in crossed cells are located one by one (:meth:`locate`)."""
         cells = self.grid.cells_of(x, y)
         settled = self.settled
         state = settled.state[cells]
@@ -241,15 +234,17 @@ class DrivableMap:
             state = settled.state[cells]
         # as many lane slots as these points' cells can fill (a crossed cell: as many as it lists lanes)
         width = max(1, int(settled.lane_count[cells].max(initial=0)))
-        out = PointLayers(*_settled_answers(cells, settled.drivable, settled.intersection, settled.lanes, width))
+        drivable, intersection, lanes = _settled_answers(
+            cells, settled.drivable, settled.intersection, settled.lanes, width
+        )
         crossed = np.flatnonzero(state == CELL_CROSSED)  # their cells' answers are empty: set them here
         index, polygon = self.locate(x[crossed], y[crossed])
         point, kind = crossed[index], self.kinds[polygon]
-        out.drivable[point[IS_DRIVABLE[kind]]] = True
-        out.intersection[point[kind == MapKind.INTERSECTION]] = True
+        drivable[point[IS_DRIVABLE[kind]]] = True
+        intersection[point[kind == MapKind.INTERSECTION]] = True
         lane = IS_LANE[kind]
-        np.put(out.lanes, _ranks(index[lane]) * len(cells) + point[lane], polygon[lane])  # lanes[rank, point]
-        return out
+        np.put(lanes, _ranks(index[lane]) * len(cells) + point[lane], polygon[lane])  # lanes[rank, point]
+        return drivable, intersection, lanes
 
     def _settle(self, cells: np.ndarray) -> None:
         """Classify every member of ``cells`` and record, for those no polygon edge crosses, the answer every point
@@ -332,16 +327,6 @@ class SettledCells:
         return cls(state, np.zeros(count, bool), np.zeros(count, bool), lanes, listed)
 
 
-@dataclass
-class PointLayers:
-    """Per point: inside a drivable polygon (ROADBLOCK, INTERSECTION, CARPARK_AREA), inside an INTERSECTION, and
-    the lane polygons holding it, slot by slot ``(W, B)`` (-1 pads)."""
-
-    drivable: np.ndarray
-    intersection: np.ndarray
-    lanes: np.ndarray
-
-
 def _ranks(group: np.ndarray) -> np.ndarray:
     """Each element's rank within its run of equal values in ``group`` (runs consecutive)."""
     position = np.arange(len(group))
@@ -362,10 +347,7 @@ class EgoAreas:
 
 
 def ego_areas(
-    drivable_map: DrivableMap,
-    coords: np.ndarray,
-    rear_axles: np.ndarray,
-    route_lane_ids: np.ndarray,
+    drivable_map: DrivableMap, coords: np.ndarray, rear_axles: np.ndarray, route_lane_ids: np.ndarray
 ) -> EgoAreas:
     """The ego-area flags of ego boxes ``(N, T, 5, 2)`` (4 corners + centre) with rear axles ``(N, T, 2)``."""
     n_rows, n_steps = coords.shape[:2]
@@ -376,16 +358,14 @@ def ego_areas(
         for axis in range(2)
     )
     per_box = x.shape[1]
-    layers = drivable_map.layers(x.reshape(-1), y.reshape(-1))
-    drivable = layers.drivable.reshape(num_boxes, per_box)
-    corners_drivable = drivable[:, Corner.FRONT_LEFT]
-    for corner in range(1, NUM_CORNERS):
-        corners_drivable = corners_drivable & drivable[:, corner]
-    lanes = layers.lanes.reshape(-1, num_boxes, per_box)  # (W, boxes, points)
+    drivable, in_intersection, lanes = drivable_map.layers(x.reshape(-1), y.reshape(-1))
+    drivable = drivable.reshape(num_boxes, per_box)
+    corners_drivable = reduce(np.logical_and, [drivable[:, corner] for corner in range(NUM_CORNERS)])
+    lanes = lanes.reshape(-1, num_boxes, per_box)  # (W, boxes, points)
     # a lane index -1 (a pad) reads the appended False
     on_route_lane = np.append(np.isin(drivable_map.ids, route_lane_ids) & IS_LANE[drivable_map.kinds], False)
     on_route = on_route_lane[lanes[:, :, Corner.CENTER]].any(axis=0)
-    in_intersection = layers.intersection.reshape(num_boxes, per_box)
+    in_intersection = in_intersection.reshape(num_boxes, per_box)
 
     def grid(flags: np.ndarray) -> np.ndarray:
         return flags.reshape(n_rows, n_steps)

@@ -30,6 +30,7 @@ import shapely
 
 from lead_s2r.schema import BoxClass
 from lead_s2r.scoring.pdm.footprint import box_coords, box_polygons
+from lead_s2r.scoring.pdm.interpolation import interp1d
 from lead_s2r.scoring.pdm.overlap import Axes
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
@@ -68,20 +69,6 @@ class Observation:
         return len(self.step_offsets) - 1
 
 
-def interpolate_track(times: np.ndarray, states: np.ndarray, query_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One track seen at ``times (n >= 2,)`` with ``states (n, 5)`` = x, y, heading, vx, vy, resampled at
-    ``query_times``: ``(S, 5)`` states and the ``(S,)`` mask of times within ``[times[0], times[-1]]``."""
-    states = states.copy()
-    states[:, 2] = np.unwrap(states[:, 2])
-    inside = (times[0] <= query_times) & (query_times <= times[-1])
-    hi = np.clip(np.searchsorted(times, query_times), 1, len(times) - 1)
-    lo = hi - 1
-    slope = (states[hi] - states[lo]) / (times[hi] - times[lo])[:, None]
-    out = slope * (query_times - times[lo])[:, None] + states[lo]
-    out[:, 2] = np.arctan2(np.sin(out[:, 2]), np.cos(out[:, 2]))
-    return out, inside
-
-
 def interpolate_keyframes(
     keyframe_t: np.ndarray,
     poses: np.ndarray,
@@ -102,10 +89,11 @@ def interpolate_keyframes(
         if len(seen) == 1:
             out_poses[m], out_velocity[m], out_valid[m] = poses[m, seen[0]], track_velocity[0], True
         elif len(seen) > 1:
-            states, inside = interpolate_track(
-                keyframe_t[seen].astype(np.float64), np.concatenate([poses[m, seen], track_velocity], -1), query_times
-            )
-            out_poses[m, inside], out_velocity[m, inside], out_valid[m] = states[inside, :3], states[inside, 3:], inside
+            times = keyframe_t[seen].astype(np.float64)
+            inside = (times[0] <= query_times) & (query_times <= times[-1])
+            states = interp1d(times, np.concatenate([poses[m, seen], track_velocity], -1), query_times[inside])
+            states[:, 2] = np.arctan2(np.sin(states[:, 2]), np.cos(states[:, 2]))
+            out_poses[m, inside], out_velocity[m, inside], out_valid[m] = states[:, :3], states[:, 3:], inside
     return out_poses, out_velocity, out_valid
 
 

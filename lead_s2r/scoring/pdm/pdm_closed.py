@@ -34,8 +34,8 @@ import shapely.ops
 from lead_s2r.geometry import wrap_angle
 from lead_s2r.schema import BoxClass, MapKind
 from lead_s2r.scoring.pdm.observation import dense_observation
-from lead_s2r.scoring.pdm.route import ego_footprint, ego_footprints, ragged_polygons
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.route import ego_footprint, ego_footprints, pose_boxes
+from lead_s2r.scoring.pdm.scene import PDMScene, ragged_polygons
 from lead_s2r.scoring.pdm.score import score_states
 from lead_s2r.scoring.pdm.simulation import simulate_proposals
 from lead_s2r.scoring.pdm.vehicle import VehicleParameters
@@ -175,15 +175,7 @@ class Forecast:
 def agent_box_polygons(poses: np.ndarray, size: np.ndarray) -> np.ndarray:
     """Shapely boxes of centre poses (M, 3) with (length, width, ...) sizes (M, 2+)."""
     half = np.asarray(size, np.float64)[:, None, :2] / 2 * np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]])
-    cos, sin = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-    corners = np.stack(
-        [
-            poses[:, None, 0] + cos * half[..., 0] - sin * half[..., 1],
-            poses[:, None, 1] + sin * half[..., 0] + cos * half[..., 1],
-        ],
-        axis=-1,
-    )
-    return shapely.polygons(corners) if len(corners) else np.zeros(0, object)
+    return pose_boxes(poses, half)
 
 
 def select_objects(scene: PDMScene, config: PDMClosedConfig = PDMClosedConfig()) -> np.ndarray:

@@ -30,6 +30,7 @@ import shapely
 
 from lead_s2r.geometry import wrap_angle
 from lead_s2r.schema import MapKind
+from lead_s2r.scoring.pdm.scene import ragged_polygons
 from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
 
 #: route_utils.py constants
@@ -57,13 +58,6 @@ def discrete_path(points: np.ndarray) -> np.ndarray:
     step = np.diff(points, axis=0)
     heading = np.arctan2(step[:, 1], step[:, 0])
     return np.column_stack([points, np.append(heading, heading[-1:])])
-
-
-def ragged_polygons(xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Shapely polygons from exterior rings laid end to end (``polygon_xy`` / ``polygon_offsets``)."""
-    counts = np.diff(np.asarray(offsets, np.int64))
-    rings = shapely.linearrings(np.asarray(xy, np.float64), indices=np.repeat(np.arange(len(counts)), counts))
-    return shapely.polygons(rings)
 
 
 @dataclass
@@ -292,21 +286,19 @@ def starting_lane(
     return best
 
 
+def pose_boxes(poses: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Shapely boxes ``(N,)`` of poses ``(N, 3)`` with ``corners (4, 2)`` (or ``(N, 4, 2)``) in each pose's frame."""
+    cos, sin = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    x = poses[:, None, 0] + cos * corners[..., 0] - sin * corners[..., 1]
+    y = poses[:, None, 1] + sin * corners[..., 0] + cos * corners[..., 1]
+    return shapely.polygons(np.stack([x, y], axis=-1))
+
+
 def ego_footprints(poses: np.ndarray, vehicle: VehicleParameters = PACIFICA) -> np.ndarray:
     """The ego boxes (N,) of rear-axle poses (N, 3)."""
-    poses = np.asarray(poses, np.float64).reshape(-1, 3)
-    local = np.array(
-        [
-            [vehicle.front_length, vehicle.width / 2],
-            [-vehicle.rear_length, vehicle.width / 2],
-            [-vehicle.rear_length, -vehicle.width / 2],
-            [vehicle.front_length, -vehicle.width / 2],
-        ]
-    )
-    cos, sin = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-    x = poses[:, None, 0] + cos * local[:, 0] - sin * local[:, 1]
-    y = poses[:, None, 1] + sin * local[:, 0] + cos * local[:, 1]
-    return shapely.polygons(np.stack([x, y], axis=-1))
+    front, rear, half_width = vehicle.front_length, -vehicle.rear_length, vehicle.width / 2
+    corners = np.array([[front, half_width], [rear, half_width], [rear, -half_width], [front, -half_width]])
+    return pose_boxes(np.asarray(poses, np.float64).reshape(-1, 3), corners)
 
 
 def ego_footprint(pose: np.ndarray, vehicle: VehicleParameters = PACIFICA) -> shapely.Polygon:
@@ -319,9 +311,7 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
     allowed = set(candidates)
     queue, dist, depth = [start], [1.0], [1]
     parent: dict[int, int | None] = {start: None}
-    expanded: list[int] = []
-    expanded_dist: list[float] = []
-    expanded_depth: list[int] = []
+    expanded: dict[int, tuple[float, int]] = {}  # lane -> (distance, depth), in the order of expansion
     end = None
     while queue:
         index = min(range(len(dist)), key=lambda i: (dist[i], i))
@@ -329,9 +319,7 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
         if graph.lane_block.get(lane) == target_block:
             end = lane
             break
-        expanded.append(lane)
-        expanded_dist.append(lane_dist)
-        expanded_depth.append(lane_depth)
+        expanded[lane] = (lane_dist, lane_depth)
         for successor in graph.lane_out.get(lane, []):
             if successor not in allowed:
                 continue
@@ -348,8 +336,8 @@ def dijkstra_lanes(graph: LaneGraph, start: int, candidates: Sequence[int], targ
                     dist[position] = alternative
                     depth[position] = lane_depth + 1
     if end is None:
-        deepest = max(expanded_depth)
-        end = min((expanded_dist[i], i, expanded[i]) for i in range(len(expanded)) if expanded_depth[i] == deepest)[2]
+        deepest = max(level for _, level in expanded.values())
+        end = min((cost, i, lane) for i, (lane, (cost, level)) in enumerate(expanded.items()) if level == deepest)[2]
     path = [end]
     while parent[path[-1]] is not None:
         path.append(parent[path[-1]])

@@ -17,14 +17,6 @@ from lead_s2r.scoring.pdm.scene import PDMScene
 NEEDS_MAPS = "re-convert the NAVSIM data with maps (`lead-s2r convert navsim ... --maps <nuPlan maps root>`)"
 
 
-def _scoring(sample: dict[str, Any]) -> dict[str, np.ndarray]:
-    key = sample.get("__key__", "?")
-    scoring = sample.get("scoring")
-    if scoring is None:
-        raise SchemaError(key, "scoring", f"missing: the PDM score needs the map context; {NEEDS_MAPS}")
-    return scoring
-
-
 def agent_tracks(sample: dict[str, Any]) -> dict[str, np.ndarray]:
     """``agent_t``, ``agent_poses``, ``agent_velocity``, ``agent_valid``, ``agent_size``, ``agent_class`` of a
     sample: t = 0 from ``boxes``, later keyframes from ``agents_future`` (either may be absent).
@@ -79,7 +71,11 @@ def scene_from_sample(sample: dict[str, Any]) -> PDMScene:
     :class:`RouteError` naming it when the route cannot be followed in the map context.
     """
     key = sample.get("__key__", "")
-    scoring = _scoring(sample)
+    scoring = sample.get("scoring")
+    if scoring is None:
+        raise SchemaError(
+            sample.get("__key__", "?"), "scoring", f"missing: the PDM score needs the map context; {NEEDS_MAPS}"
+        )
     meta = sample["meta"]
     graph = LaneGraph.from_scoring(scoring)
     try:

@@ -7,12 +7,16 @@ converted sample maps onto a scene without renaming. v2-only fields are optional
 from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 
 from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
 
 
-def _empty_ids() -> np.ndarray:
-    return np.zeros(0, np.int64)
+def ragged_polygons(xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Shapely polygons from exterior rings laid end to end (``polygon_xy`` / ``polygon_offsets``)."""
+    counts = np.diff(np.asarray(offsets, np.int64))
+    rings = shapely.linearrings(np.asarray(xy, np.float64), indices=np.repeat(np.arange(len(counts)), counts))
+    return shapely.polygons(rings)
 
 
 @dataclass
@@ -45,10 +49,10 @@ class PDMScene:
     t0_us: int | None = None
     # red lights per 2 Hz keyframe: lane-connector ids red at red_light_t[i] are red_light_ids[offsets[i]:offsets[i+1]]
     red_light_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    red_light_ids: np.ndarray = field(default_factory=_empty_ids)
+    red_light_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     red_light_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
     # v2 (EPDMS): lanes of the uncorrected route (only their red lights count), the logged past, the logged future
-    light_route_lane_ids: np.ndarray = field(default_factory=_empty_ids)
+    light_route_lane_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     ego_past: np.ndarray | None = None  # (P, 8) t, x, y, heading, vx, vy, ax, ay (body frame)
     human_poses: np.ndarray | None = None  # (K, 3) at human_interval * (k + 1)
     human_interval: float = 0.5

@@ -25,13 +25,7 @@ import numpy as np
 import shapely
 
 from lead_s2r.scoring.pdm import epdms
-from lead_s2r.scoring.pdm.collisions import (
-    TTC_OFFSETS,
-    enclosing_radius,
-    no_at_fault_collisions,
-    step_hits,
-    time_to_collision,
-)
+from lead_s2r.scoring.pdm.collisions import TTC_OFFSETS, no_at_fault_collisions, step_hits, time_to_collision
 from lead_s2r.scoring.pdm.comfort import comfort, extended_comfort_features, history_comfort
 from lead_s2r.scoring.pdm.extended_comfort import two_frame_extended_comfort
 from lead_s2r.scoring.pdm.footprint import Corner, ego_coords, heading_directions
@@ -57,7 +51,6 @@ METRIC = "pdms@navsim-1.1"
 EPDMS_METRIC = "epdms@navsim-2.2"
 METRICS = (METRIC, EPDMS_METRIC)
 INTERVAL_S = 0.1
-REFERENCE_INTERVAL_S = 0.1
 #: the columns after the sub-scores: EP's metres, and the 0.1 s step where NC, TTC and DAC failed and the agent row NC
 #: hit (-1: they did not), so a report can say when a sub-score was lost and to whom
 PROGRESS_COLUMNS = ("progress_m", "ep_normaliser_m")
@@ -94,54 +87,37 @@ def _check_states(scene: PDMScene, states: np.ndarray, observation: Observation,
 
 
 @dataclass
-class _Footprints:
-    """The ego boxes of states ``(N, T, 11)`` and where they are on the map: shared by every sub-metric."""
-
-    coords: np.ndarray  # (N, T, 5, 2)
-    radius: float
-    areas: EgoAreas
-    along: tuple[np.ndarray, np.ndarray]  # cosine and sine of the headings (N, T), for TTC's moves
-
-    @property
-    def centers(self) -> np.ndarray:
-        return self.coords[:, :, Corner.CENTER]
-
-    @property
-    def lanes_or_off_road(self) -> np.ndarray:
-        return self.areas.multiple_lanes | self.areas.non_drivable_area
-
-
-def _footprints(scene: PDMScene, states: np.ndarray, drivable_map: DrivableMap | None) -> _Footprints:
-    drivable_map = DrivableMap.from_scene(scene) if drivable_map is None else drivable_map
-    along = heading_directions(states)
-    coords = ego_coords(states, scene.vehicle, along)
-    rear_axles = states[..., StateIndex.X : StateIndex.Y + 1]
-    areas = ego_areas(drivable_map, coords, rear_axles, np.asarray(scene.route_lane_ids, np.int64))
-    return _Footprints(coords, enclosing_radius(scene.vehicle.length, scene.vehicle.width), areas, along)
-
-
-@dataclass
 class _Prelude:
-    """What v1.1 and v2.2 score alike before they part: checked states, footprints, the boxes' overlaps at their own
-    steps (NC's, and TTC's without a move), NC (and when) and DAC."""
+    """What v1.1 and v2.2 score alike before they part: checked states, their ego boxes and where those are on the
+    map, the boxes' overlaps at their own steps (NC's, and TTC's without a move), NC (and when), DAC and the raw
+    progress along the centreline."""
 
     states: np.ndarray
-    fp: _Footprints
+    coords: np.ndarray  # (N, T, 5, 2)
+    along: tuple[np.ndarray, np.ndarray]  # cosine and sine of the headings (N, T), for TTC's moves
+    radius: float
+    areas: EgoAreas
+    lanes_or_off_road: np.ndarray  # (N, T) MULTIPLE_LANES or NON_DRIVABLE_AREA: where NC and TTC fault more
     hits: tuple[np.ndarray, np.ndarray]
     nc: np.ndarray
     collision_idx: np.ndarray
     collision_object: np.ndarray
     dac: np.ndarray
+    centerline: shapely.LineString
+    progress: np.ndarray
+
+    @property
+    def centers(self) -> np.ndarray:
+        return self.coords[:, :, Corner.CENTER]
 
     def time_to_collision(
         self, observation: Observation, num_steps: int | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """TTC and its first violating step over the first ``num_steps`` states (all: None)."""
-        fp = self.fp
-        areas = fp.areas
         return time_to_collision(
-            self.states, fp.coords, fp.radius, observation, fp.lanes_or_off_road, areas.rear_axle_in_intersection,
-            INTERVAL_S, num_steps=num_steps, hits_at_rest=self.hits, along=fp.along,
+            self.states, self.coords, self.radius, observation, self.lanes_or_off_road,
+            self.areas.rear_axle_in_intersection, INTERVAL_S, num_steps=num_steps, hits_at_rest=self.hits,
+            along=self.along,
         )  # fmt: skip
 
 
@@ -150,10 +126,21 @@ def _prelude(
 ) -> _Prelude:
     states = np.asarray(states, np.float64)
     _check_states(scene, states, observation, lookahead)
-    fp = _footprints(scene, states, drivable_map)
-    hits = step_hits(fp.coords, fp.radius, observation)
-    nc, step, hit = no_at_fault_collisions(states, fp.coords, hits, observation, fp.lanes_or_off_road)
-    return _Prelude(states, fp, hits, nc, step, hit, drivable_area_compliance(fp.areas.non_drivable_area))
+    drivable_map = DrivableMap.from_scene(scene) if drivable_map is None else drivable_map
+    along = heading_directions(states)
+    coords = ego_coords(states, scene.vehicle, along)
+    rear_axles = states[..., StateIndex.X : StateIndex.Y + 1]
+    areas = ego_areas(drivable_map, coords, rear_axles, np.asarray(scene.route_lane_ids, np.int64))
+    radius = float(np.hypot(scene.vehicle.length / 2.0, scene.vehicle.width / 2.0))  # a circle holding the box
+    hits = step_hits(coords, radius, observation)
+    lanes_or_off_road = areas.multiple_lanes | areas.non_drivable_area
+    nc, step, hit = no_at_fault_collisions(states, coords, hits, observation, lanes_or_off_road)
+    dac = drivable_area_compliance(areas.non_drivable_area)
+    centerline = _centerline(scene)
+    progress = progress_along(centerline, coords[:, 0, Corner.CENTER], coords[:, -1, Corner.CENTER])
+    return _Prelude(
+        states, coords, along, radius, areas, lanes_or_off_road, hits, nc, step, hit, dac, centerline, progress
+    )
 
 
 def score_states(
@@ -169,12 +156,11 @@ def score_states(
     ``non_drivable_area`` and ``oncoming_traffic``. ``ep_reference`` picks EP's normalisation (see
     :func:`~lead_s2r.scoring.pdm.metrics.ego_progress`)."""
     base = _prelude(scene, states, observation, max(TTC_OFFSETS), drivable_map)
-    states, fp, nc, dac = base.states, base.fp, base.nc, base.dac
-    ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S)
-    progress = progress_along(_centerline(scene), fp.centers[:, 0], fp.centers[:, -1])
-    ep, normaliser = ego_progress(progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
+    nc, dac = base.nc, base.dac
+    ddc = driving_direction_compliance(base.centers, base.areas.oncoming_traffic, INTERVAL_S)
+    ep, normaliser = ego_progress(base.progress, np.stack([nc, dac]).prod(axis=0), ep_reference)
     ttc, ttc_idx = base.time_to_collision(observation)
-    c = comfort(states, INTERVAL_S)
+    c = comfort(base.states, INTERVAL_S)
     return {
         "no_at_fault_collisions": nc,
         "drivable_area_compliance": dac,
@@ -183,31 +169,23 @@ def score_states(
         "time_to_collision_within_bound": ttc,
         "comfort": c,
         "score": pdms_v11(nc, dac, ep, ttc, c, ddc),
-        **_progress_and_failures(base, progress, normaliser, ttc_idx),
-        **_flags(fp.areas),
+        **_shared_columns(base, normaliser, ttc_idx),
     }
 
 
-def _progress_and_failures(
-    base: _Prelude, progress: np.ndarray, normaliser: np.ndarray, ttc_idx: np.ndarray
-) -> dict[str, np.ndarray]:
-    """The columns v1.1 and v2.2 share beside their sub-scores: progress and its normaliser, and the step (or agent)
-    where NC, TTC and DAC were lost, so a report can name when a sub-score failed."""
+def _shared_columns(base: _Prelude, normaliser: np.ndarray, ttc_idx: np.ndarray) -> dict[str, np.ndarray]:
+    """The columns v1.1 and v2.2 share beside their sub-scores: progress and its normaliser, the step (or agent)
+    where NC, TTC and DAC were lost, so a report can name when a sub-score failed, and the ``(N, T)`` area flags."""
     return {
-        "progress_m": progress,
+        "progress_m": base.progress,
         "ep_normaliser_m": normaliser,
         "collision_time_idx": base.collision_idx,
         "ttc_time_idx": ttc_idx,
-        "dac_time_idx": first_step(base.fp.areas.non_drivable_area),
+        "dac_time_idx": first_step(base.areas.non_drivable_area),
         "collision_object_idx": base.collision_object,
-    }
-
-
-def _flags(areas: EgoAreas) -> dict[str, np.ndarray]:
-    return {
-        "multiple_lanes": areas.multiple_lanes,
-        "non_drivable_area": areas.non_drivable_area,
-        "oncoming_traffic": areas.oncoming_traffic,
+        "multiple_lanes": base.areas.multiple_lanes,
+        "non_drivable_area": base.areas.non_drivable_area,
+        "oncoming_traffic": base.areas.oncoming_traffic,
     }
 
 
@@ -226,19 +204,17 @@ def score_states_v2(
     and ``on_red_light``). HC reads the scene's ``ego_past`` for every row. ``observation``: v2's log replay
     (``log_observation(scene, 41, replay=True)``); ``red_lights``: per step (``red_light_polygons``)."""
     base = _prelude(scene, states, observation, 0, drivable_map)
-    states, fp, nc, dac = base.states, base.fp, base.nc, base.dac
-    num_steps = states.shape[1]
+    nc, dac = base.nc, base.dac
+    num_steps = base.states.shape[1]
     red_lights = red_light_polygons(scene, num_steps, INTERVAL_S) if red_lights is None else red_lights
-    in_intersection = fp.areas.center_in_intersection
-    ddc = driving_direction_compliance(fp.centers, fp.areas.oncoming_traffic, INTERVAL_S, exclude=in_intersection)
-    touching = on_red_light(fp.coords, red_lights)
+    in_intersection = base.areas.center_in_intersection
+    ddc = driving_direction_compliance(base.centers, base.areas.oncoming_traffic, INTERVAL_S, exclude=in_intersection)
+    touching = on_red_light(base.coords, red_lights)
     tlc = traffic_light_compliance(touching)
     product = np.stack([nc, dac, ddc, tlc]).prod(axis=0)
-    centerline = _centerline(scene)
-    progress = progress_along(centerline, fp.centers[:, 0], fp.centers[:, -1])
-    ep, normaliser = ego_progress_v2(progress, product, ep_reference)
+    ep, normaliser = ego_progress_v2(base.progress, product, ep_reference)
     ttc, ttc_idx = base.time_to_collision(observation, num_steps - max(TTC_OFFSETS))
-    lk, lk_idx = lane_keeping(fp.centers, centerline, in_intersection, INTERVAL_S)
+    lk, lk_idx = lane_keeping(base.centers, base.centerline, in_intersection, INTERVAL_S)
     return {
         epdms.NC: nc,
         epdms.DAC: dac,
@@ -247,31 +223,24 @@ def score_states_v2(
         epdms.EP: ep,
         epdms.TTC: ttc,
         epdms.LK: lk,
-        epdms.HC: history_comfort(states, scene.ego_past, scene.vehicle, INTERVAL_S),
+        epdms.HC: history_comfort(base.states, scene.ego_past, scene.vehicle, INTERVAL_S),
         "multiplicative_metrics_prod": product,
-        **_progress_and_failures(base, progress, normaliser, ttc_idx),
+        **_shared_columns(base, normaliser, ttc_idx),
         "lane_keeping_fail_idx": lk_idx,
-        **_flags(fp.areas),
         "in_intersection": in_intersection,
         "on_red_light": touching,
     }
 
 
-def _poses(scene: PDMScene, poses: Any, name: str, dims: str) -> np.ndarray:
-    """``poses`` as float64 with the axes named in ``dims`` (ending in 3) and only finite values."""
+def _poses(scene: PDMScene, poses: Any, name: str, dims: str, least: int = 1) -> np.ndarray:
+    """``poses`` as float64 with the axes named in ``dims`` (ending in 3), at least ``least`` of them along the axis
+    before the last, and only finite values."""
     array = np.asarray(poses, np.float64)
-    if array.ndim != len(dims.split(",")) or array.shape[-1] != 3 or array.shape[-2] < 1:
+    if array.ndim != len(dims.split(",")) or array.shape[-1] != 3 or array.shape[-2] < least:
         raise ValueError(f"scene {scene.key!r}: {name} must be ({dims}) ego-frame poses, got shape {array.shape}")
     if not np.isfinite(array).all():
         raise ValueError(f"scene {scene.key!r}: {name} holds NaN or inf poses; the planner's output is invalid here")
     return array
-
-
-def _reference(scene: PDMScene, reference: np.ndarray) -> np.ndarray:
-    reference = _poses(scene, reference, "reference", "M, 3")
-    if len(reference) < 2:
-        raise ValueError(f"scene {scene.key!r}: reference needs poses after t = 0, got shape {reference.shape}")
-    return reference
 
 
 def human_trajectory(scene: PDMScene) -> np.ndarray | None:
@@ -288,7 +257,7 @@ def simulate_rows(
     ``(N, K, 3)``, then the human trajectory where it is given (the human filter's). Every row is simulated on its
     own, so a row's states do not depend on the rows simulated with it."""
     targets = [
-        interpolate_reference(_reference(scene, reference), REFERENCE_INTERVAL_S, scene.t0_us)[None],
+        interpolate_reference(_poses(scene, reference, "reference", "M >= 2, 3", least=2), t0_us=scene.t0_us)[None],
         interpolate_proposals(proposals, interval, scene.t0_us),
     ]
     if human is not None:
@@ -341,18 +310,17 @@ def score_proposals(
             f"scene {scene.key!r}: {len(simulated)} simulated rows for {len(proposals)} proposals; pass "
             "simulate_rows' rows (the reference, the proposals, the human trajectory where the filter scores it)"
         )
-    states = simulated
     agents = slice(1, 1 + len(proposals))
-    extra = {"simulated_states": states[agents]} if with_states else {}
+    extra = {"simulated_states": simulated[agents]} if with_states else {}
     if metric == METRIC:
         observation = log_observation(scene) if observation is None else observation
-        scores = score_states(scene, states, observation, ep_reference=0, drivable_map=drivable_map)
+        scores = score_states(scene, simulated, observation, ep_reference=0, drivable_map=drivable_map)
         if with_masked_progress:
             extra |= _masked_progress(scores, scores[epdms.NC] * scores[epdms.DAC], agents)
         return {name: scores[name][agents] for name in COLUMNS} | extra
     observation = log_observation(scene, V2_STEPS, replay=True) if observation is None else observation
     scores = score_states_v2(
-        scene, states, observation, ep_reference=0, drivable_map=drivable_map, red_lights=red_lights
+        scene, simulated, observation, ep_reference=0, drivable_map=drivable_map, red_lights=red_lights
     )
     if with_masked_progress:
         extra |= _masked_progress(scores, scores["multiplicative_metrics_prod"], agents)
@@ -360,7 +328,7 @@ def score_proposals(
         None if human is None else {name: scores[name][-1] for name in epdms.FILTERED} | {epdms.EP: 1.0, epdms.HC: 1.0}
     )
     columns = epdms.human_penalty_filter({name: scores[name][agents] for name in epdms.FILTERED}, human_row)
-    columns[epdms.EC] = extended_comfort(scene, states[agents], previous)
+    columns[epdms.EC] = extended_comfort(scene, simulated[agents], previous)
     columns["score"] = epdms.epdms(columns)
     return columns | {name: scores[name][agents] for name in EPDMS_COLUMNS[len(epdms.SUB_SCORES) + 1 :]} | extra
 
@@ -368,8 +336,7 @@ def score_proposals(
 def _masked_progress(scores: dict[str, np.ndarray], multiplier: np.ndarray, agents: slice) -> dict[str, np.ndarray]:
     """EP's masked progress of the proposals, and the reference's (row 0) repeated beside them."""
     masked = scores["progress_m"] * multiplier
-    count = agents.stop - agents.start
-    return {"masked_progress_m": masked[agents], "reference_masked_progress_m": np.full(count, masked[0])}
+    return {"masked_progress_m": masked[agents], "reference_masked_progress_m": np.full_like(masked[agents], masked[0])}
 
 
 def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:

@@ -26,19 +26,6 @@ from lead_s2r.scoring.pdm.vehicle import PACIFICA, VehicleParameters
 #: nuPlan steps the bicycle by ``TimeDuration.from_s(0.1).time_s`` = 100000 us * 1e-6 (0.09999999999999999).
 SIMULATION_DT = int(PROPOSAL_INTERVAL * 1e6) * 1e-6
 
-#: The state columns the bicycle integrates, in ``BicycleState`` order (vy and ay are 0 after t0).
-_BICYCLE_COLUMNS = [
-    StateIndex.X,
-    StateIndex.Y,
-    StateIndex.HEADING,
-    StateIndex.VELOCITY_X,
-    StateIndex.ACCELERATION_X,
-    StateIndex.STEERING_ANGLE,
-    StateIndex.STEERING_RATE,
-    StateIndex.ANGULAR_VELOCITY,
-    StateIndex.ANGULAR_ACCELERATION,
-]
-
 
 def initial_state(
     ego_velocity: np.ndarray, ego_acceleration: np.ndarray, tire_steering_angle: float = 0.0
@@ -94,6 +81,8 @@ def simulate_proposals(
     first = initial_state(np.asarray(ego_velocity), np.asarray(ego_acceleration), tire_steering_angle)
     states = np.zeros((len(targets), targets.shape[1], STATE_SIZE))
     states[:, 0] = first
-    start = BicycleState(*first[_BICYCLE_COLUMNS].tolist())
+    # the bicycle's start: the t0 state at the origin of the ego frame, steering rate, yaw rate and yaw accel 0
+    speed, accel, steering = first[[StateIndex.VELOCITY_X, StateIndex.ACCELERATION_X, StateIndex.STEERING_ANGLE]]
+    start = BicycleState(0.0, 0.0, 0.0, float(speed), float(accel), float(steering), 0.0, 0.0, 0.0)
     _simulate(reference, terms, start, bicycle_constants(SIMULATION_DT, vehicle.wheel_base), states)
     return states

@@ -119,8 +119,6 @@ def _token_columns(row: TokenRow, ec: float, weight: float, stage: int) -> dict[
 
 def _weighted_average(table: Mapping[str, Mapping[str, float]], tokens: Sequence[str]) -> np.ndarray:
     """Column-wise weighted average of ``tokens`` (NaN for none), as ``calculate_weighted_average_score``."""
-    if not tokens:
-        return np.full(len(SCORE_COLUMNS), np.nan)
     values = np.array([[table[t][name] for name in SCORE_COLUMNS] for t in tokens])
     weights = np.array([table[t]["weight"] for t in tokens])
     total = weights.sum()
@@ -158,8 +156,7 @@ def two_stage_aggregate(
             sides.append((first, variants, weights))
         for now, before in group.pairs:
             pair_ec = _pair_ec(by_token, now, before, features)
-            for side, token in enumerate((now, before)):
-                _, variants, weights = sides[side]
+            for (_, variants, weights), token in zip(sides, (now, before), strict=True):
                 table[token] = _token_columns(by_token[token], pair_ec, float(weights[variants.index(token)]), 2)
         group_values = []
         for first, variants, _ in sides:

@@ -125,18 +125,15 @@ def _normalised_over_vocabulary(
     """The columns with EP (and the score) recomputed over one group: the reference and every entry."""
     normaliser = max(reference_masked, float(masked.max()))
     raw = columns["progress_m"]
-    if normaliser > PROGRESS_THRESHOLD_M:
-        ep = np.clip(raw / normaliser, 0.0, 1.0) if metric == EPDMS_METRIC else masked / normaliser
-    elif metric == EPDMS_METRIC:
-        ep = np.ones(len(raw))
-    else:
-        multiplier = columns[epdms.NC] * columns[epdms.DAC]
-        ep = np.where(multiplier == 0.0, 0.0, 1.0)
-    out = dict(columns)
-    out[epdms.EP] = ep
-    out["ep_normaliser_m"] = np.full(len(raw), normaliser)
+    above = normaliser > PROGRESS_THRESHOLD_M
+    out = columns | {"ep_normaliser_m": np.full(len(raw), normaliser)}
     if metric == EPDMS_METRIC:
+        out[epdms.EP] = np.clip(raw / normaliser, 0.0, 1.0) if above else np.ones(len(raw))
         out["score"] = epdms.epdms(out)
-    else:
-        out["score"] = pdms_v11(out[epdms.NC], out[epdms.DAC], ep, out[epdms.TTC], out["comfort"], out[epdms.DDC])
+        return out
+    multiplier = columns[epdms.NC] * columns[epdms.DAC]
+    out[epdms.EP] = masked / normaliser if above else np.where(multiplier == 0.0, 0.0, 1.0)
+    out["score"] = pdms_v11(
+        out[epdms.NC], out[epdms.DAC], out[epdms.EP], out[epdms.TTC], out["comfort"], out[epdms.DDC]
+    )
     return out
