@@ -107,23 +107,6 @@ def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
     write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def job_samples(source: list[dict[str, Any]] | tuple[str, list[str], int]) -> list[dict[str, Any]]:
-    """A job's samples: given decoded (a folder without a manifest), or ``(shard, keys, offset)`` read by the job
-    itself, so the driver holds no scene and a worker reads only its own."""
-    if isinstance(source, tuple):
-        shard, keys, offset = source
-        return read_part(shard, keys, FIELDS, offset)
-    return source
-
-
 def score_scenes(
     source: list[dict[str, Any]] | tuple[str, list[str], int],
     vocabulary: np.ndarray,
@@ -132,10 +115,13 @@ def score_scenes(
     progress: str,
     human_filter: bool = True,
 ) -> dict[str, Any]:
-    """One job: every scene's GTRS columns as float16 ``(V,)`` arrays by sample key, the scenes' NAVSIM tokens and
-    the scenes that failed."""
+    """One job, on samples given decoded (a folder without a manifest) or as ``(shard, keys, offset)``: every scene's
+    GTRS columns as float16 ``(V,)`` arrays by sample key, the scenes' NAVSIM tokens and the scenes that failed."""
+    if isinstance(source, tuple):  # the job reads its own samples: the driver holds no scene, a worker only its own
+        shard, keys, offset = source
+        source = read_part(shard, keys, FIELDS, offset)
     scores, tokens, failed = {}, {}, {}
-    for sample in job_samples(source):
+    for sample in source:
         key = sample["__key__"]
         tokens[key] = navsim_scene_token(sample)
         try:
@@ -215,8 +201,9 @@ def score_data(
             raise UserError(f"--data {folder}: no such folder; give a converted NAVSIM folder")
     jobs = _jobs(data, split)
     executor = executor or InlineExecutor()
-    run = VocabRun(str(vocab_path), _sha256(vocab_path), vocabulary.shape, interval, metric, progress, human_filter,
-                   tuple(str(folder.resolve()) for folder in data), split)  # fmt: skip
+    sha256 = hashlib.sha256(vocab_path.read_bytes()).hexdigest()
+    folders = tuple(str(folder.resolve()) for folder in data)
+    run = VocabRun(str(vocab_path), sha256, vocabulary.shape, interval, metric, progress, human_filter, folders, split)
     _check_folder(out, run)
     manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
     manifest |= {"package_version": __version__, "gtrs_metrics": list(GTRS_NAMES[metric].values())}
