@@ -31,7 +31,6 @@ import pyarrow as pa
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup
-from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import ScoreResult, join
@@ -42,8 +41,7 @@ from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, frame_of
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
-from lead_s2r.scoring.pdm.scene import PreviousFrame
-from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
+from lead_s2r.scoring.pdm.score import EPDMS_METRIC
 from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
@@ -83,27 +81,6 @@ def adjacent_frames(frames: Sequence[Frame]) -> dict[int, int]:
             if abs(frames[later].time_s - frames[earlier].time_s) <= MAX_INTERVAL_S:
                 pairs[later] = earlier
     return pairs
-
-
-def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:
-    """The earlier frame as seen from the current one: its rear-axle pose from the current sample's ``past``."""
-    gap = current.time_s - earlier.time_s
-    past = np.asarray(current.sample["past"], np.float64)
-    pose, inside = resample(past[:, 0], past[:, 1:4], np.array([-gap]), angle_columns=(2,))
-    if not inside.all():
-        raise ValueError(
-            f"sample {current.sample['__key__']!r}: field 'past' does not reach {-gap:.2f} s, where the frame "
-            f"{earlier.sample['__key__']!r} paired with it for EC was; re-convert with a longer history"
-        )
-    ego = earlier.sample["meta"]["ego"]
-    return PreviousFrame(
-        ego_pose=pose[0],
-        ego_velocity=np.asarray(ego["velocity"], np.float64),
-        ego_acceleration=np.asarray(ego["acceleration"], np.float64),
-        poses=earlier.poses,
-        interval=earlier.interval,
-        frame_gap=gap,
-    )
 
 
 class EPDMSScorer(PDMSScorer):
@@ -191,19 +168,6 @@ class EPDMSScorer(PDMSScorer):
         counts = {"frames": len(table), "frames_valid": len(table), "frames_failed": 0, "groups": len(mapping)}
         counts |= {"frames_stage_one": stage_one, "frames_stage_two": len(table) - stage_one}
         return pa.Table.from_pylist(table, schema=navhard.SCHEMA), navhard.summaries(self.two_stage_result) | counts
-
-    def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
-        """``score_proposals`` of the frame's plan (EC against ``earlier``'s plan, NaN without one)."""
-        assert frame.scene is not None, "invalid frames have no scores"
-        return score_proposals(
-            frame.scene,
-            frame.poses[None],
-            frame.interval,
-            reference=self.references.get(frame.scene),
-            metric=EPDMS_METRIC,
-            previous=None if earlier is None else [previous_frame(frame, earlier)],
-            with_states=with_states,
-        )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[epdms.EC]))

@@ -26,12 +26,11 @@ from lead_s2r.files import write_text
 from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of
+from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of, previous_frame
 from lead_s2r.scoring.pdm import epdms
+from lead_s2r.scoring.pdm.score import METRIC, STEP_COLUMNS, score_proposals
 from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS as EXTRA_COLUMNS
-from lead_s2r.scoring.pdm.score import STEP_COLUMNS, score_proposals
 
-METRIC = "pdms@navsim-1.1"
 #: NAVSIM v1.1 ``PDMResults`` fields, in the order its CSV writes them.
 NAVSIM_COLUMNS = (epdms.NC, epdms.DAC, epdms.EP, epdms.TTC, "comfort", epdms.DDC, "score")
 CSV_NAME = "navsim_pdms.csv"
@@ -99,11 +98,17 @@ class PDMSScorer(Scorer):
         result = self.proposal_scores(frame, earlier)
         return row | first_row(result, (*self.csv_columns, *EXTRA_COLUMNS), self.step_columns)
 
-    def proposal_scores(self, frame: Frame, earlier: Frame | None) -> dict[str, np.ndarray]:
-        """``score_proposals`` of the frame's plan."""
+    def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
+        """``score_proposals`` of the frame's plan (EPDMS: EC against ``earlier``'s plan, NaN without one)."""
         assert frame.scene is not None, "invalid frames have no scores"
         return score_proposals(
-            frame.scene, frame.poses[None], frame.interval, reference=self.references.get(frame.scene)
+            frame.scene,
+            frame.poses[None],
+            frame.interval,
+            reference=self.references.get(frame.scene),
+            metric=self.name,
+            previous=None if earlier is None else [previous_frame(frame, earlier)],
+            with_states=with_states,
         )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
