@@ -28,7 +28,6 @@ import io
 import json
 import zipfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -66,26 +65,6 @@ GTRS_NAMES = {
     METRIC: {name: name for name in PDMS_NAMES[:-1]} | {"score": "pdm_score"},
     EPDMS_METRIC: {name: name for name in EPDMS_NAMES[:-1]} | {"score": "pdm_score"},
 }
-
-
-@dataclass(frozen=True)
-class VocabRun:
-    """What a ``vocab score`` folder was scored with: its manifest's identity (a rerun must match it)."""
-
-    vocabulary: str
-    vocabulary_sha256: str
-    shape: tuple[int, ...]
-    interval: float
-    metric: str
-    progress: str
-    human_filter: bool
-    data: tuple[str, ...]
-    split: str | None
-
-    def identity(self) -> dict[str, Any]:
-        """Every field but the vocabulary's path (a copy elsewhere is the same vocabulary), as JSON writes it."""
-        fields = asdict(self).items()
-        return {name: list(v) if isinstance(v, tuple) else v for name, v in fields if name != "vocabulary"}
 
 
 def load_vocabulary(path: Path) -> np.ndarray:
@@ -158,7 +137,7 @@ def _read_part(path: Path) -> dict[str, Any]:
     return {"scores": scores, **listing}
 
 
-def _check_folder(out: Path, run: VocabRun) -> None:
+def _check_folder(out: Path, identity: dict[str, Any]) -> None:
     """``out`` is new, or holds parts of this same run (resume); anything else is another run's and is refused."""
     manifest = out / MANIFEST
     if manifest.is_file():
@@ -166,7 +145,7 @@ def _check_folder(out: Path, run: VocabRun) -> None:
             held = json.loads(manifest.read_text()).get("identity")
         except (json.JSONDecodeError, AttributeError):
             held = None
-        if held != run.identity():
+        if held != identity:
             raise UserError(
                 f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, human filter, data or "
                 "split differ); choose another --out or delete it"
@@ -201,11 +180,18 @@ def score_data(
             raise UserError(f"--data {folder}: no such folder; give a converted NAVSIM folder")
     jobs = _jobs(data, split)
     executor = executor or InlineExecutor()
-    sha256 = hashlib.sha256(vocab_path.read_bytes()).hexdigest()
-    folders = tuple(str(folder.resolve()) for folder in data)
-    run = VocabRun(str(vocab_path), sha256, vocabulary.shape, interval, metric, progress, human_filter, folders, split)
-    _check_folder(out, run)
-    manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
+    identity = {  # what a rerun must match: all but the vocabulary's path (a copy elsewhere is the same vocabulary)
+        "vocabulary_sha256": hashlib.sha256(vocab_path.read_bytes()).hexdigest(),
+        "shape": list(vocabulary.shape),
+        "interval": interval,
+        "metric": metric,
+        "progress": progress,
+        "human_filter": human_filter,
+        "data": [str(folder.resolve()) for folder in data],
+        "split": split,
+    }
+    _check_folder(out, identity)
+    manifest: dict[str, Any] = {"identity": identity, "vocabulary": str(vocab_path), "complete": False}
     manifest |= {"package_version": __version__, "gtrs_metrics": list(GTRS_NAMES[metric].values())}
     _write_manifest(out, manifest)
     parts = [out / PARTS / f"{index:06d}.npz" for index in range(len(jobs))]
