@@ -252,7 +252,7 @@ class RFSScorer(Scorer):
             "rfs": mean_or_none(scores),
             "rfs_cluster_macro": float(np.mean(list(cluster_means.values()))) if cluster_means else None,
             "rfs_per_cluster": cluster_means,
-            "fully_within_rate": mean_or_none(np.asarray(table["fully_within"].to_pylist(), np.float64)),
+            "fully_within_rate": mean_or_none(table["fully_within"].to_pylist()),
             "frames": frames,
             "frames_scored": len(scores),
             "frames_skipped_no_rating": skipped,

@@ -48,7 +48,6 @@ from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
 STEP_COLUMNS = (*PDMS_STEP_COLUMNS, "lane_keeping_fail_idx")
 CSV_NAME = "navsim_epdms.csv"
-AVERAGE_TOKEN = "average_all_frames"
 #: the background traffic, in scores.json's config: NAVSIM's two-stage runner uses the reactive IDM policy for both
 #: stages, this scorer (and the one-stage runner) replays the log (docs/metrics.md, "Known differences")
 TRAFFIC_AGENTS = {
@@ -96,7 +95,7 @@ class EPDMSScorer(PDMSScorer):
     step_columns: ClassVar[tuple[str, ...]] = STEP_COLUMNS
     headline: ClassVar[str] = "epdms"
     csv_name: ClassVar[str] = CSV_NAME
-    average_token: ClassVar[str] = AVERAGE_TOKEN
+    average_token: ClassVar[str] = "average_all_frames"
 
     def __init__(
         self,
@@ -178,4 +177,3 @@ class EPDMSScorer(PDMSScorer):
         if self.two_stage_result is None:
             return super().write_files(result, out)
         write_csv(Path(out) / navhard.CSV_NAME, *navhard.csv_table(self.two_stage_result))
-        return None

@@ -33,7 +33,6 @@ from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS as EXTRA_COLUMNS
 
 #: NAVSIM v1.1 ``PDMResults`` fields, in the order its CSV writes them.
 NAVSIM_COLUMNS = (epdms.NC, epdms.DAC, epdms.EP, epdms.TTC, "comfort", epdms.DDC, "score")
-CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
@@ -55,7 +54,7 @@ class PDMSScorer(Scorer):
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
     step_columns: ClassVar[tuple[str, ...]] = STEP_COLUMNS
     headline: ClassVar[str] = "pdms"
-    csv_name: ClassVar[str] = CSV_NAME
+    csv_name: ClassVar[str] = "navsim_pdms.csv"
     average_token: ClassVar[str] = "average"
 
     def __init__(self, allow_missing: bool = False, reference_cache: str | ReferenceCache | None = None) -> None:
@@ -113,7 +112,7 @@ class PDMSScorer(Scorer):
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]
-        means = {name: mean_or_none(np.array([row[name] for row in valid], np.float64)) for name in self.csv_columns}
+        means = {name: mean_or_none([row[name] for row in valid]) for name in self.csv_columns}
         return {
             self.headline: means["score"],
             **means,
@@ -126,7 +125,7 @@ class PDMSScorer(Scorer):
         """``navsim_pdms.csv``: NAVSIM v1.1's CSV layout (see the module docstring)."""
         rows = result.table.to_pylist()
         columns = self.csv_columns
-        means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in columns]
+        means = [mean_or_none([row[name] for row in rows]) for name in columns]
         body = [[str(i), row["token"], row["valid"], *(row[name] for name in columns)] for i, row in enumerate(rows)]
         body.append([str(len(rows)), self.average_token, all(row["valid"] for row in rows), *means])
         write_csv(Path(out) / self.csv_name, ["", "token", "valid", *columns], body)
