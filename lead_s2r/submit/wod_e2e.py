@@ -257,15 +257,12 @@ def read_shards(path: Path) -> dict[str, bytes]:
 
 def check_wod(path: Path) -> dict[str, Any]:
     """Re-read a written submission (tar.gz, folder or shard), validate it, and report what it holds."""
-    raw = read_shards(path)
     messages = {}
-    for name, payload in raw.items():
-        message = E2EDChallengeSubmission()
+    for name, payload in read_shards(path).items():
         try:
-            message.ParseFromString(payload)
+            messages[name] = E2EDChallengeSubmission.FromString(payload)
         except DecodeError as err:
             raise SubmissionError(f"{path}: {name} is not an E2EDChallengeSubmission ({err})") from None
-        messages[name] = message
     try:
         frames = validate(messages)
     except SubmissionError as err:
