@@ -39,7 +39,6 @@ from lead_s2r.scoring.navsim.pdms_scorer import EXTRA_COLUMNS, PDMSScorer, write
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
 from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, frame_of
 from lead_s2r.scoring.pdm import epdms
-from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC
 from lead_s2r.scoring.pdm.two_stage import TwoStageResult
@@ -148,11 +147,8 @@ class EPDMSScorer(PDMSScorer):
         navhard.check_complete(mapping, samples, {navsim_scene_token(frame.sample): frame.error for frame in frames})
         results = self.map_samples(self.proposal_scores, [(frame, None, True) for frame in frames])
         tokens = [navsim_scene_token(frame.sample) for frame in frames]
-        rows = [
-            navhard.token_row(token, frame.sample, frame.poses, result)
-            for token, frame, result in zip(tokens, frames, results, strict=True)
-        ]
-        self.two_stage_result = navhard.aggregate(rows, mapping, extended_comfort_features)
+        rows = [navhard.token_row(frame, result) for frame, result in zip(frames, results, strict=True)]
+        self.two_stage_result = navhard.aggregate(rows, mapping)
         table = []
         for token, frame, result in zip(tokens, frames, results, strict=True):
             per = self.two_stage_result.per_token[token]
