@@ -198,17 +198,16 @@ def score_data(
     for partial in (out / PARTS).glob(".*.partial"):  # a killed run's unfinished writes
         partial.unlink()
     todo = [index for index, path in enumerate(parts) if not _readable(path)]
-    total = sum(_job_size(job) for job in jobs)
+    sizes = [len(job[1]) if isinstance(job, tuple) else len(job) for job in jobs]  # a job read: (shard, keys, offset)
     for index in set(range(len(jobs))) - set(todo):
         if on_job is not None:
-            on_job(_job_size(jobs[index]), _job_size(jobs[index]) * len(vocabulary), total)
+            on_job(sizes[index], sizes[index] * len(vocabulary), sum(sizes))
     arguments = [(jobs[index], vocabulary, interval, metric, progress, human_filter) for index in todo]
     with executor.session():
         for position, result in executor.run(score_scenes, arguments):
             write_bytes(parts[todo[position]], _part_bytes(result))
             if on_job is not None:
-                size = _job_size(jobs[todo[position]])
-                on_job(size, size * len(vocabulary), total)
+                on_job(sizes[todo[position]], sizes[todo[position]] * len(vocabulary), sum(sizes))
     return _assemble(out, parts, manifest)
 
 
@@ -234,10 +233,6 @@ def _jobs(data: list[Path], split: str | None) -> list[list[dict[str, Any]] | tu
     if not jobs:
         raise UserError(f"--split {split}: {', '.join(map(str, data))} holds no sample of it")
     return jobs
-
-
-def _job_size(job: list[dict[str, Any]] | tuple[str, list[str], int]) -> int:
-    return len(job[1]) if isinstance(job, tuple) else len(job)
 
 
 def _readable(path: Path) -> bool:
