@@ -37,7 +37,7 @@ from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
 from lead_s2r.scoring.navsim.pdms_scorer import EXTRA_COLUMNS, PDMSScorer, write_csv
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
-from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, frame_of
+from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC
@@ -157,7 +157,7 @@ class EPDMSScorer(PDMSScorer):
                 | {"valid": True, "stage": int(per["stage"]), "weight": per["weight"], "error": None}
                 | {"two_stage_role": navhard.navsim_extras(frame.sample).get("two_stage_role")}
                 | {name: per[name] for name in navhard.TABLE_COLUMNS}
-                | {name: float(np.asarray(result[name])[0]) for name in EXTRA_COLUMNS}
+                | first_row(result, EXTRA_COLUMNS)
             )
         stage_one = sum(1 for row in table if row["stage"] == 1)
         counts = {"frames": len(table), "frames_valid": len(table), "frames_failed": 0, "groups": len(mapping)}

@@ -93,7 +93,7 @@ def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:
     )
 
 
-def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tuple[str, ...]) -> dict[str, Any]:
+def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tuple[str, ...] = ()) -> dict[str, Any]:
     """Row 0 of ``score_proposals``' columns: ``scores`` as floats, ``steps`` (failure steps) as ints."""
     return {name: float(np.asarray(result[name])[0]) for name in scores} | {
         name: int(np.asarray(result[name])[0]) for name in steps

@@ -30,7 +30,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
 from lead_s2r.schema import navsim_scene_token
-from lead_s2r.scoring.navsim.proposals import Frame
+from lead_s2r.scoring.navsim.proposals import Frame, first_row
 from lead_s2r.scoring.pdm import epdms, two_stage
 from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS
@@ -94,7 +94,7 @@ def token_row(frame: Frame, result: dict[str, np.ndarray]) -> two_stage.TokenRow
     origin = np.asarray(frame.sample["scoring"]["origin"], np.float64)
     return two_stage.TokenRow(
         token=navsim_scene_token(frame.sample),
-        columns={name: float(np.asarray(result[name])[0]) for name in epdms.FILTERED},
+        columns=first_row(result, epdms.FILTERED),
         start_time=frame.time_s,
         start_point=origin[:2],
         endpoint=to_global(np.asarray(frame.poses, np.float64)[-1], origin)[:2],
