@@ -49,14 +49,10 @@ STEP_COLUMNS = (*PDMS_STEP_COLUMNS, "lane_keeping_fail_idx")
 CSV_NAME = "navsim_epdms.csv"
 #: the background traffic, in scores.json's config: NAVSIM's two-stage runner uses the reactive IDM policy for both
 #: stages, this scorer (and the one-stage runner) replays the log (docs/metrics.md, "Known differences")
-TRAFFIC_AGENTS = {
-    False: {"traffic_agents": "log_replay"},
-    True: {
-        "traffic_agents": "log_replay",
-        "known_difference": "NAVSIM's two-stage run_pdm_score.py simulates reactive (IDM) traffic in both stages; "
-        "this score replays the logged traffic (docs/metrics.md)",
-    },
-}
+KNOWN_DIFFERENCE = (
+    "NAVSIM's two-stage run_pdm_score.py simulates reactive (IDM) traffic in both stages; this score replays the "
+    "logged traffic (docs/metrics.md)"
+)
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
@@ -114,7 +110,8 @@ class EPDMSScorer(PDMSScorer):
 
     def config(self) -> dict[str, Any]:
         scored = self.two_stage_result is not None
-        return {**super().config(), "two_stage": self.two_stage, "scored_two_stage": scored} | TRAFFIC_AGENTS[scored]
+        config = {**super().config(), "two_stage": self.two_stage, "scored_two_stage": scored}
+        return config | {"traffic_agents": "log_replay"} | ({"known_difference": KNOWN_DIFFERENCE} if scored else {})
 
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
         """Samples of other datasets are skipped and counted, as :class:`PDMSScorer` does."""
