@@ -125,9 +125,8 @@ def build_shards(metadata: WodMetadata, trajectories: dict[str, np.ndarray], cou
     for index in range(count):
         shard = metadata.message()
         for name in names[index * per_shard : (index + 1) * per_shard]:
-            entry = shard.predictions.add(frame_name=name)
-            entry.trajectory.pos_x.extend(trajectories[name][:, 0].tolist())
-            entry.trajectory.pos_y.extend(trajectories[name][:, 1].tolist())
+            x, y = trajectories[name].T.tolist()
+            shard.predictions.add(frame_name=name, trajectory={"pos_x": x, "pos_y": y})
         shards.append(shard)
     return shards
 
