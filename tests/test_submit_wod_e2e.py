@@ -172,8 +172,7 @@ def test_missing_frame_short_horizon_and_bad_metadata_write_nothing(converted, t
 
 def test_validate_rejects_wrong_point_counts_nan_and_duplicates() -> None:
     def shard(points: list[np.ndarray]) -> object:
-        message = wod_submit.E2EDChallengeSubmission()
-        METADATA.fill(message)
+        message = METADATA.message()
         for i, xy in enumerate(points):
             entry = message.predictions.add(frame_name=f"seq-{i:03d}")
             entry.trajectory.pos_x.extend(xy[:, 0].tolist())

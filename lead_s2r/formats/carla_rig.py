@@ -69,15 +69,14 @@ CAMERA_RIGS: dict[str, tuple[RigCamera, ...]] = {
 }
 #: The rig of routes whose metas name none (LEAD's default ``carla_leaderboard2`` data, the paper's).
 DEFAULT_TARGET_DATASET = "CARLA_LEADERBOARD2_3CAMERAS"
-#: CARLA's Lincoln MKZ 2020 ego: half extents from LEAD's config, wheel base of the real car.
+#: CARLA's Lincoln MKZ 2020 ego: half extents from LEAD's config.
 EGO_HALF_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
-EGO_WHEEL_BASE = 2.85
 #: ``meta.vehicle`` of every CARLA sample, converted or driven.
 EGO_VEHICLE = {
     "length": 2 * EGO_HALF_EXTENT[0],
     "width": 2 * EGO_HALF_EXTENT[1],
     "height": 2 * EGO_HALF_EXTENT[2],
-    "wheel_base": EGO_WHEEL_BASE,
+    "wheel_base": 2.85,  # of the real car
     "rear_axle_to_center": CARLA_REAR_AXLE_TO_CENTER,
 }
 #: CARLA RoadOption -> unified command (VOID = -1 and anything unknown -> UNKNOWN).

@@ -25,9 +25,8 @@ class Field(NamedTuple):
     packed: bool = False
 
 
-def _file_descriptor(
-    file_name: str, package: str, messages: dict[str, list[Field]]
-) -> descriptor_pb2.FileDescriptorProto:
+def message_classes(file_name: str, package: str, messages: dict[str, list[Field]]) -> dict[str, type[Message]]:
+    """One class per declared message, in a pool of its own; ``file_name`` is the descriptor's (unused) path."""
     proto = descriptor_pb2.FileDescriptorProto(name=file_name, package=package, syntax="proto2")
     for message_name, fields in messages.items():
         message = proto.message_type.add(name=message_name)
@@ -38,11 +37,6 @@ def _file_descriptor(
                 field.type_name = f".{package}.{spec.message}"
             if spec.packed:
                 field.options.packed = True
-    return proto
-
-
-def message_classes(file_name: str, package: str, messages: dict[str, list[Field]]) -> dict[str, type[Message]]:
-    """One class per declared message, in a pool of its own; ``file_name`` is the descriptor's (unused) path."""
     pool = descriptor_pool.DescriptorPool()
-    pool.Add(_file_descriptor(file_name, package, messages))
+    pool.Add(proto)
     return {name: message_factory.GetMessageClass(pool.FindMessageTypeByName(f"{package}.{name}")) for name in messages}

@@ -140,7 +140,7 @@ def _datasets(data: Iterable[dict[str, Any]]) -> set[str]:
     return {sample["meta"]["dataset"] for sample in data}
 
 
-def mean_or_none(values: np.ndarray) -> float | None:
+def mean_or_none(values: Sequence[float] | np.ndarray) -> float | None:
     """Mean of the finite values, None when there are none (JSON has no NaN)."""
     values = np.asarray(values, np.float64)
     values = values[np.isfinite(values)]

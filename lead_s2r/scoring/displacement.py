@@ -87,11 +87,10 @@ class DisplacementScorer(Scorer):
 
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
         pairs = join(predictions, data, self.allow_missing)
-        nan = float("nan")
         rows = []
         for sample, frame in pairs:
             row = {"key": sample["__key__"], "dataset": sample["meta"]["dataset"]}
-            row.update(dict.fromkeys((*FUTURE_COLUMNS, *RATER_COLUMNS), nan))
+            row |= dict.fromkeys((*FUTURE_COLUMNS, *RATER_COLUMNS), float("nan"))
             if "future" in sample:
                 row.update(future_errors(frame, sample["future"]))
             rows.append(row)
@@ -110,9 +109,7 @@ class DisplacementScorer(Scorer):
     @staticmethod
     def _aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
         def summary(subset: list[dict[str, Any]]) -> dict[str, Any]:
-            out: dict[str, Any] = {
-                name: mean_or_none(np.array([row[name] for row in subset], np.float64)) for name in SUMMED
-            }
+            out: dict[str, Any] = {name: mean_or_none([row[name] for row in subset]) for name in SUMMED}
             out["frames"] = len(subset)
             out["frames_with_future"] = int(sum(np.isfinite(row["ade"]) for row in subset))
             out["frames_rated"] = int(sum(np.isfinite(row["ade_3s"]) for row in subset))

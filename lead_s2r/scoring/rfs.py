@@ -80,23 +80,6 @@ def pad_raters(
     return padded, np.asarray(labels, np.float64)[frames, rater]
 
 
-def _stack(
-    frames: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per-frame (trajectories (P, T, 2), lengths (P,), labels (P,)) -> the padded inputs of :func:`pad_raters`."""
-    width = max(len(labels) for _, _, labels in frames)
-    longest = max(trajectories.shape[1] for trajectories, _, _ in frames)
-    stacked = np.full((len(frames), width, longest, 2), np.nan)
-    lengths = np.zeros((len(frames), width), np.int64)
-    labels = np.zeros((len(frames), width))
-    for b, (trajectories, length, scores) in enumerate(frames):
-        stacked[b, : len(scores), : trajectories.shape[1]] = trajectories
-        lengths[b, : len(scores)] = length
-        labels[b, : len(scores)] = scores
-    counts = np.array([len(scores) for _, _, scores in frames])
-    return stacked, lengths, counts, labels
-
-
 def _directions(raters: np.ndarray, indices: np.ndarray) -> np.ndarray:
     """Unit direction of travel (..., H, 2) of each rater at the waypoint indices.
 
@@ -168,7 +151,17 @@ def rater_arrays(samples: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndar
         _check_raters(sample["__key__"], trajectories, lengths, scores)
         valid = scores >= 0
         frames.append((trajectories[valid], lengths[valid], scores[valid]))
-    return _stack(frames)
+    width = max(len(scores) for _, _, scores in frames)
+    longest = max(trajectories.shape[1] for trajectories, _, _ in frames)
+    stacked = np.full((len(frames), width, longest, 2), np.nan)
+    lengths = np.zeros((len(frames), width), np.int64)
+    labels = np.zeros((len(frames), width))
+    for b, (trajectories, length, scores) in enumerate(frames):
+        stacked[b, : len(scores), : trajectories.shape[1]] = trajectories
+        lengths[b, : len(scores)] = length
+        labels[b, : len(scores)] = scores
+    counts = np.array([len(scores) for _, _, scores in frames])
+    return stacked, lengths, counts, labels
 
 
 def _check_raters(key: str, trajectories: np.ndarray, lengths: np.ndarray, scores: np.ndarray) -> None:
@@ -259,7 +252,7 @@ class RFSScorer(Scorer):
             "rfs": mean_or_none(scores),
             "rfs_cluster_macro": float(np.mean(list(cluster_means.values()))) if cluster_means else None,
             "rfs_per_cluster": cluster_means,
-            "fully_within_rate": mean_or_none(np.asarray(table["fully_within"].to_pylist(), np.float64)),
+            "fully_within_rate": mean_or_none(table["fully_within"].to_pylist()),
             "frames": frames,
             "frames_scored": len(scores),
             "frames_skipped_no_rating": skipped,

@@ -49,7 +49,6 @@ def planner_predictions(planner: str, data: Path | list[Path], path: Path, split
     except SchemaError as err:  # the data's own values, not a planner's mistake: name where they are
         where = ", ".join(map(str, folders))
         raise UserError(f"{where}: {err} (lead-s2r inspect {where} lists every such sample)") from None
-    path.parent.mkdir(parents=True, exist_ok=True)
     return write_predictions(path, predictions)
 
 

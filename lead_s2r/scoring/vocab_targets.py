@@ -28,7 +28,6 @@ import io
 import json
 import zipfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -68,26 +67,6 @@ GTRS_NAMES = {
 }
 
 
-@dataclass(frozen=True)
-class VocabRun:
-    """What a ``vocab score`` folder was scored with: its manifest's identity (a rerun must match it)."""
-
-    vocabulary: str
-    vocabulary_sha256: str
-    shape: tuple[int, ...]
-    interval: float
-    metric: str
-    progress: str
-    human_filter: bool
-    data: tuple[str, ...]
-    split: str | None
-
-    def identity(self) -> dict[str, Any]:
-        """Every field but the vocabulary's path (a copy elsewhere is the same vocabulary), as JSON writes it."""
-        fields = asdict(self).items()
-        return {name: list(v) if isinstance(v, tuple) else v for name, v in fields if name != "vocabulary"}
-
-
 def load_vocabulary(path: Path) -> np.ndarray:
     """The ``(V, K, 3)`` vocabulary in ``path`` (a .npy file), or a UserError naming the file and what is wrong."""
     if not path.is_file():
@@ -107,23 +86,6 @@ def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
     write_bytes(out / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def job_samples(source: list[dict[str, Any]] | tuple[str, list[str], int]) -> list[dict[str, Any]]:
-    """A job's samples: given decoded (a folder without a manifest), or ``(shard, keys, offset)`` read by the job
-    itself, so the driver holds no scene and a worker reads only its own."""
-    if isinstance(source, tuple):
-        shard, keys, offset = source
-        return read_part(shard, keys, FIELDS, offset)
-    return source
-
-
 def score_scenes(
     source: list[dict[str, Any]] | tuple[str, list[str], int],
     vocabulary: np.ndarray,
@@ -132,10 +94,13 @@ def score_scenes(
     progress: str,
     human_filter: bool = True,
 ) -> dict[str, Any]:
-    """One job: every scene's GTRS columns as float16 ``(V,)`` arrays by sample key, the scenes' NAVSIM tokens and
-    the scenes that failed."""
+    """One job, on samples given decoded (a folder without a manifest) or as ``(shard, keys, offset)``: every scene's
+    GTRS columns as float16 ``(V,)`` arrays by sample key, the scenes' NAVSIM tokens and the scenes that failed."""
+    if isinstance(source, tuple):  # the job reads its own samples: the driver holds no scene, a worker only its own
+        shard, keys, offset = source
+        source = read_part(shard, keys, FIELDS, offset)
     scores, tokens, failed = {}, {}, {}
-    for sample in job_samples(source):
+    for sample in source:
         key = sample["__key__"]
         tokens[key] = navsim_scene_token(sample)
         try:
@@ -172,7 +137,7 @@ def _read_part(path: Path) -> dict[str, Any]:
     return {"scores": scores, **listing}
 
 
-def _check_folder(out: Path, run: VocabRun) -> None:
+def _check_folder(out: Path, identity: dict[str, Any]) -> None:
     """``out`` is new, or holds parts of this same run (resume); anything else is another run's and is refused."""
     manifest = out / MANIFEST
     if manifest.is_file():
@@ -180,7 +145,7 @@ def _check_folder(out: Path, run: VocabRun) -> None:
             held = json.loads(manifest.read_text()).get("identity")
         except (json.JSONDecodeError, AttributeError):
             held = None
-        if held != run.identity():
+        if held != identity:
             raise UserError(
                 f"--out {out}: {MANIFEST} records another run (vocabulary, metric, progress, human filter, data or "
                 "split differ); choose another --out or delete it"
@@ -215,27 +180,34 @@ def score_data(
             raise UserError(f"--data {folder}: no such folder; give a converted NAVSIM folder")
     jobs = _jobs(data, split)
     executor = executor or InlineExecutor()
-    run = VocabRun(str(vocab_path), _sha256(vocab_path), vocabulary.shape, interval, metric, progress, human_filter,
-                   tuple(str(folder.resolve()) for folder in data), split)  # fmt: skip
-    _check_folder(out, run)
-    manifest: dict[str, Any] = {"identity": run.identity(), "vocabulary": run.vocabulary, "complete": False}
+    identity = {  # what a rerun must match: all but the vocabulary's path (a copy elsewhere is the same vocabulary)
+        "vocabulary_sha256": hashlib.sha256(vocab_path.read_bytes()).hexdigest(),
+        "shape": list(vocabulary.shape),
+        "interval": interval,
+        "metric": metric,
+        "progress": progress,
+        "human_filter": human_filter,
+        "data": [str(folder.resolve()) for folder in data],
+        "split": split,
+    }
+    _check_folder(out, identity)
+    manifest: dict[str, Any] = {"identity": identity, "vocabulary": str(vocab_path), "complete": False}
     manifest |= {"package_version": __version__, "gtrs_metrics": list(GTRS_NAMES[metric].values())}
     _write_manifest(out, manifest)
     parts = [out / PARTS / f"{index:06d}.npz" for index in range(len(jobs))]
     for partial in (out / PARTS).glob(".*.partial"):  # a killed run's unfinished writes
         partial.unlink()
     todo = [index for index, path in enumerate(parts) if not _readable(path)]
-    total = sum(_job_size(job) for job in jobs)
+    sizes = [len(job[1]) if isinstance(job, tuple) else len(job) for job in jobs]  # a job read: (shard, keys, offset)
     for index in set(range(len(jobs))) - set(todo):
         if on_job is not None:
-            on_job(_job_size(jobs[index]), _job_size(jobs[index]) * len(vocabulary), total)
+            on_job(sizes[index], sizes[index] * len(vocabulary), sum(sizes))
     arguments = [(jobs[index], vocabulary, interval, metric, progress, human_filter) for index in todo]
     with executor.session():
         for position, result in executor.run(score_scenes, arguments):
             write_bytes(parts[todo[position]], _part_bytes(result))
             if on_job is not None:
-                size = _job_size(jobs[todo[position]])
-                on_job(size, size * len(vocabulary), total)
+                on_job(sizes[todo[position]], sizes[todo[position]] * len(vocabulary), sum(sizes))
     return _assemble(out, parts, manifest)
 
 
@@ -261,10 +233,6 @@ def _jobs(data: list[Path], split: str | None) -> list[list[dict[str, Any]] | tu
     if not jobs:
         raise UserError(f"--split {split}: {', '.join(map(str, data))} holds no sample of it")
     return jobs
-
-
-def _job_size(job: list[dict[str, Any]] | tuple[str, list[str], int]) -> int:
-    return len(job[1]) if isinstance(job, tuple) else len(job)
 
 
 def _readable(path: Path) -> bool:

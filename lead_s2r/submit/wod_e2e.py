@@ -16,7 +16,7 @@ import io
 import re
 import tarfile
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -65,18 +65,10 @@ class WodMetadata:
     def __post_init__(self) -> None:
         check_metadata(self.__dict__)
 
-    def fill(self, shard: Any) -> None:
-        """Set every metadata field of an ``E2EDChallengeSubmission``."""
-        shard.submission_type = E2ED_SUBMISSION
-        shard.account_name = self.account_name
-        shard.unique_method_name = self.unique_method_name
-        shard.authors.extend(self.authors)
-        shard.uses_public_model_pretraining = bool(self.uses_public_model_pretraining)
-        shard.num_model_parameters = self.num_model_parameters
-        shard.public_model_names.extend(self.public_model_names)
-        for name in ("affiliation", "description", "method_link"):
-            if getattr(self, name):
-                setattr(shard, name, getattr(self, name))
+    def message(self) -> Any:
+        """A new ``E2EDChallengeSubmission`` holding every metadata field (an empty optional text left unset)."""
+        fields = {name: value for name, value in asdict(self).items() if value != ""}
+        return E2EDChallengeSubmission(submission_type=E2ED_SUBMISSION, **fields)
 
 
 def check_metadata(values: dict[str, Any]) -> None:
@@ -114,9 +106,7 @@ def frame_names(data: Sequence[Path], split: str) -> dict[str, str]:
 def trajectories(predictions: Path, frames: dict[str, str]) -> dict[str, np.ndarray]:
     """Frame name -> (20, 2) float32 xy at 0.25 ... 5 s, one per frame; every frame must have a prediction."""
     best = best_inferences(predictions)
-    require_coverage(
-        "frame", (frames[key] for key in frames), (frames[key] for key in frames if key in best), str(predictions)
-    )
+    require_coverage("frame", frames.values(), [name for key, name in frames.items() if key in best], str(predictions))
     keys = sorted(frames)
     try:
         xy, _ = on_grid([[best[key]] for key in keys], regular_grid(FREQUENCY, LENGTH_SECONDS))
@@ -133,12 +123,10 @@ def build_shards(metadata: WodMetadata, trajectories: dict[str, np.ndarray], cou
     per_shard = -(-len(names) // count)
     shards = []
     for index in range(count):
-        shard = E2EDChallengeSubmission()
-        metadata.fill(shard)
+        shard = metadata.message()
         for name in names[index * per_shard : (index + 1) * per_shard]:
-            entry = shard.predictions.add(frame_name=name)
-            entry.trajectory.pos_x.extend(trajectories[name][:, 0].tolist())
-            entry.trajectory.pos_y.extend(trajectories[name][:, 1].tolist())
+            x, y = trajectories[name].T.tolist()
+            shard.predictions.add(frame_name=name, trajectory={"pos_x": x, "pos_y": y})
         shards.append(shard)
     return shards
 
@@ -268,15 +256,12 @@ def read_shards(path: Path) -> dict[str, bytes]:
 
 def check_wod(path: Path) -> dict[str, Any]:
     """Re-read a written submission (tar.gz, folder or shard), validate it, and report what it holds."""
-    raw = read_shards(path)
     messages = {}
-    for name, payload in raw.items():
-        message = E2EDChallengeSubmission()
+    for name, payload in read_shards(path).items():
         try:
-            message.ParseFromString(payload)
+            messages[name] = E2EDChallengeSubmission.FromString(payload)
         except DecodeError as err:
             raise SubmissionError(f"{path}: {name} is not an E2EDChallengeSubmission ({err})") from None
-        messages[name] = message
     try:
         frames = validate(messages)
     except SubmissionError as err:

@@ -2,7 +2,7 @@
 ``epdms@navsim-2.2`` (:class:`EPDMSScorer`: one stage, or navhard's two stages where the samples carry the
 two-stage mapping). The simulation and the sub-metrics they share are :mod:`lead_s2r.scoring.pdm`.
 
-- ``proposals``: per sample, the scene token, the prediction on NAVSIM's input grid and PDM-Closed's cached reference;
+- ``proposals``: per sample, the scene token, the plan on NAVSIM's grid, PDM-Closed's cached reference, EC's frame pair;
 - ``pdms_scorer``: the v1.1 table, aggregates and CSV;
 - ``epdms_scorer``: the v2.2 table, EC between adjacent frames, the two-stage switch;
 - ``two_stage_samples``: navhard's mapping read from the samples, completeness, rows, summaries, CSV.

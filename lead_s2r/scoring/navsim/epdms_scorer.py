@@ -31,36 +31,28 @@ import pyarrow as pa
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup
-from lead_s2r.geometry import resample
 from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import ScoreResult, join
 from lead_s2r.scoring.navsim import two_stage_samples as navhard
 from lead_s2r.scoring.navsim.pdms_scorer import EXTRA_COLUMNS, PDMSScorer, write_csv
 from lead_s2r.scoring.navsim.pdms_scorer import STEP_COLUMNS as PDMS_STEP_COLUMNS
-from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, frame_of
+from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of
 from lead_s2r.scoring.pdm import epdms
-from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.extended_comfort import MAX_INTERVAL_S
-from lead_s2r.scoring.pdm.scene import PreviousFrame
-from lead_s2r.scoring.pdm.score import EPDMS_METRIC, score_proposals
+from lead_s2r.scoring.pdm.score import EPDMS_METRIC
 from lead_s2r.scoring.pdm.two_stage import TwoStageResult
 
 #: NAVSIM v2 CSV columns after ``token`` and ``valid``, in the one-stage runner's order.
 NAVSIM_COLUMNS = (*epdms.SUB_SCORES, "score")
 STEP_COLUMNS = (*PDMS_STEP_COLUMNS, "lane_keeping_fail_idx")
 CSV_NAME = "navsim_epdms.csv"
-AVERAGE_TOKEN = "average_all_frames"
 #: the background traffic, in scores.json's config: NAVSIM's two-stage runner uses the reactive IDM policy for both
 #: stages, this scorer (and the one-stage runner) replays the log (docs/metrics.md, "Known differences")
-TRAFFIC_AGENTS = {
-    False: {"traffic_agents": "log_replay"},
-    True: {
-        "traffic_agents": "log_replay",
-        "known_difference": "NAVSIM's two-stage run_pdm_score.py simulates reactive (IDM) traffic in both stages; "
-        "this score replays the logged traffic (docs/metrics.md)",
-    },
-}
+KNOWN_DIFFERENCE = (
+    "NAVSIM's two-stage run_pdm_score.py simulates reactive (IDM) traffic in both stages; this score replays the "
+    "logged traffic (docs/metrics.md)"
+)
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
@@ -85,27 +77,6 @@ def adjacent_frames(frames: Sequence[Frame]) -> dict[int, int]:
     return pairs
 
 
-def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:
-    """The earlier frame as seen from the current one: its rear-axle pose from the current sample's ``past``."""
-    gap = current.time_s - earlier.time_s
-    past = np.asarray(current.sample["past"], np.float64)
-    pose, inside = resample(past[:, 0], past[:, 1:4], np.array([-gap]), angle_columns=(2,))
-    if not inside.all():
-        raise ValueError(
-            f"sample {current.sample['__key__']!r}: field 'past' does not reach {-gap:.2f} s, where the frame "
-            f"{earlier.sample['__key__']!r} paired with it for EC was; re-convert with a longer history"
-        )
-    ego = earlier.sample["meta"]["ego"]
-    return PreviousFrame(
-        ego_pose=pose[0],
-        ego_velocity=np.asarray(ego["velocity"], np.float64),
-        ego_acceleration=np.asarray(ego["acceleration"], np.float64),
-        poses=earlier.poses,
-        interval=earlier.interval,
-        frame_gap=gap,
-    )
-
-
 class EPDMSScorer(PDMSScorer):
     """``epdms@navsim-2.2``: per-sample NAVSIM v2.2 sub-scores, EC from adjacent frames and the final EPDMS; on a
     navhard two-stage split, NAVSIM's two-stage aggregation (:mod:`lead_s2r.scoring.navsim.two_stage_samples`)."""
@@ -119,7 +90,7 @@ class EPDMSScorer(PDMSScorer):
     step_columns: ClassVar[tuple[str, ...]] = STEP_COLUMNS
     headline: ClassVar[str] = "epdms"
     csv_name: ClassVar[str] = CSV_NAME
-    average_token: ClassVar[str] = AVERAGE_TOKEN
+    average_token: ClassVar[str] = "average_all_frames"
 
     def __init__(
         self,
@@ -139,7 +110,8 @@ class EPDMSScorer(PDMSScorer):
 
     def config(self) -> dict[str, Any]:
         scored = self.two_stage_result is not None
-        return {**super().config(), "two_stage": self.two_stage, "scored_two_stage": scored} | TRAFFIC_AGENTS[scored]
+        config = {**super().config(), "two_stage": self.two_stage, "scored_two_stage": scored}
+        return config | {"traffic_agents": "log_replay"} | ({"known_difference": KNOWN_DIFFERENCE} if scored else {})
 
     def score(self, predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> ScoreResult:
         """Samples of other datasets are skipped and counted, as :class:`PDMSScorer` does."""
@@ -172,11 +144,8 @@ class EPDMSScorer(PDMSScorer):
         navhard.check_complete(mapping, samples, {navsim_scene_token(frame.sample): frame.error for frame in frames})
         results = self.map_samples(self.proposal_scores, [(frame, None, True) for frame in frames])
         tokens = [navsim_scene_token(frame.sample) for frame in frames]
-        rows = [
-            navhard.token_row(token, frame.sample, frame.poses, result)
-            for token, frame, result in zip(tokens, frames, results, strict=True)
-        ]
-        self.two_stage_result = navhard.aggregate(rows, mapping, extended_comfort_features)
+        rows = [navhard.token_row(frame, result) for frame, result in zip(frames, results, strict=True)]
+        self.two_stage_result = navhard.aggregate(rows, mapping)
         table = []
         for token, frame, result in zip(tokens, frames, results, strict=True):
             per = self.two_stage_result.per_token[token]
@@ -185,25 +154,12 @@ class EPDMSScorer(PDMSScorer):
                 | {"valid": True, "stage": int(per["stage"]), "weight": per["weight"], "error": None}
                 | {"two_stage_role": navhard.navsim_extras(frame.sample).get("two_stage_role")}
                 | {name: per[name] for name in navhard.TABLE_COLUMNS}
-                | {name: float(np.asarray(result[name])[0]) for name in EXTRA_COLUMNS}
+                | first_row(result, EXTRA_COLUMNS)
             )
         stage_one = sum(1 for row in table if row["stage"] == 1)
         counts = {"frames": len(table), "frames_valid": len(table), "frames_failed": 0, "groups": len(mapping)}
         counts |= {"frames_stage_one": stage_one, "frames_stage_two": len(table) - stage_one}
         return pa.Table.from_pylist(table, schema=navhard.SCHEMA), navhard.summaries(self.two_stage_result) | counts
-
-    def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
-        """``score_proposals`` of the frame's plan (EC against ``earlier``'s plan, NaN without one)."""
-        assert frame.scene is not None, "invalid frames have no scores"
-        return score_proposals(
-            frame.scene,
-            frame.poses[None],
-            frame.interval,
-            reference=self.references.get(frame.scene),
-            metric=EPDMS_METRIC,
-            previous=None if earlier is None else [previous_frame(frame, earlier)],
-            with_states=with_states,
-        )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         with_ec = sum(1 for row in rows if row["valid"] and np.isfinite(row[epdms.EC]))
@@ -214,4 +170,3 @@ class EPDMSScorer(PDMSScorer):
         if self.two_stage_result is None:
             return super().write_files(result, out)
         write_csv(Path(out) / navhard.CSV_NAME, *navhard.csv_table(self.two_stage_result))
-        return None

@@ -26,15 +26,13 @@ from lead_s2r.files import write_text
 from lead_s2r.predictions import Prediction
 from lead_s2r.schema import navsim_scene_token
 from lead_s2r.scoring.base import Scorer, ScoreResult, join, mean_or_none
-from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of
+from lead_s2r.scoring.navsim.proposals import Frame, ReferenceCache, first_row, frame_of, previous_frame
 from lead_s2r.scoring.pdm import epdms
+from lead_s2r.scoring.pdm.score import METRIC, STEP_COLUMNS, score_proposals
 from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS as EXTRA_COLUMNS
-from lead_s2r.scoring.pdm.score import STEP_COLUMNS, score_proposals
 
-METRIC = "pdms@navsim-1.1"
 #: NAVSIM v1.1 ``PDMResults`` fields, in the order its CSV writes them.
 NAVSIM_COLUMNS = (epdms.NC, epdms.DAC, epdms.EP, epdms.TTC, "comfort", epdms.DDC, "score")
-CSV_NAME = "navsim_pdms.csv"
 SCHEMA = pa.schema(
     [("key", pa.string()), ("dataset", pa.string()), ("token", pa.string()), ("valid", pa.bool_())]
     + [(name, pa.float64()) for name in (*NAVSIM_COLUMNS, *EXTRA_COLUMNS)]
@@ -56,7 +54,7 @@ class PDMSScorer(Scorer):
     csv_columns: ClassVar[tuple[str, ...]] = NAVSIM_COLUMNS
     step_columns: ClassVar[tuple[str, ...]] = STEP_COLUMNS
     headline: ClassVar[str] = "pdms"
-    csv_name: ClassVar[str] = CSV_NAME
+    csv_name: ClassVar[str] = "navsim_pdms.csv"
     average_token: ClassVar[str] = "average"
 
     def __init__(self, allow_missing: bool = False, reference_cache: str | ReferenceCache | None = None) -> None:
@@ -99,16 +97,22 @@ class PDMSScorer(Scorer):
         result = self.proposal_scores(frame, earlier)
         return row | first_row(result, (*self.csv_columns, *EXTRA_COLUMNS), self.step_columns)
 
-    def proposal_scores(self, frame: Frame, earlier: Frame | None) -> dict[str, np.ndarray]:
-        """``score_proposals`` of the frame's plan."""
+    def proposal_scores(self, frame: Frame, earlier: Frame | None, with_states: bool = False) -> dict[str, np.ndarray]:
+        """``score_proposals`` of the frame's plan (EPDMS: EC against ``earlier``'s plan, NaN without one)."""
         assert frame.scene is not None, "invalid frames have no scores"
         return score_proposals(
-            frame.scene, frame.poses[None], frame.interval, reference=self.references.get(frame.scene)
+            frame.scene,
+            frame.poses[None],
+            frame.interval,
+            reference=self.references.get(frame.scene),
+            metric=self.name,
+            previous=None if earlier is None else [previous_frame(frame, earlier)],
+            with_states=with_states,
         )
 
     def _aggregate(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         valid = [row for row in rows if row["valid"]]
-        means = {name: mean_or_none(np.array([row[name] for row in valid], np.float64)) for name in self.csv_columns}
+        means = {name: mean_or_none([row[name] for row in valid]) for name in self.csv_columns}
         return {
             self.headline: means["score"],
             **means,
@@ -121,7 +125,7 @@ class PDMSScorer(Scorer):
         """``navsim_pdms.csv``: NAVSIM v1.1's CSV layout (see the module docstring)."""
         rows = result.table.to_pylist()
         columns = self.csv_columns
-        means = [mean_or_none(np.array([row[name] for row in rows], np.float64)) for name in columns]
+        means = [mean_or_none([row[name] for row in rows]) for name in columns]
         body = [[str(i), row["token"], row["valid"], *(row[name] for name in columns)] for i, row in enumerate(rows)]
         body.append([str(len(rows)), self.average_token, all(row["valid"] for row in rows), *means])
         write_csv(Path(out) / self.csv_name, ["", "token", "valid", *columns], body)

@@ -1,6 +1,6 @@
 """What every NAVSIM scorer does per sample before scoring: the scene token, the most probable inference put on
-NAVSIM's input grid, the scene (or why there is none), and PDM-Closed's reference (planned once per scene and
-cached)."""
+NAVSIM's input grid, the scene (or why there is none), PDM-Closed's reference (planned once per scene and
+cached), and the frame before it that EPDMS's EC compares with."""
 
 import io
 from dataclasses import dataclass
@@ -15,7 +15,7 @@ from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError, mo
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import scene_from_sample
-from lead_s2r.scoring.pdm.scene import PDMScene
+from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 
 #: NAVSIM's agent output: 8 poses at 0.5 s (``TrajectorySampling(time_horizon=4, interval_length=0.5)``).
 NAVSIM_INTERVAL = 0.5
@@ -72,7 +72,28 @@ def proposal_of(prediction: Prediction) -> tuple[np.ndarray, float]:
     return values, NAVSIM_INTERVAL
 
 
-def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tuple[str, ...]) -> dict[str, Any]:
+def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:
+    """The earlier frame as seen from the current one: its rear-axle pose from the current sample's ``past``."""
+    gap = current.time_s - earlier.time_s
+    past = np.asarray(current.sample["past"], np.float64)
+    pose, inside = resample(past[:, 0], past[:, 1:4], np.array([-gap]), angle_columns=(2,))
+    if not inside.all():
+        raise ValueError(
+            f"sample {current.sample['__key__']!r}: field 'past' does not reach {-gap:.2f} s, where the frame "
+            f"{earlier.sample['__key__']!r} paired with it for EC was; re-convert with a longer history"
+        )
+    ego = earlier.sample["meta"]["ego"]
+    return PreviousFrame(
+        ego_pose=pose[0],
+        ego_velocity=np.asarray(ego["velocity"], np.float64),
+        ego_acceleration=np.asarray(ego["acceleration"], np.float64),
+        poses=earlier.poses,
+        interval=earlier.interval,
+        frame_gap=gap,
+    )
+
+
+def first_row(result: dict[str, np.ndarray], scores: tuple[str, ...], steps: tuple[str, ...] = ()) -> dict[str, Any]:
     """Row 0 of ``score_proposals``' columns: ``scores`` as floats, ``steps`` (failure steps) as ints."""
     return {name: float(np.asarray(result[name])[0]) for name in scores} | {
         name: int(np.asarray(result[name])[0]) for name in steps

@@ -30,7 +30,9 @@ from lead_s2r.errors import UserError
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global
 from lead_s2r.schema import navsim_scene_token
+from lead_s2r.scoring.navsim.proposals import Frame, first_row
 from lead_s2r.scoring.pdm import epdms, two_stage
+from lead_s2r.scoring.pdm.comfort import extended_comfort_features
 from lead_s2r.scoring.pdm.score import PROGRESS_COLUMNS
 
 #: per-token table of a two-stage run: the one-stage columns, the token's stage, role and pseudo closed-loop weight.
@@ -87,27 +89,23 @@ def check_complete(
                     raise UserError(f"{where} cannot be scored: {scored[token]}")
 
 
-def token_row(
-    token: str, sample: dict[str, Any], poses: np.ndarray, result: dict[str, np.ndarray]
-) -> two_stage.TokenRow:
-    """A frame scored by ``score_proposals(..., with_states=True)`` (one proposal, ``poses``) as a two-stage row."""
-    origin = np.asarray(sample["scoring"]["origin"], np.float64)
+def token_row(frame: Frame, result: dict[str, np.ndarray]) -> two_stage.TokenRow:
+    """A frame scored by ``score_proposals(..., with_states=True)`` (one proposal, its plan) as a two-stage row."""
+    origin = np.asarray(frame.sample["scoring"]["origin"], np.float64)
     return two_stage.TokenRow(
-        token=token,
-        columns={name: float(np.asarray(result[name])[0]) for name in epdms.FILTERED},
-        start_time=int(sample["meta"]["timestamp_us"]) * 1e-6,
+        token=navsim_scene_token(frame.sample),
+        columns=first_row(result, epdms.FILTERED),
+        start_time=frame.time_s,
         start_point=origin[:2],
-        endpoint=to_global(np.asarray(poses, np.float64)[-1], origin)[:2],
+        endpoint=to_global(np.asarray(frame.poses, np.float64)[-1], origin)[:2],
         simulated_states=np.asarray(result["simulated_states"])[0],
     )
 
 
-def aggregate(
-    rows: Sequence[two_stage.TokenRow], mapping: Sequence[TwoStageGroup], features: two_stage.FeatureExtractor
-) -> two_stage.TwoStageResult:
+def aggregate(rows: Sequence[two_stage.TokenRow], mapping: Sequence[TwoStageGroup]) -> two_stage.TwoStageResult:
     """:func:`two_stage_aggregate`, with its input errors (a stray token, frames not 0.5 s apart) as one line."""
     try:
-        return two_stage.two_stage_aggregate(rows, mapping, features)
+        return two_stage.two_stage_aggregate(rows, mapping, extended_comfort_features)
     except (KeyError, ValueError) as err:
         raise UserError(str(err.args[0] if isinstance(err, KeyError) else err)) from None
 
