@@ -164,7 +164,7 @@ class _Builder:
             "source_dataset": files.log.get("dataset"),
             "written_by": f"py123d {files.log.get('version', '?')}",
         }
-        boxes = data.boxes(i)
+        boxes = data.boxes_in(i, i)
         if boxes is not None:
             sample["boxes"] = boxes.rows.astype(np.float32)
             sample["agents_future"] = data.agents_future(i, boxes, future)

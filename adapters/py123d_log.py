@@ -129,12 +129,9 @@ class LogData:
 
     # ------------------------------------------------------------------ boxes
 
-    def boxes(self, i: int) -> Boxes | None:
-        """Boxes of iteration ``i`` in its own ego frame (None where the log has no box file or row)."""
-        return self.boxes_in(i, i)
-
     def boxes_in(self, j: int, i: int) -> Boxes | None:
-        """Boxes observed at iteration ``j``, in the ego frame of iteration ``i``."""
+        """Boxes observed at iteration ``j``, in the ego frame of iteration ``i`` (None where the log has no box file
+        or row)."""
         world = self._world_boxes(j)
         if world is None:
             return None
