@@ -22,7 +22,7 @@ import numpy as np
 
 from lead_s2r.formats import restricted_pickle
 from lead_s2r.formats.restricted_pickle import Record
-from lead_s2r.geometry import to_local, wrap_angle
+from lead_s2r.geometry import to_local
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
@@ -31,7 +31,8 @@ from lead_s2r_adapters.navsim_io import (
     CAMERAS,
     SCENE_ANNOTATIONS,
     NavsimFormatError,
-    log_lidar2ego,
+    lidar2ego,
+    load_log,
     read_annotations,
     read_camera,
     required,
@@ -144,8 +145,9 @@ def red_lights(statuses: Record, where: str) -> list[int]:
 
 @lru_cache(maxsize=32)
 def lidar2ego_of(log_path: str) -> np.ndarray:
-    """The lidar2ego of a scene's original log, read once per worker and log."""
-    return log_lidar2ego(Path(log_path))
+    """The lidar2ego of a scene's original log (its first frame's: constant over a log, one vehicle and one rig),
+    read once per worker and log."""
+    return lidar2ego(load_log(Path(log_path))[0], f"{log_path} frame 0")
 
 
 def track_step(objects: list[dict[str, Any]]) -> TrackStep:
@@ -249,11 +251,8 @@ class SyntheticScene:
         """The current frame's boxes (N, 10) as the logs' are converted (velocity rotated by lidar2ego)."""
         where = f"{self.where} frame {self.current} annotations"
         anns = required(frame, "annotations", f"{self.where} frame {self.current}")
-        anns = read_annotations(anns, SCENE_ANNOTATIONS, where)
-        velocity = (anns["velocity"] @ lidar2ego[:3, :3].T)[:, :2]
-        out = np.column_stack([anns["boxes"], velocity, anns["classes"]]).astype(np.float32).reshape(-1, 10)
-        out[:, 6] = wrap_angle(out[:, 6])
-        return {"boxes": out, "names": anns["names"], "tracks": anns["tracks"]}
+        anns = read_annotations(anns, SCENE_ANNOTATIONS, lidar2ego, where)
+        return {"boxes": anns["rows"], "names": anns["names"], "tracks": anns["tracks"]}
 
     def agents_future(self, now: dict[str, Any]) -> dict[str, np.ndarray]:
         """Every track of ``extended_detections_tracks`` (2 Hz after the current frame) in the current ego frame
