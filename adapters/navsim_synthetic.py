@@ -105,12 +105,13 @@ def _numbers(value: Any, name: str, fields: tuple[str, ...], where: str) -> tupl
     return tuple(float(value.state[field]) for field in fields)
 
 
-def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
-    """The boxes of a ``DetectionsTracks``: track token, OpenScene class name, global pose, size and velocity."""
+def tracked_objects(detections: Record, where: str) -> TrackStep:
+    """The boxes of a ``DetectionsTracks`` as a :class:`~navsim_scene.TrackStep`: track tokens, global poses and
+    velocities, sizes and classes."""
     container = _record(
         _record(detections, "DetectionsTracks", where).state.get("tracked_objects"), "TrackedObjects", where
     )
-    out = []
+    tracks, poses, velocities, sizes, classes = [], [], [], [], []
     for i, item in enumerate(container.state.get("tracked_objects", [])):
         at = f"{where} object {i}"
         if not isinstance(item, Record) or not item.path.endswith((".Agent", ".StaticObject")):
@@ -121,16 +122,19 @@ def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
             raise NavsimFormatError(f"{at}: TrackedObjectType {kind} is not an OpenScene class")
         metadata = _record(item.state.get("_metadata"), "SceneObjectMetadata", at)
         velocity = item.state.get("_velocity")
-        out.append(
-            {
-                "track_token": str(metadata.state["track_token"]),
-                "name": OBJECT_TYPES[kind],
-                "pose": _numbers(box.state["_center"], "StateSE2", ("x", "y", "heading"), at),
-                "size": (float(box.state["_length"]), float(box.state["_width"]), float(box.state["_height"])),
-                "velocity": (0.0, 0.0) if velocity is None else _numbers(velocity, "StateVector2D", ("x", "y"), at),
-            }
-        )
-    return out
+        tracks.append(str(metadata.state["track_token"]))
+        classes.append(BOX_CLASSES[OBJECT_TYPES[kind]])
+        poses.append(_numbers(box.state["_center"], "StateSE2", ("x", "y", "heading"), at))
+        sizes.append((float(box.state["_length"]), float(box.state["_width"]), float(box.state["_height"])))
+        velocities.append((0.0, 0.0) if velocity is None else _numbers(velocity, "StateVector2D", ("x", "y"), at))
+    return TrackStep(
+        tracks=tracks,
+        poses=np.array(poses, np.float64).reshape(-1, 3),
+        velocity=np.array(velocities, np.float64).reshape(-1, 2),
+        velocity_yaw=0.0,
+        size=np.array(sizes, np.float64).reshape(-1, 3),
+        classes=np.array(classes, np.int64),
+    )
 
 
 def red_lights(statuses: Record, where: str) -> list[int]:
@@ -148,19 +152,6 @@ def lidar2ego_of(log_path: str) -> np.ndarray:
     """The lidar2ego of a scene's original log (its first frame's: constant over a log, one vehicle and one rig),
     read once per worker and log."""
     return lidar2ego(load_log(Path(log_path))[0], f"{log_path} frame 0")
-
-
-def track_step(objects: list[dict[str, Any]]) -> TrackStep:
-    """The :func:`tracked_objects` of one keyframe as a :class:`~navsim_scene.TrackStep` (global poses and
-    velocities)."""
-    return TrackStep(
-        tracks=[item["track_token"] for item in objects],
-        poses=np.array([item["pose"] for item in objects], np.float64).reshape(-1, 3),
-        velocity=np.array([item["velocity"] for item in objects], np.float64).reshape(-1, 2),
-        velocity_yaw=0.0,
-        size=np.array([item["size"] for item in objects], np.float64).reshape(-1, 3),
-        classes=np.array([BOX_CLASSES[item["name"]] for item in objects], np.int64),
-    )
 
 
 class SyntheticScene:
@@ -258,7 +249,7 @@ class SyntheticScene:
         """Every track of ``extended_detections_tracks`` (2 Hz after the current frame) in the current ego frame
         (:func:`~navsim_scene.agents_future`, the layout of the logs' ``agents_future``)."""
         steps = [
-            track_step(tracked_objects(d, f"{self.where} extended_detections_tracks[{k}]"))
+            tracked_objects(d, f"{self.where} extended_detections_tracks[{k}]")
             for k, d in enumerate(self.scene["extended_detections_tracks"] or [])
         ]
         t = np.arange(1, len(steps) + 1) * 0.5
