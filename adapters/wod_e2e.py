@@ -367,13 +367,7 @@ class WodE2EAdapter(Adapter):
         cameras = _cameras(message, where)
         for camera, jpeg in cameras:
             sample[f"cam_{camera['id']}"] = jpeg
-        has = {
-            "future": "future" in sample,
-            "raters": "raters" in sample,
-            "target_points": False,
-            "lidar": False,
-            "boxes": False,
-        }
+        has = {name: name in sample for name in ("future", "raters", "target_points", "lidar", "boxes")}
         has.update({f"cam_{camera['id']}": True for camera, _ in cameras})
         sample["meta"] = {
             "schema_version": SCHEMA_VERSION,
