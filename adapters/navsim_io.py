@@ -26,15 +26,10 @@ CAMERAS = {
     "CAM_R2": "back_right",
     "CAM_B0": "back",
 }
-BOX_CLASSES = {
-    "vehicle": BoxClass.VEHICLE,
-    "pedestrian": BoxClass.PEDESTRIAN,
-    "bicycle": BoxClass.BICYCLE,
-    "traffic_cone": BoxClass.TRAFFIC_CONE,
-    "barrier": BoxClass.BARRIER,
-    "czone_sign": BoxClass.CZONE_SIGN,
-    "generic_object": BoxClass.GENERIC_OBJECT,
-}
+#: OpenScene's box class names, in the order of nuPlan's ``TrackedObjectType`` values (EGO = 7 never appears among
+#: detections); each is the name of its :class:`~lead_s2r.schema.BoxClass` in lower case.
+OBJECT_TYPES = ("vehicle", "pedestrian", "bicycle", "traffic_cone", "barrier", "czone_sign", "generic_object")
+BOX_CLASSES = {name: BoxClass[name.upper()] for name in OBJECT_TYPES}
 
 
 class NavsimFormatError(UserError, ValueError):

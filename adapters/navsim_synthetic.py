@@ -29,6 +29,7 @@ from lead_s2r_adapters import navsim_map
 from lead_s2r_adapters.navsim_io import (
     BOX_CLASSES,
     CAMERAS,
+    OBJECT_TYPES,
     SCENE_ANNOTATIONS,
     NavsimFormatError,
     lidar2ego,
@@ -68,8 +69,6 @@ NUPLAN_RECORDS = frozenset(
     }
 )
 SCENE_KEYS = ("scene_metadata", "frames", "extended_traffic_light_data", "extended_detections_tracks")
-#: nuPlan ``TrackedObjectType`` values -> OpenScene names (EGO = 7 never appears among detections).
-OBJECT_TYPES = ("vehicle", "pedestrian", "bicycle", "traffic_cone", "barrier", "czone_sign", "generic_object")
 RED = 2  # nuPlan TrafficLightStatusType.RED
 
 
