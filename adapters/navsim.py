@@ -181,9 +181,17 @@ class NavsimAdapter(Adapter):
         frames = load_log(path)
         scenes = LogScenes(self, log, frames)
         for start, current in self.windows(frames, str(path)):
-            token = required(frames[current], "token", f"{path} frame {current}", str)
+            token = required(frames[current], "token", scenes.where(current), str)
             if self.filter is None or self.filter.tokens is None or token in self.filter.tokens:
-                yield _scene(scenes, start, current, f"{path} frame {current}")
+                try:
+                    yield scenes.sample(start, current)
+                except UserError:
+                    raise
+                except (TypeError, ValueError, KeyError, IndexError, AttributeError) as err:
+                    # a log value of the wrong type (a string where a number goes, a number where a list goes) fails
+                    # in numpy or a lookup deep in the builder: named here by the log file and frame
+                    problem = f"a value of an unexpected type ({type(err).__name__}: {err})"
+                    raise NavsimFormatError(f"{scenes.where(current)}: {problem}") from err
 
     def bad_records(self) -> list[dict[str, Any]]:
         """What the scene filter selects and :meth:`list_logs` found nowhere: log names without a pickle, synthetic
@@ -271,14 +279,3 @@ def cut_short(scenes: dict[str, set[str]], scene_filter: SceneFilter) -> list[st
                 "a typical other log's (cut short?)"
             )
     return problems
-
-
-def _scene(scenes: LogScenes, start: int, current: int, where: str) -> dict[str, Any]:
-    """One scene's sample; a log value of the wrong type (a string where a number goes, a number where a list goes)
-    fails in numpy or a lookup deep in the builder, so it is named here by the log file and frame."""
-    try:
-        return scenes.sample(start, current)
-    except UserError:
-        raise
-    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as err:
-        raise NavsimFormatError(f"{where}: a value of an unexpected type ({type(err).__name__}: {err})") from err
