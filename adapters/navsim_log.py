@@ -133,29 +133,23 @@ class LogScenes:
         return required(self.frames[index], "traffic_lights", self.where(index))
 
     def annotations(self, index: int) -> dict[str, Any]:
-        """A frame's ``anns`` as arrays, with classes mapped; boxes (N, 7) in that frame's ego frame. Cached:
-        with a stride of 1 every frame is a future frame of up to ``num_future_frames`` scenes."""
+        """A frame's ``anns`` as arrays, with classes mapped; boxes (N, 7) in that frame's ego frame, and as the
+        ``step`` of the scenes it is a future frame of (global poses, velocities in its ego frame). Cached: with a
+        stride of 1 every frame is a future frame of up to ``num_future_frames`` scenes."""
         if index not in self._annotations:
             frame, where = self.frames[index], self.where(index)
             anns = required(frame, "anns", where)
             anns = read_annotations(anns, LOG_ANNOTATIONS, lidar2ego(frame, where), f"{where} anns")
-            global_poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])  # for the scenes it is a future of
-            self._annotations[index] = anns | {"global_poses": global_poses}
+            poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])
+            size = anns["boxes"][:, 3:6]
+            step = TrackStep(anns["tracks"], poses, anns["velocity"], self.poses[index, 2], size, anns["classes"])
+            self._annotations[index] = anns | {"step": step}
         return self._annotations[index]
 
     def agents_future(self, current: int, now: dict[str, Any]) -> dict[str, np.ndarray]:
-        """The other agents' tracks over the scene's future frames (:func:`~navsim_scene.agents_future`); each
-        frame's velocities are in that frame's ego frame."""
+        """The other agents' tracks over the scene's future frames (:func:`~navsim_scene.agents_future`)."""
         index = np.arange(current + 1, current + 1 + self.source.future)
-        steps = []
-        for i in index:
-            anns = self.annotations(i)
-            size = anns["boxes"][:, 3:6]
-            steps.append(
-                TrackStep(
-                    anns["tracks"], anns["global_poses"], anns["velocity"], self.poses[i, 2], size, anns["classes"]
-                )
-            )
+        steps = [self.annotations(i)["step"] for i in index]
         t = (self.stamps[index] - self.stamps[current]) / 1e6
         return agents_future(now["tracks"], now["boxes"][:, 3:6], now["classes"], steps, t, self.poses[current])
 
