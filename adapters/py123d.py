@@ -69,13 +69,9 @@ class Py123dAdapter(Adapter):
         if not src.is_dir():
             raise FileNotFoundError(f"{src}: not a folder of 123D logs")
         maps = Path(self.maps) if self.maps else src / "maps"
+        extra = {"maps": str(maps) if maps.is_dir() else ""}
         return [
-            LogRef(
-                f"{folder.parent.name}/{folder.name}",
-                self.split or folder.parent.name,
-                str(folder),
-                {"maps": str(maps) if maps.is_dir() else ""},
-            )
+            LogRef(f"{folder.parent.name}/{folder.name}", self.split or folder.parent.name, str(folder), dict(extra))
             for folder in log_folders(src)
         ]
 
