@@ -4,6 +4,7 @@ quaternions and the camera calibration entries, each failing with the file and f
 
 import io
 import math
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -36,15 +37,21 @@ class NavsimFormatError(UserError, ValueError):
     """A source file breaks the OpenScene format; the message names the file and the field."""
 
 
-def load_log(path: Path) -> list[dict[str, Any]]:
-    """The frames of an OpenScene log pickle, checked to be a non-empty list of dicts."""
+def load_pickle(path: Path, what: str, records: Collection[tuple[str, str]] = ()) -> Any:
+    """One pickle read with the restricted unpickler (``records``: the foreign classes it may hold); a damaged one is
+    an error naming the file and ``what`` it should be."""
     try:
         with open(path, "rb") as file:
-            frames = restricted_pickle.load(file)
+            return restricted_pickle.load(file, records)
     except FileNotFoundError:
         raise
     except (OSError, *restricted_pickle.DAMAGED) as err:
-        raise NavsimFormatError(f"{path}: not a readable OpenScene log pickle ({type(err).__name__}: {err})") from None
+        raise NavsimFormatError(f"{path}: not a readable {what} ({type(err).__name__}: {err})") from None
+
+
+def load_log(path: Path) -> list[dict[str, Any]]:
+    """The frames of an OpenScene log pickle, checked to be a non-empty list of dicts."""
+    frames = load_pickle(path, "OpenScene log pickle")
     if not isinstance(frames, list) or not frames or not all(isinstance(f, dict) for f in frames):
         raise NavsimFormatError(f"{path}: expected a non-empty list of frame dicts, got {type(frames).__name__}")
     return frames

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.formats import restricted_pickle
 from lead_s2r.formats.restricted_pickle import Record
 from lead_s2r.geometry import to_local
 from lead_s2r.registry import LogRef
@@ -34,6 +33,7 @@ from lead_s2r_adapters.navsim_io import (
     NavsimFormatError,
     lidar2ego,
     load_log,
+    load_pickle,
     read_annotations,
     read_camera,
     required,
@@ -74,15 +74,7 @@ RED = 2  # nuPlan TrafficLightStatusType.RED
 
 def load_scene(path: Path) -> dict[str, Any]:
     """A synthetic scene pickle as a dict, its nuPlan objects as records; checked for NAVSIM's top-level keys."""
-    try:
-        with open(path, "rb") as file:
-            scene = restricted_pickle.load(file, NUPLAN_RECORDS)
-    except FileNotFoundError:
-        raise
-    except (OSError, *restricted_pickle.DAMAGED) as err:
-        raise NavsimFormatError(
-            f"{path}: not a readable NAVSIM synthetic scene pickle ({type(err).__name__}: {err})"
-        ) from None
+    scene = load_pickle(path, "NAVSIM synthetic scene pickle", NUPLAN_RECORDS)
     if not isinstance(scene, dict) or any(key not in scene for key in SCENE_KEYS):
         raise NavsimFormatError(f"{path}: a synthetic scene must be a dict with keys {', '.join(SCENE_KEYS)}")
     if not scene["frames"]:
