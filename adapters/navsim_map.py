@@ -154,19 +154,16 @@ def load_map(maps_root: Path, location: str) -> NuplanMap:
         tree=shapely.STRtree(polygons_all),
         exteriors=exterior_rings(polygons_all),
         centerlines=centerlines,
-        connectors=np.column_stack(
-            [
-                _column(path, "lane_connectors", connector_info, name)
-                for name in ("fid", "exit_lane_fid", "entry_lane_fid")
-            ]
-        ),
-        roadblock_connectors=np.column_stack(
-            [
-                _column(path, "lane_group_connectors", rbc, n)
-                for n in ("fid", "from_lane_group_fid", "to_lane_group_fid")
-            ]
+        connectors=_edges(path, "lane_connectors", connector_info, ("fid", "exit_lane_fid", "entry_lane_fid")),
+        roadblock_connectors=_edges(
+            path, "lane_group_connectors", rbc, ("fid", "from_lane_group_fid", "to_lane_group_fid")
         ),
     )
+
+
+def _edges(path: Path, layer: str, table: pa.Table, names: tuple[str, str, str]) -> np.ndarray:
+    """(N, 3) rows of a connector layer: each connector's fid and the fids it connects from and to."""
+    return np.column_stack([_column(path, layer, table, name) for name in names])
 
 
 def exterior_rings(polygons: np.ndarray) -> list[np.ndarray]:
