@@ -193,8 +193,6 @@ class CarlaLeadAdapter(Adapter):
         self.tp_distance, self.skip_first, self.skip_last = float(tp_distance), skip_first, skip_last
         self.keep_failed = keep_failed
 
-    # ------------------------------------------------------------------ logs
-
     def list_logs(self, src: Path) -> list[LogRef]:
         """Route folders under ``src/data/*/`` (or ``src/*/`` when ``src`` is the data folder), sorted. A route
         folder holds ``bboxes/``, ``metas/`` or ``results.json``: another dataset's folders two levels down (NAVSIM's
@@ -223,8 +221,6 @@ class CarlaLeadAdapter(Adapter):
             "camera_rigs": "per route, from dataset_information.target_dataset (meta.cameras, extras target_dataset)",
             "source_frame": "CARLA ego (x forward, y right), vehicle centre; converted to ISO 8855 rear axle",
         }
-
-    # ------------------------------------------------------------------ samples
 
     def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
         folder = Path(log.path)

@@ -101,8 +101,6 @@ class NavsimAdapter(Adapter):
             "tag_filters": self.tag_filters,
         }
 
-    # ----------------------------------------------------------------------- logs
-
     def list_logs(self, src: Path) -> list[LogRef]:
         two_stage = Path(src) / (self.split or "") / TWO_STAGE_LOGS
         if self.split and two_stage.is_dir():
