@@ -197,7 +197,6 @@ def cached_index(
             pass  # damaged: rebuilt below, as a stale one is
     index = build_index(shards, describe, schema, workers)
     if cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
         skipped = json.dumps(index.skipped).encode()
         metadata = {_STAMP_KEY: _cache_stamp(stamp, skipped).encode(), _SKIPPED_KEY: skipped}
         write_parquet(cache, index.table.replace_schema_metadata(metadata))
