@@ -129,7 +129,7 @@ def read_camera(
     sensor2lidar = homogeneous(
         required(cam, "sensor2lidar_rotation", where), required(cam, "sensor2lidar_translation", where)
     )
-    entry = {
+    return data, {
         "id": cam_id,
         "native_name": native,
         "width": width,
@@ -138,7 +138,6 @@ def read_camera(
         "distortion": np.asarray(required(cam, "distortion", where), np.float64).tolist(),
         "cam_to_ego": (lidar2ego @ sensor2lidar).tolist(),
     }
-    return data, entry
 
 
 def lidar2ego(frame: dict[str, Any], where: str) -> np.ndarray:
