@@ -32,11 +32,9 @@ from lead_s2r_adapters.navsim_synthetic import SyntheticScene
 
 SYNTHETIC = "synthetic_scene"
 #: v2 two-stage split folders (``navhard_two_stage``, ...): logs, sensors and synthetic scenes side by side.
-TWO_STAGE_LOGS, TWO_STAGE_SENSORS, TWO_STAGE_SYNTHETIC = (
-    "openscene_meta_datas",
-    "sensor_blobs",
-    "synthetic_scene_pickles",
-)
+TWO_STAGE_LOGS = "openscene_meta_datas"
+TWO_STAGE_SENSORS = "sensor_blobs"
+TWO_STAGE_SYNTHETIC = "synthetic_scene_pickles"
 
 
 class NavsimAdapter(Adapter):
