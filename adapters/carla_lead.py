@@ -193,8 +193,6 @@ class CarlaLeadAdapter(Adapter):
         self.tp_distance, self.skip_first, self.skip_last = float(tp_distance), skip_first, skip_last
         self.keep_failed = keep_failed
 
-    # ------------------------------------------------------------------ logs
-
     def list_logs(self, src: Path) -> list[LogRef]:
         """Route folders under ``src/data/*/`` (or ``src/*/`` when ``src`` is the data folder), sorted. A route
         folder holds ``bboxes/``, ``metas/`` or ``results.json``: another dataset's folders two levels down (NAVSIM's
@@ -223,8 +221,6 @@ class CarlaLeadAdapter(Adapter):
             "camera_rigs": "per route, from dataset_information.target_dataset (meta.cameras, extras target_dataset)",
             "source_frame": "CARLA ego (x forward, y right), vehicle centre; converted to ISO 8855 rear axle",
         }
-
-    # ------------------------------------------------------------------ samples
 
     def iter_samples(self, log: LogRef) -> Iterator[dict[str, Any]]:
         folder = Path(log.path)
@@ -271,14 +267,12 @@ class CarlaLeadAdapter(Adapter):
         cloud and sweep index, both read once for every rig."""
         frame = _Frame(self._view(meta, path, rig))
         suffix = "_perturbated" if rig == "perturbated" else ""
-        index = int(name)
         key = make_key(log.log_id, name) if rig == "normal" else make_key(log.log_id, "perturbated", name)
         sample: dict[str, Any] = {"__key__": key, "past": self._past(meta, path, frame)}
         future = self._future(meta, path, frame)
         if future is not None:
             sample["future"] = future
-        command_raw, target_points = self._navigation(meta, path, frame)
-        sample["target_points"] = target_points
+        command_raw, sample["target_points"] = self._navigation(meta, path, frame)
         route = array(meta, "route", path, columns=2) if "route" in meta else None
         if route is not None and len(route):
             sample["route"] = frame.points(route[:, :2]).astype(np.float32)
@@ -293,7 +287,7 @@ class CarlaLeadAdapter(Adapter):
             sample["lidar"] = np.column_stack([frame.points(points), -sweep / FPS]).astype(np.float32)
         extras = self._extras(log, meta, others, rig)
         extras["carla_lead"]["target_dataset"] = camera_rig
-        sample["meta"] = self._meta(log, meta, path, index, frame, command_raw, sample, extras)
+        sample["meta"] = self._meta(log, meta, path, int(name), frame, command_raw, sample, extras)
         sample["meta"]["cameras"] = cameras
         return sample
 
@@ -389,6 +383,7 @@ class CarlaLeadAdapter(Adapter):
         return out
 
     def _extras(self, log: LogRef, meta: dict[str, Any], others: list[dict[str, Any]], rig: str) -> dict[str, Any]:
+        lights = [box for box in others if box.get("class") == "traffic_light"]
         return {
             "carla_lead": {
                 "town": meta.get("town", log.extra.get("town")),
@@ -403,12 +398,8 @@ class CarlaLeadAdapter(Adapter):
                 "brake": bool(meta.get("brake", False)),
                 "box_ids": [int(box.get("id", -1)) for box in others],
                 "box_classes": [str(box.get("class")) for box in others],
-                "traffic_light_states": [
-                    str(box.get("state")) for box in others if box.get("class") == "traffic_light"
-                ],
-                "traffic_light_affects_ego": [
-                    bool(box.get("affects_ego", False)) for box in others if box.get("class") == "traffic_light"
-                ],
+                "traffic_light_states": [str(box.get("state")) for box in lights],
+                "traffic_light_affects_ego": [bool(box.get("affects_ego", False)) for box in lights],
                 # LEAD labels red lights of these two kinds apart (TRAFFIC_RED_NOT_NORMAL)
                 "unusual_traffic_lights": bool(meta.get("over_head_traffic_light") or meta.get("europe_traffic_light")),
             }

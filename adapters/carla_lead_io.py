@@ -25,7 +25,6 @@ class LeadFormatError(UserError, ValueError):
     def __init__(self, path: Path, problem: str, field: str | None = None) -> None:
         where = f"{path}" if field is None else f"{path} (field {field!r})"
         super().__init__(f"{where}: {problem}")
-        self.path, self.field, self.problem = path, field, problem
 
 
 def read_pickle(path: Path) -> Any:

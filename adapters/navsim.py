@@ -32,11 +32,9 @@ from lead_s2r_adapters.navsim_synthetic import SyntheticScene
 
 SYNTHETIC = "synthetic_scene"
 #: v2 two-stage split folders (``navhard_two_stage``, ...): logs, sensors and synthetic scenes side by side.
-TWO_STAGE_LOGS, TWO_STAGE_SENSORS, TWO_STAGE_SYNTHETIC = (
-    "openscene_meta_datas",
-    "sensor_blobs",
-    "synthetic_scene_pickles",
-)
+TWO_STAGE_LOGS = "openscene_meta_datas"
+TWO_STAGE_SENSORS = "sensor_blobs"
+TWO_STAGE_SYNTHETIC = "synthetic_scene_pickles"
 
 
 class NavsimAdapter(Adapter):
@@ -100,8 +98,6 @@ class NavsimAdapter(Adapter):
             "map_radius": self.map_radius,
             "tag_filters": self.tag_filters,
         }
-
-    # ----------------------------------------------------------------------- logs
 
     def list_logs(self, src: Path) -> list[LogRef]:
         two_stage = Path(src) / (self.split or "") / TWO_STAGE_LOGS
@@ -181,9 +177,17 @@ class NavsimAdapter(Adapter):
         frames = load_log(path)
         scenes = LogScenes(self, log, frames)
         for start, current in self.windows(frames, str(path)):
-            token = required(frames[current], "token", f"{path} frame {current}", str)
+            token = required(frames[current], "token", scenes.where(current), str)
             if self.filter is None or self.filter.tokens is None or token in self.filter.tokens:
-                yield _scene(scenes, start, current, f"{path} frame {current}")
+                try:
+                    yield scenes.sample(start, current)
+                except UserError:
+                    raise
+                except (TypeError, ValueError, KeyError, IndexError, AttributeError) as err:
+                    # a log value of the wrong type (a string where a number goes, a number where a list goes) fails
+                    # in numpy or a lookup deep in the builder: named here by the log file and frame
+                    problem = f"a value of an unexpected type ({type(err).__name__}: {err})"
+                    raise NavsimFormatError(f"{scenes.where(current)}: {problem}") from err
 
     def bad_records(self) -> list[dict[str, Any]]:
         """What the scene filter selects and :meth:`list_logs` found nowhere: log names without a pickle, synthetic
@@ -271,14 +275,3 @@ def cut_short(scenes: dict[str, set[str]], scene_filter: SceneFilter) -> list[st
                 "a typical other log's (cut short?)"
             )
     return problems
-
-
-def _scene(scenes: LogScenes, start: int, current: int, where: str) -> dict[str, Any]:
-    """One scene's sample; a log value of the wrong type (a string where a number goes, a number where a list goes)
-    fails in numpy or a lookup deep in the builder, so it is named here by the log file and frame."""
-    try:
-        return scenes.sample(start, current)
-    except UserError:
-        raise
-    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as err:
-        raise NavsimFormatError(f"{where}: a value of an unexpected type ({type(err).__name__}: {err})") from err

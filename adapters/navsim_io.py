@@ -4,6 +4,7 @@ quaternions and the camera calibration entries, each failing with the file and f
 
 import io
 import math
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -11,8 +12,8 @@ import numpy as np
 
 from lead_s2r.errors import UserError
 from lead_s2r.formats import restricted_pickle
-from lead_s2r.geometry import homogeneous, quaternion_matrix
-from lead_s2r.image_headers import jpeg_size as frame_size
+from lead_s2r.geometry import homogeneous, quaternion_matrix, wrap_angle
+from lead_s2r.image_headers import jpeg_size
 from lead_s2r.schema import BoxClass
 
 #: NAVSIM camera -> our camera id.
@@ -26,30 +27,31 @@ CAMERAS = {
     "CAM_R2": "back_right",
     "CAM_B0": "back",
 }
-BOX_CLASSES = {
-    "vehicle": BoxClass.VEHICLE,
-    "pedestrian": BoxClass.PEDESTRIAN,
-    "bicycle": BoxClass.BICYCLE,
-    "traffic_cone": BoxClass.TRAFFIC_CONE,
-    "barrier": BoxClass.BARRIER,
-    "czone_sign": BoxClass.CZONE_SIGN,
-    "generic_object": BoxClass.GENERIC_OBJECT,
-}
+#: OpenScene's box class names, in the order of nuPlan's ``TrackedObjectType`` values (EGO = 7 never appears among
+#: detections); each is the name of its :class:`~lead_s2r.schema.BoxClass` in lower case.
+OBJECT_TYPES = ("vehicle", "pedestrian", "bicycle", "traffic_cone", "barrier", "czone_sign", "generic_object")
+BOX_CLASSES = {name: BoxClass[name.upper()] for name in OBJECT_TYPES}
 
 
 class NavsimFormatError(UserError, ValueError):
     """A source file breaks the OpenScene format; the message names the file and the field."""
 
 
-def load_log(path: Path) -> list[dict[str, Any]]:
-    """The frames of an OpenScene log pickle, checked to be a non-empty list of dicts."""
+def load_pickle(path: Path, what: str, records: Collection[tuple[str, str]] = ()) -> Any:
+    """One pickle read with the restricted unpickler (``records``: the foreign classes it may hold); a damaged one is
+    an error naming the file and ``what`` it should be."""
     try:
         with open(path, "rb") as file:
-            frames = restricted_pickle.load(file)
+            return restricted_pickle.load(file, records)
     except FileNotFoundError:
         raise
     except (OSError, *restricted_pickle.DAMAGED) as err:
-        raise NavsimFormatError(f"{path}: not a readable OpenScene log pickle ({type(err).__name__}: {err})") from None
+        raise NavsimFormatError(f"{path}: not a readable {what} ({type(err).__name__}: {err})") from None
+
+
+def load_log(path: Path) -> list[dict[str, Any]]:
+    """The frames of an OpenScene log pickle, checked to be a non-empty list of dicts."""
+    frames = load_pickle(path, "OpenScene log pickle")
     if not isinstance(frames, list) or not frames or not all(isinstance(f, dict) for f in frames):
         raise NavsimFormatError(f"{path}: expected a non-empty list of frame dicts, got {type(frames).__name__}")
     return frames
@@ -94,14 +96,6 @@ def read_pcd(path: Path) -> tuple[np.ndarray, list[str]]:
     return points.astype(np.float32).reshape(n, len(columns)), columns
 
 
-def jpeg_size(data: bytes, where: str) -> tuple[int, int]:
-    """(width, height) from a JPEG's frame header, without decoding the image."""
-    size = frame_size(data)
-    if size is None:
-        raise NavsimFormatError(f"{where}: not a JPEG with a frame header")
-    return size
-
-
 def quaternion_yaw(q: Any) -> float:
     """Heading (rotation about z) of a [w, x, y, z] quaternion."""
     w, x, y, z = np.asarray(q, np.float64)
@@ -128,11 +122,14 @@ def read_camera(
     if not path.is_file():
         raise FileNotFoundError(f"{where}: sensor blob {path} is missing")
     data = path.read_bytes()
-    width, height = jpeg_size(data, str(path))
+    size = jpeg_size(data)  # from the frame header, without decoding the image
+    if size is None:
+        raise NavsimFormatError(f"{path}: not a JPEG with a frame header")
+    width, height = size
     sensor2lidar = homogeneous(
         required(cam, "sensor2lidar_rotation", where), required(cam, "sensor2lidar_translation", where)
     )
-    entry = {
+    return data, {
         "id": cam_id,
         "native_name": native,
         "width": width,
@@ -141,7 +138,6 @@ def read_camera(
         "distortion": np.asarray(required(cam, "distortion", where), np.float64).tolist(),
         "cam_to_ego": (lidar2ego @ sensor2lidar).tolist(),
     }
-    return data, entry
 
 
 def lidar2ego(frame: dict[str, Any], where: str) -> np.ndarray:
@@ -150,22 +146,20 @@ def lidar2ego(frame: dict[str, Any], where: str) -> np.ndarray:
     return homogeneous(rotation, required(frame, "lidar2ego_translation", where))
 
 
-def log_lidar2ego(log_path: Path) -> np.ndarray:
-    """The lidar2ego of a log's first frame (constant over a log: one vehicle, one rig)."""
-    return lidar2ego(load_log(log_path)[0], f"{log_path} frame 0")
-
-
 #: Annotation field names: (boxes, class names, 3-D velocities, track tokens) in a log frame's ``anns`` and in a
 #: synthetic scene frame's ``annotations``.
 LOG_ANNOTATIONS = ("gt_boxes", "gt_names", "gt_velocity_3d", "track_tokens")
 SCENE_ANNOTATIONS = ("boxes", "names", "velocity_3d", "track_tokens")
 
 
-def read_annotations(anns: dict[str, Any], fields: tuple[str, str, str, str], where: str) -> dict[str, Any]:
-    """Boxes (N, 7), class ``names``, velocities (N, 3) in the lidar frame, track tokens and
-    :class:`~lead_s2r.schema.BoxClass` ids (N,) of one frame's annotations, checked to agree in length and class.
-    OpenScene writes NaN for a velocity it does not know: a box with NaN in x or y keeps NaN in all three (unknown,
-    as the schema says, never 0 m/s); a NaN z alone is 0, as the schema keeps only x and y."""
+def read_annotations(
+    anns: dict[str, Any], fields: tuple[str, str, str, str], lidar2ego: np.ndarray, where: str
+) -> dict[str, Any]:
+    """Boxes (N, 7), class ``names``, velocities (N, 2) in the ego frame, track tokens and
+    :class:`~lead_s2r.schema.BoxClass` ids (N,) of one frame's annotations, checked to agree in length and class,
+    and ``rows``, the boxes as the schema's ``boxes`` field. OpenScene rotates velocities into the lidar frame
+    (``lidar2ego`` turns them back) and writes NaN for one it does not know: a box with NaN in x or y keeps NaN
+    (unknown, as the schema says, never 0 m/s); a NaN z alone is 0, as the schema keeps only x and y."""
     boxes_field, names_field, velocity_field, tracks_field = fields
     boxes = np.asarray(required(anns, boxes_field, where), np.float64).reshape(-1, 7)
     names = [str(n) for n in required(anns, names_field, where)]
@@ -182,4 +176,7 @@ def read_annotations(anns: dict[str, Any], fields: tuple[str, str, str, str], wh
     unknown = np.isnan(velocity[:, :2]).any(axis=1)
     velocity = np.nan_to_num(velocity)
     velocity[unknown] = np.nan
-    return {"boxes": boxes, "names": names, "velocity": velocity, "tracks": tracks, "classes": classes}
+    velocity = (velocity @ lidar2ego[:3, :3].T)[:, :2]
+    rows = np.column_stack([boxes, velocity, classes]).astype(np.float32).reshape(-1, 10)
+    rows[:, 6] = wrap_angle(rows[:, 6])
+    return {"boxes": boxes, "rows": rows, "names": names, "velocity": velocity, "tracks": tracks, "classes": classes}

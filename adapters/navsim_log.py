@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import to_global, to_local, wrap_angle
+from lead_s2r.geometry import to_global, to_local
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
@@ -89,9 +89,7 @@ class LogScenes:
         } | source.two_stage_extras(token)
         if "anns" in frame:
             now = self.annotations(current)
-            boxes = np.column_stack([now["boxes"], now["velocity"], now["classes"]]).astype(np.float32).reshape(-1, 10)
-            boxes[:, 6] = wrap_angle(boxes[:, 6])
-            sample["boxes"] = boxes
+            sample["boxes"] = now["rows"]
             sample["agents_future"] = self.agents_future(current, now)
             extras.update(track_tokens=now["tracks"], box_names=now["names"])
         if source.maps is not None:
@@ -135,33 +133,23 @@ class LogScenes:
         return required(self.frames[index], "traffic_lights", self.where(index))
 
     def annotations(self, index: int) -> dict[str, Any]:
-        """A frame's ``anns`` as arrays, with classes mapped; boxes (N, 7) in that frame's ego frame. Cached:
-        with a stride of 1 every frame is a future frame of up to ``num_future_frames`` scenes."""
+        """A frame's ``anns`` as arrays, with classes mapped; boxes (N, 7) in that frame's ego frame, and as the
+        ``step`` of the scenes it is a future frame of (global poses, velocities in its ego frame). Cached: with a
+        stride of 1 every frame is a future frame of up to ``num_future_frames`` scenes."""
         if index not in self._annotations:
-            self._annotations[index] = self._read_annotations(index)
+            frame, where = self.frames[index], self.where(index)
+            anns = required(frame, "anns", where)
+            anns = read_annotations(anns, LOG_ANNOTATIONS, lidar2ego(frame, where), f"{where} anns")
+            poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])
+            size = anns["boxes"][:, 3:6]
+            step = TrackStep(anns["tracks"], poses, anns["velocity"], self.poses[index, 2], size, anns["classes"])
+            self._annotations[index] = anns | {"step": step}
         return self._annotations[index]
 
-    def _read_annotations(self, index: int) -> dict[str, Any]:
-        where = f"{self.where(index)} anns"
-        anns = read_annotations(required(self.frames[index], "anns", self.where(index)), LOG_ANNOTATIONS, where)
-        rotation = lidar2ego(self.frames[index], self.where(index))[:3, :3]
-        velocity = anns["velocity"] @ rotation.T  # OpenScene rotates velocities into the lidar frame
-        global_poses = to_global(anns["boxes"][:, [0, 1, 6]], self.poses[index])  # for the scenes it is a future of
-        return anns | {"velocity": velocity[:, :2], "global_poses": global_poses}
-
     def agents_future(self, current: int, now: dict[str, Any]) -> dict[str, np.ndarray]:
-        """The other agents' tracks over the scene's future frames (:func:`~navsim_scene.agents_future`); each
-        frame's velocities are in that frame's ego frame."""
+        """The other agents' tracks over the scene's future frames (:func:`~navsim_scene.agents_future`)."""
         index = np.arange(current + 1, current + 1 + self.source.future)
-        steps = []
-        for i in index:
-            anns = self.annotations(i)
-            size = anns["boxes"][:, 3:6]
-            steps.append(
-                TrackStep(
-                    anns["tracks"], anns["global_poses"], anns["velocity"], self.poses[i, 2], size, anns["classes"]
-                )
-            )
+        steps = [self.annotations(i)["step"] for i in index]
         t = (self.stamps[index] - self.stamps[current]) / 1e6
         return agents_future(now["tracks"], now["boxes"][:, 3:6], now["classes"], steps, t, self.poses[current])
 

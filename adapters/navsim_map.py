@@ -135,10 +135,6 @@ def load_map(maps_root: Path, location: str) -> NuplanMap:
     polygons_all = np.concatenate(polygons)
     if not all(isinstance(g, shapely.Polygon | shapely.MultiPolygon) for g in polygons_all):
         raise MapError(f"{path}: a polygon layer holds a geometry that is not a polygon")
-    multi = shapely.get_type_id(polygons_all) == shapely.GeometryType.MULTIPOLYGON
-    rings = shapely.get_exterior_ring(np.where(multi, shapely.convex_hull(polygons_all), polygons_all))
-    ring_xy, owner = shapely.get_coordinates(rings, return_index=True)
-    ring_offsets = np.r_[0, np.cumsum(np.bincount(owner, minlength=len(polygons_all)))]
     baselines = _read_layer(path, "baseline_paths")
     lane = _column(path, "baseline_paths", baselines, "lane_fid")
     connector = _column(path, "baseline_paths", baselines, "lane_connector_fid")
@@ -156,21 +152,27 @@ def load_map(maps_root: Path, location: str) -> NuplanMap:
         parents=np.concatenate(parents),
         speed_limits=np.concatenate(limits),
         tree=shapely.STRtree(polygons_all),
-        exteriors=_split(ring_xy, ring_offsets),
+        exteriors=exterior_rings(polygons_all),
         centerlines=centerlines,
-        connectors=np.column_stack(
-            [
-                _column(path, "lane_connectors", connector_info, name)
-                for name in ("fid", "exit_lane_fid", "entry_lane_fid")
-            ]
-        ),
-        roadblock_connectors=np.column_stack(
-            [
-                _column(path, "lane_group_connectors", rbc, n)
-                for n in ("fid", "from_lane_group_fid", "to_lane_group_fid")
-            ]
+        connectors=_edges(path, "lane_connectors", connector_info, ("fid", "exit_lane_fid", "entry_lane_fid")),
+        roadblock_connectors=_edges(
+            path, "lane_group_connectors", rbc, ("fid", "from_lane_group_fid", "to_lane_group_fid")
         ),
     )
+
+
+def _edges(path: Path, layer: str, table: pa.Table, names: tuple[str, str, str]) -> np.ndarray:
+    """(N, 3) rows of a connector layer: each connector's fid and the fids it connects from and to."""
+    return np.column_stack([_column(path, layer, table, name) for name in names])
+
+
+def exterior_rings(polygons: np.ndarray) -> list[np.ndarray]:
+    """The (R, 2) exterior ring of each polygon, of its convex hull for a multipolygon (the scorer reads one ring per
+    map object), in one pass over all of them."""
+    multi = shapely.get_type_id(polygons) == shapely.GeometryType.MULTIPOLYGON
+    rings = shapely.get_exterior_ring(np.where(multi, shapely.convex_hull(polygons), polygons))
+    ring_xy, owner = shapely.get_coordinates(rings, return_index=True)
+    return _split(ring_xy, np.r_[0, np.cumsum(np.bincount(owner, minlength=len(polygons)))])
 
 
 def _offsets(groups: list) -> np.ndarray:
@@ -208,10 +210,9 @@ def scoring_context(
     lanes, lane_kinds = ids[is_lane], kinds[is_lane]
     have = [i for i, lane in enumerate(lanes) if int(lane) in nuplan_map.centerlines]
     centerline_xy, centerline_offsets = _local_ragged([nuplan_map.centerlines[int(lanes[i])] for i in have], origin)
-    local_connectors = set(ids[kinds == MapKind.LANE_CONNECTOR].tolist())
-    connectors = nuplan_map.connectors[np.isin(nuplan_map.connectors[:, 0], list(local_connectors))]
-    local_rbc = set(ids[kinds == MapKind.ROADBLOCK_CONNECTOR].tolist())
-    rbc = nuplan_map.roadblock_connectors[np.isin(nuplan_map.roadblock_connectors[:, 0], list(local_rbc))]
+    is_connector, is_rbc = kinds == MapKind.LANE_CONNECTOR, kinds == MapKind.ROADBLOCK_CONNECTOR
+    connectors = nuplan_map.connectors[np.isin(nuplan_map.connectors[:, 0], ids[is_connector])]
+    rbc = nuplan_map.roadblock_connectors[np.isin(nuplan_map.roadblock_connectors[:, 0], ids[is_rbc])]
     return {
         "origin": np.asarray(origin, np.float64),
         "map_radius": np.array(radius, np.float32),

@@ -20,18 +20,20 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.formats import restricted_pickle
 from lead_s2r.formats.restricted_pickle import Record
-from lead_s2r.geometry import to_local, wrap_angle
+from lead_s2r.geometry import to_local
 from lead_s2r.registry import LogRef
 from lead_s2r.schema import make_key
 from lead_s2r_adapters import navsim_map
 from lead_s2r_adapters.navsim_io import (
     BOX_CLASSES,
     CAMERAS,
+    OBJECT_TYPES,
     SCENE_ANNOTATIONS,
     NavsimFormatError,
-    log_lidar2ego,
+    lidar2ego,
+    load_log,
+    load_pickle,
     read_annotations,
     read_camera,
     required,
@@ -67,22 +69,12 @@ NUPLAN_RECORDS = frozenset(
     }
 )
 SCENE_KEYS = ("scene_metadata", "frames", "extended_traffic_light_data", "extended_detections_tracks")
-#: nuPlan ``TrackedObjectType`` values -> OpenScene names (EGO = 7 never appears among detections).
-OBJECT_TYPES = ("vehicle", "pedestrian", "bicycle", "traffic_cone", "barrier", "czone_sign", "generic_object")
 RED = 2  # nuPlan TrafficLightStatusType.RED
 
 
 def load_scene(path: Path) -> dict[str, Any]:
     """A synthetic scene pickle as a dict, its nuPlan objects as records; checked for NAVSIM's top-level keys."""
-    try:
-        with open(path, "rb") as file:
-            scene = restricted_pickle.load(file, NUPLAN_RECORDS)
-    except FileNotFoundError:
-        raise
-    except (OSError, *restricted_pickle.DAMAGED) as err:
-        raise NavsimFormatError(
-            f"{path}: not a readable NAVSIM synthetic scene pickle ({type(err).__name__}: {err})"
-        ) from None
+    scene = load_pickle(path, "NAVSIM synthetic scene pickle", NUPLAN_RECORDS)
     if not isinstance(scene, dict) or any(key not in scene for key in SCENE_KEYS):
         raise NavsimFormatError(f"{path}: a synthetic scene must be a dict with keys {', '.join(SCENE_KEYS)}")
     if not scene["frames"]:
@@ -104,12 +96,13 @@ def _numbers(value: Any, name: str, fields: tuple[str, ...], where: str) -> tupl
     return tuple(float(value.state[field]) for field in fields)
 
 
-def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
-    """The boxes of a ``DetectionsTracks``: track token, OpenScene class name, global pose, size and velocity."""
+def tracked_objects(detections: Record, where: str) -> TrackStep:
+    """The boxes of a ``DetectionsTracks`` as a :class:`~navsim_scene.TrackStep`: track tokens, global poses and
+    velocities, sizes and classes."""
     container = _record(
         _record(detections, "DetectionsTracks", where).state.get("tracked_objects"), "TrackedObjects", where
     )
-    out = []
+    tracks, poses, velocities, sizes, classes = [], [], [], [], []
     for i, item in enumerate(container.state.get("tracked_objects", [])):
         at = f"{where} object {i}"
         if not isinstance(item, Record) or not item.path.endswith((".Agent", ".StaticObject")):
@@ -120,16 +113,19 @@ def tracked_objects(detections: Record, where: str) -> list[dict[str, Any]]:
             raise NavsimFormatError(f"{at}: TrackedObjectType {kind} is not an OpenScene class")
         metadata = _record(item.state.get("_metadata"), "SceneObjectMetadata", at)
         velocity = item.state.get("_velocity")
-        out.append(
-            {
-                "track_token": str(metadata.state["track_token"]),
-                "name": OBJECT_TYPES[kind],
-                "pose": _numbers(box.state["_center"], "StateSE2", ("x", "y", "heading"), at),
-                "size": (float(box.state["_length"]), float(box.state["_width"]), float(box.state["_height"])),
-                "velocity": (0.0, 0.0) if velocity is None else _numbers(velocity, "StateVector2D", ("x", "y"), at),
-            }
-        )
-    return out
+        tracks.append(str(metadata.state["track_token"]))
+        classes.append(BOX_CLASSES[OBJECT_TYPES[kind]])
+        poses.append(_numbers(box.state["_center"], "StateSE2", ("x", "y", "heading"), at))
+        sizes.append((float(box.state["_length"]), float(box.state["_width"]), float(box.state["_height"])))
+        velocities.append((0.0, 0.0) if velocity is None else _numbers(velocity, "StateVector2D", ("x", "y"), at))
+    return TrackStep(
+        tracks=tracks,
+        poses=np.array(poses, np.float64).reshape(-1, 3),
+        velocity=np.array(velocities, np.float64).reshape(-1, 2),
+        velocity_yaw=0.0,
+        size=np.array(sizes, np.float64).reshape(-1, 3),
+        classes=np.array(classes, np.int64),
+    )
 
 
 def red_lights(statuses: Record, where: str) -> list[int]:
@@ -144,21 +140,9 @@ def red_lights(statuses: Record, where: str) -> list[int]:
 
 @lru_cache(maxsize=32)
 def lidar2ego_of(log_path: str) -> np.ndarray:
-    """The lidar2ego of a scene's original log, read once per worker and log."""
-    return log_lidar2ego(Path(log_path))
-
-
-def track_step(objects: list[dict[str, Any]]) -> TrackStep:
-    """The :func:`tracked_objects` of one keyframe as a :class:`~navsim_scene.TrackStep` (global poses and
-    velocities)."""
-    return TrackStep(
-        tracks=[item["track_token"] for item in objects],
-        poses=np.array([item["pose"] for item in objects], np.float64).reshape(-1, 3),
-        velocity=np.array([item["velocity"] for item in objects], np.float64).reshape(-1, 2),
-        velocity_yaw=0.0,
-        size=np.array([item["size"] for item in objects], np.float64).reshape(-1, 3),
-        classes=np.array([BOX_CLASSES[item["name"]] for item in objects], np.int64),
-    )
+    """The lidar2ego of a scene's original log (its first frame's: constant over a log, one vehicle and one rig),
+    read once per worker and log."""
+    return lidar2ego(load_log(Path(log_path))[0], f"{log_path} frame 0")
 
 
 class SyntheticScene:
@@ -249,17 +233,14 @@ class SyntheticScene:
         """The current frame's boxes (N, 10) as the logs' are converted (velocity rotated by lidar2ego)."""
         where = f"{self.where} frame {self.current} annotations"
         anns = required(frame, "annotations", f"{self.where} frame {self.current}")
-        anns = read_annotations(anns, SCENE_ANNOTATIONS, where)
-        velocity = (anns["velocity"] @ lidar2ego[:3, :3].T)[:, :2]
-        out = np.column_stack([anns["boxes"], velocity, anns["classes"]]).astype(np.float32).reshape(-1, 10)
-        out[:, 6] = wrap_angle(out[:, 6])
-        return {"boxes": out, "names": anns["names"], "tracks": anns["tracks"]}
+        anns = read_annotations(anns, SCENE_ANNOTATIONS, lidar2ego, where)
+        return {"boxes": anns["rows"], "names": anns["names"], "tracks": anns["tracks"]}
 
     def agents_future(self, now: dict[str, Any]) -> dict[str, np.ndarray]:
         """Every track of ``extended_detections_tracks`` (2 Hz after the current frame) in the current ego frame
         (:func:`~navsim_scene.agents_future`, the layout of the logs' ``agents_future``)."""
         steps = [
-            track_step(tracked_objects(d, f"{self.where} extended_detections_tracks[{k}]"))
+            tracked_objects(d, f"{self.where} extended_detections_tracks[{k}]")
             for k, d in enumerate(self.scene["extended_detections_tracks"] or [])
         ]
         t = np.arange(1, len(steps) + 1) * 0.5

@@ -69,13 +69,9 @@ class Py123dAdapter(Adapter):
         if not src.is_dir():
             raise FileNotFoundError(f"{src}: not a folder of 123D logs")
         maps = Path(self.maps) if self.maps else src / "maps"
+        extra = {"maps": str(maps) if maps.is_dir() else ""}
         return [
-            LogRef(
-                f"{folder.parent.name}/{folder.name}",
-                self.split or folder.parent.name,
-                str(folder),
-                {"maps": str(maps) if maps.is_dir() else ""},
-            )
+            LogRef(f"{folder.parent.name}/{folder.name}", self.split or folder.parent.name, str(folder), dict(extra))
             for folder in log_folders(src)
         ]
 
@@ -164,7 +160,7 @@ class _Builder:
             "source_dataset": files.log.get("dataset"),
             "written_by": f"py123d {files.log.get('version', '?')}",
         }
-        boxes = data.boxes(i)
+        boxes = data.boxes_in(i, i)
         if boxes is not None:
             sample["boxes"] = boxes.rows.astype(np.float32)
             sample["agents_future"] = data.agents_future(i, boxes, future)
@@ -188,7 +184,7 @@ class _Builder:
         else:
             extras["traffic_lights"] = [[lane, LIGHT_STATUS[s] if s < len(LIGHT_STATUS) else s] for lane, s in lights]
         if self.map is not None:
-            sample["scoring"] = self._scoring(i, future)
+            sample["scoring"] = self._scoring(i, past, future)
             sample["bev_semantic"] = navsim_map.bev_semantic_raster(
                 sample["scoring"], sample.get("boxes", np.zeros((0, 10)))
             )
@@ -209,7 +205,7 @@ class _Builder:
         ahead = self.route[nearest : nearest + ROUTE_POINTS]
         return points_to_local(ahead, self.data.pose2d[i]).astype(np.float32)
 
-    def _scoring(self, i: int, future: np.ndarray) -> dict[str, np.ndarray]:
+    def _scoring(self, i: int, past: np.ndarray, future: np.ndarray) -> dict[str, np.ndarray]:
         """The PDMS context: map near the ego, roadblocks along the route (else the driven path), red lights."""
         assert self.map is not None
         data = self.data
@@ -222,7 +218,6 @@ class _Builder:
             self.roadblocks = self.roadblocks or py123d_map.route_roadblocks(self.map, self.route)
             roadblocks = self.roadblocks
         context = navsim_map.scoring_context(self.map, data.pose2d[i], self.adapter.map_radius, roadblocks, red, times)
-        past = np.arange(max(i - self.past_n, 0), i + 1)
         past = past[data.valid[past]]
         dynamics = [self._dynamics(int(j)) for j in past]
         if len(past) >= 2 and all(d is not None for d in dynamics):

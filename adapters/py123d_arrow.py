@@ -33,7 +33,6 @@ BOX_KEY = "box_detections_se3"
 LIGHT_KEY = "traffic_light_detections"
 ROUTE_KEY = "route_position"
 INSTALL = "pip install 'lead-s2r[py123d]'"
-LAZ_PREFIX = "extra_"
 
 
 class Py123dFormatError(UserError, ValueError):
@@ -311,4 +310,4 @@ def _laz_columns(blob: bytes, path: Path) -> dict[str, np.ndarray]:
         except LazDecodeError as err:
             raise Py123dFormatError(path, f"LiDAR payload is not valid LAZ ({err})", "data") from None
     # py123d's features, ``extra_`` where a LAS name clashed
-    return {name if name in ("x", "y", "z") else name.removeprefix(LAZ_PREFIX): v for name, v in columns.items()}
+    return {name if name in ("x", "y", "z") else name.removeprefix("extra_"): v for name, v in columns.items()}

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from lead_s2r.geometry import quaternion_matrix, wrap_angle
+from lead_s2r.geometry import quaternion_matrix
 
 #: metres from the world origin (and m/s) that nothing in a log reaches: UTM northings reach 1e7, while a damaged
 #: double reaches 1e308, which overflows float32 on the way to a sample and the products of transforms
@@ -28,18 +28,6 @@ def pose_matrix(pose: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = pose[..., :3]
     out[..., 3, 3] = 1.0
     return out
-
-
-def yaw_of(pose: np.ndarray) -> np.ndarray:
-    """Heading (ZYX yaw) of (..., 7) SE3 rows, in [-pi, pi)."""
-    w, x, y, z = np.moveaxis(np.asarray(pose, np.float64)[..., 3:7], -1, 0)
-    return wrap_angle(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
-
-
-def planar(pose: np.ndarray) -> np.ndarray:
-    """(..., 7) SE3 rows -> (..., 3) x, y, yaw."""
-    pose = np.asarray(pose, np.float64)
-    return np.concatenate([pose[..., :2], yaw_of(pose)[..., None]], -1)
 
 
 def rear_axle_poses(imu: np.ndarray, rear_axle_to_imu: np.ndarray) -> np.ndarray:

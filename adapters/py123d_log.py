@@ -100,8 +100,6 @@ class LogData:
         self._box_cache: dict[int, tuple | None] = {}
         self._light_cache: dict[int, list[tuple[int, int]]] = {}
 
-    # ------------------------------------------------------------------ ego
-
     def _check_speed(self, path: Path) -> None:
         """A pose the ego cannot have reached from the one before is damaged: one flipped exponent bit moves it by
         1e9 m, and the route built along the driven path (a point a metre) would fill the memory."""
@@ -127,14 +125,9 @@ class LogData:
         row = self.ego_dynamics[self.ego_rows[i]]
         return row if np.isfinite(row).all() else None
 
-    # ------------------------------------------------------------------ boxes
-
-    def boxes(self, i: int) -> Boxes | None:
-        """Boxes of iteration ``i`` in its own ego frame (None where the log has no box file or row)."""
-        return self.boxes_in(i, i)
-
     def boxes_in(self, j: int, i: int) -> Boxes | None:
-        """Boxes observed at iteration ``j``, in the ego frame of iteration ``i``."""
+        """Boxes observed at iteration ``j``, in the ego frame of iteration ``i`` (None where the log has no box file
+        or row)."""
         world = self._world_boxes(j)
         if world is None:
             return None
@@ -201,8 +194,6 @@ class LogData:
             steps.append(TrackStep(tokens, rows[:, [0, 1, 6]], rows[:, 7:9], 0.0, rows[:, 3:6], rows[:, 9]))
         t = (self.t_us[span] - self.t_us[i]) / 1e6
         return agents_future(now.tokens, now.rows[:, 3:6], now.rows[:, 9], steps, t)
-
-    # ------------------------------------------------------------------ sensors
 
     def cameras(self, i: int) -> tuple[dict[str, bytes], list[dict[str, Any]], dict[str, str]]:
         """JPEG bytes and calibration of every pinhole camera with a JPEG at ``i``; skipped cameras and why."""

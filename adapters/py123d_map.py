@@ -21,7 +21,7 @@ import pyarrow as pa
 import shapely
 
 from lead_s2r.schema import MapKind
-from lead_s2r_adapters.navsim_map import NuplanMap
+from lead_s2r_adapters.navsim_map import NuplanMap, exterior_rings
 from lead_s2r_adapters.py123d_arrow import SYNC_FILE, Py123dFormatError, column, read_table, unpack
 from lead_s2r_adapters.py123d_frames import MAX_COORDINATE
 
@@ -74,7 +74,7 @@ def load_map(path: Path) -> NuplanMap:
         if centerline is not None:
             centerlines[object_id] = centerline
         (lane_edges if layer == LANE else group_edges).extend(edges)
-    exteriors = [shapely.get_coordinates(shapely.get_exterior_ring(_one(p)))[:, :2] for p in polygons]
+    exteriors = exterior_rings(polygons)
     _check_coordinates(path, ids, exteriors, centerlines)
     return NuplanMap(
         path=path,
@@ -133,11 +133,6 @@ def _blobs(table: pa.Table, path: Path, name: str, wanted: np.ndarray) -> np.nda
     if not pa.types.is_binary(values.type) or values.null_count:
         raise Py123dFormatError(path, f"expected bytes per map object, got {values.type}", name)
     return values.to_numpy(zero_copy_only=False)
-
-
-def _one(polygon: Any) -> Any:
-    """A polygon, or the convex hull of a multipolygon (the scorer reads one ring per object)."""
-    return shapely.convex_hull(polygon) if shapely.get_type_id(polygon) == 6 else polygon
 
 
 def _edges(object_id: int, fields: dict[str, Any]) -> np.ndarray:

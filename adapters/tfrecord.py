@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import crc32c
 import pyarrow as pa
@@ -38,7 +38,6 @@ class TFRecordError(UserError, ValueError):
         super().__init__(f"{path}: record at offset {offset}: {problem}")
         self.path = str(path)
         self.offset = offset
-        self.problem = problem
         #: True when the next record can still be found (only the payload is bad).
         self.framing_intact = framing_intact
 
@@ -68,16 +67,11 @@ def _check_payload(path: str | Path, offset: int, length: int, body: bytes) -> b
     return payload
 
 
-@dataclass(frozen=True)
-class Record:
+class Record(NamedTuple):
     """One verified record of a shard."""
 
     offset: int
     payload: bytes
-
-    @property
-    def length(self) -> int:
-        return len(self.payload)
 
 
 def iter_records(path: str | Path) -> Iterator[Record | TFRecordError]:
@@ -160,7 +154,7 @@ def _index_shard(shard: Path, describe: Describe) -> tuple[list[dict[str, Any]],
             error = f"{shard}: record at offset {item.offset}: {err}"
             skipped.append({"shard": str(shard), "offset": item.offset, "error": error})
             continue
-        rows.append({"shard": str(shard), "offset": item.offset, "length": item.length, **columns})
+        rows.append({"shard": str(shard), "offset": item.offset, "length": len(item.payload), **columns})
     return rows, skipped
 
 
@@ -203,7 +197,6 @@ def cached_index(
             pass  # damaged: rebuilt below, as a stale one is
     index = build_index(shards, describe, schema, workers)
     if cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
         skipped = json.dumps(index.skipped).encode()
         metadata = {_STAMP_KEY: _cache_stamp(stamp, skipped).encode(), _SKIPPED_KEY: skipped}
         write_parquet(cache, index.table.replace_schema_metadata(metadata))

@@ -34,17 +34,9 @@ from lead_s2r.schema import SCHEMA_VERSION, Command, make_key
 from lead_s2r_adapters.tfrecord import RecordReader, cached_index
 from lead_s2r_adapters.wod_e2e_proto import E2EDFrame
 
-#: Waymo ``CameraName`` -> (our camera id, native name).
-CAMERAS = {
-    1: ("front", "FRONT"),
-    2: ("front_left", "FRONT_LEFT"),
-    3: ("front_right", "FRONT_RIGHT"),
-    4: ("side_left", "SIDE_LEFT"),
-    5: ("side_right", "SIDE_RIGHT"),
-    6: ("rear_left", "REAR_LEFT"),
-    7: ("rear", "REAR"),
-    8: ("rear_right", "REAR_RIGHT"),
-}
+#: Waymo ``CameraName`` -> (our camera id: the native name in lower case, native name).
+NATIVE_CAMERAS = ("FRONT", "FRONT_LEFT", "FRONT_RIGHT", "SIDE_LEFT", "SIDE_RIGHT", "REAR_LEFT", "REAR", "REAR_RIGHT")
+CAMERAS = {number: (native.lower(), native) for number, native in enumerate(NATIVE_CAMERAS, 1)}
 #: ``EgoIntent.Intent`` -> unified command (UNKNOWN, GO_STRAIGHT, GO_LEFT, GO_RIGHT).
 INTENTS = {0: Command.UNKNOWN, 1: Command.STRAIGHT, 2: Command.LEFT, 3: Command.RIGHT}
 #: Shard-name prefix -> split (``training_...tfrecord-00000-of-00263``).
@@ -367,13 +359,7 @@ class WodE2EAdapter(Adapter):
         cameras = _cameras(message, where)
         for camera, jpeg in cameras:
             sample[f"cam_{camera['id']}"] = jpeg
-        has = {
-            "future": "future" in sample,
-            "raters": "raters" in sample,
-            "target_points": False,
-            "lidar": False,
-            "boxes": False,
-        }
+        has = {name: name in sample for name in ("future", "raters", "target_points", "lidar", "boxes")}
         has.update({f"cam_{camera['id']}": True for camera, _ in cameras})
         sample["meta"] = {
             "schema_version": SCHEMA_VERSION,

@@ -16,13 +16,14 @@ from hypothesis import strategies as st
 from lead_s2r.cli import main as cli_main
 from lead_s2r.convert import convert
 from lead_s2r.geometry import to_local
+from lead_s2r.image_headers import jpeg_size
 from lead_s2r.schema import BevClassNavsim, BoxClass, Command, MapKind
 from lead_s2r.shards import load_manifest, read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_camera as synth_camera
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r_adapters.navsim import NavsimAdapter
-from lead_s2r_adapters.navsim_io import NavsimFormatError, jpeg_size, load_log, quaternion_yaw, read_pcd
+from lead_s2r_adapters.navsim_io import NavsimFormatError, load_log, quaternion_yaw, read_pcd
 
 SCENES_PER_LOG = synth.FRAMES - synth.HISTORY - synth.FUTURE + 1
 
@@ -387,7 +388,7 @@ def test_pcd_reader_mixed_types_and_ascii(tmp_path: Path) -> None:
 @given(st.integers(8, 300), st.integers(8, 300), st.floats(-math.pi + 1e-6, math.pi - 1e-6))
 def test_jpeg_size_and_yaw_properties(width: int, height: int, yaw: float) -> None:
     ok, data = cv2.imencode(".jpg", np.zeros((height, width, 3), np.uint8))
-    assert ok and jpeg_size(data.tobytes(), "x") == (width, height)
+    assert ok and jpeg_size(data.tobytes()) == (width, height)
     assert quaternion_yaw(synth.yaw_quaternion(yaw)) == pytest.approx(yaw, abs=1e-9)
 
 

@@ -19,6 +19,7 @@ from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps
 from lead_s2r.formats.navsim_two_stage import TwoStageGroup, parse_mapping
 from lead_s2r.geometry import to_global, to_local
 from lead_s2r.predictions import write_predictions
+from lead_s2r.schema import BoxClass
 from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.navsim.two_stage_samples import CSV_NAME
 from lead_s2r.scoring.pdm import epdms, two_stage
@@ -85,9 +86,9 @@ def test_restricted_reader_maps_nuplan_objects_to_plain_data(raw: Path) -> None:
     scene = navsim_synthetic.load_scene(scene_paths(raw)[0])
     assert len(scene["frames"]) == hard.HISTORY and len(scene["extended_detections_tracks"]) == hard.FUTURE
     objects = navsim_synthetic.tracked_objects(scene["extended_detections_tracks"][0], "test")
-    assert {o["name"] for o in objects} >= {"vehicle", "pedestrian", "traffic_cone"}
-    cone = next(o for o in objects if o["name"] == "traffic_cone")
-    assert cone["velocity"] == (0.0, 0.0) and cone["size"] == pytest.approx((0.4, 0.4, 0.7))
+    assert set(objects.classes) >= {BoxClass.VEHICLE, BoxClass.PEDESTRIAN, BoxClass.TRAFFIC_CONE}
+    cone = list(objects.classes).index(BoxClass.TRAFFIC_CONE)
+    assert tuple(objects.velocity[cone]) == (0.0, 0.0) and tuple(objects.size[cone]) == pytest.approx((0.4, 0.4, 0.7))
     # frames 12..19 of every log: connector 2012 red, 2021 green
     assert navsim_synthetic.red_lights(scene["extended_traffic_light_data"][0], "test") == [2012]
 

@@ -17,8 +17,9 @@ from lead_s2r.synthetic import carla_lead as lead
 from lead_s2r.synthetic import py123d as synth
 from lead_s2r_adapters import py123d_labels, py123d_lead
 from lead_s2r_adapters.carla_lead import CarlaLeadAdapter
+from lead_s2r_adapters.navsim_io import quaternion_yaw
 from lead_s2r_adapters.py123d import Py123dAdapter
-from lead_s2r_adapters.py123d_frames import pose_matrix, yaw_of
+from lead_s2r_adapters.py123d_frames import pose_matrix
 
 FRAMES = 8
 #: the route folder's 3 s future at 20 Hz is compared with the 123D log's at 10 Hz
@@ -91,7 +92,7 @@ def test_departure_1_world_velocity_and_degrees_become_body_frame_si(twins) -> N
     turning = int(np.argmax(np.abs(stored[:, 8])))
     assert abs(stored[turning, 8]) > 30  # deg/s as CARLA reports it
     sample = logs[turning]
-    heading = yaw_of(poses[turning])
+    heading = quaternion_yaw(poses[turning, 3:])
     assert np.hypot(*stored[turning, :2]) == pytest.approx(sample["meta"]["ego"]["speed"])
     assert abs(np.sin(heading)) > 0.1 and abs(stored[turning, 1]) > 0.5  # stored in the world frame
     np.testing.assert_allclose(sample["meta"]["ego"]["velocity"], [sample["meta"]["ego"]["speed"], 0.0], atol=1e-9)
@@ -171,7 +172,7 @@ def test_label_tables_agree_with_py123d() -> None:
 
 def test_quaternion_yaw_and_pose_matrix() -> None:
     quarter = np.array([1.0, 2.0, 3.0, np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])
-    assert yaw_of(quarter) == pytest.approx(np.pi / 2)
+    assert quaternion_yaw(quarter[3:]) == pytest.approx(np.pi / 2)
     np.testing.assert_allclose(pose_matrix(quarter) @ [1, 0, 0, 1], [1.0, 3.0, 3.0, 1.0], atol=1e-12)
     flipped = np.array([0, 0, 0, 0.0, 0.0, 0.0, 1.0])  # 180 degrees about z
-    assert abs(yaw_of(flipped)) == pytest.approx(np.pi)
+    assert abs(quaternion_yaw(flipped[3:])) == pytest.approx(np.pi)
