@@ -26,7 +26,7 @@ import webdataset as wds
 from lead_s2r.data.collate import collate
 from lead_s2r.data.device_inputs import RGB_JPEG, RGB_LAYOUT, check_device_decode, decode_images, rasterize_points
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.streams import SampleShare, SeededShuffle, StreamSeed, TrainShare, manifest_samples
+from lead_s2r.data.streams import SampleShare, StreamSeed, TrainShare, manifest_samples, seeded_shuffle
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.data.vocab_scores import VocabScores
 from lead_s2r.errors import UserError
@@ -211,7 +211,7 @@ class DriveDataModule(L.LightningDataModule):
             share.shards,
             TarSamples(prepare.transform.fields),
             share,
-            SeededShuffle(self.shuffle_buffer, share.seed),
+            partial(seeded_shuffle, self.shuffle_buffer, share.seed),
             wds.map(prepare),
             wds.batched(batch_size, collation_fn=collate, partial=False),
         )
