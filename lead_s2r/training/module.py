@@ -220,20 +220,17 @@ class DrivingModule(L.LightningModule):
             err = (output["xy"] - target).norm(dim=-1)
             last = valid.long().cumsum(1).argmax(1)
             fde = err[torch.arange(len(err), device=err.device), last]
-            self._log_val_mean(f"{source}/ade", err[valid])
-            self._log_val_mean(f"{source}/fde", fde[has])
+            self._val_mean(f"{source}/ade").update(err[valid])
+            self._val_mean(f"{source}/fde").update(fde[has])
         return {"predictions": to_predictions(outputs)}
 
-    def _log_val_mean(self, key: str, values: Tensor) -> None:
-        """Add ``values`` to the running mean logged as ``val/<key>`` (key ``<source>/<metric>``) at the epoch's end.
+    def _val_mean(self, key: str) -> MeanMetric:
+        """The running mean logged as ``val/<key>`` (key ``<source>/<metric>``) at the epoch's end.
 
         A metric object over every waypoint (ADE) or sample (FDE) of every rank, not a logged batch mean: Lightning's
         batch-size-weighted mean truncates the summed batch sizes to an integer when it averages them over ranks,
         so 18 + 17 samples would count as 34.
         """
-        self._val_mean(key).update(values)
-
-    def _val_mean(self, key: str) -> MeanMetric:
         if key not in self.val_means:
             self.val_means[key] = MeanMetric().to(self.device)
         return self.val_means[key]
