@@ -274,31 +274,26 @@ class DrivingModule(L.LightningModule):
         return result
 
     def configure_optimizers(self) -> Any:
-        hp = self.hparams
+        """AdamW, and ``lr_schedule`` (none for a constant rate) behind a linear warm-up of ``warmup_steps`` (lr / n on
+        the first step, lr on the n-th)."""
+        hp, lr = self.hparams, torch.optim.lr_scheduler
         optimizer = adamw(
             self.model.parameters(), lr=hp.lr, weight_decay=hp.weight_decay, betas=tuple(hp.betas), amsgrad=hp.amsgrad
         )
-        scheduler = self._warmed_up(optimizer, self._schedule(optimizer))
+        scheduler: LRScheduler | None = None
+        if hp.lr_schedule != "constant":
+            epochs = max(1, self.trainer.max_epochs or 1)
+            restarts = hp.lr_schedule == "cosine_restarts"
+            scheduler = cosine_schedule(
+                optimizer, self._steps_per_epoch(), epochs, restarts, skipped_steps=hp.warmup_steps
+            )
+        n = hp.warmup_steps
+        if n > 0:
+            warmup = lr.LinearLR(optimizer, start_factor=1.0 / n, end_factor=1.0, total_iters=n - 1)
+            scheduler = warmup if scheduler is None else lr.SequentialLR(optimizer, [warmup, scheduler], milestones=[n])
         if scheduler is None:
             return optimizer
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
-
-    def _schedule(self, optimizer: torch.optim.Optimizer) -> LRScheduler | None:
-        """``lr_schedule`` after the warm-up; None for a constant rate."""
-        hp = self.hparams
-        if hp.lr_schedule == "constant":
-            return None
-        epochs = max(1, self.trainer.max_epochs or 1)
-        restarts = hp.lr_schedule == "cosine_restarts"
-        return cosine_schedule(optimizer, self._steps_per_epoch(), epochs, restarts, skipped_steps=hp.warmup_steps)
-
-    def _warmed_up(self, optimizer: torch.optim.Optimizer, schedule: LRScheduler | None) -> LRScheduler | None:
-        """``schedule`` behind a linear warm-up of ``warmup_steps`` (lr / n on the first step, lr on the n-th)."""
-        n, lr = self.hparams.warmup_steps, torch.optim.lr_scheduler
-        if n <= 0:
-            return schedule
-        warmup = lr.LinearLR(optimizer, start_factor=1.0 / n, end_factor=1.0, total_iters=n - 1)
-        return warmup if schedule is None else lr.SequentialLR(optimizer, [warmup, schedule], milestones=[n])
 
     def _steps_per_epoch(self) -> int:
         """Optimizer steps per epoch: the data module's fixed epoch length, else Lightning's estimate."""
