@@ -14,7 +14,7 @@ import math
 import warnings
 from collections.abc import Mapping
 from dataclasses import asdict, is_dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import lightning as L
 import torch
@@ -27,7 +27,6 @@ from lead_s2r.data.lead_origin import centre_waypoints_to_rear_axle
 from lead_s2r.models.inputs import PLANNING_TASKS, Batch
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_loss import adamw, cosine_schedule, training_layout
-from lead_s2r.training.data_contract import TrainingData
 from lead_s2r.training.loss_table import TASK_TARGETS, task_loss
 from lead_s2r.training.losses import valid_mask
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
@@ -40,6 +39,26 @@ DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in TASK_TARGETS} | 
 
 #: Lightning's allow-listed instantiator (LightningCLI's); ``load_from_checkpoint`` builds the module with it.
 INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
+
+
+@runtime_checkable
+class TrainingData(Protocol):
+    """What :class:`DrivingModule` reads from its data module (``DrivingModule(data=...)``, linked by ``lead-s2r fit``;
+    :class:`~lead_s2r.data.datamodule.DriveDataModule` provides all of it). LightningCLI checks the linked data module
+    against these signatures, return types included, so an implementation returns exactly these types. Methods only,
+    so checking it evaluates nothing."""
+
+    def current_batch_sizes(self) -> dict[str, int]:
+        """Per-rank batch size of each training source in the trainer's current epoch."""
+        ...
+
+    def epoch_steps(self) -> int:
+        """Batches per training epoch, the same on every rank."""
+        ...
+
+    def validation_sources(self) -> list[str]:
+        """The names of the validation sources (every rank makes their metrics, data or not)."""
+        ...
 
 
 def model_spec(model: nn.Module) -> dict[str, Any] | None:
