@@ -313,10 +313,8 @@ def canvas_crop(grid: BEVGrid) -> np.ndarray:
 
 def _on_occupancy_canvas(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
     """(N,) whether each box's centre lies on LEAD's occupancy canvas (LEAD skips the others)."""
-    size = 2 * OCCUPANCY_HALF_M * grid.pixels_per_meter
-    cx = (boxes[:, 0] + OCCUPANCY_HALF_M) * grid.pixels_per_meter
-    cy = (OCCUPANCY_HALF_M - boxes[:, 1]) * grid.pixels_per_meter
-    return (cx >= 0) & (cx < size) & (cy >= 0) & (cy < size)
+    centre, _ = footprint_rects(boxes, grid)
+    return ((centre >= 0) & (centre < 2 * OCCUPANCY_HALF_M * grid.pixels_per_meter)).all(axis=1)
 
 
 def bev_labels(
