@@ -80,15 +80,12 @@ class SourceTransform:
         spec, space = self.spec, self.spec.space(self.source)
         radar_targets = spec.radar and self.source in spec.radar_sources
         wanted = {
-            "future": True,
-            "target_points": True,
-            "route": True,
             "lidar": spec.lidar_raster,
             "radar": spec.radar,
             "boxes": radar_targets or space in spec.lead_box_classes or self.lead_carla,
             "bev_semantic": space in spec.bev_semantic_classes,
         }
-        fields = [name for name, read in wanted.items() if read]
+        fields = ["future", "target_points", "route"] + [name for name, read in wanted.items() if read]
         fields += [f"cam_{camera}" for camera in self.cameras]
         if len(self.cameras) == 1:
             if space in spec.depth_sources:
