@@ -157,14 +157,12 @@ class DrivingModule(L.LightningModule):
         hparams.update(model=spec, init_from=None)
         hparams.setdefault("_instantiator", INSTANTIATOR)
 
-    # --- setup
     def setup(self, stage: str) -> None:
         """At the start of a fit, put a LEAD network's weights in LEAD's channels-last layout (prediction keeps the
         loaded layout)."""
         if stage == "fit" and isinstance(self.model, LeadDriver):
             training_layout(self.model)
 
-    # --- losses
     def compute_losses(self, batch: Mapping[str, Batch]) -> tuple[Tensor | None, dict[str, tuple[Tensor, int]]]:
         """Weighted total (None when nothing is supervised) and every per-source term with its batch size."""
         per_term: dict[str, list[tuple[Tensor, int]]] = {}
@@ -203,7 +201,6 @@ class DrivingModule(L.LightningModule):
         self.log("train/loss", total, prog_bar=True, batch_size=sum(len(b["speed"]) for b in batch.values()))
         return total
 
-    # --- evaluation
     def on_validation_epoch_start(self) -> None:
         """One running mean per (validation source with a planner, ADE/FDE), made on every rank before any batch.
 
