@@ -163,11 +163,6 @@ class DriveDataModule(L.LightningDataModule):
     def validation_sources(self) -> list[str]:
         return list(self.val_sources)
 
-    @property
-    def seed(self) -> int:
-        """The seed of the training streams: given, else ``seed_everything``'s (``PL_GLOBAL_SEED``), else 0."""
-        return self._seed if self._seed is not None else int(os.environ.get("PL_GLOBAL_SEED", 0))
-
     def _where(self) -> tuple[int, int, int]:
         """(epoch, rank, world size) of the attached trainer; (0, 0, 1) without one."""
         if self.trainer is None:
@@ -264,6 +259,7 @@ class DriveDataModule(L.LightningDataModule):
         if not self.train_sources:
             raise UserError("no training sources configured (data.train); name one or more sources and their paths")
         epoch, rank, world_size = self._where()
+        seed = self._seed if self._seed is not None else int(os.environ.get("PL_GLOBAL_SEED", 0))  # seed_everything's
         loaders = {}
         for name, size in self.current_batch_sizes().items():
             if size > 0:
@@ -273,7 +269,7 @@ class DriveDataModule(L.LightningDataModule):
                         f"data.train.{name}: {len(samples)} training sample(s) in its paths and splits for "
                         f"{world_size} rank(s), and every rank needs samples of its own; add data or use fewer devices"
                     )
-                share = TrainShare(samples, StreamSeed(self.seed, epoch, rank, name), world_size)
+                share = TrainShare(samples, StreamSeed(seed, epoch, rank, name), world_size)
                 loaders[name] = self._loader(self._train_pipeline(name, share, size)).with_epoch(self.epoch_steps())
         return loaders
 
