@@ -436,7 +436,7 @@ def test_each_rig_is_laid_out_in_ltfv6_by_its_calibration(tmp_path: Path) -> Non
         transform = SourceTransform("carla", input_spec(ltfv6), ["carla_mosaic"])
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            layout = transform.camera.layout({"cameras": cameras}, [(height, tiles * width)])
+            layout = transform.camera.plan_for({"cameras": cameras}, [(height, tiles * width)]).layout
         assert layout.letterboxed == (rig != "NAVSIM_4CAMERAS") == bool(caught), rig
         if rig == "NAVSIM_4CAMERAS":  # nuPlan's 38.5 deg around the principal row 140: rows [5, 275)
             assert {(b.top, b.bottom) for b in layout.bands[0]} == {(5, 275)}

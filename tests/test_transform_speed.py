@@ -81,7 +81,7 @@ def reference_lidar(points: np.ndarray, grid: BEVGrid) -> np.ndarray:
 def reference_camera(transform: SourceTransform, sample: dict) -> dict[str, np.ndarray]:
     """Full-size BGR decode, the layout of the decoded shapes applied to image and labels, as the definition."""
     images = [cv2.imdecode(np.frombuffer(sample[f"cam_{c}"], np.uint8), cv2.IMREAD_COLOR) for c in transform.cameras]
-    layout = transform.camera.layout(sample["meta"], [image.shape[:2] for image in images])
+    layout = transform.camera.plan_for(sample["meta"], [image.shape[:2] for image in images]).layout
     rgb = render(layout, images, cv2.INTER_AREA, 0)
     out = {"rgb": np.ascontiguousarray(rgb[:, :, ::-1].transpose(2, 0, 1))}
     camera = transform.cameras[0]
@@ -285,7 +285,7 @@ def smooth_camera_sample(width: int, height: int) -> dict:
 def test_reduced_jpeg_decoding_stays_within_tolerance(image_size: tuple[int, int], factor: int) -> None:
     sample = smooth_camera_sample(1920, 1080)
     transform = SourceTransform("navsim", sensor_spec(image_size=image_size), ["front"])
-    layout = transform.camera.layout(sample["meta"], [(1080, 1920)])
+    layout = transform.camera.plan_for(sample["meta"], [(1080, 1920)]).layout
     assert jpeg_reduction(layout)[0] == factor
     rgb, _ = camera_image(transform, sample)
     expected = reference_camera(transform, sample)["rgb"]

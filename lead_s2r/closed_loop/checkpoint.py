@@ -25,7 +25,7 @@ from typing import Any
 import yaml
 from torch import nn
 
-from lead_s2r.data.camera_layout import camera_layout, camera_tiles
+from lead_s2r.data.camera_layout import calibration, camera_layout, tiles_at
 from lead_s2r.formats import torch_file
 from lead_s2r.formats.carla_rig import CAMERA_RIGS, MOSAIC_ID, camera_calibration
 from lead_s2r.models.input_spec import InputSpec, input_spec
@@ -137,7 +137,7 @@ def strip_aspect(rig: str, config: InputSpec) -> float:
     cameras = CAMERA_RIGS[rig]
     meta = {"cameras": camera_calibration(rig)}
     shape = (cameras[0].stored_height, sum(camera.width for camera in cameras))
-    tiles = camera_tiles(meta, MOSAIC_ID, shape)
+    tiles = tiles_at(calibration(meta, MOSAIC_ID), shape)
     layout = camera_layout(((shape, tiles),), tuple(config.image_size), config.vertical_fov_deg)
     return layout.strip[1] / layout.strip[0]
 

@@ -47,9 +47,6 @@ _JPEG_REDUCTIONS = (
 #: A rig as the plan is cached by it: per camera field, its stored (height, width) and its calibration.
 Rig = tuple[tuple[tuple[int, int], Calibration | None], ...]
 
-#: Stored (height, width) of one camera field and whether it is a JPEG (not a PNG), from its header.
-Stored = tuple[tuple[int, int], bool]
-
 
 def jpeg_reduction(layout: CameraLayout) -> tuple[int, int]:
     """The largest JPEG scale-down (factor, imdecode flag) after which the strip still has at least as many rows and
@@ -144,10 +141,6 @@ class CameraInput:
             self._reported.add(plan.layout)
         return plan
 
-    def layout(self, meta: dict[str, Any], shapes: Sequence[tuple[int, int]]) -> CameraLayout:
-        """The layout of the rig ``meta`` calibrates, its camera fields at ``shapes`` (:meth:`plan_for`)."""
-        return self.plan_for(meta, shapes).layout
-
     def image(self, sample: dict[str, Any], plan: CameraPlan) -> torch.Tensor:
         """uint8 (3, H, W) RGB of ``sample``'s cameras, each decoded once by ``plan``'s path."""
         if plan.path == AS_STORED:
@@ -168,7 +161,7 @@ class CameraInput:
             raise KeyError(f"sample {sample['__key__']!r} has no camera {camera!r} (field cam_{camera})")
         return data
 
-    def stored(self, sample: dict[str, Any], camera: str) -> Stored:
+    def stored(self, sample: dict[str, Any], camera: str) -> tuple[tuple[int, int], bool]:
         """(height, width) of camera field ``camera`` as stored and whether it is a JPEG, from its header."""
         encoded = self.jpeg(sample, camera)
         size, jpeg = jpeg_size(encoded), True

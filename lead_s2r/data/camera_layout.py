@@ -125,11 +125,6 @@ def tiles_at(calibration: Calibration | None, shape: tuple[int, int]) -> tuple[T
     )
 
 
-def camera_tiles(meta: dict[str, Any], camera: str, shape: tuple[int, int]) -> tuple[Tile, ...]:
-    """The tiles of camera field ``camera`` from ``meta.cameras``, scaled to the decoded image ``shape``."""
-    return tiles_at(calibration(meta, camera), shape)
-
-
 def tile_bands(height: int, tiles: Sequence[Tile], vertical_fov_deg: float | None) -> tuple[Band, ...]:
     """Rows of each tile covering ``vertical_fov_deg`` around its principal point (all rows when None);
     neighbouring tiles with the same rows merge into one band."""

@@ -40,18 +40,13 @@ def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
         if key in IMAGE_ALIGNED and len({value.shape for value in values}) > 1:  # rigs whose labels differ in size
             size = tuple(batch_image_size(samples))
             values = [on_image_grid(value[None], size)[0] for value in values]
-        batch[key] = _stack(key, values)
+        if key == "rgb":
+            # (3, H, W) views of the (H, W, 3) pixels decoders write: stacked as (B, H, W, 3), one plain copy, and
+            # handed on as a channels-last (B, 3, H, W) view (not a per-sample planar copy)
+            batch[key] = default_collate([value.permute(1, 2, 0) for value in values]).permute(0, 3, 1, 2)
+        else:
+            batch[key] = default_collate(values)
     return batch
-
-
-def _stack(key: str, values: list[torch.Tensor]) -> torch.Tensor:
-    """One batch tensor; in a loader worker stacked straight into shared memory (torch's ``default_collate``).
-
-    Images are (3, H, W) views of (H, W, 3) pixels, as decoders write them: stacked as (B, H, W, 3), one plain copy,
-    and handed on as a channels-last (B, 3, H, W) view (not a per-sample planar copy)."""
-    if key == "rgb":
-        return default_collate([value.permute(1, 2, 0) for value in values]).permute(0, 3, 1, 2)
-    return default_collate(values)
 
 
 def _decoded(sample: dict[str, Any]) -> dict[str, Any]:

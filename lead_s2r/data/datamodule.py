@@ -16,6 +16,7 @@ import gc
 import math
 import os
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import lightning as L
@@ -25,7 +26,7 @@ import webdataset as wds
 from lead_s2r.data.collate import collate
 from lead_s2r.data.device_inputs import RGB_JPEG, RGB_LAYOUT, check_device_decode, decode_images, rasterize_points
 from lead_s2r.data.mixing import MixingSchedule
-from lead_s2r.data.streams import SampleShare, SeededShuffle, StreamSeed, TrainShare, manifest_samples
+from lead_s2r.data.streams import SampleShare, StreamSeed, TrainShare, manifest_samples, seeded_shuffle
 from lead_s2r.data.transforms import SourceTransform
 from lead_s2r.data.vocab_scores import VocabScores
 from lead_s2r.errors import UserError
@@ -55,32 +56,23 @@ class SourceSpec:
         return [shard for path in self.paths for shard in shard_paths(path)]
 
 
+@dataclass
 class _Prepare:
-    """Decode the fields the transform reads from a raw webdataset sample and turn them into tensors."""
+    """Decode the fields the transform reads (the only ones read from the tar and decoded) from a raw webdataset
+    sample and turn them into tensors."""
 
-    def __init__(self, transform: SourceTransform, vocab_scores: VocabScores | None = None) -> None:
-        self.transform = transform
-        self.vocab_scores = vocab_scores
-
-    @property
-    def fields(self) -> list[str]:
-        """The fields the transform reads: the only ones read from the tar and decoded."""
-        return self.transform.fields
+    transform: SourceTransform
+    vocab_scores: VocabScores | None = None
 
     def __call__(self, raw: dict[str, Any]) -> dict[str, Any]:
-        sample = decode_sample(raw, self.fields)
+        sample = decode_sample(raw, self.transform.fields)
         out = self.transform(sample)
         return out if self.vocab_scores is None else self.vocab_scores(sample, out)
 
 
-class _Tag:
-    """Wrap an evaluation batch as ``{source: batch}``, the shape every step of the module takes."""
-
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def __call__(self, batch: dict[str, Any]) -> dict[str, dict[str, Any]]:
-        return {self.source: batch}
+def _tagged(source: str, batch: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """An evaluation batch as ``{source: batch}``, the shape every step of the module takes."""
+    return {source: batch}
 
 
 class DriveDataModule(L.LightningDataModule):
@@ -136,28 +128,21 @@ class DriveDataModule(L.LightningDataModule):
         self._seed = seed
         self._inputs_on_device = inputs_on_device
         self._device_decode_checked = False
-        for stage, sources in self._stages().items():
+        stages = {"train": self.train_sources, "val": self.val_sources, "predict": self.predict_sources}
+        for stage, sources in stages.items():
             for name, spec in sources.items():
                 try:
                     spec.shards()
                 except ShardError as err:
                     raise UserError(f"data.{stage}.{name}.paths: {err}") from None
-        if inputs is not None:
-            self.check_sources(inputs)
-
-    def _stages(self) -> dict[str, dict[str, SourceSpec]]:
-        return {"train": self.train_sources, "val": self.val_sources, "predict": self.predict_sources}
-
-    def check_sources(self, inputs: InputSpec) -> None:
-        """Raise :class:`UserError` naming ``data.<stage>.<name>`` for a source the model has no trajectory grid for."""
-        known = sorted(inputs.trajectory_grids)
-        for stage, sources in self._stages().items():
-            for name in sources:
-                if name not in inputs.trajectory_grids:
-                    raise UserError(
-                        f"data.{stage}.{name}: the model knows no source {name!r}; name it one of {known} "
-                        "(the model config's trajectory_grids)"
-                    )
+        if inputs is not None:  # every source needs the model's trajectory grid for it
+            for stage, sources in stages.items():
+                for name in sources:
+                    if name not in inputs.trajectory_grids:
+                        raise UserError(
+                            f"data.{stage}.{name}: the model knows no source {name!r}; name it one of "
+                            f"{sorted(inputs.trajectory_grids)} (the model config's trajectory_grids)"
+                        )
 
     @property
     def inputs(self) -> InputSpec:
@@ -169,26 +154,14 @@ class DriveDataModule(L.LightningDataModule):
     def epoch_steps(self) -> int:
         """Optimizer steps per epoch: as given, else one pass over the training samples (read once, on first use)."""
         if self._steps_per_epoch is None:
-            samples = self.train_samples()
+            samples = sum(len(self._samples(spec)[0]) for spec in self.train_sources.values())
             if samples == 0:
                 raise UserError("data.train: no training samples in the given paths and splits; check data.train")
             self._steps_per_epoch = math.ceil(samples / self.schedule.global_batch_size)
         return self._steps_per_epoch
 
     def validation_sources(self) -> list[str]:
-        """The names of the validation sources."""
         return list(self.val_sources)
-
-    def train_samples(self) -> int:
-        """Samples of every training source in its splits, counted from the folders' manifests."""
-        return sum(
-            len(manifest_samples(path, spec.splits)[0]) for spec in self.train_sources.values() for path in spec.paths
-        )
-
-    @property
-    def seed(self) -> int:
-        """The seed of the training streams: given, else ``seed_everything``'s (``PL_GLOBAL_SEED``), else 0."""
-        return self._seed if self._seed is not None else int(os.environ.get("PL_GLOBAL_SEED", 0))
 
     def _where(self) -> tuple[int, int, int]:
         """(epoch, rank, world size) of the attached trainer; (0, 0, 1) without one."""
@@ -231,9 +204,9 @@ class DriveDataModule(L.LightningDataModule):
         prepare = self._decode(name, self.train_sources[name])
         return wds.DataPipeline(
             share.shards,
-            TarSamples(prepare.fields),
+            TarSamples(prepare.transform.fields),
             share,
-            SeededShuffle(self.shuffle_buffer, share.seed),
+            partial(seeded_shuffle, self.shuffle_buffer, share.seed),
             wds.map(prepare),
             wds.batched(batch_size, collation_fn=collate, partial=False),
         )
@@ -257,12 +230,12 @@ class DriveDataModule(L.LightningDataModule):
         prepare = self._decode(name, spec)
         return wds.DataPipeline(
             mine.shards,
-            TarSamples(prepare.fields),
+            TarSamples(prepare.transform.fields),
             ManifestCheck(listed),
             mine,
             wds.map(prepare),
             wds.batched(self.eval_batch_size, collation_fn=collate, partial=True),
-            wds.map(_Tag(name)),
+            wds.map(partial(_tagged, name)),
         )
 
     def _loader(self, dataset: wds.DataPipeline) -> wds.WebLoader:
@@ -286,6 +259,7 @@ class DriveDataModule(L.LightningDataModule):
         if not self.train_sources:
             raise UserError("no training sources configured (data.train); name one or more sources and their paths")
         epoch, rank, world_size = self._where()
+        seed = self._seed if self._seed is not None else int(os.environ.get("PL_GLOBAL_SEED", 0))  # seed_everything's
         loaders = {}
         for name, size in self.current_batch_sizes().items():
             if size > 0:
@@ -295,7 +269,7 @@ class DriveDataModule(L.LightningDataModule):
                         f"data.train.{name}: {len(samples)} training sample(s) in its paths and splits for "
                         f"{world_size} rank(s), and every rank needs samples of its own; add data or use fewer devices"
                     )
-                share = TrainShare(samples, StreamSeed(self.seed, epoch, rank, name), world_size)
+                share = TrainShare(samples, StreamSeed(seed, epoch, rank, name), world_size)
                 loaders[name] = self._loader(self._train_pipeline(name, share, size)).with_epoch(self.epoch_steps())
         return loaders
 

@@ -33,8 +33,6 @@ memory that queued kernels still read), so :func:`decode_rgb` drains the caller'
 """
 
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -147,17 +145,6 @@ def band_weights(layout: CameraLayout, device: torch.device) -> tuple[BandWeight
     return tuple(out)
 
 
-@contextmanager
-def _full_float32() -> Iterator[None]:
-    """float32 matrix products at full precision (not TF32, which a run may allow: 10 mantissa bits move pixels)."""
-    saved = torch.get_float32_matmul_precision()
-    torch.set_float32_matmul_precision("highest")
-    try:
-        yield
-    finally:
-        torch.set_float32_matmul_precision(saved)
-
-
 def lay_out(cameras: list[Tensor], layout: CameraLayout) -> Tensor:
     """The model images (N, 3, H, W) uint8 of N samples of one rig: ``cameras`` holds per camera field its decoded
     (N, 3, h, w) uint8 images, laid out by ``layout`` (:func:`band_weights`) on their device."""
@@ -165,13 +152,17 @@ def lay_out(cameras: list[Tensor], layout: CameraLayout) -> Tensor:
         return cameras[0]
     first = cameras[0]
     image = torch.zeros((len(first), 3, *layout.image_size), dtype=torch.float32, device=first.device)
-    with _full_float32():
+    saved = torch.get_float32_matmul_precision()
+    torch.set_float32_matmul_precision("highest")  # not TF32, which a run may allow: 10 mantissa bits move pixels
+    try:
         for band in band_weights(layout, first.device):
             pixels = cameras[band.camera][..., band.top : band.bottom, band.x0 : band.x1].float()
             rows, columns = band.rows.shape[0], band.columns.shape[0]
             image[..., band.y0 : band.y0 + rows, band.out_x0 : band.out_x0 + columns] += (
                 band.rows @ pixels @ band.columns.T
             )
+    finally:
+        torch.set_float32_matmul_precision(saved)
     return image.round_().clamp_(0, 255).to(torch.uint8)
 
 

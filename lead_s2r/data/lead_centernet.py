@@ -114,22 +114,15 @@ def lead_centernet_targets(
     bank, starts = kernel_bank(int(radii.max(initial=0)))
     maps = (heatmap, size, offset, yaw_class, yaw_residual, speed, weight)
     _encode_boxes(maps, labels, rows, cols, radii, bank, starts, values, yaw_bin)
-    out = {
-        "lead_box_heatmap": heatmap,
-        "lead_box_size": size,
-        "lead_box_offset": offset,
-        "lead_box_yaw_class": yaw_class,
-        "lead_box_yaw_residual": yaw_residual,
-        "lead_box_velocity": speed,
-        "lead_box_weight": weight,
-    }
+    out = {f"lead_box_{name}": torch.from_numpy(m) for name, m in zip(MAP_NAMES, maps, strict=True)}
     if not velocity:
         del out["lead_box_velocity"]
-    count = np.float32(max(1, np.count_nonzero(heatmap == 1)))
-    return {**{k: torch.from_numpy(v) for k, v in out.items()}, "lead_box_count": torch.scalar_tensor(count)}
+    out["lead_box_count"] = torch.scalar_tensor(np.float32(max(1, np.count_nonzero(heatmap == 1))))
+    return out
 
 
-#: The target maps :func:`lead_centernet_targets` writes: heatmap, size, offset, yaw class, yaw residual, speed, weight.
+#: The target maps :func:`lead_centernet_targets` writes, by their batch keys without ``lead_box_``.
+MAP_NAMES = ("heatmap", "size", "offset", "yaw_class", "yaw_residual", "velocity", "weight")
 Maps = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 

@@ -211,7 +211,7 @@ def lead_hdmap_canvas(raster: np.ndarray, spec: dict[str, Any], grid: BEVGrid, l
     """``cv2.rotate(cv2.LUT(bev_labels(raster, spec, grid), lookup), cv2.ROTATE_90_COUNTERCLOCKWISE)``, the first
     step of :func:`lead_bev_labels` from a stored hdmap raster, as one gather: the remap applied to the raster's
     pixels (fewer than the grid's cells) and the quarter turn to the cached gather index."""
-    return _gathered(raster, spec, grid, _bev_tables(leaderboard)[1], quarter_turn=True)
+    return bev_labels(raster, spec, grid, _bev_tables(leaderboard)[1], quarter_turn=True)
 
 
 def draw_lead_boxes(
@@ -313,31 +313,24 @@ def canvas_crop(grid: BEVGrid) -> np.ndarray:
 
 def _on_occupancy_canvas(boxes: np.ndarray, grid: BEVGrid) -> np.ndarray:
     """(N,) whether each box's centre lies on LEAD's occupancy canvas (LEAD skips the others)."""
-    size = 2 * OCCUPANCY_HALF_M * grid.pixels_per_meter
-    cx = (boxes[:, 0] + OCCUPANCY_HALF_M) * grid.pixels_per_meter
-    cy = (OCCUPANCY_HALF_M - boxes[:, 1]) * grid.pixels_per_meter
-    return (cx >= 0) & (cx < size) & (cy >= 0) & (cy < size)
+    centre, _ = footprint_rects(boxes, grid)
+    return ((centre >= 0) & (centre < 2 * OCCUPANCY_HALF_M * grid.pixels_per_meter)).all(axis=1)
 
 
-def bev_labels(labels: np.ndarray, spec: dict[str, Any], grid: BEVGrid) -> np.ndarray:
-    """Class ids (uint8) of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres; :data:`IGNORE_CLASS`
-    outside it.
-
-    The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
-    (:func:`bev_gather`) and each sample is one gather."""
-    return _gathered(labels, spec, grid)
-
-
-def _gathered(
+def bev_labels(
     labels: np.ndarray,
     spec: dict[str, Any],
     grid: BEVGrid,
     lookup: np.ndarray | None = None,
     quarter_turn: bool = False,
 ) -> np.ndarray:
-    """:func:`bev_labels`, its ids (and :data:`IGNORE_CLASS`) mapped through the uint8 ``lookup``, turned a quarter
-    counterclockwise (``cv2.ROTATE_90_COUNTERCLOCKWISE``): the raster's uint8 values with a last row and column of
-    the fill, remapped, then gathered by the cached :class:`BevGather`."""
+    """Class ids (uint8) of a stored BEV raster (``meta.bev`` spec) at ``grid``'s cell centres, :data:`IGNORE_CLASS`
+    outside it; the ids (and :data:`IGNORE_CLASS`) mapped through the uint8 ``lookup`` where given, and turned a
+    quarter counterclockwise (``cv2.ROTATE_90_COUNTERCLOCKWISE``) with ``quarter_turn``.
+
+    The nearest-pixel lookup depends only on the spec, the raster's shape and the grid, so it is computed once
+    (:func:`bev_gather`) and each sample is one gather: the raster's uint8 values with a last row and column of the
+    fill, remapped, then gathered by the cached :class:`BevGather`."""
     pixel_to_ego = tuple(tuple(float(v) for v in row) for row in spec["pixel_to_ego"])
     gather = bev_gather(pixel_to_ego, labels.shape[:2], grid, quarter_turn)
     h, w = labels.shape[:2]

@@ -67,15 +67,9 @@ class StreamSeed:
         return random.Random(stream_seed(self.seed, self.epoch, self.rank, worker_info()[0], self.source, purpose))
 
 
-class SeededShuffle:
-    """A webdataset shuffle buffer whose generator comes from a :class:`StreamSeed`, not the clock."""
-
-    def __init__(self, size: int, seed: StreamSeed) -> None:
-        self.size = size
-        self.seed = seed
-
-    def __call__(self, samples: Iterator[dict[str, Any]]) -> Iterator[dict[str, Any]]:
-        return wds.shuffle(self.size, rng=self.seed.rng("shuffle"))(samples)
+def seeded_shuffle(size: int, seed: StreamSeed, samples: Iterator[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+    """``samples`` through a webdataset shuffle buffer of ``size`` with a generator from ``seed``, not the clock."""
+    return wds.shuffle(size, rng=seed.rng("shuffle"))(samples)
 
 
 def share(items: Sequence[Any], part: int, parts: int) -> list[Any]:

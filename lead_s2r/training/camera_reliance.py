@@ -24,17 +24,14 @@ from lead_s2r.files import write_text
 from lead_s2r.models.inputs import Batch
 from lead_s2r.training.distributed import gather_lists
 
-#: Batch keys of camera inputs, swapped between samples.
-CAMERA_KEYS = ("rgb",)
 FILENAME = "camera_reliance.json"
 
 
 def with_swapped_cameras(batch: Batch) -> Batch:
-    """A shallow copy of ``batch`` in which sample i has sample i+1's camera inputs (the last has the first's)."""
+    """A shallow copy of ``batch`` in which sample i has sample i+1's camera images (the last has the first's)."""
     swapped = dict(batch)
-    for key in CAMERA_KEYS:
-        if key in batch:
-            swapped[key] = torch.roll(batch[key], shifts=-1, dims=0)
+    if "rgb" in batch:
+        swapped["rgb"] = torch.roll(batch["rgb"], shifts=-1, dims=0)
     return swapped  # type: ignore[return-value]
 
 
@@ -67,7 +64,7 @@ class CameraReliance(L.Callback):
     ) -> None:
         for source, output in (outputs or {}).items():
             source_batch = batch[source]
-            if len(output["xy"]) < 2 or not any(key in source_batch for key in CAMERA_KEYS):
+            if len(output["xy"]) < 2 or "rgb" not in source_batch:
                 continue
             # predict_step's xy is the model's waypoints, frame and all: the distance is the same in either
             shifts = camera_shift(pl_module.model, source_batch, source, output["xy"])

@@ -38,8 +38,6 @@ from lead_s2r.training.module import DrivingModule
 #: The mixing schedule changes batch composition per epoch, and webdataset splits data over ranks itself.
 TRAINER_DEFAULTS = {"reload_dataloaders_every_n_epochs": 1, "use_distributed_sampler": False}
 VERBS = ("fit", "validate", "test", "predict")
-#: The config sections LightningCLI builds a class from.
-SECTIONS = ("trainer", "model", "data")
 #: Parsers raise instead of printing the whole usage and exiting, so the message reaches ``main()``.
 PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_error": False} for verb in VERBS}}
 
@@ -118,13 +116,16 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
     argv = sys.argv[1:] if args is None else args
     verb = next(iter(argv), "fit")
     configs = config_files(argv)
+    # the table builder reads a run's seed from the config fit saved, and a predict into the same run folder (with
+    # the recipe's default seed) must not contradict it
+    config_filename = "config.yaml" if verb == "fit" else f"{verb}_config.yaml"
     try:
         DrivingCLI(
             DrivingModule,
             DriveDataModule,
             args=args,
             trainer_defaults=TRAINER_DEFAULTS,
-            save_config_kwargs={"overwrite": True, "config_filename": config_filename(verb)},
+            save_config_kwargs={"overwrite": True, "config_filename": config_filename},
             parser_kwargs=PARSER_KWARGS,
         )
     except argparse.ArgumentError as err:
@@ -138,9 +139,12 @@ def run_lightning_cli(args: list[str] | None = None) -> None:
 
 
 def config_files(argv: list[str]) -> list[Path]:
-    """The existing files given as ``--config``, each checked to be UTF-8 text whose sections are mappings (an inline
-    YAML string, or YAML that does not parse, is left to jsonargparse)."""
-    files = given_files(argv, "--config")
+    """The existing files given as ``--config VALUE`` or ``--config=VALUE``, each checked to be UTF-8 text whose
+    sections are mappings (a value that is no file, such as an inline YAML string, or YAML that does not parse, is
+    left to jsonargparse)."""
+    values = [value for name, value in itertools.pairwise(argv) if name == "--config"]
+    values += [arg.removeprefix("--config=") for arg in argv if arg.startswith("--config=")]
+    files = [Path(value) for value in values if os.path.isfile(value)]
     for file in files:
         try:
             text = file.read_bytes().decode()
@@ -162,21 +166,7 @@ def misshapen_sections(node: Any, prefix: str = "") -> Iterator[tuple[str, Any]]
     children = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
     for key, value in children:
         name = f"{prefix}{key}" if isinstance(node, dict) else f"{prefix.removesuffix('.')}[{key}]"
-        section = (not prefix and key in SECTIONS) or key in ("init_args", "dict_kwargs")
+        section = (not prefix and key in ("trainer", "model", "data")) or key in ("init_args", "dict_kwargs")
         if section and not (value is None or isinstance(value, dict | str)):
             yield name, value
         yield from misshapen_sections(value, f"{name}.")
-
-
-def given_files(argv: list[str], flag: str) -> list[Path]:
-    """The existing files given as ``flag VALUE`` or ``flag=VALUE`` (a value that is no file, such as an inline YAML
-    string or Lightning's ``last``, is left to jsonargparse and Lightning)."""
-    values = [value for name, value in itertools.pairwise(argv) if name == flag]
-    values += [arg.removeprefix(f"{flag}=") for arg in argv if arg.startswith(f"{flag}=")]
-    return [Path(value) for value in values if os.path.isfile(value)]
-
-
-def config_filename(verb: str) -> str:
-    """``config.yaml`` for ``fit``, ``<verb>_config.yaml`` otherwise: the table builder reads a run's seed from the
-    config fit saved, and a predict into the same run folder (with the recipe's default seed) must not contradict it."""
-    return "config.yaml" if verb == "fit" else f"{verb}_config.yaml"

@@ -22,26 +22,20 @@ def tensorboard_installed() -> bool:
     return importlib.util.find_spec("tensorboard") is not None
 
 
-def default_loggers(root: str | Path) -> list[Logger]:
-    """CSV logs in ``<root>/lightning_logs/version_N`` and, when tensorboard is installed, its event files in the
-    same folder (one version number for both)."""
-    csv = CSVLogger(root, name=LOG_FOLDER)
-    if not tensorboard_installed():
-        return [csv]
-    return [csv, TensorBoardLogger(root, name=LOG_FOLDER, version=csv.version, default_hp_metric=False)]
-
-
 def run_loggers(configured: Any, root: str | Path) -> Any:
-    """The trainer's ``logger``: the CSV (and TensorBoard) logs of :func:`default_loggers` first, then any logger a
-    config adds (the W&B overlay, ``recipes/logging/wandb.yaml``); ``False`` keeps logging off, and a config that
-    names a CSV logger itself is taken as it is."""
+    """The trainer's ``logger``: CSV logs in ``<root>/lightning_logs/version_N`` and, when tensorboard is installed,
+    its event files in the same folder (one version number for both) first, then any logger a config adds (the W&B
+    overlay, ``recipes/logging/wandb.yaml``); ``False`` keeps logging off, and a config that names a CSV logger
+    itself is taken as it is."""
     if configured is False:
         return False
     added = [] if configured in (None, True) else list(configured) if isinstance(configured, list) else [configured]
     if any(isinstance(logger, CSVLogger) for logger in added):
         return added
-    defaults = [d for d in default_loggers(root) if not any(type(a) is type(d) for a in added)]
-    return defaults + added
+    defaults: list[Logger] = [CSVLogger(root, name=LOG_FOLDER)]
+    if tensorboard_installed():
+        defaults.append(TensorBoardLogger(root, name=LOG_FOLDER, version=defaults[0].version, default_hp_metric=False))
+    return [d for d in defaults if not any(type(a) is type(d) for a in added)] + added
 
 
 def _metric_order(name: str) -> tuple[int, str]:

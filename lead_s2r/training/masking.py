@@ -15,20 +15,6 @@ SIM_TO_REAL: dict[str, list[str]] = {
 }
 
 
-def expand(entries: Collection[str]) -> tuple[frozenset[str], frozenset[str]]:
-    """Split ``entries`` into (tasks from groups, explicitly named tasks); unknown names fail loudly."""
-    grouped: set[str] = set()
-    named: set[str] = set()
-    for entry in entries:
-        if entry in GROUPS:
-            grouped |= GROUPS[entry]
-        elif entry in TASK_TARGETS:
-            named.add(entry)
-        else:
-            raise ValueError(f"supervise: unknown entry {entry!r}; use {sorted(GROUPS)} or {sorted(TASK_TARGETS)}")
-    return frozenset(grouped), frozenset(named)
-
-
 def active_tasks(
     source: str, batch: Batch, model_tasks: frozenset[str], supervise: Mapping[str, Collection[str]]
 ) -> frozenset[str]:
@@ -38,7 +24,15 @@ def active_tasks(
     targets for; an explicitly named task must be producible and labelled, or this raises naming what is missing.
     A source missing from ``supervise`` supervises nothing.
     """
-    grouped, named = expand(supervise.get(source, ()))
+    grouped: set[str] = set()
+    named: set[str] = set()
+    for entry in supervise.get(source, ()):
+        if entry in GROUPS:
+            grouped |= GROUPS[entry]
+        elif entry in TASK_TARGETS:
+            named.add(entry)
+        else:
+            raise ValueError(f"supervise: unknown entry {entry!r}; use {sorted(GROUPS)} or {sorted(TASK_TARGETS)}")
     for task in named:
         if task not in model_tasks:
             raise ValueError(f"supervise[{source!r}] names {task!r}, which the model has no head for on {source!r}")

@@ -14,7 +14,7 @@ import math
 import warnings
 from collections.abc import Mapping
 from dataclasses import asdict, is_dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import lightning as L
 import torch
@@ -27,7 +27,6 @@ from lead_s2r.data.lead_origin import centre_waypoints_to_rear_axle
 from lead_s2r.models.inputs import PLANNING_TASKS, Batch
 from lead_s2r.models.lead_driver import LeadDriver
 from lead_s2r.models.lead_loss import adamw, cosine_schedule, training_layout
-from lead_s2r.training.data_contract import TrainingData
 from lead_s2r.training.loss_table import TASK_TARGETS, task_loss
 from lead_s2r.training.losses import valid_mask
 from lead_s2r.training.masking import SIM_TO_REAL, active_tasks
@@ -40,6 +39,26 @@ DEFAULT_LOSS_WEIGHTS: dict[str, float] = {task: 1.0 for task in TASK_TARGETS} | 
 
 #: Lightning's allow-listed instantiator (LightningCLI's); ``load_from_checkpoint`` builds the module with it.
 INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
+
+
+@runtime_checkable
+class TrainingData(Protocol):
+    """What :class:`DrivingModule` reads from its data module (``DrivingModule(data=...)``, linked by ``lead-s2r fit``;
+    :class:`~lead_s2r.data.datamodule.DriveDataModule` provides all of it). LightningCLI checks the linked data module
+    against these signatures, return types included, so an implementation returns exactly these types. Methods only,
+    so checking it evaluates nothing."""
+
+    def current_batch_sizes(self) -> dict[str, int]:
+        """Per-rank batch size of each training source in the trainer's current epoch."""
+        ...
+
+    def epoch_steps(self) -> int:
+        """Batches per training epoch, the same on every rank."""
+        ...
+
+    def validation_sources(self) -> list[str]:
+        """The names of the validation sources (every rank makes their metrics, data or not)."""
+        ...
 
 
 def model_spec(model: nn.Module) -> dict[str, Any] | None:
@@ -138,14 +157,12 @@ class DrivingModule(L.LightningModule):
         hparams.update(model=spec, init_from=None)
         hparams.setdefault("_instantiator", INSTANTIATOR)
 
-    # --- setup
     def setup(self, stage: str) -> None:
         """At the start of a fit, put a LEAD network's weights in LEAD's channels-last layout (prediction keeps the
         loaded layout)."""
         if stage == "fit" and isinstance(self.model, LeadDriver):
             training_layout(self.model)
 
-    # --- losses
     def compute_losses(self, batch: Mapping[str, Batch]) -> tuple[Tensor | None, dict[str, tuple[Tensor, int]]]:
         """Weighted total (None when nothing is supervised) and every per-source term with its batch size."""
         per_term: dict[str, list[tuple[Tensor, int]]] = {}
@@ -184,7 +201,6 @@ class DrivingModule(L.LightningModule):
         self.log("train/loss", total, prog_bar=True, batch_size=sum(len(b["speed"]) for b in batch.values()))
         return total
 
-    # --- evaluation
     def on_validation_epoch_start(self) -> None:
         """One running mean per (validation source with a planner, ADE/FDE), made on every rank before any batch.
 
@@ -220,20 +236,17 @@ class DrivingModule(L.LightningModule):
             err = (output["xy"] - target).norm(dim=-1)
             last = valid.long().cumsum(1).argmax(1)
             fde = err[torch.arange(len(err), device=err.device), last]
-            self._log_val_mean(f"{source}/ade", err[valid])
-            self._log_val_mean(f"{source}/fde", fde[has])
+            self._val_mean(f"{source}/ade").update(err[valid])
+            self._val_mean(f"{source}/fde").update(fde[has])
         return {"predictions": to_predictions(outputs)}
 
-    def _log_val_mean(self, key: str, values: Tensor) -> None:
-        """Add ``values`` to the running mean logged as ``val/<key>`` (key ``<source>/<metric>``) at the epoch's end.
+    def _val_mean(self, key: str) -> MeanMetric:
+        """The running mean logged as ``val/<key>`` (key ``<source>/<metric>``) at the epoch's end.
 
         A metric object over every waypoint (ADE) or sample (FDE) of every rank, not a logged batch mean: Lightning's
         batch-size-weighted mean truncates the summed batch sizes to an integer when it averages them over ranks,
         so 18 + 17 samples would count as 34.
         """
-        self._val_mean(key).update(values)
-
-    def _val_mean(self, key: str) -> MeanMetric:
         if key not in self.val_means:
             self.val_means[key] = MeanMetric().to(self.device)
         return self.val_means[key]
@@ -277,31 +290,26 @@ class DrivingModule(L.LightningModule):
         return result
 
     def configure_optimizers(self) -> Any:
-        hp = self.hparams
+        """AdamW, and ``lr_schedule`` (none for a constant rate) behind a linear warm-up of ``warmup_steps`` (lr / n on
+        the first step, lr on the n-th)."""
+        hp, lr = self.hparams, torch.optim.lr_scheduler
         optimizer = adamw(
             self.model.parameters(), lr=hp.lr, weight_decay=hp.weight_decay, betas=tuple(hp.betas), amsgrad=hp.amsgrad
         )
-        scheduler = self._warmed_up(optimizer, self._schedule(optimizer))
+        scheduler: LRScheduler | None = None
+        if hp.lr_schedule != "constant":
+            epochs = max(1, self.trainer.max_epochs or 1)
+            restarts = hp.lr_schedule == "cosine_restarts"
+            scheduler = cosine_schedule(
+                optimizer, self._steps_per_epoch(), epochs, restarts, skipped_steps=hp.warmup_steps
+            )
+        n = hp.warmup_steps
+        if n > 0:
+            warmup = lr.LinearLR(optimizer, start_factor=1.0 / n, end_factor=1.0, total_iters=n - 1)
+            scheduler = warmup if scheduler is None else lr.SequentialLR(optimizer, [warmup, scheduler], milestones=[n])
         if scheduler is None:
             return optimizer
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
-
-    def _schedule(self, optimizer: torch.optim.Optimizer) -> LRScheduler | None:
-        """``lr_schedule`` after the warm-up; None for a constant rate."""
-        hp = self.hparams
-        if hp.lr_schedule == "constant":
-            return None
-        epochs = max(1, self.trainer.max_epochs or 1)
-        restarts = hp.lr_schedule == "cosine_restarts"
-        return cosine_schedule(optimizer, self._steps_per_epoch(), epochs, restarts, skipped_steps=hp.warmup_steps)
-
-    def _warmed_up(self, optimizer: torch.optim.Optimizer, schedule: LRScheduler | None) -> LRScheduler | None:
-        """``schedule`` behind a linear warm-up of ``warmup_steps`` (lr / n on the first step, lr on the n-th)."""
-        n, lr = self.hparams.warmup_steps, torch.optim.lr_scheduler
-        if n <= 0:
-            return schedule
-        warmup = lr.LinearLR(optimizer, start_factor=1.0 / n, end_factor=1.0, total_iters=n - 1)
-        return warmup if schedule is None else lr.SequentialLR(optimizer, [warmup, schedule], milestones=[n])
 
     def _steps_per_epoch(self) -> int:
         """Optimizer steps per epoch: the data module's fixed epoch length, else Lightning's estimate."""

@@ -92,8 +92,7 @@ class ScoringCallback(L.Callback):
             for scorer in self.scorers:
                 if not scorer.scores_any(data):
                     continue
-                aggregates = scorer.score(group, data).aggregates
-                for name, value in aggregates.items():
+                for name, value in scorer.score(group, data).aggregates.items():
                     if isinstance(value, float):
                         metrics[f"{self.prefix}/{dataset}/{name}"] = value
         return metrics

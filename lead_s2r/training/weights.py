@@ -83,14 +83,6 @@ def config_changes(old: LeadConfig, new: LeadConfig) -> dict[str, tuple[object, 
     return changes
 
 
-def lead_folder_weights(folder: Path) -> Path:
-    """The one weight file of a LEAD checkpoint folder; an ensemble's several must be told apart by the user."""
-    files = weight_files(folder)
-    if len(files) > 1:
-        raise UserError(f"init_from: {folder} holds {len(files)} weight files (an ensemble); name one, e.g. {files[0]}")
-    return files[0]
-
-
 def _strip(key: str) -> str:
     while key.startswith(PREFIXES):  # in any order, as often as they are nested
         key = next(key.removeprefix(prefix) for prefix in PREFIXES if key.startswith(prefix))
@@ -100,8 +92,13 @@ def _strip(key: str) -> str:
 def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     """Tensors of a Lightning checkpoint (``state_dict`` entry) or a plain state dict, keys without prefixes."""
     path = Path(path)
-    if path.is_dir():
-        path = lead_folder_weights(path)
+    if path.is_dir():  # a LEAD checkpoint folder: its one weight file (an ensemble's must be told apart by the user)
+        files = weight_files(path)
+        if len(files) > 1:
+            raise UserError(
+                f"init_from: {path} holds {len(files)} weight files (an ensemble); name one, e.g. {files[0]}"
+            )
+        path = files[0]
     if not path.is_file():
         raise UserError(f"init_from: no checkpoint at {path}; give a .ckpt, a LEAD model*.pth or a LEAD folder")
     ckpt = torch_file.load(path)
