@@ -77,11 +77,6 @@ class Executor(ABC):
         """Every job's result with its index in ``arguments``; an exception a job raises is raised here. Closing
         the iterator early (or an exception in the caller's loop) cancels the jobs not yet started."""
 
-    @property
-    @abstractmethod
-    def description(self) -> str:
-        """A few words for logs and benchmarks: ``"2 processes"``, ``"Ray at 10.0.0.1:6379"``."""
-
     def session(self) -> contextlib.AbstractContextManager[None]:
         """A context in which several :meth:`run` calls share what each would set up alone (a Ray connection)."""
         return contextlib.nullcontext()
@@ -124,10 +119,6 @@ class InlineExecutor(Executor):
         for index, args in enumerate(arguments):
             yield index, job(*args)
 
-    @property
-    def description(self) -> str:
-        return "this process"
-
 
 def _start_worker(initializer: Callable[[], None] | None) -> None:
     exit_with_parent()
@@ -145,10 +136,6 @@ class ProcessExecutor(Executor):
         if workers < 1:
             raise UserError(f"--workers {workers}: give at least 1")
         self.workers, self.preload, self.initializer = workers, list(preload), initializer
-
-    @property
-    def description(self) -> str:
-        return f"{self.workers} processes"
 
     def run(self, job: Job, arguments: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
         context = mp.get_context("forkserver")
@@ -202,17 +189,6 @@ def _terminate_workers(pool: ProcessPoolExecutor) -> None:
         process.terminate()
 
 
-def import_ray() -> Any:
-    """The ``ray`` module, or a UserError saying how to install it."""
-    try:
-        import ray
-    except ModuleNotFoundError:
-        raise UserError(
-            "--executor ray needs Ray: pip install 'lead-s2r[ray]' on every node (see docs/scaling.md)"
-        ) from None
-    return ray
-
-
 def _ray_job(initializer: Callable[[], None] | None, job: Job, *args: Any) -> Any:
     """A job on a Ray worker: Ray reuses its workers between tasks, so the initializer is cheap and idempotent."""
     if initializer is not None:
@@ -227,12 +203,14 @@ class RayExecutor(Executor):
     :class:`WorkerDied`. Ray is connected for the run and disconnected after, unless the caller had connected it."""
 
     def __init__(self, address: str | None = None, initializer: Callable[[], None] | None = None) -> None:
-        self.ray = import_ray()
+        try:
+            import ray
+        except ModuleNotFoundError:
+            raise UserError(
+                "--executor ray needs Ray: pip install 'lead-s2r[ray]' on every node (see docs/scaling.md)"
+            ) from None
+        self.ray = ray
         self.address, self.initializer = address, initializer
-
-    @property
-    def description(self) -> str:
-        return f"Ray at {self.address or 'a local cluster'}"
 
     @contextlib.contextmanager
     def session(self) -> Iterator[None]:
