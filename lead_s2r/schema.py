@@ -232,11 +232,6 @@ def field_spec(name: str) -> FieldSpec:
 REQUIRED_FIELDS = tuple(name for name, spec in FIELDS.items() if spec.required)
 
 
-def optional_fields(sample: dict[str, Any]) -> list[str]:
-    """Names of the optional fields present in ``sample`` (each must be flagged in ``meta.has``)."""
-    return sorted(name for name in sample if name != "__key__" and name not in REQUIRED_FIELDS)
-
-
 def navsim_scene_token(sample: dict[str, Any]) -> str:
     """NAVSIM's scene token of a sample (the key of its CSV rows and GTRS's pickles); the sample key where the
     converter kept none."""
@@ -366,7 +361,7 @@ def _check_meta(key: str, sample: dict[str, Any]) -> None:
     has = meta["has"]
     if not isinstance(has, dict):
         raise SchemaError(key, "meta.has", "expected a dict of field name -> bool")
-    for name in optional_fields(sample):
+    for name in sorted(set(sample) - {"__key__", *REQUIRED_FIELDS}):
         if has.get(name) is not True:
             raise SchemaError(key, f"meta.has.{name}", "field is present but not flagged true")
     for name, flag in has.items():
