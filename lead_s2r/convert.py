@@ -67,7 +67,6 @@ if TYPE_CHECKING:
     import pyarrow as pa
 
 PROGRESS = "progress.jsonl"
-_DIED = "a conversion worker died; rerun the same command to resume"
 
 
 @dataclass
@@ -275,19 +274,6 @@ def conversion_executor(workers: int = 1, executor: str = "processes", address: 
     return make_executor(workers, executor, address, preload=[__name__], initializer=one_thread_per_worker)
 
 
-def _messages(
-    adapter: Adapter, logs: list[LogRef], out: Path, run: str, executor: Executor
-) -> Iterator[tuple[str, int, Any]]:
-    """Convert ``logs`` into fragments with ``executor`` and yield :func:`_run_log`'s messages in the order the logs
-    finish. A worker that died for good (a crash, or Ray's retries spent) ends the run: a rerun resumes it."""
-    jobs = [(adapter, out, run, position, log) for position, log in enumerate(logs)]
-    try:
-        for _, message in executor.run(_run_log, jobs):
-            yield message
-    except WorkerDied as err:
-        raise RuntimeError(f"{_DIED} ({err})") from err
-
-
 def _in_list_order(messages: Iterator[tuple[str, int, Any]]) -> Iterator[tuple[bool, tuple[str, int, Any]]]:
     """``(True, message)`` for each message as it comes (progress), then ``(False, message)`` for each in the order
     of positions as soon as every earlier position has come (assembly)."""
@@ -389,9 +375,10 @@ def convert(
             records.append(entry)
 
         assembler = _Assembler(out, adapter.name, shard_size, _next_shard_index(records), record)
+        jobs = [(adapter, out, run, position, log) for position, log in enumerate(todo)]
         try:
-            messages = _messages(adapter, todo, out, run, executor or conversion_executor(workers))
-            for arrived, (kind, position, payload) in _in_list_order(messages):
+            results = (executor or conversion_executor(workers)).run(_run_log, jobs)  # in the order logs finish
+            for arrived, (kind, position, payload) in _in_list_order(message for _, message in results):
                 if arrived:
                     result.samples += len(payload) if kind == "done" else 0
                     rate = result.samples / max(time.perf_counter() - started, 1e-9)
@@ -409,6 +396,8 @@ def convert(
                     errors.write(json.dumps(entry) + "\n")
                     errors.flush()
             assembler.flush()
+        except WorkerDied as err:  # a crash, or Ray's retries spent: the run ends, a rerun resumes it
+            raise RuntimeError(f"a conversion worker died; rerun the same command to resume ({err})") from err
         finally:
             assembler.abort()
     _drop_unrecorded(out, records)
@@ -437,7 +426,11 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         "adapter_version": adapter.version,
         "adapter_options": identity_of(adapter)["options"],
         "source": str(src),
-        "counts": _counts(rows),
+        "counts": {
+            "samples": len(rows),
+            "logs": len({row["log"] for row in rows}),
+            "by_split": dict(Counter(row["split"] for row in rows)),
+        },
         "shards": {record["shard"]: sum(len(r) for _, r in record["logs"]) for record in records},
         "statistics": _statistics(table) if rows else {},
         "skipped_logs": result.skipped,
@@ -446,11 +439,6 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         **adapter.describe(),
     }
     write_text(out / INFO, json.dumps(info, indent=2, allow_nan=False))
-
-
-def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    by_split = dict(Counter(row["split"] for row in rows))
-    return {"samples": len(rows), "logs": len({row["log"] for row in rows}), "by_split": by_split}
 
 
 def _statistics(table: "pa.Table") -> dict[str, Any]:
