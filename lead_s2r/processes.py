@@ -20,7 +20,6 @@ import multiprocessing as mp
 import os
 import pickle
 import threading
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -28,9 +27,6 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from lead_s2r.errors import UserError
-
-#: Seconds between two looks at the parent; a worker outlives a killed driver by at most this.
-PARENT_POLL_S = 0.2
 
 #: The environment variable that tells a starting forkserver how the caller's ``__main__`` was started.
 FORKSERVER_MAIN = "LEAD_S2R_FORKSERVER_MAIN"
@@ -49,21 +45,14 @@ def exit_with_parent() -> None:
     """End this worker process as soon as the process that started it ends; call it first thing in a worker.
 
     The parent is the one multiprocessing records (``parent_process()``: the driver, also for a forkserver's
-    children), watched through its sentinel pipe, which the kernel closes when the driver dies, zombie or not;
-    elsewhere the parent pid is polled. The exit is immediate (``os._exit``): whatever the worker was writing is left
-    partial, for the resuming run to drop."""
+    children), watched through its sentinel pipe, which the kernel closes when the driver dies, zombie or not. The
+    exit is immediate (``os._exit``): whatever the worker was writing is left partial, for the resuming run to drop."""
     parent = mp.parent_process()
-    if parent is not None:
-        wait_for_parent = parent.join
-    else:
-        parent_pid = os.getppid()
-
-        def wait_for_parent() -> None:
-            while os.getppid() == parent_pid:
-                time.sleep(PARENT_POLL_S)
+    if parent is None:
+        raise RuntimeError("exit_with_parent() is for a worker process multiprocessing started: it has no parent here")
 
     def watch() -> None:
-        wait_for_parent()
+        parent.join()
         os._exit(1)
 
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
@@ -138,15 +127,13 @@ class ProcessExecutor(Executor):
         self.workers, self.preload, self.initializer = workers, list(preload), initializer
 
     def run(self, job: Job, arguments: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
-        context = mp.get_context("forkserver")
         _start_forkserver(self.preload)
         pool = ProcessPoolExecutor(
             min(self.workers, max(len(arguments), 1)),
-            mp_context=context,
+            mp_context=mp.get_context("forkserver"),
             initializer=_start_worker,
             initargs=(self.initializer,),
         )
-        finished = False
         try:
             futures: dict[Future[Any], int] = {pool.submit(job, *args): i for i, args in enumerate(arguments)}
             pending = set(futures)
@@ -158,10 +145,10 @@ class ProcessExecutor(Executor):
                     except BrokenProcessPool as err:
                         raise WorkerDied("a worker process died") from err
                     yield futures[future], result
-            finished = True
+        except BaseException:  # closed early, or failed: jobs handed to a worker cannot be cancelled, only stopped
+            _terminate_workers(pool)
+            raise
         finally:
-            if not finished:  # jobs already handed to a worker cannot be cancelled, only stopped
-                _terminate_workers(pool)
             pool.shutdown(wait=True, cancel_futures=True)
 
 
