@@ -290,16 +290,11 @@ def _check_value(key: str, name: str, spec: FieldSpec, value: Any) -> None:
     elif spec.ext == "npz":
         if not isinstance(value, dict) or not all(isinstance(v, np.ndarray) for v in value.values()):
             raise SchemaError(key, name, "expected a dict of numpy arrays")
-    else:
-        _check_array(key, name, spec, value)
-
-
-def _check_array(key: str, name: str, spec: FieldSpec, value: Any) -> None:
-    if not isinstance(value, np.ndarray):
+    elif not isinstance(value, np.ndarray):
         raise SchemaError(key, name, f"expected a numpy array, got {type(value).__name__}")
-    if value.dtype != np.dtype(spec.dtype):
+    elif value.dtype != np.dtype(spec.dtype):
         raise SchemaError(key, name, f"expected dtype {spec.dtype}, got {value.dtype}")
-    if spec.shape is not None:
+    elif spec.shape is not None:
         ok = value.ndim == len(spec.shape) and all(
             want is None or want == got for want, got in zip(spec.shape, value.shape, strict=False)
         )
