@@ -163,20 +163,6 @@ def one_thread_per_worker() -> None:
 # --------------------------------------------------------------------------- main side
 
 
-def _read_progress(out: Path) -> list[dict[str, Any]]:
-    """Recorded shards; a torn last line (killed while appending) is ignored."""
-    path = out / PROGRESS
-    if not path.exists():
-        return []
-    records = []
-    for line in path.read_text().splitlines():
-        try:
-            records.append(json.loads(line))
-        except json.JSONDecodeError:
-            break
-    return records
-
-
 def _prepare(out: Path, force: bool, identity: dict[str, Any]) -> list[dict[str, Any]]:
     """Make ``out`` ready: wipe it with ``force``, else refuse another conversion's folder, drop partial and
     unrecorded shards and keep the records."""
@@ -193,7 +179,13 @@ def _prepare(out: Path, force: bool, identity: dict[str, Any]) -> list[dict[str,
         write_text(out / IDENTITY, json.dumps(identity, indent=2) + "\n")
     except OSError as err:
         raise UserError(f"--out {out}: cannot write there ({err.strerror or err}); choose a writable folder") from None
-    records = _read_progress(out)
+    records = []
+    lines = (out / PROGRESS).read_text().splitlines() if (out / PROGRESS).exists() else []
+    for line in lines:
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:  # a torn last line: killed while appending
+            break
     _drop_unrecorded(out, records)
     with open(out / PROGRESS, "w") as file:  # rewrite without a torn tail
         file.writelines(json.dumps(record) + "\n" for record in records)
