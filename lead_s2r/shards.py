@@ -241,12 +241,10 @@ class TarSamples:
                     raw = {"__key__": key, "__url__": shard}
                 if suffix in raw:
                     raise ShardError(f"{shard}: sample {key!r} holds {suffix!r} twice; {_REDO}")
-                raw[suffix] = self._member_bytes(file, member) if self._reads(suffix) else b""
+                wanted = self.wanted is None or suffix.rsplit(".", 1)[0] in self.wanted
+                raw[suffix] = self._member_bytes(file, member) if wanted else b""
             if raw is not None:
                 yield raw
-
-    def _reads(self, suffix: str) -> bool:
-        return self.wanted is None or suffix.rsplit(".", 1)[0] in self.wanted
 
     @staticmethod
     def _member_bytes(file: BinaryIO, member: tarfile.TarInfo) -> bytes:
