@@ -88,8 +88,7 @@ def flip_y(values: np.ndarray, columns: tuple[int, ...] = (1,)) -> np.ndarray:
     Use ``columns=(1,)`` for points and vectors, ``(1, 2)`` for ``[x, y, yaw]`` poses. Its own inverse.
     """
     out = np.array(values, dtype=np.float64, copy=True)
-    for column in columns:
-        out[..., column] = -out[..., column]
+    out[..., list(columns)] = -out[..., list(columns)]
     return out
 
 
