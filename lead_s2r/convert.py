@@ -67,7 +67,6 @@ if TYPE_CHECKING:
     import pyarrow as pa
 
 PROGRESS = "progress.jsonl"
-_DIED = "a conversion worker died; rerun the same command to resume"
 
 
 @dataclass
@@ -164,20 +163,6 @@ def one_thread_per_worker() -> None:
 # --------------------------------------------------------------------------- main side
 
 
-def _read_progress(out: Path) -> list[dict[str, Any]]:
-    """Recorded shards; a torn last line (killed while appending) is ignored."""
-    path = out / PROGRESS
-    if not path.exists():
-        return []
-    records = []
-    for line in path.read_text().splitlines():
-        try:
-            records.append(json.loads(line))
-        except json.JSONDecodeError:
-            break
-    return records
-
-
 def _prepare(out: Path, force: bool, identity: dict[str, Any]) -> list[dict[str, Any]]:
     """Make ``out`` ready: wipe it with ``force``, else refuse another conversion's folder, drop partial and
     unrecorded shards and keep the records."""
@@ -194,7 +179,13 @@ def _prepare(out: Path, force: bool, identity: dict[str, Any]) -> list[dict[str,
         write_text(out / IDENTITY, json.dumps(identity, indent=2) + "\n")
     except OSError as err:
         raise UserError(f"--out {out}: cannot write there ({err.strerror or err}); choose a writable folder") from None
-    records = _read_progress(out)
+    records = []
+    lines = (out / PROGRESS).read_text().splitlines() if (out / PROGRESS).exists() else []
+    for line in lines:
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:  # a torn last line: killed while appending
+            break
     _drop_unrecorded(out, records)
     with open(out / PROGRESS, "w") as file:  # rewrite without a torn tail
         file.writelines(json.dumps(record) + "\n" for record in records)
@@ -273,19 +264,6 @@ def _next_shard_index(records: list[dict[str, Any]]) -> int:
 def conversion_executor(workers: int = 1, executor: str = "processes", address: str | None = None) -> Executor:
     """The executor of ``workers`` local processes (this one alone for 1), or of the Ray cluster at ``address``."""
     return make_executor(workers, executor, address, preload=[__name__], initializer=one_thread_per_worker)
-
-
-def _messages(
-    adapter: Adapter, logs: list[LogRef], out: Path, run: str, executor: Executor
-) -> Iterator[tuple[str, int, Any]]:
-    """Convert ``logs`` into fragments with ``executor`` and yield :func:`_run_log`'s messages in the order the logs
-    finish. A worker that died for good (a crash, or Ray's retries spent) ends the run: a rerun resumes it."""
-    jobs = [(adapter, out, run, position, log) for position, log in enumerate(logs)]
-    try:
-        for _, message in executor.run(_run_log, jobs):
-            yield message
-    except WorkerDied as err:
-        raise RuntimeError(f"{_DIED} ({err})") from err
 
 
 def _in_list_order(messages: Iterator[tuple[str, int, Any]]) -> Iterator[tuple[bool, tuple[str, int, Any]]]:
@@ -389,9 +367,10 @@ def convert(
             records.append(entry)
 
         assembler = _Assembler(out, adapter.name, shard_size, _next_shard_index(records), record)
+        jobs = [(adapter, out, run, position, log) for position, log in enumerate(todo)]
         try:
-            messages = _messages(adapter, todo, out, run, executor or conversion_executor(workers))
-            for arrived, (kind, position, payload) in _in_list_order(messages):
+            results = (executor or conversion_executor(workers)).run(_run_log, jobs)  # in the order logs finish
+            for arrived, (kind, position, payload) in _in_list_order(message for _, message in results):
                 if arrived:
                     result.samples += len(payload) if kind == "done" else 0
                     rate = result.samples / max(time.perf_counter() - started, 1e-9)
@@ -409,6 +388,8 @@ def convert(
                     errors.write(json.dumps(entry) + "\n")
                     errors.flush()
             assembler.flush()
+        except WorkerDied as err:  # a crash, or Ray's retries spent: the run ends, a rerun resumes it
+            raise RuntimeError(f"a conversion worker died; rerun the same command to resume ({err})") from err
         finally:
             assembler.abort()
     _drop_unrecorded(out, records)
@@ -437,7 +418,11 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         "adapter_version": adapter.version,
         "adapter_options": identity_of(adapter)["options"],
         "source": str(src),
-        "counts": _counts(rows),
+        "counts": {
+            "samples": len(rows),
+            "logs": len({row["log"] for row in rows}),
+            "by_split": dict(Counter(row["split"] for row in rows)),
+        },
         "shards": {record["shard"]: sum(len(r) for _, r in record["logs"]) for record in records},
         "statistics": _statistics(table) if rows else {},
         "skipped_logs": result.skipped,
@@ -446,11 +431,6 @@ def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]
         **adapter.describe(),
     }
     write_text(out / INFO, json.dumps(info, indent=2, allow_nan=False))
-
-
-def _counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    by_split = dict(Counter(row["split"] for row in rows))
-    return {"samples": len(rows), "logs": len({row["log"] for row in rows}), "by_split": by_split}
 
 
 def _statistics(table: "pa.Table") -> dict[str, Any]:

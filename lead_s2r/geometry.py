@@ -30,9 +30,8 @@ def rotate(points: np.ndarray, yaw: np.ndarray | float) -> np.ndarray:
 def to_local(poses: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """Express global poses (..., 3) in the frame of the ``origin`` pose (3,)."""
     poses = np.asarray(poses, dtype=np.float64)
-    origin = np.asarray(origin, dtype=np.float64)
-    local = rotate(poses - np.r_[origin[:2], 0.0], -origin[2])
-    local[..., 2] = wrap_angle(poses[..., 2] - origin[2])
+    local = points_to_local(poses, origin)
+    local[..., 2] = wrap_angle(poses[..., 2] - float(origin[2]))
     return local
 
 
@@ -89,8 +88,7 @@ def flip_y(values: np.ndarray, columns: tuple[int, ...] = (1,)) -> np.ndarray:
     Use ``columns=(1,)`` for points and vectors, ``(1, 2)`` for ``[x, y, yaw]`` poses. Its own inverse.
     """
     out = np.array(values, dtype=np.float64, copy=True)
-    for column in columns:
-        out[..., column] = -out[..., column]
+    out[..., list(columns)] = -out[..., list(columns)]
     return out
 
 

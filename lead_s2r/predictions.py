@@ -61,30 +61,26 @@ class Prediction:
     inference: int = 0
 
     def __post_init__(self) -> None:
-        check(self)
-
-
-def check(prediction: Prediction) -> None:
-    """Raise :class:`PredictionError` naming the key if ``prediction`` breaks the format."""
-    key = prediction.key
-    if not isinstance(key, str) or not key:
-        raise PredictionError(f"prediction with missing key (got {key!r}, dataset {prediction.dataset!r})")
-    t, xy, yaw = np.asarray(prediction.t), np.asarray(prediction.xy), np.asarray(prediction.yaw)
-    if t.ndim != 1 or xy.shape != (len(t), 2) or yaw.shape != t.shape:
-        raise PredictionError(
-            f"prediction {key!r}: ragged lengths: t {t.shape}, xy {xy.shape} (want (T, 2)), yaw {yaw.shape}"
-        )
-    if len(t) == 0:
-        raise PredictionError(f"prediction {key!r}: empty trajectory")
-    if not (np.isfinite(t).all() and np.isfinite(xy).all()):
-        raise PredictionError(f"prediction {key!r}: t, x, y must be finite (found NaN or inf)")
-    if np.isinf(yaw).any():
-        raise PredictionError(f"prediction {key!r}: yaw must not be infinite")
-    if t[0] <= 0 or (np.diff(t) <= 0).any():
-        raise PredictionError(f"prediction {key!r}: t must be > 0 and strictly increasing, got {t.tolist()}")
-    probability = prediction.probability
-    if not (np.isfinite(probability) and 0.0 <= probability <= 1.0):
-        raise PredictionError(f"prediction {key!r}: probability must lie in [0, 1], got {probability!r}")
+        """Raise :class:`PredictionError` naming the key if this prediction breaks the format."""
+        key = self.key
+        if not isinstance(key, str) or not key:
+            raise PredictionError(f"prediction with missing key (got {key!r}, dataset {self.dataset!r})")
+        t, xy, yaw = np.asarray(self.t), np.asarray(self.xy), np.asarray(self.yaw)
+        if t.ndim != 1 or xy.shape != (len(t), 2) or yaw.shape != t.shape:
+            raise PredictionError(
+                f"prediction {key!r}: ragged lengths: t {t.shape}, xy {xy.shape} (want (T, 2)), yaw {yaw.shape}"
+            )
+        if len(t) == 0:
+            raise PredictionError(f"prediction {key!r}: empty trajectory")
+        if not (np.isfinite(t).all() and np.isfinite(xy).all()):
+            raise PredictionError(f"prediction {key!r}: t, x, y must be finite (found NaN or inf)")
+        if np.isinf(yaw).any():
+            raise PredictionError(f"prediction {key!r}: yaw must not be infinite")
+        if t[0] <= 0 or (np.diff(t) <= 0).any():
+            raise PredictionError(f"prediction {key!r}: t must be > 0 and strictly increasing, got {t.tolist()}")
+        probability = self.probability
+        if not (np.isfinite(probability) and 0.0 <= probability <= 1.0):
+            raise PredictionError(f"prediction {key!r}: probability must lie in [0, 1], got {probability!r}")
 
 
 def write_predictions(path: str | Path, predictions: Iterable[Prediction]) -> Path:
@@ -116,16 +112,12 @@ def read_predictions(path: str | Path) -> list[Prediction]:
     missing = [name for name in REQUIRED_COLUMNS if name not in table.column_names]
     if missing:
         raise PredictionError(f"{path}: missing column(s) {missing}; expected {list(REQUIRED_COLUMNS)}")
-    rows = table.to_pydict()
-    count = table.num_rows
-    probabilities = rows.get("probability", [None] * count)
-    inferences = rows.get("inference", [None] * count)
     predictions = []
-    for row in range(count):
-        key = rows["key"][row]
+    for index, row in enumerate(table.to_pylist()):
+        key = row["key"]
         if key is None or key == "":
-            raise PredictionError(f"{path}: row {row} has a missing key")
-        arrays = [rows[name][row] for name in ("t", "x", "y", "yaw")]
+            raise PredictionError(f"{path}: row {index} has a missing key")
+        arrays = [row[name] for name in ("t", "x", "y", "yaw")]
         if any(array is None for array in arrays):
             raise PredictionError(f"{path}: prediction {key!r}: t, x, y and yaw must all be given")
         t, x, y, yaw = (np.asarray(array, np.float32) for array in arrays)
@@ -133,23 +125,23 @@ def read_predictions(path: str | Path) -> list[Prediction]:
             raise PredictionError(
                 f"{path}: prediction {key!r}: ragged lengths t {len(t)}, x {len(x)}, y {len(y)}, yaw {len(yaw)}"
             )
-        probability = probabilities[row]
+        probability = row.get("probability")
         try:
             predictions.append(
                 Prediction(
                     key=key,
-                    dataset=rows["dataset"][row] or "",
+                    dataset=row["dataset"] or "",
                     t=t,
                     xy=np.stack([x, y], axis=-1),
                     yaw=yaw,
                     probability=1.0 if probability is None else float(probability),
-                    inference=int(inferences[row] or 0),
+                    inference=int(row.get("inference") or 0),
                 )
             )
         except PredictionError as err:
             raise PredictionError(f"{path}: {err}") from None
     _check_unique(predictions)
-    if "probability" not in rows:
+    if "probability" not in table.column_names:
         multi = [key for key, group in group_by_key(predictions).items() if len(group) > 1]
         if multi:
             raise PredictionError(f"{path}: several inferences for {multi[0]!r} but no 'probability' column")

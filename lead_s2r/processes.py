@@ -20,7 +20,6 @@ import multiprocessing as mp
 import os
 import pickle
 import threading
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -28,9 +27,6 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from lead_s2r.errors import UserError
-
-#: Seconds between two looks at the parent; a worker outlives a killed driver by at most this.
-PARENT_POLL_S = 0.2
 
 #: The environment variable that tells a starting forkserver how the caller's ``__main__`` was started.
 FORKSERVER_MAIN = "LEAD_S2R_FORKSERVER_MAIN"
@@ -49,21 +45,14 @@ def exit_with_parent() -> None:
     """End this worker process as soon as the process that started it ends; call it first thing in a worker.
 
     The parent is the one multiprocessing records (``parent_process()``: the driver, also for a forkserver's
-    children), watched through its sentinel pipe, which the kernel closes when the driver dies, zombie or not;
-    elsewhere the parent pid is polled. The exit is immediate (``os._exit``): whatever the worker was writing is left
-    partial, for the resuming run to drop."""
+    children), watched through its sentinel pipe, which the kernel closes when the driver dies, zombie or not. The
+    exit is immediate (``os._exit``): whatever the worker was writing is left partial, for the resuming run to drop."""
     parent = mp.parent_process()
-    if parent is not None:
-        wait_for_parent = parent.join
-    else:
-        parent_pid = os.getppid()
-
-        def wait_for_parent() -> None:
-            while os.getppid() == parent_pid:
-                time.sleep(PARENT_POLL_S)
+    if parent is None:
+        raise RuntimeError("exit_with_parent() is for a worker process multiprocessing started: it has no parent here")
 
     def watch() -> None:
-        wait_for_parent()
+        parent.join()
         os._exit(1)
 
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
@@ -76,11 +65,6 @@ class Executor(ABC):
     def run(self, job: Job, arguments: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
         """Every job's result with its index in ``arguments``; an exception a job raises is raised here. Closing
         the iterator early (or an exception in the caller's loop) cancels the jobs not yet started."""
-
-    @property
-    @abstractmethod
-    def description(self) -> str:
-        """A few words for logs and benchmarks: ``"2 processes"``, ``"Ray at 10.0.0.1:6379"``."""
 
     def session(self) -> contextlib.AbstractContextManager[None]:
         """A context in which several :meth:`run` calls share what each would set up alone (a Ray connection)."""
@@ -124,10 +108,6 @@ class InlineExecutor(Executor):
         for index, args in enumerate(arguments):
             yield index, job(*args)
 
-    @property
-    def description(self) -> str:
-        return "this process"
-
 
 def _start_worker(initializer: Callable[[], None] | None) -> None:
     exit_with_parent()
@@ -146,20 +126,14 @@ class ProcessExecutor(Executor):
             raise UserError(f"--workers {workers}: give at least 1")
         self.workers, self.preload, self.initializer = workers, list(preload), initializer
 
-    @property
-    def description(self) -> str:
-        return f"{self.workers} processes"
-
     def run(self, job: Job, arguments: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
-        context = mp.get_context("forkserver")
         _start_forkserver(self.preload)
         pool = ProcessPoolExecutor(
             min(self.workers, max(len(arguments), 1)),
-            mp_context=context,
+            mp_context=mp.get_context("forkserver"),
             initializer=_start_worker,
             initargs=(self.initializer,),
         )
-        finished = False
         try:
             futures: dict[Future[Any], int] = {pool.submit(job, *args): i for i, args in enumerate(arguments)}
             pending = set(futures)
@@ -171,10 +145,10 @@ class ProcessExecutor(Executor):
                     except BrokenProcessPool as err:
                         raise WorkerDied("a worker process died") from err
                     yield futures[future], result
-            finished = True
+        except BaseException:  # closed early, or failed: jobs handed to a worker cannot be cancelled, only stopped
+            _terminate_workers(pool)
+            raise
         finally:
-            if not finished:  # jobs already handed to a worker cannot be cancelled, only stopped
-                _terminate_workers(pool)
             pool.shutdown(wait=True, cancel_futures=True)
 
 
@@ -202,17 +176,6 @@ def _terminate_workers(pool: ProcessPoolExecutor) -> None:
         process.terminate()
 
 
-def import_ray() -> Any:
-    """The ``ray`` module, or a UserError saying how to install it."""
-    try:
-        import ray
-    except ModuleNotFoundError:
-        raise UserError(
-            "--executor ray needs Ray: pip install 'lead-s2r[ray]' on every node (see docs/scaling.md)"
-        ) from None
-    return ray
-
-
 def _ray_job(initializer: Callable[[], None] | None, job: Job, *args: Any) -> Any:
     """A job on a Ray worker: Ray reuses its workers between tasks, so the initializer is cheap and idempotent."""
     if initializer is not None:
@@ -227,12 +190,14 @@ class RayExecutor(Executor):
     :class:`WorkerDied`. Ray is connected for the run and disconnected after, unless the caller had connected it."""
 
     def __init__(self, address: str | None = None, initializer: Callable[[], None] | None = None) -> None:
-        self.ray = import_ray()
+        try:
+            import ray
+        except ModuleNotFoundError:
+            raise UserError(
+                "--executor ray needs Ray: pip install 'lead-s2r[ray]' on every node (see docs/scaling.md)"
+            ) from None
+        self.ray = ray
         self.address, self.initializer = address, initializer
-
-    @property
-    def description(self) -> str:
-        return f"Ray at {self.address or 'a local cluster'}"
 
     @contextlib.contextmanager
     def session(self) -> Iterator[None]:

@@ -232,11 +232,6 @@ def field_spec(name: str) -> FieldSpec:
 REQUIRED_FIELDS = tuple(name for name, spec in FIELDS.items() if spec.required)
 
 
-def optional_fields(sample: dict[str, Any]) -> list[str]:
-    """Names of the optional fields present in ``sample`` (each must be flagged in ``meta.has``)."""
-    return sorted(name for name in sample if name != "__key__" and name not in REQUIRED_FIELDS)
-
-
 def navsim_scene_token(sample: dict[str, Any]) -> str:
     """NAVSIM's scene token of a sample (the key of its CSV rows and GTRS's pickles); the sample key where the
     converter kept none."""
@@ -295,16 +290,11 @@ def _check_value(key: str, name: str, spec: FieldSpec, value: Any) -> None:
     elif spec.ext == "npz":
         if not isinstance(value, dict) or not all(isinstance(v, np.ndarray) for v in value.values()):
             raise SchemaError(key, name, "expected a dict of numpy arrays")
-    else:
-        _check_array(key, name, spec, value)
-
-
-def _check_array(key: str, name: str, spec: FieldSpec, value: Any) -> None:
-    if not isinstance(value, np.ndarray):
+    elif not isinstance(value, np.ndarray):
         raise SchemaError(key, name, f"expected a numpy array, got {type(value).__name__}")
-    if value.dtype != np.dtype(spec.dtype):
+    elif value.dtype != np.dtype(spec.dtype):
         raise SchemaError(key, name, f"expected dtype {spec.dtype}, got {value.dtype}")
-    if spec.shape is not None:
+    elif spec.shape is not None:
         ok = value.ndim == len(spec.shape) and all(
             want is None or want == got for want, got in zip(spec.shape, value.shape, strict=False)
         )
@@ -366,7 +356,7 @@ def _check_meta(key: str, sample: dict[str, Any]) -> None:
     has = meta["has"]
     if not isinstance(has, dict):
         raise SchemaError(key, "meta.has", "expected a dict of field name -> bool")
-    for name in optional_fields(sample):
+    for name in sorted(set(sample) - {"__key__", *REQUIRED_FIELDS}):
         if has.get(name) is not True:
             raise SchemaError(key, f"meta.has.{name}", "field is present but not flagged true")
     for name, flag in has.items():

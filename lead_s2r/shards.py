@@ -109,15 +109,6 @@ def write_sample(file: BinaryIO, sample: dict[str, Any]) -> None:
         file.write(b"\0" * (-len(data) % _BLOCK))
 
 
-def _append_file(file: BinaryIO, path: Path) -> None:
-    """Copy the bytes of ``path`` to the end of ``file``: in the kernel where it can, with no trip through Python."""
-    file.flush()
-    with open(path, "rb") as source:
-        if not _copy_in_kernel(source.fileno(), file.fileno(), os.fstat(source.fileno()).st_size):
-            shutil.copyfileobj(source, file)
-    file.seek(0, os.SEEK_END)  # the buffered file object learns where the kernel left the end
-
-
 def _copy_in_kernel(source: int, target: int, size: int) -> bool:
     """``copy_file_range`` of ``size`` bytes at both files' positions; False, having copied nothing, where the
     platform (not Linux) or the file system refuses it."""
@@ -151,8 +142,13 @@ class ShardFile:
         self.count += 1
 
     def append(self, fragment: Path, count: int) -> None:
-        """Append the ``count`` samples :func:`write_sample` wrote to the file ``fragment``, byte for byte."""
-        _append_file(self._file, fragment)
+        """Append the ``count`` samples :func:`write_sample` wrote to the file ``fragment``, byte for byte: in the
+        kernel where it can, with no trip through Python."""
+        self._file.flush()
+        with open(fragment, "rb") as source:
+            if not _copy_in_kernel(source.fileno(), self._file.fileno(), os.fstat(source.fileno()).st_size):
+                shutil.copyfileobj(source, self._file)
+        self._file.seek(0, os.SEEK_END)  # the buffered file object learns where the kernel left the end
         self.count += count
 
     def close(self) -> Path:
@@ -181,23 +177,14 @@ def shard_paths(path: str | Path) -> list[str]:
         shards = sorted(str(p) for p in folder.glob("*.tar"))
         if not shards:
             raise ShardError(f"no shards (*.tar) under {folder}; give a folder written by lead-s2r convert")
-    for shard in shards:
-        check_whole(shard)
+    for shard in shards:  # whole: ends with the end-of-archive blocks a closed shard has
+        with open(shard, "rb") as file:
+            size = file.seek(0, os.SEEK_END)
+            file.seek(max(size - _END_OF_ARCHIVE, 0))
+            tail = file.read()
+        if size % _BLOCK or size < _END_OF_ARCHIVE or tail.count(0) != len(tail):
+            raise ShardError(f"{shard}: truncated tar ({size} bytes, no end-of-archive blocks); {_REDO}")
     return shards
-
-
-def check_whole(shard: str | Path) -> None:
-    """Raise :class:`ShardError` unless ``shard`` ends with the end-of-archive blocks a closed shard has."""
-    with open(shard, "rb") as file:
-        size = file.seek(0, os.SEEK_END)
-        file.seek(max(size - _END_OF_ARCHIVE, 0))
-        tail = file.read()
-    if size % _BLOCK or size < _END_OF_ARCHIVE or tail.count(0) != len(tail):
-        raise ShardError(f"{shard}: truncated tar ({size} bytes, no end-of-archive blocks); {_REDO}")
-
-
-def _unreadable(shard: str, problem: str) -> ShardError:
-    return ShardError(f"{shard}: cannot be read ({problem}); the tar is truncated or corrupt: {_REDO}")
 
 
 #: webdataset's split of a member name into the sample key and the field's suffix (``tariterators.base_plus_ext``),
@@ -237,7 +224,8 @@ class TarSamples:
                 file.seek(offset)
                 yield from self._samples(shard, file)
         except (OSError, tarfile.TarError) as err:
-            raise _unreadable(shard, (err.strerror if isinstance(err, OSError) else None) or str(err)) from err
+            problem = (err.strerror if isinstance(err, OSError) else None) or str(err)
+            raise ShardError(f"{shard}: cannot be read ({problem}); the tar is truncated or corrupt: {_REDO}") from err
 
     def _samples(self, shard: str, file: BinaryIO) -> Iterator[dict[str, Any]]:
         with tarfile.open(fileobj=file, mode="r:") as tar:  # reads from where the file stands
@@ -253,12 +241,10 @@ class TarSamples:
                     raw = {"__key__": key, "__url__": shard}
                 if suffix in raw:
                     raise ShardError(f"{shard}: sample {key!r} holds {suffix!r} twice; {_REDO}")
-                raw[suffix] = self._member_bytes(file, member) if self._reads(suffix) else b""
+                wanted = self.wanted is None or suffix.rsplit(".", 1)[0] in self.wanted
+                raw[suffix] = self._member_bytes(file, member) if wanted else b""
             if raw is not None:
                 yield raw
-
-    def _reads(self, suffix: str) -> bool:
-        return self.wanted is None or suffix.rsplit(".", 1)[0] in self.wanted
 
     @staticmethod
     def _member_bytes(file: BinaryIO, member: tarfile.TarInfo) -> bytes:
