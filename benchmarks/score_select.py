@@ -18,7 +18,7 @@ from rich.console import Console
 
 from lead_s2r.demo.quickstart import prepare
 from lead_s2r.demo.table4 import EVAL_SPLITS, PERCEPTION_TAGS
-from lead_s2r.scoring.run import SampleCache, choose_samples, make_scorer, select_samples
+from lead_s2r.scoring.run import SampleCache, choose_samples, make_scorer
 from lead_s2r.shards import read_samples
 
 
@@ -35,8 +35,8 @@ def main() -> None:
             baseline, decode_all = timed(
                 lambda: [s for s in read_samples(data, fields=fields) if s["meta"]["split"] == split]
             )
-            chosen, manifest_first = timed(lambda: select_samples([data], fields, split))
-            tagged, with_tag = timed(lambda: select_samples([data], fields, split, tag=tag))
+            chosen, manifest_first = timed(lambda: choose_samples([data], fields, split)[0])
+            tagged, with_tag = timed(lambda: choose_samples([data], fields, split, tag=tag)[0])
             cache = SampleCache()
             choose_samples([data], fields, split, cache=cache)
             (again, _), cached = timed(partial(choose_samples, [data], fields, split, cache=cache))

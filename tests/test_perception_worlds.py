@@ -16,7 +16,7 @@ from lead_s2r.cli import main
 from lead_s2r.convert import convert
 from lead_s2r.registry import get_adapter
 from lead_s2r.scoring import run
-from lead_s2r.scoring.run import planner_predictions, score_predictions, select_samples
+from lead_s2r.scoring.run import choose_samples, planner_predictions, score_predictions
 from lead_s2r.shards import load_manifest, read_samples
 from lead_s2r.synthetic import carla_lead, pedestrians_ahead, wod_e2e
 from lead_s2r.synthetic import navsim as synth
@@ -145,7 +145,7 @@ def test_a_tag_decodes_only_the_tagged_samples_the_same_as_decoding_all(navsim_w
     _, data = navsim_world
     fields = ("future", "scoring")
     everything = {sample["__key__"]: sample for sample in read_samples(data, fields=fields)}
-    chosen = select_samples([data], fields, "test", tag=TAG)
+    chosen = choose_samples([data], fields, "test", tag=TAG)[0]
     tagged = [key for key, sample in everything.items() if TAG in sample["meta"]["tags"]]
     assert [sample["__key__"] for sample in chosen] == decoded == tagged and 0 < len(tagged) < len(everything)
     assert pickle.dumps(chosen) == pickle.dumps([everything[key] for key in tagged])  # decoded as read_samples does

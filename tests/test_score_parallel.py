@@ -19,7 +19,7 @@ from lead_s2r.processes import InlineExecutor, Job
 from lead_s2r.scoring import run
 from lead_s2r.scoring.baselines import predict_constant_velocity
 from lead_s2r.scoring.navsim import PDMSScorer
-from lead_s2r.scoring.run import planner_predictions, select_samples
+from lead_s2r.scoring.run import choose_samples, planner_predictions
 from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import wod_e2e
 from lead_s2r_adapters.wod_e2e import WodE2EAdapter
@@ -107,6 +107,6 @@ def test_samples_decoded_in_parts_are_the_samples_one_process_decodes(navsim_dat
     whole = list(read_samples(folder, fields=PDMSScorer.fields))  # one process, webdataset's reader
     monkeypatch.setattr(run, "SAMPLES_PER_READ", 4)
     executor = CountingExecutor()
-    parts = select_samples([folder], PDMSScorer.fields, None, executor)
+    parts = choose_samples([folder], PDMSScorer.fields, None, executor)[0]
     assert executor.jobs == 4  # 14 samples of one shard in parts of 4
     assert pickle.dumps(parts) == pickle.dumps(whole)  # the same samples, fields and arrays, in the same order

@@ -6,6 +6,7 @@ import numpy as np
 
 from lead_s2r.predictions import Prediction, PredictionError
 from lead_s2r.schema import check_trajectory
+from lead_s2r.scoring.navsim_grid import NAVSIM_GRID
 
 
 def constant_turn_rate(speed: float, yaw_rate: float, t: np.ndarray) -> np.ndarray:
@@ -16,10 +17,6 @@ def constant_turn_rate(speed: float, yaw_rate: float, t: np.ndarray) -> np.ndarr
         return np.stack([speed * t, np.zeros_like(t), yaw], axis=1)
     radius = speed / yaw_rate
     return np.stack([radius * np.sin(yaw), radius * (1.0 - np.cos(yaw)), yaw], axis=1)
-
-
-#: NAVSIM's agent output grid: 8 poses at 0.5 s.
-NAVSIM_GRID = 0.5 * np.arange(1, 9)
 
 
 #: The horizon each benchmark scores (NAVSIM's HumanAgent replays 4 s, WOD-E2E's RFS scores 5 s); other datasets

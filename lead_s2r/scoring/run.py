@@ -43,7 +43,7 @@ def planner_predictions(planner: str, data: Path | list[Path], path: Path, split
         raise ValueError(f"unknown planner {planner!r}; choose one of {sorted(PLANNERS)}")
     predict, needs = PLANNERS[planner], PLANNER_NEEDS.get(planner)
     folders = _folders(data)
-    samples = select_samples(folders, ("future",), split)
+    samples = choose_samples(folders, ("future",), split)[0]
     try:
         predictions = [predict(s) for s in samples if needs is None or needs in s]
     except SchemaError as err:  # the data's own values, not a planner's mistake: name where they are
@@ -54,18 +54,6 @@ def planner_predictions(planner: str, data: Path | list[Path], path: Path, split
 
 def _folders(data: Path | list[Path]) -> list[Path]:
     return [Path(folder) for folder in (data if isinstance(data, list | tuple) else [data])]
-
-
-def select_samples(
-    folders: list[Path],
-    fields: tuple[str, ...],
-    split: str | None,
-    executor: Executor | None = None,
-    tag: str | None = None,
-) -> list[dict[str, Any]]:
-    """The samples of ``folders`` of ``split`` (a folder converted from a whole dataset holds several) with ``tag`` in
-    ``meta.tags``, each if given, in shard order (:func:`choose_samples`, without what it passed over)."""
-    return choose_samples(folders, fields, split, executor, tag)[0]
 
 
 class SampleCache(dict[tuple[Any, ...], tuple[list[dict[str, Any]], set[str]]]):
@@ -83,8 +71,9 @@ def choose_samples(
     tag: str | None = None,
     cache: SampleCache | None = None,
 ) -> tuple[list[dict[str, Any]], set[str]]:
-    """:func:`select_samples`, and the keys of ``split``'s samples it passed over for want of ``tag``; from ``cache``
-    when it holds them, else decoded (and kept there).
+    """The samples of ``folders`` of ``split`` (a folder converted from a whole dataset holds several) with ``tag`` in
+    ``meta.tags``, each if given, in shard order, and the keys of ``split``'s samples passed over for want of ``tag``;
+    from ``cache`` when it holds them, else decoded (and kept there).
 
     A folder's manifest says which samples those are, so only they are decoded: NAVSIM's scoring context costs
     about 4 ms a sample, and a held-out split or a tag is a fraction of a folder. ``executor`` decodes them in parts

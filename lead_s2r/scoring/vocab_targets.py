@@ -47,7 +47,7 @@ from lead_s2r.scoring.pdm.sample import NEEDS_MAPS, scene_from_sample
 from lead_s2r.scoring.pdm.score import EPDMS_METRIC, METRIC, METRICS
 from lead_s2r.scoring.pdm.vocabulary import GTRS_INTERVAL_S, GTRS_POSES, PROGRESS_MODES, check_vocabulary
 from lead_s2r.scoring.pdm.vocabulary import score_vocabulary as score_entries
-from lead_s2r.scoring.run import sample_listing, select_samples
+from lead_s2r.scoring.run import choose_samples, sample_listing
 from lead_s2r.shards import load_manifest, read_part, shard_parts
 
 PICKLE = "vocab_scores.pkl"
@@ -295,7 +295,7 @@ def build_vocabulary(
     for folder in data:
         if not folder.is_dir():
             raise UserError(f"--data {folder}: no such folder; give a converted folder")
-    futures = logged_futures(select_samples(data, ("future",), split))
+    futures = logged_futures(choose_samples(data, ("future",), split)[0])
     if len(futures) < size:
         raise UserError(
             f"--data {', '.join(map(str, data))}: {len(futures)} logged futures reach 4 s, fewer than --size {size}; "

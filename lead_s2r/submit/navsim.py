@@ -14,8 +14,8 @@ and holds arrays in numpy 1.x's layout (NAVSIM pins numpy 1.23.4, which cannot i
 Two-stage (navhard): the first stage is every original scene of the split (NAVSIM's ``tokens_stage_one``, here
 the converted non-synthetic samples); the second stage is the reactive synthetic scenes (``reactive_tokens_stage_two``,
 here the converted mapping's ``stage_two_tokens`` in info.json). v2 scores one seed: its scoring script asserts
-one dict per stage list. Poses come from our predictions by
-:func:`lead_s2r.geometry.resample` (the ego at the origin at t = 0 is the first knot; never extrapolated).
+one dict per stage list. Poses come from our predictions by :func:`lead_s2r.scoring.navsim_grid.navsim_poses` (the ego
+at the origin at t = 0 is the first knot; never extrapolated).
 """
 
 import io
@@ -30,8 +30,8 @@ import numpy as np
 from lead_s2r.files import write_bytes
 from lead_s2r.formats import restricted_pickle
 from lead_s2r.formats.foreign_pickle import ForeignClass, ForeignObject, dumps, numpy1_array
-from lead_s2r.geometry import resample
-from lead_s2r.predictions import Prediction
+from lead_s2r.predictions import PredictionError
+from lead_s2r.scoring.navsim_grid import INTERVAL, NUM_POSES, navsim_poses
 from lead_s2r.shards import load_info
 from lead_s2r.submit.common import (
     SubmissionError,
@@ -44,12 +44,9 @@ from lead_s2r.submit.common import (
 
 TRAJECTORY = ForeignClass("navsim.common.dataclasses", "Trajectory")
 TRAJECTORY_SAMPLING = ForeignClass("nuplan.planning.simulation.trajectory.trajectory_sampling", "TrajectorySampling")
-NUM_POSES = 8
 #: The file name the leaderboard looks for in the uploaded Hugging Face model repo.
 UPLOAD_NAME = "submission.pkl"
-INTERVAL = 0.5
 SAMPLING = {"num_poses": NUM_POSES, "time_horizon": NUM_POSES * INTERVAL, "interval_length": INTERVAL}
-POSE_TIMES = INTERVAL * np.arange(1, NUM_POSES + 1)
 #: Server key -> our metadata field.
 METADATA_KEYS = {
     "team_name": "team_name",
@@ -88,21 +85,6 @@ class NavsimMetadata:
     def as_keys(self) -> dict[str, str]:
         """The metadata under the server's key names."""
         return {key: getattr(self, field) for key, field in METADATA_KEYS.items()}
-
-
-def poses(prediction: Prediction) -> np.ndarray:
-    """(8, 3) float32 (x, y, heading) at 0.5 ... 4 s, resampled from a prediction; an error names the key if it
-    has no heading or ends before 4 s."""
-    if np.isnan(prediction.yaw).any():
-        raise SubmissionError(f"prediction {prediction.key!r}: yaw is NaN; NAVSIM needs a heading at every pose")
-    knots = np.vstack([np.zeros((1, 4)), np.column_stack([prediction.t, prediction.xy, prediction.yaw])])
-    out, valid = resample(knots[:, 0], knots[:, 1:], POSE_TIMES, angle_columns=(2,))
-    if not valid.all():
-        raise SubmissionError(
-            f"prediction {prediction.key!r}: ends at {prediction.t[-1]:g} s, NAVSIM needs {NUM_POSES} poses up to "
-            f"{POSE_TIMES[-1]:g} s (never extrapolated)"
-        )
-    return out.astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -148,7 +130,10 @@ def seed_lists(split: Split, predictions: Sequence[Path]) -> dict[str, list[dict
         by_token = {token: best[key] for token, key in split.keys.items() if key in best}
         for name, tokens in split.tokens.items():
             require_coverage(LABELS[name], tokens, by_token, str(path))
-            lists[name].append({token: poses(by_token[token]) for token in tokens})
+            try:
+                lists[name].append({token: navsim_poses(by_token[token]).astype(np.float32) for token in tokens})
+            except PredictionError as err:  # no heading or a horizon short of 4 s: name the file too
+                raise SubmissionError(f"{path}: {err}") from None
     return lists
 
 

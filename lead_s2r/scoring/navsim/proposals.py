@@ -11,15 +11,13 @@ import numpy as np
 
 from lead_s2r.files import write_bytes
 from lead_s2r.geometry import resample
-from lead_s2r.predictions import TIME_TOLERANCE, Prediction, PredictionError, most_probable
+from lead_s2r.predictions import TIME_TOLERANCE, Prediction, most_probable
+from lead_s2r.scoring.navsim_grid import INTERVAL, navsim_poses, require_headings
 from lead_s2r.scoring.pdm.pdm_closed import plan_reference
 from lead_s2r.scoring.pdm.route import RouteError
 from lead_s2r.scoring.pdm.sample import scene_from_sample
 from lead_s2r.scoring.pdm.scene import PDMScene, PreviousFrame
 
-#: NAVSIM's agent output: 8 poses at 0.5 s (``TrajectorySampling(time_horizon=4, interval_length=0.5)``).
-NAVSIM_INTERVAL = 0.5
-NAVSIM_POSES = 8
 #: PDM-Closed's output: 51 poses at 0.1 s from t = 0.
 REFERENCE_SHAPE = (51, 3)
 
@@ -54,22 +52,14 @@ def frame_of(sample: dict[str, Any], predictions: list[Prediction]) -> Frame:
 
 
 def proposal_of(prediction: Prediction) -> tuple[np.ndarray, float]:
-    """A prediction as score_proposals' input: poses (K, 3) at ``interval * (k + 1)`` and the interval."""
-    if np.isnan(prediction.yaw).any():
-        raise PredictionError(f"prediction {prediction.key!r}: yaw is NaN; the PDM score tracks headings, predict them")
+    """A prediction as score_proposals' input: poses (K, 3) at ``interval * (k + 1)`` and the interval; one off
+    such a grid is resampled to NAVSIM's."""
     t = np.asarray(prediction.t, np.float64)
-    poses = np.column_stack([prediction.xy, prediction.yaw]).astype(np.float64)
     interval = float(t[0])
     if np.abs(t - interval * np.arange(1, len(t) + 1)).max() <= TIME_TOLERANCE:
-        return poses, interval
-    grid = NAVSIM_INTERVAL * np.arange(1, NAVSIM_POSES + 1)
-    values, inside = resample(np.r_[0.0, t], np.vstack([np.zeros(3), poses]), grid, angle_columns=(2,))
-    if not inside.all():
-        raise PredictionError(
-            f"prediction {prediction.key!r}: horizon {t[-1]:g} s ends before NAVSIM's {grid[-1]:g} s "
-            "(predictions are never extrapolated)"
-        )
-    return values, NAVSIM_INTERVAL
+        require_headings(prediction)
+        return np.column_stack([prediction.xy, prediction.yaw]).astype(np.float64), interval
+    return navsim_poses(prediction), INTERVAL
 
 
 def previous_frame(current: Frame, earlier: Frame) -> PreviousFrame:

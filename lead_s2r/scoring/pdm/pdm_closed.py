@@ -67,9 +67,6 @@ class PDMClosedConfig:
     map_radius: float = 100.0
 
 
-# --------------------------------------------------------------------------- paths
-
-
 class PDMPath:
     """A discrete path (L, 3): cumulative progress, a linestring, and poses at any progress."""
 
@@ -113,9 +110,6 @@ def offset_path(points: np.ndarray, offset: float) -> np.ndarray:
     )
 
 
-# --------------------------------------------------------------------------- IDM
-
-
 def idm_step(
     progress: np.ndarray,
     velocity: np.ndarray,
@@ -138,9 +132,6 @@ def idm_step(
     acceleration = config.accel_max * (1 - free - (desired_gap / gap) ** 2)
     acceleration = np.clip(acceleration, -config.decel_max, config.accel_max)
     return progress + config.interval * velocity, velocity + config.interval * acceleration
-
-
-# --------------------------------------------------------------------------- forecasts
 
 
 @dataclass
@@ -236,9 +227,6 @@ def red_lights_at_start(scene: PDMScene) -> list[shapely.Polygon]:
     polygons = ragged_polygons(scene.polygon_xy, scene.polygon_offsets)[wanted]
     footprint = ego_footprint(np.zeros(3), scene.vehicle)
     return [polygon for polygon in polygons if not shapely.within(footprint, polygon)]
-
-
-# --------------------------------------------------------------------------- proposals
 
 
 @dataclass

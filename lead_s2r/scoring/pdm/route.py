@@ -123,9 +123,6 @@ class LaneGraph:
         return self.block_in.get(block, [])
 
 
-# --------------------------------------------------------------------------- roadblock graph search
-
-
 def bfs_roadblocks(
     start: int, neighbours: Callable[[int], Sequence[int]], targets: Sequence[int], max_depth: int
 ) -> list[int] | None:
@@ -248,9 +245,6 @@ def _cut_loops(graph: LaneGraph, route: list[int]) -> list[int]:
             return route[:index]
         seen.append(polygon)
     return route
-
-
-# --------------------------------------------------------------------------- lanes and centreline
 
 
 def route_lanes(graph: LaneGraph, route: Sequence[int]) -> list[int]:

@@ -289,12 +289,12 @@ def score_proposals(
     (:func:`~lead_s2r.scoring.pdm.pdm_closed.plan_reference`, which scores its own candidates with this module).
     ``previous`` (EPDMS only): per proposal the frame before it for EC, or None (EC NaN). ``with_states`` adds the
     proposals' simulated states ``(N, 41, 11)`` as ``simulated_states`` (what two-stage EC compares, ``two_stage``);
-    ``with_masked_progress`` adds EP's masked progress [m] of each proposal and of the reference (before the human
-    filter) as ``masked_progress_m`` and ``reference_masked_progress_m`` (what a vocabulary-wide EP needs,
-    ``vocabulary``). ``human_filter=False`` (EPDMS) leaves v2.2's human penalty filter out, as SimScale's
-    vocabulary targets do. ``observation``, ``drivable_map`` and ``red_lights`` (EPDMS) are built from the scene
-    when None. ``simulated``: the rows :func:`simulate_rows` gives for these proposals (a vocabulary simulates many
-    chunks in one call, ``vocabulary``), simulated here when None.
+    ``with_masked_progress`` adds EP's multiplier of each proposal (before the human filter) as
+    ``progress_multiplier`` and the reference's masked progress [m] as ``reference_masked_progress_m`` (what a
+    vocabulary-wide EP needs, ``vocabulary``). ``human_filter=False`` (EPDMS) leaves v2.2's human penalty filter
+    out, as SimScale's vocabulary targets do. ``observation``, ``drivable_map`` and ``red_lights`` (EPDMS) are
+    built from the scene when None. ``simulated``: the rows :func:`simulate_rows` gives for these proposals (a
+    vocabulary simulates many chunks in one call, ``vocabulary``), simulated here when None.
     The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
     ``interpolation``)."""
     if metric not in METRICS:
@@ -334,9 +334,12 @@ def score_proposals(
 
 
 def _masked_progress(scores: dict[str, np.ndarray], multiplier: np.ndarray, agents: slice) -> dict[str, np.ndarray]:
-    """EP's masked progress of the proposals, and the reference's (row 0) repeated beside them."""
-    masked = scores["progress_m"] * multiplier
-    return {"masked_progress_m": masked[agents], "reference_masked_progress_m": np.full_like(masked[agents], masked[0])}
+    """EP's multiplier of the proposals, and the reference's (row 0) masked progress repeated beside them."""
+    reference = scores["progress_m"][0] * multiplier[0]
+    return {
+        "progress_multiplier": multiplier[agents],
+        "reference_masked_progress_m": np.full_like(multiplier[agents], reference),
+    }
 
 
 def _previous_states(scene: PDMScene, previous: PreviousFrame) -> np.ndarray:

@@ -23,7 +23,7 @@ import numpy as np
 
 from lead_s2r.scoring.pdm import epdms
 from lead_s2r.scoring.pdm.map_flags import VOCABULARY_GRID, DrivableMap
-from lead_s2r.scoring.pdm.metrics import PROGRESS_THRESHOLD_M, pdms_v11
+from lead_s2r.scoring.pdm.metrics import ego_progress, ego_progress_v2, pdms_v11
 from lead_s2r.scoring.pdm.observation import V2_STEPS, log_observation
 from lead_s2r.scoring.pdm.scene import PDMScene
 from lead_s2r.scoring.pdm.score import (
@@ -113,26 +113,19 @@ def score_vocabulary(
             part = entries[start : start + chunk]
             parts.append(score_proposals(scene, part, interval, reference, metric, **arguments, simulated=rows))
     columns = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
-    if not wants_masked:
-        return columns
-    masked, reference_masked = columns.pop("masked_progress_m"), columns.pop("reference_masked_progress_m")
-    return _normalised_over_vocabulary(columns, masked, float(reference_masked[0]), metric)
+    return _normalised_over_vocabulary(columns, metric) if wants_masked else columns
 
 
-def _normalised_over_vocabulary(
-    columns: dict[str, np.ndarray], masked: np.ndarray, reference_masked: float, metric: str
-) -> dict[str, np.ndarray]:
-    """The columns with EP (and the score) recomputed over one group: the reference and every entry."""
-    normaliser = max(reference_masked, float(masked.max()))
-    raw = columns["progress_m"]
-    above = normaliser > PROGRESS_THRESHOLD_M
-    out = columns | {"ep_normaliser_m": np.full(len(raw), normaliser)}
+def _normalised_over_vocabulary(columns: dict[str, np.ndarray], metric: str) -> dict[str, np.ndarray]:
+    """The columns with EP (and the score) recomputed over one group: the reference, whose masked progress a
+    multiplier of 1 keeps as it is, and every entry."""
+    raw = np.concatenate([columns.pop("reference_masked_progress_m")[:1], columns["progress_m"]])
+    multiplier = np.concatenate([[1.0], columns.pop("progress_multiplier")])
+    ep, normaliser = (ego_progress_v2 if metric == EPDMS_METRIC else ego_progress)(raw, multiplier, None)
+    out = columns | {epdms.EP: ep[1:], "ep_normaliser_m": normaliser[1:]}
     if metric == EPDMS_METRIC:
-        out[epdms.EP] = np.clip(raw / normaliser, 0.0, 1.0) if above else np.ones(len(raw))
         out["score"] = epdms.epdms(out)
         return out
-    multiplier = columns[epdms.NC] * columns[epdms.DAC]
-    out[epdms.EP] = masked / normaliser if above else np.where(multiplier == 0.0, 0.0, 1.0)
     out["score"] = pdms_v11(
         out[epdms.NC], out[epdms.DAC], out[epdms.EP], out[epdms.TTC], out["comfort"], out[epdms.DDC]
     )
