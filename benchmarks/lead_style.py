@@ -259,7 +259,7 @@ class LeadStyleFrames(Dataset):
 
     def __init__(self, root: Path, views: int = 2) -> None:
         self.views = views
-        self.frames = [path for path in sorted(Path(root).glob("data/*/*/bboxes/*.pkl"))]
+        self.frames = sorted(Path(root).glob("data/*/*/bboxes/*.pkl"))
 
     def __len__(self) -> int:
         return len(self.frames)
