@@ -274,8 +274,7 @@ class LeadStyleFrames(Dataset):
         meta = read_pickle(folder / "metas" / f"{name}.pkl")
         data = {"key": self.key(index), **planning_targets(meta)}
         built = [sensor_data(folder, name, meta, perturbated=view == 1) for view in range(self.views)]
-        data.update(built[0])  # the normal rig's (the perturbated one is built and dropped, as LEAD does uncached)
-        return data
+        return data | built[0]  # the normal rig's (the perturbated one is built and dropped, as LEAD does uncached)
 
 
 def planning_targets(meta: dict) -> dict[str, Any]:
