@@ -259,7 +259,7 @@ class LeadStyleFrames(Dataset):
 
     def __init__(self, root: Path, views: int = 2) -> None:
         self.views = views
-        self.frames = [path for path in sorted(Path(root).glob("data/*/*/bboxes/*.pkl"))]
+        self.frames = sorted(Path(root).glob("data/*/*/bboxes/*.pkl"))
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -274,8 +274,7 @@ class LeadStyleFrames(Dataset):
         meta = read_pickle(folder / "metas" / f"{name}.pkl")
         data = {"key": self.key(index), **planning_targets(meta)}
         built = [sensor_data(folder, name, meta, perturbated=view == 1) for view in range(self.views)]
-        data.update(built[0])  # the normal rig's (the perturbated one is built and dropped, as LEAD does uncached)
-        return data
+        return data | built[0]  # the normal rig's (the perturbated one is built and dropped, as LEAD does uncached)
 
 
 def planning_targets(meta: dict) -> dict[str, Any]:

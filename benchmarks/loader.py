@@ -101,9 +101,6 @@ PLAIN, PLAIN_OURS, PIXELS, OURS, OURS_DEVICE, OURS_TWO, LEAD_BOTH, LEAD_ONE = (
     "LEAD-style per-file, one rig",
 )
 
-#: Batches in the epoch of our loaders' streams: more than any run takes.
-EPOCH_STEPS = 10**6
-
 #: LEAD config switches of each kind's model (the recipes' ``model.config``), its source and its cameras.
 KINDS: dict[str, tuple[str, dict[str, Any], list[str]]] = {
     "light": ("carla", {"use_planning_decoder": True}, ["carla_mosaic"]),
@@ -253,7 +250,7 @@ def training_stream(
     dm = DriveDataModule(
         train={source: SourceSpec([str(data)], cameras=cameras)},
         schedule=MixingSchedule.constant({source: 1.0}, args.batch_size),
-        steps_per_epoch=EPOCH_STEPS,
+        steps_per_epoch=10**6,  # more batches than any run takes
         num_workers=workers,
         inputs=config,
         inputs_on_device=inputs_on_device,

@@ -32,10 +32,9 @@ def synthetic_frames(count: int, seed: int = 0) -> dict[str, np.ndarray]:
             "speed": speed}  # fmt: skip
 
 
-def rate(label: str, frames: int, run: Callable[[], object], repeats: int = 3) -> float:
+def rate(label: str, frames: int, run: Callable[[], object], repeats: int = 3) -> None:
     best = wall_times_ms(run, repeats, warm_up=False).min() / 1e3
     print(f"{label:<52} {frames / best:>12,.0f} frames/s  ({best * 1e3:8.1f} ms for {frames:,} frames)")
-    return frames / best
 
 
 def main() -> None:

@@ -15,6 +15,7 @@ import one_core  # noqa: F401  (first: pins BLAS threads before numpy loads)
 
 # isort: split
 import argparse
+import contextlib
 import hashlib
 import os
 import tempfile
@@ -85,11 +86,6 @@ def timed(executor: Executor, predictions: Path, data: Path, out: Path) -> dict[
             "digest": digest, "load": load}  # fmt: skip
 
 
-def on_ray(cpus: int, predictions: Path, data: Path, out: Path) -> dict[str, float]:
-    with local_ray(cpus):
-        return timed(RayExecutor(), predictions, data, out)
-
-
 def prepare(data: Path, logs: int) -> Path:
     """Converted NAVSIM data (reused if ``data`` holds it) and the constant-velocity planner's predictions."""
     if not (data / "converted" / "manifest.parquet").is_file():
@@ -99,19 +95,17 @@ def prepare(data: Path, logs: int) -> Path:
     return planner_predictions("constant-velocity", data / "converted", data / "predictions.parquet")
 
 
-def runs(
-    kinds: list[str], workers: list[int], predictions: Path, data: Path
-) -> dict[str, Callable[[Path], dict[str, float]]]:
-    """Every executor to time, by name; ratios are taken against the first of each kind."""
-    chosen: dict[str, Callable[[Path], dict[str, float]]] = {}
+def executors(kinds: list[str], workers: list[int]) -> dict[str, tuple[Callable[[], Executor], int | None]]:
+    """Every executor to time, by name: how to make it, and the CPUs of the Ray it runs on (None: no Ray). Ratios are
+    taken against the first of each kind."""
+    chosen: dict[str, tuple[Callable[[], Executor], int | None]] = {}
     if "processes" in kinds:
-        chosen["this process"] = lambda out: timed(InlineExecutor(), predictions, data, out)
+        chosen["this process"] = (InlineExecutor, None)
         for count in (count for count in workers if count > 1):
-            executor = ProcessExecutor(count, preload=[SCORER_MODULE])
-            chosen[f"{count} processes"] = lambda out, executor=executor: timed(executor, predictions, data, out)
+            chosen[f"{count} processes"] = (partial(ProcessExecutor, count, preload=[SCORER_MODULE]), None)
     if "ray" in kinds:
         for count in workers:
-            chosen[f"Ray, {count} CPU"] = lambda out, count=count: on_ray(count, predictions, data, out)
+            chosen[f"Ray, {count} CPU"] = (RayExecutor, count)
     return chosen
 
 
@@ -129,8 +123,10 @@ def main() -> None:
         for round_index in range(args.rounds):
             print(f"round {round_index}: machine check {machine_parallelism():.2f}x")
             digests, first = set(), {}
-            for name, run in runs(args.executors, args.workers, predictions, data / "converted").items():
-                result = run(Path(tmp) / f"scores-{round_index}-{name}")
+            for name, (make, ray_cpus) in executors(args.executors, args.workers).items():
+                out = Path(tmp) / f"scores-{round_index}-{name}"
+                with local_ray(ray_cpus) if ray_cpus else contextlib.nullcontext():
+                    result = timed(make(), predictions, data / "converted", out)
                 digests.add(result["digest"])
                 rate = result["samples"] / result["wall"]
                 base = first.setdefault(name.split(",")[0] if name.startswith("Ray") else "local", rate)

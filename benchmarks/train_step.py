@@ -51,13 +51,12 @@ def bench(name: str, args: argparse.Namespace) -> str:
     module = DrivingModule(model, supervise={source: ["planning", "perception"]}, compile=args.compile).to(device)
     optimizer = module.configure_optimizers()
     batch = {source: to_device(random_batch(model, args.batch_size, source), device, args.channels_last)}
-    dtype = torch.bfloat16 if args.precision == "bf16" else torch.float32
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
 
     def train_step() -> None:
         optimizer.zero_grad(set_to_none=True)
-        with torch.autocast(device.type, dtype=dtype, enabled=args.precision == "bf16"):
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.precision == "bf16"):
             total, _ = module.compute_losses(batch)
         total.backward()
         optimizer.step()

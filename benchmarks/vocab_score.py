@@ -16,14 +16,11 @@ with the observation and drivable map prebuilt (what ``score`` pays per sample),
 import argparse
 import os
 import resource
-import sys
 import tempfile
 from functools import partial
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu_time import cpu_times_ms, wall_and_cpu
 
 from lead_s2r.convert import convert
@@ -60,13 +57,6 @@ def scenes(count: int) -> list[PDMScene]:
         assert convert(NavsimAdapter(maps=str(raw / "maps")), raw, out, progress=False).ok
         samples = list(read_samples(out, fields=("scoring", "boxes", "agents_future", "future")))
     return [scene_from_sample(sample) for sample in samples[:: max(1, len(samples) // count)][:count]]
-
-
-def peak_growth_mb(call: partial) -> float:
-    """How much the process's peak resident memory grows during ``call`` [MB] (0: it stayed under the peak)."""
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    call()
-    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
 
 
 def main() -> None:
@@ -108,9 +98,13 @@ def main() -> None:
         print(f"{size:7d} | {us:26.1f} | {float(np.median(wall)):4.1f} | {single / us:6.1f}x")
     if args.memory:
         entries = vocabulary(args.memory, seed=1)
-        grown = peak_growth_mb(partial(score_vocabulary, chosen[0], entries, 0.1, references[0], args.metric))
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        print(f"{args.memory} entries on one scene: peak memory grew {grown:.0f} MB, process peak {peak:.0f} MB")
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB; grown 0: it stayed under the peak
+        score_vocabulary(chosen[0], entries, 0.1, references[0], args.metric)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        print(
+            f"{args.memory} entries on one scene: peak memory grew {(peak - before) / 1024:.0f} MB, "
+            f"process peak {peak / 1024:.0f} MB"
+        )
     print("load average (1, 5, 15 min): " + ", ".join(f"{load:.1f}" for load in os.getloadavg()))
 
 
