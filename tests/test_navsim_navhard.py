@@ -134,7 +134,7 @@ def test_synthetic_sample_geometry_matches_the_generator(samples: dict, mapping:
     assert "future" not in sample and "lidar" not in sample and "cam_front" in sample
     np.testing.assert_allclose(sample["past"][-1], [0, 0, 0, 0], atol=1e-6)
     # the lead vehicle (box 0) 2 s later, in the shifted ego frame
-    agents = synth.agents_for(synth.ego_states(spec)["poses"][0], spec.speed, spec.accel)
+    agents = synth.agents_for(spec, synth.ego_states(spec)["poses"][0])
     t = (hard.ORIGINAL_FRAME + hard.FUTURE + 4) * synth.DT_US / 1e6
     lead = np.r_[agents[0].centre(t), agents[0].yaw]
     np.testing.assert_allclose(sample["agents_future"]["poses"][0, 3], to_local(lead, truth), atol=1e-4)

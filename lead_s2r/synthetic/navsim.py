@@ -139,15 +139,15 @@ def lead_offset(speed: float) -> float:
     return EGO_FRONT + STANDSTILL_GAP + TIME_GAP * speed + LEAD_SIZE[0] / 2
 
 
-def agents_for(start: np.ndarray, speed: float, accel: float, stop: float | None = None) -> list[Agent]:
-    """The objects around a log whose ego starts at ``start`` heading east with ``speed`` and ``accel``: the lead
-    vehicle keeps its gap by driving the ego's speed profile (a turning ego leaves it going straight on). With
-    ``stop`` (how far east of ``start`` the ego stops), pedestrians stand across the lane ahead of that point
-    instead of the lead vehicle."""
-    x0, y0 = float(start[0]), float(start[1])
-    if stop is None:
+def agents_for(spec: LogSpec, start: np.ndarray) -> list[Agent]:
+    """The objects around log ``spec`` whose ego starts at ``start`` heading east: the lead vehicle keeps its gap by
+    driving the ego's speed profile (a turning ego leaves it going straight on). In a pedestrian log (``brake_at``),
+    pedestrians stand across the lane ahead of where the ego stops instead of the lead vehicle."""
+    x0, y0, speed, accel = float(start[0]), float(start[1]), spec.speed, spec.accel
+    if spec.brake_at is None:
         ahead = [Agent("vehicle", (x0 + lead_offset(speed), y0), (speed, 0.0), 0.0, LEAD_SIZE, accel=(accel, 0.0))]
     else:
+        stop = pedestrians_ahead.stopping_distance(speed, accel, spec.brake_at)
         x, size = x0 + pedestrians_ahead.row_distance(stop, EGO_FRONT), pedestrians_ahead.SIZE
         ahead = [Agent("pedestrian", (x, y0 + dy), (0.0, 0.0), math.pi / 2, size) for dy in pedestrians_ahead.ROW]
     return [
@@ -308,8 +308,7 @@ def write_log(
     blobs = out / "sensor_blobs" / DATA_SPLIT if blobs is None else blobs
     states = ego_states(spec)
     poses, dynamics = states["poses"], states["dynamics"]
-    stop = None if spec.brake_at is None else pedestrians_ahead.stopping_distance(spec.speed, spec.accel, spec.brake_at)
-    agents = agents_for(poses[0], spec.speed, spec.accel, stop)
+    agents = agents_for(spec, poses[0])
     track_tokens = [_hex(rng) for _ in agents]
     tokens = [_hex(rng) for _ in range(FRAMES)]
     lidar2ego = homogeneous(np.eye(3), LIDAR2EGO_TRANSLATION)

@@ -134,7 +134,7 @@ def synthetic_scene(
     """Write one synthetic scene whose current frame is log frame ``start`` with the ego shifted by ``offset``;
     return its token."""
     states = navsim.ego_states(spec)
-    agents = navsim.agents_for(states["poses"][0], spec.speed, spec.accel)
+    agents = navsim.agents_for(spec, states["poses"][0])
     tokens = next(list(f["anns"]["track_tokens"]) for f in log_frames if len(f["anns"]["track_tokens"]) == len(agents))
     initial = _token17(rng)
     t0_us = int(log_frames[0]["timestamp"])
@@ -212,7 +212,7 @@ def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
     rng = np.random.default_rng(seed)
     navsim_map.write_map(out / "maps")
     logs, mapping = {}, []
-    for spec in navsim.log_specs(count):
+    for spec in navsim.log_specs(count, seed):
         frames = navsim.write_log(
             out, spec, rng, logs=out / SPLIT / "openscene_meta_datas", blobs=out / SPLIT / "sensor_blobs"
         )
