@@ -51,6 +51,7 @@ DEFAULT_TP_DISTANCE = 7.5
 ROUTE_POINTS = 50
 TURN_RADIUS = 10.0
 TURN_START = 8.0
+TURN_END = TURN_START + np.pi / 2 * TURN_RADIUS
 DEFAULT_RIG = "CARLA_LEADERBOARD2_3CAMERAS"
 JPEG_QUALITY = 30
 EGO_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
@@ -89,7 +90,7 @@ class Drive:
 
 def _curvature(kind: str, s: np.ndarray) -> np.ndarray:
     """Signed curvature along the path; a left turn is negative in CARLA's clockwise-yaw convention."""
-    turning = (s >= TURN_START) & (s < TURN_START + np.pi / 2 * TURN_RADIUS)
+    turning = (s >= TURN_START) & (s < TURN_END)
     sign = {"left": -1.0, "right": 1.0, "stop": 0.0}[kind]
     return np.where(turning, sign / TURN_RADIUS, 0.0)
 
@@ -109,9 +110,8 @@ def _speed_profile(kind: str, steps: int) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(steps) * DT
     if kind != "stop":
         return np.full(steps, 6.0), np.zeros(steps)
-    v0, brake_at, decel = STOP_SPEED, BRAKE_AT, STOP_DECEL
-    speed = np.clip(v0 - decel * np.clip(t - brake_at, 0.0, None), 0.0, None)
-    accel = np.where((t >= brake_at) & (speed > 0), -decel, 0.0)
+    speed = np.clip(STOP_SPEED - STOP_DECEL * np.clip(t - BRAKE_AT, 0.0, None), 0.0, None)
+    accel = np.where((t >= BRAKE_AT) & (speed > 0), -STOP_DECEL, 0.0)
     return speed, accel
 
 
@@ -123,13 +123,12 @@ def make_drive(kind: str, steps: int, rng: np.random.Generator) -> Drive:
     path = _integrate_path(kind, start, s[-1] + ROUTE_POINTS + 40.0)
     pose, _ = resample(np.arange(len(path)) * 0.1, path, s, angle_columns=(2,))
     yaw_rate = _curvature(kind, s) * speed
-    turn_end = TURN_START + np.pi / 2 * TURN_RADIUS
     if kind == "stop":
         plan = [(10.0 * i, STRAIGHT if i == 2 else LANEFOLLOW) for i in range(int(path_len(path) // 10))]
     else:
         option = LEFT if kind == "left" else RIGHT
-        plan = [(0.0, LANEFOLLOW), (TURN_START, option), ((TURN_START + turn_end) / 2, option), (turn_end, LANEFOLLOW)]
-        plan += [(d, LANEFOLLOW) for d in np.arange(turn_end + 10.0, path_len(path), 10.0)]
+        plan = [(0.0, LANEFOLLOW), (TURN_START, option), ((TURN_START + TURN_END) / 2, option), (TURN_END, LANEFOLLOW)]
+        plan += [(d, LANEFOLLOW) for d in np.arange(TURN_END + 10.0, path_len(path), 10.0)]
     return Drive(kind, pose, speed, accel, yaw_rate, s, path, plan)
 
 
@@ -335,7 +334,7 @@ def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict, 
         "walker_hazard": drive.kind == "stop",
         "vehicle_hazard": False,
         "dist_to_junction": None,
-        "is_junction": TURN_START < s_now < TURN_START + np.pi / 2 * TURN_RADIUS and drive.kind != "stop",
+        "is_junction": TURN_START < s_now < TURN_END and drive.kind != "stop",
         "scenario_obstacles_ids": [],
         "vehicle_opened_door": False,
         "vehicle_door_side": None,
@@ -417,11 +416,7 @@ def write_route(
         sensors.write_laz(folder / "lidar" / f"{name}.laz", points, times)
         radar = sensors.radar(boxes, rng, realistic)
         np.savez_compressed(folder / "radar" / f"{name}.npz", **radar)
-        view_radar = {}
-        for key, cloud in radar.items():
-            moved = cloud.astype(np.float64)
-            moved[:, :2] = points_to_local(moved[:, :2], view)
-            view_radar[key] = moved.astype(np.float16)
+        view_radar = {key: points_to_local(cloud, view).astype(np.float16) for key, cloud in radar.items()}
         np.savez_compressed(folder / "radar_perturbated" / f"{name}.npz", **view_radar)
     results = {
         "index": index,

@@ -230,8 +230,7 @@ def _lane_geometry(path: np.ndarray) -> tuple[Polyline2D, Polyline2D, Polyline2D
 def _write_map(root: Path, meta: MapMetadata, drive: lead.Drive) -> None:
     """Three lanes along the drive's path (approach, turn connector in an intersection, exit), each its own group."""
     path = iso(drive.path)
-    turn_end = lead.TURN_START + np.pi / 2 * lead.TURN_RADIUS
-    cuts = {"approach": (0.0, lead.TURN_START), "turn": (lead.TURN_START, turn_end), "exit": (turn_end, None)}
+    cuts = {"approach": (0.0, lead.TURN_START), "turn": (lead.TURN_START, lead.TURN_END), "exit": (lead.TURN_END, None)}
     writer = ArrowMapWriter(force_map_conversion=True, maps_root=root / "maps", logs_root=root / "logs")
     writer.reset(meta)
     order = list(LANES)
