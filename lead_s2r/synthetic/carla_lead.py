@@ -216,6 +216,12 @@ def make_actors(drive: Drive, rng: np.random.Generator) -> list[Actor]:
     ]
 
 
+def drive_and_actors(index: int, frames: int, rng: np.random.Generator) -> tuple[Drive, list[Actor]]:
+    """Route ``index``'s drive (its kind cycles over :data:`KINDS`) for ``frames`` 4 Hz frames, and its actors."""
+    drive = make_drive(KINDS[index % len(KINDS)], (frames - 1) * SAVE_FREQ + EGO_FUTURE_STEPS + 1, rng)
+    return drive, make_actors(drive, rng)
+
+
 #: Realistic frames: the actors of a busy street, as (class, type_id, extent, lateral offsets from the route in m,
 #: speed range m/s, count). Moving cars use both lanes, parked cars and walkers the kerbs.
 STREET = (
@@ -369,9 +375,8 @@ def write_route(
     ]
     for name in (*rigs, "lidar", "bboxes", "metas"):  # one LiDAR for both rigs, as LEAD records it
         (folder / name).mkdir(parents=True, exist_ok=True)
-    steps = (frames - 1) * SAVE_FREQ + EGO_FUTURE_STEPS + 1
-    drive = make_drive(kind, steps, rng)
-    actors = make_actors(drive, rng) + (make_street(drive, rng) if realistic else [])
+    drive, actors = drive_and_actors(index, frames, rng)
+    actors += make_street(drive, rng) if realistic else []
     translation = float(rng.choice([-1, 1]) * rng.uniform(0.1, 1.0))
     rotation = float(-np.sign(translation) * (5.0 + (abs(translation) - 0.1) / 0.9 * 7.5))
     view = np.array([0.0, translation, np.deg2rad(rotation)])  # the perturbated rig's pose in the ego frame
@@ -425,7 +430,7 @@ def write_route(
         "num_infractions": 0,
         "infractions": {"collisions_vehicle": [], "min_speed_infractions": [], "outside_route_lanes": []},
         "scores": {"score_route": 100.0, "score_penalty": 1.0, "score_composed": 100.0},
-        "meta": {"route_length": float(path_len(drive.path)), "duration_game": steps * DT},
+        "meta": {"route_length": float(path_len(drive.path)), "duration_game": len(drive.pose) * DT},
     }
     (folder / "results.json").write_text(json.dumps(results, indent=2))
     return folder

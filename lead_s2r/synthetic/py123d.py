@@ -91,15 +91,6 @@ def iso(pose: np.ndarray) -> np.ndarray:
     return np.asarray(pose, np.float64) * np.array([1.0, -1.0, -1.0])
 
 
-def drive_and_actors(index: int, frames: int, seed: int) -> tuple[lead.Drive, list[lead.Actor]]:
-    """The drive and actors ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes."""
-    rng = np.random.default_rng(seed)
-    kind = lead.KINDS[index % len(lead.KINDS)]
-    steps = (frames - 1) * lead.SAVE_FREQ + lead.EGO_FUTURE_STEPS + 1
-    drive = lead.make_drive(kind, steps, rng)
-    return drive, lead.make_actors(drive, rng)
-
-
 def front_camera(name: str) -> PinholeCameraMetadata:
     """A small forward pinhole camera 1.5 m ahead of the IMU, 1.4 m up (optical axis = ego x)."""
     return PinholeCameraMetadata(
@@ -174,7 +165,7 @@ def write_log(
     log folder (``root/logs/nuplan_test/<name>``). ``codec``: ipc | laz, the LiDAR payload; ``dynamics``: False
     writes poses only, as parsers of datasets without ego dynamics do; ``box_velocities``: False writes every box
     velocity null, as py123d's parsers of datasets without them (PandaSet) do."""
-    drive, actors = drive_and_actors(index, frames, seed)
+    drive, actors = lead.drive_and_actors(index, frames, np.random.default_rng(seed))
     actors = log_actors(actors)
     ego_meta = EgoStateSE3Metadata(
         vehicle_name="synthetic_suv",
@@ -276,7 +267,7 @@ def lead_ego_metadata() -> EgoStateSE3Metadata:
 def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) -> Path:
     """The route ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes, as LEAD's 123D exporter
     logs it (module docstring); returns the log folder (``root/logs/carla_train/<name>``)."""
-    drive, actors = drive_and_actors(index, frames, seed)
+    drive, actors = lead.drive_and_actors(index, frames, np.random.default_rng(seed))
     ego_meta = lead_ego_metadata()
     lidar = LidarMetadata("LIDAR_TOP", LidarID.LIDAR_TOP, PoseSE3(0.0, 0.0, LIDAR_HEIGHT, 1.0, 0.0, 0.0, 0.0))
     box_meta = BoxDetectionsSE3Metadata(box_detection_label_class=DefaultBoxDetectionLabel)
