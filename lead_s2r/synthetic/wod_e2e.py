@@ -31,7 +31,7 @@ import crc32c
 import cv2
 import numpy as np
 
-from lead_s2r.geometry import homogeneous, rotate
+from lead_s2r.geometry import homogeneous, resample, rotate
 from lead_s2r.synthetic import pedestrians_ahead, wod_e2e_camera
 from lead_s2r.synthetic.wod_e2e_proto import States, camera_calibration, camera_image, e2ed_frame
 
@@ -182,18 +182,13 @@ def _normals(xy: np.ndarray) -> np.ndarray:
     return np.column_stack([-steps[:, 1], steps[:, 0]])
 
 
-def _at_times(xy: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The path ``xy`` (on :data:`_FUTURE_T`, from the origin at t = 0) at the times ``t``."""
-    knots_t, knots = np.concatenate([[0.0], _FUTURE_T]), np.vstack([[0.0, 0.0], xy])
-    return np.column_stack([np.interp(t, knots_t, knots[:, 0]), np.interp(t, knots_t, knots[:, 1])])
-
-
 def _candidates(future: np.ndarray, rng: np.random.Generator) -> list[tuple[np.ndarray, float]]:
     """The three trajectories raters score: close to what was driven (mostly rated high: the logged future's RFS
     averages about 8, the paper's Expert 8.10), braking harder along the same path, and swerving 2-3.5 m aside."""
     xy, normals, fraction = future[:, :2], _normals(future[:, :2]), _FUTURE_T / _FUTURE_T[-1]
     near = xy * (1.0 + rng.uniform(-0.02, 0.02)) + normals * rng.uniform(-0.2, 0.2) * fraction[:, None] ** 2
-    slower = _at_times(xy, _FUTURE_T * (1.0 - rng.uniform(0.25, 0.45) * fraction))
+    path = np.vstack([[0.0, 0.0], xy])  # from the origin at t = 0
+    slower, _ = resample(np.r_[0.0, _FUTURE_T], path, _FUTURE_T * (1.0 - rng.uniform(0.25, 0.45) * fraction))
     aside = xy + normals * rng.choice([-1.0, 1.0]) * rng.uniform(2.0, 3.5) * np.clip(fraction / 0.6, 0, 1)[:, None]
     labels = (rng.choice(LOGGED_LABELS, p=LOGGED_LABEL_P), rng.integers(3, 10), rng.integers(0, 7))
     return [(traj.astype(np.float32), float(label)) for traj, label in zip((near, slower, aside), labels, strict=True)]
