@@ -16,14 +16,10 @@ _VARINT, _FIXED64, _LEN, _FIXED32 = 0, 1, 2, 5
 def _varint(value: int) -> bytes:
     value &= (1 << 64) - 1  # negative int32/int64 are encoded as 10-byte two's complement
     out = bytearray()
-    while True:
-        byte = value & 0x7F
+    while value > 0x7F:
+        out.append(value & 0x7F | 0x80)
         value >>= 7
-        if value:
-            out.append(byte | 0x80)
-        else:
-            out.append(byte)
-            return bytes(out)
+    return bytes(out) + bytes([value])
 
 
 def _tag(number: int, wire_type: int) -> bytes:
