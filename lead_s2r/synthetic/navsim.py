@@ -254,16 +254,8 @@ def write_pcd(path: Path, points: np.ndarray) -> None:
 def lidar_points(rng: np.random.Generator) -> np.ndarray:
     """(N, 6) points in the lidar frame: x, y, z, intensity, ring, lidar id."""
     n = LIDAR_POINTS
-    return np.column_stack(
-        [
-            rng.uniform(-50, 50, n),
-            rng.uniform(-50, 50, n),
-            rng.uniform(-2.0, 1.0, n),
-            rng.integers(0, 256, n),
-            rng.integers(0, 64, n),
-            rng.integers(0, 5, n),
-        ]
-    )
+    xyz = [rng.uniform(-50, 50, n), rng.uniform(-50, 50, n), rng.uniform(-2.0, 1.0, n)]
+    return np.column_stack([*xyz, rng.integers(0, 256, n), rng.integers(0, 64, n), rng.integers(0, 5, n)])
 
 
 def annotations(agents: list[Agent], frame: int, pose: np.ndarray, tokens: list[str]) -> dict[str, np.ndarray]:
