@@ -121,10 +121,7 @@ def lidar_points(iteration: int) -> np.ndarray:
     return np.column_stack([10 * np.cos(angles) + 0.01 * iteration, 10 * np.sin(angles), np.full(24, 0.5)])
 
 
-def _boxes(
-    actors: list[lead.Actor], step: int, labels: dict, static: object, meta: BoxDetectionsSE3Metadata, ts,
-    velocities: bool = True,
-):  # fmt: skip
+def _boxes(actors: list[lead.Actor], step: int, labels: dict, static: object, velocities: bool = True) -> list:
     """The actors' boxes at a 20 Hz tick, in py123d's ISO world with world-frame velocities (None without
     ``velocities``)."""
     detections = []
@@ -141,7 +138,7 @@ def _boxes(
                 Vector3D(float(heading[0]), float(heading[1]), 0.0) if velocities else None,
             )
         )
-    return BoxDetectionsSE3(detections, ts, meta)
+    return detections
 
 
 def _writer(root: Path, codec: str) -> ArrowLogWriter:
@@ -196,7 +193,7 @@ def write_log(
         light = TrafficLightStatus.RED if red else TrafficLightStatus.GREEN
         modalities = [
             ego,
-            _boxes(actors, step, NUPLAN_LABEL, STATIC_LABEL["nuplan"], box_meta, ts, box_velocities),
+            BoxDetectionsSE3(_boxes(actors, step, NUPLAN_LABEL, STATIC_LABEL["nuplan"], box_velocities), ts, box_meta),
             ParsedCamera(camera, ts, None, byte_string=jpeg(step // STEP)),
             Lidar(ts, ts, lidar, lidar_points(step // STEP).astype(np.float32), _intensity(24)),
             TrafficLightDetections([TrafficLightDetection(LANES["turn"][0], light)], ts),
@@ -290,7 +287,7 @@ def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) 
         points = lead_exported(lead_lidar(actors, drive.pose[step], step))
         modalities = [
             ego,
-            _boxes(actors, step, LEAD_LABEL, STATIC_LABEL["lead"], box_meta, ts),
+            BoxDetectionsSE3(_boxes(actors, step, LEAD_LABEL, STATIC_LABEL["lead"]), ts, box_meta),
             ParsedCamera(camera, ts, None, byte_string=jpeg(step // STEP)),
             Lidar(ts, ts, lidar, points.astype(np.float32), _intensity(len(points))),
             TrafficLightDetections([TrafficLightDetection(-1, TrafficLightStatus.RED)], ts),  # departure 2
