@@ -272,8 +272,7 @@ def drop_carla(config: dict[str, Any]) -> None:
     config["data"]["train"].pop("carla", None)
     config["model"].get("supervise", {}).pop("carla", None)
     config["model"].pop("init_from", None)
-    anchors = config["data"]["schedule"]["anchors"]
-    for shares in anchors.values():
+    for shares in config["data"]["schedule"]["anchors"].values():
         shares.pop("carla", None)
 
 
