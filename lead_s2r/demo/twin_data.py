@@ -10,7 +10,6 @@ seed. One log or route each keeps a full set of folders to seconds of conversion
 """
 
 import shutil
-from collections.abc import Callable
 from pathlib import Path
 
 from lead_s2r.convert import convert
@@ -74,12 +73,9 @@ def write_wod_twin(root: Path, workers: int) -> None:
     _convert("wod_e2e", raw, root / DATA / "wod_e2e", workers)
 
 
-WRITERS: tuple[Callable[[Path, int], None], ...] = (write_carla, write_navsim_twin, write_navhard, write_wod_twin)
-
-
 def write_twin_data(root: Path, workers: int = 1) -> list[str]:
     """Write raw synthetic data under ``root/raw`` and the converted folders under ``root/data``; return their names."""
     root = Path(root)
-    for write in WRITERS:
+    for write in (write_carla, write_navsim_twin, write_navhard, write_wod_twin):
         write(root, workers)
     return sorted(path.name for path in (root / DATA).iterdir())
