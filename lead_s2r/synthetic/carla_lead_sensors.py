@@ -34,9 +34,7 @@ def mosaic_shape(rig: str) -> tuple[int, int]:
 FRONT_FOV, CAMERA_HEIGHT = 60.0, 2.0
 
 
-def mosaic(
-    rig: str, frame: int, shift: float, rng: np.random.Generator, walkers: np.ndarray | None = None
-) -> np.ndarray:
+def mosaic(rig: str, frame: int, shift: float, rng: np.random.Generator, walkers: np.ndarray) -> np.ndarray:
     """A cheap but frame-specific BGR scene: sky, road with lane lines in every tile, the frame number, and the
     ``walkers`` ahead ((N, 2) CARLA ego x forward, y right) in the middle tile as filled rectangles."""
     tiles, tile_width, _ = RIG_MOSAICS[rig]
@@ -53,7 +51,7 @@ def mosaic(
     focal = tile_width / (2 * np.tan(np.radians(FRONT_FOV / 2)))
     centre = (tiles // 2) * tile_width + tile_width / 2
     half, tall = pedestrians_ahead.SIZE[1] / 2, pedestrians_ahead.SIZE[2]
-    for x, y in sorted(walkers if walkers is not None else [], key=lambda p: -p[0]):
+    for x, y in sorted(walkers, key=lambda p: -p[0]):
         if x < 1.0:
             continue
         u0, u1 = centre + focal * (y - half) / x, centre + focal * (y + half) / x
