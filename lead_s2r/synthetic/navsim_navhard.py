@@ -42,7 +42,6 @@ HISTORY, FUTURE = 4, 8
 ORIGINAL_FRAME = 4
 #: Sideways shifts (m, to the ego's left) of the synthetic variants' ego.
 OFFSETS = (0.0, 0.4, 1.2)
-MAP_NAME = navsim_map.LOCATION
 
 _ACTOR = "nuplan.common.actor_state"
 DETECTIONS_TRACKS = ForeignClass("nuplan.planning.simulation.observation.observation_type", "DetectionsTracks")
@@ -57,11 +56,9 @@ TRACKED_OBJECT_TYPE = ForeignClass(f"{_ACTOR}.tracked_objects_types", "TrackedOb
 TRAFFIC_LIGHT_STATUSES = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatuses")
 TRAFFIC_LIGHT_STATUS_DATA = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusData")
 TRAFFIC_LIGHT_STATUS_TYPE = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusType")
-#: nuPlan ``TrackedObjectType`` values of the OpenScene names.
-OBJECT_TYPES = {
-    "vehicle": 0, "pedestrian": 1, "bicycle": 2, "traffic_cone": 3, "barrier": 4, "czone_sign": 5,
-    "generic_object": 6,
-}  # fmt: skip
+#: nuPlan ``TrackedObjectType`` values of the OpenScene names: their places in the enum.
+_NUPLAN_ORDER = ("vehicle", "pedestrian", "bicycle", "traffic_cone", "barrier", "czone_sign", "generic_object")
+OBJECT_TYPES = {name: value for value, name in enumerate(_NUPLAN_ORDER)}
 MOVING = {"vehicle", "pedestrian", "bicycle"}
 RED, GREEN = 2, 0
 
@@ -180,7 +177,7 @@ def synthetic_scene(
         "scene_metadata": {
             "log_name": spec.name,
             "scene_token": initial,
-            "map_name": MAP_NAME,
+            "map_name": navsim_map.LOCATION,
             "initial_token": initial,
             "num_history_frames": HISTORY,
             "num_future_frames": FUTURE,
