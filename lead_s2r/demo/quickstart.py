@@ -39,7 +39,6 @@ import torch
 import yaml
 from rich.console import Console
 
-from lead_s2r.convert import convert
 from lead_s2r.demo.table4 import (
     CAMERA_RELIANCE,
     EVAL_SPLITS,
@@ -49,8 +48,8 @@ from lead_s2r.demo.table4 import (
     build_table4,
     scorings,
 )
+from lead_s2r.demo.twin_data import convert_synthetic
 from lead_s2r.predictions import write_predictions
-from lead_s2r.registry import get_adapter
 from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import scores_key
 from lead_s2r.report.training_log import TRAINING_LOG
@@ -177,11 +176,9 @@ def prepare(dataset: str, out: Path, workers: int, console: Console, started: fl
     generator = importlib.import_module(f"lead_s2r.synthetic.{dataset}")
     generator.generate(raw, seed=0, **({} if splits is None else {"splits": splits}))
     _stage(console, f"{dataset}: synthetic raw data -> {raw}", started)
-    adapter = get_adapter(dataset, **{name: str(raw / value) for name, value in options.items()})
-    converted = convert(adapter, raw, data, workers=workers, force=True)
-    if not converted.ok:
-        raise RuntimeError(f"{dataset}: conversion failed: {converted.errors}")
-    _stage(console, f"{dataset}: {converted.samples} samples converted -> {data}", started)
+    paths = {name: str(raw / value) for name, value in options.items()}  # the adapter's options
+    samples = convert_synthetic(dataset, raw, data, workers, **paths)
+    _stage(console, f"{dataset}: {samples} samples converted -> {data}", started)
 
 
 def score_expert(out: Path, caches: dict[str, ScoringCaches]) -> dict[str, Any]:

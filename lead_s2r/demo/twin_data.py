@@ -32,17 +32,18 @@ WOD_SPLITS = {"train": 1, "val": 1}
 CARLA_FRAMES = 8
 
 
-def _convert(dataset: str, raw: Path, out: Path, workers: int, **options: str) -> None:
-    result = convert(get_adapter(dataset, **options), raw, out, workers=workers, force=True, progress=False)
+def convert_synthetic(dataset: str, raw: Path, out: Path, workers: int, **options: str) -> int:
+    result = convert(get_adapter(dataset, **options), raw, out, workers=workers, force=True)
     if not result.ok or result.samples == 0:
         raise RuntimeError(f"{out}: converting synthetic {dataset} data failed: {result.errors}")
+    return result.samples
 
 
 def write_carla(root: Path, workers: int) -> None:
     for name, (rig, seed) in CARLA_FOLDERS.items():
         raw = root / RAW / name
         carla_lead.generate(raw, count=1, seed=seed, frames=CARLA_FRAMES, rigs=(rig,))
-        _convert("carla_lead", raw, root / DATA / name, workers, rig="both")
+        convert_synthetic("carla_lead", raw, root / DATA / name, workers, rig="both")
 
 
 def write_navsim_twin(root: Path, workers: int) -> None:
@@ -52,7 +53,7 @@ def write_navsim_twin(root: Path, workers: int) -> None:
         scene_filter = raw / "scene_filters" / f"{name}.yaml"
         shutil.copy(raw / "scene_filters" / "navmini.yaml", scene_filter)
         options = {"split": split, "scene_filter": str(scene_filter), "maps": str(raw / "maps")}
-        _convert("navsim", raw, root / DATA / f"navsim_{name}", workers, **options)
+        convert_synthetic("navsim", raw, root / DATA / f"navsim_{name}", workers, **options)
 
 
 def write_navhard(root: Path, workers: int) -> None:
@@ -64,13 +65,13 @@ def write_navhard(root: Path, workers: int) -> None:
         "maps": str(raw / "maps"),
         "two_stage_mapping": str(raw / "train_test_split" / f"{split}.yaml"),
     }
-    _convert("navsim", raw, root / DATA / "navsim_navhard", workers, **options)
+    convert_synthetic("navsim", raw, root / DATA / "navsim_navhard", workers, **options)
 
 
 def write_wod_twin(root: Path, workers: int) -> None:
     raw = root / RAW / "wod_e2e"
     wod_e2e.generate(raw, seed=0, splits=WOD_SPLITS)
-    _convert("wod_e2e", raw, root / DATA / "wod_e2e", workers)
+    convert_synthetic("wod_e2e", raw, root / DATA / "wod_e2e", workers)
 
 
 def write_twin_data(root: Path, workers: int = 1) -> list[str]:
