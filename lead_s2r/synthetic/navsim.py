@@ -320,7 +320,6 @@ def write_log(
             cams[name] = {"data_path": blob, **camera_calibration(name)}
         lidar_path = f"{spec.name}/MergedPointCloud/{_hex(rng)}.pcd"
         write_pcd(blobs / lidar_path, lidar_points(rng))
-        command = np.array(spec.command, dtype=np.int64)
         frames.append(
             {
                 "token": tokens[i],
@@ -344,7 +343,7 @@ def write_log(
                 "lidar2global": ego2global @ lidar2ego,
                 "ego_dynamic_state": [float(vx), float(vy), float(ax), float(ay)],
                 "traffic_lights": traffic_lights(i),
-                "driving_command": command,
+                "driving_command": np.array(spec.command, dtype=np.int64),
                 "cams": cams,
                 "sample_prev": tokens[i - 1] if i > 0 else None,
                 "sample_next": tokens[i + 1] if i + 1 < FRAMES else None,
