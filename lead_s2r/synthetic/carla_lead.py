@@ -380,9 +380,8 @@ def write_route(
     translation = float(rng.choice([-1, 1]) * rng.uniform(0.1, 1.0))
     rotation = float(-np.sign(translation) * (5.0 + (abs(translation) - 0.1) / 0.9 * 7.5))
     view = np.array([0.0, translation, np.deg2rad(rotation)])  # the perturbated rig's pose in the ego frame
-    plan_s = np.array([s for s, _ in drive.plan])
-    plan_points = np.column_stack([drive.path[(plan_s / 0.1).round().astype(int), :2], np.zeros(len(plan_s))])
-    commands = [c for _, c in drive.plan]
+    plan_s, commands = zip(*drive.plan, strict=True)
+    plan_points = np.column_stack([drive.path[(np.array(plan_s) / 0.1).round().astype(int), :2], np.zeros(len(plan_s))])
     distances = REALISTIC_TP_DISTANCES if realistic else TP_DISTANCES
     planners = {d: _Planner(plan_points, commands, d) for d in (*distances, DEFAULT_TP_DISTANCE)}
     extras = {
