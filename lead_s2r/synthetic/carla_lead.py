@@ -405,14 +405,13 @@ def write_route(
         walkers = np.array([box["position"][:2] for box in boxes if box.get("type_id") == WALKER_AHEAD])
         write_pickle(folder / "bboxes" / f"{name}.pkl", boxes)
         write_pickle(folder / "metas" / f"{name}.pkl", _meta(drive, step, planners, extras, rig))
-        for suffix, shift in (("", 0.0), ("_perturbated", translation)):
+        for suffix, shift, pose in (("", 0.0, ego), ("_perturbated", translation, to_global(view, ego))):
             mosaic = sensors.mosaic(rig, frame, shift, rng, walkers)
             jpeg = cv2.imencode(".jpg", mosaic, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
             (folder / f"rgb{suffix}" / f"{name}.jpg").write_bytes(jpeg.tobytes())
             cv2.imwrite(str(folder / f"semantics{suffix}" / f"{name}.png"), sensors.semantics(rig))
             cv2.imwrite(str(folder / f"depth{suffix}" / f"{name}.png"), sensors.depth(rig, frame))
-        cv2.imwrite(str(folder / "hdmap" / f"{name}.png"), sensors.hdmap(drive.path, ego))
-        cv2.imwrite(str(folder / "hdmap_perturbated" / f"{name}.png"), sensors.hdmap(drive.path, to_global(view, ego)))
+            cv2.imwrite(str(folder / f"hdmap{suffix}" / f"{name}.png"), sensors.hdmap(drive.path, pose))
         if realistic:
             points, times = sensors.dense_lidar_points(boxes, float(drive.speed[step]), rng)
         else:
