@@ -143,8 +143,8 @@ def pedestrian_row(speed: float, accel: float, yaw_rate: float, brake_at: float)
     """Global ground positions (N, 2) of the pedestrians ahead of a drive (:func:`_drive` from the same values):
     across its path, their centre :func:`~lead_s2r.synthetic.pedestrians_ahead.row_distance` along it."""
     stop = pedestrians_ahead.stopping_distance(speed, accel, brake_at)
-    track = _drive(brake_at + pedestrians_ahead.brake_duration(speed + accel * brake_at) + 1.0, speed, accel,
-                   yaw_rate, brake_at)  # fmt: skip
+    duration = brake_at + pedestrians_ahead.brake_duration(speed + accel * brake_at) + 1.0  # past the stop
+    track = _drive(duration, speed, accel, yaw_rate, brake_at)
     arc = _cumulative(np.hypot(track[:, 4], track[:, 5]))
     end = track[-1]
     beyond = pedestrians_ahead.row_distance(stop, EGO_FRONT) - arc[-1]  # the path goes straight on after the stop
