@@ -90,10 +90,9 @@ def lidar_points(boxes: list[dict], rng: np.random.Generator) -> tuple[np.ndarra
     """Points on the box surfaces (sweeps 0..4) and a building facade, in the ego frame, inside the BEV box."""
     clouds, times = [], []
     for box in boxes[1:]:
-        n = 60
-        local = rng.uniform(-1, 1, (n, 3)) * np.asarray(box["extent"])
+        local = rng.uniform(-1, 1, (60, 3)) * np.asarray(box["extent"])
         clouds.append(rotate(local, box["yaw"]) + box["position"])
-        times.append(rng.integers(0, 5, n))
+        times.append(rng.integers(0, 5, 60))
     facade = np.column_stack([rng.uniform(-30, 60, 400), np.full(400, 15.0), rng.uniform(0.2, 8, 400)])
     clouds.append(facade)
     times.append(rng.integers(0, 10, 400))
