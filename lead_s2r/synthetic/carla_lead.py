@@ -371,7 +371,7 @@ def write_route(
     route_id = 1000 + index
     folder = root / "data" / SCENARIOS[kind] / f"{town}_Rep0_{route_id}_route0_01_10_05_46_{index % 60:02d}"
     rigs = [
-        f"{sensor}{rig}" for sensor in ("rgb", "semantics", "depth", "hdmap", "radar") for rig in ("", "_perturbated")
+        f"{sensor}{twin}" for sensor in ("rgb", "semantics", "depth", "hdmap", "radar") for twin in ("", "_perturbated")
     ]
     for name in (*rigs, "lidar", "bboxes", "metas"):  # one LiDAR for both rigs, as LEAD records it
         (folder / name).mkdir(parents=True, exist_ok=True)
