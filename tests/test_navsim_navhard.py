@@ -28,6 +28,7 @@ from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r.synthetic import navsim_navhard as hard
+from lead_s2r.synthetic import pedestrians_ahead
 from lead_s2r_adapters import navsim_synthetic
 from lead_s2r_adapters.navsim import NavsimAdapter
 from lead_s2r_adapters.navsim_io import NavsimFormatError
@@ -309,3 +310,16 @@ def test_two_stage_false_scores_every_frame_as_one_stage(converted: Path, scored
     aggregates = json.loads((tmp_path / "scores.json").read_text())["aggregates"]
     assert "extended_pdm_score_combined" not in aggregates and aggregates["frames"] == 24
     assert (tmp_path / "navsim_epdms.csv").exists() and not (tmp_path / CSV_NAME).exists()
+
+
+def test_a_pedestrian_logs_synthetic_scenes_hold_its_pedestrians(tmp_path: Path) -> None:
+    """Log 3 is a pedestrian log (``synth.is_pedestrian_log``): its synthetic scenes hold the row across the lane
+    that its stage-1 frames hold, and no lead vehicle (before, they looked for the log's agents in vain)."""
+    hard.generate(tmp_path, count=4, seed=1)
+    assert synth.log_specs(4, seed=1)[3].brake_at is not None
+    split = yaml.safe_load((tmp_path / "train_test_split" / f"{hard.SPLIT}.yaml").read_text())
+    now = split["reactive_all_mapping"][3][2][0][0]  # the log's first offset, the scene now
+    scene = navsim_synthetic.load_scene(tmp_path / hard.SPLIT / "synthetic_scene_pickles" / f"{now}.pkl")
+    objects = navsim_synthetic.tracked_objects(scene["extended_detections_tracks"][0], "test")
+    assert [o["name"] for o in objects].count("pedestrian") == len(pedestrians_ahead.ROW) + 1  # and the walker
+    assert [o["name"] for o in objects].count("vehicle") == 1  # the parked car
