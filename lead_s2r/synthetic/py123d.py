@@ -248,9 +248,11 @@ def _write_map(root: Path, meta: MapMetadata, drive: lead.Drive) -> None:
     writer.close()
 
 
-def lead_ego_metadata() -> EgoStateSE3Metadata:
-    """py123d's CARLA Lincoln, with the centre at our CARLA rear-axle offset (see the module docstring)."""
-    return EgoStateSE3Metadata(
+def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) -> Path:
+    """The route ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes, as LEAD's 123D exporter
+    logs it (module docstring); returns the log folder (``root/logs/carla_train/<name>``)."""
+    drive, actors = lead.drive_and_actors(index, frames, np.random.default_rng(seed))
+    ego_meta = EgoStateSE3Metadata(  # py123d's CARLA Lincoln, its centre at our CARLA rear-axle offset (docstring)
         vehicle_name="carla_lincoln_mkz_2020",
         width=1.83671,
         length=4.89238,
@@ -259,13 +261,6 @@ def lead_ego_metadata() -> EgoStateSE3Metadata:
         center_to_imu_se3=PoseSE3(CARLA_REAR_AXLE_TO_CENTER, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
         rear_axle_to_imu_se3=PoseSE3.identity(),
     )
-
-
-def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) -> Path:
-    """The route ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes, as LEAD's 123D exporter
-    logs it (module docstring); returns the log folder (``root/logs/carla_train/<name>``)."""
-    drive, actors = lead.drive_and_actors(index, frames, np.random.default_rng(seed))
-    ego_meta = lead_ego_metadata()
     lidar = LidarMetadata("LIDAR_TOP", LidarID.LIDAR_TOP, PoseSE3(0.0, 0.0, LIDAR_HEIGHT, 1.0, 0.0, 0.0, 0.0))
     box_meta = BoxDetectionsSE3Metadata(box_detection_label_class=DefaultBoxDetectionLabel)
     camera = front_camera("PCAM_F0")  # LEAD's exporter names its one camera by its id
