@@ -140,14 +140,12 @@ def synthetic_scene(
         pose = shifted_pose(states["poses"][frame], offset)
         vx, vy, ax, ay = states["dynamics"][frame]
         anns = navsim.annotations(agents, frame, pose, tokens)
-        cameras = {}
-        for name in navsim.CAMERAS:
-            if frame != start:
-                cameras[name.lower()] = {}
-                continue
-            blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
-            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, navsim.render_camera(name, pose, anns, rng))
-            cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
+        cameras = {name.lower(): {} for name in navsim.CAMERAS}  # images in the current frame only
+        if frame == start:
+            for name in navsim.CAMERAS:
+                blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
+                navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, navsim.render_camera(name, pose, anns, rng))
+                cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
         frames.append(
             {
                 "token": initial if frame == start else _token17(rng),
