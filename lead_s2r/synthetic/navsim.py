@@ -438,8 +438,7 @@ def generate(out: Path, count: int | None = None, seed: int = 0, splits: dict[st
     logs, pedestrian_logs = {}, {}
     for split, logs_in_split in splits.items():
         for spec in (next(specs) for _ in range(logs_in_split)):
-            folders = {"logs": out / "navsim_logs" / split, "blobs": out / "sensor_blobs" / split}
-            logs[spec.name] = write_log(out, spec, rng, **folders)
+            logs[spec.name] = write_log(out, spec, rng, out / "navsim_logs" / split, out / "sensor_blobs" / split)
             if spec.brake_at is not None:
                 pedestrian_logs[spec.name] = logs[spec.name]
     write_scene_filter(out / "scene_filters" / "navmini.yaml", logs)
