@@ -208,9 +208,7 @@ def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
     navsim_map.write_map(out / "maps")
     logs, mapping = {}, []
     for spec in navsim.log_specs(count, seed):
-        frames = navsim.write_log(
-            out, spec, rng, logs=out / SPLIT / "openscene_meta_datas", blobs=out / SPLIT / "sensor_blobs"
-        )
+        frames = navsim.write_log(out, spec, rng, out / SPLIT / "openscene_meta_datas", out / SPLIT / "sensor_blobs")
         logs[spec.name] = frames
         pairs = [  # per offset: the scene now and the one a frame before
             [synthetic_scene(out, spec, frames, ORIGINAL_FRAME + FUTURE - back, offset, rng) for back in (0, 1)]
