@@ -375,31 +375,25 @@ def train_and_score(
     results = {}
     key = f"{training.name}/seed{seed}"
     if training.predicts:
-        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, caches)
+        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, caches)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
     curves = plot_loss_curves(run / "lightning_logs" / "version_0" / TRAINING_LOG, run / LOSS_CURVES, key)
     if training.predicts:
-        checkpoint = run / "checkpoints" / "last.ckpt"
-        results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, caches)
+        results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, caches)
     scored = ", scored before and after" if training.predicts else ""
     return results, f"{key}: trained{scored}; loss curves -> {curves}"
 
 
 def predict_and_score(
-    config: Path,
-    training: Training,
-    stage: str,
-    seed: int,
-    out: Path,
-    checkpoint: Path | None,
-    caches: dict[str, ScoringCaches],
+    config: Path, training: Training, stage: str, seed: int, out: Path, caches: dict[str, ScoringCaches]
 ) -> dict[str, Any]:
-    """Predict with ``config``'s model (``checkpoint``; None: its initial weights) on each dataset's held-out logs
-    alone, into the stage's folder of that dataset's family, and score the ``predictions.parquet`` the writer left
-    there against that dataset."""
+    """Predict with ``config``'s model (trained: the run's last checkpoint; untrained: its initial weights) on each
+    dataset's held-out logs alone, into the stage's folder of that dataset's family, and score the
+    ``predictions.parquet`` the writer left there against that dataset."""
     sources = yaml.safe_load(config.read_text())["data"]["predict"]
-    weights = ["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]
+    checkpoint = run_folder(out, *home(training), seed) / "checkpoints" / "last.ckpt"
+    weights = ["--ckpt_path", str(checkpoint)] if stage == TRAINED else ["--untrained"]
     results = {}
     for dataset in scored_on(training):
         data = out / "data" / dataset
