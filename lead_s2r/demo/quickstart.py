@@ -39,15 +39,7 @@ import torch
 import yaml
 from rich.console import Console
 
-from lead_s2r.demo.table4 import (
-    CAMERA_RELIANCE,
-    EVAL_SPLITS,
-    EXPERT,
-    TRAINED,
-    UNTRAINED,
-    build_table4,
-    scorings,
-)
+from lead_s2r.demo.table4 import CAMERA_RELIANCE, EVAL_SPLITS, EXPERT, TRAINED, UNTRAINED, build_table4, scorings
 from lead_s2r.demo.twin_data import convert_synthetic
 from lead_s2r.predictions import write_predictions
 from lead_s2r.report.loss_curves import plot_loss_curves

@@ -59,11 +59,7 @@ EGO_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
 # CARLA RoadOption codes as the expert stores them.
 LEFT, RIGHT, STRAIGHT, LANEFOLLOW = 1, 2, 3, 4
 KINDS = ("left", "right", "stop")
-SCENARIOS = {
-    "left": "SignalizedJunctionLeftTurn",
-    "right": "SignalizedJunctionRightTurn",
-    "stop": "PedestrianCrossing",
-}
+SCENARIOS = {"left": "SignalizedJunctionLeftTurn", "right": "SignalizedJunctionRightTurn", "stop": "PedestrianCrossing"}
 #: The stop's expert: cruise speed (m/s), when it brakes (s) and how hard (m/s^2); it stands still after
 #: STOP_SPEED * BRAKE_AT + STOP_SPEED^2 / (2 STOP_DECEL) metres.
 STOP_SPEED, BRAKE_AT, STOP_DECEL = 7.0, 0.5, 3.5
