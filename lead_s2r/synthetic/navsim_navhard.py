@@ -128,8 +128,7 @@ def shifted_pose(pose: np.ndarray, offset: float) -> np.ndarray:
 def synthetic_scene(
     out: Path, spec: navsim.LogSpec, log_frames: list[dict], start: int, offset: float, rng: np.random.Generator
 ) -> str:
-    """Write one synthetic scene whose current frame is log frame ``start`` with the ego shifted by ``offset``;
-    return its token."""
+    """Write the synthetic scene now at log frame ``start``, its ego ``offset`` m to the left; return its token."""
     states = navsim.ego_states(spec)
     agents = navsim.agents_for(spec, states["poses"][0])
     tokens = next(list(f["anns"]["track_tokens"]) for f in log_frames if len(f["anns"]["track_tokens"]) == len(agents))

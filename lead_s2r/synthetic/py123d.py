@@ -122,8 +122,7 @@ def lidar_points(iteration: int) -> np.ndarray:
 
 
 def _boxes(actors: list[lead.Actor], step: int, labels: dict, static: object, velocities: bool = True) -> list:
-    """The actors' boxes at a 20 Hz tick, in py123d's ISO world with world-frame velocities (None without
-    ``velocities``)."""
+    """The actors' boxes at a 20 Hz tick in py123d's ISO world, world-frame velocities (None without ``velocities``)."""
     detections = []
     for actor in actors:
         if actor.cls == "traffic_light":

@@ -294,8 +294,7 @@ def shard_path(out: Path, split: str, shard: int) -> Path:
 
 
 def write_dataset(out: Path, dataset: SynthDataset, seed: int = 0) -> list[Path]:
-    """Write every split's records shuffled across :data:`SHARDS` shards (none for a split without frames), plus
-    the cluster JSON."""
+    """Every split's records shuffled over :data:`SHARDS` shards (none for a split without frames); the cluster JSON."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
