@@ -77,12 +77,8 @@ def tracked_object(agent: navsim.Agent, token: str, t: float, timestamp_us: int)
     length, width, height = agent.size
     pose = ForeignObject(STATE_SE2, (float(centre[0]), float(centre[1]), float(agent.yaw)), reduce=True)
     box = ForeignObject(ORIENTED_BOX, (), {"_center": pose, "_length": length, "_width": width, "_height": height})
-    metadata = ForeignObject(
-        SCENE_OBJECT_METADATA,
-        (),
-        {"timestamp_us": timestamp_us, "token": token[::-1], "track_id": None, "track_token": token,
-         "category_name": agent.name},
-    )  # fmt: skip
+    track = {"timestamp_us": timestamp_us, "token": token[::-1], "track_id": None, "track_token": token}
+    metadata = ForeignObject(SCENE_OBJECT_METADATA, (), {**track, "category_name": agent.name})
     kind = ForeignObject(TRACKED_OBJECT_TYPE, (OBJECT_TYPES[agent.name],), reduce=True)
     state = {"_box": box, "_metadata": metadata, "_tracked_object_type": kind}
     if agent.name not in MOVING:
@@ -105,18 +101,11 @@ def detections(agents: list[navsim.Agent], tokens: list[str], frame: int, timest
 
 
 def traffic_light_statuses(frame: int, timestamp_us: int) -> ForeignObject:
-    statuses = [
-        ForeignObject(
-            TRAFFIC_LIGHT_STATUS_DATA,
-            (),
-            {
-                "status": ForeignObject(TRAFFIC_LIGHT_STATUS_TYPE, (RED if red else GREEN,), reduce=True),
-                "lane_connector_id": int(connector),
-                "timestamp": timestamp_us,
-            },
-        )
-        for connector, red in navsim.traffic_lights(frame)
-    ]
+    statuses = []
+    for connector, red in navsim.traffic_lights(frame):
+        status = ForeignObject(TRAFFIC_LIGHT_STATUS_TYPE, (RED if red else GREEN,), reduce=True)
+        state = {"status": status, "lane_connector_id": int(connector), "timestamp": timestamp_us}
+        statuses.append(ForeignObject(TRAFFIC_LIGHT_STATUS_DATA, (), state))
     return ForeignObject(TRAFFIC_LIGHT_STATUSES, (), {"traffic_lights": statuses})
 
 
