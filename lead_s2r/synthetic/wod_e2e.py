@@ -281,10 +281,7 @@ def encode_frame(frame: SynthFrame) -> bytes:
     calibrations = [camera_calibration(c.name, c.intrinsic, c.extrinsic, c.width, c.height) for c in reversed(order)]
     p = frame.past.astype(np.float32)
     past = States(p[:, 0], p[:, 1], vel_x=p[:, 2], vel_y=p[:, 3], accel_x=p[:, 4], accel_y=p[:, 5])
-    future = None
-    if frame.future is not None:
-        f = frame.future.astype(np.float32)
-        future = States(f[:, 0], f[:, 1], pos_z=f[:, 2])
+    future = None if frame.future is None else States(*frame.future.astype(np.float32).T)  # x, y, z
     preferences = [States(xy[:, 0], xy[:, 1], preference_score=score) for xy, score in frame.preferences]
     return e2ed_frame(frame.name, images, calibrations, past, future, frame.intent, preferences)
 
