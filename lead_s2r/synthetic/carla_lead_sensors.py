@@ -39,9 +39,8 @@ def mosaic(rig: str, frame: int, shift: float, rng: np.random.Generator, walkers
     ``walkers`` ahead ((N, 2) CARLA ego x forward, y right) in the middle tile as filled rectangles."""
     tiles, tile_width, _ = RIG_MOSAICS[rig]
     h, w = mosaic_shape(rig)
-    image = np.empty((h, w, 3), np.uint8)
+    image = np.full((h, w, 3), (90, 90, 90), np.uint8)
     image[: h // 2] = (200, 160, 110)
-    image[h // 2 :] = (90, 90, 90)
     for tile in range(tiles):
         x0 = tile * tile_width + tile_width // 2 + int(shift * 40)
         cv2.line(image, (x0, h // 2), (x0 - 150, h - 1), (255, 255, 255), 4)
