@@ -16,8 +16,6 @@ from lead_s2r.convert import convert
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic import carla_lead, navsim, navsim_navhard, wod_e2e
 
-RAW = "raw"
-DATA = "data"
 #: data/<name> -> (camera rig, seed) of the LEAD routes written for it.
 CARLA_FOLDERS = {
     "carla_lead": (carla_lead.DEFAULT_RIG, 0),
@@ -41,7 +39,7 @@ def convert_synthetic(dataset: str, raw: Path, out: Path, workers: int, **option
 
 def write_twin_data(root: Path, workers: int = 1) -> list[str]:
     """Write raw synthetic data under ``root/raw`` and the converted folders under ``root/data``; return their names."""
-    raw, data = Path(root) / RAW, Path(root) / DATA
+    raw, data = Path(root) / "raw", Path(root) / "data"
     for name, (rig, seed) in CARLA_FOLDERS.items():
         carla_lead.generate(raw / name, count=1, seed=seed, frames=CARLA_FRAMES, rigs=(rig,))
         convert_synthetic("carla_lead", raw / name, data / name, workers, rig="both")
