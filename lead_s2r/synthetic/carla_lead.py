@@ -239,8 +239,7 @@ def make_street(drive: Drive, rng: np.random.Generator) -> list[Actor]:
             start = pose + np.array([-np.sin(pose[2]) * lateral, np.cos(pose[2]) * lateral, 0.0])
             if lateral < 0:  # the oncoming lane and the far kerb face the other way
                 start[2] += np.pi
-            speed = float(rng.uniform(v0, v1))
-            actors.append(Actor(cls, 1000 + len(actors), type_id, extent, start, speed))
+            actors.append(Actor(cls, 1000 + len(actors), type_id, extent, start, float(rng.uniform(v0, v1))))
     return actors
 
 
