@@ -119,7 +119,7 @@ def test_boxes_and_agent_futures_round_trip(raw: Path, samples: dict) -> None:
     for log_name, frames in raw_frames(raw).items():
         spec = spec_of(log_name)
         poses = synth.ego_states(spec)["poses"]
-        agents = synth.agents_for(poses[0], spec.speed, spec.accel)
+        agents = synth.agents_for(spec, poses[0])
         for current in range(synth.HISTORY - 1, synth.FRAMES - synth.FUTURE):
             sample = samples[frames[current]["token"]]
             tracks = sample["meta"]["extras"]["navsim"]["track_tokens"]

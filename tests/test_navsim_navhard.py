@@ -29,6 +29,7 @@ from lead_s2r.shards import read_samples
 from lead_s2r.synthetic import navsim as synth
 from lead_s2r.synthetic import navsim_map as synth_map
 from lead_s2r.synthetic import navsim_navhard as hard
+from lead_s2r.synthetic import pedestrians_ahead
 from lead_s2r_adapters import navsim_synthetic
 from lead_s2r_adapters.navsim import NavsimAdapter
 from lead_s2r_adapters.navsim_io import NavsimFormatError
@@ -135,7 +136,7 @@ def test_synthetic_sample_geometry_matches_the_generator(samples: dict, mapping:
     assert "future" not in sample and "lidar" not in sample and "cam_front" in sample
     np.testing.assert_allclose(sample["past"][-1], [0, 0, 0, 0], atol=1e-6)
     # the lead vehicle (box 0) 2 s later, in the shifted ego frame
-    agents = synth.agents_for(synth.ego_states(spec)["poses"][0], spec.speed, spec.accel)
+    agents = synth.agents_for(spec, synth.ego_states(spec)["poses"][0])
     t = (hard.ORIGINAL_FRAME + hard.FUTURE + 4) * synth.DT_US / 1e6
     lead = np.r_[agents[0].centre(t), agents[0].yaw]
     np.testing.assert_allclose(sample["agents_future"]["poses"][0, 3], to_local(lead, truth), atol=1e-4)
@@ -310,3 +311,16 @@ def test_two_stage_false_scores_every_frame_as_one_stage(converted: Path, scored
     aggregates = json.loads((tmp_path / "scores.json").read_text())["aggregates"]
     assert "extended_pdm_score_combined" not in aggregates and aggregates["frames"] == 24
     assert (tmp_path / "navsim_epdms.csv").exists() and not (tmp_path / CSV_NAME).exists()
+
+
+def test_a_pedestrian_logs_synthetic_scenes_hold_its_pedestrians(tmp_path: Path) -> None:
+    """Log 3 is a pedestrian log (``synth.is_pedestrian_log``): its synthetic scenes hold the row across the lane
+    that its stage-1 frames hold, and no lead vehicle (before, they looked for the log's agents in vain)."""
+    hard.generate(tmp_path, count=4, seed=1)
+    assert synth.log_specs(4, seed=1)[3].brake_at is not None
+    split = yaml.safe_load((tmp_path / "train_test_split" / f"{hard.SPLIT}.yaml").read_text())
+    now = split["reactive_all_mapping"][3][2][0][0]  # the log's first offset, the scene now
+    scene = navsim_synthetic.load_scene(tmp_path / hard.SPLIT / "synthetic_scene_pickles" / f"{now}.pkl")
+    objects = navsim_synthetic.tracked_objects(scene["extended_detections_tracks"][0], "test")
+    assert [o["name"] for o in objects].count("pedestrian") == len(pedestrians_ahead.ROW) + 1  # and the walker
+    assert [o["name"] for o in objects].count("vehicle") == 1  # the parked car

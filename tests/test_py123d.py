@@ -41,7 +41,7 @@ def converted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str,
 
 def _drive(index: int) -> tuple[lead.Drive, list[lead.Actor]]:
     """The drive and the actors write_log wrote for it."""
-    drive, actors = synth.drive_and_actors(index, FRAMES, 0)
+    drive, actors = lead.drive_and_actors(index, FRAMES, np.random.default_rng(0))
     return drive, synth.log_actors(actors)
 
 
@@ -249,7 +249,7 @@ def test_cli_synth_lists_and_converts(tmp_path: Path) -> None:
         text=True,
     )
     assert run.returncode == 0, run.stderr
-    iterations = len(synth.drive_and_actors(0, 16, 0)[0].pose[:: synth.STEP])
+    iterations = len(lead.drive_and_actors(0, 16, np.random.default_rng(0))[0].pose[:: synth.STEP])
     per_log = len(range(0, iterations - 40, 4))  # every 4th frame with a whole 4 s future
     datasets = [s["meta"]["dataset"] for s in read_samples(tmp_path / "out")]
     assert sorted(set(datasets)) == ["lead123d", "py123d_nuplan"] and len(datasets) == 2 * per_log

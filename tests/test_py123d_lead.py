@@ -51,7 +51,7 @@ def _pairs(folders: dict[int, dict], logs: dict[int, dict]) -> list[tuple[dict, 
 
 def test_the_same_drive_converts_to_the_same_ego_future_boxes_and_target_points(twins) -> None:
     index, folders, logs, _ = twins
-    drive, _ = synth.drive_and_actors(index, FRAMES, 0)
+    drive, _ = lead.drive_and_actors(index, FRAMES, np.random.default_rng(0))
     compared = 0
     for folder, log in _pairs(folders, logs):
         assert log["meta"]["dataset"] == "lead123d" and log["meta"]["is_synthetic"]
@@ -112,7 +112,7 @@ def test_departure_2_traffic_lights_stay_carla_lane_indices(twins) -> None:
 
 def test_departure_3_lidar_in_leads_own_frame(twins) -> None:
     index, _, logs, _ = twins
-    drive, actors = synth.drive_and_actors(index, FRAMES, 0)
+    drive, actors = lead.drive_and_actors(index, FRAMES, np.random.default_rng(0))
     for i in (0, 5):
         native = synth.lead_lidar(actors, drive.pose[i * synth.STEP], i * synth.STEP)
         want = carla_points_to_iso(native)  # what the carla_lead adapter makes of LEAD's route-folder LiDAR

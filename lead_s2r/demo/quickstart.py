@@ -39,18 +39,9 @@ import torch
 import yaml
 from rich.console import Console
 
-from lead_s2r.convert import convert
-from lead_s2r.demo.table4 import (
-    CAMERA_RELIANCE,
-    EVAL_SPLITS,
-    EXPERT,
-    TRAINED,
-    UNTRAINED,
-    build_table4,
-    scorings,
-)
+from lead_s2r.demo.table4 import CAMERA_RELIANCE, EVAL_SPLITS, EXPERT, TRAINED, UNTRAINED, build_table4, scorings
+from lead_s2r.demo.twin_data import convert_synthetic
 from lead_s2r.predictions import write_predictions
-from lead_s2r.registry import get_adapter
 from lead_s2r.report.loss_curves import plot_loss_curves
 from lead_s2r.report.tables import scores_key
 from lead_s2r.report.training_log import TRAINING_LOG
@@ -177,11 +168,9 @@ def prepare(dataset: str, out: Path, workers: int, console: Console, started: fl
     generator = importlib.import_module(f"lead_s2r.synthetic.{dataset}")
     generator.generate(raw, seed=0, **({} if splits is None else {"splits": splits}))
     _stage(console, f"{dataset}: synthetic raw data -> {raw}", started)
-    adapter = get_adapter(dataset, **{name: str(raw / value) for name, value in options.items()})
-    converted = convert(adapter, raw, data, workers=workers, force=True)
-    if not converted.ok:
-        raise RuntimeError(f"{dataset}: conversion failed: {converted.errors}")
-    _stage(console, f"{dataset}: {converted.samples} samples converted -> {data}", started)
+    paths = {name: str(raw / value) for name, value in options.items()}  # the adapter's options
+    samples = convert_synthetic(dataset, raw, data, workers, **paths)
+    _stage(console, f"{dataset}: {samples} samples converted -> {data}", started)
 
 
 def score_expert(out: Path, caches: dict[str, ScoringCaches]) -> dict[str, Any]:
@@ -272,8 +261,7 @@ def drop_carla(config: dict[str, Any]) -> None:
     config["data"]["train"].pop("carla", None)
     config["model"].get("supervise", {}).pop("carla", None)
     config["model"].pop("init_from", None)
-    anchors = config["data"]["schedule"]["anchors"]
-    for shares in anchors.values():
+    for shares in config["data"]["schedule"]["anchors"].values():
         shares.pop("carla", None)
 
 
@@ -379,31 +367,25 @@ def train_and_score(
     results = {}
     key = f"{training.name}/seed{seed}"
     if training.predicts:
-        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, None, caches)
+        results[f"{key}/{UNTRAINED}"] = predict_and_score(config, training, UNTRAINED, seed, out, caches)
     with lightning_output_to(out / LIGHTNING_LOG):
         run_lightning_cli(["fit", "--config", str(config)])
     curves = plot_loss_curves(run / "lightning_logs" / "version_0" / TRAINING_LOG, run / LOSS_CURVES, key)
     if training.predicts:
-        checkpoint = run / "checkpoints" / "last.ckpt"
-        results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, checkpoint, caches)
+        results[f"{key}/{TRAINED}"] = predict_and_score(config, training, TRAINED, seed, out, caches)
     scored = ", scored before and after" if training.predicts else ""
     return results, f"{key}: trained{scored}; loss curves -> {curves}"
 
 
 def predict_and_score(
-    config: Path,
-    training: Training,
-    stage: str,
-    seed: int,
-    out: Path,
-    checkpoint: Path | None,
-    caches: dict[str, ScoringCaches],
+    config: Path, training: Training, stage: str, seed: int, out: Path, caches: dict[str, ScoringCaches]
 ) -> dict[str, Any]:
-    """Predict with ``config``'s model (``checkpoint``; None: its initial weights) on each dataset's held-out logs
-    alone, into the stage's folder of that dataset's family, and score the ``predictions.parquet`` the writer left
-    there against that dataset."""
+    """Predict with ``config``'s model (trained: the run's last checkpoint; untrained: its initial weights) on each
+    dataset's held-out logs alone, into the stage's folder of that dataset's family, and score the
+    ``predictions.parquet`` the writer left there against that dataset."""
     sources = yaml.safe_load(config.read_text())["data"]["predict"]
-    weights = ["--untrained"] if checkpoint is None else ["--ckpt_path", str(checkpoint)]
+    checkpoint = run_folder(out, *home(training), seed) / "checkpoints" / "last.ckpt"
+    weights = ["--ckpt_path", str(checkpoint)] if stage == TRAINED else ["--untrained"]
     results = {}
     for dataset in scored_on(training):
         data = out / "data" / dataset

@@ -10,15 +10,12 @@ seed. One log or route each keeps a full set of folders to seconds of conversion
 """
 
 import shutil
-from collections.abc import Callable
 from pathlib import Path
 
 from lead_s2r.convert import convert
 from lead_s2r.registry import get_adapter
 from lead_s2r.synthetic import carla_lead, navsim, navsim_navhard, wod_e2e
 
-RAW = "raw"
-DATA = "data"
 #: data/<name> -> (camera rig, seed) of the LEAD routes written for it.
 CARLA_FOLDERS = {
     "carla_lead": (carla_lead.DEFAULT_RIG, 0),
@@ -33,53 +30,34 @@ WOD_SPLITS = {"train": 1, "val": 1}
 CARLA_FRAMES = 8
 
 
-def _convert(dataset: str, raw: Path, out: Path, workers: int, **options: str) -> None:
-    result = convert(get_adapter(dataset, **options), raw, out, workers=workers, force=True, progress=False)
+def convert_synthetic(dataset: str, raw: Path, out: Path, workers: int, **options: str) -> int:
+    result = convert(get_adapter(dataset, **options), raw, out, workers=workers, force=True)
     if not result.ok or result.samples == 0:
         raise RuntimeError(f"{out}: converting synthetic {dataset} data failed: {result.errors}")
-
-
-def write_carla(root: Path, workers: int) -> None:
-    for name, (rig, seed) in CARLA_FOLDERS.items():
-        raw = root / RAW / name
-        carla_lead.generate(raw, count=1, seed=seed, frames=CARLA_FRAMES, rigs=(rig,))
-        _convert("carla_lead", raw, root / DATA / name, workers, rig="both")
-
-
-def write_navsim_twin(root: Path, workers: int) -> None:
-    for name, (split, seed) in NAVSIM_FOLDERS.items():
-        raw = root / RAW / f"navsim_{name}"
-        navsim.generate(raw, seed=seed, splits={split: 1})
-        scene_filter = raw / "scene_filters" / f"{name}.yaml"
-        shutil.copy(raw / "scene_filters" / "navmini.yaml", scene_filter)
-        options = {"split": split, "scene_filter": str(scene_filter), "maps": str(raw / "maps")}
-        _convert("navsim", raw, root / DATA / f"navsim_{name}", workers, **options)
-
-
-def write_navhard(root: Path, workers: int) -> None:
-    raw, split = root / RAW / "navsim_navhard", navsim_navhard.SPLIT
-    navsim_navhard.generate(raw, count=1)
-    options = {
-        "split": split,
-        "scene_filter": str(raw / "scene_filters" / f"{split}.yaml"),
-        "maps": str(raw / "maps"),
-        "two_stage_mapping": str(raw / "train_test_split" / f"{split}.yaml"),
-    }
-    _convert("navsim", raw, root / DATA / "navsim_navhard", workers, **options)
-
-
-def write_wod_twin(root: Path, workers: int) -> None:
-    raw = root / RAW / "wod_e2e"
-    wod_e2e.generate(raw, seed=0, splits=WOD_SPLITS)
-    _convert("wod_e2e", raw, root / DATA / "wod_e2e", workers)
-
-
-WRITERS: tuple[Callable[[Path, int], None], ...] = (write_carla, write_navsim_twin, write_navhard, write_wod_twin)
+    return result.samples
 
 
 def write_twin_data(root: Path, workers: int = 1) -> list[str]:
     """Write raw synthetic data under ``root/raw`` and the converted folders under ``root/data``; return their names."""
-    root = Path(root)
-    for write in WRITERS:
-        write(root, workers)
-    return sorted(path.name for path in (root / DATA).iterdir())
+    raw, data = Path(root) / "raw", Path(root) / "data"
+    for name, (rig, seed) in CARLA_FOLDERS.items():
+        carla_lead.generate(raw / name, count=1, seed=seed, frames=CARLA_FRAMES, rigs=(rig,))
+        convert_synthetic("carla_lead", raw / name, data / name, workers, rig="both")
+    for name, (split, seed) in NAVSIM_FOLDERS.items():
+        folder = raw / f"navsim_{name}"
+        navsim.generate(folder, seed=seed, splits={split: 1})
+        scene_filter = shutil.copy(folder / "scene_filters" / "navmini.yaml", folder / "scene_filters" / f"{name}.yaml")
+        options = {"split": split, "scene_filter": str(scene_filter), "maps": str(folder / "maps")}
+        convert_synthetic("navsim", folder, data / f"navsim_{name}", workers, **options)
+    folder, split = raw / "navsim_navhard", navsim_navhard.SPLIT
+    navsim_navhard.generate(folder, count=1)
+    options = {
+        "split": split,
+        "scene_filter": str(folder / "scene_filters" / f"{split}.yaml"),
+        "maps": str(folder / "maps"),
+        "two_stage_mapping": str(folder / "train_test_split" / f"{split}.yaml"),
+    }
+    convert_synthetic("navsim", folder, data / "navsim_navhard", workers, **options)
+    wod_e2e.generate(raw / "wod_e2e", seed=0, splits=WOD_SPLITS)
+    convert_synthetic("wod_e2e", raw / "wod_e2e", data / "wod_e2e", workers)
+    return sorted(path.name for path in data.iterdir())

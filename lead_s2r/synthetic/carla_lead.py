@@ -51,6 +51,7 @@ DEFAULT_TP_DISTANCE = 7.5
 ROUTE_POINTS = 50
 TURN_RADIUS = 10.0
 TURN_START = 8.0
+TURN_END = TURN_START + np.pi / 2 * TURN_RADIUS
 DEFAULT_RIG = "CARLA_LEADERBOARD2_3CAMERAS"
 JPEG_QUALITY = 30
 EGO_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
@@ -58,11 +59,7 @@ EGO_EXTENT = (2.4508416652679443, 1.0641621351242065, 0.7553732395172119)
 # CARLA RoadOption codes as the expert stores them.
 LEFT, RIGHT, STRAIGHT, LANEFOLLOW = 1, 2, 3, 4
 KINDS = ("left", "right", "stop")
-SCENARIOS = {
-    "left": "SignalizedJunctionLeftTurn",
-    "right": "SignalizedJunctionRightTurn",
-    "stop": "PedestrianCrossing",
-}
+SCENARIOS = {"left": "SignalizedJunctionLeftTurn", "right": "SignalizedJunctionRightTurn", "stop": "PedestrianCrossing"}
 #: The stop's expert: cruise speed (m/s), when it brakes (s) and how hard (m/s^2); it stands still after
 #: STOP_SPEED * BRAKE_AT + STOP_SPEED^2 / (2 STOP_DECEL) metres.
 STOP_SPEED, BRAKE_AT, STOP_DECEL = 7.0, 0.5, 3.5
@@ -89,7 +86,7 @@ class Drive:
 
 def _curvature(kind: str, s: np.ndarray) -> np.ndarray:
     """Signed curvature along the path; a left turn is negative in CARLA's clockwise-yaw convention."""
-    turning = (s >= TURN_START) & (s < TURN_START + np.pi / 2 * TURN_RADIUS)
+    turning = (s >= TURN_START) & (s < TURN_END)
     sign = {"left": -1.0, "right": 1.0, "stop": 0.0}[kind]
     return np.where(turning, sign / TURN_RADIUS, 0.0)
 
@@ -109,9 +106,8 @@ def _speed_profile(kind: str, steps: int) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(steps) * DT
     if kind != "stop":
         return np.full(steps, 6.0), np.zeros(steps)
-    v0, brake_at, decel = STOP_SPEED, BRAKE_AT, STOP_DECEL
-    speed = np.clip(v0 - decel * np.clip(t - brake_at, 0.0, None), 0.0, None)
-    accel = np.where((t >= brake_at) & (speed > 0), -decel, 0.0)
+    speed = np.clip(STOP_SPEED - STOP_DECEL * np.clip(t - BRAKE_AT, 0.0, None), 0.0, None)
+    accel = np.where((t >= BRAKE_AT) & (speed > 0), -STOP_DECEL, 0.0)
     return speed, accel
 
 
@@ -123,13 +119,12 @@ def make_drive(kind: str, steps: int, rng: np.random.Generator) -> Drive:
     path = _integrate_path(kind, start, s[-1] + ROUTE_POINTS + 40.0)
     pose, _ = resample(np.arange(len(path)) * 0.1, path, s, angle_columns=(2,))
     yaw_rate = _curvature(kind, s) * speed
-    turn_end = TURN_START + np.pi / 2 * TURN_RADIUS
     if kind == "stop":
         plan = [(10.0 * i, STRAIGHT if i == 2 else LANEFOLLOW) for i in range(int(path_len(path) // 10))]
     else:
         option = LEFT if kind == "left" else RIGHT
-        plan = [(0.0, LANEFOLLOW), (TURN_START, option), ((TURN_START + turn_end) / 2, option), (turn_end, LANEFOLLOW)]
-        plan += [(d, LANEFOLLOW) for d in np.arange(turn_end + 10.0, path_len(path), 10.0)]
+        plan = [(0.0, LANEFOLLOW), (TURN_START, option), ((TURN_START + TURN_END) / 2, option), (TURN_END, LANEFOLLOW)]
+        plan += [(d, LANEFOLLOW) for d in np.arange(TURN_END + 10.0, path_len(path), 10.0)]
     return Drive(kind, pose, speed, accel, yaw_rate, s, path, plan)
 
 
@@ -217,6 +212,12 @@ def make_actors(drive: Drive, rng: np.random.Generator) -> list[Actor]:
     ]
 
 
+def drive_and_actors(index: int, frames: int, rng: np.random.Generator) -> tuple[Drive, list[Actor]]:
+    """Route ``index``'s drive (its kind cycles over :data:`KINDS`) for ``frames`` 4 Hz frames, and its actors."""
+    drive = make_drive(KINDS[index % len(KINDS)], (frames - 1) * SAVE_FREQ + EGO_FUTURE_STEPS + 1, rng)
+    return drive, make_actors(drive, rng)
+
+
 #: Realistic frames: the actors of a busy street, as (class, type_id, extent, lateral offsets from the route in m,
 #: speed range m/s, count). Moving cars use both lanes, parked cars and walkers the kerbs.
 STREET = (
@@ -238,8 +239,7 @@ def make_street(drive: Drive, rng: np.random.Generator) -> list[Actor]:
             start = pose + np.array([-np.sin(pose[2]) * lateral, np.cos(pose[2]) * lateral, 0.0])
             if lateral < 0:  # the oncoming lane and the far kerb face the other way
                 start[2] += np.pi
-            speed = float(rng.uniform(v0, v1))
-            actors.append(Actor(cls, 1000 + len(actors), type_id, extent, start, speed))
+            actors.append(Actor(cls, 1000 + len(actors), type_id, extent, start, float(rng.uniform(v0, v1))))
     return actors
 
 
@@ -335,7 +335,7 @@ def _meta(drive: Drive, step: int, planners: dict[str, _Planner], extras: dict, 
         "walker_hazard": drive.kind == "stop",
         "vehicle_hazard": False,
         "dist_to_junction": None,
-        "is_junction": TURN_START < s_now < TURN_START + np.pi / 2 * TURN_RADIUS and drive.kind != "stop",
+        "is_junction": TURN_START < s_now < TURN_END and drive.kind != "stop",
         "scenario_obstacles_ids": [],
         "vehicle_opened_door": False,
         "vehicle_door_side": None,
@@ -366,19 +366,17 @@ def write_route(
     route_id = 1000 + index
     folder = root / "data" / SCENARIOS[kind] / f"{town}_Rep0_{route_id}_route0_01_10_05_46_{index % 60:02d}"
     rigs = [
-        f"{sensor}{rig}" for sensor in ("rgb", "semantics", "depth", "hdmap", "radar") for rig in ("", "_perturbated")
+        f"{sensor}{twin}" for sensor in ("rgb", "semantics", "depth", "hdmap", "radar") for twin in ("", "_perturbated")
     ]
     for name in (*rigs, "lidar", "bboxes", "metas"):  # one LiDAR for both rigs, as LEAD records it
         (folder / name).mkdir(parents=True, exist_ok=True)
-    steps = (frames - 1) * SAVE_FREQ + EGO_FUTURE_STEPS + 1
-    drive = make_drive(kind, steps, rng)
-    actors = make_actors(drive, rng) + (make_street(drive, rng) if realistic else [])
+    drive, actors = drive_and_actors(index, frames, rng)
+    actors += make_street(drive, rng) if realistic else []
     translation = float(rng.choice([-1, 1]) * rng.uniform(0.1, 1.0))
     rotation = float(-np.sign(translation) * (5.0 + (abs(translation) - 0.1) / 0.9 * 7.5))
     view = np.array([0.0, translation, np.deg2rad(rotation)])  # the perturbated rig's pose in the ego frame
-    plan_s = np.array([s for s, _ in drive.plan])
-    plan_points = np.column_stack([drive.path[(plan_s / 0.1).round().astype(int), :2], np.zeros(len(plan_s))])
-    commands = [c for _, c in drive.plan]
+    plan_s, commands = zip(*drive.plan, strict=True)
+    plan_points = np.column_stack([drive.path[(np.array(plan_s) / 0.1).round().astype(int), :2], np.zeros(len(plan_s))])
     distances = REALISTIC_TP_DISTANCES if realistic else TP_DISTANCES
     planners = {d: _Planner(plan_points, commands, d) for d in (*distances, DEFAULT_TP_DISTANCE)}
     extras = {
@@ -402,14 +400,13 @@ def write_route(
         walkers = np.array([box["position"][:2] for box in boxes if box.get("type_id") == WALKER_AHEAD])
         write_pickle(folder / "bboxes" / f"{name}.pkl", boxes)
         write_pickle(folder / "metas" / f"{name}.pkl", _meta(drive, step, planners, extras, rig))
-        for suffix, shift in (("", 0.0), ("_perturbated", translation)):
+        for suffix, shift, pose in (("", 0.0, ego), ("_perturbated", translation, to_global(view, ego))):
             mosaic = sensors.mosaic(rig, frame, shift, rng, walkers)
             jpeg = cv2.imencode(".jpg", mosaic, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
             (folder / f"rgb{suffix}" / f"{name}.jpg").write_bytes(jpeg.tobytes())
             cv2.imwrite(str(folder / f"semantics{suffix}" / f"{name}.png"), sensors.semantics(rig))
             cv2.imwrite(str(folder / f"depth{suffix}" / f"{name}.png"), sensors.depth(rig, frame))
-        cv2.imwrite(str(folder / "hdmap" / f"{name}.png"), sensors.hdmap(drive.path, ego))
-        cv2.imwrite(str(folder / "hdmap_perturbated" / f"{name}.png"), sensors.hdmap(drive.path, to_global(view, ego)))
+            cv2.imwrite(str(folder / f"hdmap{suffix}" / f"{name}.png"), sensors.hdmap(drive.path, pose))
         if realistic:
             points, times = sensors.dense_lidar_points(boxes, float(drive.speed[step]), rng)
         else:
@@ -417,11 +414,7 @@ def write_route(
         sensors.write_laz(folder / "lidar" / f"{name}.laz", points, times)
         radar = sensors.radar(boxes, rng, realistic)
         np.savez_compressed(folder / "radar" / f"{name}.npz", **radar)
-        view_radar = {}
-        for key, cloud in radar.items():
-            moved = cloud.astype(np.float64)
-            moved[:, :2] = points_to_local(moved[:, :2], view)
-            view_radar[key] = moved.astype(np.float16)
+        view_radar = {key: points_to_local(cloud, view).astype(np.float16) for key, cloud in radar.items()}
         np.savez_compressed(folder / "radar_perturbated" / f"{name}.npz", **view_radar)
     results = {
         "index": index,
@@ -430,7 +423,7 @@ def write_route(
         "num_infractions": 0,
         "infractions": {"collisions_vehicle": [], "min_speed_infractions": [], "outside_route_lanes": []},
         "scores": {"score_route": 100.0, "score_penalty": 1.0, "score_composed": 100.0},
-        "meta": {"route_length": float(path_len(drive.path)), "duration_game": steps * DT},
+        "meta": {"route_length": float(path_len(drive.path)), "duration_game": len(drive.pose) * DT},
     }
     (folder / "results.json").write_text(json.dumps(results, indent=2))
     return folder

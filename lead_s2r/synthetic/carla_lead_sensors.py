@@ -34,16 +34,13 @@ def mosaic_shape(rig: str) -> tuple[int, int]:
 FRONT_FOV, CAMERA_HEIGHT = 60.0, 2.0
 
 
-def mosaic(
-    rig: str, frame: int, shift: float, rng: np.random.Generator, walkers: np.ndarray | None = None
-) -> np.ndarray:
+def mosaic(rig: str, frame: int, shift: float, rng: np.random.Generator, walkers: np.ndarray) -> np.ndarray:
     """A cheap but frame-specific BGR scene: sky, road with lane lines in every tile, the frame number, and the
     ``walkers`` ahead ((N, 2) CARLA ego x forward, y right) in the middle tile as filled rectangles."""
     tiles, tile_width, _ = RIG_MOSAICS[rig]
     h, w = mosaic_shape(rig)
-    image = np.empty((h, w, 3), np.uint8)
+    image = np.full((h, w, 3), (90, 90, 90), np.uint8)
     image[: h // 2] = (200, 160, 110)
-    image[h // 2 :] = (90, 90, 90)
     for tile in range(tiles):
         x0 = tile * tile_width + tile_width // 2 + int(shift * 40)
         cv2.line(image, (x0, h // 2), (x0 - 150, h - 1), (255, 255, 255), 4)
@@ -53,7 +50,7 @@ def mosaic(
     focal = tile_width / (2 * np.tan(np.radians(FRONT_FOV / 2)))
     centre = (tiles // 2) * tile_width + tile_width / 2
     half, tall = pedestrians_ahead.SIZE[1] / 2, pedestrians_ahead.SIZE[2]
-    for x, y in sorted(walkers if walkers is not None else [], key=lambda p: -p[0]):
+    for x, y in sorted(walkers, key=lambda p: -p[0]):
         if x < 1.0:
             continue
         u0, u1 = centre + focal * (y - half) / x, centre + focal * (y + half) / x
@@ -92,10 +89,9 @@ def lidar_points(boxes: list[dict], rng: np.random.Generator) -> tuple[np.ndarra
     """Points on the box surfaces (sweeps 0..4) and a building facade, in the ego frame, inside the BEV box."""
     clouds, times = [], []
     for box in boxes[1:]:
-        n = 60
-        local = rng.uniform(-1, 1, (n, 3)) * np.asarray(box["extent"])
+        local = rng.uniform(-1, 1, (60, 3)) * np.asarray(box["extent"])
         clouds.append(rotate(local, box["yaw"]) + box["position"])
-        times.append(rng.integers(0, 5, n))
+        times.append(rng.integers(0, 5, 60))
     facade = np.column_stack([rng.uniform(-30, 60, 400), np.full(400, 15.0), rng.uniform(0.2, 8, 400)])
     clouds.append(facade)
     times.append(rng.integers(0, 10, 400))

@@ -139,15 +139,15 @@ def lead_offset(speed: float) -> float:
     return EGO_FRONT + STANDSTILL_GAP + TIME_GAP * speed + LEAD_SIZE[0] / 2
 
 
-def agents_for(start: np.ndarray, speed: float, accel: float, stop: float | None = None) -> list[Agent]:
-    """The objects around a log whose ego starts at ``start`` heading east with ``speed`` and ``accel``: the lead
-    vehicle keeps its gap by driving the ego's speed profile (a turning ego leaves it going straight on). With
-    ``stop`` (how far east of ``start`` the ego stops), pedestrians stand across the lane ahead of that point
-    instead of the lead vehicle."""
-    x0, y0 = float(start[0]), float(start[1])
-    if stop is None:
+def agents_for(spec: LogSpec, start: np.ndarray) -> list[Agent]:
+    """The objects around log ``spec`` whose ego starts at ``start`` heading east: the lead vehicle keeps its gap by
+    driving the ego's speed profile (a turning ego leaves it going straight on). In a pedestrian log (``brake_at``),
+    pedestrians stand across the lane ahead of where the ego stops instead of the lead vehicle."""
+    x0, y0, speed, accel = float(start[0]), float(start[1]), spec.speed, spec.accel
+    if spec.brake_at is None:
         ahead = [Agent("vehicle", (x0 + lead_offset(speed), y0), (speed, 0.0), 0.0, LEAD_SIZE, accel=(accel, 0.0))]
     else:
+        stop = pedestrians_ahead.stopping_distance(speed, accel, spec.brake_at)
         x, size = x0 + pedestrians_ahead.row_distance(stop, EGO_FRONT), pedestrians_ahead.SIZE
         ahead = [Agent("pedestrian", (x, y0 + dy), (0.0, 0.0), math.pi / 2, size) for dy in pedestrians_ahead.ROW]
     return [
@@ -254,16 +254,8 @@ def write_pcd(path: Path, points: np.ndarray) -> None:
 def lidar_points(rng: np.random.Generator) -> np.ndarray:
     """(N, 6) points in the lidar frame: x, y, z, intensity, ring, lidar id."""
     n = LIDAR_POINTS
-    return np.column_stack(
-        [
-            rng.uniform(-50, 50, n),
-            rng.uniform(-50, 50, n),
-            rng.uniform(-2.0, 1.0, n),
-            rng.integers(0, 256, n),
-            rng.integers(0, 64, n),
-            rng.integers(0, 5, n),
-        ]
-    )
+    xyz = [rng.uniform(-50, 50, n), rng.uniform(-50, 50, n), rng.uniform(-2.0, 1.0, n)]
+    return np.column_stack([*xyz, rng.integers(0, 256, n), rng.integers(0, 64, n), rng.integers(0, 5, n)])
 
 
 def annotations(agents: list[Agent], frame: int, pose: np.ndarray, tokens: list[str]) -> dict[str, np.ndarray]:
@@ -308,8 +300,7 @@ def write_log(
     blobs = out / "sensor_blobs" / DATA_SPLIT if blobs is None else blobs
     states = ego_states(spec)
     poses, dynamics = states["poses"], states["dynamics"]
-    stop = None if spec.brake_at is None else pedestrians_ahead.stopping_distance(spec.speed, spec.accel, spec.brake_at)
-    agents = agents_for(poses[0], spec.speed, spec.accel, stop)
+    agents = agents_for(spec, poses[0])
     track_tokens = [_hex(rng) for _ in agents]
     tokens = [_hex(rng) for _ in range(FRAMES)]
     lidar2ego = homogeneous(np.eye(3), LIDAR2EGO_TRANSLATION)
@@ -329,7 +320,6 @@ def write_log(
             cams[name] = {"data_path": blob, **camera_calibration(name)}
         lidar_path = f"{spec.name}/MergedPointCloud/{_hex(rng)}.pcd"
         write_pcd(blobs / lidar_path, lidar_points(rng))
-        command = np.array(spec.command, dtype=np.int64)
         frames.append(
             {
                 "token": tokens[i],
@@ -353,7 +343,7 @@ def write_log(
                 "lidar2global": ego2global @ lidar2ego,
                 "ego_dynamic_state": [float(vx), float(vy), float(ax), float(ay)],
                 "traffic_lights": traffic_lights(i),
-                "driving_command": command,
+                "driving_command": np.array(spec.command, dtype=np.int64),
                 "cams": cams,
                 "sample_prev": tokens[i - 1] if i > 0 else None,
                 "sample_next": tokens[i + 1] if i + 1 < FRAMES else None,
@@ -448,8 +438,7 @@ def generate(out: Path, count: int | None = None, seed: int = 0, splits: dict[st
     logs, pedestrian_logs = {}, {}
     for split, logs_in_split in splits.items():
         for spec in (next(specs) for _ in range(logs_in_split)):
-            folders = {"logs": out / "navsim_logs" / split, "blobs": out / "sensor_blobs" / split}
-            logs[spec.name] = write_log(out, spec, rng, **folders)
+            logs[spec.name] = write_log(out, spec, rng, out / "navsim_logs" / split, out / "sensor_blobs" / split)
             if spec.brake_at is not None:
                 pedestrian_logs[spec.name] = logs[spec.name]
     write_scene_filter(out / "scene_filters" / "navmini.yaml", logs)

@@ -95,8 +95,7 @@ def map_colours() -> tuple[np.ndarray, np.ndarray]:
     corner = np.min([box[:2] for areas, _ in AREAS for box in areas], axis=0)
     far = np.max([box[2:] for areas, _ in AREAS for box in areas], axis=0)
     columns, rows = np.ceil((far - corner) / RESOLUTION).astype(np.int64)
-    raster = np.empty((rows, columns, 3), np.uint8)
-    raster[:] = GRASS
+    raster = np.full((rows, columns, 3), GRASS, np.uint8)
     for areas, colour in [*AREAS, (marking_boxes(), MARKING)]:
         for box in areas:
             (c0, r0), (c1, r1) = np.round((np.reshape(box, (2, 2)) - corner) / RESOLUTION).astype(np.int64)

@@ -110,15 +110,14 @@ def write_map(maps_root: Path, location: str = LOCATION, version: str = MAP_VERS
     path = Path(maps_root) / location / version / "map.gpkg"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
-    ints = lambda values: pa.array(values, pa.int64())  # noqa: E731 - one-line column helper
     _write(
         path,
         "lanes_polygons",
         [lane.fid for lane in LANES],
         [lane_polygon(lane) for lane in LANES],
         "Polygon",
-        lane_group_fid=ints([lane.parent for lane in LANES]),
-        lane_index=ints([lane.index for lane in LANES]),
+        lane_group_fid=[lane.parent for lane in LANES],
+        lane_index=[lane.index for lane in LANES],
         speed_limit_mps=[lane.speed_limit for lane in LANES],
     )
     _write(path, "lane_groups_polygons", *_boxes(ROADBLOCKS), "Polygon")
@@ -129,9 +128,9 @@ def write_map(maps_root: Path, location: str = LOCATION, version: str = MAP_VERS
         connectors,
         [shapely.LineString(lc.centerline) for lc in LANE_CONNECTORS],
         "LineString",
-        lane_group_connector_fid=ints([lc.parent for lc in LANE_CONNECTORS]),
-        exit_lane_fid=ints([lc.from_lane for lc in LANE_CONNECTORS]),
-        entry_lane_fid=ints([lc.to_lane for lc in LANE_CONNECTORS]),
+        lane_group_connector_fid=[lc.parent for lc in LANE_CONNECTORS],
+        exit_lane_fid=[lc.from_lane for lc in LANE_CONNECTORS],
+        entry_lane_fid=[lc.to_lane for lc in LANE_CONNECTORS],
         speed_limit_mps=[lc.speed_limit for lc in LANE_CONNECTORS],
     )
     _write(
@@ -140,7 +139,7 @@ def write_map(maps_root: Path, location: str = LOCATION, version: str = MAP_VERS
         [3000 + i for i in range(len(LANE_CONNECTORS))],
         [lane_polygon(lc) for lc in LANE_CONNECTORS],
         "Polygon",
-        lane_connector_fid=ints(connectors),
+        lane_connector_fid=connectors,
     )
     rbc_ids = list(ROADBLOCK_CONNECTORS)
     rbc_polygons = [
@@ -152,8 +151,8 @@ def write_map(maps_root: Path, location: str = LOCATION, version: str = MAP_VERS
         rbc_ids,
         [shapely.convex_hull(p) for p in rbc_polygons],
         "Polygon",
-        from_lane_group_fid=ints([ROADBLOCK_CONNECTORS[fid][0] for fid in rbc_ids]),
-        to_lane_group_fid=ints([ROADBLOCK_CONNECTORS[fid][1] for fid in rbc_ids]),
+        from_lane_group_fid=[ROADBLOCK_CONNECTORS[fid][0] for fid in rbc_ids],
+        to_lane_group_fid=[ROADBLOCK_CONNECTORS[fid][1] for fid in rbc_ids],
     )
     every = LANES + LANE_CONNECTORS
     _write(
@@ -162,8 +161,8 @@ def write_map(maps_root: Path, location: str = LOCATION, version: str = MAP_VERS
         [4000 + i for i in range(len(every))],
         [shapely.LineString(lane.centerline) for lane in every],
         "LineString",
-        lane_fid=pa.array([lane.fid if lane.from_lane is None else None for lane in every], pa.int64()),
-        lane_connector_fid=pa.array([lane.fid if lane.from_lane is not None else None for lane in every], pa.int64()),
+        lane_fid=[lane.fid if lane.from_lane is None else None for lane in every],
+        lane_connector_fid=[lane.fid if lane.from_lane is not None else None for lane in every],
     )
     _write(path, "intersections", *_boxes(INTERSECTIONS), "Polygon")
     _write(path, "carpark_areas", *_boxes(CARPARKS), "Polygon")

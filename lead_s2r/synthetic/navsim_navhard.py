@@ -42,7 +42,6 @@ HISTORY, FUTURE = 4, 8
 ORIGINAL_FRAME = 4
 #: Sideways shifts (m, to the ego's left) of the synthetic variants' ego.
 OFFSETS = (0.0, 0.4, 1.2)
-MAP_NAME = navsim_map.LOCATION
 
 _ACTOR = "nuplan.common.actor_state"
 DETECTIONS_TRACKS = ForeignClass("nuplan.planning.simulation.observation.observation_type", "DetectionsTracks")
@@ -57,11 +56,9 @@ TRACKED_OBJECT_TYPE = ForeignClass(f"{_ACTOR}.tracked_objects_types", "TrackedOb
 TRAFFIC_LIGHT_STATUSES = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatuses")
 TRAFFIC_LIGHT_STATUS_DATA = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusData")
 TRAFFIC_LIGHT_STATUS_TYPE = ForeignClass("nuplan.common.maps.maps_datatypes", "TrafficLightStatusType")
-#: nuPlan ``TrackedObjectType`` values of the OpenScene names.
-OBJECT_TYPES = {
-    "vehicle": 0, "pedestrian": 1, "bicycle": 2, "traffic_cone": 3, "barrier": 4, "czone_sign": 5,
-    "generic_object": 6,
-}  # fmt: skip
+#: nuPlan ``TrackedObjectType`` values of the OpenScene names: their places in the enum.
+_NUPLAN_ORDER = ("vehicle", "pedestrian", "bicycle", "traffic_cone", "barrier", "czone_sign", "generic_object")
+OBJECT_TYPES = {name: value for value, name in enumerate(_NUPLAN_ORDER)}
 MOVING = {"vehicle", "pedestrian", "bicycle"}
 RED, GREEN = 2, 0
 
@@ -80,12 +77,8 @@ def tracked_object(agent: navsim.Agent, token: str, t: float, timestamp_us: int)
     length, width, height = agent.size
     pose = ForeignObject(STATE_SE2, (float(centre[0]), float(centre[1]), float(agent.yaw)), reduce=True)
     box = ForeignObject(ORIENTED_BOX, (), {"_center": pose, "_length": length, "_width": width, "_height": height})
-    metadata = ForeignObject(
-        SCENE_OBJECT_METADATA,
-        (),
-        {"timestamp_us": timestamp_us, "token": token[::-1], "track_id": None, "track_token": token,
-         "category_name": agent.name},
-    )  # fmt: skip
+    track = {"timestamp_us": timestamp_us, "token": token[::-1], "track_id": None, "track_token": token}
+    metadata = ForeignObject(SCENE_OBJECT_METADATA, (), {**track, "category_name": agent.name})
     kind = ForeignObject(TRACKED_OBJECT_TYPE, (OBJECT_TYPES[agent.name],), reduce=True)
     state = {"_box": box, "_metadata": metadata, "_tracked_object_type": kind}
     if agent.name not in MOVING:
@@ -108,18 +101,11 @@ def detections(agents: list[navsim.Agent], tokens: list[str], frame: int, timest
 
 
 def traffic_light_statuses(frame: int, timestamp_us: int) -> ForeignObject:
-    statuses = [
-        ForeignObject(
-            TRAFFIC_LIGHT_STATUS_DATA,
-            (),
-            {
-                "status": ForeignObject(TRAFFIC_LIGHT_STATUS_TYPE, (RED if red else GREEN,), reduce=True),
-                "lane_connector_id": int(connector),
-                "timestamp": timestamp_us,
-            },
-        )
-        for connector, red in navsim.traffic_lights(frame)
-    ]
+    statuses = []
+    for connector, red in navsim.traffic_lights(frame):
+        status = ForeignObject(TRAFFIC_LIGHT_STATUS_TYPE, (RED if red else GREEN,), reduce=True)
+        state = {"status": status, "lane_connector_id": int(connector), "timestamp": timestamp_us}
+        statuses.append(ForeignObject(TRAFFIC_LIGHT_STATUS_DATA, (), state))
     return ForeignObject(TRAFFIC_LIGHT_STATUSES, (), {"traffic_lights": statuses})
 
 
@@ -131,10 +117,9 @@ def shifted_pose(pose: np.ndarray, offset: float) -> np.ndarray:
 def synthetic_scene(
     out: Path, spec: navsim.LogSpec, log_frames: list[dict], start: int, offset: float, rng: np.random.Generator
 ) -> str:
-    """Write one synthetic scene whose current frame is log frame ``start`` with the ego shifted by ``offset``;
-    return its token."""
+    """Write the synthetic scene now at log frame ``start``, its ego ``offset`` m to the left; return its token."""
     states = navsim.ego_states(spec)
-    agents = navsim.agents_for(states["poses"][0], spec.speed, spec.accel)
+    agents = navsim.agents_for(spec, states["poses"][0])
     tokens = next(list(f["anns"]["track_tokens"]) for f in log_frames if len(f["anns"]["track_tokens"]) == len(agents))
     initial = _token17(rng)
     t0_us = int(log_frames[0]["timestamp"])
@@ -143,14 +128,12 @@ def synthetic_scene(
         pose = shifted_pose(states["poses"][frame], offset)
         vx, vy, ax, ay = states["dynamics"][frame]
         anns = navsim.annotations(agents, frame, pose, tokens)
-        cameras = {}
-        for name in navsim.CAMERAS:
-            if frame != start:
-                cameras[name.lower()] = {}
-                continue
-            blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
-            navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, navsim.render_camera(name, pose, anns, rng))
-            cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
+        cameras = {name.lower(): {} for name in navsim.CAMERAS}  # images in the current frame only
+        if frame == start:
+            for name in navsim.CAMERAS:
+                blob = f"{spec.name}/{name}/{initial}_{name.lower()}.jpg"
+                navsim.write_jpeg(out / SPLIT / "sensor_blobs" / blob, navsim.render_camera(name, pose, anns, rng))
+                cameras[name.lower()] = {"data_path": blob, **navsim.camera_calibration(name)}
         frames.append(
             {
                 "token": initial if frame == start else _token17(rng),
@@ -180,7 +163,7 @@ def synthetic_scene(
         "scene_metadata": {
             "log_name": spec.name,
             "scene_token": initial,
-            "map_name": MAP_NAME,
+            "map_name": navsim_map.LOCATION,
             "initial_token": initial,
             "num_history_frames": HISTORY,
             "num_future_frames": FUTURE,
@@ -212,10 +195,8 @@ def generate(out: Path, count: int | None = None, seed: int = 0) -> None:
     rng = np.random.default_rng(seed)
     navsim_map.write_map(out / "maps")
     logs, mapping = {}, []
-    for spec in navsim.log_specs(count):
-        frames = navsim.write_log(
-            out, spec, rng, logs=out / SPLIT / "openscene_meta_datas", blobs=out / SPLIT / "sensor_blobs"
-        )
+    for spec in navsim.log_specs(count, seed):
+        frames = navsim.write_log(out, spec, rng, out / SPLIT / "openscene_meta_datas", out / SPLIT / "sensor_blobs")
         logs[spec.name] = frames
         pairs = [  # per offset: the scene now and the one a frame before
             [synthetic_scene(out, spec, frames, ORIGINAL_FRAME + FUTURE - back, offset, rng) for back in (0, 1)]

@@ -91,15 +91,6 @@ def iso(pose: np.ndarray) -> np.ndarray:
     return np.asarray(pose, np.float64) * np.array([1.0, -1.0, -1.0])
 
 
-def drive_and_actors(index: int, frames: int, seed: int) -> tuple[lead.Drive, list[lead.Actor]]:
-    """The drive and actors ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes."""
-    rng = np.random.default_rng(seed)
-    kind = lead.KINDS[index % len(lead.KINDS)]
-    steps = (frames - 1) * lead.SAVE_FREQ + lead.EGO_FUTURE_STEPS + 1
-    drive = lead.make_drive(kind, steps, rng)
-    return drive, lead.make_actors(drive, rng)
-
-
 def front_camera(name: str) -> PinholeCameraMetadata:
     """A small forward pinhole camera 1.5 m ahead of the IMU, 1.4 m up (optical axis = ego x)."""
     return PinholeCameraMetadata(
@@ -130,12 +121,8 @@ def lidar_points(iteration: int) -> np.ndarray:
     return np.column_stack([10 * np.cos(angles) + 0.01 * iteration, 10 * np.sin(angles), np.full(24, 0.5)])
 
 
-def _boxes(
-    actors: list[lead.Actor], step: int, labels: dict, static: object, meta: BoxDetectionsSE3Metadata, ts,
-    velocities: bool = True,
-):  # fmt: skip
-    """The actors' boxes at a 20 Hz tick, in py123d's ISO world with world-frame velocities (None without
-    ``velocities``)."""
+def _boxes(actors: list[lead.Actor], step: int, labels: dict, static: object, velocities: bool = True) -> list:
+    """The actors' boxes at a 20 Hz tick in py123d's ISO world, world-frame velocities (None without ``velocities``)."""
     detections = []
     for actor in actors:
         if actor.cls == "traffic_light":
@@ -150,7 +137,7 @@ def _boxes(
                 Vector3D(float(heading[0]), float(heading[1]), 0.0) if velocities else None,
             )
         )
-    return BoxDetectionsSE3(detections, ts, meta)
+    return detections
 
 
 def _writer(root: Path, codec: str) -> ArrowLogWriter:
@@ -174,7 +161,7 @@ def write_log(
     log folder (``root/logs/nuplan_test/<name>``). ``codec``: ipc | laz, the LiDAR payload; ``dynamics``: False
     writes poses only, as parsers of datasets without ego dynamics do; ``box_velocities``: False writes every box
     velocity null, as py123d's parsers of datasets without them (PandaSet) do."""
-    drive, actors = drive_and_actors(index, frames, seed)
+    drive, actors = lead.drive_and_actors(index, frames, np.random.default_rng(seed))
     actors = log_actors(actors)
     ego_meta = EgoStateSE3Metadata(
         vehicle_name="synthetic_suv",
@@ -205,7 +192,7 @@ def write_log(
         light = TrafficLightStatus.RED if red else TrafficLightStatus.GREEN
         modalities = [
             ego,
-            _boxes(actors, step, NUPLAN_LABEL, STATIC_LABEL["nuplan"], box_meta, ts, box_velocities),
+            BoxDetectionsSE3(_boxes(actors, step, NUPLAN_LABEL, STATIC_LABEL["nuplan"], box_velocities), ts, box_meta),
             ParsedCamera(camera, ts, None, byte_string=jpeg(step // STEP)),
             Lidar(ts, ts, lidar, lidar_points(step // STEP).astype(np.float32), _intensity(24)),
             TrafficLightDetections([TrafficLightDetection(LANES["turn"][0], light)], ts),
@@ -230,8 +217,7 @@ def _lane_geometry(path: np.ndarray) -> tuple[Polyline2D, Polyline2D, Polyline2D
 def _write_map(root: Path, meta: MapMetadata, drive: lead.Drive) -> None:
     """Three lanes along the drive's path (approach, turn connector in an intersection, exit), each its own group."""
     path = iso(drive.path)
-    turn_end = lead.TURN_START + np.pi / 2 * lead.TURN_RADIUS
-    cuts = {"approach": (0.0, lead.TURN_START), "turn": (lead.TURN_START, turn_end), "exit": (turn_end, None)}
+    cuts = {"approach": (0.0, lead.TURN_START), "turn": (lead.TURN_START, lead.TURN_END), "exit": (lead.TURN_END, None)}
     writer = ArrowMapWriter(force_map_conversion=True, maps_root=root / "maps", logs_root=root / "logs")
     writer.reset(meta)
     order = list(LANES)
@@ -261,9 +247,11 @@ def _write_map(root: Path, meta: MapMetadata, drive: lead.Drive) -> None:
     writer.close()
 
 
-def lead_ego_metadata() -> EgoStateSE3Metadata:
-    """py123d's CARLA Lincoln, with the centre at our CARLA rear-axle offset (see the module docstring)."""
-    return EgoStateSE3Metadata(
+def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) -> Path:
+    """The route ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes, as LEAD's 123D exporter
+    logs it (module docstring); returns the log folder (``root/logs/carla_train/<name>``)."""
+    drive, actors = lead.drive_and_actors(index, frames, np.random.default_rng(seed))
+    ego_meta = EgoStateSE3Metadata(  # py123d's CARLA Lincoln, its centre at our CARLA rear-axle offset (docstring)
         vehicle_name="carla_lincoln_mkz_2020",
         width=1.83671,
         length=4.89238,
@@ -272,13 +260,6 @@ def lead_ego_metadata() -> EgoStateSE3Metadata:
         center_to_imu_se3=PoseSE3(CARLA_REAR_AXLE_TO_CENTER, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
         rear_axle_to_imu_se3=PoseSE3.identity(),
     )
-
-
-def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) -> Path:
-    """The route ``carla_lead.write_route(root, index, frames, default_rng(seed))`` writes, as LEAD's 123D exporter
-    logs it (module docstring); returns the log folder (``root/logs/carla_train/<name>``)."""
-    drive, actors = drive_and_actors(index, frames, seed)
-    ego_meta = lead_ego_metadata()
     lidar = LidarMetadata("LIDAR_TOP", LidarID.LIDAR_TOP, PoseSE3(0.0, 0.0, LIDAR_HEIGHT, 1.0, 0.0, 0.0, 0.0))
     box_meta = BoxDetectionsSE3Metadata(box_detection_label_class=DefaultBoxDetectionLabel)
     camera = front_camera("PCAM_F0")  # LEAD's exporter names its one camera by its id
@@ -300,7 +281,7 @@ def write_lead_log(root: Path, index: int = 0, frames: int = 12, seed: int = 0) 
         points = lead_exported(lead_lidar(actors, drive.pose[step], step))
         modalities = [
             ego,
-            _boxes(actors, step, LEAD_LABEL, STATIC_LABEL["lead"], box_meta, ts),
+            BoxDetectionsSE3(_boxes(actors, step, LEAD_LABEL, STATIC_LABEL["lead"]), ts, box_meta),
             ParsedCamera(camera, ts, None, byte_string=jpeg(step // STEP)),
             Lidar(ts, ts, lidar, points.astype(np.float32), _intensity(len(points))),
             TrafficLightDetections([TrafficLightDetection(-1, TrafficLightStatus.RED)], ts),  # departure 2

@@ -31,7 +31,7 @@ import crc32c
 import cv2
 import numpy as np
 
-from lead_s2r.geometry import homogeneous, rotate
+from lead_s2r.geometry import homogeneous, resample, rotate
 from lead_s2r.synthetic import pedestrians_ahead, wod_e2e_camera
 from lead_s2r.synthetic.wod_e2e_proto import States, camera_calibration, camera_image, e2ed_frame
 
@@ -143,8 +143,8 @@ def pedestrian_row(speed: float, accel: float, yaw_rate: float, brake_at: float)
     """Global ground positions (N, 2) of the pedestrians ahead of a drive (:func:`_drive` from the same values):
     across its path, their centre :func:`~lead_s2r.synthetic.pedestrians_ahead.row_distance` along it."""
     stop = pedestrians_ahead.stopping_distance(speed, accel, brake_at)
-    track = _drive(brake_at + pedestrians_ahead.brake_duration(speed + accel * brake_at) + 1.0, speed, accel,
-                   yaw_rate, brake_at)  # fmt: skip
+    duration = brake_at + pedestrians_ahead.brake_duration(speed + accel * brake_at) + 1.0  # past the stop
+    track = _drive(duration, speed, accel, yaw_rate, brake_at)
     arc = _cumulative(np.hypot(track[:, 4], track[:, 5]))
     end = track[-1]
     beyond = pedestrians_ahead.row_distance(stop, EGO_FRONT) - arc[-1]  # the path goes straight on after the stop
@@ -182,18 +182,13 @@ def _normals(xy: np.ndarray) -> np.ndarray:
     return np.column_stack([-steps[:, 1], steps[:, 0]])
 
 
-def _at_times(xy: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The path ``xy`` (on :data:`_FUTURE_T`, from the origin at t = 0) at the times ``t``."""
-    knots_t, knots = np.concatenate([[0.0], _FUTURE_T]), np.vstack([[0.0, 0.0], xy])
-    return np.column_stack([np.interp(t, knots_t, knots[:, 0]), np.interp(t, knots_t, knots[:, 1])])
-
-
 def _candidates(future: np.ndarray, rng: np.random.Generator) -> list[tuple[np.ndarray, float]]:
     """The three trajectories raters score: close to what was driven (mostly rated high: the logged future's RFS
     averages about 8, the paper's Expert 8.10), braking harder along the same path, and swerving 2-3.5 m aside."""
     xy, normals, fraction = future[:, :2], _normals(future[:, :2]), _FUTURE_T / _FUTURE_T[-1]
     near = xy * (1.0 + rng.uniform(-0.02, 0.02)) + normals * rng.uniform(-0.2, 0.2) * fraction[:, None] ** 2
-    slower = _at_times(xy, _FUTURE_T * (1.0 - rng.uniform(0.25, 0.45) * fraction))
+    path = np.vstack([[0.0, 0.0], xy])  # from the origin at t = 0
+    slower, _ = resample(np.r_[0.0, _FUTURE_T], path, _FUTURE_T * (1.0 - rng.uniform(0.25, 0.45) * fraction))
     aside = xy + normals * rng.choice([-1.0, 1.0]) * rng.uniform(2.0, 3.5) * np.clip(fraction / 0.6, 0, 1)[:, None]
     labels = (rng.choice(LOGGED_LABELS, p=LOGGED_LABEL_P), rng.integers(3, 10), rng.integers(0, 7))
     return [(traj.astype(np.float32), float(label)) for traj, label in zip((near, slower, aside), labels, strict=True)]
@@ -286,10 +281,7 @@ def encode_frame(frame: SynthFrame) -> bytes:
     calibrations = [camera_calibration(c.name, c.intrinsic, c.extrinsic, c.width, c.height) for c in reversed(order)]
     p = frame.past.astype(np.float32)
     past = States(p[:, 0], p[:, 1], vel_x=p[:, 2], vel_y=p[:, 3], accel_x=p[:, 4], accel_y=p[:, 5])
-    future = None
-    if frame.future is not None:
-        f = frame.future.astype(np.float32)
-        future = States(f[:, 0], f[:, 1], pos_z=f[:, 2])
+    future = None if frame.future is None else States(*frame.future.astype(np.float32).T)  # x, y, z
     preferences = [States(xy[:, 0], xy[:, 1], preference_score=score) for xy, score in frame.preferences]
     return e2ed_frame(frame.name, images, calibrations, past, future, frame.intent, preferences)
 
@@ -299,8 +291,7 @@ def shard_path(out: Path, split: str, shard: int) -> Path:
 
 
 def write_dataset(out: Path, dataset: SynthDataset, seed: int = 0) -> list[Path]:
-    """Write every split's records shuffled across :data:`SHARDS` shards (none for a split without frames), plus
-    the cluster JSON."""
+    """Every split's records shuffled over :data:`SHARDS` shards (none for a split without frames); the cluster JSON."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)

@@ -43,9 +43,8 @@ def render(
     ``pedestrians`` (N, 2) ground positions in the vehicle frame (one row), far ones first, drawn
     :data:`DRAWN_SCALE` times their size."""
     height, width = size
-    image = np.empty((height, width, 3), np.uint8)
-    horizon = round(intrinsic[3])
-    image[:horizon], image[horizon:] = SKY, ROAD
+    image = np.full((height, width, 3), ROAD, np.uint8)
+    image[: round(intrinsic[3])] = SKY  # above the horizon
     half, tall = DRAWN_SCALE * pedestrians_ahead.SIZE[1] / 2, DRAWN_SCALE * pedestrians_ahead.SIZE[2]
     centre = pedestrians.mean(axis=0) if len(pedestrians) else np.zeros(2)
     for x, y in sorted(centre + DRAWN_SCALE * (pedestrians - centre), key=lambda p: -np.hypot(*p)):

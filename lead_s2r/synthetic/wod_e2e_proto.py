@@ -16,14 +16,10 @@ _VARINT, _FIXED64, _LEN, _FIXED32 = 0, 1, 2, 5
 def _varint(value: int) -> bytes:
     value &= (1 << 64) - 1  # negative int32/int64 are encoded as 10-byte two's complement
     out = bytearray()
-    while True:
-        byte = value & 0x7F
+    while value > 0x7F:
+        out.append(value & 0x7F | 0x80)
         value >>= 7
-        if value:
-            out.append(byte | 0x80)
-        else:
-            out.append(byte)
-            return bytes(out)
+    return bytes(out) + bytes([value])
 
 
 def _tag(number: int, wire_type: int) -> bytes:
@@ -65,14 +61,8 @@ def camera_image(name: int, jpeg: bytes) -> bytes:
 
 def camera_calibration(name: int, intrinsic: Sequence[float], extrinsic: Sequence[float], width: int, height: int):
     """``CameraCalibration``: name 1, intrinsic 2, extrinsic 3, width 4, height 5, rolling shutter direction 6."""
-    return (
-        int_field(1, name)
-        + repeated_doubles(2, intrinsic)
-        + bytes_field(3, transform(extrinsic))
-        + int_field(4, width)
-        + int_field(5, height)
-        + int_field(6, 2)
-    )
+    fields = int_field(1, name) + repeated_doubles(2, intrinsic) + bytes_field(3, transform(extrinsic))
+    return fields + int_field(4, width) + int_field(5, height) + int_field(6, 2)
 
 
 @dataclass
@@ -104,11 +94,11 @@ def e2ed_frame(
     future: States | None,
     intent: int,
     preferences: Sequence[States] = (),
-    timestamp_micros: int = 0,
 ) -> bytes:
-    """``E2EDFrame{frame = 1, future_states = 5, past_states = 6, intent = 7, preference_trajectories = 8}``."""
+    """``E2EDFrame{frame = 1, future_states = 5, past_states = 6, intent = 7, preference_trajectories = 8}``; the
+    frame's ``timestamp_micros`` is 0, as in the real data."""
     context = bytes_field(1, name.encode()) + b"".join(bytes_field(2, c) for c in calibrations)
-    frame = bytes_field(1, context) + int_field(2, timestamp_micros) + b"".join(bytes_field(4, i) for i in images)
+    frame = bytes_field(1, context) + int_field(2, 0) + b"".join(bytes_field(4, i) for i in images)
     out = bytes_field(1, frame)
     if future is not None:
         out += bytes_field(5, future.encode())
