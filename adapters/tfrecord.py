@@ -183,16 +183,19 @@ def cached_index(
 ) -> RecordIndex:
     """:func:`build_index`, stored at ``cache`` (parquet, skipped records in its metadata) and reused while valid.
 
-    A stale or damaged cache is rebuilt: its pages carry CRCs, and the stamp covers the shards and the skipped
-    records' JSON (footer metadata no page CRC protects), so a flipped bit never passes for another index."""
+    A stale or damaged cache is rebuilt: its pages carry CRCs, the stamp covers the shards and the skipped records'
+    JSON, and the columns must be the index's (no page CRC protects the footer, where one flipped bit turns the
+    offsets' int64 into Arrow's duration), so a flipped bit never passes for another index."""
     stamp = _stamp(shards)
     if cache is not None and cache.exists():
         try:
             table = read_parquet(cache)
             metadata = table.schema.metadata or {}
             skipped = metadata[_SKIPPED_KEY]
-            if metadata[_STAMP_KEY].decode() == _cache_stamp(stamp, skipped):
-                return RecordIndex(table.replace_schema_metadata(None), json.loads(skipped))
+            table = table.replace_schema_metadata(None)
+            same_columns = table.schema == pa.schema({**_INDEX_COLUMNS, **schema})
+            if same_columns and metadata[_STAMP_KEY].decode() == _cache_stamp(stamp, skipped):
+                return RecordIndex(table, json.loads(skipped))
         except (OSError, KeyError, ValueError, pa.ArrowException):
             pass  # damaged: rebuilt below, as a stale one is
     index = build_index(shards, describe, schema, workers)

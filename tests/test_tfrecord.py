@@ -4,6 +4,7 @@ import struct
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -164,6 +165,23 @@ def test_a_damaged_index_cache_is_rebuilt_never_believed(tmp_path):
         index = cached_index(shards, counting, {"n": pa.int64()}, cache)
         assert index.table.equals(fresh.table) and index.skipped == fresh.skipped, f"bit flipped at byte {position}"
     assert rescans > 0  # most flips are caught and rebuilt (the rest land where parquet never reads)
+
+
+def test_a_cache_whose_columns_changed_type_is_rebuilt(tmp_path):
+    """A flipped bit in the footer's Arrow schema can retype a column (offsets' int64 read as a duration) with every
+    page CRC and the stamp intact: the columns are checked too."""
+    shards = [tmp_path / "a.tfrecord"]
+    write(shards[0], [b"rec1", b"rec2"])
+    cache = tmp_path / "index.parquet"
+    fresh = cached_index(shards, describe, {"n": pa.int64()}, cache)
+    stored = pq.read_table(cache)
+    offsets = stored.schema.get_field_index("offset")
+    retyped = stored.set_column(offsets, "offset", stored["offset"].cast(pa.duration("s")))
+    assert retyped.schema.metadata == stored.schema.metadata  # the stamp still matches
+    pq.write_table(retyped, cache, write_page_checksum=True)
+    index = cached_index(shards, describe, {"n": pa.int64()}, cache)
+    assert index.table.equals(fresh.table)
+    assert pq.read_table(cache)["offset"].type == pa.int64()  # rebuilt
 
 
 def test_header_layout_is_little_endian_length_then_crc(tmp_path):
