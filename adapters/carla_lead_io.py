@@ -51,8 +51,9 @@ def field(record: dict[str, Any], name: str, path: Path) -> Any:
 
 def array(record: dict[str, Any], name: str, path: Path, columns: int | None = None) -> np.ndarray:
     """A numeric field as float64 (N,) or (N, columns), with an error naming file and field on a bad shape."""
+    value = field(record, name, path)  # a missing field says so, not "not numeric"
     try:
-        values = np.asarray(field(record, name, path), dtype=np.float64)
+        values = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as err:
         raise LeadFormatError(path, f"not numeric ({err})", name) from err
     if columns is not None:

@@ -27,7 +27,7 @@ from lead_s2r.shards import load_info, load_manifest, read_samples
 from lead_s2r.synthetic import carla_lead as synth
 from lead_s2r.synthetic import carla_lead_sensors
 from lead_s2r_adapters.carla_lead import CarlaLeadAdapter, camera_calibration, hdmap_pixel_to_ego
-from lead_s2r_adapters.carla_lead_io import LeadFormatError, read_pickle
+from lead_s2r_adapters.carla_lead_io import LeadFormatError, array, read_pickle
 
 REAR = 1.389
 FRAMES = 12
@@ -298,6 +298,14 @@ def test_unpickler_never_runs_code(tmp_path: Path) -> None:
     _write_lzma_pickle(path, {"speed": Evil()})
     with pytest.raises(LeadFormatError, match=r"builtins\.print"):
         read_pickle(path)
+
+
+def test_a_missing_numeric_field_is_named_missing_not_unnumeric() -> None:
+    path = Path("0000.json.gz")
+    with pytest.raises(LeadFormatError, match=r"^0000\.json\.gz \(field 'speed'\): required field is missing$"):
+        array({"steer": 0.0}, "speed", path)
+    with pytest.raises(LeadFormatError, match=r"\(field 'speed'\): not numeric"):
+        array({"speed": "fast"}, "speed", path)
 
 
 values = st.recursive(
