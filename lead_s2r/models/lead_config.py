@@ -202,10 +202,9 @@ class LeadConfig:
 
     @classmethod
     def from_json(cls, values: dict[str, Any]) -> "LeadConfig":
-        """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored)."""
-        hints = get_type_hints(cls)
-        kwargs = {f.name: _typed(f.name, values[f.name], hints[f.name]) for f in fields(cls) if f.name in values}
-        return cls(**kwargs)
+        """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored; the types are checked
+        by ``__post_init__``)."""
+        return cls(**{f.name: values[f.name] for f in fields(cls) if f.name in values})
 
     def to_json(self) -> dict[str, Any]:
         """Every field LEAD's loader reads, plus the derived values (informational, as in LEAD's own files)."""
@@ -294,6 +293,11 @@ class LeadConfig:
     @property
     def max_y_meter(self) -> int:
         return 40 if self.carla_leaderboard_mode else 32
+
+    @property
+    def bev_extent(self) -> tuple[tuple[int, int], tuple[int, int]]:
+        """Ours: ((min_x, max_x), (min_y, max_y)) of the BEV, metres in LEAD's ego frame."""
+        return (self.min_x_meter, self.max_x_meter), (self.min_y_meter, self.max_y_meter)
 
     @property
     def lidar_width_pixel(self) -> int:
@@ -405,19 +409,16 @@ class LeadConfig:
         """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``: BEV
         semantics (NAVSIM's 7 classes, LEAD's 13 CARLA classes) and boxes in LEAD's CenterNet encoding (``lead_boxes``:
         NAVSIM's one class, LEAD's 8 CARLA classes), CARLA perspective semantics, depth and radar detection."""
-        heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}
-        tasks = set()
-        if heads.get(source) and self.use_bev_semantic:
-            tasks.add("bev_semantic")
-        if heads.get(source) and self.detect_boxes:
-            tasks.add("lead_boxes")
-        if source == "carla" and self.use_carla_data and self.use_semantic:
-            tasks.add("semantic")
-        if source == "carla" and self.use_carla_data and self.use_semantic and self.use_depth:
-            tasks.add("depth")
-        if source == "carla" and self.has_radar_detector:
-            tasks.add("radar")
-        return tasks
+        heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}.get(source, False)
+        carla = source == "carla" and self.use_carla_data
+        switches = {
+            "bev_semantic": heads and self.use_bev_semantic,
+            "lead_boxes": heads and self.detect_boxes,
+            "semantic": carla and self.use_semantic,
+            "depth": carla and self.use_semantic and self.use_depth,
+            "radar": source == "carla" and self.has_radar_detector,
+        }
+        return {task for task, on in switches.items() if on}
 
     @property
     def has_radar_detector(self) -> bool:

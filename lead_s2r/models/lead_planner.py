@@ -114,9 +114,7 @@ class PlanningContextEncoder(StatusContext):
                 raise KeyError("this LEAD planner reads radar queries: it needs CARLA data and the radar detector")
             features, predictions = radar
             tokens = self.radar_encoder(features).reshape(-1, c.num_radar_queries, d)
-            xy = unit_bev_points(
-                predictions[..., :2].reshape(-1, 2), (c.min_x_meter, c.max_x_meter), (c.min_y_meter, c.max_y_meter)
-            )
+            xy = unit_bev_points(predictions[..., :2].reshape(-1, 2), *c.bev_extent)
             status.append(tokens + point_sine_embedding(xy, d).reshape(tokens.shape))
         return self.context(bev_features, status)
 
