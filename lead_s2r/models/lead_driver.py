@@ -16,7 +16,6 @@ what differs in its docstring (:data:`VARIANTS`, as timm registers its models), 
 """
 
 from collections.abc import Callable, Collection
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -26,7 +25,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.models.config import TrajectoryGrid
 from lead_s2r.models.input_spec import lead_grids
 from lead_s2r.models.inputs import Batch
-from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
+from lead_s2r.models.lead import LeadEnsemble, load_checkpoint
 from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
 from lead_s2r.models.lead_frame import bev_map_from_lead, from_lead_outputs, to_lead_inputs
 from lead_s2r.models.lead_loss import SourceDataset, loss_weights, prefix, radar_feature_scale, visible_bev_pixels
@@ -71,12 +70,11 @@ class LeadDriver(nn.Module):
     ) -> None:
         super().__init__()
         if checkpoint is not None:
-            config = read_config(Path(checkpoint))
             self.network: nn.Module = load_checkpoint(checkpoint, pattern).train()
         else:
             config = config if config is not None else LeadConfig(use_planning_decoder=True)
             self.network = LeadTFv6(config, pretrained=pretrained)
-        self.config = config
+        self.config = config = self.network.config
         tiles = config.mosaic_tiles
         self.camera_select = CameraSelect(len(config.used_cameras), tiles)  # also crops perspective labels
         speeds = torch.tensor(TARGET_SPEED_CLASSES)

@@ -192,11 +192,7 @@ def center_net_losses(
 
 def radar_feature_scale(config: LeadConfig) -> tuple[float, float, float]:
     """What LEAD's radar terms divide (x, y, v) by: the BEV's x and y extents in metres and the maximum speed."""
-    return (
-        config.max_x_meter - config.min_x_meter,
-        config.max_y_meter - config.min_y_meter,
-        config.max_speed,
-    )
+    return (config.max_x_meter - config.min_x_meter, config.max_y_meter - config.min_y_meter, config.max_speed)
 
 
 def hungarian_matches(cost: Tensor) -> tuple[Tensor, Tensor]:
@@ -399,7 +395,7 @@ def adamw(
 def optimizer(model: nn.Module, config: LeadConfig | Mapping | None = None) -> torch.optim.AdamW:
     """LEAD's optimizer for ``model`` with the settings of ``config`` (a :class:`LeadConfig` or a config.json dict;
     default: the model's): ``lr`` and ``weight_decay`` (3e-4, 0.01 unless the file sets them)."""
-    config = _config(model, config)
+    config = network_of(model).config if config is None else _config(config)
     return adamw(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
 
@@ -418,11 +414,9 @@ def scheduler(
     optimizer: torch.optim.Optimizer, config: LeadConfig | Mapping, steps_per_epoch: int
 ) -> torch.optim.lr_scheduler.LRScheduler:
     """LEAD's schedule for a config (``use_cosine_annealing_with_restarts``: off for WOD-E2E; ``epochs``)."""
-    config = config if isinstance(config, LeadConfig) else LeadConfig.from_json(dict(config))
+    config = _config(config)
     return cosine_schedule(optimizer, steps_per_epoch, config.epochs, config.use_cosine_annealing_with_restarts)
 
 
-def _config(model: nn.Module, config: LeadConfig | Mapping | None) -> LeadConfig:
-    if config is None:
-        return network_of(model).config
+def _config(config: LeadConfig | Mapping) -> LeadConfig:
     return config if isinstance(config, LeadConfig) else LeadConfig.from_json(dict(config))
