@@ -125,8 +125,7 @@ def camera_slots(config: Any, spec: InputSpec, source: str, found: Path) -> tupl
     if not ids:
         raise UserError(f"{found}: no camera list for source {source!r} (data.predict/train.{source}.cameras in the "
                         f"run's config.yaml); pass the run folder of `lead-s2r fit`")  # fmt: skip
-    unknown = [c for c in ids if c not in CAMERA_DIRECTIONS and c != "carla_mosaic"]
-    if unknown or "carla_mosaic" in ids:
+    if not set(ids) <= set(CAMERA_DIRECTIONS):
         raise UserError(f"{found}: cameras {ids} of source {source!r}: only {sorted(CAMERA_DIRECTIONS)} have a "
                         "direction to match AlpaSim's cameras by")  # fmt: skip
     return tuple(CameraSlot(c, *CAMERA_DIRECTIONS[c]) for c in ids)
