@@ -74,12 +74,9 @@ def source_weights(config: LeadConfig, source: SourceDataset) -> dict[str, float
         weights.update(radar_loss=0.0, loss_semantic=0.0, loss_depth=0.0, loss_center_net_velocity=0.0)
     if config.LTF or TRAINING_USED_LIDAR_STEPS <= 1:
         weights["loss_center_net_velocity"] = 0.0
-    planning = float(config.use_planning_decoder)
-    return {f"{prefix(source)}{k}": v for k, v in weights.items()} | {
-        "loss_spatio_temporal_waypoints": planning,
-        "loss_target_speed": planning,
-        "loss_spatial_route": planning,
-    }
+    planning = ("loss_spatio_temporal_waypoints", "loss_target_speed", "loss_spatial_route")
+    prefixed = {f"{prefix(source)}{k}": v for k, v in weights.items()}
+    return prefixed | dict.fromkeys(planning, float(config.use_planning_decoder))
 
 
 def training_sources(config: LeadConfig) -> tuple[SourceDataset, ...]:
@@ -212,9 +209,8 @@ def radar_loss(pred: Tensor, detections: Tensor, scale: tuple[float, float, floa
     known = (~label_state.isnan()).float()  # our extension: a speed the data does not know (NaN) adds nothing
     label_state = label_state.nan_to_num()
     norm = torch.tensor(scale, device=state.device, dtype=state.dtype)
-    l1_cost = (((state[:, :, None] - label_state[:, None]) / norm).abs() * known[:, None]).sum(-1) * valid[
-        :, None, :, 0
-    ]
+    l1_cost = (((state[:, :, None] - label_state[:, None]) / norm).abs() * known[:, None]).sum(-1)
+    l1_cost = l1_cost * valid[:, None, :, 0]
     bce_cost = F.binary_cross_entropy_with_logits(
         logit[:, :, None].expand(-1, -1, valid.shape[1], -1),
         valid[:, None].expand(-1, logit.shape[1], -1, -1),
