@@ -11,14 +11,13 @@ than its field's (``"n_layer": "x"``, ``"use_depth": 7``) is an error naming the
 True and a string into a traceback deep in the network's constructor.
 
 Our extensions, where LEAD's code has no switch (docs/models.md, "LEAD's own architecture"): the WOD-E2E target builds
-(LEAD's own cannot: its camera calibration imports a function missing from its public code, see
-:data:`CAMERA_TILE`), its past-state token slots stay off, and ``use_previous_tp`` / ``use_next_tp``,
-``num_way_points_prediction`` and ``waypoint_interval_s`` may be set in a file. LEAD's loader recomputes these from
-its rules, so a network that overrides them loads in LEAD only where the rules give the same values.
-``camera_tile_size`` (width, height of one camera tile) replaces the target's :data:`CAMERA_TILE` for toy runs such as
-the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD always derives the size, so such a network does not load in
-LEAD. So do the toy scales (:data:`TOY_SCALES`) of the planner's status inputs and outputs, which the smoke twins set
-to learn in a few hundred steps.
+(LEAD's own cannot: its camera calibration imports a function missing from its public code, see :data:`CAMERA_TILE`),
+its past-state token slots stay off, and ``use_previous_tp`` / ``use_next_tp``, ``num_way_points_prediction`` and
+``waypoint_interval_s`` may be set in a file. LEAD's loader recomputes these from its rules, so a network that overrides
+them loads in LEAD only where the rules give the same values. ``camera_tile_size`` (width, height of one camera tile)
+replaces the target's :data:`CAMERA_TILE` for toy runs such as the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD
+always derives the size, so such a network does not load in LEAD. So do the toy scales (:data:`TOY_SCALES`) of the
+planner's status inputs and outputs, which the smoke twins set to learn in a few hundred steps.
 """
 
 from dataclasses import asdict, dataclass, fields

@@ -3,13 +3,12 @@
 fine-tuning with ``fit``, the CARLA closed-loop agent, and back out with ``lead-s2r export-lead``.
 
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
-:mod:`lead_s2r.models.lead_frame` only. The loader follows
-:func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
-raster, radar and target points when the network reads them, and the labels of its heads: the planner's outputs
-(waypoints, NAVSIM headings, CARLA route and target speed) for every source it reads, on its target's grid, BEV
-semantics and boxes of each source it has heads for (CARLA labels remapped to LEAD's 13 BEV and 8 box classes by
-:mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by :mod:`lead_s2r.data.lead_centernet`), and with
-CARLA data CARLA perspective semantics, depth and radar detection.
+:mod:`lead_s2r.models.lead_frame` only. The loader follows :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's
+image size and camera band, its BEV extent for the LiDAR raster, radar and target points when the network reads them,
+and the labels of its heads: the planner's outputs (waypoints, NAVSIM headings, CARLA route and target speed) for every
+source it reads, on its target's grid, BEV semantics and boxes of each source it has heads for (CARLA labels remapped to
+LEAD's 13 BEV and 8 box classes by :mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by
+:mod:`lead_s2r.data.lead_centernet`), and with CARLA data CARLA perspective semantics, depth and radar detection.
 
 This is the package's one TransFuser family: the paper's networks are builder functions below, one per variant with
 what differs in its docstring (:data:`VARIANTS`, as timm registers its models), each a preset of LEAD's switches.
