@@ -134,7 +134,7 @@ class ClosedLoopConfig:
     creeping: bool = False
     stop_sign_slowdown: bool = False
     lower_target_speed: bool = False
-    jpeg_quality: int = 90
+    jpeg_quality: int = 90  # LEAD's jpeg_quality of the closed-loop image round trip
     bench2drive: bool = False
     device: str | None = None
 

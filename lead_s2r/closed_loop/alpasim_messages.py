@@ -203,7 +203,7 @@ def build_sample(session: Session, served: ServedModel, time_now_us: int) -> dic
         slot = session.slot_of[logical_id]
         cameras.append({**camera.calibration, "id": slot})
         sample[f"cam_{slot}"] = session.images[slot][1]
-    if served.reads_target_points:
+    if served.model.reads_target_points:  # a LeadDriver (load_served_model checked the family)
         sample["target_points"] = route_target_points(route)
     sample["meta"] = {
         "schema_version": SCHEMA_VERSION,

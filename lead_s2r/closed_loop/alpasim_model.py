@@ -69,11 +69,9 @@ class ServedModel:
     device: torch.device
     path: Path
     transform: SourceTransform = field(init=False)
-    reads_target_points: bool = field(init=False)
 
     def __post_init__(self) -> None:
         self.transform = SourceTransform(self.source, self.spec, cameras=[slot.id for slot in self.slots])
-        self.reads_target_points = bool(getattr(self.model, "reads_target_points", False))
 
     @property
     def grid_times(self) -> np.ndarray:
