@@ -103,21 +103,19 @@ class LeadDriver(nn.Module):
         normalised over LEAD's whole table). A perception term weighs the same for every source that has it, and the
         headings share the waypoint term's weight (LEAD adds them into it)."""
         weights = loss_weights(self.config)
-
-        def term(name: str) -> float:
-            return max(weights.get(f"{prefix(source)}{name}", 0.0) for source in SourceDataset)
-
-        planning = weights["loss_spatio_temporal_waypoints"]
+        terms = {
+            "waypoints": "loss_spatio_temporal_waypoints",
+            "headings": "loss_spatio_temporal_waypoints",
+            "route": "loss_spatial_route",
+            "target_speed": "loss_target_speed",
+            "bev_semantic": "loss_bev_semantic",
+            "lead_boxes": "loss_center_net_heatmap",
+            "semantic": "loss_semantic",
+            "depth": "loss_depth",
+            "radar": "radar_loss",
+        }
         return {
-            "waypoints": planning,
-            "headings": planning,
-            "route": weights["loss_spatial_route"],
-            "target_speed": weights["loss_target_speed"],
-            "bev_semantic": term("loss_bev_semantic"),
-            "lead_boxes": term("loss_center_net_heatmap"),
-            "semantic": term("loss_semantic"),
-            "depth": term("loss_depth"),
-            "radar": term("radar_loss"),
+            task: max(weights.get(f"{prefix(s)}{term}", 0.0) for s in SourceDataset) for task, term in terms.items()
         }
 
     def grid(self, source: str) -> TrajectoryGrid:
