@@ -161,6 +161,7 @@ class LeadConfig:
             "use_discrete_command": not wod,
             "use_past_positions": False,  # LEAD: on for WOD-E2E, slots its forward never fills; ours: off
             "use_past_speeds": False,
+            "num_past_samples_used": 0,  # LEAD: 6 with past positions or speeds, which are refused below
             "use_previous_tp": self.use_tp,
             "use_next_tp": self.use_tp,
             "num_way_points_prediction": 10 if wod else 8,  # CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz
@@ -171,8 +172,6 @@ class LeadConfig:
         for name, default in defaults.items():
             if getattr(self, name) is None:
                 setattr(self, name, default)
-        if self.num_past_samples_used is None:
-            self.num_past_samples_used = 6 if self.use_past_positions or self.use_past_speeds else 0
         if self.use_past_positions or self.use_past_speeds:
             raise UserError(
                 "config.json: use_past_positions / use_past_speeds add planner token slots that LEAD's forward never "
@@ -392,16 +391,10 @@ class LeadConfig:
         return self.carla_leaderboard_mode
 
     @property
-    def planning_source(self) -> str:
-        """The source (our name) the network is built for: its target dataset."""
-        if self.carla_leaderboard_mode:
-            return "carla"
-        return "wod" if self.is_wod else "navsim"
-
-    @property
     def sources(self) -> tuple[str, ...]:
-        """The sources whose batches the network reads: its target, and CARLA when it has CARLA heads."""
-        source = self.planning_source
+        """The sources whose batches the network reads: its target (our name of it), and CARLA when it has CARLA
+        heads."""
+        source = "carla" if self.carla_leaderboard_mode else "wod" if self.is_wod else "navsim"
         return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
 
     def perception_tasks(self, source: str) -> set[str]:
