@@ -26,10 +26,10 @@ from lead_s2r.models.inputs import Batch, lidar_input
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.schema import Command
 
-#: Our 4-way command id -> index in LEAD's one-hot.
+#: Our 4-way command id -> index in LEAD's NAVSIM one-hot.
 NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
-CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
-#: Our full command -> LEAD's CARLA one-hot (RoadOption - 1; unknown -> lane follow, as LEAD's ``command_to_one_hot``).
+#: Our full command (a 4-way one is one of them) -> LEAD's CARLA one-hot (RoadOption - 1; unknown -> lane follow, as
+#: LEAD's ``command_to_one_hot``).
 CARLA_FULL_COMMAND_INDEX = {
     Command.LEFT: 0,
     Command.RIGHT: 1,
@@ -83,10 +83,8 @@ def bev_map_from_lead(lead_map: Tensor) -> Tensor:
 def command_one_hot(command: Tensor, config: LeadConfig, full: Tensor | None = None) -> Tensor:
     """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot; in CARLA leaderboard mode the 7-way
     ``full`` command (``command_full``), where the batch has it, gives LEAD's 6 CARLA commands."""
-    if config.carla_leaderboard_mode and full is not None:
-        command, table = full, CARLA_FULL_COMMAND_INDEX
-    else:
-        table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
+    command = full if config.carla_leaderboard_mode and full is not None else command
+    table = CARLA_FULL_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
     table = WOD_COMMAND_INDEX if config.is_wod else table
     lookup = torch.tensor([table.get(ours, 0) for ours in Command], device=command.device)
     index = lookup[command.long()]
