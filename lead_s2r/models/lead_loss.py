@@ -230,8 +230,7 @@ def two_hot(speed: Tensor, brake: Tensor, classes: Iterable[float] | Tensor = TA
     """(B,) target speeds -> (B, C) probabilities on the two neighbouring classes (linear split); a braking sample is
     class 0 and a speed at or above the last class is the last class (LEAD's ``encode_two_hot``)."""
     speed = speed.float()
-    bins = classes if isinstance(classes, Tensor) else torch.tensor(list(classes))
-    bins = bins.to(speed.device, speed.dtype)
+    bins = torch.as_tensor(classes, dtype=speed.dtype, device=speed.device)
     clamped = speed.clamp(bins[0], bins[-1])
     upper = torch.searchsorted(bins, clamped, right=False).clamp(1, len(bins) - 1)
     lower_value, upper_value = bins[upper - 1], bins[upper]
