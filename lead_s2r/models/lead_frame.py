@@ -50,13 +50,9 @@ BOX_FIELDS = {
     "yaw_res_pred": "box_yaw_residual",
     "velocity_pred": "box_velocity",
 }
-#: LEAD's outputs that keep their values under our names, and those whose lateral coordinate changes sign.
-KEPT_OUTPUTS = {
-    "pred_semantic": "semantic",
-    "pred_depth": "depth",
-    "pred_target_speed_distribution": "target_speed_logits",
-}
-FLIPPED_OUTPUTS = {"pred_future_waypoints": "waypoints", "pred_route": "route"}
+#: LEAD's outputs that only get our names, and those whose lateral coordinate also changes sign.
+RENAMED = {"pred_semantic": "semantic", "pred_depth": "depth", "pred_target_speed_distribution": "target_speed_logits"}
+FLIPPED = {"pred_future_waypoints": "waypoints", "pred_route": "route"}
 #: LEAD's radar rows per sensor (``num_radar_points_per_sensor``).
 RADAR_ROWS_PER_SENSOR = 75
 #: Slots of our ``target_points`` (B, 3, 2): previous, current, next.
@@ -152,8 +148,8 @@ def from_lead_outputs(outputs: dict[str, Tensor], source: str) -> dict[str, Tens
         ours["bev_semantic"] = bev_map_from_lead(outputs[f"pred_bev_semantic{suffix}"])
     prefix = f"pred_bounding_box{suffix}."
     ours.update(boxes_from_lead({k[len(prefix) :]: v for k, v in outputs.items() if k.startswith(prefix)}))
-    ours.update({name: outputs[key] for key, name in KEPT_OUTPUTS.items() if key in outputs})
-    ours.update({name: flip_y(outputs[key]) for key, name in FLIPPED_OUTPUTS.items() if key in outputs})
+    ours.update({name: outputs[key] for key, name in RENAMED.items() if key in outputs})
+    ours.update({name: flip_y(outputs[key]) for key, name in FLIPPED.items() if key in outputs})
     if "pred_headings" in outputs:
         ours["headings"] = -outputs["pred_headings"]
     if "pred_radar_predictions" in outputs:
