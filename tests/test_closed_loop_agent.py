@@ -121,7 +121,7 @@ def test_preprocessing_equals_the_adapter_and_training_transform(scene):
     folder = scene["folder"]
     log = LogRef(f"{folder.parent.name}/{folder.name}", "train", str(folder), {})
     recorded = next(CarlaLeadAdapter(tp_distance=3.25).iter_samples(log))
-    want = SourceTransform("carla", input_spec(agent.model_config), cameras=["carla_mosaic"])(recorded)
+    want = SourceTransform("carla", input_spec(agent.model.config), cameras=["carla_mosaic"])(recorded)
     got = {k: v[0] for k, v in batch.items() if isinstance(v, torch.Tensor)}
     image_error = (got["rgb"].float() - want["rgb"].float()).abs()
     assert image_error.mean() < 2.0 and image_error.max() < 40  # one extra JPEG round trip at quality 90
@@ -185,7 +185,7 @@ def test_a_copied_checkpoint_drives_alone(scene, tmp_path):
     path = tmp_path / "copied.ckpt"  # the weights without the run folder's config.yaml
     shutil.copy(scene["run"] / "checkpoints" / "last.ckpt", path)
     copied, in_run = make_agent(path, scene["folder"]), make_agent(scene["run"], scene["folder"])
-    assert copied.model_config == in_run.model_config
+    assert copied.model.config == in_run.model.config
     for key, value in in_run.model.state_dict().items():
         torch.testing.assert_close(copied.model.state_dict()[key], value, rtol=0, atol=0)
 
@@ -197,7 +197,7 @@ def test_an_older_checkpoint_needs_its_run_config(scene, tmp_path):
     with pytest.raises(UnsupportedCheckpoint, match=r"describe no network .* config\.yaml"):
         make_agent(tmp_path / "old.ckpt", scene["folder"])
     shutil.copy(scene["run"] / "config.yaml", tmp_path / "config.yaml")  # now it sits in its run folder
-    assert make_agent(tmp_path / "old.ckpt", scene["folder"]).model_config.camera_tile == (32, 32)
+    assert make_agent(tmp_path / "old.ckpt", scene["folder"]).model.config.camera_tile == (32, 32)
 
 
 def test_rig_follows_the_model_image():

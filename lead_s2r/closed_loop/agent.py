@@ -57,12 +57,25 @@ from lead_s2r.formats.carla_rig import CAMERA_RIGS, EGO_HALF_EXTENT, MOSAIC_ID
 from lead_s2r.geometry import CARLA_REAR_AXLE_TO_CENTER, flip_y
 from lead_s2r.models.input_spec import InputSpec
 
+
+class _StandInAgent:
+    """leaderboard 2.0's ``AutonomousAgent`` interface, for running without the leaderboard installed."""
+
+    def __init__(self, carla_host: str, carla_port: int, debug: bool = False) -> None:
+        self.track = SENSORS_TRACK
+        self._global_plan: list | None = None
+        self._global_plan_world_coord: list | None = None
+
+    def set_global_plan(self, global_plan_gps: list, global_plan_world_coord: list) -> None:
+        self._global_plan, self._global_plan_world_coord = list(global_plan_gps), list(global_plan_world_coord)
+
+
 try:  # pragma: no cover - depends on the environment
     from leaderboard.autoagents.autonomous_agent import AutonomousAgent, Track
 
     SENSORS_TRACK: Any = Track.SENSORS
 except ImportError:
-    AutonomousAgent = None
+    AutonomousAgent: Any = _StandInAgent
     SENSORS_TRACK = "SENSORS"
 
 #: The simulator's fixed step (leaderboard ``frame_rate = 20``), seconds.
@@ -121,7 +134,7 @@ class ClosedLoopConfig:
     creeping: bool = False
     stop_sign_slowdown: bool = False
     lower_target_speed: bool = False
-    jpeg_quality: int = 90
+    jpeg_quality: int = 90  # LEAD's jpeg_quality of the closed-loop image round trip
     bench2drive: bool = False
     device: str | None = None
 
@@ -172,28 +185,8 @@ class AgentConfigError(UserError, ValueError):
     """An agent config YAML the agent cannot drive with; the message names the file and the field."""
 
 
-class _StandInAgent:
-    """leaderboard 2.0's ``AutonomousAgent`` interface, for running without the leaderboard installed."""
-
-    def __init__(self, carla_host: str, carla_port: int, debug: bool = False) -> None:
-        self.track = SENSORS_TRACK
-        self._global_plan: list | None = None
-        self._global_plan_world_coord: list | None = None
-        self.wallclock_t0 = None
-
-    def set_global_plan(self, global_plan_gps: list, global_plan_world_coord: list) -> None:
-        self._global_plan, self._global_plan_world_coord = list(global_plan_gps), list(global_plan_world_coord)
-
-
-Base: Any = AutonomousAgent if AutonomousAgent is not None else _StandInAgent
-
-
-class LeadS2RAgent(Base):
+class LeadS2RAgent(AutonomousAgent):
     """Drives a checkpoint of this package on the SENSORS track (see the module docstring)."""
-
-    def __init__(self, carla_host: str, carla_port: int, debug: bool = False) -> None:
-        super().__init__(carla_host, carla_port, debug)
-        self.debug = debug
 
     @staticmethod
     def get_ros_version() -> int:
@@ -221,7 +214,6 @@ class LeadS2RAgent(Base):
         device = config.device or ("cuda" if torch.cuda.is_available() else "cpu")
         self.device = torch.device(device)
         self.model, path = load_driving_model(config.checkpoint, config.pattern, device)
-        self.model_config = self.model.config
         spec = check_drivable(self.model, config.source, path)
         if config.stop_sign_slowdown and spec.lead_box_classes.get(config.source, 0) <= LeadBoxClass.STOP_SIGN:
             raise UnsupportedCheckpoint(

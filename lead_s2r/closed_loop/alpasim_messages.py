@@ -143,7 +143,7 @@ class Session:
     slot_of: dict[str, str]  # logical id -> model camera id
     images: dict[str, tuple[int, bytes]] = field(default_factory=dict)  # model camera id -> (frame end, JPEG)
     poses: deque = field(default_factory=lambda: deque(maxlen=HISTORY))  # (timestamp_us, 4x4 pose in local)
-    dynamics: Any = None  # the latest DynamicState
+    dynamics: Any = field(default_factory=protocol.DynamicState)  # the latest (none yet: at rest)
     route: tuple[int, np.ndarray] | None = None  # (timestamp_us, (K, 2) in the rig frame at that time)
     last_drive_us: int = -(2**63)
     drives: int = 0
@@ -190,8 +190,7 @@ def build_sample(session: Session, served: ServedModel, time_now_us: int) -> dic
     history = [(t, planar(pose)) for t, pose in session.poses]
     past = np.array([[(t - now_us) / 1e6, *to_local(p, current)] for t, p in history], np.float32)
     dynamics = session.dynamics
-    velocity = [dynamics.linear_velocity.x, dynamics.linear_velocity.y] if dynamics is not None else [0.0, 0.0]
-    acceleration = [dynamics.linear_acceleration.x, dynamics.linear_acceleration.y] if dynamics else [0.0, 0.0]
+    velocity = [dynamics.linear_velocity.x, dynamics.linear_velocity.y]
     route = np.zeros((0, 2))
     if session.route is not None:  # the route in the rig frame of its own time, moved to the current one
         route_us, points = session.route
@@ -204,7 +203,7 @@ def build_sample(session: Session, served: ServedModel, time_now_us: int) -> dic
         slot = session.slot_of[logical_id]
         cameras.append({**camera.calibration, "id": slot})
         sample[f"cam_{slot}"] = session.images[slot][1]
-    if served.reads_target_points:
+    if served.model.reads_target_points:  # a LeadDriver (load_served_model checked the family)
         sample["target_points"] = route_target_points(route)
     sample["meta"] = {
         "schema_version": SCHEMA_VERSION,
@@ -220,8 +219,8 @@ def build_sample(session: Session, served: ServedModel, time_now_us: int) -> dic
         "ego": {
             "speed": float(math.hypot(*velocity)),
             "velocity": [float(v) for v in velocity],
-            "acceleration": [float(a) for a in acceleration],
-            "yaw_rate": float(dynamics.angular_velocity.z) if dynamics is not None else 0.0,
+            "acceleration": [float(dynamics.linear_acceleration.x), float(dynamics.linear_acceleration.y)],
+            "yaw_rate": float(dynamics.angular_velocity.z),
             "command": int(command),
             "command_raw": None,
         },

@@ -69,11 +69,9 @@ class ServedModel:
     device: torch.device
     path: Path
     transform: SourceTransform = field(init=False)
-    reads_target_points: bool = field(init=False)
 
     def __post_init__(self) -> None:
         self.transform = SourceTransform(self.source, self.spec, cameras=[slot.id for slot in self.slots])
-        self.reads_target_points = bool(getattr(self.model, "reads_target_points", False))
 
     @property
     def grid_times(self) -> np.ndarray:
@@ -125,8 +123,7 @@ def camera_slots(config: Any, spec: InputSpec, source: str, found: Path) -> tupl
     if not ids:
         raise UserError(f"{found}: no camera list for source {source!r} (data.predict/train.{source}.cameras in the "
                         f"run's config.yaml); pass the run folder of `lead-s2r fit`")  # fmt: skip
-    unknown = [c for c in ids if c not in CAMERA_DIRECTIONS and c != "carla_mosaic"]
-    if unknown or "carla_mosaic" in ids:
+    if not set(ids) <= set(CAMERA_DIRECTIONS):
         raise UserError(f"{found}: cameras {ids} of source {source!r}: only {sorted(CAMERA_DIRECTIONS)} have a "
                         "direction to match AlpaSim's cameras by")  # fmt: skip
     return tuple(CameraSlot(c, *CAMERA_DIRECTIONS[c]) for c in ids)

@@ -48,8 +48,7 @@ def saved_config(checkpoint: Path) -> Path:
     folder of ``<run>/checkpoints/last.ckpt``), or in the newest ``lightning_logs/version_*`` there."""
     for folder in list(checkpoint.resolve().parents)[:3]:
         logged = sorted(folder.glob(f"lightning_logs/version_*/{CONFIG_NAME}"), key=lambda p: p.stat().st_mtime)
-        candidates = [folder / CONFIG_NAME, *logged[::-1]]
-        for candidate in candidates:
+        for candidate in [folder / CONFIG_NAME, *logged[::-1]]:
             if candidate.is_file():
                 return candidate
     raise UnsupportedCheckpoint(

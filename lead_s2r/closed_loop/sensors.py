@@ -63,8 +63,6 @@ POSE_READING_LIMITS = {
 }
 #: A LiDAR or radar value beyond this (metres, m/s, radians) is no return: CARLA's sensors reach 100 m.
 MAX_POINT_VALUE = 1e4
-#: LEAD's ``jpeg_quality`` for the closed-loop image round trip.
-JPEG_QUALITY = 90
 DATASET = "carla_lead"
 
 
@@ -178,7 +176,7 @@ def sensor_points(input_data: dict[str, Any], sensor_id: str) -> np.ndarray:
     return points[(np.abs(points) < MAX_POINT_VALUE).all(axis=1)]  # False for NaN
 
 
-def mosaic_jpeg(input_data: dict[str, Any], rig: str, quality: int = JPEG_QUALITY) -> bytes:
+def mosaic_jpeg(input_data: dict[str, Any], rig: str, quality: int) -> bytes:
     """The rig's cameras stitched left to right, the top rows LEAD keeps, as JPEG bytes."""
     tiles = []
     for camera in CAMERA_RIGS[rig]:
@@ -231,7 +229,7 @@ def ego_state(pose: PoseReading, navigation: Navigation) -> dict[str, Any]:
 
 def build_sample(
     input_data: dict[str, Any], pose: PoseReading, rig: Rig, navigation: Navigation, frame: int, timestamp: float,
-    jpeg_quality: int = JPEG_QUALITY,
+    jpeg_quality: int,
 ) -> dict[str, Any]:  # fmt: skip
     """One tick of sensor data (``pose``: its readings already parsed) as a schema v1 sample of the CARLA source
     (what the adapter writes)."""

@@ -32,13 +32,8 @@ class EgoStatusMLP(nn.Module):
 
     def forward(self, batch: Batch, source: str, tasks: Collection[str] | None = None) -> dict[str, Tensor]:
         c = self.config
-        status = torch.cat(
-            [
-                (batch["speed"].float() / c.max_speed)[:, None],
-                batch["acceleration"].float() / c.max_acceleration,
-                F.one_hot(batch["command"].long(), c.num_commands).float(),
-            ],
-            dim=1,
-        )
+        speed = (batch["speed"].float() / c.max_speed)[:, None]
+        command = F.one_hot(batch["command"].long(), c.num_commands).float()
+        status = torch.cat([speed, batch["acceleration"].float() / c.max_acceleration, command], dim=1)
         out = self.heads[source](self.trunk(status)).view(status.shape[0], -1, 3)
         return {"waypoints": out[..., :2], "headings": out[..., 2]}

@@ -84,18 +84,13 @@ def lead_input_spec(config: LeadConfig) -> InputSpec:
     tasks = {source: config.perception_tasks(source) for source in ("navsim", "carla")}
     carla = tasks["carla"]
     cameras = len(config.used_cameras) if config.mosaic_tiles else config.num_used_cameras  # LeadDriver crops
+    (x0, x1), (y0, y1) = config.bev_extent
     return InputSpec(
         trajectory_grids=lead_grids(config),
         image_size=(config.final_image_height, config.final_image_width // config.num_used_cameras * cameras),
         vertical_fov_deg=NAVSIM_VERTICAL_FOV_DEG if config.use_navsim_data else None,
         equal_tiles=config.mosaic_tiles is not None,
-        bev=BEVGrid(
-            float(config.min_x_meter),
-            float(config.max_x_meter),
-            float(config.min_y_meter),
-            float(config.max_y_meter),
-            float(config.pixels_per_meter),
-        ),
+        bev=BEVGrid(float(x0), float(x1), float(y0), float(y1), float(config.pixels_per_meter)),
         lidar_raster=not config.LTF,
         radar=config.has_radar_detector,
         radar_sources=("carla",) if "radar" in carla else (),

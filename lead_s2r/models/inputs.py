@@ -14,9 +14,8 @@ loss resizes them onto the image's grid on the device (:func:`on_image_grid`) ex
 would have (bilinear / nearest, pixel centres aligned), so a depth stored at 1/4 size is not shipped 16x larger.
 Float rasters and signed class maps (-1 = ignore) are accepted too, so a batch built by hand needs no uint8 coding.
 
-On a GPU the loader may leave two inputs raw, ``rgb_jpeg`` (with ``rgb_layout``) instead of ``rgb`` and
-``lidar_points`` instead of ``lidar_bev``, which :mod:`lead_s2r.data.device_inputs` builds on the training device
-before the batch moves.
+On a GPU the loader may leave two inputs raw, ``rgb_jpeg`` (with ``rgb_layout``) instead of ``rgb`` and ``lidar_points``
+instead of ``lidar_bev``, which :mod:`lead_s2r.data.device_inputs` builds on the training device before the batch moves.
 """
 
 from typing import TypedDict

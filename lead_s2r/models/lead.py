@@ -104,9 +104,8 @@ def load_checkpoint(folder: str | Path, pattern: str = "model*.pth") -> nn.Modul
     """LEAD's checkpoint folder -> one network in eval mode, or a :class:`LeadEnsemble` when several files match."""
     folder = Path(folder)
     config = read_config(folder)
-    files = weight_files(folder, pattern)
     members = []
-    for file in files:
+    for file in weight_files(folder, pattern):
         try:
             model = LeadTFv6(config)
         except ValueError as err:  # a value of its JSON type that a layer refuses (a dropout probability of 7)

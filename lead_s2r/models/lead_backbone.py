@@ -91,12 +91,8 @@ class GPT(nn.Module):
         n_lidar = config.lidar_vert_anchors * config.lidar_horz_anchors
         self.pos_emb = nn.Parameter(torch.zeros(1, self.n_image + n_lidar, n_embd))
         self.drop = nn.Dropout(config.embd_pdrop)
-        self.blocks = nn.Sequential(
-            *[
-                Block(n_embd, config.n_head, config.block_exp, config.attn_pdrop, config.resid_pdrop)
-                for _ in range(config.n_layer)
-            ]
-        )
+        arguments = (n_embd, config.n_head, config.block_exp, config.attn_pdrop, config.resid_pdrop)
+        self.blocks = nn.Sequential(*(Block(*arguments) for _ in range(config.n_layer)))
         self.ln_f = nn.LayerNorm(n_embd)
         for module in self.modules():
             if isinstance(module, nn.Linear):
@@ -131,27 +127,16 @@ class TransfuserBackbone(nn.Module):
         lidar_info = self.lidar_encoder.feature_info.info[-4:]
         self.num_image_features = image_info[3]["num_chs"]
         self.num_lidar_features = lidar_info[3]["num_chs"]
-        self.lidar_channel_to_img = nn.ModuleList(
-            nn.Conv2d(li["num_chs"], ii["num_chs"], kernel_size=1)
-            for li, ii in zip(lidar_info, image_info, strict=True)
-        )
-        self.img_channel_to_lidar = nn.ModuleList(
-            nn.Conv2d(ii["num_chs"], li["num_chs"], kernel_size=1)
-            for li, ii in zip(lidar_info, image_info, strict=True)
-        )
+        channels = [(li["num_chs"], ii["num_chs"]) for li, ii in zip(lidar_info, image_info, strict=True)]
+        self.lidar_channel_to_img = nn.ModuleList(nn.Conv2d(lc, ic, kernel_size=1) for lc, ic in channels)
+        self.img_channel_to_lidar = nn.ModuleList(nn.Conv2d(ic, lc, kernel_size=1) for lc, ic in channels)
         self.avgpool_lidar = nn.AdaptiveAvgPool2d((config.lidar_vert_anchors, config.lidar_horz_anchors))
         self.transformers = nn.ModuleList(GPT(ii["num_chs"], config) for ii in image_info)
         self.perspective_upsample_factor = image_info[3]["reduction"] // config.perspective_downsample_factor
-        c = config.bev_features_chanels
+        c, down = config.bev_features_chanels, config.bev_down_sample_factor
         self.upsample = nn.Upsample(scale_factor=config.bev_upsample_factor, mode="bilinear", align_corners=False)
-        self.upsample2 = nn.Upsample(
-            size=(
-                config.lidar_height_pixel // config.bev_down_sample_factor,
-                config.lidar_width_pixel // config.bev_down_sample_factor,
-            ),
-            mode="bilinear",
-            align_corners=False,
-        )
+        size = (config.lidar_height_pixel // down, config.lidar_width_pixel // down)
+        self.upsample2 = nn.Upsample(size=size, mode="bilinear", align_corners=False)
         self.up_conv5 = nn.Conv2d(c, c, (3, 3), padding=1)
         self.up_conv4 = nn.Conv2d(c, c, (3, 3), padding=1)
         self.c5_conv = nn.Conv2d(self.num_lidar_features, c, (1, 1))

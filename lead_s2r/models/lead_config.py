@@ -11,14 +11,13 @@ than its field's (``"n_layer": "x"``, ``"use_depth": 7``) is an error naming the
 True and a string into a traceback deep in the network's constructor.
 
 Our extensions, where LEAD's code has no switch (docs/models.md, "LEAD's own architecture"): the WOD-E2E target builds
-(LEAD's own cannot: its camera calibration imports a function missing from its public code, see
-:data:`CAMERA_TILE`), its past-state token slots stay off, and ``use_previous_tp`` / ``use_next_tp``,
-``num_way_points_prediction`` and ``waypoint_interval_s`` may be set in a file. LEAD's loader recomputes these from
-its rules, so a network that overrides them loads in LEAD only where the rules give the same values.
-``camera_tile_size`` (width, height of one camera tile) replaces the target's :data:`CAMERA_TILE` for toy runs such as
-the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD always derives the size, so such a network does not load in
-LEAD. So do the toy scales (:data:`TOY_SCALES`) of the planner's status inputs and outputs, which the smoke twins set
-to learn in a few hundred steps.
+(LEAD's own cannot: its camera calibration imports a function missing from its public code, see :data:`CAMERA_TILE`),
+its past-state token slots stay off, and ``use_previous_tp`` / ``use_next_tp``, ``num_way_points_prediction`` and
+``waypoint_interval_s`` may be set in a file. LEAD's loader recomputes these from its rules, so a network that overrides
+them loads in LEAD only where the rules give the same values. ``camera_tile_size`` (width, height of one camera tile)
+replaces the target's :data:`CAMERA_TILE` for toy runs such as the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD
+always derives the size, so such a network does not load in LEAD. So do the toy scales (:data:`TOY_SCALES`) of the
+planner's status inputs and outputs, which the smoke twins set to learn in a few hundred steps.
 """
 
 from dataclasses import asdict, dataclass, fields
@@ -162,6 +161,7 @@ class LeadConfig:
             "use_discrete_command": not wod,
             "use_past_positions": False,  # LEAD: on for WOD-E2E, slots its forward never fills; ours: off
             "use_past_speeds": False,
+            "num_past_samples_used": 0,  # LEAD: 6 with past positions or speeds, which are refused below
             "use_previous_tp": self.use_tp,
             "use_next_tp": self.use_tp,
             "num_way_points_prediction": 10 if wod else 8,  # CARLA 8 @ 4 Hz, NAVSIM 8 @ 2 Hz, WOD-E2E 10 @ 2 Hz
@@ -172,8 +172,6 @@ class LeadConfig:
         for name, default in defaults.items():
             if getattr(self, name) is None:
                 setattr(self, name, default)
-        if self.num_past_samples_used is None:
-            self.num_past_samples_used = 6 if self.use_past_positions or self.use_past_speeds else 0
         if self.use_past_positions or self.use_past_speeds:
             raise UserError(
                 "config.json: use_past_positions / use_past_speeds add planner token slots that LEAD's forward never "
@@ -202,10 +200,9 @@ class LeadConfig:
 
     @classmethod
     def from_json(cls, values: dict[str, Any]) -> "LeadConfig":
-        """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored)."""
-        hints = get_type_hints(cls)
-        kwargs = {f.name: _typed(f.name, values[f.name], hints[f.name]) for f in fields(cls) if f.name in values}
-        return cls(**kwargs)
+        """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored; the types are checked
+        by ``__post_init__``)."""
+        return cls(**{f.name: values[f.name] for f in fields(cls) if f.name in values})
 
     def to_json(self) -> dict[str, Any]:
         """Every field LEAD's loader reads, plus the derived values (informational, as in LEAD's own files)."""
@@ -294,6 +291,11 @@ class LeadConfig:
     @property
     def max_y_meter(self) -> int:
         return 40 if self.carla_leaderboard_mode else 32
+
+    @property
+    def bev_extent(self) -> tuple[tuple[int, int], tuple[int, int]]:
+        """Ours: ((min_x, max_x), (min_y, max_y)) of the BEV, metres in LEAD's ego frame."""
+        return (self.min_x_meter, self.max_x_meter), (self.min_y_meter, self.max_y_meter)
 
     @property
     def lidar_width_pixel(self) -> int:
@@ -389,35 +391,26 @@ class LeadConfig:
         return self.carla_leaderboard_mode
 
     @property
-    def planning_source(self) -> str:
-        """The source (our name) the network is built for: its target dataset."""
-        if self.carla_leaderboard_mode:
-            return "carla"
-        return "wod" if self.is_wod else "navsim"
-
-    @property
     def sources(self) -> tuple[str, ...]:
-        """The sources whose batches the network reads: its target, and CARLA when it has CARLA heads."""
-        source = self.planning_source
+        """The sources whose batches the network reads: its target (our name of it), and CARLA when it has CARLA
+        heads."""
+        source = "carla" if self.carla_leaderboard_mode else "wod" if self.is_wod else "navsim"
         return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
 
     def perception_tasks(self, source: str) -> set[str]:
         """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``: BEV
         semantics (NAVSIM's 7 classes, LEAD's 13 CARLA classes) and boxes in LEAD's CenterNet encoding (``lead_boxes``:
         NAVSIM's one class, LEAD's 8 CARLA classes), CARLA perspective semantics, depth and radar detection."""
-        heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}
-        tasks = set()
-        if heads.get(source) and self.use_bev_semantic:
-            tasks.add("bev_semantic")
-        if heads.get(source) and self.detect_boxes:
-            tasks.add("lead_boxes")
-        if source == "carla" and self.use_carla_data and self.use_semantic:
-            tasks.add("semantic")
-        if source == "carla" and self.use_carla_data and self.use_semantic and self.use_depth:
-            tasks.add("depth")
-        if source == "carla" and self.has_radar_detector:
-            tasks.add("radar")
-        return tasks
+        heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}.get(source, False)
+        carla = source == "carla" and self.use_carla_data
+        switches = {
+            "bev_semantic": heads and self.use_bev_semantic,
+            "lead_boxes": heads and self.detect_boxes,
+            "semantic": carla and self.use_semantic,
+            "depth": carla and self.use_semantic and self.use_depth,
+            "radar": source == "carla" and self.has_radar_detector,
+        }
+        return {task for task, on in switches.items() if on}
 
     @property
     def has_radar_detector(self) -> bool:

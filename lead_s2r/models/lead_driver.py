@@ -3,20 +3,18 @@
 fine-tuning with ``fit``, the CARLA closed-loop agent, and back out with ``lead-s2r export-lead``.
 
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
-:mod:`lead_s2r.models.lead_frame` only. The loader follows
-:func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's image size and camera band, its BEV extent for the LiDAR
-raster, radar and target points when the network reads them, and the labels of its heads: the planner's outputs
-(waypoints, NAVSIM headings, CARLA route and target speed) for every source it reads, on its target's grid, BEV
-semantics and boxes of each source it has heads for (CARLA labels remapped to LEAD's 13 BEV and 8 box classes by
-:mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by :mod:`lead_s2r.data.lead_centernet`), and with
-CARLA data CARLA perspective semantics, depth and radar detection.
+:mod:`lead_s2r.models.lead_frame` only. The loader follows :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's
+image size and camera band, its BEV extent for the LiDAR raster, radar and target points when the network reads them,
+and the labels of its heads: the planner's outputs (waypoints, NAVSIM headings, CARLA route and target speed) for every
+source it reads, on its target's grid, BEV semantics and boxes of each source it has heads for (CARLA labels remapped to
+LEAD's 13 BEV and 8 box classes by :mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by
+:mod:`lead_s2r.data.lead_centernet`), and with CARLA data CARLA perspective semantics, depth and radar detection.
 
 This is the package's one TransFuser family: the paper's networks are builder functions below, one per variant with
 what differs in its docstring (:data:`VARIANTS`, as timm registers its models), each a preset of LEAD's switches.
 """
 
 from collections.abc import Callable, Collection
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -26,7 +24,7 @@ from lead_s2r.errors import UserError
 from lead_s2r.models.config import TrajectoryGrid
 from lead_s2r.models.input_spec import lead_grids
 from lead_s2r.models.inputs import Batch
-from lead_s2r.models.lead import LeadEnsemble, load_checkpoint, read_config
+from lead_s2r.models.lead import LeadEnsemble, load_checkpoint
 from lead_s2r.models.lead_config import TARGET_SPEED_CLASSES, LeadConfig
 from lead_s2r.models.lead_frame import bev_map_from_lead, from_lead_outputs, to_lead_inputs
 from lead_s2r.models.lead_loss import SourceDataset, loss_weights, prefix, radar_feature_scale, visible_bev_pixels
@@ -71,12 +69,11 @@ class LeadDriver(nn.Module):
     ) -> None:
         super().__init__()
         if checkpoint is not None:
-            config = read_config(Path(checkpoint))
             self.network: nn.Module = load_checkpoint(checkpoint, pattern).train()
         else:
             config = config if config is not None else LeadConfig(use_planning_decoder=True)
             self.network = LeadTFv6(config, pretrained=pretrained)
-        self.config = config
+        self.config = config = self.network.config
         tiles = config.mosaic_tiles
         self.camera_select = CameraSelect(len(config.used_cameras), tiles)  # also crops perspective labels
         speeds = torch.tensor(TARGET_SPEED_CLASSES)
@@ -106,21 +103,19 @@ class LeadDriver(nn.Module):
         normalised over LEAD's whole table). A perception term weighs the same for every source that has it, and the
         headings share the waypoint term's weight (LEAD adds them into it)."""
         weights = loss_weights(self.config)
-
-        def term(name: str) -> float:
-            return max(weights.get(f"{prefix(source)}{name}", 0.0) for source in SourceDataset)
-
-        planning = weights["loss_spatio_temporal_waypoints"]
+        terms = {
+            "waypoints": "loss_spatio_temporal_waypoints",
+            "headings": "loss_spatio_temporal_waypoints",
+            "route": "loss_spatial_route",
+            "target_speed": "loss_target_speed",
+            "bev_semantic": "loss_bev_semantic",
+            "lead_boxes": "loss_center_net_heatmap",
+            "semantic": "loss_semantic",
+            "depth": "loss_depth",
+            "radar": "radar_loss",
+        }
         return {
-            "waypoints": planning,
-            "headings": planning,
-            "route": weights["loss_spatial_route"],
-            "target_speed": weights["loss_target_speed"],
-            "bev_semantic": term("loss_bev_semantic"),
-            "lead_boxes": term("loss_center_net_heatmap"),
-            "semantic": term("loss_semantic"),
-            "depth": term("loss_depth"),
-            "radar": term("radar_loss"),
+            task: max(weights.get(f"{prefix(s)}{term}", 0.0) for s in SourceDataset) for task, term in terms.items()
         }
 
     def grid(self, source: str) -> TrajectoryGrid:

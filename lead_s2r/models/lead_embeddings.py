@@ -31,21 +31,12 @@ def unit_bev_points(points: Tensor, x_range: tuple[float, float], y_range: tuple
 
 def grid_sine_embedding(like: Tensor) -> Tensor:
     """(B, D, H, W) -> DETR's normalised 2-D sine embedding of the grid positions, (B, D, H, W): D/2 channels for the
-    row coordinate, then D/2 for the column coordinate (``PositionEmbeddingSine(normalize=True)``)."""
+    row coordinate, then D/2 for the column coordinate (``PositionEmbeddingSine(normalize=True)``), which is
+    :func:`point_sine_embedding` of the cells' (column, row) positions scaled into (0, 1)."""
     bs, d, h, w = like.shape
-    num_feats = d // 2
     ones = torch.ones((bs, h, w), device=like.device)
     y_embed = ones.cumsum(1, dtype=torch.float32)
     x_embed = ones.cumsum(2, dtype=torch.float32)
-    eps, scale = 1e-6, 2 * math.pi
-    y_embed = y_embed / (y_embed[:, -1:, :] + eps) * scale
-    x_embed = x_embed / (x_embed[:, :, -1:] + eps) * scale
-    dim_t = torch.arange(num_feats, dtype=torch.float32, device=like.device)
-    dim_t = 10000 ** (2 * (torch.div(dim_t, 2, rounding_mode="floor")) / num_feats)
-
-    def interleave(e: Tensor) -> Tensor:
-        p = e[:, :, :, None] / dim_t
-        return torch.stack((p[:, :, :, 0::2].sin(), p[:, :, :, 1::2].cos()), dim=4).flatten(3)
-
-    pos = torch.cat((interleave(y_embed), interleave(x_embed)), dim=3).permute(0, 3, 1, 2)
-    return pos.to(like.dtype).contiguous()
+    eps = 1e-6
+    points = torch.stack([x_embed / (x_embed[:, :, -1:] + eps), y_embed / (y_embed[:, -1:, :] + eps)], dim=-1)
+    return point_sine_embedding(points, d).permute(0, 3, 1, 2).to(like.dtype).contiguous()

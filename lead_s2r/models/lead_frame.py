@@ -26,10 +26,10 @@ from lead_s2r.models.inputs import Batch, lidar_input
 from lead_s2r.models.lead_config import LeadConfig
 from lead_s2r.schema import Command
 
-#: Our 4-way command id -> index in LEAD's one-hot.
+#: Our 4-way command id -> index in LEAD's NAVSIM one-hot.
 NAVSIM_COMMAND_INDEX = {Command.LEFT: 0, Command.STRAIGHT: 1, Command.RIGHT: 2, Command.UNKNOWN: 3}
-CARLA_COMMAND_INDEX = {Command.LEFT: 0, Command.RIGHT: 1, Command.STRAIGHT: 2, Command.UNKNOWN: 3}
-#: Our full command -> LEAD's CARLA one-hot (RoadOption - 1; unknown -> lane follow, as LEAD's ``command_to_one_hot``).
+#: Our full command (a 4-way one is one of them) -> LEAD's CARLA one-hot (RoadOption - 1; unknown -> lane follow, as
+#: LEAD's ``command_to_one_hot``).
 CARLA_FULL_COMMAND_INDEX = {
     Command.LEFT: 0,
     Command.RIGHT: 1,
@@ -50,6 +50,9 @@ BOX_FIELDS = {
     "yaw_res_pred": "box_yaw_residual",
     "velocity_pred": "box_velocity",
 }
+#: LEAD's outputs that only get our names, and those whose lateral coordinate also changes sign.
+RENAMED = {"pred_semantic": "semantic", "pred_depth": "depth", "pred_target_speed_distribution": "target_speed_logits"}
+FLIPPED = {"pred_future_waypoints": "waypoints", "pred_route": "route"}
 #: LEAD's radar rows per sensor (``num_radar_points_per_sensor``).
 RADAR_ROWS_PER_SENSOR = 75
 #: Slots of our ``target_points`` (B, 3, 2): previous, current, next.
@@ -76,28 +79,20 @@ def bev_map_from_lead(lead_map: Tensor) -> Tensor:
 def command_one_hot(command: Tensor, config: LeadConfig, full: Tensor | None = None) -> Tensor:
     """(B,) our 4-way command ids -> (B, discrete_command_dim) LEAD one-hot; in CARLA leaderboard mode the 7-way
     ``full`` command (``command_full``), where the batch has it, gives LEAD's 6 CARLA commands."""
-    if config.carla_leaderboard_mode and full is not None:
-        command, table = full, CARLA_FULL_COMMAND_INDEX
-    else:
-        table = CARLA_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
+    command = full if config.carla_leaderboard_mode and full is not None else command
+    table = CARLA_FULL_COMMAND_INDEX if config.carla_leaderboard_mode else NAVSIM_COMMAND_INDEX
     table = WOD_COMMAND_INDEX if config.is_wod else table
-    lookup = torch.zeros(len(Command), dtype=torch.int64)
-    for ours, theirs in table.items():
-        lookup[ours] = theirs
-    index = lookup.to(command.device)[command.long()]
+    lookup = torch.tensor([table.get(ours, 0) for ours in Command], device=command.device)
+    index = lookup[command.long()]
     return torch.nn.functional.one_hot(index, config.discrete_command_dim).float()
 
 
 def radar_to_lead(radar: Tensor, valid: Tensor, config: LeadConfig) -> Tensor:
     """Our (B, N, 5) radar rows (ISO) with their mask -> LEAD's sensor-major (B, sensors x 75, 5), y flipped."""
     flipped = flip_y(radar.float())
-    inside = (
-        valid
-        & (flipped[..., 0] >= config.min_x_meter)
-        & (flipped[..., 0] <= config.max_x_meter)
-        & (flipped[..., 1] >= config.min_y_meter)
-        & (flipped[..., 1] <= config.max_y_meter)
-    )
+    (x0, x1), (y0, y1) = config.bev_extent
+    x, y = flipped[..., 0], flipped[..., 1]
+    inside = valid & (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
     sensors, rows = config.num_radar_sensors, RADAR_ROWS_PER_SENSOR
     out = torch.zeros(len(radar), sensors * rows, 5, device=radar.device)
     out[..., 4] = torch.arange(sensors, device=radar.device).repeat_interleave(rows).float()
@@ -153,18 +148,10 @@ def from_lead_outputs(outputs: dict[str, Tensor], source: str) -> dict[str, Tens
         ours["bev_semantic"] = bev_map_from_lead(outputs[f"pred_bev_semantic{suffix}"])
     prefix = f"pred_bounding_box{suffix}."
     ours.update(boxes_from_lead({k[len(prefix) :]: v for k, v in outputs.items() if k.startswith(prefix)}))
-    if "pred_semantic" in outputs:
-        ours["semantic"] = outputs["pred_semantic"]
-    if "pred_depth" in outputs:
-        ours["depth"] = outputs["pred_depth"]
-    if "pred_future_waypoints" in outputs:
-        ours["waypoints"] = flip_y(outputs["pred_future_waypoints"])
+    ours.update({name: outputs[key] for key, name in RENAMED.items() if key in outputs})
+    ours.update({name: flip_y(outputs[key]) for key, name in FLIPPED.items() if key in outputs})
     if "pred_headings" in outputs:
         ours["headings"] = -outputs["pred_headings"]
-    if "pred_route" in outputs:
-        ours["route"] = flip_y(outputs["pred_route"])
-    if "pred_target_speed_distribution" in outputs:
-        ours["target_speed_logits"] = outputs["pred_target_speed_distribution"]
     if "pred_radar_predictions" in outputs:
         radar = outputs["pred_radar_predictions"]  # x, y (m, LEAD's frame), v (m/s), validity logit
         ours.update(radar_xy=flip_y(radar[..., :2]), radar_speed=radar[..., 2], radar_logit=radar[..., 3])

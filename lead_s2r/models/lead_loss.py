@@ -74,12 +74,9 @@ def source_weights(config: LeadConfig, source: SourceDataset) -> dict[str, float
         weights.update(radar_loss=0.0, loss_semantic=0.0, loss_depth=0.0, loss_center_net_velocity=0.0)
     if config.LTF or TRAINING_USED_LIDAR_STEPS <= 1:
         weights["loss_center_net_velocity"] = 0.0
-    planning = float(config.use_planning_decoder)
-    return {f"{prefix(source)}{k}": v for k, v in weights.items()} | {
-        "loss_spatio_temporal_waypoints": planning,
-        "loss_target_speed": planning,
-        "loss_spatial_route": planning,
-    }
+    planning = ("loss_spatio_temporal_waypoints", "loss_target_speed", "loss_spatial_route")
+    prefixed = {f"{prefix(source)}{k}": v for k, v in weights.items()}
+    return prefixed | dict.fromkeys(planning, float(config.use_planning_decoder))
 
 
 def training_sources(config: LeadConfig) -> tuple[SourceDataset, ...]:
@@ -192,11 +189,7 @@ def center_net_losses(
 
 def radar_feature_scale(config: LeadConfig) -> tuple[float, float, float]:
     """What LEAD's radar terms divide (x, y, v) by: the BEV's x and y extents in metres and the maximum speed."""
-    return (
-        config.max_x_meter - config.min_x_meter,
-        config.max_y_meter - config.min_y_meter,
-        config.max_speed,
-    )
+    return (config.max_x_meter - config.min_x_meter, config.max_y_meter - config.min_y_meter, config.max_speed)
 
 
 def hungarian_matches(cost: Tensor) -> tuple[Tensor, Tensor]:
@@ -216,9 +209,8 @@ def radar_loss(pred: Tensor, detections: Tensor, scale: tuple[float, float, floa
     known = (~label_state.isnan()).float()  # our extension: a speed the data does not know (NaN) adds nothing
     label_state = label_state.nan_to_num()
     norm = torch.tensor(scale, device=state.device, dtype=state.dtype)
-    l1_cost = (((state[:, :, None] - label_state[:, None]) / norm).abs() * known[:, None]).sum(-1) * valid[
-        :, None, :, 0
-    ]
+    l1_cost = (((state[:, :, None] - label_state[:, None]) / norm).abs() * known[:, None]).sum(-1)
+    l1_cost = l1_cost * valid[:, None, :, 0]
     bce_cost = F.binary_cross_entropy_with_logits(
         logit[:, :, None].expand(-1, -1, valid.shape[1], -1),
         valid[:, None].expand(-1, logit.shape[1], -1, -1),
@@ -238,8 +230,7 @@ def two_hot(speed: Tensor, brake: Tensor, classes: Iterable[float] | Tensor = TA
     """(B,) target speeds -> (B, C) probabilities on the two neighbouring classes (linear split); a braking sample is
     class 0 and a speed at or above the last class is the last class (LEAD's ``encode_two_hot``)."""
     speed = speed.float()
-    bins = classes if isinstance(classes, Tensor) else torch.tensor(list(classes))
-    bins = bins.to(speed.device, speed.dtype)
+    bins = torch.as_tensor(classes, dtype=speed.dtype, device=speed.device)
     clamped = speed.clamp(bins[0], bins[-1])
     upper = torch.searchsorted(bins, clamped, right=False).clamp(1, len(bins) - 1)
     lower_value, upper_value = bins[upper - 1], bins[upper]
@@ -399,7 +390,7 @@ def adamw(
 def optimizer(model: nn.Module, config: LeadConfig | Mapping | None = None) -> torch.optim.AdamW:
     """LEAD's optimizer for ``model`` with the settings of ``config`` (a :class:`LeadConfig` or a config.json dict;
     default: the model's): ``lr`` and ``weight_decay`` (3e-4, 0.01 unless the file sets them)."""
-    config = _config(model, config)
+    config = network_of(model).config if config is None else _config(config)
     return adamw(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
 
@@ -418,11 +409,9 @@ def scheduler(
     optimizer: torch.optim.Optimizer, config: LeadConfig | Mapping, steps_per_epoch: int
 ) -> torch.optim.lr_scheduler.LRScheduler:
     """LEAD's schedule for a config (``use_cosine_annealing_with_restarts``: off for WOD-E2E; ``epochs``)."""
-    config = config if isinstance(config, LeadConfig) else LeadConfig.from_json(dict(config))
+    config = _config(config)
     return cosine_schedule(optimizer, steps_per_epoch, config.epochs, config.use_cosine_annealing_with_restarts)
 
 
-def _config(model: nn.Module, config: LeadConfig | Mapping | None) -> LeadConfig:
-    if config is None:
-        return network_of(model).config
+def _config(config: LeadConfig | Mapping) -> LeadConfig:
     return config if isinstance(config, LeadConfig) else LeadConfig.from_json(dict(config))

@@ -49,15 +49,19 @@ def status_token(encoder: nn.Module, value: Tensor, dim: int) -> Tensor:
 class StatusContext(nn.Module):
     """BEV tokens + sine embedding, then the status tokens (shared by the TFv6 and TFv5 context encoders)."""
 
-    def __init__(self, bev_channels: int, dim: int, num_status_tokens: int) -> None:
+    def __init__(self, config: LeadConfig, bev_channels: int, num_status_tokens: int) -> None:
         super().__init__()
-        self.status_pos_embedding = nn.Parameter(torch.zeros(1, num_status_tokens, dim))
-        self.dimension_adapter = nn.Conv2d(bev_channels, dim, kernel_size=1)
+        self.config = config
+        d = config.transfuser_token_dim
+        self.status_pos_embedding = nn.Parameter(torch.zeros(1, num_status_tokens, d))
+        self.dimension_adapter = nn.Conv2d(bev_channels, d, kernel_size=1)
         nn.init.uniform_(self.status_pos_embedding)
+        if config.use_velocity:
+            self.velocity_encoder = nn.Sequential(nn.Linear(1, d))
 
-    def speed_tokens(self, data: dict[str, Tensor], config: LeadConfig) -> list[Tensor]:
-        """The first status token, speed / ``max_speed`` (x ``status_scale``), when the config has one (TFv6 and TFv5
-        alike)."""
+    def speed_tokens(self, data: dict[str, Tensor]) -> list[Tensor]:
+        """The first status token, speed / ``max_speed`` (x ``status_scale``), when the config has one."""
+        config = self.config
         if not config.use_velocity:
             return []
         like = self.dimension_adapter.weight
@@ -80,10 +84,7 @@ class PlanningContextEncoder(StatusContext):
         c, d = config, config.transfuser_token_dim
         slots = int(c.use_velocity) + int(c.use_acceleration) + int(c.use_discrete_command) + len(c.target_point_slots)
         slots += c.num_radar_queries if c.planner_radar_tokens else 0
-        super().__init__(bev_channels, d, slots)
-        self.config = c
-        if c.use_velocity:
-            self.velocity_encoder = nn.Sequential(nn.Linear(1, d))
+        super().__init__(c, bev_channels, slots)
         if c.use_acceleration:
             self.acceleration_encoder = nn.Sequential(nn.Linear(1, d))
         if c.use_discrete_command:
@@ -98,7 +99,7 @@ class PlanningContextEncoder(StatusContext):
     ) -> Tensor:
         c, d = self.config, self.config.transfuser_token_dim
         like = self.dimension_adapter.weight
-        status = self.speed_tokens(data, c)
+        status = self.speed_tokens(data)
         if c.use_acceleration:
             acceleration = data["acceleration"].reshape(-1, 1).to(like.device, like.dtype)
             acceleration = acceleration / c.max_acceleration * c.status_scale
@@ -114,9 +115,7 @@ class PlanningContextEncoder(StatusContext):
                 raise KeyError("this LEAD planner reads radar queries: it needs CARLA data and the radar detector")
             features, predictions = radar
             tokens = self.radar_encoder(features).reshape(-1, c.num_radar_queries, d)
-            xy = unit_bev_points(
-                predictions[..., :2].reshape(-1, 2), (c.min_x_meter, c.max_x_meter), (c.min_y_meter, c.max_y_meter)
-            )
+            xy = unit_bev_points(predictions[..., :2].reshape(-1, 2), *c.bev_extent)
             status.append(tokens + point_sine_embedding(xy, d).reshape(tokens.shape))
         return self.context(bev_features, status)
 

@@ -49,17 +49,9 @@ class RadarDetector(nn.Module):
         )
         self.label_decoder = nn.Linear(d, 1)
 
-    @property
-    def x_range(self) -> tuple[float, float]:
-        return (self.config.min_x_meter, self.config.max_x_meter)
-
-    @property
-    def y_range(self) -> tuple[float, float]:
-        return (self.config.min_y_meter, self.config.max_y_meter)
-
     def sample_bev(self, bev: Tensor, xy: Tensor) -> Tensor:
         """Bilinear BEV features at (B, N, 2) points in metres, with LEAD's transposed axes (module docstring)."""
-        (x0, x1), (y0, y1) = self.x_range, self.y_range
+        (x0, x1), (y0, y1) = self.config.bev_extent
         u = 2 * (xy[..., 1] - y0) / (y1 - y0) - 1
         v = 2 * (xy[..., 0] - x0) / (x1 - x0) - 1
         grid = torch.stack([u, v], dim=-1).view(xy.shape[0], xy.shape[1], 1, 2)
@@ -72,7 +64,7 @@ class RadarDetector(nn.Module):
         velocity = radar[..., RADAR_V : RADAR_V + 1] / c.max_speed
         tokens = self.radar_point_tokenizer(torch.cat([self.sample_bev(bev, xy), velocity, sensors], dim=-1))
         flat = xy.reshape(-1, 2)
-        embedding = point_sine_embedding(unit_bev_points(flat, self.x_range, self.y_range), c.radar_token_dim)
+        embedding = point_sine_embedding(unit_bev_points(flat, *c.bev_extent), c.radar_token_dim)
         return tokens + embedding.reshape(tokens.shape)
 
     def forward(self, bev_features: Tensor, radar: Tensor, speed: Tensor) -> tuple[Tensor, Tensor]:
@@ -84,7 +76,7 @@ class RadarDetector(nn.Module):
         kv = torch.cat([bev_tokens, ego + self.ego_vel_pos_embed, radar_tokens], dim=1)
         features = self.tf(self.q.repeat(kv.shape[0], 1, 1), kv)
         state = self.state_decoder(features)
-        (x0, x1), (y0, y1) = self.x_range, self.y_range
+        (x0, x1), (y0, y1) = c.bev_extent
         x = torch.tanh(state[..., 0]) * ((x1 - x0) / 2) + (x1 + x0) / 2
         y = torch.tanh(state[..., 1]) * ((y1 - y0) / 2) + (y1 + y0) / 2
         v = (torch.tanh(state[..., 2]) + 1) / 2 * c.max_speed

@@ -24,17 +24,14 @@ TFV5_COMMANDS = 6
 class TFv5ContextEncoder(StatusContext):
     def __init__(self, config: LeadConfig, bev_channels: int) -> None:
         d = config.transfuser_token_dim
-        super().__init__(bev_channels, d, int(config.use_velocity) + int(config.use_discrete_command))
-        self.config = config
-        if config.use_velocity:
-            self.velocity_encoder = nn.Sequential(nn.Linear(1, d))
+        super().__init__(config, bev_channels, int(config.use_velocity) + int(config.use_discrete_command))
         if config.use_discrete_command:
             self.command_encoder = nn.Sequential(nn.Linear(TFV5_COMMANDS, d))
 
     def forward(self, bev_features: Tensor, data: dict[str, Tensor]) -> Tensor:
         c, d = self.config, self.config.transfuser_token_dim
         like = self.dimension_adapter.weight
-        status = self.speed_tokens(data, c)
+        status = self.speed_tokens(data)
         if c.use_discrete_command:
             status.append(status_token(self.command_encoder, data["command"].to(like.device, like.dtype), d))
         return self.context(bev_features, status)
