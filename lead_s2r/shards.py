@@ -256,11 +256,8 @@ class TarSamples:
 
 
 def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
-    """Keys the manifest lists per shard (see :func:`keys_by_shard`); None without a manifest.
-
-    ``path`` is a converted folder, its shard folder or one of its shards; a plain folder of tars has no manifest to
-    check against.
-    """
+    """Keys the manifest lists per shard (see :func:`keys_by_shard`); None without a manifest (a plain folder of tars).
+    ``path`` is a converted folder, its shard folder or one of its shards."""
     path = Path(path)
     folder = path
     if path.is_file() and path.parent.name == SHARD_DIR:
@@ -340,10 +337,8 @@ class ManifestCheck:
 
 
 def decode_sample(raw: dict[str, Any], fields: Iterable[str] | None = None) -> dict[str, Any]:
-    """Decode a webdataset raw sample (``{'meta.json': bytes, ...}``), only the requested fields.
-
-    Raises :class:`ShardError` naming the tar, key and field for a member that does not decode to its field's type.
-    """
+    """Decode a webdataset raw sample (``{'meta.json': bytes, ...}``), only the requested fields; a member that does
+    not decode to its field's type is a :class:`ShardError` naming the tar, key and field."""
     wanted = None if fields is None else set(fields) | {"meta"}
     sample: dict[str, Any] = {"__key__": raw["__key__"]}
     for member, data in raw.items():
@@ -390,8 +385,7 @@ def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Itera
     """Yield decoded samples from a converted folder or shard(s), in shard order.
 
     ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
-    no splitting over ranks or workers, the caller decides. In a converted folder every tar must yield the samples
-    the manifest lists for it (:class:`ManifestCheck`).
+    no splitting over ranks or workers. In a converted folder every tar must yield what the manifest lists for it.
     """
     fields = None if fields is None else tuple(fields)
     listed = listed_keys(path)
@@ -412,8 +406,7 @@ def read_part(
     hands a big tar out in parts.
 
     A part reads from its offset to its last sample, not every byte of the tar for every part. Members of fields
-    nobody decodes are listed for :func:`decode_sample`'s completeness check, not read. A key the tar does not yield
-    there is a :class:`ShardError`.
+    nobody decodes are listed for :func:`decode_sample`'s completeness check, not read.
     """
     asked = set(keys)
     raws: dict[str, dict[str, Any]] = {}
@@ -461,9 +454,8 @@ def write_manifest(folder: Path, table: pa.Table) -> Path:
 def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
     """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
 
-    ``columns`` keeps only those; they and ``required`` must be there. A folder without one, a file that is missing,
-    is not parquet, fails a page's CRC (manifests written before the CRCs carry none and read as before) or lacks a
-    column is a :class:`ShardError` naming it.
+    ``columns`` keeps only those; they and ``required`` must be there. Manifests written before the page CRCs carry
+    none and read as before; any unreadable one is a :class:`ShardError` naming it.
     """
     path = Path(path)
     file = path / MANIFEST if path.is_dir() else path
