@@ -196,10 +196,8 @@ class NavsimAdapter(Adapter):
 
     def _check_filter(self, logs: list[LogRef], missing_synthetic: list[str]) -> list[dict[str, Any]]:
         """The scene filter's entries that ``logs`` (listed logged scenes) and the synthetic folder do not provide.
-
-        Filter tokens are checked against the tokens of every listed log with a full window, so a filter with
-        ``tokens`` costs one more read of each selected log here; a log that cannot be read is left to its own
-        conversion to report."""
+        A filter with ``tokens`` costs one more read of each selected log here; a log that cannot be read is left to
+        its own conversion to report."""
         if self.filter is None:
             return []
         where = f"scene filter {self.filter_path}"

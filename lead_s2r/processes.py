@@ -43,7 +43,6 @@ class WorkerDied(RuntimeError):
 
 def exit_with_parent() -> None:
     """End this worker process as soon as the process that started it ends; call it first thing in a worker.
-
     The parent is the one multiprocessing records (``parent_process()``: the driver, also for a forkserver's
     children), watched through its sentinel pipe, which the kernel closes when the driver dies, zombie or not. The
     exit is immediate (``os._exit``): whatever the worker was writing is left partial, for the resuming run to drop."""
@@ -232,12 +231,10 @@ class RayExecutor(Executor):
 
     def _result(self, reference: Any) -> Any:
         """The task's return value or its own exception; a lost worker or node after the retries is WorkerDied.
-
         The value is copied out: Ray hands numpy arrays over as views into its object store, which the disconnect at
         the end of :meth:`session` unmaps (a second run over the first one's results then read freed memory). A
         pickle round trip copies them at C speed, where ``copy.deepcopy`` walked every list and dict in Python (half
-        the driver's CPU on decoded samples); protocol 4, as protocol 5 would leave the copies read-only views of
-        the pickle's bytes."""
+        the driver's CPU on decoded samples); protocol 4, as 5 would leave the copies read-only views of its bytes."""
         exceptions = self.ray.exceptions
         try:
             return pickle.loads(pickle.dumps(self.ray.get(reference), protocol=4))
