@@ -330,11 +330,9 @@ def convert(
     executor: Executor | None = None,
 ) -> ConvertResult:
     """Convert every log of ``src`` with ``adapter`` into ``out`` (see the module docstring for the guarantees).
-
     ``workers`` counts the processes converting on this machine (1: this process alone; more: that many workers
-    while this process assembles shards); ``executor`` replaces them (``RayExecutor`` for a cluster). ``shard_size``
-    is the number of samples after which a shard is closed (at the next log boundary).
-    """
+    while this process assembles shards); ``executor`` replaces them (``RayExecutor`` for a cluster); a shard is
+    closed at the first log boundary after ``shard_size`` samples."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # see _finish
 
     src, out = Path(src), Path(out)
@@ -399,7 +397,6 @@ def convert(
 
 def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]], result: ConvertResult) -> None:
     """Write ``manifest.parquet`` and ``info.json`` from every recorded shard (this run's and earlier ones).
-
     pyarrow and rich are imported in the driver's functions only: the workers' forkserver imports this module, and
     they are 0.2 s of its start-up."""
     import pyarrow as pa

@@ -302,13 +302,11 @@ def check_listed_shards(listed: Mapping[str, Sequence[str]]) -> None:
 
 
 class ManifestCheck:
-    """A webdataset stage over raw samples: passes them on, and raises :class:`ShardError` naming the tar when a
-    tar yields a key its manifest rows do not list, or fewer samples than they list.
-
-    Each tar's count is checked when the next tar starts or the stream ends, so the stream must open every tar once
-    (evaluation, :func:`read_samples`; not the resampled training stream). A tar that yields nothing cannot slip
-    through: a bad first header is a ``ReadError`` that :class:`TarSamples` names.
-    """
+    """A webdataset stage over raw samples: passes them on, and raises :class:`ShardError` naming the tar when a tar
+    yields a key its manifest rows do not list, or fewer samples than they list. Each tar's count is checked when the
+    next tar starts or the stream ends, so the stream must open every tar once (evaluation, :func:`read_samples`; not
+    the resampled training stream). A tar that yields nothing cannot slip through: a bad first header is a
+    ``ReadError`` that :class:`TarSamples` names."""
 
     def __init__(self, listed: Mapping[str, Sequence[str]]) -> None:
         self.listed = {shard: frozenset(keys) for shard, keys in listed.items()}
@@ -382,11 +380,9 @@ def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
 
 
 def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Iterator[dict[str, Any]]:
-    """Yield decoded samples from a converted folder or shard(s), in shard order.
-
-    ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
-    no splitting over ranks or workers. In a converted folder every tar must yield what the manifest lists for it.
-    """
+    """Yield decoded samples from a converted folder or shard(s), in shard order; ``fields`` limits decoding to those
+    fields (``meta`` is always decoded). Every sample comes out in every process: no splitting over ranks or workers.
+    In a converted folder every tar must yield what the manifest lists for it."""
     fields = None if fields is None else tuple(fields)
     listed = listed_keys(path)
     shards = shard_paths(path)
@@ -403,11 +399,8 @@ def read_part(
 ) -> list[dict[str, Any]]:
     """Decode the samples ``keys`` (consecutive samples of one tar of a converted folder, the first at byte
     ``offset``: :func:`sample_offsets`), in tar order: one job of a parallel reader (``score --workers``), which
-    hands a big tar out in parts.
-
-    A part reads from its offset to its last sample, not every byte of the tar for every part. Members of fields
-    nobody decodes are listed for :func:`decode_sample`'s completeness check, not read.
-    """
+    hands a big tar out in parts, each read from its offset to its last sample. Members of fields nobody decodes are
+    listed for :func:`decode_sample`'s completeness check, not read."""
     asked = set(keys)
     raws: dict[str, dict[str, Any]] = {}
     for raw in TarSamples(fields).read(shard, offset):
@@ -453,10 +446,8 @@ def write_manifest(folder: Path, table: pa.Table) -> Path:
 
 def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
     """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
-
     ``columns`` keeps only those; they and ``required`` must be there. Manifests written before the page CRCs carry
-    none and read as before; any unreadable one is a :class:`ShardError` naming it.
-    """
+    none and read as before; any unreadable one is a :class:`ShardError` naming it."""
     path = Path(path)
     file = path / MANIFEST if path.is_dir() else path
     if path.is_dir() and not file.is_file():
