@@ -155,14 +155,12 @@ class _Frame:
 
 
 class CarlaLeadAdapter(Adapter):
-    """Reads route folders as the LEAD expert writes them (``<root>/data/<Scenario>/<Route>/``).
-
-    Options: ``rig`` normal | perturbated | both (two samples per frame, keys ``..._perturbated_NNNN``);
-    ``split`` for every route, except towns in ``heldout_towns`` (comma-separated) which get ``heldout_split``;
-    ``tp_distance`` selects the ``next_target_points_<d>`` planner (LEAD trains with 3.25 m);
-    ``skip_first`` / ``skip_last`` frames per route (LEAD pretraining: 1 / 1); ``keep_failed`` keeps finished
-    routes that LEAD's route filter drops for their infractions.
-    """
+    """Reads route folders as the LEAD expert writes them (``<root>/data/<Scenario>/<Route>/``). Options: ``rig``
+    normal | perturbated | both (two samples per frame, keys ``..._perturbated_NNNN``); ``split`` for every route,
+    except towns in ``heldout_towns`` (comma-separated) which get ``heldout_split``; ``tp_distance`` selects the
+    ``next_target_points_<d>`` planner (LEAD trains with 3.25 m); ``skip_first`` / ``skip_last`` frames per route
+    (LEAD pretraining: 1 / 1); ``keep_failed`` keeps finished routes that LEAD's route filter drops for their
+    infractions."""
 
     name: ClassVar[str] = "carla_lead"
     #: 2: box and agent-future centres are no longer shifted along their heading;

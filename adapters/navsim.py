@@ -40,17 +40,15 @@ TWO_STAGE_SYNTHETIC = "synthetic_scene_pickles"
 class NavsimAdapter(Adapter):
     """OpenScene logs (+ sensor blobs, + nuPlan maps with ``maps``) -> one schema v1 sample per scene token.
 
-    ``split`` picks a folder of ``navsim_logs`` (``trainval``, ``test``, ``mini``; default all);
-    ``scene_filter`` a NAVSIM scene-filter yaml or token list (its frame counts apply unless given here);
-    ``maps`` the nuPlan maps root, which adds ``scoring`` and ``bev_semantic``;
-    ``two_stage_mapping`` a NAVSIM v2 train/test-split yaml with ``reactive_all_mapping`` (navhard two-stage): every
-    sample then records its stage and group in ``meta.extras.navsim`` and info.json keeps the whole mapping;
-    ``tag_filters`` scene filters (comma-separated paths) that name subsets: a sample whose token one of them lists
-    gets the tag ``scene_filter:<its file stem>`` (NAVSIM's format has no field for a scene's kind; its subsets are
-    scene filters, e.g. the synthetic world's ``pedestrians_ahead.yaml``).
-    A split folder laid out as NAVSIM v2's two-stage splits (``<src>/<split>/openscene_meta_datas``, ...) is read
-    with its synthetic scenes (:mod:`lead_s2r_adapters.navsim_synthetic`).
-    """
+    ``split`` picks a folder of ``navsim_logs`` (``trainval``, ``test``, ``mini``; default all); ``scene_filter`` a
+    NAVSIM scene-filter yaml or token list (its frame counts apply unless given here); ``maps`` the nuPlan maps root,
+    which adds ``scoring`` and ``bev_semantic``; ``two_stage_mapping`` a NAVSIM v2 train/test-split yaml with
+    ``reactive_all_mapping`` (navhard two-stage): every sample then records its stage and group in
+    ``meta.extras.navsim`` and info.json keeps the whole mapping; ``tag_filters`` scene filters (comma-separated paths)
+    that name subsets: a sample whose token one of them lists gets the tag ``scene_filter:<its file stem>`` (NAVSIM's
+    format has no field for a scene's kind; its subsets are scene filters, e.g. the synthetic world's
+    ``pedestrians_ahead.yaml``). A split folder laid out as NAVSIM v2's two-stage splits
+    (``<src>/<split>/openscene_meta_datas``, ...) is read with its synthetic scenes."""
 
     name = "navsim"
     version = "1.2.0"
