@@ -1,13 +1,12 @@
 """NAVSIM / OpenScene -> schema v1: one sample per scene token, read from the files NAVSIM's download scripts leave.
 
-``<src>/navsim_logs/<split>/<log>.pkl`` (a plain pickle of per-frame dicts at 2 Hz, read with a restricted
-unpickler), ``<src>/sensor_blobs/<split>/<log>/...`` (JPEGs and nuPlan binary PCDs) and, with ``maps``, nuPlan
-GeoPackage maps (:mod:`lead_s2r_adapters.navsim_map`). A scene is NAVSIM's window of ``num_history_frames``
-frames (the last is the current frame, whose token is the scene token) plus ``num_future_frames``. Each worker
-loads a log pickle once and a map once per location. This module lists the work and checks the scene filter;
-the samples are built by :mod:`lead_s2r_adapters.navsim_log` (logged scenes) and
-:mod:`lead_s2r_adapters.navsim_synthetic` (NAVSIM v2 synthetic scenes). Layout of every field:
-``docs/datasets/navsim.md``.
+``<src>/navsim_logs/<split>/<log>.pkl`` (a plain pickle of per-frame dicts at 2 Hz, read with a restricted unpickler),
+``<src>/sensor_blobs/<split>/<log>/...`` (JPEGs and nuPlan binary PCDs) and, with ``maps``, nuPlan GeoPackage maps
+(:mod:`lead_s2r_adapters.navsim_map`). A scene is NAVSIM's window of ``num_history_frames`` frames (the last is the
+current frame, whose token is the scene token) plus ``num_future_frames``. Each worker loads a log pickle once and a
+map once per location. This module lists the work and checks the scene filter; the samples are built by
+:mod:`lead_s2r_adapters.navsim_log` (logged scenes) and :mod:`lead_s2r_adapters.navsim_synthetic` (NAVSIM v2 synthetic
+scenes). Layout of every field: ``docs/datasets/navsim.md``.
 """
 
 import statistics

@@ -2,16 +2,15 @@
 processes or on a Ray cluster, and worker processes that do not outlive the process that started them.
 
 We do not schedule work ourselves: :class:`ProcessExecutor` is ``concurrent.futures.ProcessPoolExecutor`` and
-:class:`RayExecutor` is Ray's tasks (``ray.remote``, ``ray.wait``). Both yield ``(index, result)`` as jobs finish,
-in any order: callers that need an order (``convert`` assembles shards in log order) restore it from the index.
+:class:`RayExecutor` is Ray's tasks (``ray.remote``, ``ray.wait``). Both yield ``(index, result)`` as jobs finish, in
+any order: callers that need an order (``convert`` assembles shards in log order) restore it from the index.
 
-Worker processes start from a forkserver that has imported the caller's ``__main__``
-(:mod:`lead_s2r.forkserver_main`) and the modules the jobs need once: a spawned worker imports them again each (a
-script that imports torch paid 2-4 s per worker before its first job). A driver killed by SIGKILL (the OOM killer, a
-scheduler's time limit) runs no clean-up: its workers would keep writing into a folder nobody finishes (and a
-forkserver lives as long as its children). Each worker therefore watches its driver from a daemon thread and ends
-itself when the driver is gone. Watching multiprocessing's parent sentinel is portable, where Linux's
-``PR_SET_PDEATHSIG`` is not.
+Worker processes start from a forkserver that has imported the caller's ``__main__`` (:mod:`lead_s2r.forkserver_main`)
+and the modules the jobs need once: a spawned worker imports them again each (a script that imports torch paid 2-4 s
+per worker before its first job). A driver killed by SIGKILL (the OOM killer, a scheduler's time limit) runs no
+clean-up: its workers would keep writing into a folder nobody finishes (and a forkserver lives as long as its
+children). Each worker therefore watches its driver's sentinel from a daemon thread (:func:`exit_with_parent`):
+portable, where Linux's ``PR_SET_PDEATHSIG`` is not.
 """
 
 import contextlib
