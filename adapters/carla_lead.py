@@ -126,11 +126,9 @@ def mosaic_height(data: bytes, rig: str, path: Path) -> int:
 
 
 def hdmap_pixel_to_ego() -> list[list[float]]:
-    """Affine (2x3) from (column, row, 1) of the stored ``bev_semantic`` to ISO ego x, y (pixel centres).
-
-    LEAD's raster has rows along CARLA y and columns along x around the vehicle centre; it is stored rotated
-    (losslessly, ``np.rot90``) so that row 0 is the front and column 0 the left.
-    """
+    """Affine (2x3) from (column, row, 1) of the stored ``bev_semantic`` to ISO ego x, y (pixel centres): LEAD's
+    raster has rows along CARLA y and columns along x around the vehicle centre, and is stored rotated (losslessly,
+    ``np.rot90``) so that row 0 is the front and column 0 the left."""
     res, half = 1.0 / HDMAP_PX_PER_M, (HDMAP_SIZE - 1) / 2
     return [[0.0, -res, half * res + CARLA_REAR_AXLE_TO_CENTER], [-res, 0.0, half * res]]
 
@@ -157,14 +155,12 @@ class _Frame:
 
 
 class CarlaLeadAdapter(Adapter):
-    """Reads route folders as the LEAD expert writes them (``<root>/data/<Scenario>/<Route>/``).
-
-    Options: ``rig`` normal | perturbated | both (two samples per frame, keys ``..._perturbated_NNNN``);
-    ``split`` for every route, except towns in ``heldout_towns`` (comma-separated) which get ``heldout_split``;
-    ``tp_distance`` selects the ``next_target_points_<d>`` planner (LEAD trains with 3.25 m);
-    ``skip_first`` / ``skip_last`` frames per route (LEAD pretraining: 1 / 1); ``keep_failed`` keeps finished
-    routes that LEAD's route filter drops for their infractions.
-    """
+    """Reads route folders as the LEAD expert writes them (``<root>/data/<Scenario>/<Route>/``). Options: ``rig``
+    normal | perturbated | both (two samples per frame, keys ``..._perturbated_NNNN``); ``split`` for every route,
+    except towns in ``heldout_towns`` (comma-separated) which get ``heldout_split``; ``tp_distance`` selects the
+    ``next_target_points_<d>`` planner (LEAD trains with 3.25 m); ``skip_first`` / ``skip_last`` frames per route
+    (LEAD pretraining: 1 / 1); ``keep_failed`` keeps finished routes that LEAD's route filter drops for their
+    infractions."""
 
     name: ClassVar[str] = "carla_lead"
     #: 2: box and agent-future centres are no longer shifted along their heading;
@@ -309,10 +305,8 @@ class CarlaLeadAdapter(Adapter):
         return np.column_stack([t, frame.poses(past)]).astype(np.float32)
 
     def _navigation(self, meta: dict[str, Any], path: Path, frame: _Frame) -> tuple[int, np.ndarray]:
-        """Previous / current / next target point (NaN row = absent) and the command of the previous one.
-
-        World points go to the ego frame as ``R(theta)^T (p - pos_global)``; consecutive duplicates are merged.
-        """
+        """Previous / current / next target point (NaN row = absent) and the command of the previous one; world
+        points go to the ego frame as ``R(theta)^T (p - pos_global)``, consecutive duplicates merged."""
         suffix = f"_{self.tp_distance}"
         points = array(meta, f"next_target_points{suffix}", path, columns=2)[:, :2]
         commands = list(field(meta, f"next_commands{suffix}", path))

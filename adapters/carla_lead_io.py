@@ -74,10 +74,8 @@ def track_poses(record: dict[str, Any], kind: str, path: Path, where: str = "") 
 
 
 def read_laz(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file.
-
-    Decoded in a helper process (:mod:`lead_s2r_adapters.laz_decoder`): a damaged file can abort the decoder.
-    """
+    """LiDAR points (N, 3) in metres and the per-point ``time`` sweep index (N,) of one LEAD ``.laz`` file, decoded in
+    a helper process (:mod:`lead_s2r_adapters.laz_decoder`): a damaged file can abort the decoder."""
     if importlib.util.find_spec("laspy") is None or importlib.util.find_spec("lazrs") is None:  # pragma: no cover
         raise ImportError("reading LEAD LiDAR needs laspy with lazrs: pip install 'lead-s2r[carla]'")
     try:
@@ -169,12 +167,9 @@ _OUTSIDE_LANES = "outside_route_lanes"
 
 
 def route_skip_reason(folder: Path, keep_failed: bool = False) -> str | None:
-    """Why LEAD's route filter leaves this route out, or None if it keeps it.
-
-    An unfinished route (no results.json or no first meta) is always left out. A finished one is kept with
-    ``keep_failed``, else only if: score 100; or only min-speed infractions; or status Completed with only
-    min-speed / outside-lane ones.
-    """
+    """Why LEAD's route filter leaves this route out, or None if it keeps it. An unfinished route (no results.json or
+    no first meta) is always left out; a finished one is kept with ``keep_failed``, else only if: score 100; or only
+    min-speed infractions; or status Completed with only min-speed / outside-lane ones."""
     results = folder / "results.json"
     if not results.is_file():
         return "no results.json (the route did not finish recording)"

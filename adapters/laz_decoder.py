@@ -33,11 +33,9 @@ class LazDecodeError(Exception):
 
 
 def _read_las(path: Path) -> Any:
-    """The points of one LAZ file, decoded in this process.
-
-    The header's point count is held against the file's size first: a damaged count makes the decoder allocate and
-    fill gigabytes for minutes (LAZ packs a point into no less than a hundredth of its record, LEAD's about a sixth).
-    """
+    """The points of one LAZ file, decoded in this process. The header's point count is held against the file's size
+    first: a damaged count makes the decoder allocate and fill gigabytes for minutes (LAZ packs a point into no less
+    than a hundredth of its record, LEAD's about a sixth)."""
     import laspy
 
     with laspy.open(str(path)) as reader:

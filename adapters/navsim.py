@@ -1,13 +1,12 @@
 """NAVSIM / OpenScene -> schema v1: one sample per scene token, read from the files NAVSIM's download scripts leave.
 
-``<src>/navsim_logs/<split>/<log>.pkl`` (a plain pickle of per-frame dicts at 2 Hz, read with a restricted
-unpickler), ``<src>/sensor_blobs/<split>/<log>/...`` (JPEGs and nuPlan binary PCDs) and, with ``maps``, nuPlan
-GeoPackage maps (:mod:`lead_s2r_adapters.navsim_map`). A scene is NAVSIM's window of ``num_history_frames``
-frames (the last is the current frame, whose token is the scene token) plus ``num_future_frames``. Each worker
-loads a log pickle once and a map once per location. This module lists the work and checks the scene filter;
-the samples are built by :mod:`lead_s2r_adapters.navsim_log` (logged scenes) and
-:mod:`lead_s2r_adapters.navsim_synthetic` (NAVSIM v2 synthetic scenes). Layout of every field:
-``docs/datasets/navsim.md``.
+``<src>/navsim_logs/<split>/<log>.pkl`` (a plain pickle of per-frame dicts at 2 Hz, read with a restricted unpickler),
+``<src>/sensor_blobs/<split>/<log>/...`` (JPEGs and nuPlan binary PCDs) and, with ``maps``, nuPlan GeoPackage maps
+(:mod:`lead_s2r_adapters.navsim_map`). A scene is NAVSIM's window of ``num_history_frames`` frames (the last is the
+current frame, whose token is the scene token) plus ``num_future_frames``. Each worker loads a log pickle once and a
+map once per location. This module lists the work and checks the scene filter; the samples are built by
+:mod:`lead_s2r_adapters.navsim_log` (logged scenes) and :mod:`lead_s2r_adapters.navsim_synthetic` (NAVSIM v2 synthetic
+scenes). Layout of every field: ``docs/datasets/navsim.md``.
 """
 
 import statistics
@@ -40,17 +39,15 @@ TWO_STAGE_SYNTHETIC = "synthetic_scene_pickles"
 class NavsimAdapter(Adapter):
     """OpenScene logs (+ sensor blobs, + nuPlan maps with ``maps``) -> one schema v1 sample per scene token.
 
-    ``split`` picks a folder of ``navsim_logs`` (``trainval``, ``test``, ``mini``; default all);
-    ``scene_filter`` a NAVSIM scene-filter yaml or token list (its frame counts apply unless given here);
-    ``maps`` the nuPlan maps root, which adds ``scoring`` and ``bev_semantic``;
-    ``two_stage_mapping`` a NAVSIM v2 train/test-split yaml with ``reactive_all_mapping`` (navhard two-stage): every
-    sample then records its stage and group in ``meta.extras.navsim`` and info.json keeps the whole mapping;
-    ``tag_filters`` scene filters (comma-separated paths) that name subsets: a sample whose token one of them lists
-    gets the tag ``scene_filter:<its file stem>`` (NAVSIM's format has no field for a scene's kind; its subsets are
-    scene filters, e.g. the synthetic world's ``pedestrians_ahead.yaml``).
-    A split folder laid out as NAVSIM v2's two-stage splits (``<src>/<split>/openscene_meta_datas``, ...) is read
-    with its synthetic scenes (:mod:`lead_s2r_adapters.navsim_synthetic`).
-    """
+    ``split`` picks a folder of ``navsim_logs`` (``trainval``, ``test``, ``mini``; default all); ``scene_filter`` a
+    NAVSIM scene-filter yaml or token list (its frame counts apply unless given here); ``maps`` the nuPlan maps root,
+    which adds ``scoring`` and ``bev_semantic``; ``two_stage_mapping`` a NAVSIM v2 train/test-split yaml with
+    ``reactive_all_mapping`` (navhard two-stage): every sample then records its stage and group in
+    ``meta.extras.navsim`` and info.json keeps the whole mapping; ``tag_filters`` scene filters (comma-separated paths)
+    that name subsets: a sample whose token one of them lists gets the tag ``scene_filter:<its file stem>`` (NAVSIM's
+    format has no field for a scene's kind; its subsets are scene filters, e.g. the synthetic world's
+    ``pedestrians_ahead.yaml``). A split folder laid out as NAVSIM v2's two-stage splits
+    (``<src>/<split>/openscene_meta_datas``, ...) is read with its synthetic scenes."""
 
     name = "navsim"
     version = "1.2.0"
@@ -196,10 +193,8 @@ class NavsimAdapter(Adapter):
 
     def _check_filter(self, logs: list[LogRef], missing_synthetic: list[str]) -> list[dict[str, Any]]:
         """The scene filter's entries that ``logs`` (listed logged scenes) and the synthetic folder do not provide.
-
-        Filter tokens are checked against the tokens of every listed log with a full window, so a filter with
-        ``tokens`` costs one more read of each selected log here; a log that cannot be read is left to its own
-        conversion to report."""
+        A filter with ``tokens`` costs one more read of each selected log here; a log that cannot be read is left to
+        its own conversion to report."""
         if self.filter is None:
             return []
         where = f"scene filter {self.filter_path}"

@@ -1,6 +1,5 @@
 """NAVSIM's scene selection files: a SceneFilter yaml (or a token list) and a v2 two-stage split's
-``reactive_all_mapping`` (the groups themselves: :mod:`lead_s2r.formats.navsim_two_stage`).
-"""
+``reactive_all_mapping`` (the groups themselves: :mod:`lead_s2r.formats.navsim_two_stage`)."""
 
 from dataclasses import dataclass
 from pathlib import Path

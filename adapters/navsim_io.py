@@ -1,6 +1,5 @@
 """Readers of NAVSIM / OpenScene files apart from the scene logic: log pickles, nuPlan PCDs, JPEG frame headers,
-quaternions and the camera calibration entries, each failing with the file and field it cannot read.
-"""
+quaternions and the camera calibration entries, each failing with the file and field it cannot read."""
 
 import io
 import math

@@ -1,7 +1,6 @@
 """OpenScene log pickle -> schema v1 samples: one per NAVSIM scene (``num_history_frames`` frames whose last is the
 current frame, plus ``num_future_frames``). nuPlan data is already ISO 8855 with the origin at the rear axle, so
-nothing is flipped. Layout of every field: ``docs/datasets/navsim.md``.
-"""
+nothing is flipped. Layout of every field: ``docs/datasets/navsim.md``."""
 
 from pathlib import Path
 from typing import Any

@@ -4,14 +4,12 @@ A synthetic scene pickle is the dict ``Scene.save_to_disk`` writes. ``scene_meta
 each with ``annotations`` in the frame's ego frame and ``ego_status`` in the global frame) and the cameras of the
 current frame are plain data. The future is stored as nuPlan objects: ``extended_detections_tracks``
 (``DetectionsTracks``, global boxes) and ``extended_traffic_light_data`` (``TrafficLightStatuses``), one per 2 Hz
-keyframe after the current frame. The pickle is read with the restricted unpickler, which admits exactly the nuPlan
-classes in :data:`NUPLAN_RECORDS` as plain :class:`~lead_s2r.formats.restricted_pickle.Record` data. Nothing from
-nuPlan is imported or run, and any other class is refused by name.
+keyframe after the current frame. The restricted unpickler admits exactly the nuPlan classes in
+:data:`NUPLAN_RECORDS`, as plain :class:`~lead_s2r.formats.restricted_pickle.Record` data: nothing from nuPlan runs.
 
 Synthetic scenes have no logged future ego (NAVSIM's human trajectory is None for them), so the sample has no
-``future`` and ``meta.is_synthetic`` is true. There is no lidar either. The camera extrinsics are ``sensor2lidar``,
-as in the logs, and ``cam_to_ego`` uses the ``lidar2ego`` of the scene's original log, which has the same vehicle
-and sensor rig.
+``future`` and ``meta.is_synthetic`` is true; no lidar either. The camera extrinsics are ``sensor2lidar``, as in the
+logs, and ``cam_to_ego`` uses the ``lidar2ego`` of the scene's original log (the same vehicle and sensor rig).
 """
 
 from functools import lru_cache
@@ -97,8 +95,7 @@ def _numbers(value: Any, name: str, fields: tuple[str, ...], where: str) -> tupl
 
 
 def tracked_objects(detections: Record, where: str) -> TrackStep:
-    """The boxes of a ``DetectionsTracks`` as a :class:`~navsim_scene.TrackStep`: track tokens, global poses and
-    velocities, sizes and classes."""
+    """The boxes of a ``DetectionsTracks`` as a :class:`~navsim_scene.TrackStep` (global poses and velocities)."""
     container = _record(
         _record(detections, "DetectionsTracks", where).state.get("tracked_objects"), "TrackedObjects", where
     )

@@ -29,14 +29,12 @@ ROUTE_POINTS = 50  # metres of route ahead kept in ``route`` (one point per metr
 
 
 class Py123dAdapter(Adapter):
-    """Reads a 123D data root (``<src>/logs/<split>/<log>/*.arrow``, maps under ``<src>/maps`` or ``maps``).
-
-    Options: ``split`` overrides the log's own split; ``stride`` keeps every n-th sync iteration as a sample;
-    ``past_s`` / ``future_s`` the ego horizons; ``maps`` a 123D maps root (default ``<src>/maps``) and
-    ``map_radius`` the metres of map kept per sample (``scoring`` and ``bev_semantic`` only where a map is found);
-    ``lead`` auto | yes | no treats logs as LEAD's recordings (auto: recognised by their metadata);
-    ``tp_distance`` / ``plan_spacing`` LEAD's route-planner pop distance and sparse-plan spacing.
-    """
+    """Reads a 123D data root (``<src>/logs/<split>/<log>/*.arrow``, maps under ``<src>/maps`` or ``maps``). Options:
+    ``split`` overrides the log's own split; ``stride`` keeps every n-th sync iteration as a sample; ``past_s`` /
+    ``future_s`` the ego horizons; ``maps`` a 123D maps root (default ``<src>/maps``) and ``map_radius`` the metres of
+    map kept per sample (``scoring`` and ``bev_semantic`` only where a map is found); ``lead`` auto | yes | no treats
+    logs as LEAD's recordings (auto: recognised by their metadata); ``tp_distance`` / ``plan_spacing`` LEAD's
+    route-planner pop distance and sparse-plan spacing."""
 
     name: ClassVar[str] = "py123d"
     #: 2: LEAD's target points popped exactly as LEAD pops them (formats.lead_route: from the second point, the

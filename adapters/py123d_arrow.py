@@ -99,12 +99,10 @@ def meta_pose(meta: dict[str, Any], path: Path, name: str) -> np.ndarray:
 
 def read_table(path: Path) -> pa.Table:
     """One Arrow IPC file, whole; a missing, truncated, foreign or damaged file is a :class:`Py123dFormatError`.
-
     pyarrow's IPC reader checks the file's framing but not the offsets and UTF-8 inside its buffers: a damaged list
-    offset crashes the process later, when a value is read (Arrow's C++ aborts or segfaults). Full validation
-    checks every offset first, in about a millisecond for a log's file, and decodes the column names. A damaged
-    schema raises any of pyarrow's errors (an invalid type is ``ArrowNotImplementedError``).
-    """
+    offset crashes the process later, when a value is read (Arrow's C++ aborts or segfaults); full validation checks
+    every offset first, in about a millisecond for a log's file. A damaged schema raises any of pyarrow's errors (an
+    invalid type is ``ArrowNotImplementedError``)."""
     try:
         with pa.memory_map(str(path), "r") as source:
             table = pa.ipc.open_file(source).read_all()

@@ -75,11 +75,9 @@ class Record(NamedTuple):
 
 
 def iter_records(path: str | Path) -> Iterator[Record | TFRecordError]:
-    """Every record of a shard in file order; a bad record is yielded as its :class:`TFRecordError`.
-
-    A payload with a bad CRC is skipped and the scan goes on (its framing is intact); a bad length CRC or a
-    truncated record ends the scan, since nothing after it can be located reliably.
-    """
+    """Every record of a shard in file order; a bad record is yielded as its :class:`TFRecordError`. A payload with a
+    bad CRC is skipped and the scan goes on (its framing is intact); a bad length CRC or a truncated record ends the
+    scan, since nothing after it can be located reliably."""
     with open(path, "rb") as file:
         offset = 0
         while header := file.read(HEADER):
@@ -162,9 +160,7 @@ def build_index(
     shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], workers: int = 1
 ) -> RecordIndex:
     """One pass over ``shards`` (``workers`` processes): a row per good record, a ``skipped`` entry per bad one.
-
-    ``describe`` (picklable when ``workers > 1``) adds the columns named in ``schema``; a ValueError from it
-    marks the record as skipped.
+    ``describe`` (picklable when ``workers > 1``) adds the columns of ``schema``; a ValueError from it skips the record.
     """
     if workers > 1:
         context = multiprocessing.get_context("spawn")
@@ -182,7 +178,6 @@ def cached_index(
     shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], cache: Path | None, workers: int = 1
 ) -> RecordIndex:
     """:func:`build_index`, stored at ``cache`` (parquet, skipped records in its metadata) and reused while valid.
-
     A stale or damaged cache is rebuilt: its pages carry CRCs, the stamp covers the shards and the skipped records'
     JSON, and the columns must be the index's (no page CRC protects the footer, where one flipped bit turns the
     offsets' int64 into Arrow's duration), so a flipped bit never passes for another index."""

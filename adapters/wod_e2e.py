@@ -117,11 +117,9 @@ def shard_sets(shards: list[Path]) -> dict[tuple[Path, str, int], list[tuple[int
 
 
 def missing_shards(shards: list[Path]) -> list[Path]:
-    """Files a shard set names but lacks: ``<name>.tfrecord-00001-of-00003`` says its set has three files.
-
-    Records of a segment are shuffled over every shard of its split, so a set short of one file leaves most of its
-    segments short of frames, and nothing else tells.
-    """
+    """Files a shard set names but lacks: ``<name>.tfrecord-00001-of-00003`` says its set has three files. Records of
+    a segment are shuffled over every shard of its split, so a set short of one file leaves most of its segments short
+    of frames, and nothing else tells."""
     return [
         folder / f"{name}-{index:05d}-of-{count:05d}"
         for (folder, name, count), members in sorted(shard_sets(shards).items())

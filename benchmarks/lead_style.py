@@ -250,12 +250,9 @@ def radar_detections(boxes: np.ndarray) -> np.ndarray:
 
 
 class LeadStyleFrames(Dataset):
-    """One item per frame of the LEAD route folders under ``root``, in LEAD's tensor contract (module docstring).
-
-    Args:
-        root: a folder of LEAD route folders (``<root>/data/<scenario>/<route>/``).
-        views: rigs built per item: 2 as LEAD does without a cache (normal and perturbated), 1 for the normal only.
-    """
+    """One item per frame of the LEAD route folders under ``root`` (``<root>/data/<scenario>/<route>/``), in LEAD's
+    tensor contract (module docstring). ``views``: rigs built per item, 2 as LEAD does without a cache (normal and
+    perturbated), 1 for the normal only."""
 
     def __init__(self, root: Path, views: int = 2) -> None:
         self.views = views

@@ -2,12 +2,11 @@
 
 .venv/bin/python benchmarks/serve_latency.py --steps 30 --threads 2
 
-The server runs in this process on loopback; a client plays one AlpaSim step after another at AlpaSim's four
-480x270 JPEG cameras (front, front left, front right, back): egomotion, route, images, ``drive``. Two models, LEAD's
-LTFv6 on NAVSIM (recipes/navsim/ltfv6_lead.yaml's network) at full size and its smoke twin (recipes/smoke/twin_lead.yaml
-over it), with random weights (time does not depend on them). Per drive: the client's wall time, the network's
-forward, the JPEG decode and layout (``CameraInput.image``); outside the network = drive - forward, and that without
-the decode.
+The server runs in this process on loopback; a client plays one AlpaSim step after another at AlpaSim's four 480x270
+JPEG cameras (front, front left, front right, back): egomotion, route, images, ``drive``. Two models, LEAD's LTFv6 on
+NAVSIM (recipes/navsim/ltfv6_lead.yaml's network) at full size and its smoke twin (recipes/smoke/twin_lead.yaml over
+it), with random weights (time does not depend on them). Per drive: the client's wall time, the network's forward, the
+JPEG decode and layout (``CameraInput.image``); outside the network = drive - forward, and that without the decode.
 """
 
 import argparse

@@ -3,12 +3,11 @@ deterministic.
 
 The same raw data and options give the same bytes in every file of the folder, whatever the number of workers: seeded
 training draws shards by name, so shards whose contents hung on which worker finished first would make two identical
-runs train on different data. Logs are converted in any order and assembled in the order of the log list. Each log is
-one job of an executor (:mod:`lead_s2r.processes`: this process alone for ``workers <= 1``, else ``workers`` processes
-of a ``concurrent.futures`` pool, or Ray tasks on a cluster whose nodes all see ``out``), so a long log holds up no
-other; a job writes its log to a fragment of its own (``shards/log-<position>.<run>.partial``: its tar members, no
-end-of-archive blocks; ``<run>`` is new for every call). The driver appends the fragments to shards in list order,
-skipping failed and skipped logs, and closes a shard at the first log boundary after ``shard_size`` samples: a log never
+runs train on different data. Each log is one job of an executor (:mod:`lead_s2r.processes`: local processes, or Ray
+tasks on a cluster whose nodes all see ``out``), converted in any order, so a long log holds up no other; a job writes
+its log to a fragment of its own (``shards/log-<position>.<run>.partial``: its tar members, no end-of-archive blocks;
+``<run>`` is new for every call). The driver appends the fragments to shards in the order of the log list, skipping
+failed and skipped logs, and closes a shard at the first log boundary after ``shard_size`` samples: a log never
 straddles two shards, and names and contents are those one process converting the logs in turn writes. Appending is
 ``copy_file_range`` in the kernel (45 MB, 1000 CARLA samples, in 15 ms). A slow log holds back assembly, not conversion:
 the logs after it wait on disk as fragments. A job run again (Ray retries a job whose worker or node died) truncates its
@@ -330,11 +329,9 @@ def convert(
     executor: Executor | None = None,
 ) -> ConvertResult:
     """Convert every log of ``src`` with ``adapter`` into ``out`` (see the module docstring for the guarantees).
-
     ``workers`` counts the processes converting on this machine (1: this process alone; more: that many workers
-    while this process assembles shards); ``executor`` replaces them (``RayExecutor`` for a cluster). ``shard_size``
-    is the number of samples after which a shard is closed (at the next log boundary).
-    """
+    while this process assembles shards); ``executor`` replaces them (``RayExecutor`` for a cluster); a shard is
+    closed at the first log boundary after ``shard_size`` samples."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # see _finish
 
     src, out = Path(src), Path(out)
@@ -399,7 +396,6 @@ def convert(
 
 def _finish(adapter: Adapter, src: Path, out: Path, records: list[dict[str, Any]], result: ConvertResult) -> None:
     """Write ``manifest.parquet`` and ``info.json`` from every recorded shard (this run's and earlier ones).
-
     pyarrow and rich are imported in the driver's functions only: the workers' forkserver imports this module, and
     they are 0.2 s of its start-up."""
     import pyarrow as pa

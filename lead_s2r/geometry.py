@@ -52,9 +52,8 @@ def points_to_local(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
 
 
 def quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """(..., 4) scalar-first quaternions [w, x, y, z] -> (..., 3, 3) rotation matrices (normalised first).
-
-    One implementation for every reader of quaternions (NAVSIM's ``lidar2ego_rotation``, py123d's SE3 rows)."""
+    """(..., 4) scalar-first quaternions [w, x, y, z] -> (..., 3, 3) rotation matrices (normalised first); the one
+    implementation for every reader of quaternions (NAVSIM's ``lidar2ego_rotation``, py123d's SE3 rows)."""
     q = np.asarray(q, np.float64)
     w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
     return np.stack(
@@ -83,10 +82,8 @@ def box_corners(boxes: np.ndarray) -> np.ndarray:
 
 
 def flip_y(values: np.ndarray, columns: tuple[int, ...] = (1,)) -> np.ndarray:
-    """Negate the given columns: CARLA (y right, yaw clockwise) <-> ISO (y left, yaw counter-clockwise).
-
-    Use ``columns=(1,)`` for points and vectors, ``(1, 2)`` for ``[x, y, yaw]`` poses. Its own inverse.
-    """
+    """Negate the given columns: CARLA (y right, yaw clockwise) <-> ISO (y left, yaw counter-clockwise); its own
+    inverse. ``columns=(1,)`` for points and vectors, ``(1, 2)`` for ``[x, y, yaw]`` poses."""
     out = np.array(values, dtype=np.float64, copy=True)
     out[..., list(columns)] = -out[..., list(columns)]
     return out
@@ -100,10 +97,8 @@ def centre_points_to_rear_axle(points: np.ndarray, rear_axle_to_center: float) -
 
 
 def centre_poses_to_rear_axle(poses: np.ndarray, rear_axle_to_center: float) -> np.ndarray:
-    """Ego centre poses (..., 3) in the t0 centre frame -> rear-axle poses in the t0 rear-axle frame.
-
-    Each pose's own origin moves back along its heading, then the frame origin moves back along x.
-    """
+    """Ego centre poses (..., 3) in the t0 centre frame -> rear-axle poses in the t0 rear-axle frame: each pose's own
+    origin moves back along its heading, then the frame origin moves back along x."""
     poses = np.array(poses, dtype=np.float64, copy=True)
     poses[..., 0] -= rear_axle_to_center * np.cos(poses[..., 2])
     poses[..., 1] -= rear_axle_to_center * np.sin(poses[..., 2])
@@ -130,11 +125,9 @@ def carla_points_to_iso(points: np.ndarray, rear_axle_to_center: float = CARLA_R
 
 
 def resample(t_source: np.ndarray, values: np.ndarray, t_target: np.ndarray, angle_columns: tuple[int, ...] = ()):
-    """Linearly interpolate ``values`` (T, D) from times ``t_source`` to ``t_target``.
-
-    Angle columns are unwrapped first and wrapped back after. Target times outside the source span are NaN
-    and the returned boolean mask is False there: this never extrapolates, and never copies an end point.
-    """
+    """Linearly interpolate ``values`` (T, D) from times ``t_source`` to ``t_target``, angle columns unwrapped first
+    and wrapped back after. Target times outside the source span are NaN and the returned boolean mask is False
+    there: this never extrapolates, and never copies an end point."""
     t_source = np.asarray(t_source, dtype=np.float64)
     t_target = np.asarray(t_target, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
@@ -157,9 +150,7 @@ def resample(t_source: np.ndarray, values: np.ndarray, t_target: np.ndarray, ang
 
 def raster_lookup(raster: np.ndarray, pixel_to_ego: np.ndarray, x: np.ndarray, y: np.ndarray, fill: int = -1):
     """Values of an ego-aligned raster at ego points (x, y), nearest pixel; ``fill`` outside the raster.
-
-    ``pixel_to_ego`` is the 2x3 affine map from a pixel's (column, row) index to the ego (x, y) of its centre.
-    """
+    ``pixel_to_ego``: the 2x3 affine map from a pixel's (column, row) index to the ego (x, y) of its centre."""
     affine = np.vstack([np.asarray(pixel_to_ego, np.float64), [0.0, 0.0, 1.0]])
     ego_to_pixel = np.linalg.inv(affine)
     cols = np.rint(ego_to_pixel[0, 0] * x + ego_to_pixel[0, 1] * y + ego_to_pixel[0, 2]).astype(np.int64)

@@ -2,16 +2,15 @@
 processes or on a Ray cluster, and worker processes that do not outlive the process that started them.
 
 We do not schedule work ourselves: :class:`ProcessExecutor` is ``concurrent.futures.ProcessPoolExecutor`` and
-:class:`RayExecutor` is Ray's tasks (``ray.remote``, ``ray.wait``). Both yield ``(index, result)`` as jobs finish,
-in any order: callers that need an order (``convert`` assembles shards in log order) restore it from the index.
+:class:`RayExecutor` is Ray's tasks (``ray.remote``, ``ray.wait``). Both yield ``(index, result)`` as jobs finish, in
+any order: callers that need an order (``convert`` assembles shards in log order) restore it from the index.
 
-Worker processes start from a forkserver that has imported the caller's ``__main__``
-(:mod:`lead_s2r.forkserver_main`) and the modules the jobs need once: a spawned worker imports them again each (a
-script that imports torch paid 2-4 s per worker before its first job). A driver killed by SIGKILL (the OOM killer, a
-scheduler's time limit) runs no clean-up: its workers would keep writing into a folder nobody finishes (and a
-forkserver lives as long as its children). Each worker therefore watches its driver from a daemon thread and ends
-itself when the driver is gone. Watching multiprocessing's parent sentinel is portable, where Linux's
-``PR_SET_PDEATHSIG`` is not.
+Worker processes start from a forkserver that has imported the caller's ``__main__`` (:mod:`lead_s2r.forkserver_main`)
+and the modules the jobs need once: a spawned worker imports them again each (a script that imports torch paid 2-4 s
+per worker before its first job). A driver killed by SIGKILL (the OOM killer, a scheduler's time limit) runs no
+clean-up: its workers would keep writing into a folder nobody finishes (and a forkserver lives as long as its
+children). Each worker therefore watches its driver's sentinel from a daemon thread (:func:`exit_with_parent`):
+portable, where Linux's ``PR_SET_PDEATHSIG`` is not.
 """
 
 import contextlib
@@ -43,7 +42,6 @@ class WorkerDied(RuntimeError):
 
 def exit_with_parent() -> None:
     """End this worker process as soon as the process that started it ends; call it first thing in a worker.
-
     The parent is the one multiprocessing records (``parent_process()``: the driver, also for a forkserver's
     children), watched through its sentinel pipe, which the kernel closes when the driver dies, zombie or not. The
     exit is immediate (``os._exit``): whatever the worker was writing is left partial, for the resuming run to drop."""
@@ -232,12 +230,10 @@ class RayExecutor(Executor):
 
     def _result(self, reference: Any) -> Any:
         """The task's return value or its own exception; a lost worker or node after the retries is WorkerDied.
-
         The value is copied out: Ray hands numpy arrays over as views into its object store, which the disconnect at
         the end of :meth:`session` unmaps (a second run over the first one's results then read freed memory). A
         pickle round trip copies them at C speed, where ``copy.deepcopy`` walked every list and dict in Python (half
-        the driver's CPU on decoded samples); protocol 4, as protocol 5 would leave the copies read-only views of
-        the pickle's bytes."""
+        the driver's CPU on decoded samples); protocol 4, as 5 would leave the copies read-only views of its bytes."""
         exceptions = self.ray.exceptions
         try:
             return pickle.loads(pickle.dumps(self.ray.get(reference), protocol=4))

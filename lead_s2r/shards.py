@@ -256,11 +256,8 @@ class TarSamples:
 
 
 def listed_keys(path: str | Path) -> dict[str, list[str]] | None:
-    """Keys the manifest lists per shard (see :func:`keys_by_shard`); None without a manifest.
-
-    ``path`` is a converted folder, its shard folder or one of its shards; a plain folder of tars has no manifest to
-    check against.
-    """
+    """Keys the manifest lists per shard (see :func:`keys_by_shard`); None without a manifest (a plain folder of tars).
+    ``path`` is a converted folder, its shard folder or one of its shards."""
     path = Path(path)
     folder = path
     if path.is_file() and path.parent.name == SHARD_DIR:
@@ -305,13 +302,11 @@ def check_listed_shards(listed: Mapping[str, Sequence[str]]) -> None:
 
 
 class ManifestCheck:
-    """A webdataset stage over raw samples: passes them on, and raises :class:`ShardError` naming the tar when a
-    tar yields a key its manifest rows do not list, or fewer samples than they list.
-
-    Each tar's count is checked when the next tar starts or the stream ends, so the stream must open every tar once
-    (evaluation, :func:`read_samples`; not the resampled training stream). A tar that yields nothing cannot slip
-    through: a bad first header is a ``ReadError`` that :class:`TarSamples` names.
-    """
+    """A webdataset stage over raw samples: passes them on, and raises :class:`ShardError` naming the tar when a tar
+    yields a key its manifest rows do not list, or fewer samples than they list. Each tar's count is checked when the
+    next tar starts or the stream ends, so the stream must open every tar once (evaluation, :func:`read_samples`; not
+    the resampled training stream). A tar that yields nothing cannot slip through: a bad first header is a
+    ``ReadError`` that :class:`TarSamples` names."""
 
     def __init__(self, listed: Mapping[str, Sequence[str]]) -> None:
         self.listed = {shard: frozenset(keys) for shard, keys in listed.items()}
@@ -340,10 +335,8 @@ class ManifestCheck:
 
 
 def decode_sample(raw: dict[str, Any], fields: Iterable[str] | None = None) -> dict[str, Any]:
-    """Decode a webdataset raw sample (``{'meta.json': bytes, ...}``), only the requested fields.
-
-    Raises :class:`ShardError` naming the tar, key and field for a member that does not decode to its field's type.
-    """
+    """Decode a webdataset raw sample (``{'meta.json': bytes, ...}``), only the requested fields; a member that does
+    not decode to its field's type is a :class:`ShardError` naming the tar, key and field."""
     wanted = None if fields is None else set(fields) | {"meta"}
     sample: dict[str, Any] = {"__key__": raw["__key__"]}
     for member, data in raw.items():
@@ -387,12 +380,9 @@ def _decode_member(raw: dict[str, Any], name: str, data: bytes) -> Any:
 
 
 def read_samples(path: str | Path, fields: Iterable[str] | None = None) -> Iterator[dict[str, Any]]:
-    """Yield decoded samples from a converted folder or shard(s), in shard order.
-
-    ``fields`` limits decoding to those fields (``meta`` is always decoded). Every sample comes out in every process:
-    no splitting over ranks or workers, the caller decides. In a converted folder every tar must yield the samples
-    the manifest lists for it (:class:`ManifestCheck`).
-    """
+    """Yield decoded samples from a converted folder or shard(s), in shard order; ``fields`` limits decoding to those
+    fields (``meta`` is always decoded). Every sample comes out in every process: no splitting over ranks or workers.
+    In a converted folder every tar must yield what the manifest lists for it."""
     fields = None if fields is None else tuple(fields)
     listed = listed_keys(path)
     shards = shard_paths(path)
@@ -409,12 +399,8 @@ def read_part(
 ) -> list[dict[str, Any]]:
     """Decode the samples ``keys`` (consecutive samples of one tar of a converted folder, the first at byte
     ``offset``: :func:`sample_offsets`), in tar order: one job of a parallel reader (``score --workers``), which
-    hands a big tar out in parts.
-
-    A part reads from its offset to its last sample, not every byte of the tar for every part. Members of fields
-    nobody decodes are listed for :func:`decode_sample`'s completeness check, not read. A key the tar does not yield
-    there is a :class:`ShardError`.
-    """
+    hands a big tar out in parts, each read from its offset to its last sample. Members of fields nobody decodes are
+    listed for :func:`decode_sample`'s completeness check, not read."""
     asked = set(keys)
     raws: dict[str, dict[str, Any]] = {}
     for raw in TarSamples(fields).read(shard, offset):
@@ -460,11 +446,8 @@ def write_manifest(folder: Path, table: pa.Table) -> Path:
 
 def load_manifest(path: str | Path, columns: Sequence[str] | None = None, required: Sequence[str] = ()) -> pa.Table:
     """The manifest table of a converted folder (or the parquet file itself): one row per sample, no blobs.
-
-    ``columns`` keeps only those; they and ``required`` must be there. A folder without one, a file that is missing,
-    is not parquet, fails a page's CRC (manifests written before the CRCs carry none and read as before) or lacks a
-    column is a :class:`ShardError` naming it.
-    """
+    ``columns`` keeps only those; they and ``required`` must be there. Manifests written before the page CRCs carry
+    none and read as before; any unreadable one is a :class:`ShardError` naming it."""
     path = Path(path)
     file = path / MANIFEST if path.is_dir() else path
     if path.is_dir() and not file.is_file():

@@ -15,9 +15,8 @@ Arrays: numpy 2 pickles an array as ``numpy._core.multiarray._reconstruct``, a m
 NAVSIM pins numpy 1.23.4, so such a file fails on its server. :func:`numpy1_array` writes numpy 1.x's layout
 (``numpy.core.multiarray._reconstruct``), which every numpy since 1.x still loads.
 
-It uses the pure-Python pickler (``pickle._Pickler``): its per-type dispatch table is the documented way to write
-custom opcodes. The C pickler offers no such hook for globals.
-"""
+It uses the pure-Python pickler (``pickle._Pickler``), whose per-type dispatch table is the documented way to write
+custom opcodes; the C pickler has no such hook for globals."""
 
 import io
 import pickle
