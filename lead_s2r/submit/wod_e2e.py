@@ -137,7 +137,6 @@ def shard_names(count: int, stem: str = SHARD_STEM) -> list[str]:
 
 def validate(shards: dict[str, Any], expected: Sequence[str] | None = None) -> int:
     """Raise naming the shard, frame or field if the shards are not what the server reads; returns the frame count.
-
     ``shards``: file name -> parsed message. ``expected``: the frame names to cover exactly (None: no check)."""
     check_shard_names(list(shards))
     reference = None
