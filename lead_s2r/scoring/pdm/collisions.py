@@ -148,8 +148,8 @@ def _first_step(rows: np.ndarray, steps: np.ndarray, num_rows: int) -> np.ndarra
 
 def step_hits(ego_coords: np.ndarray, ego_radius: float, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
     """``(query, geometry)`` pairs where the ego box of (row, step), query ``step * N + row``, intersects a geometry
-    of the observation at its own step (red lights left out), for boxes ``(N, T, 5,
-    2)`` of enclosing radius ``ego_radius``: NC's overlaps, and TTC's at offset 0 (the same boxes and steps)."""
+    of the observation at its own step (red lights left out), for boxes ``(N, T, 5, 2)`` of enclosing radius
+    ``ego_radius``: NC's overlaps, and TTC's at offset 0 (the same boxes and steps)."""
     num_rows, num_steps = ego_coords.shape[:2]
     centers = ego_coords[:, :, Corner.CENTER].transpose(2, 1, 0)  # (2, T, N): a step's rows side by side
 

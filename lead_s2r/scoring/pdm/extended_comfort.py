@@ -7,10 +7,9 @@ overlap is ``current[:-5]`` against ``previous[5:]``: 36 states each. The offici
 
 The trap: the comfort features (Savitzky-Golay filtered acceleration magnitude, its jerk, yaw rate and yaw
 acceleration; ``pdm_comfort_metrics.extract_features``) are extracted on the two 36-state *slices*, on a time base
-``arange(36) * 0.1``. They are not taken from the full 41 states and then cut. The filters' edge windows differ, so
-cutting afterwards gives other numbers. :func:`overlap` makes the slices and the time base, a feature extractor (the
-comfort module's) runs on each slice, and :func:`is_extended_comfortable` compares the results. The RMS of the
-per-step differences must satisfy the non-strict bounds :data:`THRESHOLDS`.
+``arange(36) * 0.1``, not taken from the full 41 states and then cut: the filters' edge windows differ, so cutting
+afterwards gives other numbers. The RMS of the per-step differences must satisfy the non-strict bounds
+:data:`THRESHOLDS`.
 """
 
 from collections.abc import Callable, Mapping

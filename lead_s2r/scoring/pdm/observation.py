@@ -47,10 +47,8 @@ KEYFRAME_SLACK_S = 1e-6
 
 @dataclass
 class Observation:
-    """G box polygons over all steps, step by step (``step_offsets``), with their object index, centroid and the
-    radius of a circle about the centroid that holds them; ``step_geoms (S, Gmax)`` lists each step's geometries
-    (padded with -1). Objects are the M tracks followed by red-light pseudo-objects; per-object arrays describe
-    the first appearance."""
+    """G box polygons over all steps, step by step, each with the radius of a circle about its centroid that holds
+    it. Objects are the M tracks followed by red-light pseudo-objects; per-object arrays describe the first one."""
 
     polygons: np.ndarray  # (G,) shapely Polygons
     corners: np.ndarray  # (G, 4, 2) a box's corners in ring order (NaN for red-light polygons)

@@ -117,9 +117,7 @@ def idm_step(
     target_velocity: np.ndarray,
     config: PDMClosedConfig = PDMClosedConfig(),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One Euler step of the batched IDM: ``lead`` (N, 3) is (progress, velocity, rear length) of the leader.
-
-    Returns the next (progress, velocity). The gap is clamped below at the minimum gap."""
+    """One Euler step of the batched IDM: ``lead`` (N, 3) is (progress, velocity, rear length) of the leader."""
     lead_progress, lead_velocity, lead_rear = lead[:, 0], lead[:, 1], lead[:, 2]
     desired_gap = (
         config.min_gap

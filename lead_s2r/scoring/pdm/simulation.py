@@ -46,9 +46,8 @@ def _simulate(
     reference: TrackingReference, terms: LateralTerms, start: BicycleState, constants: BicycleConstants,
     states: np.ndarray,
 ) -> None:  # fmt: skip
-    """Steps every proposal from ``start`` through its targets, writing the bicycle's columns of ``states[:, 1:]``.
-
-    One proposal at a time, step after step: a row's bits are its own, whatever rows come with it."""
+    """Steps every proposal from ``start`` through its targets, writing the bicycle's columns of ``states[:, 1:]``,
+    one proposal at a time: a row's bits are its own, whatever rows come with it."""
     count, num_steps = reference.speed.shape
     for n in range(count):
         state = start

@@ -41,11 +41,9 @@ SUMMARY_TOKENS = ("extended_pdm_score_stage_one", "extended_pdm_score_stage_two"
 class TokenRow:
     """One scored frame: a stage-1 original scene or a stage-2 synthetic scene.
 
-    ``columns`` holds the sub-scores of :data:`epdms.FILTERED` after the human penalty filter. ``start_time`` is the
-    frame's time in seconds (only differences between a pair's frames matter). ``start_point`` is the rear axle at
-    t0 and ``endpoint`` the last *planned* pose, both ``(x, y)`` in the global (map) frame. ``simulated_states`` are
-    the ``(41, 11)`` simulated ego states EC compares.
-    """
+    ``columns``: the sub-scores of :data:`epdms.FILTERED` after the human penalty filter. ``start_time`` [s]: only
+    differences between a pair's frames matter. ``start_point`` (rear axle at t0) and ``endpoint`` (the last
+    *planned* pose): ``(x, y)`` in the map frame. ``simulated_states``: the ``(41, 11)`` states EC compares."""
 
     token: str
     columns: Mapping[str, float]
