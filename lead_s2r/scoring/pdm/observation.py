@@ -19,8 +19,7 @@ v2.2 reads the 9 keyframes up to 4 s and builds 41 steps (``extend_observation_f
 (``LogReplayTrafficAgents.simulate_environment``) drops from every step each track whose box intersects the ego box
 at t0 (its step-0 box, so a track seen once at a later keyframe counts with that box). v1.1 removes nothing.
 
-NAVSIM keeps one STRtree per step; NC and TTC here find candidate pairs by enclosing circles instead (see
-``collisions``).
+NAVSIM keeps one STRtree per step; NC and TTC here find candidate pairs by enclosing circles (``collisions``).
 """
 
 from dataclasses import dataclass

@@ -247,11 +247,8 @@ def _leaders(
     poses: np.ndarray,
     vehicle: VehicleParameters,
 ) -> np.ndarray:
-    """Leader (progress, velocity, rear length) for proposals at ``progress`` with rear-axle ``poses`` (N, 3).
-
-    As NAVSIM's generator, one row is carried through the proposals of a path in order and only partly rewritten:
-    a leader sets progress (and velocity unless it is a red light), free road sets progress and rear length, and
-    whatever a field held for the previous proposal stays."""
+    """Leader (progress, velocity, rear length) for proposals at ``progress`` with rear-axle ``poses`` (N, 3), one
+    row carried through the proposals of a path and only partly rewritten, as NAVSIM's (module docstring)."""
     found = np.zeros(len(progress), bool)
     gap, speed, red = np.zeros(len(progress)), np.zeros(len(progress)), np.zeros(len(progress), bool)
     polygons = observation.polygons(step)
