@@ -34,9 +34,8 @@ SAMPLES_PER_READ = 64
 
 
 def planner_predictions(planner: str, data: Path | list[Path], path: Path, split: str | None = None) -> Path:
-    """Write the predictions of a model-free planner (``lead_s2r.scoring.baselines.PLANNERS``: ``human`` replays the
-    logged future, ``constant-velocity`` is NAVSIM's baseline) on the samples of ``data`` (of ``split`` if given)
-    to ``path``. Samples without the field the planner needs (a test split's future) get no prediction."""
+    """Write the predictions of a model-free planner (``lead_s2r.scoring.baselines.PLANNERS``) on the samples of
+    ``data`` to ``path``. Samples without the field the planner needs (a test split's future) get no prediction."""
     from lead_s2r.scoring.baselines import PLANNER_NEEDS, PLANNERS
 
     if planner not in PLANNERS:
@@ -113,8 +112,7 @@ def decode_listed(
     chosen: list[dict[str, Any]], fields: tuple[str, ...] | None, executor: Executor | None = None
 ) -> list[dict[str, Any]]:
     """The samples of ``chosen`` entries (:func:`sample_listing`'s), in their order: decoded already, or read from
-    their shards in parts of consecutive chosen samples (:func:`~lead_s2r.shards.read_part`; ``fields`` None: every
-    field), by ``executor``'s workers or here."""
+    their shards in parts of consecutive chosen samples (``fields`` None: every field)."""
     if chosen and "sample" in chosen[0]:
         return [entry["sample"] for entry in chosen]
     parts = [(shard, keys, fields, offset) for shard, keys, offset in shard_parts(chosen, SAMPLES_PER_READ)]
