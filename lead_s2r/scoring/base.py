@@ -86,13 +86,8 @@ class Scorer(ABC):
 def join(
     predictions: Iterable[Prediction], data: Iterable[dict[str, Any]], allow_missing: bool = False
 ) -> list[tuple[dict[str, Any], list[Prediction]]]:
-    """Pair each sample with its predictions, in data order.
-
-    Predictions of a dataset the data does not hold are left aside (one predictions file may cover several
-    datasets, scored one folder at a time). Errors naming the key: a prediction for a key the data does not hold
-    although it holds its dataset, a prediction whose dataset differs from its sample's, and, unless
-    ``allow_missing``, a sample without predictions (:func:`coverage` lists those).
-    """
+    """Pair each sample with its predictions, in data order. Predictions of a dataset the data does not hold are left
+    aside (one predictions file may cover several datasets, scored one folder at a time)."""
     data = list(data)
     groups = group_by_key(predictions)
     pairs, unpredicted = [], []
@@ -123,11 +118,7 @@ def join(
 
 
 def coverage(predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> dict[str, Any]:
-    """Which samples have no prediction, and how many predictions belong to datasets the data does not hold.
-
-    ``{"unpredicted": [key, ...] in data order, "other_datasets": {dataset: predictions}}``: what ``lead-s2r
-    score`` reports next to the scores.
-    """
+    """Which samples have no prediction, and how many predictions belong to datasets the data does not hold."""
     data = list(data)
     predictions = list(predictions)
     predicted = {p.key for p in predictions}

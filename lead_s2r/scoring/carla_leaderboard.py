@@ -144,10 +144,7 @@ def infraction_score(record: RouteRecord, min_speed: bool = True) -> float:
 
 
 def normalised_infraction_score(record: RouteRecord) -> float:
-    """Town13's NIS: ``prod_j (0.2 p_j) ** (n_j / driven km)`` times the min-speed and outside-lane factors.
-
-    The per-km term is skipped when the route was not driven at all (RC 0 or length 0).
-    """
+    """Town13's NIS: ``prod_j (0.2 p_j) ** (n_j / driven km)`` times the min-speed and outside-lane factors."""
     score = percentage_factors(record)
     km = record.driven_km
     if km > 0:
@@ -282,8 +279,7 @@ def score_records(
 ) -> ScoreResult:
     """Aggregate route records over the benchmark's routes (missing routes count 0; see the module docstring).
 
-    ``route_ids``: the benchmark's route ids (from its routes XML), to name the missing routes; by default only their
-    number is known.
+    ``route_ids`` (from the benchmark's routes XML) name the missing routes; without them only their number is known.
     """
     if benchmark not in BENCHMARK_ROUTES:
         raise ResultsError(f"unknown benchmark {benchmark!r}; use one of {sorted(BENCHMARK_ROUTES)}")

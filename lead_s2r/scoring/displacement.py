@@ -31,10 +31,8 @@ SCHEMA = pa.schema(
 
 
 def future_errors(frame: list[Prediction], future: np.ndarray) -> dict[str, float]:
-    """ADE/FDE of the most probable inference and min over inferences against a logged future (T, 4).
-
-    Only future times the prediction covers are compared; ``horizon_s`` says how far that was (NaN if none).
-    """
+    """ADE/FDE of the most probable inference and min over inferences against a logged future (T, 4), over the
+    future times the prediction covers (``horizon_s``: how far that was, NaN if none)."""
     horizon = min(float(p.t[-1]) for p in frame)
     times = future[:, 0].astype(np.float64)
     covered = times <= horizon + TIME_TOLERANCE

@@ -65,10 +65,9 @@ def pad_raters(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Raters to exactly ``num_raters`` x ``num_points``: (B, P, T, 2) and labels (B, P), float64.
 
-    Input is padded: trajectories (B, Pmax, Tmax, 2), lengths (B, Pmax) valid points per rater, counts (B,)
-    valid raters per frame. Extra raters and points are cut; missing raters repeat the last rater and its
-    label, missing points repeat the rater's last point.
-    """
+    Input is padded: trajectories (B, Pmax, Tmax, 2), lengths (B, Pmax) valid points per rater, counts (B,) valid
+    raters per frame. Extra raters and points are cut; missing raters repeat the last rater and its label, missing
+    points repeat the rater's last point."""
     lengths = np.asarray(lengths)
     counts = np.asarray(counts)
     if (counts < 1).any() or (lengths[np.arange(lengths.shape[1]) < counts[:, None]] < 1).any():
@@ -81,11 +80,9 @@ def pad_raters(
 
 
 def _directions(raters: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Unit direction of travel (..., H, 2) of each rater at the waypoint indices.
-
-    The backward difference r_t - r_(t-1) with the origin before r_0; a zero difference keeps the previous
-    direction, and before the first non-zero one the direction is +x.
-    """
+    """Unit direction of travel (..., H, 2) of each rater at the waypoint indices: the backward difference
+    r_t - r_(t-1) with the origin before r_0; a zero difference keeps the previous direction, and before the first
+    non-zero one the direction is +x."""
     steps = np.diff(raters, axis=-2, prepend=0.0)
     moving = (steps != 0).any(axis=-1)
     last_moving = np.maximum.accumulate(np.where(moving, np.arange(raters.shape[-2]), -1), axis=-1)[..., indices]
@@ -139,10 +136,8 @@ def rater_feedback_score(
 
 
 def rater_arrays(samples: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Stack the ``raters`` fields of samples (each with at least one rating) into :func:`pad_raters` inputs.
-
-    Ratings below 0 (unlabelled) are dropped here too, in case a converter kept them.
-    """
+    """Stack the ``raters`` fields of samples (each with at least one rating) into :func:`pad_raters` inputs;
+    ratings below 0 (unlabelled) are dropped here too, in case a converter kept them."""
     frames = []
     for sample in samples:
         trajectories, lengths, scores = (

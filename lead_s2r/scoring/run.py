@@ -34,9 +34,8 @@ SAMPLES_PER_READ = 64
 
 
 def planner_predictions(planner: str, data: Path | list[Path], path: Path, split: str | None = None) -> Path:
-    """Write the predictions of a model-free planner (``lead_s2r.scoring.baselines.PLANNERS``: ``human`` replays the
-    logged future, ``constant-velocity`` is NAVSIM's baseline) on the samples of ``data`` (of ``split`` if given)
-    to ``path``. Samples without the field the planner needs (a test split's future) get no prediction."""
+    """Write the predictions of a model-free planner (``lead_s2r.scoring.baselines.PLANNERS``) on the samples of
+    ``data`` to ``path``. Samples without the field the planner needs (a test split's future) get no prediction."""
     from lead_s2r.scoring.baselines import PLANNER_NEEDS, PLANNERS
 
     if planner not in PLANNERS:
@@ -72,13 +71,12 @@ def choose_samples(
     cache: SampleCache | None = None,
 ) -> tuple[list[dict[str, Any]], set[str]]:
     """The samples of ``folders`` of ``split`` (a folder converted from a whole dataset holds several) with ``tag`` in
-    ``meta.tags``, each if given, in shard order, and the keys of ``split``'s samples passed over for want of ``tag``;
-    from ``cache`` when it holds them, else decoded (and kept there).
+    ``meta.tags``, each if given, in shard order, and the keys of ``split``'s samples passed over for want of ``tag``.
 
     A folder's manifest says which samples those are, so only they are decoded: NAVSIM's scoring context costs
-    about 4 ms a sample, and a held-out split or a tag is a fraction of a folder. ``executor`` decodes them in parts
-    of :data:`SAMPLES_PER_READ` (decoding costs about a tenth of scoring: left to the driver, it would bound what
-    more workers gain). A folder of tars without a manifest is decoded whole and chosen from after.
+    about 4 ms a sample, and a held-out split or a tag is a fraction of a folder. ``executor`` decodes them (decoding
+    costs about a tenth of scoring: left to the driver, it would bound what more workers gain). A folder of tars
+    without a manifest is decoded whole and chosen from after.
     """
     key = (tuple(str(Path(folder).resolve()) for folder in folders), tuple(fields), split, tag)
     if cache is not None and key in cache:
@@ -114,8 +112,7 @@ def decode_listed(
     chosen: list[dict[str, Any]], fields: tuple[str, ...] | None, executor: Executor | None = None
 ) -> list[dict[str, Any]]:
     """The samples of ``chosen`` entries (:func:`sample_listing`'s), in their order: decoded already, or read from
-    their shards in parts of consecutive chosen samples (:func:`~lead_s2r.shards.read_part`; ``fields`` None: every
-    field), by ``executor``'s workers or here."""
+    their shards in parts of consecutive chosen samples (``fields`` None: every field)."""
     if chosen and "sample" in chosen[0]:
         return [entry["sample"] for entry in chosen]
     parts = [(shard, keys, fields, offset) for shard, keys, offset in shard_parts(chosen, SAMPLES_PER_READ)]
@@ -124,10 +121,7 @@ def decode_listed(
 
 
 def make_scorer(metric: str, **config: Any) -> Scorer:
-    """The scorer registered under ``metric`` (e.g. ``rfs@wod-e2e-2025``, ``ade``), configured.
-
-    An unknown metric, option or option value is a :class:`UserError` naming it.
-    """
+    """The scorer registered under ``metric`` (e.g. ``rfs@wod-e2e-2025``, ``ade``), configured."""
     cls = load(metric, SCORER_GROUP)
     try:
         return cls(**config)
@@ -160,14 +154,10 @@ def score_predictions(
 ) -> dict[str, Any]:
     """Score ``predictions`` (predictions.parquet) against one or more converted folders.
 
-    Writes ``out/scores.parquet`` (one row per scored sample) and ``out/scores.json`` (aggregates, metric name
-    and version, config, package version, inputs, ``unpredicted`` samples and predictions of ``other_datasets``)
-    and returns the JSON content. ``config`` goes to the scorer; without ``allow_missing=True`` an unpredicted
-    sample is an error, as in :func:`~lead_s2r.scoring.base.join`. ``split`` scores only that split's samples,
-    ``tag`` only the samples with that tag (scores.json records both).
-    ``executor`` spreads the per-sample work (:meth:`~lead_s2r.scoring.base.Scorer.map_samples`); the files are the
-    same bytes without it, but the ``seconds`` of scores.json. ``sample_cache`` keeps the decoded samples for the next
-    scoring of the same data (:class:`SampleCache`).
+    Writes ``out/scores.parquet`` (one row per scored sample) and ``out/scores.json`` and returns the latter's content.
+    Without ``allow_missing=True`` in ``config`` an unpredicted sample is an error
+    (:func:`~lead_s2r.scoring.base.join`). With or without ``executor`` the files are the same bytes, but the
+    ``seconds`` of scores.json.
     """
     scorer = make_scorer(metric, **config)
     scorer.executor = executor

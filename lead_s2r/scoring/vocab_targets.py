@@ -166,8 +166,8 @@ def score_data(
     executor: Executor | None = None,
     on_job: Callable[[int, int, int], None] | None = None,
 ) -> dict[str, Any]:
-    """Score ``vocab_path``'s vocabulary on the samples of ``data`` and write the files of the module docstring;
-    return the manifest. ``on_job(scenes, entries, total_scenes)`` is called as each job ends (a progress bar)."""
+    """Score ``vocab_path``'s vocabulary on ``data``, write the files of the module docstring, return the manifest.
+    ``on_job(scenes, entries, total_scenes)`` is called as each job ends (a progress bar)."""
     if metric not in METRICS:
         raise UserError(f"--metric {metric}: choose {' or '.join(METRICS)}")
     if progress not in PROGRESS_MODES:
@@ -245,8 +245,7 @@ def _readable(path: Path) -> bool:
 
 
 def _assemble(out: Path, parts: list[Path], manifest: dict[str, Any]) -> dict[str, Any]:
-    """The pickle, the Parquet table and the finished manifest, from the parts, in data order (the parts' order,
-    and each part's)."""
+    """The pickle, the Parquet table and the finished manifest, from the parts, in data order."""
     scores: dict[str, dict[str, np.ndarray]] = {}
     tokens: dict[str, str] = {}
     failed: dict[str, str] = {}

@@ -1,14 +1,13 @@
 """WOD-E2E leaderboard submission: ``E2EDChallengeSubmission`` shards and the tar.gz to upload, without TensorFlow.
 
-What the server reads (Waymo's submission proto and tutorial; shared/research/closed_loop_and_submissions.md
-§3.2, wod_e2e.md §1.4): each shard is one serialized ``E2EDChallengeSubmission`` (raw protobuf bytes, no TFRecord
-framing) carrying every metadata field again and ``submission_type = E2ED_SUBMISSION``; frames are split evenly
-over the shards. Shards must be named ``<stem>.binproto-00000-of-0000N``: the tutorial's ``part0`` naming gives
-"No shards found". Each frame gets one trajectory of 20 (x, y) points at 0.25 ... 5 s (4 Hz) in the rear-axle
-frame at t0, and ``frame_name`` must equal the record's ``frame.context.name``; a frame left out gives "Missing N
-sequence names". Required metadata: ``account_name`` (the email registered at waymo.com/open),
-``unique_method_name``, ``num_model_parameters`` (an integer and a suffix, e.g. "60M") and
-``uses_public_model_pretraining`` (set even when false). Trajectories are resampled with
+What the server reads (Waymo's submission proto and tutorial; shared/research/closed_loop_and_submissions.md §3.2,
+wod_e2e.md §1.4): each shard is one serialized ``E2EDChallengeSubmission`` (raw protobuf bytes, no TFRecord framing)
+carrying every metadata field again and ``submission_type = E2ED_SUBMISSION``; frames are split evenly over the shards.
+Shards must be named ``<stem>.binproto-00000-of-0000N``: the tutorial's ``part0`` naming gives "No shards found". Each
+frame gets one trajectory of 20 (x, y) points at 0.25 ... 5 s (4 Hz) in the rear-axle frame at t0, and ``frame_name``
+must equal the record's ``frame.context.name``; a frame left out gives "Missing N sequence names". Required metadata:
+``account_name`` (the email registered at waymo.com/open), ``unique_method_name``, ``num_model_parameters`` (an integer
+and a suffix, e.g. "60M") and ``uses_public_model_pretraining`` (set even when false). Trajectories are resampled with
 :func:`lead_s2r.predictions.on_grid`, as the RFS scorer reads them, taking a model's highest-probability inference.
 """
 
@@ -137,7 +136,6 @@ def shard_names(count: int, stem: str = SHARD_STEM) -> list[str]:
 
 def validate(shards: dict[str, Any], expected: Sequence[str] | None = None) -> int:
     """Raise naming the shard, frame or field if the shards are not what the server reads; returns the frame count.
-
     ``shards``: file name -> parsed message. ``expected``: the frame names to cover exactly (None: no check)."""
     check_shard_names(list(shards))
     reference = None

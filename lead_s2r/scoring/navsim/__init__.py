@@ -1,11 +1,6 @@
 """NAVSIM's scores of predictions on converted NAVSIM samples: ``pdms@navsim-1.1`` (:class:`PDMSScorer`) and
 ``epdms@navsim-2.2`` (:class:`EPDMSScorer`: one stage, or navhard's two stages where the samples carry the
 two-stage mapping). The simulation and the sub-metrics they share are :mod:`lead_s2r.scoring.pdm`.
-
-- ``proposals``: per sample, the scene token, the plan on NAVSIM's grid, PDM-Closed's cached reference, EC's frame pair;
-- ``pdms_scorer``: the v1.1 table, aggregates and CSV;
-- ``epdms_scorer``: the v2.2 table, EC between adjacent frames, the two-stage switch;
-- ``two_stage_samples``: navhard's mapping read from the samples, completeness, rows, summaries, CSV.
 """
 
 from lead_s2r.scoring.navsim.epdms_scorer import EPDMSScorer

@@ -64,9 +64,8 @@ def check_complete(
     mapping: Sequence[TwoStageGroup], samples: Sequence[dict[str, Any]], scored: dict[str, str | None]
 ) -> None:
     """Every token of ``mapping`` has a sample, a prediction and a scene; else a one-line error naming the token.
-
-    ``scored``: token -> None (scored) or the reason its scene could not be built, for every predicted sample. A
-    predicted token in no group is an error too (NAVSIM scores only the mapping's tokens on a two-stage split)."""
+    ``scored``: token -> None (scored) or the reason its scene could not be built, for every predicted sample; one in
+    no group is an error too (NAVSIM scores only the mapping's tokens on a two-stage split)."""
     stray = sorted(set(scored) - {token for group in mapping for token in group.tokens()})
     if stray:
         raise UserError(

@@ -62,10 +62,8 @@ def heading_rate(state: BicycleState, wheel_base: float) -> float:
 def propagate(
     state: BicycleState, turn_rate: float, accel_cmd: float, steering_rate_cmd: float, const: BicycleConstants
 ) -> BicycleState:
-    """The state after ``const.dt`` seconds under commanded acceleration and steering rate.
-
-    ``turn_rate`` is ``heading_rate(state)`` (the previous step's ``yaw_rate``, computed the same way).
-    """
+    """The state after ``const.dt`` seconds under commanded acceleration and steering rate; ``turn_rate`` is
+    ``heading_rate(state)`` (the previous step's ``yaw_rate``, computed the same way)."""
     dt, speed, steering, accel, heading = const.dt, state.speed, state.steering, state.accel, state.heading
     lagged_accel = const.accel_lag * (accel_cmd - accel) + accel
     ideal_steering = dt * steering_rate_cmd + steering

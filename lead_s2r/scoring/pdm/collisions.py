@@ -7,13 +7,12 @@ Both walk the steps in order with a per-proposal list of objects to ignore: an o
 overlap is classified at once and the walk becomes "count a violation only if it comes before the first harmless
 overlap with the same object". Official behaviours reproduced on purpose:
 
-* NC classifies with the object's *first* appearance (static kind, or its speed then <= 0.05 m/s: STOPPED_TRACK,
-  at fault) but with its polygon and centroid at the step of the overlap. Order: ego speed <= 0.05 m/s (STOPPED_EGO,
-  not at fault); STOPPED_TRACK; centroid more than 150 deg off the ego heading seen from the rear axle (ACTIVE_REAR,
-  not at fault); ego front edge (exterior coords 0 -> 3) touches the object (ACTIVE_FRONT, at fault); else
-  ACTIVE_LATERAL, at fault only while the ego is in MULTIPLE_LANES or NON_DRIVABLE_AREA.
-  An at-fault overlap scores 0 with an agent (vehicle, pedestrian, bicycle) and 0.5 with a static object. Overlaps
-  at t = 0 count.
+* NC classifies with the object's *first* appearance (static kind, or its speed then <= 0.05 m/s: STOPPED_TRACK, at
+  fault) but with its polygon and centroid at the step of the overlap. Order: ego speed <= 0.05 m/s (STOPPED_EGO, not at
+  fault); STOPPED_TRACK; centroid more than 150 deg off the ego heading seen from the rear axle (ACTIVE_REAR, not at
+  fault); ego front edge (exterior coords 0 -> 3) touches the object (ACTIVE_FRONT, at fault); else ACTIVE_LATERAL, at
+  fault only while the ego is in MULTIPLE_LANES or NON_DRIVABLE_AREA. An at-fault overlap scores 0 with an agent
+  (vehicle, pedestrian, bicycle) and 0.5 with a static object. Overlaps at t = 0 count.
 * TTC moves the ego box (centre slot replaced by the front-left corner) along its heading at its current speed by
   0, 0.3, 0.6 and 0.9 s (``float(k) * 0.1``) and checks the observation at step t + k. Skipped: red lights, ignored
   objects and an ego slower than 5e-3 m/s. A violation is an object within 30 deg ahead, or one not behind (150 deg)
@@ -148,8 +147,8 @@ def _first_step(rows: np.ndarray, steps: np.ndarray, num_rows: int) -> np.ndarra
 
 def step_hits(ego_coords: np.ndarray, ego_radius: float, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
     """``(query, geometry)`` pairs where the ego box of (row, step), query ``step * N + row``, intersects a geometry
-    of the observation at its own step (red lights left out), for boxes ``(N, T, 5,
-    2)`` of enclosing radius ``ego_radius``: NC's overlaps, and TTC's at offset 0 (the same boxes and steps)."""
+    of the observation at its own step (red lights left out), for boxes ``(N, T, 5, 2)`` of enclosing radius
+    ``ego_radius``: NC's overlaps, and TTC's at offset 0 (the same boxes and steps)."""
     num_rows, num_steps = ego_coords.shape[:2]
     centers = ego_coords[:, :, Corner.CENTER].transpose(2, 1, 0)  # (2, T, N): a step's rows side by side
 

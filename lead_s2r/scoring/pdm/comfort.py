@@ -16,11 +16,10 @@ feature is rounded to 8 decimals. Official behaviours reproduced on purpose:
   box centre (``state_array_to_center_state_array``: nuPlan's ``get_acceleration_shifted``, which adds
   ``d * (yaw_rate^2 + yaw_accel)`` along the displacement ``(d, 0)``, d = rear axle to centre); the jerk magnitude
   (and EC's acceleration) stays on the rear axle.
-* HC prepends the logged past to the 41 simulated states: the past trajectory sampled every 0.1 s from its first
-  time up to (excluding) its last, then the last sample dropped too (``arange(start, end, 0.1)[:-1]``: 14 states
-  -1.5..-0.2 s, -0.1 s is missing), linear in position and dynamics, angular in heading, yaw rate and yaw
-  acceleration 0 (nuPlan's interpolated ``EgoState``). The whole array gets the time base ``arange(T) * 0.1``.
-  Without a past, HC is 1.
+* HC prepends the logged past to the 41 simulated states: the past trajectory sampled every 0.1 s from its first time up
+  to (excluding) its last, then the last sample dropped too (``arange(start, end, 0.1)[:-1]``: 14 states -1.5..-0.2 s,
+  -0.1 s is missing), linear in position and dynamics, angular in heading, yaw rate and yaw acceleration 0 (nuPlan's
+  interpolated ``EgoState``). The whole array gets the time base ``arange(T) * 0.1``. Without a past, HC is 1.
 * Bounds are strict and must hold at every step: -4.05 < a_lon < 2.40 m/s^2, |a_lat| < 4.89 m/s^2,
   |jerk| < 8.37 m/s^3, |jerk_lon| < 4.13 m/s^3, |yaw accel| < 1.93 rad/s^2, |yaw rate| < 0.95 rad/s.
 * The derivative step is the mean of the time differences (``np.diff(t).mean()``).

@@ -72,8 +72,7 @@ def epdms(columns: Columns) -> np.ndarray:
 
 def human_penalty_filter(columns: Columns, human: Mapping[str, float] | None) -> dict[str, np.ndarray]:
     """The agent's columns after v2.2's filter: each column in :data:`FILTERED` where the human's value is exactly
-    0 becomes 1. Other columns, EC among them, pass through unchanged. ``human=None`` (a synthetic scene) changes
-    nothing. Compute every derived value (:func:`epdms`, :func:`multiplicative_product`) from the result."""
+    0 becomes 1; EC passes through. Compute :func:`epdms` and the product from the result."""
     out = {name: np.asarray(value, np.float64).copy() for name, value in columns.items()}
     if human is None:
         return out

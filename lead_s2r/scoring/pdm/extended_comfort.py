@@ -2,15 +2,12 @@
 
 EC compares *simulated* ego states (41 x 11 at 0.1 s) of a frame with those of the frame 0.5 s earlier
 (``scene_aggregator.py::_compute_two_frame_comfort``). The offset is ``round(interval / 0.1)``, which is 5, and the
-overlap is ``current[:-5]`` against ``previous[5:]``: 36 states each. The official code asserts
-``0 < interval < 0.55``.
+overlap is ``current[:-5]`` against ``previous[5:]``: 36 states each. The official code asserts ``0 < interval < 0.55``.
 
 The trap: the comfort features (Savitzky-Golay filtered acceleration magnitude, its jerk, yaw rate and yaw
 acceleration; ``pdm_comfort_metrics.extract_features``) are extracted on the two 36-state *slices*, on a time base
-``arange(36) * 0.1``. They are not taken from the full 41 states and then cut. The filters' edge windows differ, so
-cutting afterwards gives other numbers. :func:`overlap` makes the slices and the time base, a feature extractor (the
-comfort module's) runs on each slice, and :func:`is_extended_comfortable` compares the results. The RMS of the
-per-step differences must satisfy the non-strict bounds :data:`THRESHOLDS`.
+``arange(36) * 0.1``, not taken from the full 41 states and then cut: the filters' edge windows differ, so cutting
+afterwards gives other numbers. The RMS of the per-step differences must keep the non-strict :data:`THRESHOLDS`.
 """
 
 from collections.abc import Callable, Mapping

@@ -1,11 +1,10 @@
 """NAVSIM's batched LQR tracker (``pdm_planner/simulation/batch_lqr.py`` + ``batch_lqr_utils.py``), in closed form.
 
-The tracker decouples a longitudinal problem (state: speed; input: acceleration) from a lateral one (states:
-lateral error, heading error, steering angle; input: steering rate), each a one-step LQR over a 10-step
-lookahead of 0.1 s. Constants: longitudinal Q = 10, R = 1; lateral Q = diag(1, 10, 0), R = 1; "jerk" penalty
-1e-4 and curvature-rate penalty 1e-2 (initial-curvature penalty 1e-10) in the reference fits; when both the
-reference speed (10 steps ahead) and the ego speed are <= 0.2 m/s a P controller takes over (gain 0.5, steering
-rate 0).
+The tracker decouples a longitudinal problem (state: speed; input: acceleration) from a lateral one (states: lateral
+error, heading error, steering angle; input: steering rate), each a one-step LQR over a 10-step lookahead of 0.1 s.
+Constants: longitudinal Q = 10, R = 1; lateral Q = diag(1, 10, 0), R = 1; "jerk" penalty 1e-4 and curvature-rate penalty
+1e-2 (initial-curvature penalty 1e-10) in the reference fits; when both the reference speed (10 steps ahead) and the ego
+speed are <= 0.2 m/s a P controller takes over (gain 0.5, steering rate 0).
 
 Reference speed and curvature come from regularised least squares on the 41 target poses, as nuPlan's tracker
 does. NAVSIM forms the normal equations and applies ``np.linalg.pinv`` per proposal; here the same minimisers are

@@ -172,9 +172,7 @@ class DrivableMap:
 
     def locate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(index, polygon)`` for every point ``(x, y)`` (each ``(B, P)``) strictly inside a polygon, ``index`` the
-        point's flat position ``box * P + point`` in increasing order: the grid's candidates, those in cells inside
-        a polygon taken, those in crossed cells narrowed to polygons whose bounding box holds the point and decided
-        by ``contains_xy``."""
+        point's flat position ``box * P + point`` in increasing order."""
         x, y = x.reshape(-1), y.reshape(-1)
         index, entry = self.grid.candidates(x, y)
         cover = np.take(self.cover, entry)
@@ -224,8 +222,7 @@ class DrivableMap:
     def layers(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the ego-area flags need of points ``(x, y)`` (each ``(B,)``): per point, inside a drivable polygon
         (ROADBLOCK, INTERSECTION, CARPARK_AREA), inside an INTERSECTION, and the lane polygons holding it, slot by slot
-        ``(W, B)`` (-1 pads). The answer of a point whose cell no polygon edge crosses is its cell's
-        (:class:`SettledCells`), and only points in crossed cells are located one by one (:meth:`locate`)."""
+        ``(W, B)`` (-1 pads)."""
         cells = self.grid.cells_of(x, y)
         settled = self.settled
         state = settled.state[cells]

@@ -7,17 +7,14 @@ Constants and official behaviours reproduced on purpose:
   0.5 below 6 m, else 0. v1.1 has no intersection exclusion (``exclude`` is v2's INTERSECTION mask) and gives DDC
   weight 0: it is reported and never changes the PDMS. Window sums are taken slice by slice as NAVSIM does, so
   floating-point rounding (and hence the band edges) match.
-* EP: raw progress = projection of the last box centre onto the centreline minus that of the first, clipped at 0.
-  v1.1 masks it with NC * DAC and divides by the largest masked progress of the normalisation group when that
-  exceeds 5 m; otherwise EP is 1, or 0 where NC * DAC is 0. So EP is 0 whenever NC or DAC is 0.
-  v2 (``ego_progress_v2``) masks only the normaliser: ``max`` over the group of raw * NC * DAC * DDC * TLC; above
-  5 m EP = clip(raw / normaliser, 0, 1) with the *unmasked* raw progress, otherwise 1 for every row. So an agent
-  with NC = 0 can have EP = 1.
+* EP: raw progress = projection of the last box centre onto the centreline minus that of the first, clipped at 0. v1.1
+  masks it with NC * DAC and divides by the largest masked progress of the normalisation group when that exceeds 5 m;
+  otherwise EP is 1, or 0 where NC * DAC is 0. So EP is 0 whenever NC or DAC is 0. v2 (``ego_progress_v2``) masks only
+  the normaliser: ``max`` over the group of raw * NC * DAC * DDC * TLC; above 5 m EP = clip(raw / normaliser, 0, 1) with
+  the *unmasked* raw progress, otherwise 1 for every row. So an agent with NC = 0 can have EP = 1.
 * LK (v2): the distance from the box centre to the whole centreline linestring, > 0.5 m for ceil(2.0 / 0.1) = 20
   consecutive steps fails. Steps with the centre inside an INTERSECTION are skipped and do not reset the count.
-  ``beyond_lane_limit`` decides "> 0.5 m" in numpy wherever the answer is certain and asks GEOS
-  (``shapely.distance``) for the few centres within :data:`LANE_KEEPING_MARGIN_M` of the limit, so every flag is
-  GEOS's.
+  Every "> 0.5 m" is GEOS's answer (``beyond_lane_limit``).
 * PDMS = NC * DAC * (5 * EP + 5 * TTC + 2 * C + 0 * DDC) / 12, in NAVSIM's order of operations.
 """
 

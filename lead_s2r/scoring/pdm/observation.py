@@ -19,8 +19,7 @@ v2.2 reads the 9 keyframes up to 4 s and builds 41 steps (``extend_observation_f
 (``LogReplayTrafficAgents.simulate_environment``) drops from every step each track whose box intersects the ego box
 at t0 (its step-0 box, so a track seen once at a later keyframe counts with that box). v1.1 removes nothing.
 
-NAVSIM keeps one STRtree per step; NC and TTC here find candidate pairs by enclosing circles instead (see
-``collisions``).
+NAVSIM keeps one STRtree per step; NC and TTC here find candidate pairs by enclosing circles (``collisions``).
 """
 
 from dataclasses import dataclass
@@ -47,10 +46,8 @@ KEYFRAME_SLACK_S = 1e-6
 
 @dataclass
 class Observation:
-    """G box polygons over all steps, step by step (``step_offsets``), with their object index, centroid and the
-    radius of a circle about the centroid that holds them; ``step_geoms (S, Gmax)`` lists each step's geometries
-    (padded with -1). Objects are the M tracks followed by red-light pseudo-objects; per-object arrays describe
-    the first appearance."""
+    """G box polygons over all steps, step by step, each with the radius of a circle about its centroid that holds
+    it. Objects are the M tracks followed by red-light pseudo-objects; per-object arrays describe the first one."""
 
     polygons: np.ndarray  # (G,) shapely Polygons
     corners: np.ndarray  # (G, 4, 2) a box's corners in ring order (NaN for red-light polygons)

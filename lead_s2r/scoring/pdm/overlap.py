@@ -1,14 +1,12 @@
-"""Do two convex outlines share a point (GEOS ``intersects``)? The separating-axis test in numpy for the many pairs
-NC and TTC check (ego box against agent box, ego front edge against agent box), GEOS for the few that floats cannot
-decide.
+"""Do two convex outlines share a point (GEOS ``intersects``)? The separating-axis test in numpy for the many pairs NC
+and TTC check (ego box against agent box, ego front edge against agent box), GEOS for the few that floats cannot decide.
 
-Two convex outlines are disjoint exactly when the projections on one of their edge normals leave a gap (a box has
-two edge directions, a segment one). Computed
-in floats, a projection is off by far less than :data:`MARGIN`, so a gap wider than it on some axis means disjoint
-and an overlap deeper than it on every axis means intersecting, whatever the rounding; a pair within the margin
-(touching, or degenerate with a zero-length edge) goes to ``shapely.intersects`` on the same corners, which is what
-NAVSIM's STRtree query decides. The answer is GEOS's for every pair, and a pair's answer does not depend on the pairs
-beside it.
+Two convex outlines are disjoint exactly when the projections on one of their edge normals leave a gap (a box has two
+edge directions, a segment one). Computed in floats, a projection is off by far less than :data:`MARGIN`, so a gap wider
+than it on some axis means disjoint and an overlap deeper than it on every axis means intersecting, whatever the
+rounding; a pair within the margin (touching, or degenerate with a zero-length edge) goes to ``shapely.intersects`` on
+the same corners, which is what NAVSIM's STRtree query decides. The answer is GEOS's for every pair, and a pair's answer
+does not depend on the pairs beside it.
 """
 
 from collections.abc import Callable

@@ -117,9 +117,7 @@ def idm_step(
     target_velocity: np.ndarray,
     config: PDMClosedConfig = PDMClosedConfig(),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One Euler step of the batched IDM: ``lead`` (N, 3) is (progress, velocity, rear length) of the leader.
-
-    Returns the next (progress, velocity). The gap is clamped below at the minimum gap."""
+    """One Euler step of the batched IDM: ``lead`` (N, 3) is (progress, velocity, rear length) of the leader."""
     lead_progress, lead_velocity, lead_rear = lead[:, 0], lead[:, 1], lead[:, 2]
     desired_gap = (
         config.min_gap
@@ -249,11 +247,8 @@ def _leaders(
     poses: np.ndarray,
     vehicle: VehicleParameters,
 ) -> np.ndarray:
-    """Leader (progress, velocity, rear length) for proposals at ``progress`` with rear-axle ``poses`` (N, 3).
-
-    As NAVSIM's generator, one row is carried through the proposals of a path in order and only partly rewritten:
-    a leader sets progress (and velocity unless it is a red light), free road sets progress and rear length, and
-    whatever a field held for the previous proposal stays."""
+    """Leader (progress, velocity, rear length) for proposals at ``progress`` with rear-axle ``poses`` (N, 3), one
+    row carried through the proposals of a path and only partly rewritten, as NAVSIM's (module docstring)."""
     found = np.zeros(len(progress), bool)
     gap, speed, red = np.zeros(len(progress)), np.zeros(len(progress)), np.zeros(len(progress), bool)
     polygons = observation.polygons(step)

@@ -202,10 +202,8 @@ def roadblock_candidates(graph: LaneGraph, route: Sequence[int], pose: np.ndarra
 
 
 def correct_route(graph: LaneGraph, route_ids: Sequence[int], pose: np.ndarray) -> list[int]:
-    """``route_roadblock_correction``: prepend the way from an off-route start, fill gaps, cut loops.
-
-    ``route_ids`` are the scene's roadblock ids; those absent from the map context are dropped first (as
-    ``_load_route_dicts`` keeps only blocks the map returns). Returns the corrected roadblock ids."""
+    """``route_roadblock_correction``: prepend the way from an off-route start, fill gaps, cut loops. Route ids
+    absent from the map context are dropped first (as ``_load_route_dicts`` keeps only blocks the map returns)."""
     route = [fid for fid in dict.fromkeys(int(r) for r in route_ids) if fid in graph.block_polygon]
     if not route:
         return route

@@ -65,11 +65,8 @@ def agent_tracks(sample: dict[str, Any]) -> dict[str, np.ndarray]:
 
 
 def scene_from_sample(sample: dict[str, Any]) -> PDMScene:
-    """The scoring scene of a converted NAVSIM sample, with PDM-Closed's corrected route and centreline.
-
-    Raises :class:`SchemaError` naming the key when ``scoring`` is missing (converted without maps) and
-    :class:`RouteError` naming it when the route cannot be followed in the map context.
-    """
+    """The scoring scene of a converted NAVSIM sample, with PDM-Closed's corrected route and centreline; a
+    :class:`RouteError` names the key when the route cannot be followed in the map context."""
     key = sample.get("__key__", "")
     scoring = sample.get("scoring")
     if scoring is None:

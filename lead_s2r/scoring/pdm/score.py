@@ -5,7 +5,7 @@ the human filter) and of planner proposals (``score_proposals``, either metric).
 ``navsim.evaluate.pdm_score`` for a whole candidate set: the reference (PDM-Closed) and every proposal are
 interpolated to 41 states, simulated together and scored in one pass, and each proposal's EP is normalised over
 ``[reference, proposal]`` exactly as one ``pdm_score`` call per proposal would. Map and observation are built once
-per scene (pass them in to reuse them across calls). The rules and constants are in the sub-metric modules.
+per scene (pass them in to reuse them across calls).
 
 v2.2 (``epdms@navsim-2.2``) shares simulation, footprints, map flags, NC, DAC and the collision walk with v1.1 and
 differs in: the log-replay observation (41 steps, tracks overlapping the ego at t0 removed), TTC over steps 0..31,
@@ -88,9 +88,7 @@ def _check_states(scene: PDMScene, states: np.ndarray, observation: Observation,
 
 @dataclass
 class _Prelude:
-    """What v1.1 and v2.2 score alike before they part: checked states, their ego boxes and where those are on the
-    map, the boxes' overlaps at their own steps (NC's, and TTC's without a move), NC (and when), DAC and the raw
-    progress along the centreline."""
+    """What v1.1 and v2.2 score alike before they part."""
 
     states: np.ndarray
     coords: np.ndarray  # (N, T, 5, 2)
@@ -151,9 +149,8 @@ def score_states(
     *,
     drivable_map: DrivableMap | None = None,
 ) -> dict[str, np.ndarray]:
-    """Sub-scores of simulated rear-axle states ``(N, 41, 11)`` in the scene frame: one entry per row for every
-    column of :data:`COLUMNS` (indices -1 where nothing happened), plus the ``(N, 41)`` flags ``multiple_lanes``,
-    ``non_drivable_area`` and ``oncoming_traffic``. ``ep_reference`` picks EP's normalisation (see
+    """Sub-scores of simulated rear-axle states ``(N, 41, 11)`` in the scene frame, by :data:`COLUMNS` and the
+    ``(N, 41)`` area flags. ``ep_reference`` picks EP's normalisation (see
     :func:`~lead_s2r.scoring.pdm.metrics.ego_progress`)."""
     base = _prelude(scene, states, observation, max(TTC_OFFSETS), drivable_map)
     nc, dac = base.nc, base.dac
@@ -174,8 +171,7 @@ def score_states(
 
 
 def _shared_columns(base: _Prelude, normaliser: np.ndarray, ttc_idx: np.ndarray) -> dict[str, np.ndarray]:
-    """The columns v1.1 and v2.2 share beside their sub-scores: progress and its normaliser, the step (or agent)
-    where NC, TTC and DAC were lost, so a report can name when a sub-score failed, and the ``(N, T)`` area flags."""
+    """The columns v1.1 and v2.2 share beside their sub-scores (:data:`DIAGNOSTICS`, the ``(N, T)`` area flags)."""
     return {
         "progress_m": base.progress,
         "ep_normaliser_m": normaliser,
@@ -199,10 +195,8 @@ def score_states_v2(
     red_lights: list[list[shapely.Polygon]] | None = None,
 ) -> dict[str, np.ndarray]:
     """v2.2 sub-scores of simulated states ``(N, 41, 11)`` *before* the human filter, as ``PDMScorer.score_proposals``
-    of v2.2 leaves them: NC, DAC, DDC, TLC, EP, TTC, LK, HC under their NAVSIM names, ``multiplicative_metrics_prod``,
-    the v1.1 extras, ``lane_keeping_fail_idx`` and the ``(N, 41)`` flags (v1.1's, ``in_intersection`` of the centre
-    and ``on_red_light``). HC reads the scene's ``ego_past`` for every row. ``observation``: v2's log replay
-    (``log_observation(scene, 41, replay=True)``); ``red_lights``: per step (``red_light_polygons``)."""
+    of v2.2 leaves them, under their NAVSIM names. HC reads the scene's ``ego_past`` for every row. ``observation``:
+    v2's log replay (``log_observation(scene, 41, replay=True)``); ``red_lights``: per step (``red_light_polygons``)."""
     base = _prelude(scene, states, observation, 0, drivable_map)
     nc, dac = base.nc, base.dac
     num_steps = base.states.shape[1]
@@ -292,11 +286,9 @@ def score_proposals(
     ``with_masked_progress`` adds EP's multiplier of each proposal (before the human filter) as
     ``progress_multiplier`` and the reference's masked progress [m] as ``reference_masked_progress_m`` (what a
     vocabulary-wide EP needs, ``vocabulary``). ``human_filter=False`` (EPDMS) leaves v2.2's human penalty filter
-    out, as SimScale's vocabulary targets do. ``observation``, ``drivable_map`` and ``red_lights`` (EPDMS) are
-    built from the scene when None. ``simulated``: the rows :func:`simulate_rows` gives for these proposals (a
-    vocabulary simulates many chunks in one call, ``vocabulary``), simulated here when None.
-    The scene's ``t0_us`` (when known) reproduces NAVSIM's microsecond truncation of the interpolation times (see
-    ``interpolation``)."""
+    out, as SimScale's vocabulary targets do. ``simulated``: :func:`simulate_rows`' rows for these proposals (a
+    vocabulary simulates many chunks in one call). The scene's ``t0_us`` (when known) reproduces NAVSIM's
+    microsecond truncation of the interpolation times (see ``interpolation``)."""
     if metric not in METRICS:
         raise ValueError(f"metric {metric!r} is not scored here; score_proposals computes {' and '.join(METRICS)}")
     if previous is not None and metric != EPDMS_METRIC:

@@ -6,12 +6,11 @@ steering rate, yaw rate and yaw acceleration 0. Each step the tracker (``lqr.py`
 ``interpolation.py`` into commands and the bicycle (``bicycle.py``) applies them. Targets carry only poses: NAVSIM
 gives the agent's states zero velocity and acceleration and the tracker never reads them.
 
-The result equals the official one within the 1e-6 rounding of the golden files (``tests/test_pdm_simulation.py``,
-every trajectory of the v1.1 and v2.2 files), in the ego frame instead of the global frame: every step is
-invariant to a rigid motion of the scene. The 40 steps are sequential and each is ~80 scalar operations per
-proposal, which numpy would spend ~0.5 us apiece on, so they run compiled (numba), one proposal after another;
-the fits that feed them (``tracking_reference``) stay vectorised over proposals. Costs:
-``benchmarks/pdm_simulation.py``.
+The result equals the official one within the 1e-6 rounding of the golden files (``tests/test_pdm_simulation.py``, every
+trajectory of the v1.1 and v2.2 files), in the ego frame instead of the global frame: every step is invariant to a rigid
+motion of the scene. The 40 steps are sequential and each is ~80 scalar operations per proposal, which numpy would spend
+~0.5 us apiece on, so they run compiled (numba), one proposal after another; the fits that feed them
+(``tracking_reference``) stay vectorised over proposals. Costs: ``benchmarks/pdm_simulation.py``.
 """
 
 import numpy as np
@@ -46,9 +45,8 @@ def _simulate(
     reference: TrackingReference, terms: LateralTerms, start: BicycleState, constants: BicycleConstants,
     states: np.ndarray,
 ) -> None:  # fmt: skip
-    """Steps every proposal from ``start`` through its targets, writing the bicycle's columns of ``states[:, 1:]``.
-
-    One proposal at a time, step after step: a row's bits are its own, whatever rows come with it."""
+    """Steps every proposal from ``start`` through its targets, writing the bicycle's columns of ``states[:, 1:]``,
+    one proposal at a time: a row's bits are its own, whatever rows come with it."""
     count, num_steps = reference.speed.shape
     for n in range(count):
         state = start

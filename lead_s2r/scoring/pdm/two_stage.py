@@ -13,9 +13,8 @@ frames that start 4 s and 3.5 s later, at a perturbed ego pose. For each group:
   frame's. Weights are normalised per side. If a side's weights sum to ``np.isclose(., 0)`` (atol 1e-8, i.e. every
   start is farther than about 1.9 m away) or to a non-finite value, all variants of that side get equal weights.
 * Column-wise, for every sub-score and the score: group = ½·[S1(original)·Σw·S2(now) + S1(previous)·Σw·S2(previous)].
-  ``extended_pdm_score_combined`` is the mean of the group values. ``_stage_one`` is the mean over the stage-1 frames
-  of all groups, and ``_stage_two`` the mean over the per-side weighted stage-2 averages. Means skip NaN, as pandas
-  does.
+  ``extended_pdm_score_combined`` is the mean of the group values. ``_stage_one`` is the mean over the stage-1 frames of
+  all groups, and ``_stage_two`` the mean over the per-side weighted stage-2 averages. Means skip NaN, as pandas does.
 
 NAVSIM falls back to weight 1 for every frame and logs a warning when any of this throws, for example when a
 synthetic token has no metric cache (issues #119, #159, #180). That silently gives a different number. Here a token
@@ -41,11 +40,9 @@ SUMMARY_TOKENS = ("extended_pdm_score_stage_one", "extended_pdm_score_stage_two"
 class TokenRow:
     """One scored frame: a stage-1 original scene or a stage-2 synthetic scene.
 
-    ``columns`` holds the sub-scores of :data:`epdms.FILTERED` after the human penalty filter. ``start_time`` is the
-    frame's time in seconds (only differences between a pair's frames matter). ``start_point`` is the rear axle at
-    t0 and ``endpoint`` the last *planned* pose, both ``(x, y)`` in the global (map) frame. ``simulated_states`` are
-    the ``(41, 11)`` simulated ego states EC compares.
-    """
+    ``columns``: the sub-scores of :data:`epdms.FILTERED` after the human penalty filter. ``start_time`` [s]: only
+    differences between a pair's frames matter. ``start_point`` (rear axle at t0) and ``endpoint`` (the last
+    *planned* pose): ``(x, y)`` in the map frame. ``simulated_states``: the ``(41, 11)`` states EC compares."""
 
     token: str
     columns: Mapping[str, float]

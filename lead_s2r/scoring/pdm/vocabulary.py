@@ -79,11 +79,8 @@ def score_vocabulary(
 ) -> dict[str, np.ndarray]:
     """``metric`` of every entry of ``vocabulary (V, K, 3)`` (ego-frame poses at ``interval * (k + 1)``): one
     ``(V,)`` array per column of ``score_proposals`` (``COLUMNS`` or ``EPDMS_COLUMNS``), row v equal to scoring
-    entry v alone. ``reference``: PDM-Closed's ``(M, 3)`` as ``score_proposals`` takes it. ``progress``: EP over
-    ``[reference, entry]`` (``"pair"``, NAVSIM's definition) or over the reference and the whole vocabulary
-    (``"vocabulary"``, GTRS's targets; the module docstring). ``human_filter=False``: EPDMS without v2.2's human
-    penalty filter (SimScale's targets run without it). EC needs a previous frame and stays NaN. Entries are
-    simulated ``simulation_block`` and scored ``chunk`` at a time (speed and memory only: a row's bits are its own)."""
+    entry v alone. ``progress`` and ``human_filter``: the module docstring. EC needs a previous frame and stays NaN.
+    ``simulation_block`` and ``chunk`` change speed and memory only (a row's bits are its own)."""
     if metric not in METRICS:
         raise ValueError(f"metric {metric!r} is not scored here; score_vocabulary computes {' and '.join(METRICS)}")
     if progress not in PROGRESS_MODES:
