@@ -118,7 +118,8 @@ def join(
 
 
 def coverage(predictions: Iterable[Prediction], data: Iterable[dict[str, Any]]) -> dict[str, Any]:
-    """Which samples have no prediction, and how many predictions belong to datasets the data does not hold."""
+    """Which samples have no prediction, and how many predictions belong to datasets the data does not hold:
+    ``{"unpredicted": [key, ...] in data order, "other_datasets": {dataset: predictions}}``."""
     data = list(data)
     predictions = list(predictions)
     predicted = {p.key for p in predictions}

@@ -149,8 +149,8 @@ def score_states(
     *,
     drivable_map: DrivableMap | None = None,
 ) -> dict[str, np.ndarray]:
-    """Sub-scores of simulated rear-axle states ``(N, 41, 11)`` in the scene frame, by :data:`COLUMNS` and the
-    ``(N, 41)`` area flags. ``ep_reference`` picks EP's normalisation (see
+    """Sub-scores of simulated rear-axle states ``(N, 41, 11)`` in the scene frame, by :data:`COLUMNS` (indices -1
+    where nothing happened) and the ``(N, 41)`` area flags. ``ep_reference`` picks EP's normalisation (see
     :func:`~lead_s2r.scoring.pdm.metrics.ego_progress`)."""
     base = _prelude(scene, states, observation, max(TTC_OFFSETS), drivable_map)
     nc, dac = base.nc, base.dac
