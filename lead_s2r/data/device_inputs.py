@@ -167,10 +167,9 @@ def lay_out(cameras: list[Tensor], layout: CameraLayout) -> Tensor:
 
 
 def decode_images(batch: Batch, device: torch.device | str) -> Batch:
-    """``batch`` with its :data:`RGB_JPEG` cameras decoded and laid out by their :data:`RGB_LAYOUT` into ``rgb`` on
-    ``device`` (nvJPEG on CUDA, one call for the batch's JPEGs; libjpeg-turbo on the CPU; then :func:`lay_out` per
-    rig); a batch without them is returned as it is. Every JPEG must decode to the size its layout says (its
-    sample's calibration, which the loader read from the JPEG's header)."""
+    """``batch`` with its :data:`RGB_JPEG` cameras decoded (:func:`decode_rgb`) and laid out by their :data:`RGB_LAYOUT`
+    into ``rgb`` on ``device``; a batch without them is returned as it is. Every JPEG must decode to the size its layout
+    says (its sample's calibration, which the loader read from the JPEG's header)."""
     if RGB_JPEG not in batch:
         return batch
     batch = dict(batch)

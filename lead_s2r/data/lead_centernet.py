@@ -11,11 +11,10 @@ the number of heatmap cells equal to 1 (at least 1).
 Values are in our frame (lateral offset along +y left, yaw counter-clockwise); :mod:`lead_s2r.models.lead_frame`
 turns LEAD's predictions into the same frame, so the loss equals LEAD's.
 
-LEAD pads its box list to 90 rows with zeros and encodes the padding too (both its CARLA and NAVSIM loaders): a
-phantom box of class 0 and size 0 in the corner cell of its map at (min x, min y right), i.e. our row 0 and last
-column, with a radius-2 peak that counts in the normaliser and a weight of 1 there. LEAD's released networks were
-trained with it, so we encode it as LEAD does, as one more box after the real ones; tests/test_lead_data_parity.py
-pins it.
+LEAD pads its box list to 90 rows with zeros and encodes the padding too (both its CARLA and NAVSIM loaders): a phantom
+box of class 0 and size 0 in the corner cell of its map at (min x, min y right), i.e. our row 0 and last column, with a
+radius-2 peak that counts in the normaliser and a weight of 1 there. LEAD's released networks were trained with it, so
+we encode it as LEAD does, as one more box after the real ones; tests/test_lead_data_parity.py pins it.
 """
 
 import math
