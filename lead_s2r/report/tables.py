@@ -42,9 +42,8 @@ class TableError(UserError, ValueError):
 
 @dataclass(frozen=True)
 class Column:
-    """One reported number: ``key`` (dots reach into nested aggregates) of the ``scores.json`` whose ``metric``
-    matches and that scored the samples with ``tag`` (``lead-s2r score --tag``; None: scored without one), times
-    ``scale``."""
+    """One reported number: ``key`` (dots reach into nested aggregates) of the ``scores.json`` whose ``metric`` matches
+    and that scored the samples with ``tag`` (``lead-s2r score --tag``; None: scored without one), times ``scale``."""
 
     name: str
     metric: str
