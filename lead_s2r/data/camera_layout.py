@@ -1,5 +1,4 @@
-"""Where each camera's pixels go in the model's input image: the layout of a rig, and applying it to an image or a
-perspective label.
+"""Where each camera's pixels go in the model's input image: the layout of a rig, and applying it (:func:`render`).
 
 Cameras are never squashed: a CARLA 3:1 mosaic stretched into LTFv6's 7:1 input would show every object 2.4x too
 wide, a gap between sources that no amount of training closes. Each tile is first cut by its calibration to the
