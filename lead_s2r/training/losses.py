@@ -1,10 +1,9 @@
 """Loss terms of one source's batch, one function per task (keyed by task in :mod:`lead_s2r.training.loss_table`).
 
 LEAD's terms (perspective semantics and depth, BEV semantics, CenterNet boxes, radar detection, the two-hot target
-speed) are computed by LEAD's own definitions in :mod:`lead_s2r.models.lead_loss`; the functions here only carry our
-batch (our names, the ISO frame, label masks) into them. Waypoints, headings and route are masked means, equal to
-LEAD's plain means where every pose is labelled. Predictions are cast to float32 first, so the terms are stable under
-bf16 autocast.
+speed) are LEAD's own definitions in :mod:`lead_s2r.models.lead_loss`; the functions here only carry our batch (our
+names, the ISO frame, label masks) into them. Waypoints, headings and route are masked means, equal to LEAD's plain
+means where every pose is labelled. Predictions are cast to float32, so the terms are stable under bf16 autocast.
 """
 
 import math
