@@ -45,8 +45,7 @@ INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
 class TrainingData(Protocol):
     """What :class:`DrivingModule` reads from its data module (``DrivingModule(data=...)``, linked by ``lead-s2r fit``;
     :class:`~lead_s2r.data.datamodule.DriveDataModule` provides all of it). LightningCLI checks the linked data module
-    against these signatures, return types included, so an implementation returns exactly these types. Methods only,
-    so checking it evaluates nothing."""
+    against these signatures, return types included; methods only, so checking it evaluates nothing."""
 
     def current_batch_sizes(self) -> dict[str, int]:
         """Per-rank batch size of each training source in the trainer's current epoch."""
