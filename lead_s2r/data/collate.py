@@ -16,8 +16,7 @@ IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
-    """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing
-    (:data:`IGNORE_VALUE`, masked out by construction).
+    """Stack per-sample tensors into a batch; a label only some samples carry is filled (:data:`IGNORE_VALUE`).
 
     Identity entries (``__key__``, ``__dataset__``) and the inputs left for the device (:data:`RGB_JPEG` with
     :data:`RGB_LAYOUT`, :data:`LIDAR_POINTS`) become lists; where only some samples' rigs let their JPEGs go encoded,

@@ -1,5 +1,4 @@
-"""LEAD's CenterNet box targets (``get_centernet_labels`` of LEAD's CARLA and NAVSIM loaders, LEAD commit 4489176),
-on our BEV grid in our ISO frame.
+"""LEAD's CenterNet box targets on our BEV grid (``get_centernet_labels`` of LEAD's CARLA and NAVSIM loaders, 4489176).
 
 LEAD's encoding, on the CenterNet grid at a quarter of the BEV resolution (1 cell per metre at LEAD's 4 px/m): a
 Gaussian peak per box at its centre's cell (CornerNet's radius for a minimum IoU of 0.1 of the half extents in

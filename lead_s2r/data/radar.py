@@ -1,5 +1,4 @@
-"""Radar inputs and radar detection targets of one sample: points padded to a fixed length, and the boxes radar
-points fall on (LEAD's radar detector's labels)."""
+"""Radar inputs and detection targets of one sample: points padded to a fixed length, and the boxes radar points hit."""
 
 import numpy as np
 import torch

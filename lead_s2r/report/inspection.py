@@ -93,8 +93,7 @@ def inspect_dataset(
 
 
 def heading_change(sample: dict[str, Any]) -> float:
-    """How far the logged future turns (rad, absolute): its last yaw, or the bearing of its last point where the
-    source has no yaw; 0 without a future."""
+    """How far the logged future turns (absolute, rad): its last yaw, else its last point's bearing; 0 without one."""
     future = sample.get("future")
     if future is None or not len(future):
         return 0.0

@@ -1,5 +1,4 @@
-"""The LightningModule: per-source forward passes, loss masking by what each source supervises, ADE/FDE validation,
-ISO-frame predictions.
+"""The LightningModule: per-source forward passes and loss masks, ADE/FDE validation, ISO-frame predictions.
 
 A checkpoint rebuilds its module alone (``DrivingModule.load_from_checkpoint(path)``, the CARLA agent): the network is
 left out of ``save_hyperparameters`` (an ``nn.Module`` there would be pickled whole, and its weights are in the state
