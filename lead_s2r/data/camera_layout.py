@@ -25,8 +25,7 @@ ASPECT_TOLERANCE = 0.02
 
 @dataclass(frozen=True)
 class Tile:
-    """One camera tile's geometry in a decoded camera image: columns ``[x0, x1)``; ``fy`` and ``cy`` (pixels) from
-    its calibration, None where the sample has none."""
+    """One camera tile of a decoded image: columns ``[x0, x1)``; ``fy``, ``cy`` (pixels) from calibration, or None."""
 
     x0: int
     x1: int

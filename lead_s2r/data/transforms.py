@@ -56,10 +56,9 @@ class SourceTransform:
         spec: what the model reads (image size, BEV grid, trajectory grids, labels): its config's
             :func:`~lead_s2r.models.input_spec.input_spec`.
         cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
-        inputs_on_device: leave the camera JPEGs encoded (``rgb_jpeg``, with the rig's layout: ``rgb_layout``) where
-            the training device can lay them out (:attr:`~lead_s2r.data.camera_input.CameraPlan.on_device`; PNGs and
-            layouts that enlarge are laid out here), for :func:`~lead_s2r.data.device_inputs.decode_images`, and
-            the LiDAR points unrasterised (``lidar_points``), for :func:`~lead_s2r.data.device_inputs.rasterize_points`.
+        inputs_on_device: leave the camera JPEGs the training device can lay out encoded (``rgb_jpeg`` + ``rgb_layout``,
+            :attr:`~lead_s2r.data.camera_input.CameraPlan.on_device`) and the LiDAR points unrasterised
+            (``lidar_points``), for :mod:`~lead_s2r.data.device_inputs`.
     """
 
     source: str
