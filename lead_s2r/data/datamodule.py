@@ -57,8 +57,7 @@ class SourceSpec:
 
 @dataclass
 class _Prepare:
-    """Decode the fields the transform reads (the only ones read from the tar and decoded) from a raw webdataset
-    sample and turn them into tensors."""
+    """A raw webdataset sample -> tensors: only the fields the transform reads are read from the tar and decoded."""
 
     transform: SourceTransform
     vocab_scores: VocabScores | None = None
@@ -163,7 +162,6 @@ class DriveDataModule(L.LightningDataModule):
         return list(self.val_sources)
 
     def _where(self) -> tuple[int, int, int]:
-        """(epoch, rank, world size) of the attached trainer; (0, 0, 1) without one."""
         if self.trainer is None:
             return 0, 0, 1
         return self.trainer.current_epoch, getattr(self.trainer, "global_rank", 0), self.trainer.world_size

@@ -38,8 +38,7 @@ def _count_hits(points: np.ndarray, offsets: np.ndarray, raster: np.ndarray, sat
 
     Row ``((x - shift) - x_min) * ppm`` and column ``(y - y_min) * ppm`` in the points' dtype (``offsets``: shift,
     x_min, y_min, ppm in it), a point inside when both lie in [0, H) and [0, W) (NaN never does), its cell their
-    truncation: numpy's ``(rows - x_min) * ppm`` operation for operation (subtracting a zero shift changes no
-    value), so every point lands where the former histogram put it."""
+    truncation: numpy's ``(rows - x_min) * ppm`` operation for operation (subtracting a zero shift changes no value)."""
     h, w = raster.shape
     cells = raster.reshape(-1)
     shift, x_min, y_min, ppm = offsets[0], offsets[1], offsets[2], offsets[3]

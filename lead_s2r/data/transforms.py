@@ -245,7 +245,6 @@ class SourceTransform:
 
 
 def _extras(meta: dict[str, Any]) -> dict[str, Any]:
-    """The sample's extras of its own dataset (``meta.extras[meta.dataset]``)."""
     return meta["extras"].get(meta["dataset"], {})
 
 
