@@ -151,7 +151,6 @@ def _semantic(axes: Any, sample: dict[str, Any]) -> None:
 
 
 def _inputs(axes: Any, sample: dict[str, Any]) -> None:
-    """What the model reads beside the cameras: BEV semantic classes, LiDAR points, route, target points."""
     if "bev_semantic" in sample and "pixel_to_ego" in sample["meta"].get("bev", {}):
         _semantic(axes, sample)
     if "lidar" in sample:
