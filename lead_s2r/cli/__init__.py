@@ -1,9 +1,8 @@
 """The ``lead-s2r`` command line: one module per verb group, each adding its verbs with ``add_verbs``.
 
-Every mistake a user can fix is a :class:`~lead_s2r.errors.UserError`, raised wherever it is found; ``main()``
-prints it as one line with exit status 2 (``--debug`` anywhere on the line shows the traceback). argparse's own
-mistakes are routed through the same path, so every verb fails alike. Inputs are checked before any output folder
-is created.
+Every mistake a user can fix is a :class:`~lead_s2r.errors.UserError`, raised wherever it is found; ``main()`` prints it
+as one line with exit status 2 (``--debug`` anywhere on the line shows the traceback). argparse's own mistakes are
+routed through the same path, so every verb fails alike. Inputs are checked before any output folder is created.
 """
 
 import argparse

@@ -8,8 +8,7 @@ from pathlib import Path
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser, workers_help: str) -> None:
-    """``--workers``, ``--executor`` and ``--address``: where the jobs of ``convert``, ``score`` and ``vocab score``
-    run."""
+    """``--workers``, ``--executor``, ``--address``: where ``convert``, ``score`` and ``vocab score`` run their jobs."""
     parser.add_argument("--workers", type=int, default=1, help=workers_help)
     parser.add_argument(
         "--executor",

@@ -60,7 +60,6 @@ def cmd_adapters(args: argparse.Namespace) -> int:
 
 
 def _extra_state(extra: str | None) -> str:
-    """``wod (installed)``, or what is missing and the command that installs it."""
     if not extra:
         return "- (none needed)"
     missing = missing_requirements(extra)

@@ -1,5 +1,4 @@
-"""Verbs people read: ``table`` (a paper table from runs), ``report`` (the static web report) and ``view`` (a log
-as a Rerun recording)."""
+"""Verbs people read: ``table`` (a paper table of runs), ``report`` (a static web report), ``view`` (a log in Rerun)."""
 
 import argparse
 from pathlib import Path

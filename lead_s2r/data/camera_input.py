@@ -1,10 +1,8 @@
 """A sample's cameras decoded into the model's input image: the rig's plan made once, then one decode per camera.
 
-Per sample, :meth:`CameraInput.plan` reads each image's size from its header (:mod:`lead_s2r.image_headers`; JPEG,
-or PNG where a test wants lossless pixels) and looks up the rig's :class:`CameraPlan` (cached per rig: calibration,
-stored sizes, model image), which holds the layout the perspective labels follow and names one decode path, chosen
-before any pixel is decoded:
-
+Per sample, :meth:`CameraInput.plan` reads each image's size from its header (:mod:`lead_s2r.image_headers`; JPEG, or
+PNG where a test wants lossless pixels) and looks up the rig's :class:`CameraPlan` (cached per rig), which holds the
+layout the perspective labels follow and names one decode path, chosen before any pixel is decoded:
 - :data:`AS_STORED`: one camera whose JPEG already is the model's image (nothing to crop, stitch or scale) is decoded
   by libjpeg-turbo as it is, without OpenCV's conversions (with ``inputs_on_device`` it is not decoded here at all);
 - :data:`REDUCED`: a calibrated rig whose strip is at least 2x the model's image is decoded at 1/2, 1/4 or 1/8 size

@@ -1,5 +1,4 @@
-"""Where each camera's pixels go in the model's input image: the layout of a rig, and applying it to an image or a
-perspective label.
+"""Where each camera's pixels go in the model's input image: the layout of a rig, and applying it (:func:`render`).
 
 Cameras are never squashed: a CARLA 3:1 mosaic stretched into LTFv6's 7:1 input would show every object 2.4x too
 wide, a gap between sources that no amount of training closes. Each tile is first cut by its calibration to the
@@ -26,8 +25,7 @@ ASPECT_TOLERANCE = 0.02
 
 @dataclass(frozen=True)
 class Tile:
-    """One camera tile's geometry in a decoded camera image: columns ``[x0, x1)``; ``fy`` and ``cy`` (pixels) from
-    its calibration, None where the sample has none."""
+    """One camera tile of a decoded image: columns ``[x0, x1)``; ``fy``, ``cy`` (pixels) from calibration, or None."""
 
     x0: int
     x1: int

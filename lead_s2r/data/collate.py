@@ -16,16 +16,14 @@ IMAGE_ALIGNED = frozenset({"depth", "semantic"})
 
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
-    """Stack per-sample tensors into a batch; a label only some samples carry is filled where missing.
+    """Stack per-sample tensors into a batch; a label only some samples carry is filled (:data:`IGNORE_VALUE`).
 
     Identity entries (``__key__``, ``__dataset__``) and the inputs left for the device (:data:`RGB_JPEG` with
     :data:`RGB_LAYOUT`, :data:`LIDAR_POINTS`) become lists; where only some samples' rigs let their JPEGs go encoded,
-    those are decoded and laid out here, as the device would. The filler is masked out by construction: validity
-    masks are False, class maps :data:`IGNORE_CLASS`, depth 0. Perspective labels left at their stored size by rigs of
+    those are decoded and laid out here, as the device would. Perspective labels left at their stored size by rigs of
     different sizes (one source, several camera rigs) are brought onto the image's grid here, as the loss would. In a
-    dataloader worker each tensor is stacked straight into shared memory (torch's ``default_collate``), not into
-    private memory that the worker then copies into shared memory to send the batch.
-    """
+    dataloader worker each tensor is stacked straight into shared memory (torch's ``default_collate``), not into private
+    memory that the worker then copies into shared memory to send the batch."""
     if any(RGB_JPEG in sample for sample in samples) and not all(RGB_JPEG in sample for sample in samples):
         samples = [_decoded(sample) for sample in samples]
     names = set().union(*samples)

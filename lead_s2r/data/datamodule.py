@@ -1,15 +1,14 @@
 """Per-source webdataset pipelines mixed by a :class:`MixingSchedule`: the training data of a sim-to-real run.
 
 Training: one infinite, shard-resampled pipeline per source whose scheduled batch size is non-zero, over this rank's
-share of the source's samples in this epoch (disjoint from the other ranks' shares), each cut to
-``steps_per_epoch`` batches, so every rank and every source yields the same number of steps (DDP never waits on an
-exhausted rank). Without ``steps_per_epoch`` an epoch is one pass over the training samples at the global batch
-(ceil(samples / global batch)), counted from the manifests, so it is the same on every rank. Lightning's
-``CombinedLoader`` zips them into ``{source: batch}``. Dataloaders are rebuilt each epoch
-(``reload_dataloaders_every_n_epochs=1``) to follow the schedule, and seeded from (seed, epoch, rank, worker) so a
-run repeats and a resumed run goes on with the same stream. Evaluation: one finite, ordered pipeline per source,
-split over ranks and workers by sample (every sample read exactly once), whose batches come as ``{source: batch}``
-like the training ones. :mod:`lead_s2r.data.streams` says why webdataset's own splitting and seeding do not do.
+share of the source's samples in this epoch (disjoint from the other ranks' shares), each cut to ``steps_per_epoch``
+batches, so every rank and every source yields the same number of steps (DDP never waits on an exhausted rank); without
+``steps_per_epoch``, one pass over the training samples at the global batch, counted from the manifests so it is the
+same on every rank. Lightning's ``CombinedLoader`` zips them into ``{source: batch}``. Dataloaders are rebuilt each
+epoch (``reload_dataloaders_every_n_epochs=1``) to follow the schedule, and seeded from (seed, epoch, rank, worker) so a
+run repeats and a resumed run goes on with the same stream. Evaluation: one finite, ordered pipeline per source, split
+over ranks and workers by sample (every sample read exactly once), whose batches come as ``{source: batch}`` like the
+training ones. :mod:`lead_s2r.data.streams` says why webdataset's own splitting and seeding do not do.
 """
 
 import gc
@@ -58,8 +57,7 @@ class SourceSpec:
 
 @dataclass
 class _Prepare:
-    """Decode the fields the transform reads (the only ones read from the tar and decoded) from a raw webdataset
-    sample and turn them into tensors."""
+    """A raw webdataset sample -> tensors: only the fields the transform reads are read from the tar and decoded."""
 
     transform: SourceTransform
     vocab_scores: VocabScores | None = None
@@ -164,7 +162,6 @@ class DriveDataModule(L.LightningDataModule):
         return list(self.val_sources)
 
     def _where(self) -> tuple[int, int, int]:
-        """(epoch, rank, world size) of the attached trainer; (0, 0, 1) without one."""
         if self.trainer is None:
             return 0, 0, 1
         return self.trainer.current_epoch, getattr(self.trainer, "global_rank", 0), self.trainer.world_size

@@ -65,9 +65,8 @@ def jpeg_tensor(data: bytes) -> Tensor:
 
 def decode_rgb(encoded: list[Tensor], device: torch.device | str) -> list[Tensor]:
     """JPEGs (1-D uint8 CPU tensors) as (3, H, W) uint8 RGB on ``device``: nvJPEG on CUDA, one call for them all;
-    libjpeg-turbo on the CPU, pixel for pixel what OpenCV's decode gives. On CUDA the caller's stream is drained
-    first (see the module docstring); training syncs once a step anyway (the progress bar reads the loss), so this
-    costs little overlap."""
+    libjpeg-turbo on the CPU, pixel for pixel OpenCV's decode. On CUDA the caller's stream is drained first (module
+    docstring); training syncs once a step anyway (the progress bar reads the loss), so this costs little overlap."""
     device = torch.device(device)
     if device.type == "cuda":
         torch.cuda.current_stream(device).synchronize()
@@ -167,10 +166,9 @@ def lay_out(cameras: list[Tensor], layout: CameraLayout) -> Tensor:
 
 
 def decode_images(batch: Batch, device: torch.device | str) -> Batch:
-    """``batch`` with its :data:`RGB_JPEG` cameras decoded and laid out by their :data:`RGB_LAYOUT` into ``rgb`` on
-    ``device`` (nvJPEG on CUDA, one call for the batch's JPEGs; libjpeg-turbo on the CPU; then :func:`lay_out` per
-    rig); a batch without them is returned as it is. Every JPEG must decode to the size its layout says (its
-    sample's calibration, which the loader read from the JPEG's header)."""
+    """``batch`` with its :data:`RGB_JPEG` cameras decoded (:func:`decode_rgb`) and laid out by their :data:`RGB_LAYOUT`
+    into ``rgb`` on ``device``; a batch without them is returned as it is. Every JPEG must decode to the size its layout
+    says (its sample's calibration, which the loader read from the JPEG's header)."""
     if RGB_JPEG not in batch:
         return batch
     batch = dict(batch)
@@ -201,9 +199,8 @@ def decode_images(batch: Batch, device: torch.device | str) -> Batch:
 
 
 def check_device_decode(encoded: list[Tensor], layout: CameraLayout, decoded: Tensor) -> float:
-    """The mean absolute difference between ``decoded`` (one sample's cameras decoded and laid out on a device) and
-    the same done on the CPU (libjpeg-turbo); raises when it exceeds :data:`DEVICE_DECODE_TOLERANCE`, a broken
-    device decoder."""
+    """Mean absolute difference between ``decoded`` (one sample's cameras decoded and laid out on a device) and the
+    CPU's (libjpeg-turbo); raises when it exceeds :data:`DEVICE_DECODE_TOLERANCE`, a broken device decoder."""
     reference = decode_images({RGB_JPEG: [encoded], RGB_LAYOUT: [layout]}, "cpu")["rgb"][0]
     difference = (decoded.cpu().int() - reference.int()).abs().float().mean().item()
     if difference > DEVICE_DECODE_TOLERANCE:

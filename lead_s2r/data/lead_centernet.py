@@ -1,5 +1,4 @@
-"""LEAD's CenterNet box targets (``get_centernet_labels`` of LEAD's CARLA and NAVSIM loaders, LEAD commit 4489176),
-on our BEV grid in our ISO frame.
+"""LEAD's CenterNet box targets on our BEV grid (``get_centernet_labels`` of LEAD's CARLA and NAVSIM loaders, 4489176).
 
 LEAD's encoding, on the CenterNet grid at a quarter of the BEV resolution (1 cell per metre at LEAD's 4 px/m): a
 Gaussian peak per box at its centre's cell (CornerNet's radius for a minimum IoU of 0.1 of the half extents in
@@ -11,11 +10,10 @@ the number of heatmap cells equal to 1 (at least 1).
 Values are in our frame (lateral offset along +y left, yaw counter-clockwise); :mod:`lead_s2r.models.lead_frame`
 turns LEAD's predictions into the same frame, so the loss equals LEAD's.
 
-LEAD pads its box list to 90 rows with zeros and encodes the padding too (both its CARLA and NAVSIM loaders): a
-phantom box of class 0 and size 0 in the corner cell of its map at (min x, min y right), i.e. our row 0 and last
-column, with a radius-2 peak that counts in the normaliser and a weight of 1 there. LEAD's released networks were
-trained with it, so we encode it as LEAD does, as one more box after the real ones; tests/test_lead_data_parity.py
-pins it.
+LEAD pads its box list to 90 rows with zeros and encodes the padding too (both its CARLA and NAVSIM loaders): a phantom
+box of class 0 and size 0 in the corner cell of its map at (min x, min y right), i.e. our row 0 and last column, with a
+radius-2 peak that counts in the normaliser and a weight of 1 there. LEAD's released networks were trained with it, so
+we encode it as LEAD does, as one more box after the real ones; tests/test_lead_data_parity.py pins it.
 """
 
 import math

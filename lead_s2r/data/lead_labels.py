@@ -200,8 +200,7 @@ def lead_bev_labels(
 
     ``hdmap`` is uint8: the remap is one ``cv2.LUT`` (numpy's ``lookup[hdmap]`` widens the 123k indices to int64
     first, 10x slower), and LEAD's layout is a ``cv2.rotate`` either way (a quarter turn: ``labels.T[::-1]``). From
-    a stored raster, :func:`lead_hdmap_canvas` and :func:`draw_lead_boxes` do the same, the remap and the first
-    rotation folded into the gather."""
+    a stored raster, :func:`lead_hdmap_canvas` and :func:`draw_lead_boxes` do the same."""
     _, lookup, _ = _bev_tables(leaderboard)
     canvas = cv2.rotate(cv2.LUT(hdmap, lookup), cv2.ROTATE_90_COUNTERCLOCKWISE)
     return draw_lead_boxes(canvas, boxes, grid, leaderboard, lights)

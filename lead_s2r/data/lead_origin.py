@@ -65,12 +65,11 @@ def centre_waypoints_to_rear_axle(xy: Tensor, origin_x: Tensor) -> Tensor:
     """(B, T, 2) predicted vehicle-centre positions in the centre frame -> rear-axle positions in the rear-axle frame,
     for samples whose origin moved ``origin_x`` (B,) metres forward (0: left as they are).
 
-    LEAD's CARLA planner predicts no headings it was trained on, so the headings come from the path: a rear axle
-    moves along its heading, so each waypoint's heading is the direction of the rear-axle path through it (from the
-    point before to the one after; the last one turning on as the one before it did), found by a few fixed-point
-    rounds starting from the centre's path, and kept from before where the path stands still (chord under
-    :data:`MIN_STEP_M`). On a 10 m radius turn at 6 m/s this lands within 2 cm of the true rear axle
-    (tests/test_lead_data_parity.py)."""
+    LEAD's CARLA planner predicts no headings it was trained on, so the headings come from the path: a rear axle moves
+    along its heading, so each waypoint's heading is the direction of the rear-axle path through it (from the point
+    before to the one after; the last one turning on as the one before it did), found by a few fixed-point rounds
+    starting from the centre's path, and kept from before where the path stands still (chord under :data:`MIN_STEP_M`).
+    On a 10 m radius turn at 6 m/s this lands within 2 cm of the true rear axle (tests/test_lead_data_parity.py)."""
     shift = origin_x.to(xy.dtype)[:, None]
     rear = xy.clone()
     for _ in range(FIXED_POINT_ROUNDS):

@@ -38,8 +38,7 @@ def _count_hits(points: np.ndarray, offsets: np.ndarray, raster: np.ndarray, sat
 
     Row ``((x - shift) - x_min) * ppm`` and column ``(y - y_min) * ppm`` in the points' dtype (``offsets``: shift,
     x_min, y_min, ppm in it), a point inside when both lie in [0, H) and [0, W) (NaN never does), its cell their
-    truncation: numpy's ``(rows - x_min) * ppm`` operation for operation (subtracting a zero shift changes no
-    value), so every point lands where the former histogram put it."""
+    truncation: numpy's ``(rows - x_min) * ppm`` operation for operation (subtracting a zero shift changes no value)."""
     h, w = raster.shape
     cells = raster.reshape(-1)
     shift, x_min, y_min, ppm = offsets[0], offsets[1], offsets[2], offsets[3]
@@ -69,9 +68,8 @@ _PAIR_WORDS = {np.dtype(np.float32): np.dtype(np.uint64), np.dtype(np.float64): 
 
 
 def _first_two_columns(points: np.ndarray) -> np.ndarray:
-    """A contiguous copy of ``points[:, :2]``, byte for byte. numpy copies an (N, 2) slice of wider rows value by
-    value (0.29 ms for a LEAD frame's 60,000 points); read as one 8- or 16-byte word per row it is one strided
-    copy of N words (0.02 ms)."""
+    """A contiguous copy of ``points[:, :2]``, byte for byte: numpy copies an (N, 2) slice of wider rows value by value
+    (0.29 ms for a LEAD frame's 60,000 points); read as one 8- or 16-byte word per row, one strided copy (0.02 ms)."""
     pair = _PAIR_WORDS.get(points.dtype)
     if pair is None or points.ndim != 2 or points.shape[1] < 2 or points.strides[1] != points.itemsize:
         return points[:, :2].copy()

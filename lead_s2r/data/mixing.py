@@ -15,11 +15,8 @@ LEAD_SIM2REAL_ANCHORS = {0: (40, 24), 1: (32, 32), 3: (24, 40), 7: (16, 48), 15:
 
 
 def largest_remainder(shares: Mapping[str, float], total: int) -> dict[str, int]:
-    """Integers proportional to ``shares`` that sum to ``total``; each within one of its exact value.
-
-    Leftover units go to the largest fractional parts; ties go to the source listed first, so every rank gets
-    the same answer.
-    """
+    """Integers proportional to ``shares`` that sum to ``total``, each within one of its exact value: leftover units go
+    to the largest fractional parts, ties to the source listed first, so every rank gets the same answer."""
     weight = sum(shares.values())
     if weight <= 0:
         raise ValueError(f"shares must have a positive sum, got {dict(shares)}")
@@ -88,10 +85,8 @@ class MixingSchedule:
         return mix
 
     def batch_sizes(self, epoch: int, world_size: int = 1) -> dict[str, int]:
-        """Samples of each source in one rank's batch at ``epoch``; identical on every rank.
-
-        Per-rank sizes sum to ``global_batch_size / world_size`` exactly, so the global batch is preserved.
-        """
+        """Samples of each source in one rank's batch at ``epoch``, the same on every rank; they sum to
+        ``global_batch_size / world_size`` exactly, so the global batch is preserved."""
         if world_size < 1 or self.global_batch_size % world_size:
             raise ValueError(f"global_batch_size {self.global_batch_size} must be divisible by world_size {world_size}")
         return largest_remainder(self.shares(epoch), self.global_batch_size // world_size)

@@ -1,5 +1,4 @@
-"""Radar inputs and radar detection targets of one sample: points padded to a fixed length, and the boxes radar
-points fall on (LEAD's radar detector's labels)."""
+"""Radar inputs and detection targets of one sample: points padded to a fixed length, and the boxes radar points hit."""
 
 import numpy as np
 import torch
@@ -25,12 +24,10 @@ def pad_points(name: str, points: np.ndarray | None, size: int, columns: int) ->
 
 
 def radar_targets(radar: np.ndarray, boxes: np.ndarray, priority: np.ndarray | None = None) -> dict[str, torch.Tensor]:
-    """Radar detection targets: [x, y, speed] of the boxes radar points fall on, fastest first (as LEAD sorts), then
-    by ``priority`` (lower first; LEAD's class order), where given. A box of unknown velocity (NaN vx, vy) comes
-    after the known ones with speed NaN, which the loss leaves out (:func:`~lead_s2r.models.lead_loss.radar_loss`).
-
-    A point hits a box when it lies inside the box's footprint grown by :data:`RADAR_HIT_MARGIN_M`.
-    """
+    """Radar detection targets: [x, y, speed] of the boxes radar points fall on (inside the footprint grown by
+    :data:`RADAR_HIT_MARGIN_M`), fastest first (as LEAD sorts), then by ``priority`` (lower first; LEAD's class order),
+    where given. A box of unknown velocity (NaN vx, vy) comes after the known ones with speed NaN, which the loss leaves
+    out (:func:`~lead_s2r.models.lead_loss.radar_loss`)."""
     targets = np.zeros((MAX_RADAR_TARGETS, 3), np.float32)
     valid = np.zeros(MAX_RADAR_TARGETS, bool)
     if len(radar) and len(boxes):
@@ -44,14 +41,12 @@ def radar_targets(radar: np.ndarray, boxes: np.ndarray, priority: np.ndarray | N
 
 
 def _radar_hits(radar: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """(N boxes,) bool: whether any radar point lies inside the box's footprint grown by
-    :data:`RADAR_HIT_MARGIN_M`.
+    """(N boxes,) bool: whether any radar point lies inside the box's footprint grown by :data:`RADAR_HIT_MARGIN_M`.
 
     The per-box terms (cosine, sine, grown half extents) are numpy's, in the boxes' dtype; the (box, point) pairs are
     tested compiled, a box's scan stopping at its first hit, with :func:`~lead_s2r.geometry.rotate`'s arithmetic in
     the arrays' dtypes operation for operation (numpy's elementwise results, which numba's scalar IEEE arithmetic
-    gives bit for bit), so every pair decides as rotate would.
-    """
+    gives bit for bit), so every pair decides as rotate would."""
     yaw = -boxes[:, 6]
     half = boxes[:, 3:5] / 2 + RADAR_HIT_MARGIN_M
     return _any_point_inside(radar[:, 0], radar[:, 1], boxes[:, 0], boxes[:, 1], np.cos(yaw), np.sin(yaw), half)

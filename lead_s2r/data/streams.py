@@ -90,11 +90,8 @@ def manifest_samples(
 
 
 class SampleShare:
-    """One rank's contiguous share of the evaluation samples, shared again over its dataloader workers.
-
-    :meth:`shards` starts a pipeline (the shards to open); calling the share on the opened samples keeps this
-    worker's keys.
-    """
+    """One rank's contiguous share of the evaluation samples, shared again over its dataloader workers: :meth:`shards`
+    starts a pipeline (the shards to open); calling the share on the opened samples keeps this worker's keys."""
 
     def __init__(self, samples: Sequence[tuple[str, str]], rank: int, world_size: int) -> None:
         self.samples = share(samples, rank, world_size)
@@ -111,11 +108,9 @@ class SampleShare:
 
 
 class TrainShare:
-    """One rank's share of a source's training samples in one epoch, drawn with replacement.
-
-    :meth:`shards` starts a training pipeline (an endless stream of shards to open, each drawn in proportion to the
-    samples of this share it holds); calling the share on the opened samples keeps this share's.
-    """
+    """One rank's share of a source's training samples in one epoch, drawn with replacement: :meth:`shards` starts a
+    training pipeline (an endless stream of shards to open, each drawn in proportion to the samples of this share it
+    holds); calling the share on the opened samples keeps this share's."""
 
     def __init__(self, samples: Sequence[tuple[str, str]], seed: StreamSeed, world_size: int) -> None:
         order = random.Random(stream_seed(seed.seed, seed.epoch, seed.source, "ranks"))  # the same on every rank

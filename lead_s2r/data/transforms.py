@@ -1,22 +1,20 @@
 """Schema v1 sample -> model input tensors (the :class:`lead_s2r.models.inputs.Batch` contract), per source.
 
 :class:`SourceTransform` is a pure function of one decoded sample and the model's
-:class:`~lead_s2r.models.input_spec.InputSpec`: the native-rate
-future resampled to the model's grid, cameras laid out in the input image (:mod:`lead_s2r.data.camera_input`), LiDAR
-rasterised onto the BEV grid (:mod:`lead_s2r.data.lidar`), and the labels moved onto the model's grids in LEAD's
-encoding (:mod:`lead_s2r.data.lead_labels`, :mod:`lead_s2r.data.lead_centernet`, :mod:`lead_s2r.data.radar`,
-:mod:`lead_s2r.data.lead_route`); :func:`~lead_s2r.data.collate.collate` stacks them. A label a sample does not have
-is left out, and the loss masks it.
+:class:`~lead_s2r.models.input_spec.InputSpec`: the native-rate future resampled to the model's grid, cameras laid out
+in the input image (:mod:`lead_s2r.data.camera_input`), LiDAR rasterised onto the BEV grid (:mod:`lead_s2r.data.lidar`),
+and the labels moved onto the model's grids in LEAD's encoding (:mod:`lead_s2r.data.lead_labels`,
+:mod:`lead_s2r.data.lead_centernet`, :mod:`lead_s2r.data.radar`, :mod:`lead_s2r.data.lead_route`);
+:func:`~lead_s2r.data.collate.collate` stacks them. A label a sample does not have is left out, and the loss masks it.
 
 Tensors are lean (the loader builds and stacks every byte on the CPU): the image uint8, the LiDAR raster uint8 hit
-counts, class maps the stored uint8 ids (:data:`~lead_s2r.models.inputs.IGNORE_CLASS` where there is no label), and
-a depth or semantic label smaller than the image under a plain resize
-(:attr:`~lead_s2r.data.camera_layout.CameraLayout.whole`) is not upsampled here; the model and the losses scale,
-widen and resize them on the device. Images stay in the (H, W, 3) order decoders write: a sample's ``rgb`` is a
-(3, H, W) view of it and a batch's a channels-last (B, 3, H, W) tensor, the memory format convolutions run fastest
-in on the GPU. With ``inputs_on_device`` camera JPEGs the training device can lay out are not decoded at all: the
-bytes go to the device with their rig's layout, and so do the LiDAR points, unrasterised
-(:mod:`lead_s2r.data.device_inputs`).
+counts, class maps the stored uint8 ids (:data:`~lead_s2r.models.inputs.IGNORE_CLASS` where there is no label), and a
+depth or semantic label smaller than the image under a plain resize
+(:attr:`~lead_s2r.data.camera_layout.CameraLayout.whole`) is not upsampled here; the model and the losses scale, widen
+and resize them on the device. Images stay in the (H, W, 3) order decoders write: a sample's ``rgb`` is a (3, H, W) view
+of it and a batch's a channels-last (B, 3, H, W) tensor, the memory format convolutions run fastest in on the GPU. With
+``inputs_on_device`` camera JPEGs the training device can lay out are not decoded at all: the bytes go to the device
+with their rig's layout, and so do the LiDAR points, unrasterised (:mod:`lead_s2r.data.device_inputs`).
 """
 
 from dataclasses import dataclass, field
@@ -58,10 +56,9 @@ class SourceTransform:
         spec: what the model reads (image size, BEV grid, trajectory grids, labels): its config's
             :func:`~lead_s2r.models.input_spec.input_spec`.
         cameras: camera fields stitched left to right into the input image (without the ``cam_`` prefix).
-        inputs_on_device: leave the camera JPEGs encoded (``rgb_jpeg``, with the rig's layout: ``rgb_layout``) where
-            the training device can lay them out (:attr:`~lead_s2r.data.camera_input.CameraPlan.on_device`; PNGs and
-            layouts that enlarge are laid out here), for :func:`~lead_s2r.data.device_inputs.decode_images`, and
-            the LiDAR points unrasterised (``lidar_points``), for :func:`~lead_s2r.data.device_inputs.rasterize_points`.
+        inputs_on_device: leave the camera JPEGs the training device can lay out encoded (``rgb_jpeg`` + ``rgb_layout``,
+            :attr:`~lead_s2r.data.camera_input.CameraPlan.on_device`) and the LiDAR points unrasterised
+            (``lidar_points``), for :mod:`~lead_s2r.data.device_inputs`.
     """
 
     source: str
@@ -248,7 +245,6 @@ class SourceTransform:
 
 
 def _extras(meta: dict[str, Any]) -> dict[str, Any]:
-    """The sample's extras of its own dataset (``meta.extras[meta.dataset]``)."""
     return meta["extras"].get(meta["dataset"], {})
 
 

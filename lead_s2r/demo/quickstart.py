@@ -12,11 +12,10 @@ model before training too: the two rows show what training changed. One seed can
 every row is the mean and sample std over :data:`SEEDS`, on held-out splits large enough that one log moves a score
 by at most 5 points (20 NAVSIM test logs).
 
-The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken out (no CARLA source, no
-``init_from`` of a CARLA pre-training), so the two rows differ in nothing else. Lightning talks a lot on the console
-(model summary, tips, deprecation warnings from its dependencies); the quickstart sends all of it to
-``<out>/lightning.log`` so the console shows the stages and the table (:mod:`lead_s2r.demo.table4`: its rows, columns
-and console view).
+The "without LEAD" rows are the LEAD twins with the synthetic CARLA data taken out (:func:`drop_carla`), so the two rows
+differ in nothing else. Lightning talks a lot on the console (model summary, tips, deprecation warnings from its
+dependencies); the quickstart sends all of it to ``<out>/lightning.log`` so the console shows the stages and the table
+(:mod:`lead_s2r.demo.table4`: its rows, columns and console view).
 """
 
 import importlib

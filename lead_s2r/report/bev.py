@@ -138,8 +138,7 @@ def _limits(axes: Any, trajectories: dict[str, np.ndarray]) -> None:
 
 
 def _semantic(axes: Any, sample: dict[str, Any]) -> None:
-    """The stored BEV semantic raster resampled onto the axes' limits, one colour per class, class 0 (unlabeled)
-    left clear."""
+    """The stored BEV semantic raster resampled onto the axes' limits, a colour per class, class 0 (unlabeled) clear."""
     (y_left, y_right), (x_bottom, x_top) = axes.get_xlim(), axes.get_ylim()
     x = np.arange(x_top, x_bottom, -SEMANTIC_STEP_M) - SEMANTIC_STEP_M / 2
     y = np.arange(y_left, y_right, -SEMANTIC_STEP_M) - SEMANTIC_STEP_M / 2
@@ -152,7 +151,6 @@ def _semantic(axes: Any, sample: dict[str, Any]) -> None:
 
 
 def _inputs(axes: Any, sample: dict[str, Any]) -> None:
-    """What the model reads beside the cameras: BEV semantic classes, LiDAR points, route, target points."""
     if "bev_semantic" in sample and "pixel_to_ego" in sample["meta"].get("bev", {}):
         _semantic(axes, sample)
     if "lidar" in sample:

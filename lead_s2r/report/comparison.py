@@ -2,8 +2,7 @@
 
 Per metric both runs scored (same versioned metric on the same dataset), the headline column of each sample
 (``run_outputs.HEADLINES``: the PDMS / EPDMS score, RFS, ADE) is compared; a difference larger than ``threshold`` in the
-metric's better direction is a win for B, in the other a loss. Samples only one run scored are counted, not
-compared.
+metric's better direction is a win for B, in the other a loss. Samples only one run scored are counted, not compared.
 """
 
 from dataclasses import dataclass

@@ -1,7 +1,6 @@
 """The paper's infractions-per-100-km figure: one bar group per model, one bar per infraction type.
 
-A model without results keeps its slot on the axis with a "no results" label, so a missing run is visible, not
-silently gone.
+A model without results keeps its slot on the axis with a "no results" label, so a missing run is visible.
 """
 
 import textwrap

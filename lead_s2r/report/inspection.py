@@ -93,8 +93,7 @@ def inspect_dataset(
 
 
 def heading_change(sample: dict[str, Any]) -> float:
-    """How far the logged future turns (rad, absolute): its last yaw, or the bearing of its last point where the
-    source has no yaw; 0 without a future."""
+    """How far the logged future turns (absolute, rad): its last yaw, else its last point's bearing; 0 without one."""
     future = sample.get("future")
     if future is None or not len(future):
         return 0.0
@@ -104,8 +103,7 @@ def heading_change(sample: dict[str, Any]) -> float:
 
 def sample_figure(sample: dict[str, Any]) -> Figure:
     """The picture a person checks a sample by: its cameras side by side above the BEV (the report's, with the
-    model's inputs drawn: LiDAR, BEV semantic classes, route, target points; past and logged future on top), the
-    key and ego state as the title."""
+    model's inputs drawn; past and logged future on top), the key and ego state as the title."""
     images = [decode(sample, name) for name in sorted(sample) if name.startswith("cam_")]
     images = [image for image in images if image is not None]
     height = min((image.shape[0] for image in images), default=0)

@@ -61,9 +61,8 @@ class SceneDelta:
 
 
 def scene_deltas(a: Model, b: Model, tags: dict[str, list[str]]) -> list[SceneDelta]:
-    """Every (metric, scene) both models scored on a shared seed: the scenes of the subsets the runs scored on their
-    own first (:func:`subset_tags`), scores before errors (PDMS before ADE), then per metric B's largest losses
-    first."""
+    """Every (metric, scene) both models scored on a shared seed: the scenes of the subsets the runs scored on their own
+    first (:func:`subset_tags`), scores before errors (PDMS before ADE), then per metric B's largest losses first."""
     subsets = set(subset_tags([a, b]))
     by_scene: dict[tuple[str, str], list[tuple[int, MetricScores, MetricScores]]] = {}
     for seed, mine in sorted(a.runs, key=lambda entry: entry[0]):

@@ -77,9 +77,8 @@ class RunOutputs:
     @property
     def name(self) -> str:
         """``<family> / <name> / seed<k>`` from the run layout ``runs/<family>/<name>/seed<k>``, else from the
-        ``config.yaml`` ``lead-s2r fit`` saved (``trainer.default_root_dir``, ``seed_everything``: what
-        ``lead-s2r table`` reads), else the folder's own name: a run is named by what it is, never by its last folder
-        alone."""
+        ``config.yaml`` ``lead-s2r fit`` saved (``trainer.default_root_dir``, ``seed_everything``: what ``lead-s2r
+        table`` reads), else the folder's own name: a run is named by what it is, never by its last folder alone."""
         path = self.path.resolve()  # "." is a run too
         identity = folder_identity(path)
         configs = sorted(path.rglob("config.yaml"))

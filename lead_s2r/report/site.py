@@ -115,8 +115,7 @@ def build_site(
     random: int = 0,
     threshold: float = 1e-9,
 ) -> Path:
-    """Write the report of every run ``patterns`` match (``runs/*/*/seed*``) to ``out``: the index of runs and
-    headline scores, each scored run's pages (``worst`` samples per metric and ``random`` others), and with
+    """Write the report (module docstring) of every run ``patterns`` match (``runs/*/*/seed*``) to ``out``, with
     ``compare`` = (A, B) model B against model A; return ``out/index.html``."""
     _check_worst(worst)
     table_runs = find_runs(patterns)

@@ -42,9 +42,8 @@ class TableError(UserError, ValueError):
 
 @dataclass(frozen=True)
 class Column:
-    """One reported number: ``key`` (dots reach into nested aggregates) of the ``scores.json`` whose ``metric``
-    matches and that scored the samples with ``tag`` (``lead-s2r score --tag``; None: scored without one), times
-    ``scale``."""
+    """One reported number: ``key`` (dots reach into nested aggregates) of the ``scores.json`` whose ``metric`` matches
+    and that scored the samples with ``tag`` (``lead-s2r score --tag``; None: scored without one), times ``scale``."""
 
     name: str
     metric: str
@@ -246,9 +245,8 @@ def load_run(path: Path) -> Run:
 
 
 def find_runs(patterns: list[str]) -> list[Run]:
-    """Run directories from paths or glob patterns (the shell may have expanded them already). A pattern that
-    matches nothing is left out (a family not trained yet); a plain path that does not exist is an error, and so
-    is finding no run at all."""
+    """Run directories from paths or glob patterns (the shell may have expanded them). A pattern that matches nothing is
+    left out (a family not trained yet); a plain path that does not exist is an error, as is finding no run at all."""
     paths = [Path(p) for pattern in patterns for p in (sorted(glob.glob(pattern)) or _literal(pattern))]
     missing = [str(p) for p in paths if not p.is_dir()]
     if missing:

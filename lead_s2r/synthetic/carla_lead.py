@@ -1,19 +1,17 @@
 """Write tiny LEAD CARLA route folders in the expert's true on-disk format (see ``docs/datasets/carla_lead.md``).
 
-Each route is a short, physically plausible drive in CARLA's left-handed world (x forward, y right, yaw
-clockwise): a left turn, a right turn, or a stop, cycled over the routes. The stop is the scene that needs perception
-in the synthetic NAVSIM and WOD-E2E worlds too (:mod:`~lead_s2r.synthetic.pedestrians_ahead`): a row of walkers
-stands across the ego lane, labelled as ``walker`` boxes and drawn in the front tile of the camera mosaic, and the
-expert brakes to a standstill behind them (``walker_hazard``), so LTFv6 + LEAD gets CARLA's perception labels of the
-object kind that the real-data worlds test. Everything is written the way the LEAD
-expert writes it: 4 Hz frames of a 20 Hz simulation, LZMA-compressed pickles for metas and boxes (ego-centre
-frame, y right), a JPEG camera mosaic at q=30 plus a perturbated-rig twin, 1/4-resolution 8-bit depth,
-256x256 hdmap at 2 px/m, LAZ LiDAR with a ``time`` extra dimension and float16 radar npz files.
+Each route is a short, physically plausible drive in CARLA's left-handed world (x forward, y right, yaw clockwise): a
+left turn, a right turn, or a stop, cycled over the routes. The stop is the scene that needs perception in the synthetic
+NAVSIM and WOD-E2E worlds too (:mod:`~lead_s2r.synthetic.pedestrians_ahead`): a row of walkers stands across the ego
+lane, labelled as ``walker`` boxes and drawn in the front tile of the camera mosaic, and the expert brakes to a
+standstill behind them (``walker_hazard``), so LTFv6 + LEAD gets CARLA's perception labels of the object kind that the
+real-data worlds test. Written as the LEAD expert writes it: 4 Hz frames of a 20 Hz simulation, LZMA-compressed pickles
+for metas and boxes (ego-centre frame, y right), a JPEG camera mosaic at q=30 plus a perturbated-rig twin, 1/4-scale
+8-bit depth, 256x256 hdmap at 2 px/m, LAZ LiDAR with a ``time`` extra dimension and float16 radar npz files.
 
 The mosaic follows the route's camera rig (``dataset_information.target_dataset``,
-:data:`~lead_s2r.synthetic.carla_lead_sensors.RIG_MOSAICS`): LEAD's 3-camera (1152x384, the default), 6-camera
-(2304x384), single wide camera (1024x384, the top 384 of 512 rows) and NAVSIM-matched (1920x270, the top 270 of 280
-rows) rigs.
+:data:`~lead_s2r.synthetic.carla_lead_sensors.RIG_MOSAICS`), one of LEAD's: 3-camera (1152x384, the default), 6-camera
+(2304x384), single wide camera (1024x384, the top 384 of 512 rows) and NAVSIM-matched (1920x270, top 270 of 280 rows).
 
 Frames are light by default (five actors, about 700 LiDAR points, two target-point planners), which keeps tests
 fast. ``realistic=True`` writes frames as heavy as LEAD's (for loader benchmarks): a street of about 60 actors

@@ -10,11 +10,10 @@ Writes, under ``out``::
     scene_filters/navhard_two_stage.yaml                   SceneFilter: stage-1 tokens, synthetic tokens
     train_test_split/navhard_two_stage.yaml                data_split + reactive_all_mapping
 
-Each log (the logs of :mod:`navsim`, 20 frames at 2 Hz) gives one group. The stage-1 scenes are the frames at
-index 4 (``original``) and 3 (``previous``), each with 4 history and 8 future frames. The stage-2 scenes start 4 s
-later, at frames 12 ("now") and 11 ("previous"). Their ego is shifted sideways by each of :data:`OFFSETS`, which
-stands in for where a planner might have ended up. A synthetic scene pickle is the dict ``Scene.save_to_disk``
-writes:
+Each log (the logs of :mod:`navsim`, 20 frames at 2 Hz) gives one group. The stage-1 scenes are the frames at index 4
+(``original``) and 3 (``previous``), each with 4 history and 8 future frames. The stage-2 scenes start 4 s later, at
+frames 12 ("now") and 11 ("previous"). Their ego is shifted sideways by each of :data:`OFFSETS`, which stands in for
+where a planner might have ended up. A synthetic scene pickle is the dict ``Scene.save_to_disk`` writes:
 
 * ``scene_metadata``;
 * 4 history ``frames`` with annotations in the ego frame of the frame, and the ego status in the global frame.

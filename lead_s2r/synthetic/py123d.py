@@ -10,13 +10,11 @@ world (y and yaw negated) and written every second tick (10 Hz):
   The CARLA scene's oncoming car (:data:`ONCOMING`) and walker cross the left turn's exit, so this log leaves the
   car out and keeps the walker standing on the kerb: its logged future is a collision-free plan to score.
 - :func:`write_lead_log`: the route folder :func:`lead_s2r.synthetic.carla_lead.write_route` writes for the same
-  ``index``/``frames``/seed, as LEAD's ``expert_py123d.py`` would have logged it, with its three departures
-  (world-frame velocity in the body field and deg/s yaw rate, CARLA lane indices for traffic lights, LiDAR raised
-  by half the sensor height), its default-label boxes (no traffic-light boxes, emergency vehicles as VEHICLE) and
-  one front camera.
-  Its vehicle's centre sits :data:`CARLA_REAR_AXLE_TO_CENTER` ahead of the IMU, our CARLA constant, so the two
-  conversions of one drive agree to float precision (real LEAD logs carry py123d's 1.649 m, read from the log).
-
+  ``index``/``frames``/seed, as LEAD's ``expert_py123d.py`` would have logged it, with its three departures (world-frame
+  velocity in the body field and deg/s yaw rate, CARLA lane indices for traffic lights, LiDAR raised by half the sensor
+  height), its default-label boxes (no traffic-light boxes, emergency vehicles as VEHICLE) and one front camera. Its
+  vehicle's centre sits :data:`CARLA_REAR_AXLE_TO_CENTER` ahead of the IMU, our CARLA constant, so the two conversions
+  of one drive agree to float precision (real LEAD logs carry py123d's 1.649 m, read from the log).
 Needs py123d installed (``pip install --no-deps "py123d>=0.7,<0.8"`` plus the ``py123d-writers`` extra).
 """
 

@@ -39,9 +39,8 @@ def render(
     pedestrians: np.ndarray,
     rng: np.random.Generator,
 ) -> np.ndarray:
-    """The (height, width, 3) uint8 BGR image of a camera whose image is ``size`` (height, width), with
-    ``pedestrians`` (N, 2) ground positions in the vehicle frame (one row), far ones first, drawn
-    :data:`DRAWN_SCALE` times their size."""
+    """(height, width, 3) uint8 BGR image of a camera of ``size``, with ``pedestrians`` (N, 2) ground positions in the
+    vehicle frame (one row), far ones first, drawn :data:`DRAWN_SCALE` times their size."""
     height, width = size
     image = np.full((height, width, 3), ROAD, np.uint8)
     image[: round(intrinsic[3])] = SKY  # above the horizon

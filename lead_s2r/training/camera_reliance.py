@@ -7,9 +7,8 @@ quickstart's toy LTFv6 does after a few dozen steps, docs/training.md, "Does LTF
 metres says the cameras steer it. Each sample takes the images of the next one in its batch (the last one the
 first's), so a batch of one sample has nothing to swap and is left out.
 
-:class:`CameraReliance` measures it during ``lead-s2r predict`` and writes ``camera_reliance.json`` beside the
-predictions: per dataset, the mean shift and the number of samples it is over. A dataset without camera images in
-its batches (the Ego MLP's) gets no entry.
+:class:`CameraReliance` measures it during ``lead-s2r predict`` (``camera_reliance.json`` beside the predictions); a
+dataset without camera images in its batches (the Ego MLP's) gets no entry.
 """
 
 import json

@@ -44,10 +44,10 @@ PARSER_KWARGS: dict[str, Any] = {"exit_on_error": False, **{verb: {"exit_on_erro
 
 class DrivingCLI(LightningCLI):
     """LightningCLI that links the model and the data module (:meth:`add_arguments_to_parser`), so the data's source
-    names are checked against the model before anything is written, roots
-    checkpoints without a ``dirpath`` at ``<default_root_dir>/checkpoints``, logs to CSV and (when installed)
-    TensorBoard beside any logger the config adds, ends a fit by saying what it wrote, and refuses to predict with
-    random weights unless asked to (``--untrained``): predictions of an untrained model look like any others."""
+    names are checked against the model before anything is written, roots checkpoints without a ``dirpath`` at
+    ``<default_root_dir>/checkpoints``, logs to CSV and (when installed) TensorBoard beside any logger the config adds,
+    ends a fit by saying what it wrote, and refuses to predict with random weights unless asked to (``--untrained``):
+    predictions of an untrained model look like any others."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
         """Declare the wiring (built in this order): what the network reads to the data module, which checks its

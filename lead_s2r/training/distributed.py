@@ -1,5 +1,4 @@
-"""The one collective the evaluation callbacks need, and the end of a run's process group; no-ops outside
-distributed runs."""
+"""The one collective evaluation callbacks need, and the end of a run's process group; no-ops when not distributed."""
 
 from typing import Any
 

@@ -23,10 +23,9 @@ def tensorboard_installed() -> bool:
 
 
 def run_loggers(configured: Any, root: str | Path) -> Any:
-    """The trainer's ``logger``: CSV logs in ``<root>/lightning_logs/version_N`` and, when tensorboard is installed,
-    its event files in the same folder (one version number for both) first, then any logger a config adds (the W&B
-    overlay, ``recipes/logging/wandb.yaml``); ``False`` keeps logging off, and a config that names a CSV logger
-    itself is taken as it is."""
+    """The trainer's ``logger``: CSV logs in ``<root>/lightning_logs/version_N`` and, when tensorboard is installed, its
+    event files in the same folder (one version number for both) first, then any logger a config adds (the W&B overlay,
+    ``recipes/logging/wandb.yaml``); ``False`` keeps logging off, and a config's own CSV logger is kept."""
     if configured is False:
         return False
     added = [] if configured in (None, True) else list(configured) if isinstance(configured, list) else [configured]

@@ -2,16 +2,15 @@
 (:class:`~lead_s2r.models.lead_driver.LeadDriver`) back to a LEAD checkpoint folder (config.json + model_0000.pth)
 that LEAD's own inference loads with ``strict=True`` and runs to our outputs.
 
-LEAD's loader (``TrainingConfig(json.load(config.json))``) takes class attributes and "overridable" properties from
-the file, but recomputes plain properties from its own rules and ignores keys it does not know. Our extensions of
-its config (:data:`LEAD_DERIVES`) are such fields, so a network that sets one to a value LEAD's rules do not give
-cannot be represented: LEAD would build another shape (its strict load fails: one target point's
-``status_pos_embedding``, ``camera_tile_size``'s ``pos_emb``, 12 waypoints' ``query``) or, worse, load and mean
-something else (waypoints 0.25 s apart read as 0.5 s apart, or a toy ``trajectory_scale``'s outputs read as metres).
-Such a run is refused in one line naming the field,
-before anything is written; so is a WOD-E2E network, which LEAD's code (4489176) cannot build at all. Where the
-values agree, our fields are written too (``waypoint_interval_s``, ``camera_tile_size``): LEAD ignores keys it does
-not know, and our loader reads them back. Checked with LEAD's own loader and forward on every configuration of
+LEAD's loader (``TrainingConfig(json.load(config.json))``) takes class attributes and "overridable" properties from the
+file, but recomputes plain properties from its own rules and ignores keys it does not know. Our extensions of its config
+(:data:`LEAD_DERIVES`) are such fields, so a network that sets one to a value LEAD's rules do not give cannot be
+represented: LEAD would build another shape (its strict load fails: one target point's ``status_pos_embedding``,
+``camera_tile_size``'s ``pos_emb``, 12 waypoints' ``query``) or, worse, load and mean something else (waypoints 0.25 s
+apart read as 0.5 s apart, or a toy ``trajectory_scale``'s outputs read as metres). Such a run is refused in one line
+naming the field, before anything is written; so is a WOD-E2E network, which LEAD's code (4489176) cannot build at all.
+Where the values agree, our fields are written too (``waypoint_interval_s``, ``camera_tile_size``): LEAD ignores keys it
+does not know, and our loader reads them back. Checked with LEAD's own loader and forward on every configuration of
 tests/data/lead_tfv6/export_*.pt (README there).
 
 The run's ``.ckpt`` is read weights-only with its zip CRCs checked (:mod:`lead_s2r.formats.torch_file`): a flipped

@@ -1,11 +1,9 @@
-"""Loss terms, one function per task (keyed by task in :mod:`lead_s2r.training.loss_table`). Each returns a scalar
-for one source's batch.
+"""Loss terms of one source's batch, one function per task (keyed by task in :mod:`lead_s2r.training.loss_table`).
 
 LEAD's terms (perspective semantics and depth, BEV semantics, CenterNet boxes, radar detection, the two-hot target
-speed) are computed by LEAD's own definitions in :mod:`lead_s2r.models.lead_loss`; the functions here only carry our
-batch (our names, the ISO frame, label masks) into them. Waypoints, headings and route are masked means, equal to
-LEAD's plain means where every pose is labelled. Predictions are cast to float32 first, so the terms are stable under
-bf16 autocast.
+speed) are LEAD's own definitions in :mod:`lead_s2r.models.lead_loss`; the functions here only carry our batch (our
+names, the ISO frame, label masks) into them. Waypoints, headings and route are masked means, equal to LEAD's plain
+means where every pose is labelled. Predictions are cast to float32, so the terms are stable under bf16 autocast.
 """
 
 import math
@@ -46,8 +44,7 @@ def heading_loss(pred: dict[str, Tensor], batch: Batch) -> Tensor:
     continuous too. A wrapped error instead lets each pose settle on either side of +-pi: trained on synthetic NAVSIM,
     the cumulative outputs then spun through 2 pi within one trajectory (0.3, 1.7, 4.2, 5.8, 6.5 rad on a straight
     road) at no cost in the loss, and the scorer's tracker followed the spin. Padded poses come last, so they do
-    not shift the valid ones.
-    """
+    not shift the valid ones."""
     target = batch["headings"].float()
     steps = torch.diff(target, dim=1, prepend=torch.zeros_like(target[:, :1]))
     unwrapped = torch.cumsum(torch.remainder(steps + math.pi, 2 * math.pi) - math.pi, dim=1)
@@ -84,8 +81,8 @@ def lead_box_loss(pred: dict[str, Tensor], batch: Batch, velocity: bool) -> Tens
     """LEAD's CenterNet terms (:func:`~lead_s2r.models.lead_loss.center_net_losses`) on LEAD-encoded targets
     (``lead_s2r.data.lead_centernet``), summed: they all weigh the same in LEAD's table. The speed term only with
     ``velocity`` and a speed label (CARLA's; LEAD weighs NAVSIM's and LTF's 0), left out where the speed is unknown
-    (NaN). A sample without boxes carries the
-    collate filler (a heatmap of -1) and is left out, as LEAD leaves out another source's samples."""
+    (NaN). A sample without boxes carries the collate filler (a heatmap of -1) and is left out, as LEAD leaves out
+    another source's samples."""
     heatmap = batch["lead_box_heatmap"].float()
     labelled = (heatmap >= 0).flatten(1).all(dim=1)
     head = {

@@ -18,12 +18,9 @@ SIM_TO_REAL: dict[str, list[str]] = {
 def active_tasks(
     source: str, batch: Batch, model_tasks: frozenset[str], supervise: Mapping[str, Collection[str]]
 ) -> frozenset[str]:
-    """Loss terms to compute for one source's batch.
-
-    Group entries ("planning", "perception") take the tasks the model has for this source and the batch carries
-    targets for; an explicitly named task must be producible and labelled, or this raises naming what is missing.
-    A source missing from ``supervise`` supervises nothing.
-    """
+    """Loss terms to compute for one source's batch: group entries ("planning", "perception") take the tasks the model
+    has for this source and the batch carries targets for; an explicitly named task must be producible and labelled, or
+    this raises naming what is missing. A source missing from ``supervise`` supervises nothing."""
     grouped: set[str] = set()
     named: set[str] = set()
     for entry in supervise.get(source, ()):

@@ -1,5 +1,4 @@
-"""The LightningModule: per-source forward passes, loss masking by what each source supervises, ADE/FDE validation,
-ISO-frame predictions.
+"""The LightningModule: per-source forward passes and loss masks, ADE/FDE validation, ISO-frame predictions.
 
 A checkpoint rebuilds its module alone (``DrivingModule.load_from_checkpoint(path)``, the CARLA agent): the network is
 left out of ``save_hyperparameters`` (an ``nn.Module`` there would be pickled whole, and its weights are in the state
@@ -45,8 +44,7 @@ INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
 class TrainingData(Protocol):
     """What :class:`DrivingModule` reads from its data module (``DrivingModule(data=...)``, linked by ``lead-s2r fit``;
     :class:`~lead_s2r.data.datamodule.DriveDataModule` provides all of it). LightningCLI checks the linked data module
-    against these signatures, return types included, so an implementation returns exactly these types. Methods only,
-    so checking it evaluates nothing."""
+    against these signatures, return types included; methods only, so checking it evaluates nothing."""
 
     def current_batch_sizes(self) -> dict[str, int]:
         """Per-rank batch size of each training source in the trainer's current epoch."""
@@ -106,8 +104,6 @@ class DrivingModule(L.LightningModule):
             steps per epoch, validation sources); ``lead-s2r fit`` links it. None (plain dataloaders): no batch-size
             log, no ADE/FDE metrics made ahead of validation, Lightning's estimate of the steps per epoch. Not a
             hyper-parameter: a checkpoint rebuilds the module without it.
-
-    A checkpoint of it rebuilds the module alone: ``DrivingModule.load_from_checkpoint(path)``.
     """
 
     def __init__(
@@ -148,8 +144,7 @@ class DrivingModule(L.LightningModule):
         """Describe the network in the checkpoint's hyper-parameters (see the module docstring).
 
         ``init_from`` is dropped there: the weights it loaded are in the state dict, and a rebuilt module must not read
-        a file that may be gone. A network :func:`model_spec` cannot describe needs ``model=`` when loaded.
-        """
+        a file that may be gone. A network :func:`model_spec` cannot describe needs ``model=`` when loaded."""
         spec = model_spec(self.model)
         if spec is None:
             return
@@ -205,8 +200,7 @@ class DrivingModule(L.LightningModule):
         """One running mean per (validation source with a planner, ADE/FDE), made on every rank before any batch.
 
         Under DDP a rank may hold no sample of a source; its metric must still exist and be computed at the epoch's
-        end, since computing syncs the ranks and one rank missing from that sync would hang the others.
-        """
+        end, since computing syncs the ranks and one rank missing from that sync would hang the others."""
         for source in self.data.validation_sources() if self.data else {}:
             if "waypoints" in self.model.tasks(source):
                 for metric in ("ade", "fde"):
@@ -215,10 +209,8 @@ class DrivingModule(L.LightningModule):
     def validation_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         """ADE / FDE per source on its own grid (``val/<source>/ade``, ``.../fde``); with ``log_val_losses``, every loss
         term as ``val/<source>/<task>`` too (the loss curves' validation side; no weighted total, since each source's
-        batch comes from its own dataloader).
-
-        Returns ``{"predictions": [Prediction, ...]}`` so scoring callbacks (RFS...) can use the same forward pass.
-        """
+        batch comes from its own dataloader). Returns ``{"predictions": [Prediction, ...]}`` so scoring callbacks
+        (RFS...) can use the same forward pass."""
         if self.hparams.log_val_losses:
             _, terms = self.compute_losses(batch)
             for name, (value, n) in terms.items():
@@ -245,8 +237,7 @@ class DrivingModule(L.LightningModule):
 
         A metric object over every waypoint (ADE) or sample (FDE) of every rank, not a logged batch mean: Lightning's
         batch-size-weighted mean truncates the summed batch sizes to an integer when it averages them over ranks,
-        so 18 + 17 samples would count as 34.
-        """
+        so 18 + 17 samples would count as 34."""
         if key not in self.val_means:
             self.val_means[key] = MeanMetric().to(self.device)
         return self.val_means[key]
@@ -263,8 +254,7 @@ class DrivingModule(L.LightningModule):
 
     def predict_step(self, batch: Mapping[str, Batch], batch_idx: int, dataloader_idx: int = 0) -> dict[str, Any]:
         """Per source that has a planner: sample keys and datasets, time grid ``t`` (T,) in seconds, and poses in
-        the ISO ego frame: ``xy`` (B, T, 2) metres and ``yaw`` (B, T) radians (NaN where no headings are predicted).
-        """
+        the ISO ego frame: ``xy`` (B, T, 2) metres and ``yaw`` (B, T) radians (NaN where no headings are predicted)."""
         result = {}
         for source, source_batch in batch.items():
             tasks = {"waypoints", "headings"} & self.model.tasks(source)

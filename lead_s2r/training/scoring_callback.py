@@ -9,9 +9,8 @@ Under DDP each rank predicts its own share of the samples (the data module split
 scores every sample once and broadcasts the aggregates, so every rank logs the numbers a single process would
 (a metric monitored by a checkpoint callback must exist on every rank).
 
-A scorer runs only on the datasets it declares (``pdms@navsim-1.1``: NAVSIM, logged as ``val/navsim/pdms``). PDMS
-keeps PDM-Closed's references in memory across epochs; ``metric_config={"pdms@navsim-1.1": {"reference_cache": DIR}}``
-keeps them across runs too.
+A scorer runs only on the datasets it declares (``pdms@navsim-1.1``: NAVSIM only). PDMS keeps PDM-Closed's references in
+memory across epochs; ``metric_config={"pdms@navsim-1.1": {"reference_cache": DIR}}`` keeps them across runs too.
 """
 
 from collections import defaultdict
