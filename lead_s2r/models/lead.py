@@ -4,7 +4,6 @@
   (:meth:`LeadConfig.from_json`), one network per matching file, each loaded strictly; several files make an ensemble.
   A damaged file is an error naming it (:func:`read_weights` checks the archive's CRCs, which torch does not).
 - :func:`forward` runs LEAD's input contract (x forward, y right) and returns LEAD's ``Prediction`` fields, flat.
-- :func:`model_from_config` builds a randomly initialised network from a config.json dict.
 - :func:`export_checkpoint` writes a folder LEAD's own loader reads with ``strict=True``.
 - :func:`loss`, :func:`optimizer` and :func:`scheduler` train it as LEAD's Trainer does (:mod:`.lead_loss`).
 """

@@ -138,10 +138,7 @@ def boxes_from_lead(maps: dict[str, Tensor]) -> dict[str, Tensor]:
 
 
 def from_lead_outputs(outputs: dict[str, Tensor], source: str) -> dict[str, Tensor]:
-    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
-    the BEV semantics and ``box_*`` maps of ``source``'s heads (NAVSIM's or LEAD's CARLA ones), the image-space CARLA
-    ``semantic`` / ``depth`` (those the network produced), and the radar detector's ``radar_xy`` / ``radar_speed`` /
-    ``radar_logit``."""
+    """LEAD's outputs -> our names in the ISO frame; BEV maps of ``source``'s heads (NAVSIM's or LEAD's CARLA ones)."""
     suffix = "_navsim" if source == "navsim" else ""
     ours: dict[str, Tensor] = {}
     if f"pred_bev_semantic{suffix}" in outputs:
