@@ -74,8 +74,7 @@ def module_arguments(checkpoint: Path, saved: dict[str, Any]) -> tuple[dict[str,
 
 
 def load_model(checkpoint: Path, device: str = "cpu") -> nn.Module:
-    """The network of a ``DrivingModule`` checkpoint, rebuilt from its own description (or its run's saved config),
-    in eval mode."""
+    """The network of a ``DrivingModule`` checkpoint, rebuilt from its own description (or its run's saved config)."""
     from lightning.pytorch.cli import instantiate_module  # Lightning is only needed here
 
     from lead_s2r.training.module import DrivingModule
@@ -103,8 +102,7 @@ def load_driving_model(path: str | Path, pattern: str, device: str) -> tuple[nn.
 
 
 def family_spec(model: nn.Module, path: Path, where: str) -> InputSpec:
-    """What a TFv6-family model reads; :class:`UnsupportedCheckpoint` for any other network (the ego-status MLP reads
-    no sensor), which cannot drive ``where``."""
+    """What a TFv6-family model reads; :class:`UnsupportedCheckpoint` for any other (the ego MLP reads no sensor)."""
     config = getattr(model, "config", None)
     if not isinstance(config, LeadConfig):
         raise UnsupportedCheckpoint(
@@ -115,8 +113,7 @@ def family_spec(model: nn.Module, path: Path, where: str) -> InputSpec:
 
 
 def check_drivable(model: nn.Module, source: str, path: Path) -> InputSpec:
-    """What the model reads (:class:`InputSpec`), or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route
-    as ``source``."""
+    """What the model reads, or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route as ``source``."""
     spec = family_spec(model, path, "in CARLA")
     if source not in spec.trajectory_grids or "waypoints" not in model.tasks(source):
         raise UnsupportedCheckpoint(

@@ -231,8 +231,7 @@ def build_sample(
     input_data: dict[str, Any], pose: PoseReading, rig: Rig, navigation: Navigation, frame: int, timestamp: float,
     jpeg_quality: int,
 ) -> dict[str, Any]:  # fmt: skip
-    """One tick of sensor data (``pose``: its readings already parsed) as a schema v1 sample of the CARLA source
-    (what the adapter writes)."""
+    """One tick of sensor data as a schema v1 sample of the CARLA source (what the adapter writes)."""
     sample: dict[str, Any] = {
         "__key__": f"closed_loop_{frame:06d}",
         "past": np.zeros((1, 4), np.float32),
