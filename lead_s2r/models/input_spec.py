@@ -21,12 +21,10 @@ class InputSpec:
         vertical_fov_deg: rows kept around each camera tile's principal point (None: all rows).
         equal_tiles: the model cuts equal tiles from a mosaic that fills ``image_size`` (the camera ablations).
         bev: the BEV grid of the LiDAR raster and the BEV labels.
-        lidar_raster: the model reads the LiDAR BEV raster.
         radar: the model reads radar points; ``radar_sources`` also get radar detection targets.
         label_space: source -> label space of its perception labels (default: the source's own name).
         bev_semantic_classes, semantic_classes: per label space, the classes of each perception head.
         depth_sources: label spaces with a depth head; ``max_depth`` decodes stored depth PNGs without a scale.
-        num_route_points: route checkpoints per sample.
         lead_box_classes: per label space, the classes of a box head trained with LEAD's CenterNet encoding
             (``lead_s2r.data.lead_centernet``): 1 (NAVSIM's vehicles) or LEAD's 8 CARLA classes; ``lead_yaw_bins``
             yaw bins (LEAD's ``num_dir_bins``).

@@ -3,7 +3,6 @@
 - :func:`load_checkpoint` reads a folder as LEAD's ``OpenLoopInference`` does: the config through LEAD's rules
   (:meth:`LeadConfig.from_json`), one network per matching file, each loaded strictly; several files make an ensemble.
   A damaged file is an error naming it (:func:`read_weights` checks the archive's CRCs, which torch does not).
-- :func:`forward` runs LEAD's input contract (x forward, y right) and returns LEAD's ``Prediction`` fields, flat.
 - :func:`export_checkpoint` writes a folder LEAD's own loader reads with ``strict=True``.
 - :func:`loss`, :func:`optimizer` and :func:`scheduler` train it as LEAD's Trainer does (:mod:`.lead_loss`).
 """
@@ -127,7 +126,7 @@ def read_weights(file: Path) -> dict[str, Tensor]:
 
 
 def forward(model: nn.Module, inputs: dict[str, Tensor]) -> dict[str, Tensor]:
-    """LEAD's input dict -> LEAD's ``Prediction`` fields as a flat dict, in inference mode (float32)."""
+    """LEAD's input dict (x forward, y right) -> its ``Prediction`` fields as a flat dict, inference mode (float32)."""
     with torch.inference_mode():
         return model(inputs)
 

@@ -6,8 +6,7 @@ Batches cross into LEAD's input contract and predictions come back into our ISO 
 :mod:`lead_s2r.models.lead_frame` only; the loader follows :func:`~lead_s2r.models.input_spec.lead_input_spec` (CARLA
 labels in LEAD's classes by :mod:`lead_s2r.data.lead_labels`, boxes encoded by :mod:`lead_s2r.data.lead_centernet`).
 
-This is the package's one TransFuser family: the paper's networks are builder functions below, one per variant with
-what differs in its docstring (:data:`VARIANTS`, as timm registers its models), each a preset of LEAD's switches.
+The package's one TransFuser family: the paper's networks are builders below, each a preset of LEAD's switches.
 """
 
 from collections.abc import Callable, Collection
@@ -50,8 +49,7 @@ class LeadDriver(nn.Module):
     Args:
         config: the LEAD architecture (LEAD's field names; see docs/models.md); ignored when ``checkpoint`` is given.
         checkpoint: a LEAD checkpoint folder (config.json + model*.pth): its config and weights, loaded strictly;
-            several matching files make an ensemble (prediction only).
-        pattern: which weight files of ``checkpoint`` to load.
+            several files matching ``pattern`` make an ensemble (prediction only).
         pretrained: start the image encoder of a ``config``-built network from timm's ImageNet weights, as LEAD's
             training does.
     """

@@ -1,7 +1,6 @@
 """The one place where our ISO ego frame (x forward, y LEFT) meets LEAD's (x forward, y RIGHT).
 
-:func:`to_lead_inputs` turns our :class:`~lead_s2r.models.inputs.Batch` into LEAD's input contract and
-:func:`from_lead_outputs` turns LEAD's outputs back into our names and frame; nothing else in the package flips y.
+Nothing else in the package flips y: :func:`to_lead_inputs` and :func:`from_lead_outputs` are the only crossings.
 
 - Lateral coordinates (target points, radar, predicted waypoints and route) change sign; headings change sign.
 - The LiDAR raster: ours has rows along +x and columns along +y (left); LEAD's has rows along its y (left to right,
