@@ -250,8 +250,7 @@ class LeadS2RAgent(AutonomousAgent):
     def preprocess(
         self, input_data: dict[str, Any], timestamp: float, reading: PoseReading | None = None
     ) -> dict[str, Any]:
-        """One tick -> the model's input batch (of one sample), stepping the route state; ``reading``: the tick's
-        pose readings where the caller has parsed them already."""
+        """One tick -> the model's input batch (of one sample), stepping the route state."""
         reading = PoseReading.read(input_data) if reading is None else reading
         if self.navigator is None:
             self._start_route()

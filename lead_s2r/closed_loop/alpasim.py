@@ -1,11 +1,10 @@
 """Any run of ours or LEAD checkpoint folder served as AlpaSim's driver: the gRPC service ``egodriver.EgodriverService``
 (NVlabs/alpasim ``src/grpc/alpasim_grpc/v0/egodriver.proto``). Usage: ``docs/closed_loop.md``, "AlpaSim".
 
-The protos come from one pinned source, PyPI's ``carla-driver-interface`` (extra ``[alpasim]``), which vendors
-AlpaSim's unchanged; gRPC itself (threads, framing, status codes) is ``grpcio``'s. Per session the server keeps what
-AlpaSim sends (cameras, egomotion, route) and on ``drive`` turns it into a schema v1 sample of the model's source,
-then runs the training transform (:class:`~lead_s2r.data.transforms.SourceTransform`) and the network exactly as
-``lead-s2r predict`` does: one preprocessing path, so the service drives the model the way the scores measured it.
+The protos come from one pinned source, PyPI's ``carla-driver-interface`` (extra ``[alpasim]``), which vendors AlpaSim's
+unchanged. Per session the server keeps what AlpaSim sends and on ``drive`` turns it into a schema v1 sample of the
+model's source, then runs the training transform (:class:`~lead_s2r.data.transforms.SourceTransform`) and the network
+exactly as ``lead-s2r predict`` does: one preprocessing path, so it drives the model as the scores measured it.
 
 - Cameras are matched to the model's (:mod:`.alpasim_model`) by where they look, never by name (AlpaSim's rigs name
   cameras differently per dataset): the scene camera whose optical axis (``rig_to_camera`` is the optical frame in the

@@ -96,11 +96,8 @@ def synthetic_input(specs: list[dict[str, Any]], frame: int, rng: np.random.Gene
 
 
 def check_run(run: str | Path, ticks: int = 5, seed: int = 0) -> CheckResult:
-    """Build the agent on ``run`` (a run folder, checkpoint or agent YAML) and drive ``ticks`` synthetic ticks.
-
-    Raises what the agent raises: ``UnsupportedCheckpoint`` for a model that cannot drive, ``FileNotFoundError``
-    for a path without a checkpoint. Controls out of range are an ``AssertionError`` (a bug, not a user error).
-    """
+    """Build the agent on ``run`` (a run folder, checkpoint or agent YAML) and drive ``ticks`` synthetic ticks; raises
+    what the agent raises. Controls out of range are an ``AssertionError`` (a bug, not a user error)."""
     agent = LeadS2RAgent("localhost", 2000, False)
     agent.set_global_plan(*straight_route())
     agent.setup(str(run))
