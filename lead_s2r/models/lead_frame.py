@@ -7,10 +7,8 @@ Nothing else in the package flips y: :func:`to_lead_inputs` and :func:`from_lead
   i.e. row 0 is the leftmost) and columns along x (back to front), so LEAD's raster is ours transposed with its rows
   reversed. Both grids are symmetric in y, so no cell moves off the grid (a point exactly on a cell edge lands in
   the cell beside LEAD's, as both rasters take half-open cells in their own y direction).
-- Commands: our 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} ids become LEAD's one-hot, NAVSIM order (left, straight,
-  right, unknown), CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
-  unknown -> lane follow, as LEAD maps it) or WOD-E2E's intent order (unknown, straight, left, right; read only
-  when ``use_discrete_command`` is set, LEAD's WOD-E2E default being off).
+- Commands: our ids become LEAD's one-hot in NAVSIM's, CARLA's (RoadOption - 1) or WOD-E2E's intent order (the
+  tables below; WOD-E2E's is read only with ``use_discrete_command``, off by LEAD's WOD-E2E default).
 - Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
 - CenterNet maps: LEAD's sub-cell lateral offset is measured from the cell's other edge and its yaw bins turn the
   other way; :func:`boxes_from_lead` turns them into ours (``lead_s2r.data.lead_centernet`` encodes our labels).

@@ -16,8 +16,7 @@ independent implementation would likely miss, each kept on purpose (docs/models.
   stands for.
 
 The optimizer is LEAD's ``initialize_optimizer``: AdamW with AMSGrad and weight decay on every parameter (one group,
-biases and norms included), torch's betas and eps, no gradient clipping; the schedule restarts a cosine after 1, 2,
-4 ... epochs (WOD-E2E: one cosine over the run), stepped after every optimizer step.
+biases and norms included), torch's betas and eps, no gradient clipping; its schedule: :func:`cosine_schedule`.
 """
 
 import math
@@ -150,10 +149,9 @@ def center_net_losses(
 ) -> dict[str, Tensor]:
     """LEAD's CenterNet terms (``loss_center_net_<term>``, unprefixed) for one head.
 
-    ``pred`` holds LEAD's head outputs (``center_heatmap_pred`` probabilities, ``wh_pred``, ``offset_pred``,
-    ``yaw_class_pred``, ``yaw_res_pred``, ``velocity_pred``), ``target`` LEAD's labels without the source prefix
-    (``center_net_heatmap``, ``_wh``, ``_offset``, ``_yaw_class``, ``_yaw_res``, ``_velocity``, ``_pixel_weight``
-    (B, 2, H, W), ``_avg_factor`` (B,)). Without ``velocity`` the velocity term is LEAD's zeros(1).
+    ``pred`` holds LEAD's head outputs (``center_heatmap_pred``: probabilities), ``target`` LEAD's labels without the
+    source prefix (``center_net_pixel_weight`` (B, 2, H, W), ``center_net_avg_factor`` (B,)). Without ``velocity``
+    the velocity term is LEAD's zeros(1).
     """
     weight = target["center_net_pixel_weight"].float()
     count = target["center_net_avg_factor"].float() + FLOAT32_EPS
