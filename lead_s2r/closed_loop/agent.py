@@ -119,7 +119,6 @@ class ClosedLoopConfig:
         creeping, stop_sign_slowdown, lower_target_speed: LEAD's test-time heuristics (off).
         bench2drive: Bench2Drive mode (the agent config is cut at the first ``+``; ``metric_info.json`` is written
             when the harness offers ``get_metric_info``); the ``IS_BENCH2DRIVE`` environment variable overrides it.
-        device: torch device; None picks CUDA when available.
     """
 
     checkpoint: str

@@ -1,13 +1,12 @@
 """A trained run -> the driving network, its configuration and the CARLA camera rig it was trained for.
 
-No second config format: a checkpoint of ``DrivingModule`` describes its network in its ``hyper_parameters`` (class
-path and typed config, see :mod:`lead_s2r.training.module`), so a ``.ckpt`` copied anywhere drives alone. Checkpoints
-written before that describe no network; for them the resolved run configuration that ``lead-s2r fit``
-(LightningCLI) saves as ``config.yaml`` in the run folder is read instead. A checkpoint with neither, or whose weights
-do not fit its description, is refused with what to do, as is a model that cannot drive a CARLA route: one without
-an output grid for the source, or one that reads no route target points (an LTFv6 NAVSIM model, which builds no
-target-point encoder: it would not know where to turn). LEAD's users hit exactly these silent mismatches between
-configs and weights; here they are errors at load time.
+No second config format: a checkpoint of ``DrivingModule`` describes its network in its ``hyper_parameters`` (class path
+and typed config, see :mod:`lead_s2r.training.module`), so a ``.ckpt`` copied anywhere drives alone. Checkpoints written
+before that describe no network; for them the run's ``config.yaml`` that ``lead-s2r fit`` (LightningCLI) saved is read
+instead. A checkpoint with neither, or whose weights do not fit its description, is refused with what to do, as is a
+model that cannot drive a CARLA route: one without an output grid for the source, or one that reads no route target
+points (an LTFv6 NAVSIM model, which builds no target-point encoder: it would not know where to turn). LEAD's users hit
+exactly these silent mismatches between configs and weights; here they are errors at load time.
 
 A LEAD checkpoint folder (LEAD's ``config.json`` + ``model*.pth``, e.g. its released CARLA TFv6) drives too: it is
 loaded as a :class:`~lead_s2r.models.lead_driver.LeadDriver` (several matching files: LEAD's ensemble), as is a run

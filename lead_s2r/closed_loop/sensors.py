@@ -167,8 +167,7 @@ class PoseReading:
 
 
 def sensor_points(input_data: dict[str, Any], sensor_id: str) -> np.ndarray:
-    """A LiDAR or radar reading as float64 (N, 4); rows with a value that is not a number or beyond
-    :data:`MAX_POINT_VALUE` are no return and dropped."""
+    """A LiDAR or radar reading as float64 (N, 4) without the rows that are no return (:data:`MAX_POINT_VALUE`)."""
     points = _numbers(reading(input_data, sensor_id), sensor_id, f"an (N, {POINT_COLUMNS}) array")
     if points.ndim != 2 or points.shape[1] != POINT_COLUMNS:
         raise SensorInputError(f"sensor {sensor_id!r}: expected an (N, {POINT_COLUMNS}) array, got shape "
