@@ -36,12 +36,10 @@ class LeadEnsemble(nn.Module):
     """Several LEAD networks with one config; ``forward`` merges their outputs as LEAD's open-loop inference
     (``OpenLoopInference.ensemble``, lead/inference/open_loop_inference.py at 4489176), per mode:
 
-    - always: waypoints, route, (NAVSIM) headings and target-speed logits are averaged and the scalar speed is
-      recomputed from the averaged logits (LEAD returns their softmax; we keep logits, as a single network does);
-    - CARLA leaderboard mode only: the CARLA BEV and perspective semantic maps merge background-min / others-max, depth
-      is averaged; LEAD decodes each member's boxes and merges them by NMS, post-processing we do not run here, so
-      the CARLA CenterNet maps are averaged instead (what box consumers such as the agent's stop-sign slowdown read;
-      not LEAD's merge);
+    - always: :data:`AVERAGED` (LEAD returns the speed logits' softmax; we keep logits, as a single network does);
+    - CARLA leaderboard mode only: :data:`MAX_MERGED`, depth averaged; LEAD decodes each member's boxes and merges them
+      by NMS, post-processing we do not run here, so the CARLA CenterNet maps are averaged instead (what box consumers
+      such as the agent's stop-sign slowdown read; not LEAD's merge);
     - never: NAVSIM's BEV and box maps, CARLA's maps outside leaderboard mode, the radar detector's queries.
 
     LEAD's brake override (speed 0 when the 0 m/s class's probability is over ``brake_threshold``) belongs to its

@@ -393,8 +393,7 @@ class LeadConfig:
         return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
 
     def perception_tasks(self, source: str) -> set[str]:
-        """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``
-        (``lead_boxes``: boxes in LEAD's CenterNet encoding)."""
+        """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``."""
         heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}.get(source, False)
         carla = source == "carla" and self.use_carla_data
         switches = {

@@ -115,8 +115,7 @@ class LeadDriver(nn.Module):
         return lead_grids(self.config)[source]
 
     def tasks(self, source: str) -> frozenset[str]:
-        """What the network predicts for ``source``; an ensemble only what :class:`LeadEnsemble` merges: the planner's
-        outputs, and CARLA's maps in leaderboard mode (never the radar detector's queries)."""
+        """What the network predicts for ``source``; an ensemble only what :class:`LeadEnsemble` merges."""
         c = self.config
         tasks = c.perception_tasks(source)
         if isinstance(self.network, LeadEnsemble):
@@ -142,9 +141,6 @@ class LeadDriver(nn.Module):
             )
         batch = {**batch, "rgb": self.camera_select(batch["rgb"])}
         return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)), source)
-
-
-# --- variants: one builder per network of the paper, each a LeadConfig preset (LEAD's switches) plus overrides
 
 
 def tfv6(**overrides: Any) -> LeadDriver:
