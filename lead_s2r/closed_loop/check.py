@@ -1,11 +1,10 @@
 """``lead-s2r closed-loop check RUN``: the agent's leaderboard lifecycle on made-up sensor readings, without a server.
 
-A CARLA evaluation costs a server and hours; a checkpoint that cannot drive should fail in seconds instead. The
-check builds the agent as leaderboard 2.0 does (construct, ``set_global_plan``, ``setup``, ``sensors``) and runs a
-few ticks of synthetic readings shaped by the agent's own sensor list (noise images, a LiDAR ground ring, radar
-echoes, GNSS / IMU / speedometer of an ego at rest on a straight route) through preprocessing, the model and the
-controllers. It proves the plumbing (rig, shapes, route state, controls in range), not the driving. A model that
-cannot follow a CARLA route (a NAVSIM LTFv6 without target points) is refused at ``setup`` with one line.
+A CARLA evaluation costs a server and hours; a checkpoint that cannot drive should fail in seconds instead. The check
+builds the agent as leaderboard 2.0 does (construct, ``set_global_plan``, ``setup``, ``sensors``) and runs a few ticks
+of synthetic readings shaped by the agent's own sensor list (noise images, a LiDAR ground ring, radar echoes, GNSS, IMU
+and speedometer of an ego at rest on a straight route) through preprocessing, the model and the controllers. It proves
+the plumbing (rig, shapes, route state, controls in range), not the driving.
 """
 
 import importlib.util

@@ -8,9 +8,8 @@ model that cannot drive a CARLA route: one without an output grid for the source
 points (an LTFv6 NAVSIM model, which builds no target-point encoder: it would not know where to turn). LEAD's users hit
 exactly these silent mismatches between configs and weights; here they are errors at load time.
 
-A LEAD checkpoint folder (LEAD's ``config.json`` + ``model*.pth``, e.g. its released CARLA TFv6) drives too: it is
-loaded as a :class:`~lead_s2r.models.lead_driver.LeadDriver` (several matching files: LEAD's ensemble), as is a run
-trained with that architecture.
+A LEAD checkpoint folder (``config.json`` + ``model*.pth``, e.g. LEAD's released CARLA TFv6; several matching files:
+LEAD's ensemble) drives too, as a :class:`~lead_s2r.models.lead_driver.LeadDriver`.
 
 The camera rig is not stored by training either; it follows from the model's input: the LEAD rig whose stitched
 strip (after the model's ``vertical_fov_deg`` crop, the same :func:`~lead_s2r.data.camera_layout.camera_layout`
