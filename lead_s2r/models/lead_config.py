@@ -416,8 +416,7 @@ class LeadConfig:
 
 
 def _typed(name: str, value: Any, hint: Any) -> Any:
-    """``value`` of the config.json field ``name`` when it has the JSON type of the field's ``hint`` (an int stands
-    for a float, null for an optional field's "LEAD's rule decides"), else a :class:`UserError` naming the field."""
+    """``value`` when it has the JSON type of ``hint`` (an int stands for a float, null for "LEAD's rule decides")."""
     if not fits(value, hint):
         raise UserError(f"config.json: {name} is {value!r}; LEAD writes it as {describe(hint)}")
     kinds = get_args(hint) or (hint,)

@@ -119,9 +119,8 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
 
 
 def boxes_from_lead(maps: dict[str, Tensor]) -> dict[str, Tensor]:
-    """LEAD's CenterNet maps (``BOX_FIELDS`` keys) -> our box names on our grid, in our frame: the lateral offset
-    becomes 1 - LEAD's (a cell's fraction measured from its other edge), yaw bins are mirrored (our bin k is LEAD's
-    bin -k) and the yaw residual negated; sizes, speed and heatmaps only move onto our grid."""
+    """LEAD's CenterNet maps (``BOX_FIELDS`` keys) -> our box names on our grid, in our frame: LEAD's lateral offset is
+    a cell's fraction from its other edge and its yaw turns the other way; sizes, speed and heatmaps only move."""
     ours = {BOX_FIELDS[field]: bev_map_from_lead(value) for field, value in maps.items() if field in BOX_FIELDS}
     if "box_offset" in ours:
         offset = ours["box_offset"]
