@@ -143,8 +143,7 @@ def speed_reading(input_data: dict[str, Any]) -> float:
 
 @dataclass(frozen=True)
 class PoseReading:
-    """A tick's GNSS [lat, lon, alt], IMU [ax, ay, az, gx, gy, gz, compass] and speedometer (m/s), read once: the
-    pose, the ego state and the controllers use the same values."""
+    """A tick's GNSS, IMU and speedometer, read once: the pose, ego state and controllers use the same values."""
 
     gnss: np.ndarray
     imu: np.ndarray
