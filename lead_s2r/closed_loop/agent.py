@@ -119,7 +119,6 @@ class ClosedLoopConfig:
         creeping, stop_sign_slowdown, lower_target_speed: LEAD's test-time heuristics (off).
         bench2drive: Bench2Drive mode (the agent config is cut at the first ``+``; ``metric_info.json`` is written
             when the harness offers ``get_metric_info``); the ``IS_BENCH2DRIVE`` environment variable overrides it.
-        device: torch device; None picks CUDA when available.
     """
 
     checkpoint: str
@@ -250,8 +249,7 @@ class LeadS2RAgent(AutonomousAgent):
     def preprocess(
         self, input_data: dict[str, Any], timestamp: float, reading: PoseReading | None = None
     ) -> dict[str, Any]:
-        """One tick -> the model's input batch (of one sample), stepping the route state; ``reading``: the tick's
-        pose readings where the caller has parsed them already."""
+        """One tick -> the model's input batch (of one sample), stepping the route state."""
         reading = PoseReading.read(input_data) if reading is None else reading
         if self.navigator is None:
             self._start_route()

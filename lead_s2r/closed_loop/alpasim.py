@@ -1,22 +1,19 @@
 """Any run of ours or LEAD checkpoint folder served as AlpaSim's driver: the gRPC service ``egodriver.EgodriverService``
 (NVlabs/alpasim ``src/grpc/alpasim_grpc/v0/egodriver.proto``). Usage: ``docs/closed_loop.md``, "AlpaSim".
 
-The protos come from one pinned source, PyPI's ``carla-driver-interface`` (extra ``[alpasim]``), which vendors
-AlpaSim's unchanged; gRPC itself (threads, framing, status codes) is ``grpcio``'s. Per session the server keeps what
-AlpaSim sends (cameras, egomotion, route) and on ``drive`` turns it into a schema v1 sample of the model's source,
-then runs the training transform (:class:`~lead_s2r.data.transforms.SourceTransform`) and the network exactly as
-``lead-s2r predict`` does: one preprocessing path, so the service drives the model the way the scores measured it.
+The protos come from one pinned source, PyPI's ``carla-driver-interface`` (extra ``[alpasim]``), which vendors AlpaSim's
+unchanged. Per session the server keeps what AlpaSim sends and on ``drive`` turns it into a schema v1 sample of the
+model's source, then runs the training transform (:class:`~lead_s2r.data.transforms.SourceTransform`) and the network
+exactly as ``lead-s2r predict`` does: one preprocessing path, so it drives the model as the scores measured it.
 
-- Cameras are matched to the model's camera layout by where they look, never by name (AlpaSim's rigs name cameras
-  differently per dataset): each camera the model reads has a direction and horizontal field of view
-  (:mod:`.alpasim_model`); the scene's camera whose optical axis (``rig_to_camera`` is the optical frame in the rig:
-  x right, y down, z forward) is nearest, within half that field of view and with a comparable field of view of its
-  own, fills it (:mod:`.alpasim_messages`). Intrinsics and pose become the sample's calibration, so the layout crops
-  the rows the model was trained on. Images stay the JPEG bytes AlpaSim sent (the training data was JPEG too).
+- Cameras are matched to the model's (:mod:`.alpasim_model`) by where they look, never by name (AlpaSim's rigs name
+  cameras differently per dataset): the scene camera whose optical axis (``rig_to_camera`` is the optical frame in the
+  rig: x right, y down, z forward) is nearest a model camera's direction, within half its field of view, fills it
+  (:mod:`.alpasim_messages`). Intrinsics and pose become the sample's calibration, so the layout crops the rows the
+  model was trained on. Images stay the JPEG bytes AlpaSim sent (the training data was JPEG too).
 - Egomotion (poses in AlpaSim's ``local`` frame, dynamic states in the rig frame) gives speed, acceleration and the
   past poses in the current rig frame; the route (rig frame at its timestamp) gives the command as AlpaSim's own
-  driver derives it (the lateral offset of the first waypoint 5 m ahead) and, for models
-  that read them, route target points.
+  driver derives it (the lateral offset of the first waypoint 5 m ahead) and target points for models that read them.
 - The answer is the model's waypoints on its output grid, timestamped ``time_now_us + t``, expressed as AlpaSim's
   own driver and runtime expect: in the ``local`` frame, anchored at the latest ego pose and led by it (the model
   plans in the rig frame: x forward, y left, origin at the rear axle, the ISO frame of our data).
@@ -65,8 +62,7 @@ Method = Callable[[Any, Any, grpc.ServicerContext], T]
 
 
 def rpc(method: Method[T]) -> Method[T]:
-    """A service method as one call: a client's mistake aborts it with its status, anything else with INTERNAL
-    (logged)."""
+    """A service method as one call: a client's mistake aborts it with its status, anything else with INTERNAL."""
 
     @functools.wraps(method)
     def call(self: Any, request: Any, context: grpc.ServicerContext) -> T:

@@ -1,7 +1,6 @@
 """AlpaSim's messages in our terms and back: a scene camera as a schema calibration, matched to the model's cameras
 by direction and field of view; a session's egomotion, route and images as a schema v1 sample; the model's plan as
-AlpaSim's trajectory. Poses and rotations: scipy's ``Rotation``. Every mistake in a message is a :class:`RequestError`
-naming its field.
+AlpaSim's trajectory. Every mistake in a message is a :class:`RequestError` naming its field.
 """
 
 import math

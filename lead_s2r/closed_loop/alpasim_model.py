@@ -113,8 +113,7 @@ def load_served_model(path: str | Path, source: str | None, pattern: str, device
 
 
 def camera_slots(config: Any, spec: InputSpec, source: str, found: Path) -> tuple[CameraSlot, ...]:
-    """The model's cameras left to right: a CARLA model's LEAD rig tiles; for other sources the data cameras of its
-    run (``config.yaml``), or LEAD's cameras of its target (a LEAD folder), by their nominal directions."""
+    """The model's cameras left to right, at their nominal directions (the module docstring says whose)."""
     if source == "carla":
         return tuple(CameraSlot(c.name, -c.yaw_deg, c.fov_deg) for c in CAMERA_RIGS[rig_for(spec)])
     ids = run_cameras(found, source) if not (found / LEAD_CONFIG_NAME).is_file() else None

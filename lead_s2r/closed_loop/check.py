@@ -1,11 +1,10 @@
 """``lead-s2r closed-loop check RUN``: the agent's leaderboard lifecycle on made-up sensor readings, without a server.
 
-A CARLA evaluation costs a server and hours; a checkpoint that cannot drive should fail in seconds instead. The
-check builds the agent as leaderboard 2.0 does (construct, ``set_global_plan``, ``setup``, ``sensors``) and runs a
-few ticks of synthetic readings shaped by the agent's own sensor list (noise images, a LiDAR ground ring, radar
-echoes, GNSS / IMU / speedometer of an ego at rest on a straight route) through preprocessing, the model and the
-controllers. It proves the plumbing (rig, shapes, route state, controls in range), not the driving. A model that
-cannot follow a CARLA route (a NAVSIM LTFv6 without target points) is refused at ``setup`` with one line.
+A CARLA evaluation costs a server and hours; a checkpoint that cannot drive should fail in seconds instead. The check
+builds the agent as leaderboard 2.0 does (construct, ``set_global_plan``, ``setup``, ``sensors``) and runs a few ticks
+of synthetic readings shaped by the agent's own sensor list (noise images, a LiDAR ground ring, radar echoes, GNSS, IMU
+and speedometer of an ego at rest on a straight route) through preprocessing, the model and the controllers. It proves
+the plumbing (rig, shapes, route state, controls in range), not the driving.
 """
 
 import importlib.util
@@ -96,11 +95,8 @@ def synthetic_input(specs: list[dict[str, Any]], frame: int, rng: np.random.Gene
 
 
 def check_run(run: str | Path, ticks: int = 5, seed: int = 0) -> CheckResult:
-    """Build the agent on ``run`` (a run folder, checkpoint or agent YAML) and drive ``ticks`` synthetic ticks.
-
-    Raises what the agent raises: ``UnsupportedCheckpoint`` for a model that cannot drive, ``FileNotFoundError``
-    for a path without a checkpoint. Controls out of range are an ``AssertionError`` (a bug, not a user error).
-    """
+    """Build the agent on ``run`` (a run folder, checkpoint or agent YAML) and drive ``ticks`` synthetic ticks; raises
+    what the agent raises. Controls out of range are an ``AssertionError`` (a bug, not a user error)."""
     agent = LeadS2RAgent("localhost", 2000, False)
     agent.set_global_plan(*straight_route())
     agent.setup(str(run))

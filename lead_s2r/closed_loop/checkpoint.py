@@ -1,17 +1,15 @@
 """A trained run -> the driving network, its configuration and the CARLA camera rig it was trained for.
 
-No second config format: a checkpoint of ``DrivingModule`` describes its network in its ``hyper_parameters`` (class
-path and typed config, see :mod:`lead_s2r.training.module`), so a ``.ckpt`` copied anywhere drives alone. Checkpoints
-written before that describe no network; for them the resolved run configuration that ``lead-s2r fit``
-(LightningCLI) saves as ``config.yaml`` in the run folder is read instead. A checkpoint with neither, or whose weights
-do not fit its description, is refused with what to do, as is a model that cannot drive a CARLA route: one without
-an output grid for the source, or one that reads no route target points (an LTFv6 NAVSIM model, which builds no
-target-point encoder: it would not know where to turn). LEAD's users hit exactly these silent mismatches between
-configs and weights; here they are errors at load time.
+No second config format: a checkpoint of ``DrivingModule`` describes its network in its ``hyper_parameters`` (class path
+and typed config, see :mod:`lead_s2r.training.module`), so a ``.ckpt`` copied anywhere drives alone. Checkpoints written
+before that describe no network; for them the run's ``config.yaml`` that ``lead-s2r fit`` (LightningCLI) saved is read
+instead. A checkpoint with neither, or whose weights do not fit its description, is refused with what to do, as is a
+model that cannot drive a CARLA route: one without an output grid for the source, or one that reads no route target
+points (an LTFv6 NAVSIM model, which builds no target-point encoder: it would not know where to turn). LEAD's users hit
+exactly these silent mismatches between configs and weights; here they are errors at load time.
 
-A LEAD checkpoint folder (LEAD's ``config.json`` + ``model*.pth``, e.g. its released CARLA TFv6) drives too: it is
-loaded as a :class:`~lead_s2r.models.lead_driver.LeadDriver` (several matching files: LEAD's ensemble), as is a run
-trained with that architecture.
+A LEAD checkpoint folder (``config.json`` + ``model*.pth``, e.g. LEAD's released CARLA TFv6; several matching files:
+LEAD's ensemble) drives too, as a :class:`~lead_s2r.models.lead_driver.LeadDriver`.
 
 The camera rig is not stored by training either; it follows from the model's input: the LEAD rig whose stitched
 strip (after the model's ``vertical_fov_deg`` crop, the same :func:`~lead_s2r.data.camera_layout.camera_layout`
@@ -74,8 +72,7 @@ def module_arguments(checkpoint: Path, saved: dict[str, Any]) -> tuple[dict[str,
 
 
 def load_model(checkpoint: Path, device: str = "cpu") -> nn.Module:
-    """The network of a ``DrivingModule`` checkpoint, rebuilt from its own description (or its run's saved config),
-    in eval mode."""
+    """The network of a ``DrivingModule`` checkpoint, rebuilt from its own description (or its run's saved config)."""
     from lightning.pytorch.cli import instantiate_module  # Lightning is only needed here
 
     from lead_s2r.training.module import DrivingModule
@@ -103,8 +100,7 @@ def load_driving_model(path: str | Path, pattern: str, device: str) -> tuple[nn.
 
 
 def family_spec(model: nn.Module, path: Path, where: str) -> InputSpec:
-    """What a TFv6-family model reads; :class:`UnsupportedCheckpoint` for any other network (the ego-status MLP reads
-    no sensor), which cannot drive ``where``."""
+    """What a TFv6-family model reads; :class:`UnsupportedCheckpoint` for any other (the ego MLP reads no sensor)."""
     config = getattr(model, "config", None)
     if not isinstance(config, LeadConfig):
         raise UnsupportedCheckpoint(
@@ -115,8 +111,7 @@ def family_spec(model: nn.Module, path: Path, where: str) -> InputSpec:
 
 
 def check_drivable(model: nn.Module, source: str, path: Path) -> InputSpec:
-    """What the model reads (:class:`InputSpec`), or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route
-    as ``source``."""
+    """What the model reads, or :class:`UnsupportedCheckpoint` if it cannot drive a CARLA route as ``source``."""
     spec = family_spec(model, path, "in CARLA")
     if source not in spec.trajectory_grids or "waypoints" not in model.tasks(source):
         raise UnsupportedCheckpoint(

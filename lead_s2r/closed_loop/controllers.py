@@ -4,8 +4,6 @@
 Everything here works in the ISO ego frame (y left, positive angles turn left) and converts to CARLA's steer sign
 (positive = right) only in the returned :class:`Control`. LEAD's route is in its vehicle-centre frame, ours starts
 at the rear axle: the heading error is measured from the rear axle, the point a kinematic bicycle turns about.
-The controllers are small stateful classes (a PID window is state); the heuristics (creeping, stop-sign slow-down)
-are off unless the agent's config switches them on.
 """
 
 import math
@@ -140,8 +138,7 @@ def decode_target_speed(logits: np.ndarray, classes: tuple[float, ...]) -> float
 
 
 class PIDController:
-    """LEAD's ``PIDController``: a window of the last ``n`` errors pre-filled with zeros; I = its mean,
-    D = the last difference."""
+    """LEAD's ``PIDController``: a window of the last ``n`` errors pre-filled with zeros; I = its mean, D = the last."""
 
     def __init__(self, kp: float, ki: float, kd: float, n: int) -> None:
         self.kp, self.ki, self.kd = kp, ki, kd

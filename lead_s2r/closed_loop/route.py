@@ -162,11 +162,8 @@ def dense(points: np.ndarray) -> bool:
 
 
 class TargetPoints:
-    """LEAD's sensor-agent target points: the 5 m planner, the 4 m one when the points are dense
-    (``adaptive``), and the current point in place of a next one beyond 50 m (``skip_distant``).
-
-    Both planners are stepped every tick, as LEAD steps all of its planners.
-    """
+    """LEAD's sensor-agent target points: the 5 m planner, the 4 m one when the points are dense (``adaptive``), and
+    the current point for a next one beyond 50 m (``skip_distant``); both planners step every tick, as LEAD's."""
 
     def __init__(
         self, points: np.ndarray, commands: list[int], adaptive: bool = True, skip_distant: bool = True

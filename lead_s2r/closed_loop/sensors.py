@@ -143,8 +143,7 @@ def speed_reading(input_data: dict[str, Any]) -> float:
 
 @dataclass(frozen=True)
 class PoseReading:
-    """A tick's GNSS [lat, lon, alt], IMU [ax, ay, az, gx, gy, gz, compass] and speedometer (m/s), read once: the
-    pose, the ego state and the controllers use the same values."""
+    """A tick's GNSS, IMU and speedometer, read once: the pose, ego state and controllers use the same values."""
 
     gnss: np.ndarray
     imu: np.ndarray
@@ -167,8 +166,7 @@ class PoseReading:
 
 
 def sensor_points(input_data: dict[str, Any], sensor_id: str) -> np.ndarray:
-    """A LiDAR or radar reading as float64 (N, 4); rows with a value that is not a number or beyond
-    :data:`MAX_POINT_VALUE` are no return and dropped."""
+    """A LiDAR or radar reading as float64 (N, 4) without the rows that are no return (:data:`MAX_POINT_VALUE`)."""
     points = _numbers(reading(input_data, sensor_id), sensor_id, f"an (N, {POINT_COLUMNS}) array")
     if points.ndim != 2 or points.shape[1] != POINT_COLUMNS:
         raise SensorInputError(f"sensor {sensor_id!r}: expected an (N, {POINT_COLUMNS}) array, got shape "
@@ -231,8 +229,7 @@ def build_sample(
     input_data: dict[str, Any], pose: PoseReading, rig: Rig, navigation: Navigation, frame: int, timestamp: float,
     jpeg_quality: int,
 ) -> dict[str, Any]:  # fmt: skip
-    """One tick of sensor data (``pose``: its readings already parsed) as a schema v1 sample of the CARLA source
-    (what the adapter writes)."""
+    """One tick of sensor data as a schema v1 sample of the CARLA source (what the adapter writes)."""
     sample: dict[str, Any] = {
         "__key__": f"closed_loop_{frame:06d}",
         "past": np.zeros((1, 4), np.float32),

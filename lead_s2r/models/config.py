@@ -11,10 +11,8 @@ NAVSIM_VERTICAL_FOV_DEG = 2 * math.degrees(math.atan(math.tan(math.radians(63.71
 
 
 class TrajectoryGrid(NamedTuple):
-    """A dataset's output grid: ``num_points`` poses at ``t = dt, 2 dt, ...`` seconds.
-
-    A NamedTuple rather than a dataclass so LightningCLI can write it back into saved configs inside a dict.
-    """
+    """A dataset's output grid: ``num_points`` poses at ``t = dt, 2 dt, ...`` seconds (a NamedTuple, not a dataclass,
+    so LightningCLI can write it back into saved configs inside a dict)."""
 
     num_points: int
     dt: float
@@ -26,11 +24,8 @@ class TrajectoryGrid(NamedTuple):
 
 @dataclass(frozen=True)
 class BEVGrid:
-    """Bird's-eye-view raster in the ISO ego frame.
-
-    Array axis H runs along +x (row ``i`` covers ``x_min + i / ppm``), axis W along +y (column ``j`` covers
-    ``y_min + j / ppm``): index order follows coordinate order, so no flip hides in the layout.
-    """
+    """Bird's-eye-view raster in the ISO ego frame: axis H runs along +x (row ``i`` covers ``x_min + i / ppm``), axis W
+    along +y (column ``j`` covers ``y_min + j / ppm``): index order follows coordinate order, so no flip hides in it."""
 
     x_min: float = -32.0
     x_max: float = 64.0

@@ -21,12 +21,10 @@ class InputSpec:
         vertical_fov_deg: rows kept around each camera tile's principal point (None: all rows).
         equal_tiles: the model cuts equal tiles from a mosaic that fills ``image_size`` (the camera ablations).
         bev: the BEV grid of the LiDAR raster and the BEV labels.
-        lidar_raster: the model reads the LiDAR BEV raster.
         radar: the model reads radar points; ``radar_sources`` also get radar detection targets.
         label_space: source -> label space of its perception labels (default: the source's own name).
         bev_semantic_classes, semantic_classes: per label space, the classes of each perception head.
         depth_sources: label spaces with a depth head; ``max_depth`` decodes stored depth PNGs without a scale.
-        num_route_points: route checkpoints per sample.
         lead_box_classes: per label space, the classes of a box head trained with LEAD's CenterNet encoding
             (``lead_s2r.data.lead_centernet``): 1 (NAVSIM's vehicles) or LEAD's 8 CARLA classes; ``lead_yaw_bins``
             yaw bins (LEAD's ``num_dir_bins``).
@@ -62,8 +60,7 @@ class InputSpec:
 
 
 def input_spec(config: EgoMLPConfig | LeadConfig) -> InputSpec:
-    """The inputs a model built from ``config`` reads: the ego state and its output grids only for the ego-status MLP;
-    for the TransFuser family (LEAD's network), :func:`lead_input_spec`."""
+    """The inputs a model built from ``config`` reads (the ego-status MLP: its output grids only)."""
     if isinstance(config, EgoMLPConfig):
         return InputSpec(trajectory_grids=dict(config.trajectory_grids))
     return lead_input_spec(config)
@@ -77,10 +74,8 @@ def lead_grids(config: LeadConfig) -> dict[str, TrajectoryGrid]:
 
 
 def lead_input_spec(config: LeadConfig) -> InputSpec:
-    """What LEAD's network (``lead_s2r.models.lead_driver.LeadDriver``) reads: LEAD's image size (NAVSIM: at NAVSIM's
-    vertical field of view), its BEV extent for the LiDAR raster, radar and target points when it reads them, and the
-    labels of its heads (:meth:`LeadConfig.perception_tasks`): boxes in LEAD's CenterNet encoding, CARLA BEV semantics
-    and boxes in LEAD's class tables, in LEAD's leaderboard or sim-to-real mode as the network's config says."""
+    """What LEAD's network (``lead_s2r.models.lead_driver.LeadDriver``) reads: LEAD's image size, BEV extent, sensors
+    and the labels of its heads (:meth:`LeadConfig.perception_tasks`), CARLA's in LEAD's class tables."""
     tasks = {source: config.perception_tasks(source) for source in ("navsim", "carla")}
     carla = tasks["carla"]
     cameras = len(config.used_cameras) if config.mosaic_tiles else config.num_used_cameras  # LeadDriver crops

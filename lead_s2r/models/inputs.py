@@ -101,8 +101,7 @@ def lidar_input(lidar_bev: Tensor, dtype: torch.dtype) -> Tensor:
 
 
 def class_ids(labels: Tensor) -> Tensor:
-    """A class map as int64 ids with -1 where there is no label: a uint8 map marks it :data:`IGNORE_CLASS`, a
-    signed one -1."""
+    """A class map as int64 ids, -1 where there is no label (a uint8 map marks it :data:`IGNORE_CLASS`)."""
     ids = labels.long()
     if labels.dtype == torch.uint8:
         ids = ids.masked_fill(labels == IGNORE_CLASS, -1)

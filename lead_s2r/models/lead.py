@@ -3,8 +3,6 @@
 - :func:`load_checkpoint` reads a folder as LEAD's ``OpenLoopInference`` does: the config through LEAD's rules
   (:meth:`LeadConfig.from_json`), one network per matching file, each loaded strictly; several files make an ensemble.
   A damaged file is an error naming it (:func:`read_weights` checks the archive's CRCs, which torch does not).
-- :func:`forward` runs LEAD's input contract (x forward, y right) and returns LEAD's ``Prediction`` fields, flat.
-- :func:`model_from_config` builds a randomly initialised network from a config.json dict.
 - :func:`export_checkpoint` writes a folder LEAD's own loader reads with ``strict=True``.
 - :func:`loss`, :func:`optimizer` and :func:`scheduler` train it as LEAD's Trainer does (:mod:`.lead_loss`).
 """
@@ -38,12 +36,10 @@ class LeadEnsemble(nn.Module):
     """Several LEAD networks with one config; ``forward`` merges their outputs as LEAD's open-loop inference
     (``OpenLoopInference.ensemble``, lead/inference/open_loop_inference.py at 4489176), per mode:
 
-    - always: waypoints, route, (NAVSIM) headings and target-speed logits are averaged and the scalar speed is
-      recomputed from the averaged logits (LEAD returns their softmax; we keep logits, as a single network does);
-    - CARLA leaderboard mode only: the CARLA BEV and perspective semantic maps merge background-min / others-max, depth
-      is averaged; LEAD decodes each member's boxes and merges them by NMS, post-processing we do not run here, so
-      the CARLA CenterNet maps are averaged instead (what box consumers such as the agent's stop-sign slowdown read;
-      not LEAD's merge);
+    - always: :data:`AVERAGED` (LEAD returns the speed logits' softmax; we keep logits, as a single network does);
+    - CARLA leaderboard mode only: :data:`MAX_MERGED`, depth averaged; LEAD decodes each member's boxes and merges them
+      by NMS, post-processing we do not run here, so the CARLA CenterNet maps are averaged instead (what box consumers
+      such as the agent's stop-sign slowdown read; not LEAD's merge);
     - never: NAVSIM's BEV and box maps, CARLA's maps outside leaderboard mode, the radar detector's queries.
 
     LEAD's brake override (speed 0 when the 0 m/s class's probability is over ``brake_threshold``) belongs to its
@@ -128,7 +124,7 @@ def read_weights(file: Path) -> dict[str, Tensor]:
 
 
 def forward(model: nn.Module, inputs: dict[str, Tensor]) -> dict[str, Tensor]:
-    """LEAD's input dict -> LEAD's ``Prediction`` fields as a flat dict, in inference mode (float32)."""
+    """LEAD's input dict (x forward, y right) -> its ``Prediction`` fields as a flat dict, inference mode (float32)."""
     with torch.inference_mode():
         return model(inputs)
 

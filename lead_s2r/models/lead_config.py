@@ -14,10 +14,8 @@ Our extensions, where LEAD's code has no switch (docs/models.md, "LEAD's own arc
 (LEAD's own cannot: its camera calibration imports a function missing from its public code, see :data:`CAMERA_TILE`),
 its past-state token slots stay off, and ``use_previous_tp`` / ``use_next_tp``, ``num_way_points_prediction`` and
 ``waypoint_interval_s`` may be set in a file. LEAD's loader recomputes these from its rules, so a network that overrides
-them loads in LEAD only where the rules give the same values. ``camera_tile_size`` (width, height of one camera tile)
-replaces the target's :data:`CAMERA_TILE` for toy runs such as the smoke twins (``recipes/smoke/twin_lead.yaml``); LEAD
-always derives the size, so such a network does not load in LEAD. So do the toy scales (:data:`TOY_SCALES`) of the
-planner's status inputs and outputs, which the smoke twins set to learn in a few hundred steps.
+them loads in LEAD only where the rules give the same values. ``camera_tile_size`` and the toy scales
+(:data:`TOY_SCALES`), set by the smoke twins (``recipes/smoke/twin_lead.yaml``), are not LEAD's: it cannot load them.
 """
 
 from dataclasses import asdict, dataclass, fields
@@ -60,8 +58,7 @@ WOD_MAX_SPEED = 33.33
 
 @dataclass
 class LeadConfig:
-    """The architecture-relevant part of LEAD's ``TrainingConfig`` and its optimizer settings (defaults = LEAD main at
-    4489176)."""
+    """The architecture-relevant part of LEAD's ``TrainingConfig`` and its optimizer (defaults: LEAD main, 4489176)."""
 
     image_architecture: str = "resnet34"
     lidar_architecture: str = "resnet34"
@@ -200,8 +197,7 @@ class LeadConfig:
 
     @classmethod
     def from_json(cls, values: dict[str, Any]) -> "LeadConfig":
-        """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored; the types are checked
-        by ``__post_init__``)."""
+        """Read a LEAD config.json dict as LEAD's loader does (unknown and derived keys ignored)."""
         return cls(**{f.name: values[f.name] for f in fields(cls) if f.name in values})
 
     def to_json(self) -> dict[str, Any]:
@@ -392,15 +388,12 @@ class LeadConfig:
 
     @property
     def sources(self) -> tuple[str, ...]:
-        """The sources whose batches the network reads: its target (our name of it), and CARLA when it has CARLA
-        heads."""
+        """The sources whose batches the network reads: its target (our name), and CARLA when it has CARLA heads."""
         source = "carla" if self.carla_leaderboard_mode else "wod" if self.is_wod else "navsim"
         return (source, "carla") if self.use_carla_data and source != "carla" else (source,)
 
     def perception_tasks(self, source: str) -> set[str]:
-        """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``: BEV
-        semantics (NAVSIM's 7 classes, LEAD's 13 CARLA classes) and boxes in LEAD's CenterNet encoding (``lead_boxes``:
-        NAVSIM's one class, LEAD's 8 CARLA classes), CARLA perspective semantics, depth and radar detection."""
+        """Our perception tasks (names of ``lead_s2r.training.loss_table``) LEAD's heads produce for ``source``."""
         heads = {"navsim": self.use_navsim_data, "carla": self.use_carla_data}.get(source, False)
         carla = source == "carla" and self.use_carla_data
         switches = {
@@ -423,8 +416,7 @@ class LeadConfig:
 
 
 def _typed(name: str, value: Any, hint: Any) -> Any:
-    """``value`` of the config.json field ``name`` when it has the JSON type of the field's ``hint`` (an int stands
-    for a float, null for an optional field's "LEAD's rule decides"), else a :class:`UserError` naming the field."""
+    """``value`` when it has the JSON type of ``hint`` (an int stands for a float, null for "LEAD's rule decides")."""
     if not fits(value, hint):
         raise UserError(f"config.json: {name} is {value!r}; LEAD writes it as {describe(hint)}")
     kinds = get_args(hint) or (hint,)

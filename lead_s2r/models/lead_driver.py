@@ -3,15 +3,10 @@
 fine-tuning with ``fit``, the CARLA closed-loop agent, and back out with ``lead-s2r export-lead``.
 
 Batches cross into LEAD's input contract and predictions come back into our ISO frame in
-:mod:`lead_s2r.models.lead_frame` only. The loader follows :func:`~lead_s2r.models.input_spec.lead_input_spec`: LEAD's
-image size and camera band, its BEV extent for the LiDAR raster, radar and target points when the network reads them,
-and the labels of its heads: the planner's outputs (waypoints, NAVSIM headings, CARLA route and target speed) for every
-source it reads, on its target's grid, BEV semantics and boxes of each source it has heads for (CARLA labels remapped to
-LEAD's 13 BEV and 8 box classes by :mod:`lead_s2r.data.lead_labels`, boxes in LEAD's CenterNet encoding by
-:mod:`lead_s2r.data.lead_centernet`), and with CARLA data CARLA perspective semantics, depth and radar detection.
+:mod:`lead_s2r.models.lead_frame` only; the loader follows :func:`~lead_s2r.models.input_spec.lead_input_spec` (CARLA
+labels in LEAD's classes by :mod:`lead_s2r.data.lead_labels`, boxes encoded by :mod:`lead_s2r.data.lead_centernet`).
 
-This is the package's one TransFuser family: the paper's networks are builder functions below, one per variant with
-what differs in its docstring (:data:`VARIANTS`, as timm registers its models), each a preset of LEAD's switches.
+The package's one TransFuser family: the paper's networks are builders below, each a preset of LEAD's switches.
 """
 
 from collections.abc import Callable, Collection
@@ -54,8 +49,7 @@ class LeadDriver(nn.Module):
     Args:
         config: the LEAD architecture (LEAD's field names; see docs/models.md); ignored when ``checkpoint`` is given.
         checkpoint: a LEAD checkpoint folder (config.json + model*.pth): its config and weights, loaded strictly;
-            several matching files make an ensemble (prediction only).
-        pattern: which weight files of ``checkpoint`` to load.
+            several files matching ``pattern`` make an ensemble (prediction only).
         pretrained: start the image encoder of a ``config``-built network from timm's ImageNet weights, as LEAD's
             training does.
     """
@@ -99,9 +93,8 @@ class LeadDriver(nn.Module):
 
     @property
     def loss_weights(self) -> dict[str, float]:
-        """Each task's weight: LEAD's normalised weight of the term it computes (:func:`lead_loss.loss_weights`,
-        normalised over LEAD's whole table). A perception term weighs the same for every source that has it, and the
-        headings share the waypoint term's weight (LEAD adds them into it)."""
+        """Each task's weight: LEAD's normalised weight of the term it computes (:func:`lead_loss.loss_weights`). A
+        perception term weighs the same for every source; the headings share the waypoint term's (LEAD adds them)."""
         weights = loss_weights(self.config)
         terms = {
             "waypoints": "loss_spatio_temporal_waypoints",
@@ -122,8 +115,7 @@ class LeadDriver(nn.Module):
         return lead_grids(self.config)[source]
 
     def tasks(self, source: str) -> frozenset[str]:
-        """What the network predicts for ``source``; an ensemble only what :class:`LeadEnsemble` merges: the planner's
-        outputs, and CARLA's maps in leaderboard mode (never the radar detector's queries)."""
+        """What the network predicts for ``source``; an ensemble only what :class:`LeadEnsemble` merges."""
         c = self.config
         tasks = c.perception_tasks(source)
         if isinstance(self.network, LeadEnsemble):
@@ -149,9 +141,6 @@ class LeadDriver(nn.Module):
             )
         batch = {**batch, "rgb": self.camera_select(batch["rgb"])}
         return from_lead_outputs(self.network(to_lead_inputs(batch, self.config)), source)
-
-
-# --- variants: one builder per network of the paper, each a LeadConfig preset (LEAD's switches) plus overrides
 
 
 def tfv6(**overrides: Any) -> LeadDriver:
@@ -193,7 +182,6 @@ VARIANTS: dict[str, Callable[..., LeadDriver]] = {
 
 
 def _build(switches: dict[str, Any], overrides: dict[str, Any]) -> LeadDriver:
-    """A randomly initialised driver of ``switches`` with ``overrides`` (LEAD's field names; ``pretrained`` goes to
-    the driver)."""
+    """A randomly initialised driver of ``switches`` with ``overrides`` (LEAD's field names, and ``pretrained``)."""
     pretrained = bool(overrides.pop("pretrained", False))
     return LeadDriver(LeadConfig.from_json({**switches, **overrides}), pretrained=pretrained)

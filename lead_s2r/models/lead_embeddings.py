@@ -7,8 +7,7 @@ from torch import Tensor
 
 
 def point_sine_embedding(points: Tensor, dim: int) -> Tensor:
-    """(..., 2) points in [0, 1] -> (..., dim) DAB-DETR sine embedding, y half first, then x (LEAD's
-    ``gen_sineembed_for_position``)."""
+    """(..., 2) points in [0, 1] -> (..., dim) DAB-DETR sine embedding, y first (``gen_sineembed_for_position``)."""
     half = dim // 2
     dim_t = torch.arange(half, dtype=torch.float32, device=points.device)
     dim_t = 10000 ** (2 * (dim_t // 2) / half)

@@ -1,17 +1,14 @@
 """The one place where our ISO ego frame (x forward, y LEFT) meets LEAD's (x forward, y RIGHT).
 
-:func:`to_lead_inputs` turns our :class:`~lead_s2r.models.inputs.Batch` into LEAD's input contract and
-:func:`from_lead_outputs` turns LEAD's outputs back into our names and frame; nothing else in the package flips y.
+Nothing else in the package flips y: :func:`to_lead_inputs` and :func:`from_lead_outputs` are the only crossings.
 
 - Lateral coordinates (target points, radar, predicted waypoints and route) change sign; headings change sign.
 - The LiDAR raster: ours has rows along +x and columns along +y (left); LEAD's has rows along its y (left to right,
   i.e. row 0 is the leftmost) and columns along x (back to front), so LEAD's raster is ours transposed with its rows
   reversed. Both grids are symmetric in y, so no cell moves off the grid (a point exactly on a cell edge lands in
   the cell beside LEAD's, as both rasters take half-open cells in their own y direction).
-- Commands: our 4-way {UNKNOWN, LEFT, STRAIGHT, RIGHT} ids become LEAD's one-hot, NAVSIM order (left, straight,
-  right, unknown), CARLA's RoadOption - 1 order (left, right, straight, lane follow, change left, change right;
-  unknown -> lane follow, as LEAD maps it) or WOD-E2E's intent order (unknown, straight, left, right; read only
-  when ``use_discrete_command`` is set, LEAD's WOD-E2E default being off).
+- Commands: our ids become LEAD's one-hot in NAVSIM's, CARLA's (RoadOption - 1) or WOD-E2E's intent order (the
+  tables below; WOD-E2E's is read only with ``use_discrete_command``, off by LEAD's WOD-E2E default).
 - Speed stays m/s and acceleration becomes the norm of our (ax, ay): LEAD's network normalises both itself.
 - CenterNet maps: LEAD's sub-cell lateral offset is measured from the cell's other edge and its yaw bins turn the
   other way; :func:`boxes_from_lead` turns them into ours (``lead_s2r.data.lead_centernet`` encodes our labels).
@@ -122,9 +119,8 @@ def to_lead_inputs(batch: Batch, config: LeadConfig) -> dict[str, Tensor]:
 
 
 def boxes_from_lead(maps: dict[str, Tensor]) -> dict[str, Tensor]:
-    """LEAD's CenterNet maps (``BOX_FIELDS`` keys) -> our box names on our grid, in our frame: the lateral offset
-    becomes 1 - LEAD's (a cell's fraction measured from its other edge), yaw bins are mirrored (our bin k is LEAD's
-    bin -k) and the yaw residual negated; sizes, speed and heatmaps only move onto our grid."""
+    """LEAD's CenterNet maps (``BOX_FIELDS`` keys) -> our box names on our grid, in our frame: LEAD's lateral offset is
+    a cell's fraction from its other edge and its yaw turns the other way; sizes, speed and heatmaps only move."""
     ours = {BOX_FIELDS[field]: bev_map_from_lead(value) for field, value in maps.items() if field in BOX_FIELDS}
     if "box_offset" in ours:
         offset = ours["box_offset"]
@@ -138,10 +134,7 @@ def boxes_from_lead(maps: dict[str, Tensor]) -> dict[str, Tensor]:
 
 
 def from_lead_outputs(outputs: dict[str, Tensor], source: str) -> dict[str, Tensor]:
-    """LEAD's outputs -> our names in the ISO frame: ``waypoints``, ``headings``, ``route``, ``target_speed_logits``,
-    the BEV semantics and ``box_*`` maps of ``source``'s heads (NAVSIM's or LEAD's CARLA ones), the image-space CARLA
-    ``semantic`` / ``depth`` (those the network produced), and the radar detector's ``radar_xy`` / ``radar_speed`` /
-    ``radar_logit``."""
+    """LEAD's outputs -> our names in the ISO frame; BEV maps of ``source``'s heads (NAVSIM's or LEAD's CARLA ones)."""
     suffix = "_navsim" if source == "navsim" else ""
     ours: dict[str, Tensor] = {}
     if f"pred_bev_semantic{suffix}" in outputs:

@@ -36,8 +36,7 @@ def _head(channels: int, out: int) -> nn.Sequential:
 
 
 class CenterNetDecoder(nn.Module):
-    """CenterNet maps at BEV/4: heatmap logits (and their float32 sigmoid), size, offset, yaw bins, yaw residual,
-    velocity."""
+    """CenterNet maps at BEV/4: heatmap logits (and float32 sigmoid), size, offset, yaw bins and residual, speed."""
 
     def __init__(self, config: LeadConfig, num_classes: int) -> None:
         super().__init__()

@@ -16,8 +16,7 @@ independent implementation would likely miss, each kept on purpose (docs/models.
   stands for.
 
 The optimizer is LEAD's ``initialize_optimizer``: AdamW with AMSGrad and weight decay on every parameter (one group,
-biases and norms included), torch's betas and eps, no gradient clipping; the schedule restarts a cosine after 1, 2,
-4 ... epochs (WOD-E2E: one cosine over the run), stepped after every optimizer step.
+biases and norms included), torch's betas and eps, no gradient clipping; its schedule: :func:`cosine_schedule`.
 """
 
 import math
@@ -86,8 +85,7 @@ def training_sources(config: LeadConfig) -> tuple[SourceDataset, ...]:
 
 
 def loss_weights(config: LeadConfig) -> dict[str, float]:
-    """The Trainer's weight of every term (``schedule_loss_weights``): the sources' tables merged, each weight divided
-    by the sum of all, plus TFv5's terms at the weight of the term each stands for."""
+    """The Trainer's weight of every term (``schedule_loss_weights``): the sources' tables merged, over their sum."""
     table: dict[str, float] = {}
     for source in training_sources(config):
         table.update(source_weights(config, source))
@@ -104,8 +102,7 @@ def source_mean(per_sample: Tensor, source_mask: Tensor) -> Tensor:
 
 
 def semantic_loss(logits: Tensor, label: Tensor, source_mask: Tensor) -> Tensor:
-    """Image-space semantic cross-entropy, mean over pixels per sample (a -1 pixel adds 0 and still counts; LEAD's
-    labels have none)."""
+    """Image-space semantic cross-entropy, mean per sample (a -1 pixel adds 0 yet counts; LEAD's labels have none)."""
     per_pixel = F.cross_entropy(logits.float(), label.long(), reduction="none", ignore_index=-1)
     return source_mean(per_pixel.mean(dim=(1, 2)), source_mask)
 
@@ -152,10 +149,9 @@ def center_net_losses(
 ) -> dict[str, Tensor]:
     """LEAD's CenterNet terms (``loss_center_net_<term>``, unprefixed) for one head.
 
-    ``pred`` holds LEAD's head outputs (``center_heatmap_pred`` probabilities, ``wh_pred``, ``offset_pred``,
-    ``yaw_class_pred``, ``yaw_res_pred``, ``velocity_pred``), ``target`` LEAD's labels without the source prefix
-    (``center_net_heatmap``, ``_wh``, ``_offset``, ``_yaw_class``, ``_yaw_res``, ``_velocity``, ``_pixel_weight``
-    (B, 2, H, W), ``_avg_factor`` (B,)). Without ``velocity`` the velocity term is LEAD's zeros(1).
+    ``pred`` holds LEAD's head outputs (``center_heatmap_pred``: probabilities), ``target`` LEAD's labels without the
+    source prefix (``center_net_pixel_weight`` (B, 2, H, W), ``center_net_avg_factor`` (B,)). Without ``velocity``
+    the velocity term is LEAD's zeros(1).
     """
     weight = target["center_net_pixel_weight"].float()
     count = target["center_net_avg_factor"].float() + FLOAT32_EPS
@@ -193,8 +189,7 @@ def radar_feature_scale(config: LeadConfig) -> tuple[float, float, float]:
 
 
 def hungarian_matches(cost: Tensor) -> tuple[Tensor, Tensor]:
-    """Per sample, the (query, slot) pairs of least total cost (scipy's ``linear_sum_assignment``), on the detached
-    cost, each (B, matches)."""
+    """Per sample, the (query, slot) pairs of least total detached cost, each (B, matches)."""
     pairs = [linear_sum_assignment(sample.detach().cpu().double().numpy()) for sample in cost]
     queries, slots = (torch.as_tensor(np.stack(side), device=cost.device) for side in zip(*pairs, strict=True))
     return queries, slots
@@ -331,8 +326,7 @@ def _strip(values: Mapping[str, Tensor], start: str, keep: str = "") -> dict[str
 
 
 def weighted_total(losses: Mapping[str, Tensor], weights: Mapping[str, float]) -> Tensor:
-    """The Trainer's sum: zeros(1) plus each term times its normalised weight, in the terms' order; a term the table
-    lacks is an error, as in LEAD."""
+    """The Trainer's sum, zeros(1) first, in the terms' order; a term the table lacks is an error, as in LEAD."""
     missing = [key for key in losses if key not in weights]
     if missing:
         raise KeyError(f"LEAD's weight table has no entry for {missing}")
@@ -344,8 +338,7 @@ def weighted_total(losses: Mapping[str, Tensor], weights: Mapping[str, float]) -
 
 
 def network_of(model: nn.Module) -> LeadTFv6:
-    """The LEAD network of ``model``: itself, or the ``network`` a :class:`~lead_s2r.models.lead_driver.LeadDriver`
-    drives."""
+    """The LEAD network of ``model``: itself, or a :class:`~lead_s2r.models.lead_driver.LeadDriver`'s ``network``."""
     network = getattr(model, "network", model)
     if not isinstance(network, LeadTFv6):
         raise TypeError(f"expected a LEAD network (LeadTFv6 or LeadDriver), got {type(model).__name__}")
@@ -361,9 +354,7 @@ def training_layout(model: nn.Module) -> nn.Module:
 
 def loss(model: nn.Module, inputs: Mapping[str, Tensor], targets: Mapping[str, Tensor]) -> dict[str, Tensor]:
     """LEAD's training loss for one batch in LEAD's contract: the forward on ``{**inputs, **targets}`` in the model's
-    current mode, every term under LEAD's name, and ``total`` (shape (1,)), the weighted sum LEAD backpropagates.
-
-    The network is first put in LEAD's training layout (:func:`training_layout`), in place."""
+    current mode, every term under LEAD's name, and ``total`` (shape (1,)), the weighted sum LEAD backpropagates."""
     network = training_layout(network_of(model))
     outputs = network({**inputs, **targets})
     losses = compute_losses(network.config, outputs, targets)

@@ -4,8 +4,7 @@ Context = 1x1-conv BEV tokens plus a normalised 2-D sine embedding (row-major), 
 velocity, acceleration, command, target point, previous, next (those used), radar queries, plus a learned status
 embedding. Learned queries (route 10, waypoints ``num_way_points_prediction``, target speed 1; only those predicted)
 go through PyTorch's ``nn.TransformerDecoder`` with its defaults (post-norm, feed-forward 2048 whatever the token dim,
-GELU) and a final LayerNorm. Route, waypoints and headings are cumulative sums of per-query outputs; the target speed
-is the softmax-weighted mean of the class speeds, computed in float32.
+GELU) and a final LayerNorm. Route, waypoints and headings are cumulative sums of per-query outputs.
 """
 
 import torch
