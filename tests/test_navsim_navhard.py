@@ -321,6 +321,6 @@ def test_a_pedestrian_logs_synthetic_scenes_hold_its_pedestrians(tmp_path: Path)
     split = yaml.safe_load((tmp_path / "train_test_split" / f"{hard.SPLIT}.yaml").read_text())
     now = split["reactive_all_mapping"][3][2][0][0]  # the log's first offset, the scene now
     scene = navsim_synthetic.load_scene(tmp_path / hard.SPLIT / "synthetic_scene_pickles" / f"{now}.pkl")
-    objects = navsim_synthetic.tracked_objects(scene["extended_detections_tracks"][0], "test")
-    assert [o["name"] for o in objects].count("pedestrian") == len(pedestrians_ahead.ROW) + 1  # and the walker
-    assert [o["name"] for o in objects].count("vehicle") == 1  # the parked car
+    classes = list(navsim_synthetic.tracked_objects(scene["extended_detections_tracks"][0], "test").classes)
+    assert classes.count(BoxClass.PEDESTRIAN) == len(pedestrians_ahead.ROW) + 1  # and the walker
+    assert classes.count(BoxClass.VEHICLE) == 1  # the parked car
