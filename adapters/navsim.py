@@ -193,6 +193,7 @@ class NavsimAdapter(Adapter):
 
     def _check_filter(self, logs: list[LogRef], missing_synthetic: list[str]) -> list[dict[str, Any]]:
         """The scene filter's entries that ``logs`` (listed logged scenes) and the synthetic folder do not provide.
+
         A filter with ``tokens`` costs one more read of each selected log here; a log that cannot be read is left to
         its own conversion to report."""
         if self.filter is None:

@@ -178,6 +178,7 @@ def cached_index(
     shards: list[Path], describe: Describe, schema: dict[str, pa.DataType], cache: Path | None, workers: int = 1
 ) -> RecordIndex:
     """:func:`build_index`, stored at ``cache`` (parquet, skipped records in its metadata) and reused while valid.
+
     A stale or damaged cache is rebuilt: its pages carry CRCs, the stamp covers the shards and the skipped records'
     JSON, and the columns must be the index's (no page CRC protects the footer, where one flipped bit turns the
     offsets' int64 into Arrow's duration), so a flipped bit never passes for another index."""

@@ -197,6 +197,7 @@ def _interpolation_matrix(t_source: bytes, t_target: bytes) -> np.ndarray:
 
 def on_grid(frames: Sequence[Sequence[Prediction]], t_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Trajectories of B frames on the time grid ``t_target``: xy (B, I, T, 2) float64 and probabilities (B, I).
+
     Frames with fewer inferences than the widest are padded with copies of their last one at probability 0, which
     leaves any probability-weighted sum unchanged; a prediction that ends early is a :class:`PredictionError`."""
     t_target = np.asarray(t_target, np.float64)

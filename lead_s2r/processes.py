@@ -42,6 +42,7 @@ class WorkerDied(RuntimeError):
 
 def exit_with_parent() -> None:
     """End this worker process as soon as the process that started it ends; call it first thing in a worker.
+
     The parent is the one multiprocessing records (``parent_process()``: the driver, also for a forkserver's
     children), watched through its sentinel pipe, which the kernel closes when the driver dies, zombie or not. The
     exit is immediate (``os._exit``): whatever the worker was writing is left partial, for the resuming run to drop."""
@@ -230,6 +231,7 @@ class RayExecutor(Executor):
 
     def _result(self, reference: Any) -> Any:
         """The task's return value or its own exception; a lost worker or node after the retries is WorkerDied.
+
         The value is copied out: Ray hands numpy arrays over as views into its object store, which the disconnect at
         the end of :meth:`session` unmaps (a second run over the first one's results then read freed memory). A
         pickle round trip copies them at C speed, where ``copy.deepcopy`` walked every list and dict in Python (half

@@ -118,6 +118,7 @@ def camera_calibration(target_dataset: str = DEFAULT_TARGET_DATASET, height: int
 
 def sensor_to_carla_ego(points: np.ndarray, position: tuple[float, float, float], yaw_deg: float) -> np.ndarray:
     """Points (N, 3+) in a CARLA sensor frame mounted at ``position`` with ``yaw_deg`` -> the CARLA ego-centre frame.
+
     In CARLA's left-handed frame a positive (clockwise seen from above) yaw turns x towards y, which in (x, y-right)
     coordinates is the ordinary rotation by +yaw."""
     out = rotate(np.asarray(points, np.float64), math.radians(yaw_deg))

@@ -83,6 +83,7 @@ def interpolate_proposals(proposals: np.ndarray, interval: float, t0_us: int | N
 
 def interpolate_reference(reference: np.ndarray, t0_us: int | None = None) -> np.ndarray:
     """A reference ``(M, 3)`` at t = 0.1 s * m from t = 0 (pose 0 = the ego, PDM-Closed's layout) -> ``(41, 3)``.
+
     The knots are at exact microseconds (PDM-Closed's states carry integer time points); only the samples are
     truncated, so with ``t0_us`` a sample may fall 1 us before its knot, as in NAVSIM."""
     reference = np.asarray(reference, np.float64)
